@@ -1,0 +1,400 @@
+//! The control step the ISR calls: reference and measured force in, amplifier setpoint out.
+//!
+//! ```text
+//! x_pea_ref = f_K⁻¹(x_ref)                        stage → stack, lookup
+//! u         = PI⁻¹[x_pea_ref + c·(F - F_ref)] + k_f·F   closed-form inverse FPI
+//! u_out     = limits(u)                            range and slew
+//! x_pea_est = Y[u_out - k_f·F] - c·(F - F_ref)     forward FPI: virtual position sensor
+//! x_est     = f_K(x_pea_est)                       telemetry
+//! ```
+//!
+//! Configuration ([`ControllerConfig`], in flash) is separate from state
+//! ([`ControllerState`], the operator memories and the last output, in the ISR).
+//!
+//! **Safe state.** A force reading outside the sensor's plausible range, a force
+//! that disagrees with the FEM preload map `f_F` at the estimated extension by
+//! more than a tolerance, or a reference outside the reachable stroke latches a
+//! [`Fault`]: from then on every step ramps the output to the safe voltage at the
+//! slew limit (a piezo stack must not be discharged with a step) and reports the
+//! fault, until [`ControllerState::clear_fault`] is called once the ramp is done.
+
+use crate::error::ModelError;
+use crate::fpi::Fpi;
+use crate::limits::OutputLimits;
+use crate::play::PlayBank;
+use crate::q::{
+    narrow_inv_gain, InvGainAcc, Micrometres, Newtons, Volts, VoltsPerUm, INV_GAIN_FRAC,
+    SIGNAL_ABS_MAX_BITS,
+};
+use crate::table::Table;
+
+/// A closed interval `[lo, hi]` of one quantity, `I16F16`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Interval {
+    /// Lower end.
+    pub lo: fixed::types::I16F16,
+    /// Upper end.
+    pub hi: fixed::types::I16F16,
+}
+
+impl Interval {
+    /// `lo <= x <= hi`.
+    #[inline(always)]
+    pub fn contains(&self, x: fixed::types::I16F16) -> bool {
+        x >= self.lo && x <= self.hi
+    }
+}
+
+/// Where the preload in `u = PI⁻¹[…] + k_f·F` comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ForceSource {
+    /// The force sensor between stack and hinge (the paper's FPI with measured force).
+    Measured,
+    /// The FEM preload map at the reference, `f_F(x_pea_ref)`: FPI-FFEM feedforward
+    /// for a stage without a force sensor. The force argument of `step` is ignored.
+    Predicted,
+}
+
+/// Why the controller went to its safe state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Fault {
+    /// The force reading is outside the sensor's plausible range (open or shorted wire, saturated ADC).
+    ForceOutOfRange = 1,
+    /// The force reading disagrees with `f_F(x_pea_est)` by more than the tolerance (stuck or drifting sensor).
+    ForceImplausible = 2,
+    /// The reference lies outside the stage's reachable stroke.
+    ReferenceUnreachable = 3,
+}
+
+impl Fault {
+    /// A one-line description for logs.
+    pub const fn message(&self) -> &'static str {
+        match self {
+            Self::ForceOutOfRange => "force reading outside the sensor range",
+            Self::ForceImplausible => "force reading disagrees with the FEM preload map",
+            Self::ReferenceUnreachable => "reference outside the reachable stroke",
+        }
+    }
+}
+
+/// Everything the control step needs that does not change while it runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ControllerConfig<'a, const N: usize> {
+    fpi: Fpi<N>,
+    f_f: Table<'a>,
+    f_k: Table<'a>,
+    f_k_inv: Table<'a>,
+    limits: OutputLimits,
+    reference: Interval,
+    force: Interval,
+    force_tolerance: Newtons,
+    safe_voltage: Volts,
+    force_source: ForceSource,
+}
+
+/// The parts of a [`ControllerConfig`], named, for its constructor.
+#[derive(Debug, Clone, Copy)]
+pub struct ControllerParts<'a, const N: usize> {
+    /// The calibrated FPI model.
+    pub fpi: Fpi<N>,
+    /// Preload `f_F`: stack extension (µm) → force on the stack (N).
+    pub f_f: Table<'a>,
+    /// Kinematics `f_K`: stack extension (µm) → stage output (µm).
+    pub f_k: Table<'a>,
+    /// Inverse kinematics `f_K⁻¹`: stage output (µm) → stack extension (µm).
+    pub f_k_inv: Table<'a>,
+    /// Actuator range and slew.
+    pub limits: OutputLimits,
+    /// Reachable references (µm of stage output); anything else is a fault.
+    pub reference: Interval,
+    /// Plausible force readings (N); anything else is a fault.
+    pub force: Interval,
+    /// Largest tolerated `|F - f_F(x_pea_est)|` (N).
+    pub force_tolerance: Newtons,
+    /// Voltage of the safe state (V), inside the limits.
+    pub safe_voltage: Volts,
+    /// Measured or predicted preload.
+    pub force_source: ForceSource,
+}
+
+impl<'a, const N: usize> ControllerConfig<'a, N> {
+    /// Validates the parts: intervals not inverted, the reference interval inside
+    /// the `f_K⁻¹` grid, the safe voltage inside the limits, a positive tolerance.
+    pub const fn new(p: ControllerParts<'a, N>) -> Result<Self, ModelError> {
+        let (rl, rh) = (p.reference.lo.to_bits(), p.reference.hi.to_bits());
+        if rl > rh || p.force.lo.to_bits() > p.force.hi.to_bits() {
+            return Err(ModelError::LimitsInverted);
+        }
+        if rl < p.f_k_inv.x_min().to_bits() || rh > p.f_k_inv.x_max().to_bits() {
+            return Err(ModelError::TableSpan);
+        }
+        let s = p.safe_voltage.to_bits();
+        if s < p.limits.min().to_bits() || s > p.limits.max().to_bits() {
+            return Err(ModelError::LimitsInverted);
+        }
+        if p.force_tolerance.to_bits() <= 0 {
+            return Err(ModelError::LimitsInverted);
+        }
+        Ok(Self {
+            fpi: p.fpi,
+            f_f: p.f_f,
+            f_k: p.f_k,
+            f_k_inv: p.f_k_inv,
+            limits: p.limits,
+            reference: p.reference,
+            force: p.force,
+            force_tolerance: p.force_tolerance,
+            safe_voltage: p.safe_voltage,
+            force_source: p.force_source,
+        })
+    }
+
+    /// The same configuration with another force source.
+    pub const fn with_force_source(mut self, source: ForceSource) -> Self {
+        self.force_source = source;
+        self
+    }
+
+    /// A fresh state at the safe voltage, all operators at rest.
+    pub const fn initial_state(&self) -> ControllerState<N> {
+        ControllerState {
+            inverse: PlayBank::new(),
+            forward: PlayBank::new(),
+            voltage: self.safe_voltage,
+            x_pea_est: Micrometres::ZERO,
+            fault: None,
+            limited_steps: 0,
+        }
+    }
+
+    /// One control step. Call it once per ISR with the reference stage position
+    /// (µm) and the force reading (N); write [`StepOutput::voltage`] to the amplifier.
+    ///
+    /// Bounded time, no division, no panic, no allocation.
+    #[inline]
+    pub fn step(
+        &self,
+        st: &mut ControllerState<N>,
+        x_ref: Micrometres,
+        force: Newtons,
+    ) -> StepOutput {
+        let measured = matches!(self.force_source, ForceSource::Measured);
+        let detected = if measured && !self.force.contains(force) {
+            Some(Fault::ForceOutOfRange)
+        } else if measured && (force - self.f_f.eval(st.x_pea_est)).abs() > self.force_tolerance {
+            Some(Fault::ForceImplausible)
+        } else if !self.reference.contains(x_ref) {
+            Some(Fault::ReferenceUnreachable)
+        } else {
+            None
+        };
+        if st.fault.is_none() {
+            st.fault = detected;
+        }
+        if let Some(fault) = st.fault {
+            return self.ramp_to_safe(st, force, fault);
+        }
+
+        let x_pea_ref = self.f_k_inv.eval(x_ref);
+        let f = if measured {
+            force
+        } else {
+            self.f_f.eval(x_pea_ref)
+        };
+        let terms = self.fpi.force_terms(f);
+        let want = self.fpi.inverse(&mut st.inverse, x_pea_ref, terms);
+        let (voltage, limited) = self.limits.apply(st.voltage, want);
+        let x_pea_est = self.fpi.forward(&mut st.forward, voltage, terms);
+        if limited {
+            // The stack got another voltage than the inverse asked for: realign the
+            // inverse memory with what was applied.
+            self.fpi.resync(&st.forward, &mut st.inverse);
+            st.limited_steps = st.limited_steps.wrapping_add(1);
+        }
+        st.voltage = voltage;
+        st.x_pea_est = x_pea_est;
+        StepOutput {
+            voltage,
+            x_pea_ref,
+            x_pea_est,
+            x_est: self.f_k.eval(x_pea_est),
+            limited,
+            fault: None,
+        }
+    }
+
+    /// The step in the safe state: ramp toward the safe voltage, keep estimating.
+    fn ramp_to_safe(
+        &self,
+        st: &mut ControllerState<N>,
+        force: Newtons,
+        fault: Fault,
+    ) -> StepOutput {
+        let (voltage, _) = self.limits.apply(st.voltage, self.safe_voltage);
+        // Trust the sensor for the estimate only if it is in range.
+        let f = if matches!(self.force_source, ForceSource::Measured) && self.force.contains(force)
+        {
+            force
+        } else {
+            self.f_f.eval(st.x_pea_est)
+        };
+        let x_pea_est = self
+            .fpi
+            .forward(&mut st.forward, voltage, self.fpi.force_terms(f));
+        st.voltage = voltage;
+        st.x_pea_est = x_pea_est;
+        StepOutput {
+            voltage,
+            x_pea_ref: x_pea_est,
+            x_pea_est,
+            x_est: self.f_k.eval(x_pea_est),
+            limited: true,
+            fault: Some(fault),
+        }
+    }
+
+    /// The calibrated model.
+    pub const fn fpi(&self) -> &Fpi<N> {
+        &self.fpi
+    }
+    /// Preload map `f_F`.
+    pub const fn f_f(&self) -> &Table<'a> {
+        &self.f_f
+    }
+    /// Kinematic map `f_K`.
+    pub const fn f_k(&self) -> &Table<'a> {
+        &self.f_k
+    }
+    /// Inverse kinematic map `f_K⁻¹`.
+    pub const fn f_k_inv(&self) -> &Table<'a> {
+        &self.f_k_inv
+    }
+    /// Actuator limits.
+    pub const fn limits(&self) -> &OutputLimits {
+        &self.limits
+    }
+    /// Reachable references, µm.
+    pub const fn reference(&self) -> Interval {
+        self.reference
+    }
+    /// Plausible force readings, N.
+    pub const fn force(&self) -> Interval {
+        self.force
+    }
+    /// Largest tolerated force disagreement with `f_F`, N.
+    pub const fn force_tolerance(&self) -> Newtons {
+        self.force_tolerance
+    }
+    /// Safe-state voltage, V.
+    pub const fn safe_voltage(&self) -> Volts {
+        self.safe_voltage
+    }
+    /// Measured or predicted preload.
+    pub const fn force_source(&self) -> ForceSource {
+        self.force_source
+    }
+}
+
+/// What one control step produced.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StepOutput {
+    /// Amplifier setpoint, V (after range and slew limits).
+    pub voltage: Volts,
+    /// Stack extension the reference asks for, µm.
+    pub x_pea_ref: Micrometres,
+    /// Virtual sensor: estimated stack extension, µm.
+    pub x_pea_est: Micrometres,
+    /// Virtual sensor: estimated stage position `f_K(x_pea_est)`, µm.
+    pub x_est: Micrometres,
+    /// The limits changed the voltage (always true in the safe state).
+    pub limited: bool,
+    /// The latched fault, if the controller is in its safe state.
+    pub fault: Option<Fault>,
+}
+
+/// The controller's memory: both operator banks, the last output, the fault latch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ControllerState<const N: usize> {
+    inverse: PlayBank<N>,
+    forward: PlayBank<N>,
+    voltage: Volts,
+    x_pea_est: Micrometres,
+    fault: Option<Fault>,
+    limited_steps: u32,
+}
+
+impl<const N: usize> ControllerState<N> {
+    /// The latched fault, if any.
+    pub const fn fault(&self) -> Option<Fault> {
+        self.fault
+    }
+    /// The last applied voltage, V.
+    pub const fn voltage(&self) -> Volts {
+        self.voltage
+    }
+    /// The last estimated stack extension, µm.
+    pub const fn x_pea_est(&self) -> Micrometres {
+        self.x_pea_est
+    }
+    /// Steps in which the limits changed the voltage (wraps).
+    pub const fn limited_steps(&self) -> u32 {
+        self.limited_steps
+    }
+    /// The forward (virtual sensor) bank.
+    pub const fn forward_bank(&self) -> &PlayBank<N> {
+        &self.forward
+    }
+    /// The inverse (compensator) bank.
+    pub const fn inverse_bank(&self) -> &PlayBank<N> {
+        &self.inverse
+    }
+
+    /// Leaves the safe state once the output has reached the safe voltage; the
+    /// inverse memory is realigned with the voltage history actually applied.
+    /// Returns whether the fault was cleared.
+    pub fn clear_fault(&mut self, cfg: &ControllerConfig<'_, N>) -> bool {
+        if self.voltage != cfg.safe_voltage {
+            return false;
+        }
+        cfg.fpi.resync(&self.forward, &mut self.inverse);
+        self.fault = None;
+        true
+    }
+}
+
+/// The uncompensated baseline: a straight line from the reference to the voltage,
+/// `u = offset + gain·x_ref`, as an amplifier driven without a hysteresis model would be.
+///
+/// * `gain` — V/µm, `I10F22`; `offset` — V, `I16F16`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinearDrive {
+    /// Slope, V/µm.
+    pub gain: VoltsPerUm,
+    /// Voltage at zero reference, V.
+    pub offset: Volts,
+}
+
+impl LinearDrive {
+    /// The line through `(x_lo, u_lo)` and `(x_hi, u_hi)`; for host tools and start-up code.
+    pub fn through(x_lo: f64, u_lo: f64, x_hi: f64, u_hi: f64) -> Option<Self> {
+        let g = (u_hi - u_lo) / (x_hi - x_lo);
+        let gain = crate::q::quantize(g, crate::q::INV_GAIN_FRAC, crate::q::INV_GAIN_ABS_MAX)?;
+        Some(Self {
+            gain: VoltsPerUm::from_bits(gain),
+            offset: crate::q::signal(u_lo - g * x_lo)?,
+        })
+    }
+
+    /// The voltage for a reference, limited like the compensated output.
+    #[inline]
+    pub fn step(&self, limits: &OutputLimits, prev: Volts, x_ref: Micrometres) -> Volts {
+        // Saturate the product at the signal range before narrowing it.
+        let lim = (SIGNAL_ABS_MAX_BITS as i64) << INV_GAIN_FRAC;
+        let acc = self.gain.wide_mul(x_ref).to_bits().max(-lim).min(lim);
+        let u = narrow_inv_gain(InvGainAcc::from_bits(acc)).saturating_add(self.offset);
+        limits.apply(prev, u).0
+    }
+}

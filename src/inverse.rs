@@ -1,0 +1,242 @@
+//! The closed-form inverse of a one-sided-play PI model, itself a PI model.
+//!
+//! For `Y[u] = w0·u + Σ_{i=1..N} w_i·G_{r_i}[u]` with thresholds sorted and every partial
+//! sum `S_j = Σ_{i=0..j} w_i > 0` (`r_0 = 0`, `w_0 = w0`), the inverse is
+//!
+//! * `w0' = 1 / w0`
+//! * `r'_j = Σ_{i<=j} w_i (r_j - r_i)` — the loading curve at `u = r_j`
+//! * `w'_j = -w_j / (S_j · S_{j-1})`
+//!
+//! and `PI⁻¹[Y[u]] = u` exactly, on every history that starts with all operators
+//! at rest. The ISR therefore inverts the hysteresis with one pass over the
+//! bank: no iteration, no division.
+//!
+//! The states of the two banks are tied: if the forward operators hold `y_i`, the
+//! inverse operators hold `z_j = S_j·y_j + Σ_{i>j} w_i·y_i`. [`InversePi::resync`]
+//! uses this to realign the inverse bank when the output limiter applied a voltage
+//! other than the one the inverse asked for.
+
+use crate::error::ModelError;
+use crate::pi::PiModel;
+use crate::play::{osp, PlayBank};
+use crate::q::{
+    narrow_inv_gain, within, Micrometres, Volts, VoltsPerUm, GAIN_FRAC, INV_GAIN_FRAC,
+    SIGNAL_ABS_MAX_BITS, SIGNAL_FRAC,
+};
+
+/// Configuration of an inverse PI model: stack extension in (µm), voltage out (V).
+///
+/// * `w0` — `1/w0`, V/µm, `I10F22`.
+/// * `thresholds` — `r'_j`, µm, `I16F16`, non-decreasing.
+/// * `weights` — `w'_j`, V/µm, `I10F22` (non-positive when every `w_i >= 0`).
+/// * Input domain `[0, input_max]` µm, with `input_max` the forward model's
+///   `output_max`; output in `[0, output_max]` V, the forward input domain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct InversePi<const N: usize> {
+    w0: VoltsPerUm,
+    thresholds: [Micrometres; N],
+    weights: [VoltsPerUm; N],
+    input_max: Micrometres,
+    output_max: Volts,
+}
+
+/// `round(num / den)` for `den > 0`, ties away from zero.
+const fn div_round(num: i128, den: i128) -> i128 {
+    if num >= 0 {
+        (num + den / 2) / den
+    } else {
+        (num - den / 2) / den
+    }
+}
+
+impl<const N: usize> InversePi<N> {
+    /// Computes the inverse of a validated forward model; `const` so the firmware's
+    /// inverse is built by the compiler. Fails if an inverse weight does not fit
+    /// `I10F22` (that is, `w0 < 1/512` µm/V) or the output could leave the signal range.
+    pub const fn from_forward(fwd: &PiModel<N>) -> Result<Self, ModelError> {
+        let w0 = fwd.w0().to_bits() as i128; // GAIN_FRAC bits; > 0 by construction
+        let r = fwd.thresholds();
+        let w = fwd.weights();
+        // 1/w0 in INV_GAIN_FRAC bits: 2^(INV + GAIN) / w0_bits.
+        let inv_w0 = div_round(1i128 << (INV_GAIN_FRAC + GAIN_FRAC), w0);
+        if inv_w0 > i32::MAX as i128 {
+            return Err(ModelError::InverseWeightOutOfRange { index: 0 });
+        }
+        let mut abs_sum = inv_w0;
+        let mut thresholds = [Micrometres::ZERO; N];
+        let mut weights = [VoltsPerUm::ZERO; N];
+        let mut s_prev = w0; // S_{j-1}
+        let mut sum_wr = 0i128; // Σ_{i<j} w_i r_i, GAIN_FRAC + SIGNAL_FRAC bits (r_0 = 0)
+        let mut j = 0;
+        while j < N {
+            let wj = w[j].to_bits() as i128;
+            let rj = r[j].to_bits() as i128;
+            let s = s_prev + wj; // S_j > 0 by construction
+            sum_wr += wj * rj;
+            // r'_j = S_j r_j - Σ_{i<=j} w_i r_i, rounded to SIGNAL_FRAC bits.
+            let rp = div_round(s * rj - sum_wr, 1i128 << GAIN_FRAC);
+            thresholds[j] = Micrometres::from_bits(rp as i32);
+            // w'_j = -w_j / (S_j S_{j-1}): INV bits = GAIN + INV + 2 GAIN - 2 GAIN ... i.e.
+            // (-w_j · 2^(INV + GAIN)) / (S_j · S_{j-1}) with all three in GAIN_FRAC bits.
+            let wp = div_round(-wj * (1i128 << (INV_GAIN_FRAC + GAIN_FRAC)), s * s_prev);
+            if wp > i32::MAX as i128 || wp < i32::MIN as i128 {
+                return Err(ModelError::InverseWeightOutOfRange {
+                    index: (j + 1) as u8,
+                });
+            }
+            weights[j] = VoltsPerUm::from_bits(wp as i32);
+            abs_sum += if wp < 0 { -wp } else { wp };
+            s_prev = s;
+            j += 1;
+        }
+        let input_max = fwd.output_max();
+        if input_max.to_bits() <= 0 {
+            return Err(ModelError::DomainOutOfRange);
+        }
+        // Bound of every partial sum: sum|w'| * x_max, in INV + SIGNAL bits.
+        if abs_sum * input_max.to_bits() as i128 >= (SIGNAL_ABS_MAX_BITS as i128) << INV_GAIN_FRAC {
+            return Err(ModelError::OutputOutOfRange);
+        }
+        Ok(Self {
+            w0: VoltsPerUm::from_bits(inv_w0 as i32),
+            thresholds,
+            weights,
+            input_max,
+            output_max: fwd.input_max(),
+        })
+    }
+
+    /// One sample: advances the inverse operators with the desired output `x` (µm)
+    /// and returns the input `u` (V) that produces it.
+    ///
+    /// `x` is clamped to `[0, input_max]` and `u` to `[0, output_max]` (rounding
+    /// cannot push it outside the forward domain). No division, no panic.
+    #[inline]
+    pub fn apply(&self, state: &mut PlayBank<N>, x: Micrometres) -> Volts {
+        let x = within(x, Micrometres::ZERO, self.input_max);
+        let mut acc = self.w0.wide_mul(x);
+        for ((z, r), w) in state.y.iter_mut().zip(&self.thresholds).zip(&self.weights) {
+            *z = osp(x, *r, *z);
+            acc += w.wide_mul(*z);
+        }
+        within(narrow_inv_gain(acc), Volts::ZERO, self.output_max)
+    }
+
+    /// Sets the inverse operators to the state that matches a forward bank:
+    /// `z_j = S_j·y_j + Σ_{i>j} w_i·y_i` (µm), so that the next [`apply`](Self::apply)
+    /// continues from the voltage history actually applied.
+    ///
+    /// Called when the output limiter changed the voltage; `fwd` must be the model
+    /// this inverse was built from. N multiply-adds, no division.
+    pub fn resync(&self, fwd: &PiModel<N>, fwd_state: &PlayBank<N>, state: &mut PlayBank<N>) {
+        let w = fwd.weights();
+        // S_N in GAIN_FRAC bits; the constructor bounded |S_j| * input_max.
+        let mut s: i64 = fwd.w0().to_bits() as i64;
+        for wi in w {
+            s += wi.to_bits() as i64;
+        }
+        let mut tail: i64 = 0; // Σ_{i>j} w_i y_i, GAIN + SIGNAL bits
+        for j in (0..N).rev() {
+            let y = fwd_state.y[j].to_bits() as i64;
+            let z = s * y + tail;
+            state.y[j] = Micrometres::from_bits(((z + (1 << (GAIN_FRAC - 1))) >> GAIN_FRAC) as i32);
+            let wj = w[j].to_bits() as i64;
+            tail += wj * y;
+            s -= wj;
+        }
+    }
+
+    /// `1/w0`, V/µm.
+    pub const fn w0(&self) -> VoltsPerUm {
+        self.w0
+    }
+    /// Thresholds `r'_j`, µm.
+    pub const fn thresholds(&self) -> &[Micrometres; N] {
+        &self.thresholds
+    }
+    /// Weights `w'_j`, V/µm.
+    pub const fn weights(&self) -> &[VoltsPerUm; N] {
+        &self.weights
+    }
+    /// Upper end of the input domain (the forward model's largest output), µm.
+    pub const fn input_max(&self) -> Micrometres {
+        self.input_max
+    }
+    /// Upper end of the output range (the forward model's input domain), V.
+    pub const fn output_max(&self) -> Volts {
+        self.output_max
+    }
+}
+
+const _: () = assert!(SIGNAL_FRAC + GAIN_FRAC < 63);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pair() -> (PiModel<4>, InversePi<4>) {
+        let f = PiModel::from_f64(
+            0.064,
+            &[10.0, 20.0, 40.0, 80.0],
+            &[0.008, 0.011, 0.004, 0.012],
+            150.0,
+        )
+        .unwrap();
+        let i = InversePi::from_forward(&f).unwrap();
+        (f, i)
+    }
+
+    #[test]
+    fn inverse_parameters_match_the_formulas() {
+        let (f, i) = pair();
+        assert!((i.w0().to_num::<f64>() - 1.0 / 0.064).abs() < 1e-6);
+        // r'_1 = w0 (r_1 - 0) = 0.64 um; w'_1 = -0.008 / (0.072 * 0.064)
+        assert!((i.thresholds()[0].to_num::<f64>() - 0.64).abs() < 1e-4);
+        assert!((i.weights()[0].to_num::<f64>() + 0.008 / (0.072 * 0.064)).abs() < 1e-5);
+        assert_eq!(i.input_max(), f.output_max());
+        assert_eq!(i.output_max(), f.input_max());
+    }
+
+    #[test]
+    fn inverse_undoes_forward_on_a_history() {
+        let (f, i) = pair();
+        let (mut fs, mut is) = (PlayBank::new(), PlayBank::new());
+        let mut u = 0.0f64;
+        let mut worst = 0.0f64;
+        for k in 0..2000 {
+            // A decaying, wandering drive with many reversals.
+            u = (u + 13.7 * ((k as f64) * 0.37).sin() * (1.0 - k as f64 / 2500.0))
+                .clamp(0.0, 150.0);
+            let x = f.apply(&mut fs, Volts::from_num(u));
+            let back = i.apply(&mut is, x).to_num::<f64>();
+            worst = worst.max((back - u).abs());
+        }
+        // A few LSB of x (15 pm) times |dU/dx| <= 1/w0.
+        assert!(worst < 2e-3, "worst {worst} V");
+    }
+
+    #[test]
+    fn resync_reproduces_the_inverse_state() {
+        let (f, i) = pair();
+        let (mut fs, mut is) = (PlayBank::new(), PlayBank::new());
+        for u in [30.0, 120.0, 60.0, 90.0, 10.0, 140.0, 75.0] {
+            let x = f.apply(&mut fs, Volts::from_num(u));
+            i.apply(&mut is, x);
+            let mut synced = PlayBank::new();
+            i.resync(&f, &fs, &mut synced);
+            for j in 0..4 {
+                let d = (synced.y[j] - is.y[j]).to_num::<f64>().abs();
+                assert!(d < 1e-4, "u={u} j={j} d={d}");
+            }
+        }
+    }
+
+    #[test]
+    fn rejects_a_tiny_linear_weight() {
+        let f = PiModel::from_f64(0.001, &[10.0], &[0.05], 150.0).unwrap();
+        assert_eq!(
+            InversePi::from_forward(&f).unwrap_err(),
+            ModelError::InverseWeightOutOfRange { index: 0 }
+        );
+    }
+}

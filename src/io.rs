@@ -1,0 +1,120 @@
+//! The boundary between the core and a board: a force sensor in, an amplifier setpoint out.
+//!
+//! The firmware implements these traits on top of its HAL (the STM32 ADC and DAC,
+//! or the emulator's simulated stage); the core never sees a peripheral.
+//! embedded-hal 1.0 has no ADC or DAC trait, so these two small traits are ours.
+
+use crate::q::{gain_mul, within, Newtons, Volts};
+use fixed::types::{I16F16, I4F28};
+
+/// Reads the force between stack and hinge.
+pub trait ForceSensor {
+    /// The latest reading, N. A broken sensor should read outside its plausible
+    /// range (e.g. the ADC rails); the controller turns that into a fault.
+    fn read_force(&mut self) -> Newtons;
+}
+
+/// Drives the high-voltage amplifier.
+pub trait Setpoint {
+    /// Commands the amplifier output, V.
+    fn write_voltage(&mut self, voltage: Volts);
+}
+
+/// ADC counts to newtons: `F = offset + per_count · counts`.
+///
+/// * `offset` — N at zero counts, `I16F16`.
+/// * `per_count` — N per count, `I4F28` (12-bit ADC over 0–500 N: 0.122 N/count).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AdcScale {
+    /// Force at zero counts, N.
+    pub offset: Newtons,
+    /// Newtons per count.
+    pub per_count: I4F28,
+}
+
+impl AdcScale {
+    /// The force for a raw conversion result.
+    #[inline]
+    pub fn to_force(&self, counts: u16) -> Newtons {
+        gain_mul(self.per_count, I16F16::from_bits((counts as i32) << 16)) + self.offset
+    }
+
+    /// The conversion result nearest to a force, saturated to `0..=max_code`
+    /// (for simulated sensors and tests).
+    pub fn to_counts(&self, force: f32, max_code: u16) -> u16 {
+        let c = (force - self.offset.to_num::<f32>()) / self.per_count.to_num::<f32>() + 0.5;
+        if c <= 0.0 {
+            0
+        } else if c >= max_code as f32 {
+            max_code
+        } else {
+            c as u16
+        }
+    }
+}
+
+/// Volts to DAC codes: `code = round(u · codes_per_volt)`, saturated to `0..=max_code`.
+///
+/// * `codes_per_volt` — `I16F16` (16-bit DAC over 0–150 V: 436.9; 12-bit STM32 DAC
+///   behind a 150 V / 3.3 V amplifier: 27.3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DacScale {
+    /// Codes per volt of amplifier output.
+    pub codes_per_volt: I16F16,
+    /// Largest code (4095 for 12 bits, 65535 for 16 bits).
+    pub max_code: u16,
+}
+
+impl DacScale {
+    /// The DAC code for an amplifier voltage. No panic, no division.
+    #[inline]
+    pub fn to_code(&self, voltage: Volts) -> u16 {
+        let u = within(voltage, Volts::ZERO, Volts::MAX);
+        let c = (u.to_bits() as i64 * self.codes_per_volt.to_bits() as i64 + (1 << 31)) >> 32;
+        if c > self.max_code as i64 {
+            self.max_code
+        } else {
+            c as u16
+        }
+    }
+
+    /// The amplifier voltage a code produces (for simulated stages and tests).
+    pub fn to_voltage(&self, code: u16) -> f32 {
+        code as f32 / self.codes_per_volt.to_num::<f32>()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn adc_scale_round_trips() {
+        let s = AdcScale {
+            offset: Newtons::from_num(-5),
+            per_count: I4F28::from_num(0.125),
+        };
+        assert_eq!(s.to_force(0), Newtons::from_num(-5));
+        assert_eq!(s.to_force(4095), Newtons::from_num(506.875));
+        assert_eq!(s.to_counts(60.0, 4095), 520);
+        assert_eq!(s.to_counts(-50.0, 4095), 0);
+        assert_eq!(s.to_counts(1e9, 4095), 4095);
+    }
+
+    #[test]
+    fn dac_scale_is_within_half_a_code() {
+        let s = DacScale {
+            codes_per_volt: I16F16::from_num(65535.0 / 150.0),
+            max_code: 65535,
+        };
+        assert_eq!(s.to_code(Volts::ZERO), 0);
+        assert_eq!(s.to_code(Volts::from_num(150)), 65535);
+        assert_eq!(s.to_code(Volts::from_num(-3)), 0);
+        assert_eq!(s.to_code(Volts::from_num(200)), 65535);
+        for k in 0..=1500 {
+            let u = k as f64 * 0.1;
+            let code = s.to_code(Volts::from_num(u)) as f64;
+            assert!((code - u * 65535.0 / 150.0).abs() <= 0.5 + 1e-3, "u={u}");
+        }
+    }
+}

@@ -1,0 +1,51 @@
+//! Fixed-point Force-dependent Prandtl–Ishlinskii (FPI) hysteresis compensation for
+//! preloaded piezo stages: the `no_std` core shared by the STM32 firmware and the
+//! host tools.
+//!
+//! The stack responds to the effective voltage `û = u - k_f·F_p`, where `F_p` is the
+//! preload the flexure hinge puts on it; a bank of one-sided play operators maps
+//! `û` to stack extension; FEM tables give the preload `f_F(x_pea)` and the stage
+//! output `f_K(x_pea)` (seed 000). The control step ([`ControllerConfig::step`])
+//! inverts that chain in closed form once per ISR.
+//!
+//! * No `std`, no allocation, no panic and no division on the control path; every
+//!   quantity has a documented Q format ([`q`]) and every model is validated when it
+//!   is built (at compile time for the embedded one, [`model`]).
+//! * Configuration (weights, thresholds, tables, limits) is separate from state
+//!   (operator outputs, last voltage), like `idsp`'s split processors.
+//! * `defmt` only with the `defmt` feature (derives `Format` on errors and faults).
+//!
+//! Modules: [`play`] (the OSP operator), [`pi`] (forward PI), [`inverse`] (closed-form
+//! inverse PI), [`fpi`] (force coupling), [`table`] (lookup tables), [`limits`],
+//! [`control`] (the ISR step), [`io`] (sensor/amplifier traits), [`reference`]
+//! (trajectory generator),
+//! [`model`] (the embedded model).
+#![cfg_attr(not(test), no_std)]
+#![deny(missing_docs)]
+#![deny(clippy::panic, clippy::unwrap_used, clippy::expect_used)]
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
+
+pub mod control;
+pub mod error;
+pub mod fpi;
+pub mod inverse;
+pub mod io;
+pub mod limits;
+pub mod model;
+pub mod pi;
+pub mod play;
+pub mod q;
+pub mod reference;
+pub mod table;
+
+pub use control::{
+    ControllerConfig, ControllerParts, ControllerState, Fault, ForceSource, Interval, LinearDrive,
+    StepOutput,
+};
+pub use error::ModelError;
+pub use fpi::{Coupling, ForceTerms, Fpi};
+pub use inverse::InversePi;
+pub use limits::OutputLimits;
+pub use pi::PiModel;
+pub use play::PlayBank;
+pub use table::Table;

@@ -1,0 +1,18 @@
+//! The embedded stage model, generated at build time from `src/model/stage-a.toml`
+//! (or the file named by the `PIEZO_FPI_MODEL` environment variable at build time).
+//!
+//! Everything here is `const`/`static`: the PI weights, the inverse computed by the
+//! compiler, the FEM tables and the loop limits all live in flash, and an invalid
+//! model is a compile error. The file itself comes from `fpi export` (see the
+//! host crate), which calibrates on the recorded data and resamples the FEM maps
+//! onto power-of-two grids.
+
+use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval};
+use crate::fpi::{Coupling, Fpi};
+use crate::limits::OutputLimits;
+use crate::pi::PiModel;
+use crate::q::{Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton};
+use crate::table::Table;
+use fixed::types::I16F16;
+
+include!(concat!(env!("OUT_DIR"), "/model.rs"));

@@ -1,0 +1,172 @@
+//! Fixed-point formats of every quantity in the core (the "Q contract").
+//!
+//! | alias | unit | `fixed` type | resolution (1 LSB) | accepted range |
+//! |---|---|---|---|---|
+//! | [`Volts`] | V | `I16F16` | 15.3 µV | ±4096 (inputs clamped to the model's domain, e.g. 0–150 V) |
+//! | [`Micrometres`] | µm | `I16F16` | 15.3 pm | ±4096 |
+//! | [`Newtons`] | N | `I16F16` | 15.3 µN | ±4096 |
+//! | [`UmPerVolt`] | µm/V | `I4F28` | 3.7·10⁻⁹ | ±8 (forward PI weights `w0`, `w_i`) |
+//! | [`VoltsPerNewton`] | V/N | `I4F28` | 3.7·10⁻⁹ | ±8 (force–voltage coupling `k_f`) |
+//! | [`UmPerNewton`] | µm/N | `I4F28` | 3.7·10⁻⁹ | ±8 (stack compliance `c`) |
+//! | [`VoltsPerUm`] | V/µm | `I10F22` | 2.4·10⁻⁷ | ±512 (inverse PI weights `w0'`, `w'_j`) |
+//!
+//! Sums of products are accumulated exactly in 64 bits ([`GainAcc`] = `I20F44` for
+//! gain × signal, [`InvGainAcc`] = `I26F38` for inverse gain × signal) and rounded
+//! to nearest once, when narrowed back to a signal. The model constructors check
+//! that every accumulator stays inside its range for inputs in the model's domain,
+//! so the hot path needs no saturation and has no overflow.
+//!
+//! One 16-bit DAC LSB over 0–150 V is 2.29 mV = 150 LSB of [`Volts`]; one nm is
+//! 65.5 LSB of [`Micrometres`].
+
+use fixed::types::{I10F22, I16F16, I20F44, I26F38, I4F28};
+
+include!("qformat.rs");
+
+/// Electric potential in volts, `I16F16`.
+pub type Volts = I16F16;
+/// Length in micrometres, `I16F16`.
+pub type Micrometres = I16F16;
+/// Force in newtons, `I16F16`.
+pub type Newtons = I16F16;
+/// Forward PI weight, µm per volt, `I4F28`.
+pub type UmPerVolt = I4F28;
+/// Force–voltage coupling `k_f`, volts per newton, `I4F28`.
+pub type VoltsPerNewton = I4F28;
+/// Stack compliance, µm per newton, `I4F28`.
+pub type UmPerNewton = I4F28;
+/// Inverse PI weight, volts per µm, `I10F22`.
+pub type VoltsPerUm = I10F22;
+/// Exact product accumulator of a forward gain and a signal, `I20F44`.
+pub type GainAcc = I20F44;
+/// Exact product accumulator of an inverse gain and a signal, `I26F38`.
+pub type InvGainAcc = I26F38;
+
+const _: () = {
+    assert!(Volts::FRAC_NBITS == SIGNAL_FRAC);
+    assert!(UmPerVolt::FRAC_NBITS == GAIN_FRAC);
+    assert!(VoltsPerUm::FRAC_NBITS == INV_GAIN_FRAC);
+    assert!(GainAcc::FRAC_NBITS == GAIN_FRAC + SIGNAL_FRAC);
+    assert!(InvGainAcc::FRAC_NBITS == INV_GAIN_FRAC + SIGNAL_FRAC);
+};
+
+/// Raw bits of [`SIGNAL_ABS_MAX`] in a signal (`I16F16`).
+pub(crate) const SIGNAL_ABS_MAX_BITS: i32 = (SIGNAL_ABS_MAX as i32) << SIGNAL_FRAC;
+
+/// Rounds a gain × signal accumulator to the nearest signal LSB (ties toward +∞).
+///
+/// Callers guarantee `|acc| < SIGNAL_ABS_MAX`, which the model constructors check.
+#[inline(always)]
+pub(crate) const fn narrow_gain(acc: GainAcc) -> I16F16 {
+    const SHIFT: u32 = GAIN_FRAC;
+    I16F16::from_bits(((acc.to_bits() + (1 << (SHIFT - 1))) >> SHIFT) as i32)
+}
+
+/// Rounds an inverse-gain × signal accumulator to the nearest signal LSB.
+///
+/// Callers guarantee `|acc| < SIGNAL_ABS_MAX`, which the model constructors check.
+#[inline(always)]
+pub(crate) const fn narrow_inv_gain(acc: InvGainAcc) -> I16F16 {
+    const SHIFT: u32 = INV_GAIN_FRAC;
+    I16F16::from_bits(((acc.to_bits() + (1 << (SHIFT - 1))) >> SHIFT) as i32)
+}
+
+/// Product of a forward gain and a signal, rounded to a signal.
+#[inline(always)]
+pub(crate) const fn gain_mul(g: I4F28, x: I16F16) -> I16F16 {
+    narrow_gain(g.wide_mul(x))
+}
+
+/// `max(x, lo)` without the `Ord::clamp` panic path.
+#[inline(always)]
+pub(crate) fn at_least(x: I16F16, lo: I16F16) -> I16F16 {
+    if x < lo {
+        lo
+    } else {
+        x
+    }
+}
+
+/// `min(x, hi)` without the `Ord::clamp` panic path.
+#[inline(always)]
+pub(crate) fn at_most(x: I16F16, hi: I16F16) -> I16F16 {
+    if x > hi {
+        hi
+    } else {
+        x
+    }
+}
+
+/// Clamps `x` to `[lo, hi]`; callers guarantee `lo <= hi` (checked at construction).
+#[inline(always)]
+pub(crate) fn within(x: I16F16, lo: I16F16, hi: I16F16) -> I16F16 {
+    at_most(at_least(x, lo), hi)
+}
+
+/// Quantises an `f64` to the raw bits of a format with `frac` fractional bits,
+/// rounding to nearest; `None` if it is not finite or does not fit in `abs_max`.
+///
+/// Used by constructors that take engineering values (host tools, tests, `const`
+/// model building); never on the ISR path.
+pub const fn quantize(value: f64, frac: u32, abs_max: f64) -> Option<i32> {
+    if !value.is_finite() || value > abs_max || value < -abs_max {
+        return None;
+    }
+    let scaled = value * (1u64 << frac) as f64;
+    // Round half away from zero, in const context (no `f64::round` in const fn).
+    let r = if scaled >= 0.0 {
+        (scaled + 0.5) as i64
+    } else {
+        (scaled - 0.5) as i64
+    };
+    Some(r as i32)
+}
+
+/// `I16F16` from an engineering value; `None` if not finite or beyond ±[`SIGNAL_ABS_MAX`].
+pub const fn signal(value: f64) -> Option<I16F16> {
+    match quantize(value, SIGNAL_FRAC, SIGNAL_ABS_MAX) {
+        Some(b) => Some(I16F16::from_bits(b)),
+        None => None,
+    }
+}
+
+/// `I4F28` from an engineering value; `None` if not finite or beyond ±[`GAIN_ABS_MAX`].
+pub const fn gain(value: f64) -> Option<I4F28> {
+    match quantize(value, GAIN_FRAC, GAIN_ABS_MAX) {
+        Some(b) => Some(I4F28::from_bits(b)),
+        None => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn narrowing_rounds_to_nearest() {
+        let half_lsb = GainAcc::from_bits(1 << (GAIN_FRAC - 1));
+        assert_eq!(narrow_gain(half_lsb).to_bits(), 1);
+        let below_half = GainAcc::from_bits((1 << (GAIN_FRAC - 1)) - 1);
+        assert_eq!(narrow_gain(below_half).to_bits(), 0);
+        let minus_below_half = GainAcc::from_bits(-((1 << (GAIN_FRAC - 1)) - 1));
+        assert_eq!(narrow_gain(minus_below_half).to_bits(), 0);
+    }
+
+    #[test]
+    fn quantize_rejects_non_finite_and_out_of_range() {
+        assert_eq!(signal(f64::NAN), None);
+        assert_eq!(signal(f64::INFINITY), None);
+        assert_eq!(signal(5000.0), None);
+        assert_eq!(signal(-1.5).map(I16F16::to_num::<f64>), Some(-1.5));
+        assert_eq!(gain(8.5), None);
+        assert_eq!(gain(0.1).map(|g| g.to_bits()), Some(26_843_546));
+    }
+
+    #[test]
+    fn gain_product_is_exact_then_rounded() {
+        let kf = gain(0.1).unwrap();
+        let f = signal(100.0).unwrap();
+        let v = gain_mul(kf, f).to_num::<f64>();
+        assert!((v - 10.0).abs() < 1.0 / 65536.0);
+    }
+}
