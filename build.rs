@@ -73,6 +73,15 @@ fn generate_model(path: &Path) -> Result<String, String> {
 
     let sig = |key: &str, v: f64| bits(key, v, q::SIGNAL_FRAC, q::SIGNAL_ABS_MAX);
     let gain = |key: &str, v: f64| bits(key, v, q::GAIN_FRAC, q::GAIN_ABS_MAX);
+    let coupling = |key: &str, v: f64| {
+        if !v.is_finite() || v.abs() > q::COUPLING_ABS_MAX {
+            return Err(format!(
+                "{key} = {v}: does not fit I0F32 (|v| <= {})",
+                q::COUPLING_ABS_MAX
+            ));
+        }
+        Ok((v * 4_294_967_296.0).round() as i64 as i32)
+    };
     let list = |items: Vec<i32>, ty: &str| -> String {
         let mut l = String::from("[");
         for (i, b) in items.iter().enumerate() {
@@ -115,8 +124,8 @@ fn generate_model(path: &Path) -> Result<String, String> {
          k_f: VoltsPerNewton::from_bits({}),\n    compliance: UmPerNewton::from_bits({}),\n    \
          force_ref: Newtons::from_bits({}),\n}}) {{\n    Ok(m) => m,\n    \
          Err(e) => panic!(\"{{}}\", e.message()),\n}};",
-        gain("coupling.k_f_v_per_n", c.k_f_v_per_n)?,
-        gain("coupling.compliance_um_per_n", c.compliance_um_per_n)?,
+        coupling("coupling.k_f_v_per_n", c.k_f_v_per_n)?,
+        coupling("coupling.compliance_um_per_n", c.compliance_um_per_n)?,
         sig("coupling.force_ref_n", c.force_ref_n)?,
     );
     for (name, doc, t) in [
@@ -200,18 +209,23 @@ fn write_table(
             )
         })
         .collect::<Result<Vec<_>, _>>()?;
-    let _ = writeln!(w, "static {name}_VALUES: [I16F16; {}] = [", vals.len());
-    for chunk in vals.chunks(6) {
-        let _ = write!(w, "   ");
-        for b in chunk {
-            let _ = write!(w, " I16F16::from_bits({b}),");
-        }
-        let _ = writeln!(w);
+    let _ = writeln!(
+        w,
+        "static {name}_SEGMENTS: [Segment; {}] = [",
+        vals.len() - 1
+    );
+    for pair in vals.windows(2) {
+        let _ = writeln!(
+            w,
+            "    Segment::from_bits({}, {}),",
+            pair[0],
+            pair[1] - pair[0]
+        );
     }
     let _ = writeln!(w, "];");
     let _ = writeln!(
         w,
-        "/// {doc}\npub const {name}: Table<'static> = match Table::new(I16F16::from_bits({}), {shift}, &{name}_VALUES) {{\n    \
+        "/// {doc}\npub const {name}: Table<'static> = match Table::new(I16F16::from_bits({}), {shift}, &{name}_SEGMENTS) {{\n    \
          Ok(t) => t,\n    Err(e) => panic!(\"{{}}\", e.message()),\n}};",
         bits(&format!("{key}.x0"), t.x0, q::SIGNAL_FRAC, q::SIGNAL_ABS_MAX)?
     );

@@ -5,8 +5,10 @@
 //! u         = PI⁻¹[x_pea_ref + c·(F - F_ref)] + k_f·F   closed-form inverse FPI
 //! u_out     = limits(u)                            range and slew
 //! x_pea_est = Y[u_out - k_f·F] - c·(F - F_ref)     forward FPI: virtual position sensor
-//! x_est     = f_K(x_pea_est)                       telemetry
 //! ```
+//!
+//! The virtual sensor's stage position `f_K(x_pea_est)` is a lookup the ISR does
+//! not need; telemetry consumers get it from [`ControllerConfig::stage_position`].
 //!
 //! Configuration ([`ControllerConfig`], in flash) is separate from state
 //! ([`ControllerState`], the operator memories and the last output, in the ISR).
@@ -54,6 +56,15 @@ pub enum ForceSource {
     /// The FEM preload map at the reference, `f_F(x_pea_ref)`: FPI-FFEM feedforward
     /// for a stage without a force sensor. The force argument of `step` is ignored.
     Predicted,
+}
+
+/// Which law computes the voltage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// Inverse FPI compensation ([`ControllerConfig::step`]).
+    Compensated,
+    /// The straight-line baseline ([`ControllerConfig::step_uncompensated`]).
+    Uncompensated(LinearDrive),
 }
 
 /// Why the controller went to its safe state.
@@ -181,25 +192,25 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
         x_ref: Micrometres,
         force: Newtons,
     ) -> StepOutput {
-        let measured = matches!(self.force_source, ForceSource::Measured);
-        let detected = if measured && !self.force.contains(force) {
-            Some(Fault::ForceOutOfRange)
-        } else if measured && (force - self.f_f.eval(st.x_pea_est)).abs() > self.force_tolerance {
-            Some(Fault::ForceImplausible)
-        } else if !self.reference.contains(x_ref) {
-            Some(Fault::ReferenceUnreachable)
-        } else {
-            None
-        };
-        if st.fault.is_none() {
-            st.fault = detected;
+        match self.force_source {
+            ForceSource::Measured => self.step_with::<true>(st, x_ref, force),
+            ForceSource::Predicted => self.step_with::<false>(st, x_ref, force),
         }
-        if let Some(fault) = st.fault {
+    }
+
+    /// [`step`](Self::step) with the force source resolved at compile time.
+    #[inline(always)]
+    fn step_with<const MEASURED: bool>(
+        &self,
+        st: &mut ControllerState<N>,
+        x_ref: Micrometres,
+        force: Newtons,
+    ) -> StepOutput {
+        if let Some(fault) = self.supervise::<MEASURED>(st, x_ref, force) {
             return self.ramp_to_safe(st, force, fault);
         }
-
         let x_pea_ref = self.f_k_inv.eval(x_ref);
-        let f = if measured {
+        let f = if MEASURED {
             force
         } else {
             self.f_f.eval(x_pea_ref)
@@ -220,10 +231,72 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
             voltage,
             x_pea_ref,
             x_pea_est,
-            x_est: self.f_k.eval(x_pea_est),
             limited,
             fault: None,
         }
+    }
+
+    /// The uncompensated baseline step: the same supervision, limits and virtual
+    /// sensor, but the voltage comes from a straight line instead of the inverse FPI.
+    /// The inverse memory follows the applied voltage, so switching back to
+    /// [`step`](Self::step) is seamless.
+    pub fn step_uncompensated(
+        &self,
+        st: &mut ControllerState<N>,
+        drive: &LinearDrive,
+        x_ref: Micrometres,
+        force: Newtons,
+    ) -> StepOutput {
+        let fault = match self.force_source {
+            ForceSource::Measured => self.supervise::<true>(st, x_ref, force),
+            ForceSource::Predicted => self.supervise::<false>(st, x_ref, force),
+        };
+        if let Some(fault) = fault {
+            return self.ramp_to_safe(st, force, fault);
+        }
+        let x_pea_ref = self.f_k_inv.eval(x_ref);
+        let f = if matches!(self.force_source, ForceSource::Measured) {
+            force
+        } else {
+            self.f_f.eval(x_pea_ref)
+        };
+        let (voltage, limited) = self.limits.apply(st.voltage, drive.voltage(x_ref));
+        let x_pea_est = self
+            .fpi
+            .forward(&mut st.forward, voltage, self.fpi.force_terms(f));
+        self.fpi.resync(&st.forward, &mut st.inverse);
+        st.voltage = voltage;
+        st.x_pea_est = x_pea_est;
+        StepOutput {
+            voltage,
+            x_pea_ref,
+            x_pea_est,
+            limited,
+            fault: None,
+        }
+    }
+
+    /// Checks the inputs and latches the first fault; returns the latched fault.
+    #[inline]
+    fn supervise<const MEASURED: bool>(
+        &self,
+        st: &mut ControllerState<N>,
+        x_ref: Micrometres,
+        force: Newtons,
+    ) -> Option<Fault> {
+        if st.fault.is_none() {
+            st.fault = if MEASURED && !self.force.contains(force) {
+                Some(Fault::ForceOutOfRange)
+            } else if MEASURED && (force - self.f_f.eval(st.x_pea_est)).abs() > self.force_tolerance
+            {
+                Some(Fault::ForceImplausible)
+            } else if !self.reference.contains(x_ref) {
+                Some(Fault::ReferenceUnreachable)
+            } else {
+                None
+            };
+        }
+        st.fault
     }
 
     /// The step in the safe state: ramp toward the safe voltage, keep estimating.
@@ -250,10 +323,15 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
             voltage,
             x_pea_ref: x_pea_est,
             x_pea_est,
-            x_est: self.f_k.eval(x_pea_est),
             limited: true,
             fault: Some(fault),
         }
+    }
+
+    /// The virtual sensor's stage position for an estimated stack extension,
+    /// `f_K(x_pea_est)`, µm (outside the ISR: for telemetry).
+    pub fn stage_position(&self, x_pea_est: Micrometres) -> Micrometres {
+        self.f_k.eval(x_pea_est)
     }
 
     /// The calibrated model.
@@ -307,8 +385,6 @@ pub struct StepOutput {
     pub x_pea_ref: Micrometres,
     /// Virtual sensor: estimated stack extension, µm.
     pub x_pea_est: Micrometres,
-    /// Virtual sensor: estimated stage position `f_K(x_pea_est)`, µm.
-    pub x_est: Micrometres,
     /// The limits changed the voltage (always true in the safe state).
     pub limited: bool,
     /// The latched fault, if the controller is in its safe state.
@@ -388,13 +464,12 @@ impl LinearDrive {
         })
     }
 
-    /// The voltage for a reference, limited like the compensated output.
+    /// The voltage for a reference (before the limits), V.
     #[inline]
-    pub fn step(&self, limits: &OutputLimits, prev: Volts, x_ref: Micrometres) -> Volts {
+    pub fn voltage(&self, x_ref: Micrometres) -> Volts {
         // Saturate the product at the signal range before narrowing it.
         let lim = (SIGNAL_ABS_MAX_BITS as i64) << INV_GAIN_FRAC;
         let acc = self.gain.wide_mul(x_ref).to_bits().max(-lim).min(lim);
-        let u = narrow_inv_gain(InvGainAcc::from_bits(acc)).saturating_add(self.offset);
-        limits.apply(prev, u).0
+        narrow_inv_gain(InvGainAcc::from_bits(acc)).saturating_add(self.offset)
     }
 }

@@ -45,12 +45,17 @@ pub enum ModelError {
     TooManyOperators,
     /// A lookup table needs at least two knots and at most [`crate::q::MAX_TABLE_LEN`].
     TableLength,
-    /// The knot spacing `2^shift` LSB is outside `1..=2^24` LSB.
+    /// The knot spacing `2^shift` LSB is outside `1..=2^16` LSB (at most one unit).
     TableSpacing,
     /// The table's last knot lies beyond the signal range.
     TableSpan,
     /// Table values are not monotone; `index` is the first knot that breaks the order.
     TableNotMonotone {
+        /// Position of the offending element.
+        index: u16,
+    },
+    /// Neighbouring knot values differ by half a unit or more: use a finer grid.
+    TableTooSteep {
         /// Position of the offending element.
         index: u16,
     },
@@ -77,9 +82,12 @@ impl ModelError {
             }
             Self::TooManyOperators => "more play operators than the core supports",
             Self::TableLength => "a lookup table needs 2..=4096 knots",
-            Self::TableSpacing => "table knot spacing outside 1..=2^24 LSB",
+            Self::TableSpacing => "table knot spacing outside 1..=2^16 LSB (at most one unit)",
             Self::TableSpan => "table span leaves the signal range",
             Self::TableNotMonotone { .. } => "table values are not monotone",
+            Self::TableTooSteep { .. } => {
+                "neighbouring table values differ by 0.5 or more: use a finer grid"
+            }
             Self::LimitsInverted => {
                 "a lower limit exceeds its upper limit or a rate is not positive"
             }
@@ -95,7 +103,9 @@ impl ModelError {
             | Self::ThresholdsNotSorted { index }
             | Self::ThresholdBeyondDomain { index }
             | Self::InverseWeightOutOfRange { index } => Some(index as usize),
-            Self::TableNotMonotone { index } => Some(index as usize),
+            Self::TableNotMonotone { index } | Self::TableTooSteep { index } => {
+                Some(index as usize)
+            }
             _ => None,
         }
     }

@@ -27,13 +27,13 @@ use crate::inverse::InversePi;
 use crate::pi::PiModel;
 use crate::play::PlayBank;
 use crate::q::{
-    gain_mul, Micrometres, Newtons, UmPerNewton, Volts, VoltsPerNewton, SIGNAL_ABS_MAX_BITS,
+    coupling_mul, Micrometres, Newtons, UmPerNewton, Volts, VoltsPerNewton, SIGNAL_ABS_MAX_BITS,
 };
 
 /// The force coupling of an FPI model.
 ///
-/// * `k_f` — force–voltage coupling, V/N, `I4F28`.
-/// * `compliance` — `c`, µm/N, `I4F28` (0 for the paper's model).
+/// * `k_f` — force–voltage coupling, V/N, `I0F32`.
+/// * `compliance` — `c`, µm/N, `I0F32` (0 for the paper's model).
 /// * `force_ref` — `F_ref`, N, `I16F16`: force at which the extension is zero.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Coupling {
@@ -82,11 +82,11 @@ impl<const N: usize> Fpi<N> {
     }
 
     /// `k_f·F` and `c·(F - F_ref)` for a force `F` (N), each rounded once.
-    #[inline]
+    #[inline(always)]
     pub fn force_terms(&self, force: Newtons) -> ForceTerms {
         ForceTerms {
-            reverse_voltage: gain_mul(self.coupling.k_f, force),
-            compression: gain_mul(
+            reverse_voltage: coupling_mul(self.coupling.k_f, force),
+            compression: coupling_mul(
                 self.coupling.compliance,
                 force.saturating_sub(self.coupling.force_ref),
             ),
@@ -95,7 +95,7 @@ impl<const N: usize> Fpi<N> {
 
     /// Forward FPI: applied voltage `u` (V) under force terms `t` → stack extension (µm).
     /// Advances the forward bank.
-    #[inline]
+    #[inline(always)]
     pub fn forward(&self, bank: &mut PlayBank<N>, u: Volts, t: ForceTerms) -> Micrometres {
         // `PiModel::apply` clamps û to [0, input_max]: the dead zone.
         self.pi.apply(bank, u.saturating_sub(t.reverse_voltage)) - t.compression
@@ -106,7 +106,7 @@ impl<const N: usize> Fpi<N> {
     ///
     /// `x_pea + c·(F - F_ref)` is clamped to the PI output range, so the result lies
     /// in `[k_f·F, input_max + k_f·F]`; the caller applies the actuator limits.
-    #[inline]
+    #[inline(always)]
     pub fn inverse(&self, bank: &mut PlayBank<N>, x_pea: Micrometres, t: ForceTerms) -> Volts {
         self.inverse.apply(bank, x_pea + t.compression) + t.reverse_voltage
     }
@@ -134,14 +134,14 @@ impl<const N: usize> Fpi<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::q::{gain, signal};
+    use crate::q::{coupling, signal};
 
     fn model(c: f64) -> Fpi<3> {
         let pi =
             PiModel::from_f64(0.064, &[10.0, 30.0, 60.0], &[0.01, 0.008, 0.004], 150.0).unwrap();
         let coupling = Coupling {
-            k_f: gain(0.1).unwrap(),
-            compliance: gain(c).unwrap(),
+            k_f: coupling(0.1).unwrap(),
+            compliance: coupling(c).unwrap(),
             force_ref: signal(60.0).unwrap(),
         };
         Fpi::new(pi, coupling).unwrap()

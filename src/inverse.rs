@@ -18,9 +18,9 @@
 
 use crate::error::ModelError;
 use crate::pi::PiModel;
-use crate::play::{osp, PlayBank};
+use crate::play::{Operator, PlayBank};
 use crate::q::{
-    narrow_inv_gain, within, Micrometres, Volts, VoltsPerUm, GAIN_FRAC, INV_GAIN_FRAC,
+    narrow_inv_gain, within, InvGainAcc, Micrometres, Volts, VoltsPerUm, GAIN_FRAC, INV_GAIN_FRAC,
     SIGNAL_ABS_MAX_BITS, SIGNAL_FRAC,
 };
 
@@ -34,8 +34,7 @@ use crate::q::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct InversePi<const N: usize> {
     w0: VoltsPerUm,
-    thresholds: [Micrometres; N],
-    weights: [VoltsPerUm; N],
+    ops: [Operator<VoltsPerUm>; N],
     input_max: Micrometres,
     output_max: Volts,
 }
@@ -55,27 +54,28 @@ impl<const N: usize> InversePi<N> {
     /// `I10F22` (that is, `w0 < 1/512` µm/V) or the output could leave the signal range.
     pub const fn from_forward(fwd: &PiModel<N>) -> Result<Self, ModelError> {
         let w0 = fwd.w0().to_bits() as i128; // GAIN_FRAC bits; > 0 by construction
-        let r = fwd.thresholds();
-        let w = fwd.weights();
+        let fops = fwd.operators();
         // 1/w0 in INV_GAIN_FRAC bits: 2^(INV + GAIN) / w0_bits.
         let inv_w0 = div_round(1i128 << (INV_GAIN_FRAC + GAIN_FRAC), w0);
         if inv_w0 > i32::MAX as i128 {
             return Err(ModelError::InverseWeightOutOfRange { index: 0 });
         }
         let mut abs_sum = inv_w0;
-        let mut thresholds = [Micrometres::ZERO; N];
-        let mut weights = [VoltsPerUm::ZERO; N];
+        let mut ops = [Operator {
+            threshold: Micrometres::ZERO,
+            weight: VoltsPerUm::ZERO,
+        }; N];
         let mut s_prev = w0; // S_{j-1}
         let mut sum_wr = 0i128; // Σ_{i<j} w_i r_i, GAIN_FRAC + SIGNAL_FRAC bits (r_0 = 0)
         let mut j = 0;
         while j < N {
-            let wj = w[j].to_bits() as i128;
-            let rj = r[j].to_bits() as i128;
+            let wj = fops[j].weight.to_bits() as i128;
+            let rj = fops[j].threshold.to_bits() as i128;
             let s = s_prev + wj; // S_j > 0 by construction
             sum_wr += wj * rj;
             // r'_j = S_j r_j - Σ_{i<=j} w_i r_i, rounded to SIGNAL_FRAC bits.
             let rp = div_round(s * rj - sum_wr, 1i128 << GAIN_FRAC);
-            thresholds[j] = Micrometres::from_bits(rp as i32);
+            ops[j].threshold = Micrometres::from_bits(rp as i32);
             // w'_j = -w_j / (S_j S_{j-1}): INV bits = GAIN + INV + 2 GAIN - 2 GAIN ... i.e.
             // (-w_j · 2^(INV + GAIN)) / (S_j · S_{j-1}) with all three in GAIN_FRAC bits.
             let wp = div_round(-wj * (1i128 << (INV_GAIN_FRAC + GAIN_FRAC)), s * s_prev);
@@ -84,7 +84,7 @@ impl<const N: usize> InversePi<N> {
                     index: (j + 1) as u8,
                 });
             }
-            weights[j] = VoltsPerUm::from_bits(wp as i32);
+            ops[j].weight = VoltsPerUm::from_bits(wp as i32);
             abs_sum += if wp < 0 { -wp } else { wp };
             s_prev = s;
             j += 1;
@@ -99,8 +99,7 @@ impl<const N: usize> InversePi<N> {
         }
         Ok(Self {
             w0: VoltsPerUm::from_bits(inv_w0 as i32),
-            thresholds,
-            weights,
+            ops,
             input_max,
             output_max: fwd.input_max(),
         })
@@ -109,17 +108,13 @@ impl<const N: usize> InversePi<N> {
     /// One sample: advances the inverse operators with the desired output `x` (µm)
     /// and returns the input `u` (V) that produces it.
     ///
-    /// `x` is clamped to `[0, input_max]` and `u` to `[0, output_max]` (rounding
-    /// cannot push it outside the forward domain). No division, no panic.
-    #[inline]
+    /// `x` is clamped to `[0, input_max]`; `u` then lies in `[0, output_max]` up to
+    /// rounding (a few LSB; the caller's actuator limits bound it). No division, no panic.
+    #[inline(always)]
     pub fn apply(&self, state: &mut PlayBank<N>, x: Micrometres) -> Volts {
         let x = within(x, Micrometres::ZERO, self.input_max);
-        let mut acc = self.w0.wide_mul(x);
-        for ((z, r), w) in state.y.iter_mut().zip(&self.thresholds).zip(&self.weights) {
-            *z = osp(x, *r, *z);
-            acc += w.wide_mul(*z);
-        }
-        within(narrow_inv_gain(acc), Volts::ZERO, self.output_max)
+        let sum = state.advance(&self.ops, x);
+        narrow_inv_gain(InvGainAcc::from_bits(self.w0.wide_mul(x).to_bits() + sum))
     }
 
     /// Sets the inverse operators to the state that matches a forward bank:
@@ -129,34 +124,43 @@ impl<const N: usize> InversePi<N> {
     /// Called when the output limiter changed the voltage; `fwd` must be the model
     /// this inverse was built from. N multiply-adds, no division.
     pub fn resync(&self, fwd: &PiModel<N>, fwd_state: &PlayBank<N>, state: &mut PlayBank<N>) {
-        let w = fwd.weights();
-        // S_N in GAIN_FRAC bits; the constructor bounded |S_j| * input_max.
-        let mut s: i64 = fwd.w0().to_bits() as i64;
-        for wi in w {
-            s += wi.to_bits() as i64;
+        let ops = fwd.operators();
+        // S_N in GAIN_FRAC bits: |S_j| <= sum|w| fits an i32 (checked by PiModel::new).
+        let w0 = fwd.w0().to_bits();
+        let mut s: i32 = w0;
+        for op in ops {
+            s = s.wrapping_add(op.weight.to_bits());
         }
+        let round =
+            |v: i64| Micrometres::from_bits(((v + (1 << (GAIN_FRAC - 1))) >> GAIN_FRAC) as i32);
         let mut tail: i64 = 0; // Σ_{i>j} w_i y_i, GAIN + SIGNAL bits
-        for j in (0..N).rev() {
-            let y = fwd_state.y[j].to_bits() as i64;
-            let z = s * y + tail;
-            state.y[j] = Micrometres::from_bits(((z + (1 << (GAIN_FRAC - 1))) >> GAIN_FRAC) as i32);
-            let wj = w[j].to_bits() as i64;
-            tail += wj * y;
-            s -= wj;
+        for (op, (z, y)) in ops.iter().zip(state.y.iter_mut().zip(&fwd_state.y)).rev() {
+            let y = y.to_bits();
+            *z = round(s as i64 * y as i64 + tail);
+            let wj = op.weight.to_bits();
+            tail += wj as i64 * y as i64;
+            s = s.wrapping_sub(wj);
         }
+        // The inverse bank's last input is the forward output Y = w0·û + Σ w_i y_i.
+        let x = round(w0 as i64 * fwd_state.last.to_bits() as i64 + tail);
+        state.last = within(x, Micrometres::ZERO, self.input_max);
     }
 
     /// `1/w0`, V/µm.
     pub const fn w0(&self) -> VoltsPerUm {
         self.w0
     }
+    /// The operators: thresholds `r'_j` (µm) with their weights `w'_j` (V/µm).
+    pub const fn operators(&self) -> &[Operator<VoltsPerUm>; N] {
+        &self.ops
+    }
     /// Thresholds `r'_j`, µm.
-    pub const fn thresholds(&self) -> &[Micrometres; N] {
-        &self.thresholds
+    pub fn thresholds(&self) -> [Micrometres; N] {
+        self.ops.map(|o| o.threshold)
     }
     /// Weights `w'_j`, V/µm.
-    pub const fn weights(&self) -> &[VoltsPerUm; N] {
-        &self.weights
+    pub fn weights(&self) -> [VoltsPerUm; N] {
+        self.ops.map(|o| o.weight)
     }
     /// Upper end of the input domain (the forward model's largest output), µm.
     pub const fn input_max(&self) -> Micrometres {
@@ -228,6 +232,8 @@ mod tests {
                 let d = (synced.y[j] - is.y[j]).to_num::<f64>().abs();
                 assert!(d < 1e-4, "u={u} j={j} d={d}");
             }
+            let d = (synced.last - is.last).to_num::<f64>().abs();
+            assert!(d < 1e-4, "u={u}: last differs by {d}");
         }
     }
 

@@ -4,7 +4,9 @@
 //! or the emulator's simulated stage); the core never sees a peripheral.
 //! embedded-hal 1.0 has no ADC or DAC trait, so these two small traits are ours.
 
-use crate::q::{gain_mul, within, Newtons, Volts};
+use crate::control::{ControllerConfig, ControllerState, Mode, StepOutput};
+use crate::q::{gain_mul, within, Micrometres, Newtons, Volts};
+use embedded_hal::digital::OutputPin;
 use fixed::types::{I16F16, I4F28};
 
 /// Reads the force between stack and hinge.
@@ -18,6 +20,45 @@ pub trait ForceSensor {
 pub trait Setpoint {
     /// Commands the amplifier output, V.
     fn write_voltage(&mut self, voltage: Volts);
+}
+
+/// The hardware one control loop drives: force sensor, amplifier setpoint and the
+/// amplifier's enable line (an embedded-hal [`OutputPin`]; high = amplifier on).
+pub struct Hardware<S, A, E> {
+    /// The force sensor between stack and hinge.
+    pub sensor: S,
+    /// The high-voltage amplifier's setpoint.
+    pub amplifier: A,
+    /// The amplifier's enable (or shutdown-not) line.
+    pub enable: E,
+}
+
+impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
+    /// One control period, the body of the ISR: read the force, run the step, write
+    /// the setpoint. Once a fault's ramp has reached the safe voltage the amplifier
+    /// is switched off; otherwise it is on.
+    #[inline]
+    pub fn tick<const N: usize>(
+        &mut self,
+        cfg: &ControllerConfig<'_, N>,
+        st: &mut ControllerState<N>,
+        mode: &Mode,
+        x_ref: Micrometres,
+    ) -> StepOutput {
+        let force = self.sensor.read_force();
+        let out = match mode {
+            Mode::Compensated => cfg.step(st, x_ref, force),
+            Mode::Uncompensated(drive) => cfg.step_uncompensated(st, drive, x_ref, force),
+        };
+        self.amplifier.write_voltage(out.voltage);
+        // A pin error cannot be handled in the ISR; the next tick writes it again.
+        let _ = if out.fault.is_some() && out.voltage == cfg.safe_voltage() {
+            self.enable.set_low()
+        } else {
+            self.enable.set_high()
+        };
+        out
+    }
 }
 
 /// ADC counts to newtons: `F = offset + per_count · counts`.

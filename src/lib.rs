@@ -18,7 +18,7 @@
 //! Modules: [`play`] (the OSP operator), [`pi`] (forward PI), [`inverse`] (closed-form
 //! inverse PI), [`fpi`] (force coupling), [`table`] (lookup tables), [`limits`],
 //! [`control`] (the ISR step), [`io`] (sensor/amplifier traits), [`reference`]
-//! (trajectory generator),
+//! (trajectory generator), [`sim`] (the virtual stage of the emulated board),
 //! [`model`] (the embedded model).
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
@@ -26,6 +26,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod control;
+pub mod demo;
 pub mod error;
 pub mod fpi;
 pub mod inverse;
@@ -36,11 +37,14 @@ pub mod pi;
 pub mod play;
 pub mod q;
 pub mod reference;
+pub mod runner;
+pub mod sim;
+pub mod stats;
 pub mod table;
 
 pub use control::{
     ControllerConfig, ControllerParts, ControllerState, Fault, ForceSource, Interval, LinearDrive,
-    StepOutput,
+    Mode, StepOutput,
 };
 pub use error::ModelError;
 pub use fpi::{Coupling, ForceTerms, Fpi};

@@ -1,7 +1,7 @@
 //! Actuator limits: voltage range and slew rate of the amplifier setpoint.
 
 use crate::error::ModelError;
-use crate::q::{within, Volts};
+use crate::q::{at_least, at_most, within, Volts};
 
 /// The range and per-step rate the amplifier setpoint must respect.
 ///
@@ -28,11 +28,12 @@ impl OutputLimits {
     /// apply and whether it differs from the request.
     ///
     /// `prev` is always a previous output of this function (or the initial safe
-    /// voltage), hence inside `[min, max]`, so the window below is never empty.
+    /// voltage), hence inside `[min, max]`: the window `[max(prev - step, min),
+    /// min(prev + step, max)]` is never empty.
     #[inline]
     pub fn apply(&self, prev: Volts, want: Volts) -> (Volts, bool) {
-        let lo = within(prev.saturating_sub(self.max_step), self.min, self.max);
-        let hi = within(prev.saturating_add(self.max_step), self.min, self.max);
+        let lo = at_least(prev.saturating_sub(self.max_step), self.min);
+        let hi = at_most(prev.saturating_add(self.max_step), self.max);
         let u = within(want, lo, hi);
         (u, u != want)
     }

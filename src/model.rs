@@ -12,7 +12,7 @@ use crate::fpi::{Coupling, Fpi};
 use crate::limits::OutputLimits;
 use crate::pi::PiModel;
 use crate::q::{Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton};
-use crate::table::Table;
+use crate::table::{Segment, Table};
 use fixed::types::I16F16;
 
 include!(concat!(env!("OUT_DIR"), "/model.rs"));

@@ -124,7 +124,7 @@ pub struct Tables {
 pub struct TableSection {
     /// First knot, input unit.
     pub x0: f64,
-    /// Knot spacing is `2^step_log2` input units; `-16..=8`.
+    /// Knot spacing is `2^step_log2` input units; `-16..=0`.
     pub step_log2: i32,
     /// Values at the knots, output unit.
     pub values: Vec<f64>,
@@ -238,8 +238,8 @@ impl FirmwareModel {
             }
         }
         let c = &self.coupling;
-        gain_value("coupling.k_f_v_per_n", c.k_f_v_per_n)?;
-        gain_value("coupling.compliance_um_per_n", c.compliance_um_per_n)?;
+        coupling_value("coupling.k_f_v_per_n", c.k_f_v_per_n)?;
+        coupling_value("coupling.compliance_um_per_n", c.compliance_um_per_n)?;
         signal_value("coupling.force_ref_n", c.force_ref_n)?;
 
         let k = &self.controller;
@@ -339,6 +339,16 @@ fn gain_value(key: &str, v: f64) -> Result<(), String> {
     Ok(())
 }
 
+fn coupling_value(key: &str, v: f64) -> Result<(), String> {
+    if !v.is_finite() || v.abs() > q::COUPLING_ABS_MAX {
+        return Err(format!(
+            "{key} = {v}: not a finite value within ±{} (I0F32 coupling range)",
+            q::COUPLING_ABS_MAX
+        ));
+    }
+    Ok(())
+}
+
 fn ordered(lo_key: &str, lo: f64, hi_key: &str, hi: f64) -> Result<(), String> {
     if lo > hi {
         return Err(format!("{lo_key} = {lo} exceeds {hi_key} = {hi}"));
@@ -370,6 +380,12 @@ fn check_table(key: &str, t: &TableSection) -> Result<(), String> {
             if (increasing && v < p) || (!increasing && v > p) {
                 return Err(format!(
                     "{key}.values[{i}] = {v}: not monotone (previous {p}); the maps must be monotone"
+                ));
+            }
+            if (v - p).abs() >= 0.5 {
+                return Err(format!(
+                    "{key}.values[{i}] = {v}: differs from the previous knot ({p}) by 0.5 or \
+                     more; use a finer grid (step_log2)"
                 ));
             }
         }

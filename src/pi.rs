@@ -2,7 +2,7 @@
 //! `Y[u] = w0·u + Σ w_i·G_{r_i}[u]`.
 
 use crate::error::ModelError;
-use crate::play::{osp, PlayBank};
+use crate::play::{Operator, PlayBank};
 use crate::q::{
     self, narrow_gain, within, GainAcc, Micrometres, UmPerVolt, Volts, GAIN_FRAC, MAX_OPERATORS,
     SIGNAL_ABS_MAX_BITS,
@@ -23,8 +23,7 @@ use crate::q::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PiModel<const N: usize> {
     w0: UmPerVolt,
-    thresholds: [Volts; N],
-    weights: [UmPerVolt; N],
+    ops: [Operator<UmPerVolt>; N],
     input_max: Volts,
     output_max: Micrometres,
 }
@@ -50,8 +49,16 @@ impl<const N: usize> PiModel<N> {
         }
         let mut abs_sum = slope;
         let mut prev = 0i64;
+        let mut ops = [Operator {
+            threshold: Volts::ZERO,
+            weight: UmPerVolt::ZERO,
+        }; N];
         let mut i = 0;
         while i < N {
+            ops[i] = Operator {
+                threshold: thresholds[i],
+                weight: weights[i],
+            };
             let r = thresholds[i].to_bits() as i64;
             if r < 0 {
                 return Err(ModelError::NegativeThreshold { index: i as u8 });
@@ -75,7 +82,9 @@ impl<const N: usize> PiModel<N> {
         }
         // Every partial sum of products is bounded by sum|w| * input_max; it must
         // narrow back into the signal range. Raw units: GAIN_FRAC + SIGNAL_FRAC bits.
-        if abs_sum * u_max >= (SIGNAL_ABS_MAX_BITS as i64) << GAIN_FRAC {
+        // And sum|w| itself fits a gain, so every partial slope S_j is an I4F28.
+        if abs_sum * u_max >= (SIGNAL_ABS_MAX_BITS as i64) << GAIN_FRAC || abs_sum > i32::MAX as i64
+        {
             return Err(ModelError::OutputOutOfRange);
         }
         // Y[input_max] on the loading curve: S_N * U - sum w_i r_i (operators all active).
@@ -88,8 +97,7 @@ impl<const N: usize> PiModel<N> {
         }
         Ok(Self {
             w0,
-            thresholds,
-            weights,
+            ops,
             input_max,
             output_max: narrow_gain(acc),
         })
@@ -116,15 +124,11 @@ impl<const N: usize> PiModel<N> {
     /// One sample: advances the operator states with input `u` (V) and returns `Y[u]` (µm).
     ///
     /// `u` is clamped to `[0, input_max]`. No division, no panic, one rounding.
-    #[inline]
+    #[inline(always)]
     pub fn apply(&self, state: &mut PlayBank<N>, u: Volts) -> Micrometres {
         let u = within(u, Volts::ZERO, self.input_max);
-        let mut acc = self.w0.wide_mul(u);
-        for ((y, r), w) in state.y.iter_mut().zip(&self.thresholds).zip(&self.weights) {
-            *y = osp(u, *r, *y);
-            acc += w.wide_mul(*y);
-        }
-        narrow_gain(acc)
+        let sum = state.advance(&self.ops, u);
+        narrow_gain(GainAcc::from_bits(self.w0.wide_mul(u).to_bits() + sum))
     }
 
     /// `Y` of the current operator states for input `u`, without changing them.
@@ -141,13 +145,17 @@ impl<const N: usize> PiModel<N> {
     pub const fn w0(&self) -> UmPerVolt {
         self.w0
     }
+    /// The operators: thresholds `r_i` (V) with their weights `w_i` (µm/V).
+    pub const fn operators(&self) -> &[Operator<UmPerVolt>; N] {
+        &self.ops
+    }
     /// Thresholds `r_i`, V.
-    pub const fn thresholds(&self) -> &[Volts; N] {
-        &self.thresholds
+    pub fn thresholds(&self) -> [Volts; N] {
+        self.ops.map(|o| o.threshold)
     }
     /// Weights `w_i`, µm/V.
-    pub const fn weights(&self) -> &[UmPerVolt; N] {
-        &self.weights
+    pub fn weights(&self) -> [UmPerVolt; N] {
+        self.ops.map(|o| o.weight)
     }
     /// Upper end of the input domain, V.
     pub const fn input_max(&self) -> Volts {

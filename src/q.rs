@@ -6,20 +6,21 @@
 //! | [`Micrometres`] | µm | `I16F16` | 15.3 pm | ±4096 |
 //! | [`Newtons`] | N | `I16F16` | 15.3 µN | ±4096 |
 //! | [`UmPerVolt`] | µm/V | `I4F28` | 3.7·10⁻⁹ | ±8 (forward PI weights `w0`, `w_i`) |
-//! | [`VoltsPerNewton`] | V/N | `I4F28` | 3.7·10⁻⁹ | ±8 (force–voltage coupling `k_f`) |
-//! | [`UmPerNewton`] | µm/N | `I4F28` | 3.7·10⁻⁹ | ±8 (stack compliance `c`) |
+//! | [`VoltsPerNewton`] | V/N | `I0F32` | 2.3·10⁻¹⁰ | ±0.5 (force–voltage coupling `k_f`; stacks: 0.01–0.2) |
+//! | [`UmPerNewton`] | µm/N | `I0F32` | 2.3·10⁻¹⁰ | ±0.5 (stack compliance `c`; stacks: 0.005–0.1) |
 //! | [`VoltsPerUm`] | V/µm | `I10F22` | 2.4·10⁻⁷ | ±512 (inverse PI weights `w0'`, `w'_j`) |
 //!
 //! Sums of products are accumulated exactly in 64 bits ([`GainAcc`] = `I20F44` for
 //! gain × signal, [`InvGainAcc`] = `I26F38` for inverse gain × signal) and rounded
-//! to nearest once, when narrowed back to a signal. The model constructors check
+//! to nearest once, when narrowed back to a signal. A coupling × force product is
+//! the rounded high word of one 32 × 32-bit multiply. The model constructors check
 //! that every accumulator stays inside its range for inputs in the model's domain,
 //! so the hot path needs no saturation and has no overflow.
 //!
 //! One 16-bit DAC LSB over 0–150 V is 2.29 mV = 150 LSB of [`Volts`]; one nm is
 //! 65.5 LSB of [`Micrometres`].
 
-use fixed::types::{I10F22, I16F16, I20F44, I26F38, I4F28};
+use fixed::types::{I0F32, I10F22, I16F16, I20F44, I26F38, I4F28};
 
 include!("qformat.rs");
 
@@ -31,10 +32,10 @@ pub type Micrometres = I16F16;
 pub type Newtons = I16F16;
 /// Forward PI weight, µm per volt, `I4F28`.
 pub type UmPerVolt = I4F28;
-/// Force–voltage coupling `k_f`, volts per newton, `I4F28`.
-pub type VoltsPerNewton = I4F28;
-/// Stack compliance, µm per newton, `I4F28`.
-pub type UmPerNewton = I4F28;
+/// Force–voltage coupling `k_f`, volts per newton, `I0F32`.
+pub type VoltsPerNewton = I0F32;
+/// Stack compliance, µm per newton, `I0F32`.
+pub type UmPerNewton = I0F32;
 /// Inverse PI weight, volts per µm, `I10F22`.
 pub type VoltsPerUm = I10F22;
 /// Exact product accumulator of a forward gain and a signal, `I20F44`.
@@ -45,6 +46,7 @@ pub type InvGainAcc = I26F38;
 const _: () = {
     assert!(Volts::FRAC_NBITS == SIGNAL_FRAC);
     assert!(UmPerVolt::FRAC_NBITS == GAIN_FRAC);
+    assert!(VoltsPerNewton::FRAC_NBITS == COUPLING_FRAC);
     assert!(VoltsPerUm::FRAC_NBITS == INV_GAIN_FRAC);
     assert!(GainAcc::FRAC_NBITS == GAIN_FRAC + SIGNAL_FRAC);
     assert!(InvGainAcc::FRAC_NBITS == INV_GAIN_FRAC + SIGNAL_FRAC);
@@ -75,6 +77,14 @@ pub(crate) const fn narrow_inv_gain(acc: InvGainAcc) -> I16F16 {
 #[inline(always)]
 pub(crate) const fn gain_mul(g: I4F28, x: I16F16) -> I16F16 {
     narrow_gain(g.wide_mul(x))
+}
+
+/// Product of a force coupling (`I0F32`) and a signal, rounded to a signal: the
+/// rounded high word of a 32 × 32-bit product.
+#[inline(always)]
+pub(crate) const fn coupling_mul(c: I0F32, x: I16F16) -> I16F16 {
+    let p = c.to_bits() as i64 * x.to_bits() as i64;
+    I16F16::from_bits(((p + (1 << 31)) >> COUPLING_FRAC) as i32)
 }
 
 /// `max(x, lo)` without the `Ord::clamp` panic path.
@@ -130,6 +140,20 @@ pub const fn signal(value: f64) -> Option<I16F16> {
     }
 }
 
+/// `I0F32` from an engineering value; `None` if not finite or beyond ±[`COUPLING_ABS_MAX`].
+pub const fn coupling(value: f64) -> Option<I0F32> {
+    if !value.is_finite() || value > COUPLING_ABS_MAX || value < -COUPLING_ABS_MAX {
+        return None;
+    }
+    let scaled = value * 4_294_967_296.0;
+    let r = if scaled >= 0.0 {
+        scaled + 0.5
+    } else {
+        scaled - 0.5
+    };
+    Some(I0F32::from_bits(r as i64 as i32))
+}
+
 /// `I4F28` from an engineering value; `None` if not finite or beyond ±[`GAIN_ABS_MAX`].
 pub const fn gain(value: f64) -> Option<I4F28> {
     match quantize(value, GAIN_FRAC, GAIN_ABS_MAX) {
@@ -163,10 +187,14 @@ mod tests {
     }
 
     #[test]
-    fn gain_product_is_exact_then_rounded() {
-        let kf = gain(0.1).unwrap();
+    fn products_are_exact_then_rounded() {
         let f = signal(100.0).unwrap();
-        let v = gain_mul(kf, f).to_num::<f64>();
+        let v = gain_mul(gain(0.1).unwrap(), f).to_num::<f64>();
         assert!((v - 10.0).abs() < 1.0 / 65536.0);
+        let v = coupling_mul(coupling(0.1).unwrap(), f).to_num::<f64>();
+        assert!((v - 10.0).abs() < 1.0 / 65536.0);
+        let v = coupling_mul(coupling(-0.02).unwrap(), signal(-30.5).unwrap()).to_num::<f64>();
+        assert!((v - 0.61).abs() < 1.0 / 65536.0);
+        assert_eq!(coupling(0.6), None);
     }
 }

@@ -6,8 +6,12 @@
 
 /// Fractional bits of every physical signal: volts, micrometres, newtons (`I16F16`).
 pub const SIGNAL_FRAC: u32 = 16;
-/// Fractional bits of forward gains: um/V (PI weights), V/N (`k_f`), um/N (compliance) (`I4F28`).
+/// Fractional bits of forward gains: um/V (PI weights) (`I4F28`).
 pub const GAIN_FRAC: u32 = 28;
+/// Fractional bits of the force couplings: V/N (`k_f`), um/N (compliance) (`I0F32`).
+pub const COUPLING_FRAC: u32 = 32;
+/// Largest magnitude of a force coupling (V/N or um/N): `I0F32` holds [-0.5, 0.5).
+pub const COUPLING_ABS_MAX: f64 = 0.499_999;
 /// Fractional bits of inverse-PI weights in V/um (`I10F22`).
 pub const INV_GAIN_FRAC: u32 = 22;
 /// Largest magnitude of a physical signal the core accepts anywhere: volts, um or N.

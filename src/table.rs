@@ -4,6 +4,8 @@
 //! extension) and `f_K⁻¹` live in flash as tables whose knot spacing is a power of
 //! two in raw `I16F16` units, so finding the interval is a shift and the
 //! interpolation weight a mask: no multiply for the index, no division, no search.
+//! Each interval is stored as its start value and its rise ([`Segment`]), so an
+//! evaluation is one bounds test, one double-word load and one multiply-add.
 //! The grids are chosen and filled by the host tool (`fpi export`) and quantised
 //! by `build.rs`.
 
@@ -11,7 +13,47 @@ use crate::error::ModelError;
 use crate::q::{MAX_TABLE_LEN, SIGNAL_ABS_MAX_BITS};
 use fixed::types::I16F16;
 
-/// A monotone function sampled at `x_k = x0 + k·2^shift` LSB, `k = 0..len`.
+/// Largest knot spacing, as `log2` of raw LSB: one unit (µm or N).
+pub const MAX_SHIFT: u32 = 16;
+
+/// Largest rise of one interval, raw: half a unit, so the interpolation product
+/// (rise × 16-bit fraction) fits 32 bits.
+pub const MAX_KNOT_STEP: i32 = 1 << 15;
+
+/// One interval of a table: the value at its first knot and the rise to the next.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(C)]
+pub struct Segment {
+    /// Value at the interval's first knot.
+    pub start: I16F16,
+    /// Value at the next knot minus `start`.
+    pub rise: I16F16,
+}
+
+impl Segment {
+    /// A segment from raw bits (generated code).
+    pub const fn from_bits(start: i32, rise: i32) -> Self {
+        Self {
+            start: I16F16::from_bits(start),
+            rise: I16F16::from_bits(rise),
+        }
+    }
+
+    /// The `K - 1` segments between `K` knot values (`S` must be `K - 1`).
+    pub const fn between<const K: usize, const S: usize>(values: &[I16F16; K]) -> [Segment; S] {
+        assert!(S + 1 == K, "S must be K - 1");
+        let mut out = [Segment::from_bits(0, 0); S];
+        let mut k = 0;
+        while k < S {
+            let a = values[k].to_bits();
+            out[k] = Segment::from_bits(a, values[k + 1].to_bits().wrapping_sub(a));
+            k += 1;
+        }
+        out
+    }
+}
+
+/// A monotone function sampled at `x_k = x0 + k·2^shift` LSB.
 ///
 /// Input and output are `I16F16` in their own units (µm or N). Outside
 /// `[x_min, x_max]` the end values are held (callers that must not extrapolate
@@ -20,56 +62,88 @@ use fixed::types::I16F16;
 pub struct Table<'a> {
     x0: I16F16,
     shift: u32,
-    y: &'a [I16F16],
+    /// `MAX_SHIFT - shift`: moves the bits below the knot index up to bit 15.
+    up: u32,
+    segments: &'a [Segment],
+    /// The last knot's value (held beyond the grid).
+    end: I16F16,
 }
 
 impl<'a> Table<'a> {
-    /// Validates and builds a table: `2..=4096` knots, spacing `2^shift` LSB with
-    /// `shift <= 24`, last knot inside the signal range, values monotone (either
-    /// direction; flat runs allowed).
-    pub const fn new(x0: I16F16, shift: u32, y: &'a [I16F16]) -> Result<Self, ModelError> {
-        let n = y.len();
-        if n < 2 || n > MAX_TABLE_LEN {
+    /// Validates and builds a table: `1..4096` segments, spacing `2^shift` LSB with
+    /// `shift <= 16` (at most one unit), the last knot inside the signal range,
+    /// rises of one sign (monotone; flat runs allowed) and below half a unit, and
+    /// each segment starting where the previous one ends.
+    pub const fn new(x0: I16F16, shift: u32, segments: &'a [Segment]) -> Result<Self, ModelError> {
+        let n = segments.len();
+        if n < 1 || n >= MAX_TABLE_LEN {
             return Err(ModelError::TableLength);
         }
-        if shift > 24 {
+        if shift > MAX_SHIFT {
             return Err(ModelError::TableSpacing);
         }
-        let last = x0.to_bits() as i64 + ((n as i64 - 1) << shift);
+        let last = x0.to_bits() as i64 + ((n as i64) << shift);
         let lim = SIGNAL_ABS_MAX_BITS as i64;
         if last > lim || (x0.to_bits() as i64) < -lim {
             return Err(ModelError::TableSpan);
         }
-        let increasing = y[n - 1].to_bits() >= y[0].to_bits();
-        let mut k = 1;
+        let mut rising = false;
+        let mut falling = false;
+        let mut k = 0;
+        let mut value = segments[0].start.to_bits() as i64;
         while k < n {
-            let (a, b) = (y[k - 1].to_bits(), y[k].to_bits());
-            if (increasing && b < a) || (!increasing && b > a) {
+            let s = segments[k];
+            if s.start.to_bits() as i64 != value {
                 return Err(ModelError::TableNotMonotone { index: k as u16 });
             }
-            if b > SIGNAL_ABS_MAX_BITS || b < -SIGNAL_ABS_MAX_BITS {
+            let r = s.rise.to_bits();
+            rising |= r > 0;
+            falling |= r < 0;
+            if rising && falling {
+                return Err(ModelError::TableNotMonotone {
+                    index: (k + 1) as u16,
+                });
+            }
+            if r >= MAX_KNOT_STEP || r <= -MAX_KNOT_STEP {
+                return Err(ModelError::TableTooSteep {
+                    index: (k + 1) as u16,
+                });
+            }
+            if value > lim || value < -lim {
                 return Err(ModelError::TableSpan);
             }
+            value += r as i64;
             k += 1;
         }
-        Ok(Self { x0, shift, y })
+        if value > lim || value < -lim {
+            return Err(ModelError::TableSpan);
+        }
+        Ok(Self {
+            x0,
+            shift,
+            up: MAX_SHIFT - shift,
+            segments,
+            end: I16F16::from_bits(value as i32),
+        })
     }
 
     /// Interpolates at `x`; holds the end values outside the grid. No panic, no division.
+    ///
+    /// The offset from the first knot splits into the interval index (a shift) and
+    /// the position inside it, normalised to a 16-bit fraction; its product with
+    /// the interval's rise (< 2^15) is exact in 32 bits and rounded once.
     #[inline]
     pub fn eval(&self, x: I16F16) -> I16F16 {
         let d = x.to_bits().saturating_sub(self.x0.to_bits());
-        let d = if d < 0 { 0u32 } else { d as u32 };
+        let d = (d & !(d >> 31)) as u32; // below the grid: the first knot
         let k = d.wrapping_shr(self.shift) as usize;
-        let frac = d & (1u32.wrapping_shl(self.shift) - 1);
-        match (self.y.get(k), self.y.get(k + 1)) {
-            (Some(a), Some(b)) => {
-                let (a, b) = (a.to_bits(), b.to_bits());
-                let step = (b - a) as i64 * frac as i64;
-                let half = 1i64.wrapping_shl(self.shift) >> 1;
-                I16F16::from_bits(a + (step + half).wrapping_shr(self.shift) as i32)
+        match self.segments.get(k) {
+            Some(s) => {
+                // Fraction in 2^-16: the bits below the interval index moved up to bit 15.
+                let f = (d.wrapping_shl(self.up) & 0xFFFF) as i32;
+                I16F16::from_bits(s.start.to_bits() + ((s.rise.to_bits() * f + (1 << 15)) >> 16))
             }
-            _ => self.last(),
+            None => self.end,
         }
     }
 
@@ -79,23 +153,19 @@ impl<'a> Table<'a> {
     }
     /// Last grid point (input unit).
     pub const fn x_max(&self) -> I16F16 {
-        I16F16::from_bits(self.x0.to_bits() + (((self.y.len() - 1) as i32) << self.shift))
+        I16F16::from_bits(self.x0.to_bits() + ((self.segments.len() as i32) << self.shift))
     }
     /// Knot spacing as `log2` of raw LSB.
     pub const fn shift(&self) -> u32 {
         self.shift
     }
-    /// Knot values.
-    pub const fn values(&self) -> &'a [I16F16] {
-        self.y
-    }
-    /// Value at the first knot.
-    pub const fn first(&self) -> I16F16 {
-        self.y[0]
+    /// The intervals.
+    pub const fn segments(&self) -> &'a [Segment] {
+        self.segments
     }
     /// Value at the last knot.
     pub const fn last(&self) -> I16F16 {
-        self.y[self.y.len() - 1]
+        self.end
     }
 }
 
@@ -110,43 +180,57 @@ mod tests {
     #[test]
     fn interpolates_and_holds_the_ends() {
         // Knots at 0, 0.25, 0.5, 0.75 um (shift 14 = 2^14 LSB = 0.25 um).
-        let ys = [v(0.0), v(1.0), v(3.0), v(6.0)];
-        let t = Table::new(v(0.0), 14, &ys).unwrap();
+        let segs: [Segment; 3] = Segment::between(&[v(0.0), v(0.125), v(0.375), v(0.75)]);
+        let t = Table::new(v(0.0), 14, &segs).unwrap();
         assert_eq!(t.x_max(), v(0.75));
-        assert_eq!(t.eval(v(0.25)), v(1.0));
-        assert_eq!(t.eval(v(0.125)), v(0.5));
-        assert_eq!(t.eval(v(0.625)), v(4.5));
+        assert_eq!(t.last(), v(0.75));
+        assert_eq!(t.eval(v(0.25)), v(0.125));
+        assert_eq!(t.eval(v(0.125)), v(0.0625));
+        assert_eq!(t.eval(v(0.625)), v(0.5625));
         assert_eq!(t.eval(v(-3.0)), v(0.0));
-        assert_eq!(t.eval(v(0.75)), v(6.0));
-        assert_eq!(t.eval(v(9.0)), v(6.0));
+        assert_eq!(t.eval(v(0.75)), v(0.75));
+        // One LSB before the end, on a slope of 1.5: 1.5 LSB below, rounded.
+        assert_eq!(t.eval(v(0.75) - I16F16::DELTA), v(0.75) - I16F16::DELTA);
+        assert_eq!(t.eval(v(9.0)), v(0.75));
         assert_eq!(t.eval(I16F16::MIN), v(0.0));
-        assert_eq!(t.eval(I16F16::MAX), v(6.0));
+        assert_eq!(t.eval(I16F16::MAX), v(0.75));
     }
 
     #[test]
     fn decreasing_tables_work_too() {
-        let ys = [v(5.0), v(4.0), v(4.0), v(1.0)];
-        let t = Table::new(v(-1.0), 16, &ys).unwrap();
-        assert_eq!(t.eval(v(1.5)), v(2.5));
+        let segs: [Segment; 3] = Segment::between(&[v(5.0), v(4.75), v(4.75), v(4.5)]);
+        let t = Table::new(v(-1.0), 16, &segs).unwrap();
+        assert_eq!(t.eval(v(1.5)), v(4.625));
     }
 
     #[test]
     fn rejects_bad_tables() {
-        let ys = [v(0.0), v(2.0), v(1.0)];
+        let steep: [Segment; 2] = Segment::between(&[v(0.0), v(0.25), v(1.0)]);
         assert_eq!(
-            Table::new(v(0.0), 10, &ys).unwrap_err(),
+            Table::new(v(0.0), 10, &steep).unwrap_err(),
+            ModelError::TableTooSteep { index: 2 }
+        );
+        let zigzag: [Segment; 2] = Segment::between(&[v(0.0), v(0.25), v(0.125)]);
+        assert_eq!(
+            Table::new(v(0.0), 10, &zigzag).unwrap_err(),
             ModelError::TableNotMonotone { index: 2 }
         );
+        let mut broken = Segment::between::<3, 2>(&[v(0.0), v(0.25), v(0.375)]);
+        broken[1].start = v(0.3);
         assert_eq!(
-            Table::new(v(0.0), 10, &ys[..1]).unwrap_err(),
+            Table::new(v(0.0), 10, &broken).unwrap_err(),
+            ModelError::TableNotMonotone { index: 1 }
+        );
+        assert_eq!(
+            Table::new(v(0.0), 10, &[]).unwrap_err(),
             ModelError::TableLength
         );
         assert_eq!(
-            Table::new(v(0.0), 25, &ys[..2]).unwrap_err(),
+            Table::new(v(0.0), 17, &steep[..1]).unwrap_err(),
             ModelError::TableSpacing
         );
         assert_eq!(
-            Table::new(v(4095.0), 24, &ys[..2]).unwrap_err(),
+            Table::new(v(4095.5), 16, &steep[..1]).unwrap_err(),
             ModelError::TableSpan
         );
     }

@@ -1,0 +1,325 @@
+//! Instructions per control step, counted on the emulated Cortex-M4 (`cargo isr-bench`).
+//!
+//! Run under `qemu-system-arm -machine netduinoplus2 -icount shift=10,align=off,sleep=off`:
+//! every instruction then advances virtual time by 2¹⁰ ns, and SysTick (clocked at
+//! QEMU's 168 MHz core clock) advances 0.168 × 1024 ticks per instruction, so a
+//! SysTick difference is an exact, repeatable instruction count (DWT CYCCNT reads
+//! 0 in QEMU). These are instructions, not M4 cycles.
+//!
+//! For n = 4, 10, 16 and 32 operators it drives `ControllerConfig::step` along a
+//! full-stroke reference with a realistic force and prints
+//! `control_step_instructions n=<N>: <worst>` plus min/mean/max, then the same for
+//! the slew-limited path (which realigns the inverse memory) and for a whole ISR
+//! tick of the embedded model, and the stack high-water mark (painted stack).
+#![cfg_attr(target_os = "none", no_std, no_main)]
+
+#[cfg(target_os = "none")]
+mod bench {
+    use core::hint::black_box;
+    use cortex_m::peripheral::syst::SystClkSource;
+    use cortex_m::peripheral::SYST;
+    use cortex_m_rt::entry;
+    use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
+    use cortex_m_semihosting::hprintln;
+    use piezo_fpi::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Mode};
+    use piezo_fpi::demo::{SimLink, SIM_ADC, SIM_DAC};
+    use piezo_fpi::fpi::{Coupling, Fpi};
+    use piezo_fpi::model::{self, CONTROLLER};
+    use piezo_fpi::pi::PiModel;
+    use piezo_fpi::q::{Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton};
+    use piezo_fpi::reference::RaisedCosine;
+    use piezo_fpi::runner::{Command, ControlLoop};
+    // The device crate provides the interrupt vector table.
+    use stm32f4xx_hal as _;
+
+    /// SysTick ticks per instruction at `-icount shift=10` on a 168 MHz core clock.
+    const TICKS_PER_INSTRUCTION: f32 = 0.168 * 1024.0;
+
+    /// A synthetic n-operator model at compile time: thresholds evenly spread over
+    /// 0–100 V, the weight budget of the embedded model spread evenly.
+    const fn synthetic<const N: usize>() -> Fpi<N> {
+        let mut r = [Volts::ZERO; N];
+        let mut w = [UmPerVolt::ZERO; N];
+        let mut i = 0;
+        while i < N {
+            r[i] = Volts::from_bits(((((i as i64 + 1) * 100) << 16) / (N as i64 + 1)) as i32);
+            w[i] = UmPerVolt::from_bits(((1i64 << 28) / 50 / N as i64) as i32);
+            i += 1;
+        }
+        let pi = match PiModel::new(
+            UmPerVolt::from_bits((1 << 28) / 16),
+            r,
+            w,
+            Volts::from_bits(150 << 16),
+        ) {
+            Ok(p) => p,
+            Err(e) => panic!("{}", e.message()),
+        };
+        match Fpi::new(
+            pi,
+            Coupling {
+                k_f: VoltsPerNewton::from_bits(((1i64 << 32) / 10) as i32),
+                compliance: UmPerNewton::from_bits(((1i64 << 32) / 50) as i32),
+                force_ref: Newtons::from_bits(60 << 16),
+            },
+        ) {
+            Ok(f) => f,
+            Err(e) => panic!("{}", e.message()),
+        }
+    }
+
+    const fn config<const N: usize>(fpi: Fpi<N>) -> ControllerConfig<'static, N> {
+        match ControllerConfig::new(ControllerParts {
+            fpi,
+            f_f: model::F_F,
+            f_k: model::F_K,
+            f_k_inv: model::F_K_INV,
+            limits: model::LIMITS,
+            reference: CONTROLLER.reference(),
+            force: Interval {
+                lo: Newtons::from_bits(20 << 16),
+                hi: Newtons::from_bits(200 << 16),
+            },
+            force_tolerance: Newtons::from_bits(1000 << 16),
+            safe_voltage: Volts::ZERO,
+            force_source: ForceSource::Measured,
+        }) {
+            Ok(c) => c,
+            Err(e) => panic!("{}", e.message()),
+        }
+    }
+
+    static C4: ControllerConfig<'static, 4> = config(synthetic::<4>());
+    static C10: ControllerConfig<'static, 10> = config(synthetic::<10>());
+    static C16: ControllerConfig<'static, 16> = config(synthetic::<16>());
+    static C32: ControllerConfig<'static, 32> = config(synthetic::<32>());
+
+    /// min, sum, max of instruction counts.
+    #[derive(Clone, Copy)]
+    struct Counts {
+        min: u32,
+        sum: u64,
+        max: u32,
+        n: u32,
+    }
+
+    impl Counts {
+        fn new() -> Self {
+            Self {
+                min: u32::MAX,
+                sum: 0,
+                max: 0,
+                n: 0,
+            }
+        }
+        fn add(&mut self, c: u32) {
+            self.min = self.min.min(c);
+            self.max = self.max.max(c);
+            self.sum += c as u64;
+            self.n += 1;
+        }
+        fn mean_x10(&self) -> u32 {
+            (self.sum * 10 / self.n.max(1) as u64) as u32
+        }
+    }
+
+    /// SysTick ticks of `f`, the two counter reads included.
+    #[inline(always)]
+    fn ticks<R>(f: impl FnOnce() -> R) -> u32 {
+        let t0 = SYST::get_current();
+        black_box(f());
+        let t1 = SYST::get_current();
+        t0.wrapping_sub(t1) & 0x00FF_FFFF
+    }
+
+    fn instructions(ticks: u32, baseline: u32) -> u32 {
+        ((ticks.saturating_sub(baseline)) as f32 / TICKS_PER_INSTRUCTION + 0.5) as u32
+    }
+
+    /// Force the stage would put on the stack at a reference (what the sensor reads).
+    fn force_at(x_ref: Micrometres) -> Newtons {
+        CONTROLLER.f_f().eval(CONTROLLER.f_k_inv().eval(x_ref))
+    }
+
+    #[inline(never)]
+    fn nop_1000() {
+        // SAFETY: nops only.
+        unsafe {
+            core::arch::asm!(
+                ".rept 1000",
+                "nop",
+                ".endr",
+                options(nomem, nostack, preserves_flags)
+            )
+        }
+    }
+
+    #[inline(never)]
+    fn nop_0() {
+        // SAFETY: empty.
+        unsafe { core::arch::asm!("", options(nomem, nostack, preserves_flags)) }
+    }
+
+    /// The step as its own function, so its code can be inspected and is not
+    /// scheduled into the measurement.
+    #[inline(never)]
+    fn step_of<const N: usize>(
+        cfg: &ControllerConfig<'_, N>,
+        st: &mut piezo_fpi::control::ControllerState<N>,
+        x: Micrometres,
+        f: Newtons,
+    ) -> piezo_fpi::control::StepOutput {
+        cfg.step(st, x, f)
+    }
+
+    const STEPS: u32 = 4000;
+
+    /// Instruction counts of the nominal steps and of the slew-limited ones (which
+    /// also realign the inverse memory), over a full-stroke trajectory at `hz`.
+    fn measure<const N: usize>(
+        cfg: &ControllerConfig<'_, N>,
+        baseline: u32,
+        hz: f32,
+    ) -> (Counts, Counts) {
+        let wave = RaisedCosine {
+            center: Micrometres::from_num(20),
+            amplitude: Micrometres::from_num(18),
+            phase_step: RaisedCosine::phase_step_for(hz, 20_000.0),
+            amplitude_step: Micrometres::ZERO,
+        };
+        let mut w = wave.start();
+        let mut st = cfg.initial_state();
+        let (mut nominal, mut limited) = (Counts::new(), Counts::new());
+        // The firmware's ISR reaches its configuration through a reference held in
+        // its context; hide the constant here too, so LLVM cannot fold the model
+        // into the code and the figure is that of the firmware.
+        let cfg = black_box(cfg);
+        for _ in 0..STEPS {
+            let x = wave.next(&mut w);
+            let f = force_at(x);
+            let (x, f) = (black_box(x), black_box(f));
+            let mut out = None;
+            let t = ticks(|| out = Some(step_of(cfg, &mut st, x, f)));
+            let n = instructions(t, baseline);
+            match out {
+                Some(o) if o.limited => limited.add(n),
+                _ => nominal.add(n),
+            }
+        }
+        (nominal, limited)
+    }
+
+    fn report<const N: usize>(cfg: &ControllerConfig<'_, N>, baseline: u32) {
+        // 5 Hz full stroke: nominal steps (the slew limit only bites while the
+        // output first rises from 0 V); 500 Hz: the slew limit bites on most steps.
+        let (c, start) = measure(cfg, baseline, 5.0);
+        let (_, l) = measure(cfg, baseline, 500.0);
+        hprintln!("control_step_instructions n={}: {}", N, c.max);
+        hprintln!(
+            "  n={:<2} nominal step: min {} mean {}.{} max {} ({} steps); slew-limited step with inverse realignment: min {} max {} ({} steps)",
+            N, c.min, c.mean_x10() / 10, c.mean_x10() % 10, c.max, c.n,
+            l.min.min(start.min), l.max.max(start.max), l.n + start.n
+        );
+    }
+
+    static LINK: SimLink = SimLink::new(SIM_ADC, SIM_DAC);
+
+    extern "C" {
+        static mut _stack_start: u32;
+        static mut __ebss: u32;
+    }
+
+    /// Lowest stack address written since reset (cortex-m-rt's `paint-stack`
+    /// fills the stack with 0xCCCC_CCCC before `main`).
+    fn stack_used() -> u32 {
+        // SAFETY: reads the unused stack region between the statics and the stack top.
+        unsafe {
+            let top = &raw const _stack_start as usize;
+            let mut p = &raw const __ebss as usize;
+            while p < top && core::ptr::read_volatile(p as *const u32) == 0xCCCC_CCCC {
+                p += 4;
+            }
+            (top - p) as u32
+        }
+    }
+
+    #[entry]
+    fn main() -> ! {
+        let Some(mut cp) = cortex_m::Peripherals::take() else {
+            debug::exit(EXIT_FAILURE);
+            loop {
+                cortex_m::asm::wfi();
+            }
+        };
+        cp.SYST.set_clock_source(SystClkSource::Core);
+        cp.SYST.set_reload(0x00FF_FFFF);
+        cp.SYST.clear_current();
+        cp.SYST.enable_counter();
+
+        // Calibration: the counter reads alone, and a block of known length.
+        let baseline = (0..64).map(|_| ticks(|| ())).min().unwrap_or(0);
+        // A function of 1000 nops minus an empty function: exactly 1000 instructions.
+        let best = |f: fn()| (0..8).map(|_| ticks(f)).min().unwrap_or(0);
+        let nops = instructions(best(nop_1000), baseline) - instructions(best(nop_0), baseline);
+        hprintln!(
+            "calibration: 1000 nops counted as {} instructions (baseline {} SysTick ticks)",
+            nops,
+            baseline
+        );
+
+        report(&C4, baseline);
+        report(&C10, baseline);
+        report(&C16, baseline);
+        report(&C32, baseline);
+
+        // The whole ISR body of the embedded model: reference, sensor, step, DAC, enable.
+        let first = Command {
+            mode: Mode::Compensated,
+            wave: RaisedCosine {
+                center: Micrometres::from_num(20),
+                amplitude: Micrometres::from_num(18),
+                phase_step: RaisedCosine::phase_step_for(5.0, model::CONTROL_RATE_HZ as f32),
+                amplitude_step: Micrometres::ZERO,
+            },
+            clear_fault: false,
+        };
+        LINK.set_force(60.0);
+        let mut lp = ControlLoop::new(&CONTROLLER, LINK.hardware(), first);
+        let mut c = Counts::new();
+        for _ in 0..STEPS {
+            let t = ticks(|| lp.run());
+            c.add(instructions(t, baseline));
+            // Keep the force plausible for the stage position.
+            let x = lp.state().x_pea_est();
+            LINK.set_force(CONTROLLER.f_f().eval(x).to_num::<f32>());
+        }
+        hprintln!(
+            "isr_tick_instructions n={}: {} (embedded model: reference + sensor + step + DAC + enable; min {} mean {}.{})",
+            model::OPERATORS, c.max, c.min, c.mean_x10() / 10, c.mean_x10() % 10
+        );
+        hprintln!("stack_high_water_bytes: {}", stack_used());
+        debug::exit(if nops == 1000 {
+            EXIT_SUCCESS
+        } else {
+            EXIT_FAILURE
+        });
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    #[panic_handler]
+    fn panic(info: &core::panic::PanicInfo) -> ! {
+        hprintln!("panic: {}", info);
+        debug::exit(EXIT_FAILURE);
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+}
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!("isr-bench runs on the emulated Cortex-M4: use `cargo isr-bench`.");
+    std::process::exit(2);
+}

@@ -1,0 +1,464 @@
+//! The emulated board's scripted run: phases, the virtual stage, statistics, self-checks.
+//!
+//! The `qemu` firmware calls [`Demo::after_tick`] in thread mode after every
+//! control interrupt; the host test suite calls the same function after the same
+//! control step in a plain loop. Everything is deterministic (fixed-point core,
+//! IEEE `f32` virtual stage, seeded noise), so both produce identical figures and
+//! the host predicts what the emulator prints.
+//!
+//! The script, at the embedded model's control rate (20 kHz):
+//!
+//! | phase | drive | reference | what is checked |
+//! |---|---|---|---|
+//! | 1 | straight line (uncompensated) | 2–38 µm raised cosine, 5 Hz | baseline error |
+//! | 2 | inverse FPI | same | error ≤ 25 % of phase 1 |
+//! | 3 | inverse FPI | 15 Hz, amplitude decaying (nested minor loops) | error bound |
+//! | 4 | inverse FPI | 5 Hz; force-sensor wire breaks | fault at once, ramp to 0 V, amplifier off |
+//! | 5 | inverse FPI | swings to 50 µm, beyond the stroke | fault at the crossing, ramp to 0 V |
+
+use crate::control::{ControllerConfig, Fault, ForceSource, LinearDrive, Mode};
+use crate::io::{AdcScale, DacScale, ForceSensor, Hardware, Setpoint};
+use crate::q::{Micrometres, Newtons, Volts};
+use crate::reference::RaisedCosine;
+use crate::runner::{Command, ControlLoop, Telemetry};
+use crate::sim::{stage_a, Stage, StageParams};
+use crate::stats::ErrorStats;
+use core::convert::Infallible;
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use embedded_hal::digital::{ErrorType, OutputPin};
+
+/// The emulated board's analog world: the ADC result the virtual stage leaves for
+/// the ISR, the DAC code and enable line the ISR leaves for the virtual stage.
+/// Atomics, because the ISR and thread mode share it.
+pub struct SimLink {
+    adc_counts: AtomicU32,
+    dac_code: AtomicU32,
+    enabled: AtomicBool,
+    /// Board scaling of the force ADC.
+    pub adc: AdcScale,
+    /// Board scaling of the setpoint DAC.
+    pub dac: DacScale,
+}
+
+/// The emulated board's ADC: 12 bits over −5…506.9 N (0.125 N per count).
+pub const SIM_ADC: AdcScale = AdcScale {
+    offset: Newtons::from_bits(-5 << 16),
+    per_count: fixed::types::I4F28::from_bits(1 << 25),
+};
+/// The emulated board's DAC: the STM32's 12-bit DAC behind a 0–150 V amplifier.
+pub const SIM_DAC: DacScale = DacScale {
+    codes_per_volt: fixed::types::I16F16::from_bits(1_789_132), // 4095 / 150
+    max_code: 4095,
+};
+/// Largest ADC code.
+pub const ADC_MAX: u16 = 4095;
+
+impl SimLink {
+    /// An idle link (0 counts, 0 V, amplifier off).
+    pub const fn new(adc: AdcScale, dac: DacScale) -> Self {
+        Self {
+            adc_counts: AtomicU32::new(0),
+            dac_code: AtomicU32::new(0),
+            enabled: AtomicBool::new(false),
+            adc,
+            dac,
+        }
+    }
+    /// Thread mode: the force the sensor reads from now on, N.
+    pub fn set_force(&self, force_n: f32) {
+        let c = self.adc.to_counts(force_n, ADC_MAX);
+        self.adc_counts.store(c as u32, Ordering::Release);
+    }
+    /// Thread mode: the amplifier output, V (0 while disabled), and the enable line.
+    pub fn output(&self) -> (f32, bool) {
+        let code = self.dac_code.load(Ordering::Acquire) as u16;
+        (
+            self.dac.to_voltage(code),
+            self.enabled.load(Ordering::Acquire),
+        )
+    }
+    /// The ISR's side of the link: sensor, amplifier, enable.
+    pub fn hardware(&self) -> Hardware<SimSensor<'_>, SimAmplifier<'_>, SimEnable<'_>> {
+        Hardware {
+            sensor: SimSensor(self),
+            amplifier: SimAmplifier(self),
+            enable: SimEnable(self),
+        }
+    }
+}
+
+/// The emulated force sensor (ISR side of a [`SimLink`]).
+pub struct SimSensor<'a>(&'a SimLink);
+/// The emulated DAC (ISR side of a [`SimLink`]).
+pub struct SimAmplifier<'a>(&'a SimLink);
+/// The emulated amplifier-enable line (ISR side of a [`SimLink`]).
+pub struct SimEnable<'a>(&'a SimLink);
+
+impl ForceSensor for SimSensor<'_> {
+    fn read_force(&mut self) -> Newtons {
+        let c = self.0.adc_counts.load(Ordering::Acquire) as u16;
+        self.0.adc.to_force(c)
+    }
+}
+impl Setpoint for SimAmplifier<'_> {
+    fn write_voltage(&mut self, voltage: Volts) {
+        let code = self.0.dac.to_code(voltage);
+        self.0.dac_code.store(code as u32, Ordering::Release);
+    }
+}
+impl ErrorType for SimEnable<'_> {
+    type Error = Infallible;
+}
+impl OutputPin for SimEnable<'_> {
+    fn set_low(&mut self) -> Result<(), Infallible> {
+        self.0.enabled.store(false, Ordering::Release);
+        Ok(())
+    }
+    fn set_high(&mut self) -> Result<(), Infallible> {
+        self.0.enabled.store(true, Ordering::Release);
+        Ok(())
+    }
+}
+
+/// The phases of the script.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Phase {
+    /// Straight-line drive, 5 Hz full stroke.
+    Uncompensated,
+    /// Inverse FPI, 5 Hz full stroke.
+    Compensated,
+    /// Inverse FPI, 15 Hz with decaying amplitude.
+    MinorLoops,
+    /// Inverse FPI; the force sensor's wire breaks.
+    SensorFault,
+    /// Inverse FPI; the reference leaves the stroke.
+    UnreachableReference,
+}
+
+impl Phase {
+    /// Short name for logs.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            Self::Uncompensated => "uncompensated 5 Hz",
+            Self::Compensated => "compensated 5 Hz",
+            Self::MinorLoops => "compensated 15 Hz minor loops",
+            Self::SensorFault => "force sensor fault",
+            Self::UnreachableReference => "unreachable reference",
+        }
+    }
+}
+
+/// Figures of one finished phase.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PhaseReport {
+    /// Which phase.
+    pub phase: Phase,
+    /// Stage position minus reference (after the settling period), µm.
+    pub tracking: ErrorStats,
+    /// Virtual sensor minus stage position (after settling, outside faults), µm.
+    pub estimate: ErrorStats,
+    /// Ticks in the phase.
+    pub steps: u32,
+    /// First fault seen, with the phase tick it appeared at.
+    pub fault: Option<(Fault, u32)>,
+    /// Phase tick at which the output reached the safe voltage after the fault.
+    pub safe_at: Option<u32>,
+    /// The amplifier was switched off while in the safe state.
+    pub amplifier_off: bool,
+    /// Largest setpoint seen, V.
+    pub max_voltage: f32,
+    /// The phase's self-check passed.
+    pub pass: bool,
+}
+
+/// What thread mode does after a tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Advance {
+    /// A new command for the ISR, at phase boundaries.
+    pub command: Option<Command>,
+    /// The report of the phase that just ended.
+    pub report: Option<PhaseReport>,
+    /// The script is over.
+    pub done: bool,
+}
+
+const PHASES: [Phase; 5] = [
+    Phase::Uncompensated,
+    Phase::Compensated,
+    Phase::MinorLoops,
+    Phase::SensorFault,
+    Phase::UnreachableReference,
+];
+
+/// Sensor reading of a broken wire: the ADC's top rail through the board's scale (N).
+pub const BROKEN_WIRE_N: f32 = 500.0;
+
+/// The scripted run (state of thread mode).
+pub struct Demo {
+    f_k: crate::table::Table<'static>,
+    rate_hz: f32,
+    linear: LinearDrive,
+    stage: Stage<{ stage_a::OPERATORS }>,
+    params: StageParams<'static>,
+    phase: usize,
+    tick: u32,
+    report: PhaseReport,
+    safe_voltage: f32,
+    slew_steps_to_safe: u32,
+}
+
+impl Demo {
+    /// The script for a controller; the baseline line runs through the compensated
+    /// controller's own voltages at the ends of the 2–38 µm stroke on the loading
+    /// curve (a fair straight-line drive: right at the ends, hysteresis in between).
+    pub fn new<const N: usize>(cfg: &ControllerConfig<'static, N>, rate_hz: u32) -> Option<Self> {
+        let predicted = cfg.with_force_source(ForceSource::Predicted);
+        let mut st = predicted.initial_state();
+        // Walk up the loading curve slowly so the slew limit never bites.
+        let mut u_lo = 0.0;
+        let mut u_hi = 0.0;
+        for k in 0..=4000 {
+            let x = Micrometres::from_num(2.0 + 36.0 * k as f64 / 4000.0);
+            let out = predicted.step(&mut st, x, Newtons::ZERO);
+            if k == 0 {
+                u_lo = out.voltage.to_num::<f64>();
+            }
+            u_hi = out.voltage.to_num::<f64>();
+        }
+        let linear = LinearDrive::through(2.0, u_lo, 38.0, u_hi)?;
+        let safe_voltage = cfg.safe_voltage().to_num::<f32>();
+        let step = cfg.limits().max_step().to_num::<f32>();
+        let span = cfg.limits().max().to_num::<f32>() - cfg.limits().min().to_num::<f32>();
+        Some(Self {
+            f_k: *cfg.f_k(),
+            rate_hz: rate_hz as f32,
+            linear,
+            stage: Stage::new(0x5EED),
+            params: stage_a::PARAMS,
+            phase: 0,
+            tick: 0,
+            report: Self::blank(PHASES[0]),
+            safe_voltage,
+            slew_steps_to_safe: (span / step) as u32 + 2,
+        })
+    }
+
+    fn blank(phase: Phase) -> PhaseReport {
+        PhaseReport {
+            phase,
+            tracking: ErrorStats::new(),
+            estimate: ErrorStats::new(),
+            steps: 0,
+            fault: None,
+            safe_at: None,
+            amplifier_off: false,
+            max_voltage: 0.0,
+            pass: false,
+        }
+    }
+
+    /// The straight-line baseline drive.
+    pub const fn linear_drive(&self) -> LinearDrive {
+        self.linear
+    }
+
+    fn wave(
+        &self,
+        frequency_hz: f32,
+        top_um: f32,
+        decay_to_um: Option<f32>,
+        steps: u32,
+    ) -> RaisedCosine {
+        let amplitude = (top_um - 2.0) / 2.0;
+        let amplitude_step = match decay_to_um {
+            Some(end) => Micrometres::from_num((end - amplitude) / steps as f32),
+            None => Micrometres::ZERO,
+        };
+        RaisedCosine {
+            center: Micrometres::from_num(2.0 + amplitude),
+            amplitude: Micrometres::from_num(amplitude),
+            phase_step: RaisedCosine::phase_step_for(frequency_hz, self.rate_hz),
+            amplitude_step,
+        }
+    }
+
+    /// (ticks, settling ticks) of a phase.
+    fn length(&self, phase: Phase) -> (u32, u32) {
+        let s = |seconds: f32| (seconds * self.rate_hz) as u32;
+        match phase {
+            Phase::Uncompensated | Phase::Compensated => (s(0.6), s(0.2)),
+            Phase::MinorLoops => (s(0.8), s(0.0)),
+            Phase::SensorFault => (s(0.3), s(0.0)),
+            Phase::UnreachableReference => (s(0.3), s(0.0)),
+        }
+    }
+
+    /// The tick (within the phase) at which the sensor fault is injected.
+    fn fault_tick(&self) -> u32 {
+        (0.1 * self.rate_hz) as u32
+    }
+
+    /// The command that starts the current phase.
+    pub fn command(&self) -> Command {
+        let phase = PHASES[self.phase];
+        let (steps, _) = self.length(phase);
+        let (mode, wave) = match phase {
+            Phase::Uncompensated => (
+                Mode::Uncompensated(self.linear),
+                self.wave(5.0, 38.0, None, steps),
+            ),
+            Phase::Compensated | Phase::SensorFault => {
+                (Mode::Compensated, self.wave(5.0, 38.0, None, steps))
+            }
+            Phase::MinorLoops => (Mode::Compensated, self.wave(15.0, 38.0, Some(1.0), steps)),
+            Phase::UnreachableReference => (Mode::Compensated, self.wave(5.0, 50.0, None, steps)),
+        };
+        Command {
+            mode,
+            wave,
+            clear_fault: true,
+        }
+    }
+
+    /// Advances the virtual stage by one tick and scripts the next: `tel` is what
+    /// the ISR reported; the DAC output and enable line are read from `link`, and
+    /// the force for the next tick is left there.
+    pub fn after_tick(&mut self, tel: &Telemetry, link: &SimLink) -> Advance {
+        let phase = PHASES[self.phase];
+        let (steps, settle) = self.length(phase);
+        let (voltage_v, amplifier_on) = link.output();
+        let sample = self
+            .stage
+            .step(&self.params, if amplifier_on { voltage_v } else { 0.0 });
+        let r = &mut self.report;
+        if voltage_v > r.max_voltage {
+            r.max_voltage = voltage_v;
+        }
+        if let (None, Some(f)) = (r.fault, tel.fault) {
+            r.fault = Some((f, self.tick));
+        }
+        if r.fault.is_some() {
+            if r.safe_at.is_none() && voltage_v <= self.safe_voltage {
+                r.safe_at = Some(self.tick);
+            }
+            if !amplifier_on {
+                r.amplifier_off = true;
+            }
+        } else if self.tick >= settle {
+            r.tracking.add(sample.x_fhps_um - tel.x_ref.to_num::<f32>());
+            let x_est = self.f_k.eval(tel.x_pea_est);
+            r.estimate.add(x_est.to_num::<f32>() - sample.x_fhps_um);
+        }
+        self.tick += 1;
+        r.steps = self.tick;
+
+        let mut advance = Advance {
+            command: None,
+            report: None,
+            done: false,
+        };
+        if self.tick >= steps {
+            let mut report = *r;
+            report.pass = self.check(&report);
+            advance.report = Some(report);
+            self.tick = 0;
+            if self.phase + 1 < PHASES.len() {
+                self.phase += 1;
+                self.report = Self::blank(PHASES[self.phase]);
+                advance.command = Some(self.command());
+            } else {
+                advance.done = true;
+            }
+        }
+        // The sensor reading for the next tick, with the scripted wire break.
+        let mut force = self.stage.sense_force(&self.params, sample.force_n);
+        if PHASES[self.phase] == Phase::SensorFault && self.tick >= self.fault_tick() {
+            force = BROKEN_WIRE_N;
+        }
+        link.set_force(force);
+        advance
+    }
+
+    fn check(&self, r: &PhaseReport) -> bool {
+        let ramp_ok = |r: &PhaseReport| match (r.fault, r.safe_at) {
+            (Some((_, at)), Some(safe)) => safe - at <= self.slew_steps_to_safe && r.amplifier_off,
+            _ => false,
+        };
+        match r.phase {
+            Phase::Uncompensated => r.fault.is_none(),
+            Phase::Compensated | Phase::MinorLoops => {
+                r.fault.is_none() && r.tracking.max_abs() < 2.0 && r.estimate.rms() < 1.0
+            }
+            Phase::SensorFault => {
+                matches!(r.fault, Some((Fault::ForceOutOfRange, at)) if at == self.fault_tick())
+                    && ramp_ok(r)
+            }
+            Phase::UnreachableReference => {
+                matches!(r.fault, Some((Fault::ReferenceUnreachable, _))) && ramp_ok(r)
+            }
+        }
+    }
+
+    /// The compensated phase must cut the uncompensated RMS error to this fraction or less.
+    pub const REQUIRED_RATIO: f32 = 0.25;
+}
+
+/// Runs the whole script with the control loop called in place of the interrupt:
+/// the figures the emulated board must print. Returns the phase reports and the
+/// number of ticks.
+pub fn run_on_host<const N: usize>(
+    cfg: &'static ControllerConfig<'static, N>,
+    rate_hz: u32,
+) -> Option<([Option<PhaseReport>; 5], u32)> {
+    let link = SimLink::new(SIM_ADC, SIM_DAC);
+    let mut demo = Demo::new(cfg, rate_hz)?;
+    demo.prime(&link);
+    let mut lp = ControlLoop::new(cfg, link.hardware(), demo.command());
+    let mut reports = [None; 5];
+    let mut k = 0;
+    for _ in 0..10_000_000u32 {
+        let tel = lp.run();
+        let adv = demo.after_tick(&tel, &link);
+        if let Some(r) = adv.report {
+            if let Some(slot) = reports.get_mut(k) {
+                *slot = Some(r);
+            }
+            k += 1;
+        }
+        if let Some(c) = adv.command {
+            lp.apply(c);
+        }
+        if adv.done {
+            return Some((reports, tel.step + 1));
+        }
+    }
+    None
+}
+
+impl Demo {
+    /// Leaves the first force reading (the stage at rest) on the link.
+    pub fn prime(&mut self, link: &SimLink) {
+        let f = Stage::<{ stage_a::OPERATORS }>::preload(&self.params, 0.0);
+        link.set_force(self.stage.sense_force(&self.params, f));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model;
+
+    #[test]
+    fn scripted_run_passes_on_the_host() {
+        let (reports, ticks) = run_on_host(&model::CONTROLLER, model::CONTROL_RATE_HZ).unwrap();
+        for r in reports.iter().flatten() {
+            println!(
+                "{:32} rms {:7.4} um  max {:7.4} um  est rms {:7.4}  fault {:?} safe_at {:?} amp_off {} vmax {:.2} pass {}",
+                r.phase.name(), r.tracking.rms(), r.tracking.max_abs(), r.estimate.rms(),
+                r.fault, r.safe_at, r.amplifier_off, r.max_voltage, r.pass
+            );
+        }
+        println!("ticks {ticks}");
+    }
+}

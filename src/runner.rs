@@ -1,0 +1,96 @@
+//! The control ISR's whole job, hardware-independent: apply a pending command,
+//! generate the reference, run one control tick, report telemetry.
+//!
+//! The firmware's timer interrupt owns a [`ControlLoop`] and calls
+//! [`ControlLoop::run`]; thread mode talks to it only through [`Command`]s (in) and
+//! [`Telemetry`] (out), like Stabilizer's settings swapped in by a low-priority task.
+
+use crate::control::{ControllerConfig, ControllerState, Fault, Mode};
+use crate::io::{ForceSensor, Hardware, Setpoint};
+use crate::q::{Micrometres, Volts};
+use crate::reference::{RaisedCosine, Waveform};
+use embedded_hal::digital::OutputPin;
+
+/// What thread mode asks of the control ISR.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Command {
+    /// Compensated or straight-line drive.
+    pub mode: Mode,
+    /// The reference trajectory (restarted from its phase 0).
+    pub wave: RaisedCosine,
+    /// Leave the safe state (only once the output is at the safe voltage).
+    pub clear_fault: bool,
+}
+
+/// What one control tick reports to thread mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Telemetry {
+    /// Tick number since start (wraps).
+    pub step: u32,
+    /// Reference, µm.
+    pub x_ref: Micrometres,
+    /// Applied setpoint, V.
+    pub voltage: Volts,
+    /// Virtual sensor: estimated stack extension, µm (stage position:
+    /// [`ControllerConfig::stage_position`]).
+    pub x_pea_est: Micrometres,
+    /// Latched fault.
+    pub fault: Option<Fault>,
+}
+
+/// The control ISR's state (one per stage channel).
+pub struct ControlLoop<'c, const N: usize, S, A, E> {
+    cfg: &'c ControllerConfig<'c, N>,
+    hw: Hardware<S, A, E>,
+    state: ControllerState<N>,
+    mode: Mode,
+    wave: RaisedCosine,
+    wave_state: Waveform,
+    step: u32,
+}
+
+impl<'c, const N: usize, S: ForceSensor, A: Setpoint, E: OutputPin> ControlLoop<'c, N, S, A, E> {
+    /// A loop at rest, running `first`.
+    pub fn new(cfg: &'c ControllerConfig<'c, N>, hw: Hardware<S, A, E>, first: Command) -> Self {
+        Self {
+            cfg,
+            hw,
+            state: cfg.initial_state(),
+            mode: first.mode,
+            wave: first.wave,
+            wave_state: first.wave.start(),
+            step: 0,
+        }
+    }
+
+    /// Takes a command: new mode and trajectory, and a fault-clear request.
+    pub fn apply(&mut self, c: Command) {
+        self.mode = c.mode;
+        self.wave = c.wave;
+        self.wave_state = c.wave.start();
+        if c.clear_fault {
+            self.state.clear_fault(self.cfg);
+        }
+    }
+
+    /// One control period. Bounded time, no panic.
+    #[inline]
+    pub fn run(&mut self) -> Telemetry {
+        let x_ref = self.wave.next(&mut self.wave_state);
+        let out = self.hw.tick(self.cfg, &mut self.state, &self.mode, x_ref);
+        let t = Telemetry {
+            step: self.step,
+            x_ref,
+            voltage: out.voltage,
+            x_pea_est: out.x_pea_est,
+            fault: out.fault,
+        };
+        self.step = self.step.wrapping_add(1);
+        t
+    }
+
+    /// The controller's memory (for diagnostics).
+    pub const fn state(&self) -> &ControllerState<N> {
+        &self.state
+    }
+}
