@@ -364,9 +364,9 @@ fn check_table(key: &str, t: &TableSection) -> Result<(), String> {
             q::MAX_TABLE_LEN
         ));
     }
-    if !(-16..=8).contains(&t.step_log2) {
+    if !(-16..=0).contains(&t.step_log2) {
         return Err(format!(
-            "{key}.step_log2 = {}: must be -16..=8",
+            "{key}.step_log2 = {}: must be -16..=0 (knots at most one unit apart)",
             t.step_log2
         ));
     }

@@ -1,1 +1,16 @@
+//! Host side of the piezo FPI project: the recorded datasets, an f64 reference of
+//! the fixed-point core, and the tools of the FPI-FFEM method, all on the same
+//! `piezo-fpi` core the firmware runs.
+//!
+//! * [`data`] — reading the datasets (CSV via `csv` + `serde`, gzip), errors with
+//!   file, line and column.
+//! * [`model_file`] — the firmware model file (shared with the core's `build.rs`).
+//! * [`reference`] — the f64 twin of the fixed-point model and control step.
 
+pub mod accuracy;
+pub mod data;
+pub mod firmware;
+pub mod reference;
+
+#[path = "../../src/model_file.rs"]
+pub mod model_file;

@@ -1,0 +1,166 @@
+//! How far the fixed-point core is from its f64 reference on the recorded data.
+//!
+//! The contract (checked by `tests/fixed_vs_f64.rs`, printed by the demo):
+//!
+//! * stack extension (forward FPI, virtual sensor): within [`BOUND_X_UM`] = 1 nm;
+//! * amplifier setpoint (inverse FPI, control step): within [`BOUND_U_V`] = one LSB
+//!   of a 16-bit DAC over 0–150 V (2.29 mV).
+//!
+//! Both implementations get the recorded samples (the fixed-point one after
+//! quantising them to `I16F16`) and the embedded firmware model (the f64 one with
+//! its unquantised engineering values), so the difference is what fixed point costs.
+
+use std::path::{Path, PathBuf};
+
+use piezo_fpi::control::{ControllerConfig, ControllerParts, Interval};
+use piezo_fpi::model::{self, OPERATORS};
+use piezo_fpi::play::PlayBank;
+use piezo_fpi::q::{Micrometres, Newtons, Volts};
+
+use crate::data::{self, DataError};
+use crate::model_file::FirmwareModel;
+use crate::reference::{BankF64, ControllerF64};
+
+/// Largest tolerated stack-extension difference, µm (1 nm).
+pub const BOUND_X_UM: f64 = 1e-3;
+/// Largest tolerated setpoint difference, V: one LSB of 16 bits over 150 V.
+pub const BOUND_U_V: f64 = 150.0 / 65535.0;
+
+/// Worst differences found in one file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FileAccuracy {
+    /// The recording.
+    pub path: PathBuf,
+    /// Samples compared.
+    pub samples: usize,
+    /// Largest |Δ stack extension| (forward FPI / virtual sensor), µm.
+    pub max_dx_um: f64,
+    /// Largest |Δ setpoint| (inverse FPI / control step), V.
+    pub max_du_v: f64,
+    /// Steps the output limiter acted in (realigning the inverse memory).
+    pub limited_steps: usize,
+}
+
+/// The embedded model, parsed for the f64 side.
+pub fn embedded_model() -> FirmwareModel {
+    match FirmwareModel::parse(model::MODEL_TOML, model::MODEL_FILE) {
+        Ok(m) => m,
+        Err(e) => panic!("the embedded model was validated by build.rs: {e}"),
+    }
+}
+
+/// The embedded controller with its supervision widened — the reference range to
+/// the whole `f_K⁻¹` grid, the force tolerance to 1000 N — so the recordings
+/// (which include a 3 kHz chirp where the stage's dynamics pull the force far
+/// from the static FEM map) exercise the arithmetic rather than the safe state;
+/// and its f64 twin with the same settings.
+pub fn controllers() -> (ControllerConfig<'static, OPERATORS>, ControllerF64) {
+    let c = &model::CONTROLLER;
+    let reference = Interval {
+        lo: c.f_k_inv().x_min(),
+        hi: c.f_k_inv().x_max(),
+    };
+    let fixed = ControllerConfig::new(ControllerParts {
+        fpi: *c.fpi(),
+        f_f: *c.f_f(),
+        f_k: *c.f_k(),
+        f_k_inv: *c.f_k_inv(),
+        limits: *c.limits(),
+        reference,
+        force: c.force(),
+        force_tolerance: Newtons::from_num(1000),
+        safe_voltage: c.safe_voltage(),
+        force_source: c.force_source(),
+    })
+    .unwrap_or_else(|e| panic!("widening the reference range: {e}"));
+    let mut f64c = ControllerF64::from_model(&embedded_model());
+    f64c.reference = (reference.lo.to_num(), reference.hi.to_num());
+    f64c.force_tolerance = 1000.0;
+    (fixed, f64c)
+}
+
+fn q(v: f64) -> piezo_fpi::q::Volts {
+    Volts::from_num(v)
+}
+
+/// Forward and inverse FPI on a preload-rig file: stack extension from (u, F),
+/// and voltage for the measured extension at the measured force.
+pub fn rig_file(path: &Path) -> Result<FileAccuracy, DataError> {
+    let rig = data::read_rig(path)?;
+    let (fixed, f64c) = controllers();
+    let fpi = fixed.fpi();
+    let (mut fb, mut ib) = (PlayBank::<OPERATORS>::new(), PlayBank::<OPERATORS>::new());
+    let n = f64c.fpi.pi.r.len();
+    let (mut fb64, mut ib64) = (BankF64::new(n), BankF64::new(n));
+    let (mut dx, mut du) = (0.0f64, 0.0f64);
+    for k in 0..rig.t.len() {
+        let (u, f, x) = (rig.u[k], rig.f[k], rig.x[k]);
+        let terms = fpi.force_terms(Newtons::from_num(f));
+        let xf = fpi.forward(&mut fb, q(u), terms).to_num::<f64>();
+        let x64 = f64c.fpi.forward(&mut fb64, u, f);
+        dx = dx.max((xf - x64).abs());
+        let uf = fpi
+            .inverse(&mut ib, Micrometres::from_num(x), terms)
+            .to_num::<f64>();
+        let u64_ = f64c.fpi.inverse(&mut ib64, x, f);
+        du = du.max((uf - u64_).abs());
+    }
+    Ok(FileAccuracy {
+        path: path.to_path_buf(),
+        samples: rig.t.len(),
+        max_dx_um: dx,
+        max_du_v: du,
+        limited_steps: 0,
+    })
+}
+
+/// The whole control step on a stage file: reference = recorded stage position
+/// (held inside the reachable range), force = recorded force.
+pub fn stage_file(path: &Path) -> Result<FileAccuracy, DataError> {
+    let run = data::read_stage(path)?;
+    let (fixed, f64c) = controllers();
+    let mut st = fixed.initial_state();
+    let mut st64 = f64c.initial_state();
+    let (lo, hi) = f64c.reference;
+    let (mut dx, mut du, mut limited) = (0.0f64, 0.0f64, 0usize);
+    for k in 0..run.t.len() {
+        let x_ref = run.x[k].clamp(lo, hi);
+        let f = run.f[k];
+        let o = fixed.step(&mut st, Micrometres::from_num(x_ref), Newtons::from_num(f));
+        let o64 = f64c.step(&mut st64, x_ref, f);
+        if o.fault.is_some() || o64.fault.is_some() {
+            return Err(DataError::file(
+                path,
+                format!(
+                    "sample {k}: a controller faulted ({:?} / {:?})",
+                    o.fault, o64.fault
+                ),
+            ));
+        }
+        du = du.max((o.voltage.to_num::<f64>() - o64.voltage).abs());
+        dx = dx.max((o.x_pea_est.to_num::<f64>() - o64.x_pea_est).abs());
+        limited += o.limited as usize;
+    }
+    Ok(FileAccuracy {
+        path: path.to_path_buf(),
+        samples: run.t.len(),
+        max_dx_um: dx,
+        max_du_v: du,
+        limited_steps: limited,
+    })
+}
+
+/// Every `pea-rig/` and `stage-a/` recording the project carries.
+pub fn all_files() -> Result<Vec<FileAccuracy>, DataError> {
+    let mut out = Vec::new();
+    for p in data::datasets_in("pea-rig") {
+        out.push(rig_file(&p)?);
+    }
+    for p in data::datasets_in("stage-a") {
+        if p.to_string_lossy().contains("fem.csv") {
+            continue;
+        }
+        out.push(stage_file(&p)?);
+    }
+    Ok(out)
+}

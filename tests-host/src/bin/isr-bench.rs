@@ -1,0 +1,53 @@
+//! `cargo isr-bench`: instructions per control step on the emulated Cortex-M4, and
+//! the flash and static RAM of the release firmware.
+//!
+//! Builds `isr-bench` for the emulated board and runs it under
+//! `-icount shift=10,align=off,sleep=off` (SysTick differences are then exact
+//! instruction counts), printing `control_step_instructions n=<N>: <count>` for
+//! n = 4, 10, 16, 32; then builds the board firmware (`--features defmt`) and the
+//! emulated one and reads their section sizes.
+
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{bail, Result};
+use fpi_host::firmware;
+
+fn main() -> ExitCode {
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("isr-bench failed: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<()> {
+    firmware::qemu()?;
+    let bench = firmware::build("isr-bench", "qemu")?;
+    let q = firmware::run(
+        &bench,
+        firmware::ICOUNT_BENCH,
+        Duration::from_secs(300),
+        true,
+    )?;
+    if q.code != Some(0) {
+        bail!("the benchmark firmware failed (exit {:?})", q.code);
+    }
+    for (name, features) in [("board", "defmt"), ("emulated", "qemu")] {
+        let elf = firmware::build("fpi-firmware", features)?;
+        let f = firmware::footprint(&elf)?;
+        println!(
+            "firmware_{name}_flash_bytes: {} ({:.1} KiB of 1024 KiB)",
+            f.flash,
+            f.flash as f64 / 1024.0
+        );
+        println!(
+            "firmware_{name}_static_ram_bytes: {} ({:.1} KiB of 128 KiB, stack not included)",
+            f.ram,
+            f.ram as f64 / 1024.0
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,427 @@
+//! Reading the recorded datasets: CSV through `csv` + `serde`, gzip transparently.
+//!
+//! Every error names the file, the line (1-based, header = line 1) and the column,
+//! e.g. `stage-a/fem.csv:17: column x_pea_um: "1,5" is not a number`.
+
+use std::fmt;
+use std::fs::File;
+use std::io::{BufReader, Read};
+use std::path::{Path, PathBuf};
+
+use flate2::read::GzDecoder;
+use serde::de::DeserializeOwned;
+use serde::Deserialize;
+
+/// A problem with an input file, located as precisely as possible.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DataError {
+    /// The file.
+    pub file: PathBuf,
+    /// 1-based line (the header is line 1), when the problem is on one line.
+    pub line: Option<u64>,
+    /// The column's name, when the problem is in one field.
+    pub column: Option<String>,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl DataError {
+    pub(crate) fn file(file: &Path, message: impl Into<String>) -> Self {
+        Self {
+            file: file.to_path_buf(),
+            line: None,
+            column: None,
+            message: message.into(),
+        }
+    }
+    pub(crate) fn at(file: &Path, line: u64, column: &str, message: impl Into<String>) -> Self {
+        Self {
+            file: file.to_path_buf(),
+            line: Some(line),
+            column: Some(column.to_string()),
+            message: message.into(),
+        }
+    }
+}
+
+impl fmt::Display for DataError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file.display())?;
+        if let Some(l) = self.line {
+            write!(f, ":{l}")?;
+        }
+        if let Some(c) = &self.column {
+            write!(f, ": column {c}")?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+impl std::error::Error for DataError {}
+
+/// Where the project's copies of the datasets live (`tests-host/data`).
+pub fn data_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data")
+}
+
+/// A dataset file by its path under `data/` without `.gz` (`"stage-a/fem.csv"`).
+pub fn dataset(relative: &str) -> PathBuf {
+    let plain = data_dir().join(relative);
+    if plain.exists() {
+        plain
+    } else {
+        data_dir().join(format!("{relative}.gz"))
+    }
+}
+
+/// All dataset files of a folder under `data/`, sorted, `.gz` stripped from nothing.
+pub fn datasets_in(folder: &str) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(data_dir().join(folder))
+        .map(|d| {
+            d.filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| {
+                    let n = p.to_string_lossy();
+                    n.ends_with(".csv") || n.ends_with(".csv.gz")
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// The whole content of a file, gunzipped if its name ends in `.gz`.
+pub fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
+    let file = File::open(path).map_err(|e| DataError::file(path, format!("cannot open: {e}")))?;
+    let mut out = Vec::new();
+    let res = if path.extension().is_some_and(|e| e == "gz") {
+        GzDecoder::new(BufReader::new(file)).read_to_end(&mut out)
+    } else {
+        BufReader::new(file).read_to_end(&mut out)
+    };
+    res.map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
+    Ok(out)
+}
+
+/// Records whose every number must be finite; names the first that is not.
+pub trait Finite {
+    /// The column of the first non-finite field, if any.
+    fn non_finite(&self) -> Option<&'static str>;
+}
+
+/// Reads a CSV file with a header into records of `T` (columns by name; extra
+/// columns are ignored). Checks that every column `T` needs is present and every
+/// number is finite.
+pub fn read_csv<T: DeserializeOwned + Finite>(
+    path: &Path,
+    columns: &[&str],
+) -> Result<Vec<T>, DataError> {
+    let bytes = read_bytes(path)?;
+    let mut rdr = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .from_reader(bytes.as_slice());
+    let headers = rdr
+        .headers()
+        .map_err(|e| DataError::file(path, format!("cannot read the header: {e}")))?
+        .clone();
+    let missing: Vec<&str> = columns
+        .iter()
+        .filter(|c| !headers.iter().any(|h| h == **c))
+        .copied()
+        .collect();
+    if !missing.is_empty() {
+        return Err(DataError {
+            file: path.to_path_buf(),
+            line: Some(1),
+            column: Some(missing.join(", ")),
+            message: format!(
+                "missing in the header (expected {}; found {})",
+                columns.join(","),
+                headers.iter().collect::<Vec<_>>().join(",")
+            ),
+        });
+    }
+    let mut out = Vec::new();
+    for rec in rdr.records() {
+        let rec = rec.map_err(|e| csv_error(path, e))?;
+        let line = rec.position().map_or(0, |p| p.line());
+        let value: T = rec.deserialize(Some(&headers)).map_err(|e| {
+            let field = match e.kind() {
+                csv::ErrorKind::Deserialize { err, .. } => err.field(),
+                _ => None,
+            };
+            let column = field
+                .and_then(|i| headers.get(i as usize))
+                .unwrap_or("?")
+                .to_string();
+            let raw = field.and_then(|i| rec.get(i as usize)).unwrap_or("");
+            DataError {
+                file: path.to_path_buf(),
+                line: Some(line),
+                column: Some(column),
+                message: format!("{raw:?} is not a number"),
+            }
+        })?;
+        if let Some(c) = value.non_finite() {
+            let i = headers.iter().position(|h| h == c).unwrap_or(0);
+            return Err(DataError::at(
+                path,
+                line,
+                c,
+                format!("{:?} is not a finite number", rec.get(i).unwrap_or("")),
+            ));
+        }
+        out.push(value);
+    }
+    if out.is_empty() {
+        return Err(DataError::file(path, "no data rows"));
+    }
+    Ok(out)
+}
+
+fn csv_error(path: &Path, e: csv::Error) -> DataError {
+    let line = e.position().map(|p| p.line());
+    let message = match e.kind() {
+        csv::ErrorKind::UnequalLengths {
+            expected_len, len, ..
+        } => {
+            format!("{len} fields where the header has {expected_len}")
+        }
+        _ => e.to_string(),
+    };
+    DataError {
+        file: path.to_path_buf(),
+        line,
+        column: None,
+        message,
+    }
+}
+
+/// Checks that a column is strictly increasing; names the first line that is not.
+pub fn strictly_increasing(path: &Path, column: &str, values: &[f64]) -> Result<(), DataError> {
+    for (i, w) in values.windows(2).enumerate() {
+        if w[1] <= w[0] {
+            // Data row i + 1 (0-based) is on line i + 3 (header + 1-based).
+            return Err(DataError::at(
+                path,
+                i as u64 + 3,
+                column,
+                format!("{} does not increase (previous row {})", w[1], w[0]),
+            ));
+        }
+    }
+    Ok(())
+}
+
+macro_rules! finite_record {
+    ($ty:ident { $($field:ident : $col:literal),* $(,)? }) => {
+        impl Finite for $ty {
+            fn non_finite(&self) -> Option<&'static str> {
+                $( if !self.$field.is_finite() { return Some($col); } )*
+                None
+            }
+        }
+    };
+}
+
+/// One sample of a preload-rig recording (`pea-rig/`).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+pub struct RigRow {
+    /// Time, s.
+    pub t_s: f64,
+    /// Commanded voltage, V.
+    #[serde(rename = "voltage_V")]
+    pub voltage_v: f64,
+    /// Preload on the stack, N.
+    #[serde(rename = "force_N")]
+    pub force_n: f64,
+    /// Stack extension, µm (zeroed at t = 0).
+    pub displacement_um: f64,
+}
+finite_record!(RigRow {
+    t_s: "t_s",
+    voltage_v: "voltage_V",
+    force_n: "force_N",
+    displacement_um: "displacement_um"
+});
+
+/// One sample of a stage recording (`stage-a/`; extra columns ignored).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+pub struct StageRow {
+    /// Time, s.
+    pub t_s: f64,
+    /// Commanded voltage, V.
+    #[serde(rename = "voltage_V")]
+    pub voltage_v: f64,
+    /// Force between stack and hinge, N.
+    #[serde(rename = "force_N")]
+    pub force_n: f64,
+    /// Stage output, µm (zeroed at t = 0).
+    pub x_fhps_um: f64,
+}
+finite_record!(StageRow {
+    t_s: "t_s",
+    voltage_v: "voltage_V",
+    force_n: "force_N",
+    x_fhps_um: "x_fhps_um"
+});
+
+/// One point of an FEM export (`fem.csv`).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+pub struct FemRow {
+    /// Prescribed stack extension, µm.
+    pub x_pea_um: f64,
+    /// Reaction (pre)load on the stack, N.
+    #[serde(rename = "preload_N")]
+    pub preload_n: f64,
+    /// Stage output, µm.
+    pub x_fhps_um: f64,
+}
+finite_record!(FemRow {
+    x_pea_um: "x_pea_um",
+    preload_n: "preload_N",
+    x_fhps_um: "x_fhps_um"
+});
+
+/// A preload-rig recording, by column.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rig {
+    /// Source file.
+    pub path: PathBuf,
+    /// Time, s.
+    pub t: Vec<f64>,
+    /// Commanded voltage, V.
+    pub u: Vec<f64>,
+    /// Preload, N.
+    pub f: Vec<f64>,
+    /// Stack extension, µm.
+    pub x: Vec<f64>,
+}
+
+/// Reads a `t_s,voltage_V,force_N,displacement_um` file.
+pub fn read_rig(path: &Path) -> Result<Rig, DataError> {
+    let rows: Vec<RigRow> = read_csv(path, &["t_s", "voltage_V", "force_N", "displacement_um"])?;
+    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
+    strictly_increasing(path, "t_s", &t)?;
+    Ok(Rig {
+        path: path.to_path_buf(),
+        t,
+        u: rows.iter().map(|r| r.voltage_v).collect(),
+        f: rows.iter().map(|r| r.force_n).collect(),
+        x: rows.iter().map(|r| r.displacement_um).collect(),
+    })
+}
+
+/// A stage recording, by column.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StageRun {
+    /// Source file.
+    pub path: PathBuf,
+    /// Time, s.
+    pub t: Vec<f64>,
+    /// Commanded voltage, V.
+    pub u: Vec<f64>,
+    /// Force between stack and hinge, N.
+    pub f: Vec<f64>,
+    /// Stage output, µm.
+    pub x: Vec<f64>,
+}
+
+/// Reads a `t_s,voltage_V,force_N,x_fhps_um[,…]` file.
+pub fn read_stage(path: &Path) -> Result<StageRun, DataError> {
+    let rows: Vec<StageRow> = read_csv(path, &["t_s", "voltage_V", "force_N", "x_fhps_um"])?;
+    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
+    strictly_increasing(path, "t_s", &t)?;
+    Ok(StageRun {
+        path: path.to_path_buf(),
+        t,
+        u: rows.iter().map(|r| r.voltage_v).collect(),
+        f: rows.iter().map(|r| r.force_n).collect(),
+        x: rows.iter().map(|r| r.x_fhps_um).collect(),
+    })
+}
+
+/// An FEM export, by column.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fem {
+    /// Source file.
+    pub path: PathBuf,
+    /// Stack extension, µm (strictly increasing).
+    pub x_pea: Vec<f64>,
+    /// Preload, N.
+    pub preload: Vec<f64>,
+    /// Stage output, µm.
+    pub x_fhps: Vec<f64>,
+}
+
+/// Reads and validates a `x_pea_um,preload_N,x_fhps_um` file: finite values,
+/// strictly increasing `x_pea_um`, at least two points.
+pub fn read_fem(path: &Path) -> Result<Fem, DataError> {
+    let rows: Vec<FemRow> = read_csv(path, &["x_pea_um", "preload_N", "x_fhps_um"])?;
+    if rows.len() < 2 {
+        return Err(DataError::file(
+            path,
+            "an FEM table needs at least two points",
+        ));
+    }
+    let x_pea: Vec<f64> = rows.iter().map(|r| r.x_pea_um).collect();
+    strictly_increasing(path, "x_pea_um", &x_pea)?;
+    Ok(Fem {
+        path: path.to_path_buf(),
+        x_pea,
+        preload: rows.iter().map(|r| r.preload_n).collect(),
+        x_fhps: rows.iter().map(|r| r.x_fhps_um).collect(),
+    })
+}
+
+/// The micromanipulator recording: command (V, column 1) and sensor (µm, column 5).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Micromanipulator {
+    /// Source file.
+    pub path: PathBuf,
+    /// Amplifier input, V.
+    pub u: Vec<f64>,
+    /// Capacitive sensor, µm (as recorded).
+    pub sensor: Vec<f64>,
+}
+
+/// Reads the tab-separated, header-less `Model_Vi_Do.dat`.
+pub fn read_micromanipulator(path: &Path) -> Result<Micromanipulator, DataError> {
+    let bytes = read_bytes(path)?;
+    let text = String::from_utf8_lossy(&bytes);
+    let (mut u, mut sensor) = (Vec::new(), Vec::new());
+    for (i, line) in text.lines().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let fields: Vec<&str> = line.split('\t').collect();
+        let ln = i as u64 + 1;
+        let get = |k: usize| -> Result<f64, DataError> {
+            let col = format!("{}", k + 1);
+            let raw = fields
+                .get(k)
+                .ok_or_else(|| DataError::at(path, ln, &col, "missing field"))?;
+            let v: f64 = raw
+                .trim()
+                .parse()
+                .map_err(|_| DataError::at(path, ln, &col, format!("{raw:?} is not a number")))?;
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(DataError::at(
+                    path,
+                    ln,
+                    &col,
+                    format!("{raw:?} is not finite"),
+                ))
+            }
+        };
+        u.push(get(0)?);
+        sensor.push(get(4)?);
+    }
+    Ok(Micromanipulator {
+        path: path.to_path_buf(),
+        u,
+        sensor,
+    })
+}

@@ -1,0 +1,313 @@
+//! Building the firmware for the Cortex-M4 and running it on the emulated board.
+//!
+//! Used by `cargo demo`, `cargo isr-bench` and the QEMU integration test. It
+//! installs the rustup target if it is missing and asks, with the command to run,
+//! for `qemu-system-arm` if that is missing. QEMU always runs under a timeout.
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, Context, Result};
+use object::{Object, ObjectSection, SectionFlags};
+
+/// The firmware's target triple.
+pub const TARGET: &str = "thumbv7em-none-eabihf";
+
+/// The emulated STM32F405 board.
+pub const QEMU_MACHINE: &str = "netduinoplus2";
+
+/// Virtual time of the emulated demo: 1 ns per instruction, idle time skipped.
+/// Deterministic (the interleaving of interrupt and thread mode repeats exactly)
+/// and fast.
+pub const ICOUNT_DEMO: &str = "shift=0,align=off,sleep=off";
+/// Virtual time of the benchmark: 2^10 ns per instruction, so SysTick differences
+/// are exact instruction counts.
+pub const ICOUNT_BENCH: &str = "shift=10,align=off,sleep=off";
+
+/// The project's root (the `piezo-fpi` package).
+pub fn project_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from(".."))
+}
+
+fn cargo() -> String {
+    std::env::var("CARGO").unwrap_or_else(|_| "cargo".into())
+}
+
+/// Makes sure the Cortex-M target's standard library is installed (installing it
+/// with `rustup target add` if needed).
+pub fn ensure_target() -> Result<()> {
+    let out = Command::new("rustup")
+        .args(["target", "list", "--installed"])
+        .output();
+    match out {
+        Ok(o)
+            if String::from_utf8_lossy(&o.stdout)
+                .lines()
+                .any(|l| l.trim() == TARGET) =>
+        {
+            Ok(())
+        }
+        Ok(_) => {
+            eprintln!("installing the Cortex-M4F target: rustup target add {TARGET}");
+            let st = Command::new("rustup")
+                .args(["target", "add", TARGET])
+                .status()
+                .context("running rustup")?;
+            if !st.success() {
+                bail!("`rustup target add {TARGET}` failed; run it by hand and retry");
+            }
+            Ok(())
+        }
+        Err(_) => bail!(
+            "rustup was not found; install the {TARGET} standard library for your toolchain \
+             (with rustup: `rustup target add {TARGET}`)"
+        ),
+    }
+}
+
+/// The `qemu-system-arm` to use (`$QEMU_SYSTEM_ARM` or the one on `PATH`), or a
+/// clear request to install it.
+pub fn qemu() -> Result<PathBuf> {
+    if let Ok(p) = std::env::var("QEMU_SYSTEM_ARM") {
+        return Ok(PathBuf::from(p));
+    }
+    let found = std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|d| d.join("qemu-system-arm"))
+            .find(|p| p.is_file())
+    });
+    found.ok_or_else(|| {
+        anyhow!(
+            "qemu-system-arm was not found. It emulates the STM32F405 board. Install it, e.g.\n  \
+             sudo apt-get install qemu-system-arm        (Debian, Ubuntu)\n  \
+             sudo dnf install qemu-system-arm            (Fedora)\n  \
+             brew install qemu                           (macOS)\n\
+             then run the command again."
+        )
+    })
+}
+
+/// Builds a firmware binary in release mode for the target and returns its ELF.
+pub fn build(bin: &str, features: &str) -> Result<PathBuf> {
+    ensure_target()?;
+    let root = project_root();
+    let status = Command::new(cargo())
+        .current_dir(&root)
+        .args([
+            "build",
+            "--release",
+            "--target",
+            TARGET,
+            "-p",
+            "piezo-fpi",
+            "--bin",
+            bin,
+            "--features",
+            features,
+        ])
+        .status()
+        .context("running cargo build for the firmware")?;
+    if !status.success() {
+        bail!("building `{bin}` (features {features}) for {TARGET} failed");
+    }
+    let target_dir = std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| root.join("target"));
+    let elf = target_dir.join(TARGET).join("release").join(bin);
+    if !elf.is_file() {
+        bail!(
+            "the build reported success but {} is missing",
+            elf.display()
+        );
+    }
+    Ok(elf)
+}
+
+/// What a QEMU run printed and how it ended.
+#[derive(Debug, Clone)]
+pub struct QemuRun {
+    /// Everything the firmware printed (semihosting stdout).
+    pub stdout: String,
+    /// QEMU's exit code (semihosting exit: 0 success, 1 failure).
+    pub code: Option<i32>,
+    /// Wall-clock time of the run.
+    pub elapsed: Duration,
+}
+
+/// Runs an ELF on the emulated board with the given `-icount` setting, echoing its
+/// output live if `echo`; kills QEMU after `timeout`.
+pub fn run(elf: &Path, icount: &str, timeout: Duration, echo: bool) -> Result<QemuRun> {
+    let qemu = qemu()?;
+    let start = Instant::now();
+    let mut child = Command::new(&qemu)
+        .args([
+            "-machine",
+            QEMU_MACHINE,
+            "-nographic",
+            "-monitor",
+            "none",
+            "-serial",
+            "null",
+            "-semihosting-config",
+            "enable=on,target=native",
+            "-icount",
+            icount,
+            "-kernel",
+        ])
+        .arg(elf)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .with_context(|| format!("starting {}", qemu.display()))?;
+    let stdout = child.stdout.take().context("qemu stdout")?;
+    let mut stderr = child.stderr.take().context("qemu stderr")?;
+    let reader = std::thread::spawn(move || {
+        let mut all = String::new();
+        for line in BufReader::new(stdout).lines().map_while(|l| l.ok()) {
+            if echo {
+                println!("{line}");
+            }
+            all.push_str(&line);
+            all.push('\n');
+        }
+        all
+    });
+    let code = loop {
+        if let Some(st) = child.try_wait()? {
+            break st.code();
+        }
+        if start.elapsed() > timeout {
+            let _ = child.kill();
+            let _ = child.wait();
+            bail!(
+                "QEMU did not finish within {} s ({}); killed",
+                timeout.as_secs(),
+                elf.display()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let out = reader.join().map_err(|_| anyhow!("reading QEMU output"))?;
+    let mut err = String::new();
+    let _ = stderr.read_to_string(&mut err);
+    if !err.trim().is_empty() && code != Some(0) {
+        eprintln!("{}", err.trim());
+    }
+    Ok(QemuRun {
+        stdout: out,
+        code,
+        elapsed: start.elapsed(),
+    })
+}
+
+/// Flash and static RAM of a firmware ELF, bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Footprint {
+    /// Code, constants, vector table and the initial image of `.data`.
+    pub flash: u64,
+    /// `.data`, `.bss` and `.uninit` (the stack is extra).
+    pub ram: u64,
+}
+
+/// Reads the allocated sections of an ELF (flash at 0x0800_0000, RAM at 0x2000_0000).
+pub fn footprint(elf: &Path) -> Result<Footprint> {
+    let data = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
+    let file = object::File::parse(&*data).with_context(|| format!("parsing {}", elf.display()))?;
+    let (mut flash, mut ram) = (0, 0);
+    for s in file.sections() {
+        let alloc = matches!(
+            s.flags(),
+            SectionFlags::Elf { sh_flags, .. } if sh_flags.0 & object::elf::SHF_ALLOC.0 != 0
+        );
+        if !alloc || s.size() == 0 {
+            continue;
+        }
+        let a = s.address();
+        if (0x0800_0000..0x0810_0000).contains(&a) {
+            flash += s.size();
+        } else if (0x2000_0000..0x2002_0000).contains(&a) {
+            ram += s.size();
+            if s.name().ok() == Some(".data") {
+                flash += s.size(); // its initial values are copied from flash
+            }
+        }
+    }
+    Ok(Footprint { flash, ram })
+}
+
+/// Integer figures of one phase of the scripted run, as the firmware prints them:
+/// ticks at its end, tracking RMS and max (nm), virtual-sensor RMS (nm), pass.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PhaseFigures {
+    /// The phase's name.
+    pub name: String,
+    /// Control ticks at the end of the phase.
+    pub ticks: u32,
+    /// Tracking error RMS, nm.
+    pub rms_nm: i32,
+    /// Tracking error max, nm.
+    pub max_nm: i32,
+    /// Virtual sensor RMS error, nm.
+    pub est_nm: i32,
+    /// The phase's self-check.
+    pub pass: bool,
+}
+
+/// The phase lines of the emulated firmware's output.
+pub fn parse_phases(stdout: &str) -> Vec<PhaseFigures> {
+    stdout
+        .lines()
+        .filter_map(|l| l.strip_prefix("phase "))
+        .filter_map(|rest| {
+            let (name, nums) = rest.split_once("ticks")?;
+            let words: Vec<&str> = nums.split_whitespace().collect();
+            let num = |key: &str| -> Option<i64> {
+                let i = words.iter().position(|w| *w == key)?;
+                words.get(i + 1)?.parse().ok()
+            };
+            Some(PhaseFigures {
+                name: name.trim().to_string(),
+                ticks: words.first()?.parse().ok()?,
+                rms_nm: num("rms")? as i32,
+                max_nm: num("max")? as i32,
+                est_nm: words
+                    .iter()
+                    .position(|w| *w == "virtual-sensor")
+                    .and_then(|i| words.get(i + 2))
+                    .and_then(|w| w.parse().ok())?,
+                pass: words.last() == Some(&"ok"),
+            })
+        })
+        .collect()
+}
+
+/// The same figures computed on the host: the core's control loop and virtual
+/// stage run in a plain loop instead of interrupts.
+pub fn host_phases() -> Result<Vec<PhaseFigures>> {
+    use piezo_fpi::model::{CONTROLLER, CONTROL_RATE_HZ};
+    use piezo_fpi::stats::nm;
+    let (reports, _) = piezo_fpi::demo::run_on_host(&CONTROLLER, CONTROL_RATE_HZ)
+        .ok_or_else(|| anyhow!("the scripted run did not finish on the host"))?;
+    let mut ticks = 0;
+    Ok(reports
+        .iter()
+        .flatten()
+        .map(|r| {
+            ticks += r.steps;
+            PhaseFigures {
+                name: r.phase.name().to_string(),
+                ticks,
+                rms_nm: nm(r.tracking.rms()),
+                max_nm: nm(r.tracking.max_abs()),
+                est_nm: nm(r.estimate.rms()),
+                pass: r.pass,
+            }
+        })
+        .collect())
+}

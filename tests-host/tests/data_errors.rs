@@ -1,0 +1,112 @@
+//! Bad input files get errors that name the file, the line and the column.
+
+use fpi_host::data::{read_fem, read_rig, read_stage};
+use std::path::PathBuf;
+
+fn write(name: &str, text: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("fpi-host-data-errors-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn message(r: Result<impl std::fmt::Debug, fpi_host::data::DataError>) -> String {
+    r.expect_err("must fail").to_string()
+}
+
+#[test]
+fn a_non_number_names_line_and_column() {
+    let p = write(
+        "bad_number.csv",
+        "t_s,voltage_V,force_N,displacement_um\n0,0,60,0\n0.1,1.5,6O.1,0.01\n",
+    );
+    let m = message(read_rig(&p));
+    assert!(
+        m.ends_with("bad_number.csv:3: column force_N: \"6O.1\" is not a number"),
+        "{m}"
+    );
+}
+
+#[test]
+fn nan_and_infinity_are_rejected() {
+    let p = write(
+        "nan.csv",
+        "t_s,voltage_V,force_N,x_fhps_um\n0,0,60,0\n0.1,NaN,60,0.2\n",
+    );
+    let m = message(read_stage(&p));
+    assert!(
+        m.ends_with("nan.csv:3: column voltage_V: \"NaN\" is not a finite number"),
+        "{m}"
+    );
+    let p = write(
+        "inf.csv",
+        "x_pea_um,preload_N,x_fhps_um\n0,61.8,0\n0.25,inf,1.4\n",
+    );
+    let m = message(read_fem(&p));
+    assert!(
+        m.ends_with("inf.csv:3: column preload_N: \"inf\" is not a finite number"),
+        "{m}"
+    );
+}
+
+#[test]
+fn a_missing_column_is_named() {
+    let p = write("missing.csv", "t_s,voltage_V,x_fhps_um\n0,0,0\n");
+    let m = message(read_stage(&p));
+    assert!(
+        m.contains("missing.csv:1: column force_N: missing in the header"),
+        "{m}"
+    );
+}
+
+#[test]
+fn a_short_row_is_located() {
+    let p = write(
+        "short.csv",
+        "t_s,voltage_V,force_N,displacement_um\n0,0,60,0\n0.1,1\n",
+    );
+    let m = message(read_rig(&p));
+    assert!(
+        m.contains("short.csv:3: 2 fields where the header has 4"),
+        "{m}"
+    );
+}
+
+#[test]
+fn fem_extension_must_increase_and_time_too() {
+    let p = write(
+        "fem_order.csv",
+        "x_pea_um,preload_N,x_fhps_um\n0,61.8,0\n0.5,63,2.8\n0.25,62,1.4\n",
+    );
+    let m = message(read_fem(&p));
+    assert!(
+        m.ends_with("fem_order.csv:4: column x_pea_um: 0.25 does not increase (previous row 0.5)"),
+        "{m}"
+    );
+    let p = write(
+        "time.csv",
+        "t_s,voltage_V,force_N,displacement_um\n0,0,60,0\n0,1,60,0\n",
+    );
+    let m = message(read_rig(&p));
+    assert!(
+        m.ends_with("time.csv:3: column t_s: 0 does not increase (previous row 0)"),
+        "{m}"
+    );
+}
+
+#[test]
+fn an_absent_file_is_named() {
+    let m = message(read_rig(std::path::Path::new("/nonexistent/run.csv")));
+    assert!(m.starts_with("/nonexistent/run.csv: cannot open"), "{m}");
+}
+
+#[test]
+fn extra_columns_are_ignored() {
+    let p = write(
+        "extra.csv",
+        "t_s,voltage_V,force_N,x_fhps_um,current_mA\n0,0,60,0,0.1\n0.1,1,60,0.2,0.3\n",
+    );
+    let run = read_stage(&p).unwrap();
+    assert_eq!(run.u, vec![0.0, 1.0]);
+}
