@@ -117,17 +117,63 @@ fn generate_model(path: &Path) -> Result<String, String> {
         sig("pi.input_max_v", m.pi.input_max_v)?,
     );
     let c = &m.coupling;
+    let _ = writeln!(w, "/// Creep terms of the embedded model.");
+    let _ = writeln!(w, "pub const CREEP_TERMS: usize = {};", m.creep.len());
+    let mut creep = String::from("[");
+    for (j, cr) in m.creep.iter().enumerate() {
+        let rate = cr.rate(k.rate_hz as f64);
+        let _ = write!(
+            creep,
+            "\n    match Creep::new(CreepRate::from_bits({}), UmPerVolt::from_bits({})) {{ Ok(c) => c, Err(e) => panic!(\"{{}}\", e.message()) }},",
+            coupling(&format!("creep[{j}] rate"), rate)?,
+            gain(&format!("creep[{j}].gain_um_per_v"), cr.gain_um_per_v)?
+        );
+    }
+    creep.push_str("\n]");
+    let map = |name: &str, section: &Option<model_file::MapSection>| -> String {
+        match section {
+            Some(_) => format!("Some(Map {{ forward: {name}_FORWARD, inverse: {name}_INVERSE }})"),
+            None => "None".into(),
+        }
+    };
     let _ = writeln!(
         w,
-        "/// The FPI model: PI, its closed-form inverse (computed by the compiler), coupling.\n\
-         pub const FPI: Fpi<OPERATORS> = match Fpi::new(PI, Coupling {{\n    \
-         k_f: VoltsPerNewton::from_bits({}),\n    compliance: UmPerNewton::from_bits({}),\n    \
-         force_ref: Newtons::from_bits({}),\n}}) {{\n    Ok(m) => m,\n    \
-         Err(e) => panic!(\"{{}}\", e.message()),\n}};",
+        "/// The FPI model: PI, the closed-form inverse (computed by the compiler), coupling,\n\
+         /// dead zone, saturation and creep.\n\
+         pub const FPI: Fpi<'static, OPERATORS, CREEP_TERMS> = match Fpi::new(\n    PI,\n    Coupling {{\n        \
+         offset: Volts::from_bits({}),\n        k_f: VoltsPerNewton::from_bits({}),\n        \
+         k_q: VoltsPerNewton2::from_bits({}),\n        force_q: Newtons::from_bits({}),\n        \
+         compliance: UmPerNewton::from_bits({}),\n        force_ref: Newtons::from_bits({}),\n    }},\n    \
+         {},\n    {},\n    {},\n) {{\n    Ok(m) => m,\n    Err(e) => panic!(\"{{}}\", e.message()),\n}};",
+        sig("coupling.offset_v", c.offset_v)?,
         coupling("coupling.k_f_v_per_n", c.k_f_v_per_n)?,
+        coupling("coupling.k_q_v_per_n2", c.k_q_v_per_n2)?,
+        sig("coupling.force_q_n", c.force_q_n)?,
         coupling("coupling.compliance_um_per_n", c.compliance_um_per_n)?,
         sig("coupling.force_ref_n", c.force_ref_n)?,
+        map("DEAD_ZONE", &m.dead_zone),
+        map("SATURATION", &m.saturation),
+        creep,
     );
+    for (name, section) in [("DEAD_ZONE", &m.dead_zone), ("SATURATION", &m.saturation)] {
+        if let Some(s) = section {
+            let key = name.to_lowercase();
+            write_table(
+                w,
+                &format!("{name}_FORWARD"),
+                "The map.",
+                &s.forward,
+                &format!("{key}.forward"),
+            )?;
+            write_table(
+                w,
+                &format!("{name}_INVERSE"),
+                "Its inverse.",
+                &s.inverse,
+                &format!("{key}.inverse"),
+            )?;
+        }
+    }
     for (name, doc, t) in [
         (
             "F_F",
@@ -168,7 +214,7 @@ fn generate_model(path: &Path) -> Result<String, String> {
     let _ = writeln!(
         w,
         "/// The control loop's configuration, in flash.\n\
-         pub static CONTROLLER: ControllerConfig<'static, OPERATORS> =\n    \
+         pub static CONTROLLER: ControllerConfig<'static, OPERATORS, CREEP_TERMS> =\n    \
          match ControllerConfig::new(ControllerParts {{\n        \
          fpi: FPI,\n        f_f: F_F,\n        f_k: F_K,\n        f_k_inv: F_K_INV,\n        \
          limits: LIMITS,\n        \

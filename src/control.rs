@@ -21,7 +21,7 @@
 //! fault, until [`ControllerState::clear_fault`] is called once the ramp is done.
 
 use crate::error::ModelError;
-use crate::fpi::Fpi;
+use crate::fpi::{CreepMemory, Fpi};
 use crate::limits::OutputLimits;
 use crate::play::PlayBank;
 use crate::q::{
@@ -93,8 +93,8 @@ impl Fault {
 
 /// Everything the control step needs that does not change while it runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ControllerConfig<'a, const N: usize> {
-    fpi: Fpi<N>,
+pub struct ControllerConfig<'a, const N: usize, const C: usize = 0> {
+    fpi: Fpi<'a, N, C>,
     f_f: Table<'a>,
     f_k: Table<'a>,
     f_k_inv: Table<'a>,
@@ -108,9 +108,9 @@ pub struct ControllerConfig<'a, const N: usize> {
 
 /// The parts of a [`ControllerConfig`], named, for its constructor.
 #[derive(Debug, Clone, Copy)]
-pub struct ControllerParts<'a, const N: usize> {
+pub struct ControllerParts<'a, const N: usize, const C: usize = 0> {
     /// The calibrated FPI model.
-    pub fpi: Fpi<N>,
+    pub fpi: Fpi<'a, N, C>,
     /// Preload `f_F`: stack extension (µm) → force on the stack (N).
     pub f_f: Table<'a>,
     /// Kinematics `f_K`: stack extension (µm) → stage output (µm).
@@ -131,10 +131,10 @@ pub struct ControllerParts<'a, const N: usize> {
     pub force_source: ForceSource,
 }
 
-impl<'a, const N: usize> ControllerConfig<'a, N> {
+impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
     /// Validates the parts: intervals not inverted, the reference interval inside
     /// the `f_K⁻¹` grid, the safe voltage inside the limits, a positive tolerance.
-    pub const fn new(p: ControllerParts<'a, N>) -> Result<Self, ModelError> {
+    pub const fn new(p: ControllerParts<'a, N, C>) -> Result<Self, ModelError> {
         let (rl, rh) = (p.reference.lo.to_bits(), p.reference.hi.to_bits());
         if rl > rh || p.force.lo.to_bits() > p.force.hi.to_bits() {
             return Err(ModelError::LimitsInverted);
@@ -163,6 +163,24 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
         })
     }
 
+    /// Takes `force` (N) as the reference force `F_ref` of the compliance term: the
+    /// force at which the stage's position is zero. Call it at power-up with the
+    /// sensor's reading at rest (the FEM's `f_F(0)` is a design value; the built
+    /// stage differs by a few percent, and `c·ΔF_ref` is a constant position error).
+    /// Only at rest and with a measured, plausible force; returns whether it took it.
+    pub fn tare(&self, st: &mut ControllerState<N, C>, force: Newtons) -> bool {
+        let at_rest = st.voltage == self.safe_voltage && st.fault.is_none();
+        if at_rest
+            && matches!(self.force_source, ForceSource::Measured)
+            && self.force.contains(force)
+        {
+            st.force_ref = force;
+            true
+        } else {
+            false
+        }
+    }
+
     /// The same configuration with another force source.
     pub const fn with_force_source(mut self, source: ForceSource) -> Self {
         self.force_source = source;
@@ -170,10 +188,12 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
     }
 
     /// A fresh state at the safe voltage, all operators at rest.
-    pub const fn initial_state(&self) -> ControllerState<N> {
+    pub const fn initial_state(&self) -> ControllerState<N, C> {
         ControllerState {
             inverse: PlayBank::new(),
             forward: PlayBank::new(),
+            creep: CreepMemory::new(),
+            force_ref: self.fpi.coupling().force_ref,
             voltage: self.safe_voltage,
             x_pea_est: Micrometres::ZERO,
             fault: None,
@@ -188,7 +208,7 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
     #[inline]
     pub fn step(
         &self,
-        st: &mut ControllerState<N>,
+        st: &mut ControllerState<N, C>,
         x_ref: Micrometres,
         force: Newtons,
     ) -> StepOutput {
@@ -202,7 +222,7 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
     #[inline(always)]
     fn step_with<const MEASURED: bool>(
         &self,
-        st: &mut ControllerState<N>,
+        st: &mut ControllerState<N, C>,
         x_ref: Micrometres,
         force: Newtons,
     ) -> StepOutput {
@@ -215,15 +235,19 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
         } else {
             self.f_f.eval(x_pea_ref)
         };
-        let terms = self.fpi.force_terms(f);
-        let want = self.fpi.inverse(&mut st.inverse, x_pea_ref, terms);
+        let terms = self.fpi.force_terms_at(f, st.force_ref);
+        let (want, foot) = self
+            .fpi
+            .inverse_checked(&mut st.inverse, &st.creep, x_pea_ref, &terms);
         let (voltage, limited) = self.limits.apply(st.voltage, want);
-        let x_pea_est = self.fpi.forward(&mut st.forward, voltage, terms);
-        if limited {
-            // The stack got another voltage than the inverse asked for: realign the
-            // inverse memory with what was applied.
+        let x_pea_est = self
+            .fpi
+            .forward(&mut st.forward, &mut st.creep, voltage, &terms);
+        if limited || foot {
+            // The stack got another drive than the inverse asked for (the limits, or
+            // the foot of a soft dead zone): realign the inverse memory with it.
             self.fpi.resync(&st.forward, &mut st.inverse);
-            st.limited_steps = st.limited_steps.wrapping_add(1);
+            st.limited_steps = st.limited_steps.wrapping_add(limited as u32);
         }
         st.voltage = voltage;
         st.x_pea_est = x_pea_est;
@@ -242,7 +266,7 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
     /// [`step`](Self::step) is seamless.
     pub fn step_uncompensated(
         &self,
-        st: &mut ControllerState<N>,
+        st: &mut ControllerState<N, C>,
         drive: &LinearDrive,
         x_ref: Micrometres,
         force: Newtons,
@@ -261,9 +285,10 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
             self.f_f.eval(x_pea_ref)
         };
         let (voltage, limited) = self.limits.apply(st.voltage, drive.voltage(x_ref));
+        let terms = self.fpi.force_terms_at(f, st.force_ref);
         let x_pea_est = self
             .fpi
-            .forward(&mut st.forward, voltage, self.fpi.force_terms(f));
+            .forward(&mut st.forward, &mut st.creep, voltage, &terms);
         self.fpi.resync(&st.forward, &mut st.inverse);
         st.voltage = voltage;
         st.x_pea_est = x_pea_est;
@@ -280,7 +305,7 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
     #[inline]
     fn supervise<const MEASURED: bool>(
         &self,
-        st: &mut ControllerState<N>,
+        st: &mut ControllerState<N, C>,
         x_ref: Micrometres,
         force: Newtons,
     ) -> Option<Fault> {
@@ -302,7 +327,7 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
     /// The step in the safe state: ramp toward the safe voltage, keep estimating.
     fn ramp_to_safe(
         &self,
-        st: &mut ControllerState<N>,
+        st: &mut ControllerState<N, C>,
         force: Newtons,
         fault: Fault,
     ) -> StepOutput {
@@ -314,9 +339,10 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
         } else {
             self.f_f.eval(st.x_pea_est)
         };
+        let terms = self.fpi.force_terms_at(f, st.force_ref);
         let x_pea_est = self
             .fpi
-            .forward(&mut st.forward, voltage, self.fpi.force_terms(f));
+            .forward(&mut st.forward, &mut st.creep, voltage, &terms);
         st.voltage = voltage;
         st.x_pea_est = x_pea_est;
         StepOutput {
@@ -335,7 +361,7 @@ impl<'a, const N: usize> ControllerConfig<'a, N> {
     }
 
     /// The calibrated model.
-    pub const fn fpi(&self) -> &Fpi<N> {
+    pub const fn fpi(&self) -> &Fpi<'a, N, C> {
         &self.fpi
     }
     /// Preload map `f_F`.
@@ -393,16 +419,18 @@ pub struct StepOutput {
 
 /// The controller's memory: both operator banks, the last output, the fault latch.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ControllerState<const N: usize> {
+pub struct ControllerState<const N: usize, const C: usize = 0> {
     inverse: PlayBank<N>,
     forward: PlayBank<N>,
+    creep: CreepMemory<C>,
+    force_ref: Newtons,
     voltage: Volts,
     x_pea_est: Micrometres,
     fault: Option<Fault>,
     limited_steps: u32,
 }
 
-impl<const N: usize> ControllerState<N> {
+impl<const N: usize, const C: usize> ControllerState<N, C> {
     /// The latched fault, if any.
     pub const fn fault(&self) -> Option<Fault> {
         self.fault
@@ -427,11 +455,19 @@ impl<const N: usize> ControllerState<N> {
     pub const fn inverse_bank(&self) -> &PlayBank<N> {
         &self.inverse
     }
+    /// The creep memories.
+    pub const fn creep(&self) -> &CreepMemory<C> {
+        &self.creep
+    }
+    /// The reference force of the compliance term in use (N).
+    pub const fn force_ref(&self) -> Newtons {
+        self.force_ref
+    }
 
     /// Leaves the safe state once the output has reached the safe voltage; the
     /// inverse memory is realigned with the voltage history actually applied.
     /// Returns whether the fault was cleared.
-    pub fn clear_fault(&mut self, cfg: &ControllerConfig<'_, N>) -> bool {
+    pub fn clear_fault(&mut self, cfg: &ControllerConfig<'_, N, C>) -> bool {
         if self.voltage != cfg.safe_voltage {
             return false;
         }

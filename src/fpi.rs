@@ -1,127 +1,382 @@
-//! The Force-dependent Prandtl–Ishlinskii model (seed 000, eqs. 5–7), with stack compliance.
+//! The Force-dependent Prandtl–Ishlinskii model (seed 000, eqs. 5–7) and the
+//! effects the recorded data hold beyond it.
 //!
-//! The stack responds to the effective voltage `û = u - k_f·F`: the preload `F`
-//! induces a reverse voltage `k_f·F` across the ceramic. Its extension is
+//! The stack responds to an effective voltage: the preload `F` induces a reverse
+//! voltage, so what drives the play operators is
 //!
 //! ```text
-//! x_pea = Y[max(û, 0)] - c·(F - F_ref)
+//! e  = u - U_p(F),            U_p(F) = k0 + k_f·F + k_q·(F - F_q)²
+//! û  = g(e)                   dead zone: g(e) = max(e, 0), or a soft one (a table)
+//! m_j ← m_j + (1 - a_j)(û - m_j)            creep: first-order lags of û
+//! Y  = PI[û] + Σ_j b_j·m_j
+//! x  = h(Y) - c·(F - F_ref)   output saturation h (a table, or identity); compliance c
 //! ```
 //!
+//! * **The paper's FPI** is `k0 = k_q = 0`, the hard dead zone, no creep, `h` the
+//!   identity and `c = 0`: `x = Y[max(u - k_f·F, 0)]`.
 //! * **Dead zone (`û < 0`).** One-sided play operators are defined for a unipolar
 //!   input. While the applied voltage has not overcome the preload's reverse
-//!   voltage the stack does not extend, so `û` is clamped at 0 before it reaches
-//!   the bank: the operators see "no drive" and stay at rest. This is what the
-//!   recorded data show: the stack starts to move at `u ≈ k_f·F` (2.5 V at 25 N,
-//!   15 V at 150 N), and a higher preload both widens the dead zone and shortens
-//!   the stroke.
-//! * **Compliance (`c`, µm/N).** The stack is a spring (datasheet ≈ 50 N/µm, so
-//!   `c ≈ 0.02 µm/N`): a rising hinge force compresses it. `F_ref` is the force at
-//!   which displacement is zeroed (the assembly preload). Set `c = 0` for the
-//!   paper's FPI model.
+//!   voltage the stack does not extend: the hard dead zone clamps `e` at 0, so the
+//!   operators see "no drive" and stay at rest. The recordings show it (the stack
+//!   starts to move at `u ≈ 0.1 V/N · F`, and a higher preload both widens the dead
+//!   zone and shortens the stroke) and show that its edge is soft, hence `g`.
+//! * **Compliance.** The stack is a spring (datasheet ≈ 50 N/µm, `c ≈ 0.02 µm/N`):
+//!   a rising hinge force compresses it. `F_ref` is the force at which the
+//!   extension is zero (the assembly preload).
 //!
-//! The inverse is explicit because the force is measured (or predicted from the
-//! reference through `f_F`): `u = PI⁻¹[x_pea + c·(F - F_ref)] + k_f·F`.
+//! Every part inverts in closed form, so the ISR needs no iteration:
+//!
+//! ```text
+//! v  = h⁻¹(x + c·(F - F_ref)) - Σ_j b_j·a_j·m_j
+//! û  = PI'⁻¹[v]        PI' = PI with w0' = w0 + Σ_j b_j(1 - a_j): this sample's creep
+//! u  = U_p(F) + g⁻¹(û)
+//! ```
+//!
+//! The creep memories `m_j` are advanced once per sample, by the forward model
+//! with the voltage actually applied, and read by the next inverse.
 
 use crate::error::ModelError;
 use crate::inverse::InversePi;
 use crate::pi::PiModel;
 use crate::play::PlayBank;
 use crate::q::{
-    coupling_mul, Micrometres, Newtons, UmPerNewton, Volts, VoltsPerNewton, SIGNAL_ABS_MAX_BITS,
+    coupling_mul, quad_mul, within, CreepRate, GainAcc, Micrometres, Newtons, UmPerNewton,
+    UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2, GAIN_FRAC, QUAD_MAX_BITS,
+    SIGNAL_ABS_MAX_BITS,
 };
+use crate::table::Table;
 
-/// The force coupling of an FPI model.
+/// How the force enters: the preload offset `U_p(F)` and the compliance.
 ///
+/// * `offset` — `k0`, V, `I16F16`.
 /// * `k_f` — force–voltage coupling, V/N, `I0F32`.
+/// * `k_q`, `force_q` — curvature of the offset, V/N² (`I0F32`), about `F_q` (N).
 /// * `compliance` — `c`, µm/N, `I0F32` (0 for the paper's model).
 /// * `force_ref` — `F_ref`, N, `I16F16`: force at which the extension is zero.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Coupling {
+    /// Constant part of the preload offset `k0`, V.
+    pub offset: Volts,
     /// Force–voltage coupling `k_f`, V/N.
     pub k_f: VoltsPerNewton,
+    /// Curvature `k_q` of the preload offset, V/N².
+    pub k_q: VoltsPerNewton2,
+    /// Centre `F_q` of the curvature term, N.
+    pub force_q: Newtons,
     /// Stack compliance `c`, µm/N.
     pub compliance: UmPerNewton,
     /// Reference force `F_ref`, N.
     pub force_ref: Newtons,
 }
 
-/// A calibrated FPI model: forward PI, its closed-form inverse, and the coupling.
+impl Coupling {
+    /// The paper's coupling: `U_p = k_f·F`, no compliance.
+    pub const fn paper(k_f: VoltsPerNewton) -> Self {
+        Self {
+            offset: Volts::ZERO,
+            k_f,
+            k_q: VoltsPerNewton2::ZERO,
+            force_q: Newtons::ZERO,
+            compliance: UmPerNewton::ZERO,
+            force_ref: Newtons::ZERO,
+        }
+    }
+}
+
+/// A monotone static map and its inverse, both as lookup tables. Below the first
+/// knot they hold the first value; beyond the last knot they continue with slope
+/// one (a dead zone is the identity far above its edge; a saturation map is built
+/// to cover the whole output range).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Fpi<const N: usize> {
-    pi: PiModel<N>,
-    inverse: InversePi<N>,
-    coupling: Coupling,
+pub struct Map<'a> {
+    /// `y = map(x)`.
+    pub forward: Table<'a>,
+    /// `x = map⁻¹(y)`.
+    pub inverse: Table<'a>,
+}
+
+impl Map<'_> {
+    #[inline(always)]
+    fn through(t: &Table<'_>, x: fixed::types::I16F16) -> fixed::types::I16F16 {
+        let top = t.x_max();
+        if x > top {
+            t.last() + (x - top)
+        } else {
+            t.eval(x)
+        }
+    }
+    /// `map(x)`.
+    #[inline(always)]
+    pub fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
+        Self::through(&self.forward, x)
+    }
+    /// `map⁻¹(y)`.
+    #[inline(always)]
+    pub fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16 {
+        Self::through(&self.inverse, y)
+    }
+}
+
+/// One creep term: a first-order lag of the effective voltage with gain `b`.
+///
+/// * `rate` — `1 - a = 1 - exp(-T_s/τ)`, per sample, `I0F32` in `(0, 0.5)`.
+/// * `gain` — `b`, µm/V, `I4F28`.
+/// * `held` — `b·a`, µm/V, `I4F28` (derived).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Creep {
+    rate: CreepRate,
+    gain: UmPerVolt,
+    held: UmPerVolt,
+}
+
+impl Creep {
+    /// A creep term from its per-sample rate `1 - a` and gain `b`.
+    pub const fn new(rate: CreepRate, gain: UmPerVolt) -> Result<Self, ModelError> {
+        let r = rate.to_bits() as i64;
+        if r <= 0 {
+            return Err(ModelError::NotRepresentable);
+        }
+        // b·a = b - b·(1 - a), in GAIN_FRAC bits.
+        let g = gain.to_bits() as i64;
+        let held = g - ((g * r + (1 << 31)) >> 32);
+        Ok(Self {
+            rate,
+            gain,
+            held: UmPerVolt::from_bits(held as i32),
+        })
+    }
+    /// `1 - a`, per sample.
+    pub const fn rate(&self) -> CreepRate {
+        self.rate
+    }
+    /// `b`, µm/V.
+    pub const fn gain(&self) -> UmPerVolt {
+        self.gain
+    }
+}
+
+/// The creep memories `m_j` (state), volts as `I16F48` raw bits: the extra
+/// fractional bits let a slow lag (`1 - a` down to 10⁻⁵) move by less than one
+/// `I16F16` LSB per sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CreepMemory<const C: usize> {
+    m: [i64; C],
+}
+
+impl<const C: usize> CreepMemory<C> {
+    /// All lags at rest (0 V).
+    pub const fn new() -> Self {
+        Self { m: [0; C] }
+    }
+    /// The memories in volts.
+    pub fn volts(&self) -> [f64; C] {
+        self.m.map(|m| m as f64 / (1u64 << 48) as f64)
+    }
+}
+
+impl<const C: usize> Default for CreepMemory<C> {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 /// The force terms of one sample, computed once and shared by inverse and forward.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ForceTerms {
-    /// Reverse voltage `k_f·F`, V.
-    pub reverse_voltage: Volts,
+    /// Preload offset `U_p(F)`, V.
+    pub preload_offset: Volts,
     /// Compression `c·(F - F_ref)`, µm.
     pub compression: Micrometres,
 }
 
-impl<const N: usize> Fpi<N> {
+/// A calibrated FPI model with its closed-form inverse (configuration).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Fpi<'a, const N: usize, const C: usize = 0> {
+    pi: PiModel<N>,
+    /// The PI with this sample's creep folded into `w0` (`w0' = w0 + Σ b(1-a)`).
+    pi_prime: PiModel<N>,
+    inverse: InversePi<N>,
+    coupling: Coupling,
+    dead_zone: Option<Map<'a>>,
+    saturation: Option<Map<'a>>,
+    creep: [Creep; C],
+}
+
+impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
     /// Builds the model and its inverse; `const` so the firmware's model is checked
     /// when it is compiled.
-    pub const fn new(pi: PiModel<N>, coupling: Coupling) -> Result<Self, ModelError> {
-        let inverse = match InversePi::from_forward(&pi) {
+    ///
+    /// * `dead_zone` — the soft dead zone `g` (`None`: the hard one, `max(e, 0)`).
+    /// * `saturation` — the output map `h` (`None`: the identity).
+    pub const fn new(
+        pi: PiModel<N>,
+        coupling: Coupling,
+        dead_zone: Option<Map<'a>>,
+        saturation: Option<Map<'a>>,
+        creep: [Creep; C],
+    ) -> Result<Self, ModelError> {
+        let fr = coupling.force_ref.to_bits();
+        let fq = coupling.force_q.to_bits();
+        if fr > SIGNAL_ABS_MAX_BITS
+            || fr < -SIGNAL_ABS_MAX_BITS
+            || fq > SIGNAL_ABS_MAX_BITS
+            || fq < -SIGNAL_ABS_MAX_BITS
+        {
+            return Err(ModelError::NotRepresentable);
+        }
+        // |k_q|·(1024 N)² must stay inside the signal range (quad_mul's clamp).
+        let kq = coupling.k_q.to_bits() as i64;
+        let kq = if kq < 0 { -kq } else { kq };
+        if kq > QUAD_MAX_BITS {
+            return Err(ModelError::NotRepresentable);
+        }
+        // w0' = w0 + Σ b_j (1 - a_j), in GAIN_FRAC bits.
+        let mut w0p = pi.w0().to_bits() as i64;
+        let mut j = 0;
+        while j < C {
+            let c = creep[j];
+            w0p += (c.gain.to_bits() as i64 * c.rate.to_bits() as i64 + (1 << 31)) >> 32;
+            j += 1;
+        }
+        if w0p > i32::MAX as i64 {
+            return Err(ModelError::NotRepresentable);
+        }
+        let pi_prime = match pi.with_w0(UmPerVolt::from_bits(w0p as i32)) {
+            Ok(p) => p,
+            Err(e) => return Err(e),
+        };
+        let inverse = match InversePi::from_forward(&pi_prime) {
             Ok(i) => i,
             Err(e) => return Err(e),
         };
-        let fr = coupling.force_ref.to_bits();
-        if fr > SIGNAL_ABS_MAX_BITS || fr < -SIGNAL_ABS_MAX_BITS {
-            return Err(ModelError::NotRepresentable);
-        }
         Ok(Self {
             pi,
+            pi_prime,
             inverse,
             coupling,
+            dead_zone,
+            saturation,
+            creep,
         })
     }
 
-    /// `k_f·F` and `c·(F - F_ref)` for a force `F` (N), each rounded once.
+    /// `U_p(F)` and `c·(F - F_ref)` for a force `F` (N), each rounded once.
     #[inline(always)]
     pub fn force_terms(&self, force: Newtons) -> ForceTerms {
+        self.force_terms_at(force, self.coupling.force_ref)
+    }
+
+    /// [`force_terms`](Self::force_terms) with another reference force `F_ref` (N),
+    /// e.g. the rest force measured at power-up.
+    #[inline(always)]
+    pub fn force_terms_at(&self, force: Newtons, force_ref: Newtons) -> ForceTerms {
+        let c = &self.coupling;
+        let mut offset = c.offset + coupling_mul(c.k_f, force);
+        if c.k_q.to_bits() != 0 {
+            offset += quad_mul(c.k_q, force.saturating_sub(c.force_q));
+        }
         ForceTerms {
-            reverse_voltage: coupling_mul(self.coupling.k_f, force),
-            compression: coupling_mul(
-                self.coupling.compliance,
-                force.saturating_sub(self.coupling.force_ref),
-            ),
+            preload_offset: offset,
+            compression: coupling_mul(c.compliance, force.saturating_sub(force_ref)),
         }
     }
 
-    /// Forward FPI: applied voltage `u` (V) under force terms `t` → stack extension (µm).
-    /// Advances the forward bank.
+    /// The effective voltage the bank sees for an applied voltage, V, in `[0, input_max]`.
     #[inline(always)]
-    pub fn forward(&self, bank: &mut PlayBank<N>, u: Volts, t: ForceTerms) -> Micrometres {
-        // `PiModel::apply` clamps û to [0, input_max]: the dead zone.
-        self.pi.apply(bank, u.saturating_sub(t.reverse_voltage)) - t.compression
+    fn effective(&self, u: Volts, t: &ForceTerms) -> Volts {
+        let e = u.saturating_sub(t.preload_offset);
+        let e = match &self.dead_zone {
+            Some(g) => g.apply(e),
+            None => e,
+        };
+        within(e, Volts::ZERO, self.pi.input_max())
     }
 
-    /// Inverse FPI: desired stack extension `x_pea` (µm) under force terms `t` → the
-    /// voltage (V) to apply. Advances the inverse bank.
-    ///
-    /// `x_pea + c·(F - F_ref)` is clamped to the PI output range, so the result lies
-    /// in `[k_f·F, input_max + k_f·F]`; the caller applies the actuator limits.
+    /// Forward model: applied voltage `u` (V) under force terms `t` → stack
+    /// extension (µm). Advances the forward bank and the creep memories.
     #[inline(always)]
-    pub fn inverse(&self, bank: &mut PlayBank<N>, x_pea: Micrometres, t: ForceTerms) -> Volts {
-        self.inverse.apply(bank, x_pea + t.compression) + t.reverse_voltage
+    pub fn forward(
+        &self,
+        bank: &mut PlayBank<N>,
+        creep: &mut CreepMemory<C>,
+        u: Volts,
+        t: &ForceTerms,
+    ) -> Micrometres {
+        let uh = self.effective(u, t);
+        let mut acc = self.pi.w0().wide_mul(uh).to_bits() + bank.advance(self.pi.operators(), uh);
+        for (m, c) in creep.m.iter_mut().zip(&self.creep) {
+            // m += (1 - a)(û - m), with m's top 32 bits as the difference's m.
+            let m_hi = (*m >> 32) as i32;
+            *m += c.rate.to_bits() as i64 * (uh.to_bits() - m_hi) as i64;
+            acc += c.gain.to_bits() as i64 * (*m >> 32);
+        }
+        let y = narrow(acc);
+        let z = match &self.saturation {
+            Some(h) => h.apply(y),
+            None => y,
+        };
+        z - t.compression
+    }
+
+    /// Inverse model: desired stack extension `x_pea` (µm) under force terms `t` →
+    /// the voltage (V) to apply. Advances the inverse bank; reads the creep memories.
+    ///
+    /// The PI target is clamped to the PI output range; the caller applies the
+    /// actuator limits to the result.
+    #[inline(always)]
+    pub fn inverse(
+        &self,
+        bank: &mut PlayBank<N>,
+        creep: &CreepMemory<C>,
+        x_pea: Micrometres,
+        t: &ForceTerms,
+    ) -> Volts {
+        self.inverse_checked(bank, creep, x_pea, t).0
+    }
+
+    /// [`inverse`](Self::inverse), also telling whether the effective voltage asked
+    /// for lies in the foot of the soft dead zone, below its inverse table: the
+    /// voltage returned then drives the stack slightly harder than the inverse
+    /// memory assumes, and the caller should realign it ([`Self::resync`]).
+    #[inline(always)]
+    pub fn inverse_checked(
+        &self,
+        bank: &mut PlayBank<N>,
+        creep: &CreepMemory<C>,
+        x_pea: Micrometres,
+        t: &ForceTerms,
+    ) -> (Volts, bool) {
+        let z = x_pea + t.compression;
+        let mut v = match &self.saturation {
+            Some(h) => h.invert(z),
+            None => z,
+        };
+        if C > 0 {
+            let mut held = 0i64;
+            for (m, c) in creep.m.iter().zip(&self.creep) {
+                held += c.held.to_bits() as i64 * (*m >> 32);
+            }
+            v -= narrow(held);
+        }
+        let uh = self.inverse.apply(bank, v);
+        let (e, foot) = match &self.dead_zone {
+            Some(g) => (g.invert(uh), uh < g.inverse.x_min()),
+            None => (uh, false),
+        };
+        (t.preload_offset.saturating_add(e), foot)
     }
 
     /// Realigns the inverse bank with the forward bank (see [`InversePi::resync`]).
     #[inline]
     pub fn resync(&self, forward: &PlayBank<N>, inverse: &mut PlayBank<N>) {
-        self.inverse.resync(&self.pi, forward, inverse);
+        self.inverse.resync(&self.pi_prime, forward, inverse);
     }
 
     /// The forward PI model.
     pub const fn pi(&self) -> &PiModel<N> {
         &self.pi
     }
-    /// Its closed-form inverse.
+    /// The closed-form inverse of `PI'` (the PI with this sample's creep in `w0`).
     pub const fn inverse_pi(&self) -> &InversePi<N> {
         &self.inverse
     }
@@ -129,54 +384,80 @@ impl<const N: usize> Fpi<N> {
     pub const fn coupling(&self) -> &Coupling {
         &self.coupling
     }
+    /// The soft dead zone, if any.
+    pub const fn dead_zone(&self) -> Option<&Map<'a>> {
+        self.dead_zone.as_ref()
+    }
+    /// The output saturation, if any.
+    pub const fn saturation(&self) -> Option<&Map<'a>> {
+        self.saturation.as_ref()
+    }
+    /// The creep terms.
+    pub const fn creep(&self) -> &[Creep; C] {
+        &self.creep
+    }
 }
+
+/// Rounds a `GAIN_FRAC + SIGNAL_FRAC` accumulator to a signal.
+#[inline(always)]
+fn narrow(acc: i64) -> Micrometres {
+    crate::q::narrow_gain(GainAcc::from_bits(acc))
+}
+
+const _: () = assert!(GAIN_FRAC + 16 == 44);
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::q::{coupling, signal};
+    use crate::table::Segment;
+    use fixed::types::{I0F32, I16F16};
 
-    fn model(c: f64) -> Fpi<3> {
+    fn paper(c: f64) -> Fpi<'static, 3> {
         let pi =
             PiModel::from_f64(0.064, &[10.0, 30.0, 60.0], &[0.01, 0.008, 0.004], 150.0).unwrap();
-        let coupling = Coupling {
-            k_f: coupling(0.1).unwrap(),
+        let cp = Coupling {
             compliance: coupling(c).unwrap(),
             force_ref: signal(60.0).unwrap(),
+            ..Coupling::paper(coupling(0.1).unwrap())
         };
-        Fpi::new(pi, coupling).unwrap()
+        Fpi::new(pi, cp, None, None, []).unwrap()
     }
 
     #[test]
     fn dead_zone_holds_the_stack_until_u_exceeds_kf_f() {
-        let m = model(0.0);
-        let mut bank = PlayBank::new();
+        let m = paper(0.0);
+        let (mut bank, mut cm) = (PlayBank::new(), CreepMemory::new());
         let t = m.force_terms(Newtons::from_num(100));
         // k_f F = 10 V: below it nothing moves.
         for u in [0.0, 4.0, 9.99] {
             assert_eq!(
-                m.forward(&mut bank, Volts::from_num(u), t),
+                m.forward(&mut bank, &mut cm, Volts::from_num(u), &t),
                 Micrometres::ZERO
             );
         }
-        let x = m.forward(&mut bank, Volts::from_num(20), t).to_num::<f64>();
+        let x = m
+            .forward(&mut bank, &mut cm, Volts::from_num(20), &t)
+            .to_num::<f64>();
         assert!((x - 0.64).abs() < 1e-4, "{x}");
     }
 
     #[test]
     fn compliance_compresses_under_extra_force() {
-        let m = model(0.02);
-        let mut bank = PlayBank::new();
+        let m = paper(0.02);
+        let (mut bank, mut cm) = (PlayBank::new(), CreepMemory::new());
         let t = m.force_terms(Newtons::from_num(80));
-        let x = m.forward(&mut bank, Volts::from_num(8), t).to_num::<f64>();
+        let x = m
+            .forward(&mut bank, &mut cm, Volts::from_num(8), &t)
+            .to_num::<f64>();
         // In the dead zone (k_f F = 8 V): only the 20 N extra load compresses it.
         assert!((x + 0.4).abs() < 1e-4, "{x}");
     }
 
     #[test]
     fn inverse_then_forward_returns_the_target() {
-        let m = model(0.02);
-        let (mut fb, mut ib) = (PlayBank::new(), PlayBank::new());
+        let m = paper(0.02);
+        let (mut fb, mut ib, mut cm) = (PlayBank::new(), PlayBank::new(), CreepMemory::new());
         for (x, f) in [
             (2.0, 70.0),
             (6.5, 90.0),
@@ -185,9 +466,93 @@ mod tests {
             (0.5, 62.0),
         ] {
             let t = m.force_terms(Newtons::from_num(f));
-            let u = m.inverse(&mut ib, Micrometres::from_num(x), t);
-            let back = m.forward(&mut fb, u, t).to_num::<f64>();
+            let u = m.inverse(&mut ib, &cm, Micrometres::from_num(x), &t);
+            let back = m.forward(&mut fb, &mut cm, u, &t).to_num::<f64>();
             assert!((back - x).abs() < 1e-4, "x={x}: {back}");
         }
+    }
+
+    // A soft dead zone (softplus, s = 2 V) and a saturation z + 0.004 z² = Y, as tables.
+    const S: f64 = 2.0;
+    fn softplus(e: f64) -> f64 {
+        S * (1.0 + (e / S).exp()).ln()
+    }
+    fn tables() -> (Vec<Segment>, Vec<Segment>, Vec<Segment>, Vec<Segment>) {
+        let seg = |xs: Vec<f64>| -> Vec<Segment> {
+            xs.windows(2)
+                .map(|w| {
+                    let a = I16F16::from_num(w[0]);
+                    Segment {
+                        start: a,
+                        rise: I16F16::from_num(w[1]) - a,
+                    }
+                })
+                .collect()
+        };
+        // g on e in [-20, 20] V step 1/16; g^-1 on û in [0.25, 20] V step 1/32 (below
+        // 0.25 V the inverse is too steep for the grid: it holds g^-1(0.25) = -4 V).
+        let g: Vec<f64> = (0..=640)
+            .map(|k| softplus(-20.0 + k as f64 / 16.0))
+            .collect();
+        let ginv: Vec<f64> = (0..=632)
+            .map(|k| {
+                let y = 0.25 + k as f64 / 32.0;
+                S * ((y / S).exp() - 1.0).ln()
+            })
+            .collect();
+        // h: Y in [0, 16] um step 1/32 -> z; h^-1: z in [0, 16] -> Y = z + 0.004 z^2.
+        let h: Vec<f64> = (0..=512)
+            .map(|k| {
+                let y = k as f64 / 32.0;
+                2.0 * y / (1.0 + (1.0 + 0.016 * y).sqrt())
+            })
+            .collect();
+        let hinv: Vec<f64> = (0..=512)
+            .map(|k| {
+                let z = k as f64 / 32.0;
+                z + 0.004 * z * z
+            })
+            .collect();
+        (seg(g), seg(ginv), seg(h), seg(hinv))
+    }
+
+    #[test]
+    fn extended_model_inverts_in_closed_form() {
+        let (g, ginv, h, hinv) = tables();
+        let g = Map {
+            forward: Table::new(I16F16::from_num(-20), 12, &g).unwrap(),
+            inverse: Table::new(I16F16::from_num(0.25), 11, &ginv).unwrap(),
+        };
+        let h = Map {
+            forward: Table::new(I16F16::ZERO, 11, &h).unwrap(),
+            inverse: Table::new(I16F16::ZERO, 11, &hinv).unwrap(),
+        };
+        let pi =
+            PiModel::from_f64(0.064, &[10.0, 30.0, 60.0], &[0.01, 0.008, 0.004], 150.0).unwrap();
+        let cp = Coupling {
+            offset: signal(-0.4).unwrap(),
+            k_f: coupling(0.106).unwrap(),
+            k_q: I0F32::from_num(1.6e-4),
+            force_q: signal(75.0).unwrap(),
+            compliance: coupling(0.02).unwrap(),
+            force_ref: signal(60.0).unwrap(),
+        };
+        let creep = [
+            Creep::new(I0F32::from_num(0.005), UmPerVolt::from_num(0.003)).unwrap(),
+            Creep::new(I0F32::from_num(0.00002), UmPerVolt::from_num(0.001)).unwrap(),
+        ];
+        let m = Fpi::new(pi, cp, Some(g), Some(h), creep).unwrap();
+        let (mut fb, mut ib, mut cm) = (PlayBank::new(), PlayBank::new(), CreepMemory::<2>::new());
+        let mut worst = 0.0f64;
+        for k in 0..4000 {
+            let x = 4.0 + 3.5 * (k as f64 * 0.01).sin();
+            let f = 70.0 + 4.0 * x;
+            let t = m.force_terms(Newtons::from_num(f));
+            let u = m.inverse(&mut ib, &cm, Micrometres::from_num(x), &t);
+            let back = m.forward(&mut fb, &mut cm, u, &t).to_num::<f64>();
+            worst = worst.max((back - x).abs());
+        }
+        // Table round trips (g then g^-1, h^-1 then h) cost a few LSB each.
+        assert!(worst < 5e-4, "worst {worst} um");
     }
 }

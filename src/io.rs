@@ -38,10 +38,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
     /// the setpoint. Once a fault's ramp has reached the safe voltage the amplifier
     /// is switched off; otherwise it is on.
     #[inline]
-    pub fn tick<const N: usize>(
+    pub fn tick<const N: usize, const C: usize>(
         &mut self,
-        cfg: &ControllerConfig<'_, N>,
-        st: &mut ControllerState<N>,
+        cfg: &ControllerConfig<'_, N, C>,
+        st: &mut ControllerState<N, C>,
         mode: &Mode,
         x_ref: Micrometres,
     ) -> StepOutput {

@@ -8,10 +8,14 @@
 //! onto power-of-two grids.
 
 use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval};
-use crate::fpi::{Coupling, Fpi};
+#[allow(unused_imports)]
+use crate::fpi::{Coupling, Creep, Fpi, Map};
 use crate::limits::OutputLimits;
 use crate::pi::PiModel;
-use crate::q::{Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton};
+#[allow(unused_imports)]
+use crate::q::{
+    CreepRate, Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2,
+};
 use crate::table::{Segment, Table};
 use fixed::types::I16F16;
 

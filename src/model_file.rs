@@ -32,6 +32,15 @@ pub struct FirmwareModel {
     pub pi: PiSection,
     /// The FPI force coupling.
     pub coupling: CouplingSection,
+    /// The soft dead zone `û = g(u - U_p(F))`; absent: the hard one, `max(·, 0)`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dead_zone: Option<MapSection>,
+    /// The output saturation `z = h(Y)`; absent: the identity.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub saturation: Option<MapSection>,
+    /// Creep: first-order lags of the effective voltage, added to `Y`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub creep: Vec<CreepSection>,
     /// The control loop: rate, limits, fault thresholds.
     pub controller: ControllerSection,
     /// FEM-derived lookup tables.
@@ -66,17 +75,74 @@ pub struct PiSection {
     pub input_max_v: f64,
 }
 
-/// `û = u - k_f·F`, `x = Y[max(û,0)] - c·(F - F_ref)`.
+/// `U_p(F) = k0 + k_f·F + k_q·(F - F_q)²`, `x = h(Y[g(u - U_p)]) - c·(F - F_ref)`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CouplingSection {
+    /// Constant part `k0` of the preload offset, V.
+    #[serde(default)]
+    pub offset_v: f64,
     /// Force–voltage coupling, V/N.
     pub k_f_v_per_n: f64,
+    /// Curvature `k_q` of the preload offset, V/N².
+    #[serde(default)]
+    pub k_q_v_per_n2: f64,
+    /// Centre `F_q` of the curvature term, N.
+    #[serde(default)]
+    pub force_q_n: f64,
     /// Stack compliance, µm/N (0 for the paper's FPI).
     pub compliance_um_per_n: f64,
     /// Force at zero extension, N.
     pub force_ref_n: f64,
 }
+
+/// A monotone map and its inverse, both tabulated (see the core's `fpi::Map`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MapSection {
+    /// `y = map(x)`.
+    pub forward: TableSection,
+    /// `x = map⁻¹(y)`.
+    pub inverse: TableSection,
+}
+
+impl MapSection {
+    fn through(t: &TableSection, x: f64) -> f64 {
+        if x > t.x_max() {
+            t.values[t.values.len() - 1] + (x - t.x_max())
+        } else {
+            t.eval(x)
+        }
+    }
+    /// `map(x)`: holds below the first knot, slope one beyond the last (the core's rule).
+    pub fn apply(&self, x: f64) -> f64 {
+        Self::through(&self.forward, x)
+    }
+    /// `map⁻¹(y)`, same rule.
+    pub fn invert(&self, y: f64) -> f64 {
+        Self::through(&self.inverse, y)
+    }
+}
+
+/// One creep term: `m ← m + (1 - exp(-T_s/τ))·(û - m)`, contributing `b·m` to `Y`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CreepSection {
+    /// Time constant `τ`, s.
+    pub tau_s: f64,
+    /// Gain `b`, µm/V.
+    pub gain_um_per_v: f64,
+}
+
+impl CreepSection {
+    /// `1 - a` per sample at a sample rate.
+    pub fn rate(&self, rate_hz: f64) -> f64 {
+        -(-1.0 / (rate_hz * self.tau_s)).exp_m1()
+    }
+}
+
+/// Most creep terms a firmware model may have.
+pub const MAX_CREEP: usize = 8;
 
 /// Control-loop settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -238,9 +304,18 @@ impl FirmwareModel {
             }
         }
         let c = &self.coupling;
+        signal_value("coupling.offset_v", c.offset_v)?;
         coupling_value("coupling.k_f_v_per_n", c.k_f_v_per_n)?;
         coupling_value("coupling.compliance_um_per_n", c.compliance_um_per_n)?;
         signal_value("coupling.force_ref_n", c.force_ref_n)?;
+        signal_value("coupling.force_q_n", c.force_q_n)?;
+        let kq_max = (2048.0 / (1024.0f64 * 1024.0)) * 0.999;
+        if !c.k_q_v_per_n2.is_finite() || c.k_q_v_per_n2.abs() > kq_max {
+            return Err(format!(
+                "coupling.k_q_v_per_n2 = {}: must be finite and within ±{kq_max:.3e} V/N²",
+                c.k_q_v_per_n2
+            ));
+        }
 
         let k = &self.controller;
         if !(100..=200_000).contains(&k.rate_hz) {
@@ -304,6 +379,38 @@ impl FirmwareModel {
         let t = &self.tables;
         for (name, tab) in [("f_f", &t.f_f), ("f_k", &t.f_k), ("f_k_inv", &t.f_k_inv)] {
             check_table(&format!("tables.{name}"), tab)?;
+        }
+        for (name, map) in [
+            ("dead_zone", &self.dead_zone),
+            ("saturation", &self.saturation),
+        ] {
+            if let Some(m) = map {
+                for (dir, tab) in [("forward", &m.forward), ("inverse", &m.inverse)] {
+                    let key = format!("{name}.{dir}");
+                    check_table(&key, tab)?;
+                    if tab.values[tab.values.len() - 1] < tab.values[0] {
+                        return Err(format!("{key}.values: a map must be increasing"));
+                    }
+                }
+            }
+        }
+        if self.creep.len() > MAX_CREEP {
+            return Err(format!(
+                "creep: {} terms, at most {MAX_CREEP}",
+                self.creep.len()
+            ));
+        }
+        for (j, c) in self.creep.iter().enumerate() {
+            let rate = c.rate(k.rate_hz as f64);
+            if !(c.tau_s.is_finite() && c.tau_s > 0.0 && rate < 0.5) {
+                return Err(format!(
+                    "creep[{j}].tau_s = {}: must be longer than {:.3e} s at {} Hz",
+                    c.tau_s,
+                    std::f64::consts::LN_2.recip() / k.rate_hz as f64,
+                    k.rate_hz
+                ));
+            }
+            gain_value(&format!("creep[{j}].gain_um_per_v"), c.gain_um_per_v)?;
         }
         if k.reference_min_um < t.f_k_inv.x0 || k.reference_max_um > t.f_k_inv.x_max() {
             return Err(format!(

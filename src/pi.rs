@@ -103,6 +103,19 @@ impl<const N: usize> PiModel<N> {
         })
     }
 
+    /// The same operators with another linear weight `w0` (validated again).
+    pub const fn with_w0(&self, w0: UmPerVolt) -> Result<Self, ModelError> {
+        let mut r = [Volts::ZERO; N];
+        let mut w = [UmPerVolt::ZERO; N];
+        let mut i = 0;
+        while i < N {
+            r[i] = self.ops[i].threshold;
+            w[i] = self.ops[i].weight;
+            i += 1;
+        }
+        Self::new(w0, r, w, self.input_max)
+    }
+
     /// Builds a model from engineering values (µm/V, V); for host tools and tests.
     pub fn from_f64(
         w0: f64,

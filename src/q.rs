@@ -8,6 +8,9 @@
 //! | [`UmPerVolt`] | µm/V | `I4F28` | 3.7·10⁻⁹ | ±8 (forward PI weights `w0`, `w_i`) |
 //! | [`VoltsPerNewton`] | V/N | `I0F32` | 2.3·10⁻¹⁰ | ±0.5 (force–voltage coupling `k_f`; stacks: 0.01–0.2) |
 //! | [`UmPerNewton`] | µm/N | `I0F32` | 2.3·10⁻¹⁰ | ±0.5 (stack compliance `c`; stacks: 0.005–0.1) |
+//! | [`VoltsPerNewton2`] | V/N² | `I0F32` | 2.3·10⁻¹⁰ | ±0.00195 (curvature `k_q` of the preload offset) |
+//! | [`CreepRate`] | 1/sample | `I0F32` | 2.3·10⁻¹⁰ | (0, 0.5) (`1 - a` of a creep lag) |
+//! | creep memory | V | `I16F48` (raw `i64`) | 3.6·10⁻¹⁵ | ±4096 |
 //! | [`VoltsPerUm`] | V/µm | `I10F22` | 2.4·10⁻⁷ | ±512 (inverse PI weights `w0'`, `w'_j`) |
 //!
 //! Sums of products are accumulated exactly in 64 bits ([`GainAcc`] = `I20F44` for
@@ -36,6 +39,10 @@ pub type UmPerVolt = I4F28;
 pub type VoltsPerNewton = I0F32;
 /// Stack compliance, µm per newton, `I0F32`.
 pub type UmPerNewton = I0F32;
+/// Curvature of the preload offset, volts per newton², `I0F32`.
+pub type VoltsPerNewton2 = I0F32;
+/// Per-sample rate `1 - a` of a creep lag, `I0F32`.
+pub type CreepRate = I0F32;
 /// Inverse PI weight, volts per µm, `I10F22`.
 pub type VoltsPerUm = I10F22;
 /// Exact product accumulator of a forward gain and a signal, `I20F44`.
@@ -85,6 +92,25 @@ pub(crate) const fn gain_mul(g: I4F28, x: I16F16) -> I16F16 {
 pub(crate) const fn coupling_mul(c: I0F32, x: I16F16) -> I16F16 {
     let p = c.to_bits() as i64 * x.to_bits() as i64;
     I16F16::from_bits(((p + (1 << 31)) >> COUPLING_FRAC) as i32)
+}
+
+/// Force span (N, raw `I16F16`) over which [`quad_mul`] is exact: `|F - F_q| <= 1024 N`.
+pub const QUAD_FORCE_SPAN_BITS: i32 = 1024 << SIGNAL_FRAC;
+/// Largest `|k_q|` (raw `I0F32`) so that `k_q·(1024 N)² <= 2048 V`.
+pub const QUAD_MAX_BITS: i64 = (2048i64 << 32) / (1024 * 1024);
+
+/// `c·d²` for a curvature `c` (`I0F32`) and a difference `d` (`I16F16`, clamped to
+/// ±1024), rounded to a signal: `c·d` kept to 32 fractional bits, then times `d`.
+#[inline(always)]
+pub(crate) fn quad_mul(c: I0F32, d: I16F16) -> I16F16 {
+    let d = within(
+        d,
+        I16F16::from_bits(-QUAD_FORCE_SPAN_BITS),
+        I16F16::from_bits(QUAD_FORCE_SPAN_BITS),
+    )
+    .to_bits() as i64;
+    let cd = (c.to_bits() as i64 * d + (1 << 15)) >> 16; // 32 fractional bits
+    I16F16::from_bits(((cd * d + (1 << 31)) >> 32) as i32)
 }
 
 /// `max(x, lo)` without the `Ord::clamp` panic path.
@@ -195,6 +221,13 @@ mod tests {
         assert!((v - 10.0).abs() < 1.0 / 65536.0);
         let v = coupling_mul(coupling(-0.02).unwrap(), signal(-30.5).unwrap()).to_num::<f64>();
         assert!((v - 0.61).abs() < 1.0 / 65536.0);
+        let v = quad_mul(I0F32::from_num(1.655e-4), signal(-75.25).unwrap()).to_num::<f64>();
+        assert!((v - 1.655e-4 * 75.25 * 75.25).abs() < 1.0 / 65536.0, "{v}");
+        let v = quad_mul(
+            I0F32::from_bits(QUAD_MAX_BITS as i32),
+            signal(4000.0).unwrap(),
+        );
+        assert_eq!(v.to_num::<f64>().round(), 2048.0);
         assert_eq!(coupling(0.6), None);
     }
 }

@@ -39,23 +39,34 @@ pub struct Telemetry {
 }
 
 /// The control ISR's state (one per stage channel).
-pub struct ControlLoop<'c, const N: usize, S, A, E> {
-    cfg: &'c ControllerConfig<'c, N>,
+pub struct ControlLoop<'c, const N: usize, const C: usize, S, A, E> {
+    cfg: &'c ControllerConfig<'c, N, C>,
     hw: Hardware<S, A, E>,
-    state: ControllerState<N>,
+    state: ControllerState<N, C>,
     mode: Mode,
     wave: RaisedCosine,
     wave_state: Waveform,
     step: u32,
 }
 
-impl<'c, const N: usize, S: ForceSensor, A: Setpoint, E: OutputPin> ControlLoop<'c, N, S, A, E> {
-    /// A loop at rest, running `first`.
-    pub fn new(cfg: &'c ControllerConfig<'c, N>, hw: Hardware<S, A, E>, first: Command) -> Self {
+impl<'c, const N: usize, const C: usize, S: ForceSensor, A: Setpoint, E: OutputPin>
+    ControlLoop<'c, N, C, S, A, E>
+{
+    /// A loop at rest, running `first`. Reads the force sensor once and takes the
+    /// reading as the compliance term's reference force ([`ControllerConfig::tare`]):
+    /// the stage is at rest and its position is zero now.
+    pub fn new(
+        cfg: &'c ControllerConfig<'c, N, C>,
+        mut hw: Hardware<S, A, E>,
+        first: Command,
+    ) -> Self {
+        let mut state = cfg.initial_state();
+        let rest = hw.sensor.read_force();
+        cfg.tare(&mut state, rest);
         Self {
             cfg,
             hw,
-            state: cfg.initial_state(),
+            state,
             mode: first.mode,
             wave: first.wave,
             wave_state: first.wave.start(),
@@ -90,7 +101,7 @@ impl<'c, const N: usize, S: ForceSensor, A: Setpoint, E: OutputPin> ControlLoop<
     }
 
     /// The controller's memory (for diagnostics).
-    pub const fn state(&self) -> &ControllerState<N> {
+    pub const fn state(&self) -> &ControllerState<N, C> {
         &self.state
     }
 }

@@ -37,7 +37,7 @@ mod bench {
 
     /// A synthetic n-operator model at compile time: thresholds evenly spread over
     /// 0–100 V, the weight budget of the embedded model spread evenly.
-    const fn synthetic<const N: usize>() -> Fpi<N> {
+    const fn synthetic<const N: usize>() -> Fpi<'static, N> {
         let mut r = [Volts::ZERO; N];
         let mut w = [UmPerVolt::ZERO; N];
         let mut i = 0;
@@ -55,20 +55,24 @@ mod bench {
             Ok(p) => p,
             Err(e) => panic!("{}", e.message()),
         };
+        // The paper's FPI with compliance: hard dead zone, no saturation, no creep.
         match Fpi::new(
             pi,
             Coupling {
-                k_f: VoltsPerNewton::from_bits(((1i64 << 32) / 10) as i32),
                 compliance: UmPerNewton::from_bits(((1i64 << 32) / 50) as i32),
                 force_ref: Newtons::from_bits(60 << 16),
+                ..Coupling::paper(VoltsPerNewton::from_bits(((1i64 << 32) / 10) as i32))
             },
+            None,
+            None,
+            [],
         ) {
             Ok(f) => f,
             Err(e) => panic!("{}", e.message()),
         }
     }
 
-    const fn config<const N: usize>(fpi: Fpi<N>) -> ControllerConfig<'static, N> {
+    const fn config<const N: usize>(fpi: Fpi<'static, N>) -> ControllerConfig<'static, N> {
         match ControllerConfig::new(ControllerParts {
             fpi,
             f_f: model::F_F,
@@ -163,9 +167,9 @@ mod bench {
     /// The step as its own function, so its code can be inspected and is not
     /// scheduled into the measurement.
     #[inline(never)]
-    fn step_of<const N: usize>(
-        cfg: &ControllerConfig<'_, N>,
-        st: &mut piezo_fpi::control::ControllerState<N>,
+    fn step_of<const N: usize, const C: usize>(
+        cfg: &ControllerConfig<'_, N, C>,
+        st: &mut piezo_fpi::control::ControllerState<N, C>,
         x: Micrometres,
         f: Newtons,
     ) -> piezo_fpi::control::StepOutput {
@@ -176,8 +180,8 @@ mod bench {
 
     /// Instruction counts of the nominal steps and of the slew-limited ones (which
     /// also realign the inverse memory), over a full-stroke trajectory at `hz`.
-    fn measure<const N: usize>(
-        cfg: &ControllerConfig<'_, N>,
+    fn measure<const N: usize, const C: usize>(
+        cfg: &ControllerConfig<'_, N, C>,
         baseline: u32,
         hz: f32,
     ) -> (Counts, Counts) {
@@ -209,15 +213,19 @@ mod bench {
         (nominal, limited)
     }
 
+    /// 5 Hz full stroke: nominal steps (the slew limit only bites while the output
+    /// first rises from 0 V); 500 Hz: the slew limit bites on most steps.
     fn report<const N: usize>(cfg: &ControllerConfig<'_, N>, baseline: u32) {
-        // 5 Hz full stroke: nominal steps (the slew limit only bites while the
-        // output first rises from 0 V); 500 Hz: the slew limit bites on most steps.
         let (c, start) = measure(cfg, baseline, 5.0);
         let (_, l) = measure(cfg, baseline, 500.0);
         hprintln!("control_step_instructions n={}: {}", N, c.max);
+        detail("paper FPI + compliance", N, &c, &l, &start);
+    }
+
+    fn detail(what: &str, n: usize, c: &Counts, l: &Counts, start: &Counts) {
         hprintln!(
-            "  n={:<2} nominal step: min {} mean {}.{} max {} ({} steps); slew-limited step with inverse realignment: min {} max {} ({} steps)",
-            N, c.min, c.mean_x10() / 10, c.mean_x10() % 10, c.max, c.n,
+            "  n={:<2} {}: nominal step min {} mean {}.{} max {} ({} steps); slew-limited step with inverse realignment min {} max {} ({} steps)",
+            n, what, c.min, c.mean_x10() / 10, c.mean_x10() % 10, c.max, c.n,
             l.min.min(start.min), l.max.max(start.max), l.n + start.n
         );
     }
@@ -272,6 +280,27 @@ mod bench {
         report(&C16, baseline);
         report(&C32, baseline);
 
+        // The embedded model (whatever structure the model file has).
+        let (c, start) = measure(&CONTROLLER, baseline, 5.0);
+        let (_, l) = measure(&CONTROLLER, baseline, 500.0);
+        hprintln!(
+            "embedded_model_step_instructions n={} creep={} dead_zone={} saturation={}: {}",
+            model::OPERATORS,
+            model::CREEP_TERMS,
+            if CONTROLLER.fpi().dead_zone().is_some() {
+                "soft"
+            } else {
+                "hard"
+            },
+            if CONTROLLER.fpi().saturation().is_some() {
+                "yes"
+            } else {
+                "no"
+            },
+            c.max
+        );
+        detail("embedded model", model::OPERATORS, &c, &l, &start);
+
         // The whole ISR body of the embedded model: reference, sensor, step, DAC, enable.
         let first = Command {
             mode: Mode::Compensated,
@@ -294,7 +323,7 @@ mod bench {
             LINK.set_force(CONTROLLER.f_f().eval(x).to_num::<f32>());
         }
         hprintln!(
-            "isr_tick_instructions n={}: {} (embedded model: reference + sensor + step + DAC + enable; min {} mean {}.{})",
+            "isr_tick_instructions n={}: {} (embedded model; reference + sensor + step + DAC + enable; min {} mean {}.{})",
             model::OPERATORS, c.max, c.min, c.mean_x10() / 10, c.mean_x10() % 10
         );
         hprintln!("stack_high_water_bytes: {}", stack_used());

@@ -3,8 +3,14 @@
 //! The contract (checked by `tests/fixed_vs_f64.rs`, printed by the demo):
 //!
 //! * stack extension (forward FPI, virtual sensor): within [`BOUND_X_UM`] = 1 nm;
-//! * amplifier setpoint (inverse FPI, control step): within [`BOUND_U_V`] = one LSB
-//!   of a 16-bit DAC over 0–150 V (2.29 mV).
+//! * effective voltage the setpoint produces, `û = g(u - U_p(F))` (what drives the
+//!   stack): within [`BOUND_U_V`] = one LSB of a 16-bit DAC over 0–150 V (2.29 mV);
+//! * the amplifier setpoint itself: within the same LSB wherever the stack responds
+//!   (`g' >= 0.5`, i.e. outside the foot of a soft dead zone). In the foot the stack
+//!   hardly moves per volt (du/dx reaches ~225 V/µm), so rounding the input
+//!   extension to its 15 pm LSB alone shifts the required voltage by millivolts
+//!   that move the stack by picometres; there the effective-voltage bound is the
+//!   meaningful one. With the hard dead zone (the paper's model) `g' = 1`.
 //!
 //! Both implementations get the recorded samples (the fixed-point one after
 //! quantising them to `I16F16`) and the embedded firmware model (the f64 one with
@@ -13,7 +19,8 @@
 use std::path::{Path, PathBuf};
 
 use piezo_fpi::control::{ControllerConfig, ControllerParts, Interval};
-use piezo_fpi::model::{self, OPERATORS};
+use piezo_fpi::fpi::CreepMemory;
+use piezo_fpi::model::{self, CREEP_TERMS, OPERATORS};
 use piezo_fpi::play::PlayBank;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
@@ -35,8 +42,12 @@ pub struct FileAccuracy {
     pub samples: usize,
     /// Largest |Δ stack extension| (forward FPI / virtual sensor), µm.
     pub max_dx_um: f64,
-    /// Largest |Δ setpoint| (inverse FPI / control step), V.
+    /// Largest |Δ setpoint| where the stack responds (`g' >= 0.5`), V.
     pub max_du_v: f64,
+    /// Largest |Δ effective voltage| (what the setpoints drive the stack with), V.
+    pub max_duh_v: f64,
+    /// Samples in the foot of the soft dead zone (`g' < 0.5`).
+    pub foot_samples: usize,
     /// Steps the output limiter acted in (realigning the inverse memory).
     pub limited_steps: usize,
 }
@@ -54,7 +65,10 @@ pub fn embedded_model() -> FirmwareModel {
 /// (which include a 3 kHz chirp where the stage's dynamics pull the force far
 /// from the static FEM map) exercise the arithmetic rather than the safe state;
 /// and its f64 twin with the same settings.
-pub fn controllers() -> (ControllerConfig<'static, OPERATORS>, ControllerF64) {
+pub fn controllers() -> (
+    ControllerConfig<'static, OPERATORS, CREEP_TERMS>,
+    ControllerF64,
+) {
     let c = &model::CONTROLLER;
     let reference = Interval {
         lo: c.f_k_inv().x_min(),
@@ -83,33 +97,72 @@ fn q(v: f64) -> piezo_fpi::q::Volts {
     Volts::from_num(v)
 }
 
+/// Worst differences of two setpoints at one sample.
+#[derive(Default)]
+struct SetpointError {
+    du: f64,
+    duh: f64,
+    foot: usize,
+}
+
+impl SetpointError {
+    /// Compares the fixed-point setpoint with the f64 one at force `f`.
+    fn add(&mut self, c: &ControllerF64, u_fixed: f64, u_ref: f64, f: f64) {
+        let up = c.fpi.preload_offset(f);
+        let g = |u: f64| match &c.fpi.dead_zone {
+            Some(m) => m.apply(u - up),
+            None => (u - up).max(0.0),
+        };
+        self.duh = self.duh.max((g(u_fixed) - g(u_ref)).abs());
+        let h = 1e-3;
+        let slope = (g(u_ref + h) - g(u_ref - h)) / (2.0 * h);
+        if slope >= 0.5 || c.fpi.dead_zone.is_none() {
+            self.du = self.du.max((u_fixed - u_ref).abs());
+        } else {
+            self.foot += 1;
+        }
+    }
+}
+
 /// Forward and inverse FPI on a preload-rig file: stack extension from (u, F),
-/// and voltage for the measured extension at the measured force.
+/// and voltage for the measured extension at the measured force. The forward and
+/// inverse sides each keep their own memories (operators and creep): each is
+/// driven by its own history, the measured voltage or the voltage it asks for.
 pub fn rig_file(path: &Path) -> Result<FileAccuracy, DataError> {
     let rig = data::read_rig(path)?;
     let (fixed, f64c) = controllers();
     let fpi = fixed.fpi();
-    let (mut fb, mut ib) = (PlayBank::<OPERATORS>::new(), PlayBank::<OPERATORS>::new());
     let n = f64c.fpi.pi.r.len();
+    let (mut fb, mut ib) = (PlayBank::<OPERATORS>::new(), PlayBank::<OPERATORS>::new());
+    let (mut cf, mut ci) = (
+        CreepMemory::<CREEP_TERMS>::new(),
+        CreepMemory::<CREEP_TERMS>::new(),
+    );
     let (mut fb64, mut ib64) = (BankF64::new(n), BankF64::new(n));
-    let (mut dx, mut du) = (0.0f64, 0.0f64);
+    let (mut cf64, mut ci64) = (vec![0.0; CREEP_TERMS], vec![0.0; CREEP_TERMS]);
+    // Scratch forward banks that advance the inverse side's creep memory.
+    let (mut sb, mut sb64) = (PlayBank::<OPERATORS>::new(), BankF64::new(n));
+    let mut dx = 0.0f64;
+    let mut err = SetpointError::default();
     for k in 0..rig.t.len() {
         let (u, f, x) = (rig.u[k], rig.f[k], rig.x[k]);
         let terms = fpi.force_terms(Newtons::from_num(f));
-        let xf = fpi.forward(&mut fb, q(u), terms).to_num::<f64>();
-        let x64 = f64c.fpi.forward(&mut fb64, u, f);
+        let xf = fpi.forward(&mut fb, &mut cf, q(u), &terms).to_num::<f64>();
+        let x64 = f64c.fpi.forward(&mut fb64, &mut cf64, u, f);
         dx = dx.max((xf - x64).abs());
-        let uf = fpi
-            .inverse(&mut ib, Micrometres::from_num(x), terms)
-            .to_num::<f64>();
-        let u64_ = f64c.fpi.inverse(&mut ib64, x, f);
-        du = du.max((uf - u64_).abs());
+        let uf = fpi.inverse(&mut ib, &ci, Micrometres::from_num(x), &terms);
+        let u64_ = f64c.fpi.inverse(&mut ib64, &ci64, x, f);
+        err.add(&f64c, uf.to_num::<f64>(), u64_, f);
+        fpi.forward(&mut sb, &mut ci, uf, &terms);
+        f64c.fpi.forward(&mut sb64, &mut ci64, u64_, f);
     }
     Ok(FileAccuracy {
         path: path.to_path_buf(),
         samples: rig.t.len(),
         max_dx_um: dx,
-        max_du_v: du,
+        max_du_v: err.du,
+        max_duh_v: err.duh,
+        foot_samples: err.foot,
         limited_steps: 0,
     })
 }
@@ -122,7 +175,8 @@ pub fn stage_file(path: &Path) -> Result<FileAccuracy, DataError> {
     let mut st = fixed.initial_state();
     let mut st64 = f64c.initial_state();
     let (lo, hi) = f64c.reference;
-    let (mut dx, mut du, mut limited) = (0.0f64, 0.0f64, 0usize);
+    let (mut dx, mut limited) = (0.0f64, 0usize);
+    let mut err = SetpointError::default();
     for k in 0..run.t.len() {
         let x_ref = run.x[k].clamp(lo, hi);
         let f = run.f[k];
@@ -137,7 +191,7 @@ pub fn stage_file(path: &Path) -> Result<FileAccuracy, DataError> {
                 ),
             ));
         }
-        du = du.max((o.voltage.to_num::<f64>() - o64.voltage).abs());
+        err.add(&f64c, o.voltage.to_num::<f64>(), o64.voltage, f);
         dx = dx.max((o.x_pea_est.to_num::<f64>() - o64.x_pea_est).abs());
         limited += o.limited as usize;
     }
@@ -145,7 +199,9 @@ pub fn stage_file(path: &Path) -> Result<FileAccuracy, DataError> {
         path: path.to_path_buf(),
         samples: run.t.len(),
         max_dx_um: dx,
-        max_du_v: du,
+        max_du_v: err.du,
+        max_duh_v: err.duh,
+        foot_samples: err.foot,
         limited_steps: limited,
     })
 }

@@ -92,8 +92,13 @@ pub fn qemu() -> Result<PathBuf> {
     })
 }
 
-/// Builds a firmware binary in release mode for the target and returns its ELF.
+/// Builds a firmware binary in release mode for the target and returns a copy of
+/// its ELF named after the feature set (`fpi-firmware-qemu.elf`): cargo writes
+/// every feature set of a binary to the same path, so callers in parallel (tests)
+/// would otherwise run each other's builds. Builds within one process are serialised.
 pub fn build(bin: &str, features: &str) -> Result<PathBuf> {
+    static BUILD: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _guard = BUILD.lock().unwrap_or_else(|p| p.into_inner());
     ensure_target()?;
     let root = project_root();
     let status = Command::new(cargo())

@@ -3,7 +3,7 @@
 //! f64 from the unquantised weights, linear interpolation in f64), so the tests
 //! can measure what fixed point costs.
 
-use crate::model_file::{FirmwareModel, TableSection};
+use crate::model_file::{FirmwareModel, MapSection, TableSection};
 
 /// A PI model in f64: `Y[u] = w0·u + Σ w_i G_{r_i}[u]`, inputs clamped to `[0, input_max]`.
 #[derive(Debug, Clone, PartialEq)]
@@ -96,43 +96,140 @@ impl PiF64 {
     }
 }
 
-/// An FPI model in f64.
+/// An FPI model in f64, with the core's extensions (see `piezo_fpi::fpi`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct FpiF64 {
     /// Forward PI.
     pub pi: PiF64,
-    /// Its inverse.
+    /// `PI'`: the PI with this sample's creep in `w0`.
+    pub pi_prime: PiF64,
+    /// The inverse of `PI'`.
     pub inv: PiF64,
+    /// Constant part of the preload offset, V.
+    pub offset: f64,
     /// Force–voltage coupling, V/N.
     pub k_f: f64,
+    /// Curvature of the preload offset, V/N².
+    pub k_q: f64,
+    /// Its centre, N.
+    pub force_q: f64,
     /// Compliance, µm/N.
     pub compliance: f64,
     /// Reference force, N.
     pub force_ref: f64,
+    /// Soft dead zone (tables), if any.
+    pub dead_zone: Option<MapSection>,
+    /// Output saturation (tables), if any.
+    pub saturation: Option<MapSection>,
+    /// Creep terms: (1 - a, b).
+    pub creep: Vec<(f64, f64)>,
 }
 
 impl FpiF64 {
-    /// The model from its parts.
+    /// The paper's FPI with compliance: `x = Y[max(u - k_f F, 0)] - c (F - F_ref)`.
     pub fn new(pi: PiF64, k_f: f64, compliance: f64, force_ref: f64) -> Self {
-        let inv = pi.inverse();
-        Self {
+        Self::extended(
             pi,
-            inv,
+            0.0,
             k_f,
+            0.0,
+            0.0,
             compliance,
             force_ref,
+            None,
+            None,
+            Vec::new(),
+        )
+    }
+
+    /// The extended model.
+    #[allow(clippy::too_many_arguments)]
+    pub fn extended(
+        pi: PiF64,
+        offset: f64,
+        k_f: f64,
+        k_q: f64,
+        force_q: f64,
+        compliance: f64,
+        force_ref: f64,
+        dead_zone: Option<MapSection>,
+        saturation: Option<MapSection>,
+        creep: Vec<(f64, f64)>,
+    ) -> Self {
+        let mut pi_prime = pi.clone();
+        pi_prime.w0 += creep.iter().map(|(r, b)| b * r).sum::<f64>();
+        let inv = pi_prime.inverse();
+        Self {
+            pi,
+            pi_prime,
+            inv,
+            offset,
+            k_f,
+            k_q,
+            force_q,
+            compliance,
+            force_ref,
+            dead_zone,
+            saturation,
+            creep,
         }
     }
 
-    /// Forward FPI: voltage and force → stack extension.
-    pub fn forward(&self, bank: &mut BankF64, u: f64, force: f64) -> f64 {
-        self.pi.apply(bank, u - self.k_f * force) - self.compliance * (force - self.force_ref)
+    /// The preload offset `U_p(F)`, V.
+    pub fn preload_offset(&self, force: f64) -> f64 {
+        let d = (force - self.force_q).clamp(-1024.0, 1024.0);
+        self.offset + self.k_f * force + self.k_q * d * d
     }
 
-    /// Inverse FPI: stack extension and force → voltage.
-    pub fn inverse(&self, bank: &mut BankF64, x: f64, force: f64) -> f64 {
-        let y = (x + self.compliance * (force - self.force_ref)).clamp(0.0, self.inv.input_max);
-        self.inv.apply(bank, y) + self.k_f * force
+    /// Forward model: voltage and force → stack extension; advances the bank and
+    /// the creep memories.
+    pub fn forward(&self, bank: &mut BankF64, creep: &mut [f64], u: f64, force: f64) -> f64 {
+        let e = u - self.preload_offset(force);
+        let uh = match &self.dead_zone {
+            Some(g) => g.apply(e),
+            None => e,
+        }
+        .clamp(0.0, self.pi.input_max);
+        let mut y = self.pi.apply(bank, uh);
+        for (m, (r, b)) in creep.iter_mut().zip(&self.creep) {
+            *m += r * (uh - *m);
+            y += b * *m;
+        }
+        let z = match &self.saturation {
+            Some(h) => h.apply(y),
+            None => y,
+        };
+        z - self.compliance * (force - self.force_ref)
+    }
+
+    /// Inverse model: stack extension and force → voltage; reads the creep memories.
+    pub fn inverse(&self, bank: &mut BankF64, creep: &[f64], x: f64, force: f64) -> f64 {
+        self.inverse_checked(bank, creep, x, force).0
+    }
+
+    /// [`inverse`](Self::inverse), and whether the effective voltage asked for lies
+    /// in the foot of the soft dead zone (below its inverse table).
+    pub fn inverse_checked(
+        &self,
+        bank: &mut BankF64,
+        creep: &[f64],
+        x: f64,
+        force: f64,
+    ) -> (f64, bool) {
+        let z = x + self.compliance * (force - self.force_ref);
+        let mut v = match &self.saturation {
+            Some(h) => h.invert(z),
+            None => z,
+        };
+        for (m, (r, b)) in creep.iter().zip(&self.creep) {
+            v -= b * (1.0 - r) * m;
+        }
+        let uh = self.inv.apply(bank, v);
+        let (e, foot) = match &self.dead_zone {
+            Some(g) => (g.invert(uh), uh < g.inverse.x0),
+            None => (uh, false),
+        };
+        (self.preload_offset(force) + e, foot)
     }
 }
 
@@ -186,6 +283,8 @@ pub struct StateF64 {
     pub inverse: BankF64,
     /// Forward bank.
     pub forward: BankF64,
+    /// Creep memories, V.
+    pub creep: Vec<f64>,
     /// Last voltage.
     pub voltage: f64,
     /// Last estimate.
@@ -220,8 +319,24 @@ impl ControllerF64 {
         };
         let c = &m.coupling;
         let k = &m.controller;
+        let creep = m
+            .creep
+            .iter()
+            .map(|cr| (cr.rate(k.rate_hz as f64), cr.gain_um_per_v))
+            .collect();
         Self {
-            fpi: FpiF64::new(pi, c.k_f_v_per_n, c.compliance_um_per_n, c.force_ref_n),
+            fpi: FpiF64::extended(
+                pi,
+                c.offset_v,
+                c.k_f_v_per_n,
+                c.k_q_v_per_n2,
+                c.force_q_n,
+                c.compliance_um_per_n,
+                c.force_ref_n,
+                m.dead_zone.clone(),
+                m.saturation.clone(),
+                creep,
+            ),
             f_f: m.tables.f_f.clone(),
             f_k: m.tables.f_k.clone(),
             f_k_inv: m.tables.f_k_inv.clone(),
@@ -242,6 +357,7 @@ impl ControllerF64 {
         StateF64 {
             inverse: BankF64::new(n),
             forward: BankF64::new(n),
+            creep: vec![0.0; self.fpi.creep.len()],
             voltage: self.safe_voltage,
             x_pea_est: 0.0,
             fault: None,
@@ -278,7 +394,7 @@ impl ControllerF64 {
             } else {
                 self.f_f.eval(st.x_pea_est)
             };
-            let x = self.fpi.forward(&mut st.forward, voltage, f);
+            let x = self.fpi.forward(&mut st.forward, &mut st.creep, voltage, f);
             st.voltage = voltage;
             st.x_pea_est = x;
             return OutF64 {
@@ -295,11 +411,13 @@ impl ControllerF64 {
         } else {
             self.f_f.eval(x_pea_ref)
         };
-        let want = self.fpi.inverse(&mut st.inverse, x_pea_ref, f);
+        let (want, foot) = self
+            .fpi
+            .inverse_checked(&mut st.inverse, &st.creep, x_pea_ref, f);
         let (voltage, limited) = self.limit(st.voltage, want);
-        let x_pea_est = self.fpi.forward(&mut st.forward, voltage, f);
-        if limited {
-            self.fpi.pi.resync(&st.forward, &mut st.inverse);
+        let x_pea_est = self.fpi.forward(&mut st.forward, &mut st.creep, voltage, f);
+        if limited || foot {
+            self.fpi.pi_prime.resync(&st.forward, &mut st.inverse);
         }
         st.voltage = voltage;
         st.x_pea_est = x_pea_est;

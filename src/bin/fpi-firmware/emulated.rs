@@ -11,7 +11,7 @@ use cortex_m_rt::entry;
 use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
 use heapless::spsc::Queue;
 use piezo_fpi::demo::{Demo, Phase, PhaseReport, SimLink, SIM_ADC, SIM_DAC};
-use piezo_fpi::model::{self, CONTROLLER, OPERATORS};
+use piezo_fpi::model::{self, CONTROLLER, CREEP_TERMS, OPERATORS};
 use piezo_fpi::runner::Telemetry;
 use piezo_fpi::stats::nm;
 use stm32f4xx_hal::pac;
@@ -45,8 +45,9 @@ fn run() -> bool {
     // QEMU has no PLL: stay on the 16 MHz HSI.
     let mut rcc = dp.RCC.freeze(Config::hsi());
     say!(
-        "fpi-firmware on the emulated STM32F405 (QEMU netduinoplus2): {} operators, {} Hz control ISR",
+        "fpi-firmware on the emulated STM32F405 (QEMU netduinoplus2): {} operators, {} creep terms, {} Hz control ISR",
         OPERATORS as u32,
+        CREEP_TERMS as u32,
         RATE_HZ
     );
     say!("model: {}", model::MODEL_FILE);
