@@ -8,9 +8,22 @@
 //! * [`reference`] — the f64 twin of the fixed-point model and control step.
 
 pub mod accuracy;
+pub mod calibrate;
+pub mod cli;
+pub mod compare;
 pub mod data;
+pub mod demo_chain;
+pub mod export;
+pub mod fastpi;
+pub mod fem;
 pub mod firmware;
+pub mod hmodel;
+pub mod invert;
+pub mod lsq;
+pub mod plots;
+pub mod predict;
 pub mod reference;
+pub mod report;
 
 #[path = "../../src/model_file.rs"]
 pub mod model_file;

@@ -8,9 +8,12 @@
 //! 2. Runs the same scripted run on the host (same core, same virtual stage) and
 //!    checks that every figure the emulator printed is reproduced exactly.
 //! 3. Measures the fixed-point core against its f64 reference on every recording.
+//! 4. Runs the FPI-FFEM method on the host (`fpi demo`): calibration on the rig,
+//!    prediction of stage A, the micromanipulator, feedforward, export; the report
+//!    goes to `tests-host/out/demo/report.md`.
 //!
-//! Exits non-zero if the firmware's self-checks, the host twin or the accuracy
-//! bounds fail.
+//! Exits non-zero if the firmware's self-checks, the host twin, the accuracy
+//! bounds or a target of the method fail.
 
 use std::process::ExitCode;
 use std::time::Duration;
@@ -85,12 +88,20 @@ fn run() -> Result<()> {
         if acc_ok { "ok" } else { "FAILED" }
     );
 
+    println!("\nFPI-FFEM method on the host (fpi demo):");
+    let out = firmware::project_root().join("tests-host/out/demo");
+    let chain = fpi_host::demo_chain::run(&out)?;
+    for l in &chain.lines {
+        println!("  {l}");
+    }
+    println!("  report with tables and plots: {}", chain.report.display());
+
     let fw_ok = q.code == Some(0);
     println!(
         "\nemulated firmware self-checks: {}",
         if fw_ok { "PASS" } else { "FAIL (exit status)" }
     );
-    if !(fw_ok && twin_ok && acc_ok) {
+    if !(fw_ok && twin_ok && acc_ok && chain.ok) {
         bail!("see the report above");
     }
     Ok(())

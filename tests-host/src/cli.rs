@@ -1,0 +1,376 @@
+//! The `fpi` commands (the binary only parses arguments and calls these).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+
+use crate::calibrate::{self, Options};
+use crate::data::{self, DataError, Finite};
+use crate::fem::FemMaps;
+use crate::hmodel::{HostModel, Kind};
+use crate::predict;
+
+/// A drive sample (`t_s,voltage_V`, other columns ignored).
+#[derive(Debug, Clone, Copy, serde::Deserialize)]
+struct DriveRow {
+    t_s: f64,
+    #[serde(rename = "voltage_V")]
+    voltage_v: f64,
+}
+impl Finite for DriveRow {
+    fn non_finite(&self) -> Option<&'static str> {
+        if !self.t_s.is_finite() {
+            Some("t_s")
+        } else if !self.voltage_v.is_finite() {
+            Some("voltage_V")
+        } else {
+            None
+        }
+    }
+}
+
+/// Reads a drive file: time and voltage.
+pub fn read_drive(path: &Path) -> Result<(Vec<f64>, Vec<f64>), DataError> {
+    let rows: Vec<DriveRow> = data::read_csv(path, &["t_s", "voltage_V"])?;
+    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
+    data::strictly_increasing(path, "t_s", &t)?;
+    Ok((t, rows.iter().map(|r| r.voltage_v).collect()))
+}
+
+/// A target sample (`t_s,x_fhps_um`).
+#[derive(Debug, Clone, Copy, serde::Deserialize)]
+struct TargetRow {
+    t_s: f64,
+    x_fhps_um: f64,
+}
+impl Finite for TargetRow {
+    fn non_finite(&self) -> Option<&'static str> {
+        if !self.t_s.is_finite() {
+            Some("t_s")
+        } else if !self.x_fhps_um.is_finite() {
+            Some("x_fhps_um")
+        } else {
+            None
+        }
+    }
+}
+
+/// Reads a target trajectory: time and stage position.
+pub fn read_target(path: &Path) -> Result<(Vec<f64>, Vec<f64>), DataError> {
+    let rows: Vec<TargetRow> = data::read_csv(path, &["t_s", "x_fhps_um"])?;
+    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
+    data::strictly_increasing(path, "t_s", &t)?;
+    Ok((t, rows.iter().map(|r| r.x_fhps_um).collect()))
+}
+
+/// Writes a CSV with a header and `f64` columns of equal length.
+pub fn write_columns(path: &Path, header: &[&str], columns: &[&[f64]]) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let mut w =
+        csv::Writer::from_path(path).with_context(|| format!("writing {}", path.display()))?;
+    w.write_record(header)?;
+    let n = columns.first().map_or(0, |c| c.len());
+    let mut rec = Vec::with_capacity(columns.len());
+    for k in 0..n {
+        rec.clear();
+        rec.extend(columns.iter().map(|c| format!("{:.6}", c[k])));
+        w.write_record(&rec)?;
+    }
+    w.flush()?;
+    Ok(())
+}
+
+/// `fpi calibrate`.
+pub fn calibrate(
+    kind: Option<Kind>,
+    rig: &[PathBuf],
+    out: &Path,
+    operators: Option<usize>,
+    compliance: Option<f64>,
+    rows: Option<(usize, usize)>,
+) -> Result<()> {
+    let data = calibrate::load(rig, rows)?;
+    let has_force = data.iter().all(|d| d.has_force);
+    let kind = kind.unwrap_or(if has_force { Kind::Efpi } else { Kind::Gpi });
+    let mut opt = Options::for_kind(kind);
+    if let Some(n) = operators {
+        opt.operators = n;
+    }
+    if let Some(c) = compliance {
+        if kind != Kind::Efpi {
+            bail!("--compliance applies to efpi models only");
+        }
+        opt.compliance = c;
+    }
+    if !has_force {
+        opt.offset = true;
+    }
+    let start = std::time::Instant::now();
+    let mut model = calibrate::calibrate(&data, &opt)?;
+    model.calibration.rows = rows.map(|(a, b)| [a, b]);
+    model.calibration.files = rig.iter().map(|p| p.display().to_string()).collect();
+    let secs = start.elapsed().as_secs_f64();
+    println!(
+        "{} model, {} operators, calibrated on {} recording(s) in {:.2} s",
+        kind,
+        model.operators() + 1,
+        data.len(),
+        secs
+    );
+    print_fit(&model);
+    model.write(out)?;
+    println!("model written to {}", out.display());
+    Ok(())
+}
+
+/// Prints a model's parameters and its per-file fit.
+pub fn print_fit(m: &HostModel) {
+    let c = &m.coupling;
+    if m.kind.uses_force() && m.kind != Kind::Ldpi {
+        println!(
+            "  k_f {:.5} V/N, k_q {:.3e} V/N² about {} N, k0 {:.3} V, dead-zone softness {:.3} V, compliance {} µm/N",
+            c.k_f_v_per_n, c.k_q_v_per_n2, c.force_q_n, c.offset_v, m.dead_zone_softness_v, c.compliance_um_per_n
+        );
+    }
+    println!(
+        "  {:<34} {:>8} {:>10} {:>10}",
+        "file", "samples", "RMSE µm", "MTE µm"
+    );
+    for f in &m.calibration.per_file {
+        println!(
+            "  {:<34} {:>8} {:>10.4} {:>10.4}",
+            f.file, f.samples, f.rmse_um, f.mte_um
+        );
+    }
+    println!(
+        "  {:<34} {:>8} {:>10.4} {:>10.4}",
+        "all",
+        m.calibration
+            .per_file
+            .iter()
+            .map(|f| f.samples)
+            .sum::<usize>(),
+        m.calibration.rmse_um,
+        m.calibration.mte_um
+    );
+}
+
+/// `fpi predict`.
+pub fn predict(model: &Path, fem: &Path, drive: &Path, out: &Path) -> Result<()> {
+    let m = HostModel::read(model)?;
+    let maps = FemMaps::read(fem)?;
+    let (t, u) = read_drive(drive)?;
+    let start = std::time::Instant::now();
+    let p = predict::predict(&m, &maps, &t, &u)?;
+    let secs = start.elapsed().as_secs_f64();
+    write_columns(
+        out,
+        &["t_s", "voltage_V", "x_pea_um", "preload_N", "x_fhps_um"],
+        &[&p.t, &p.u, &p.x_pea, &p.preload, &p.x_fhps],
+    )?;
+    println!(
+        "{} ({}): {} samples predicted in {:.1} ms ({:.2} solver iterations per sample); written to {}",
+        m.kind.method(),
+        model.display(),
+        t.len(),
+        secs * 1e3,
+        p.iterations as f64 / t.len() as f64,
+        out.display()
+    );
+    let _ = std::io::stdout().flush();
+    Ok(())
+}
+
+/// `fpi compare`.
+pub fn compare(fem: &Path, runs: &[PathBuf], models: &[PathBuf], out: &Path) -> Result<()> {
+    let maps = FemMaps::read(fem)?;
+    let models: Vec<(String, HostModel)> = models
+        .iter()
+        .map(|p| {
+            let m = HostModel::read(p)?;
+            let name = p
+                .file_stem()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or_default();
+            Ok((name, m))
+        })
+        .collect::<Result<_>>()?;
+    let runs: Vec<data::StageRun> = runs
+        .iter()
+        .map(|p| data::read_stage(p))
+        .collect::<Result<_, _>>()?;
+    let cmp = crate::compare::Comparison::run(&maps, &runs, &models)?;
+    crate::compare::print_table(&cmp);
+    crate::report::write(&cmp, &maps, out)?;
+    println!("report written to {}", out.join("report.md").display());
+    Ok(())
+}
+
+/// `fpi invert`.
+pub fn invert(model: &Path, fem: &Path, target: &Path, out: &Path, u_max: f64) -> Result<()> {
+    let m = HostModel::read(model)?;
+    let maps = FemMaps::read(fem)?;
+    let (t, x) = read_target(target)?;
+    let inv = crate::invert::invert(&m, &maps, &t, &x, u_max)?;
+    write_columns(out, &["t_s", "voltage_V"], &[&inv.t, &inv.u])?;
+    println!(
+        "{} inverse ({}): {} samples written to {}; reachable stroke {:.3}..{:.3} µm at 0..{} V",
+        m.kind,
+        model.display(),
+        t.len(),
+        out.display(),
+        inv.reachable.0,
+        inv.reachable.1,
+        u_max
+    );
+    if inv.clamped_targets > 0 {
+        eprintln!(
+            "warning: {} of {} target samples lie outside the reachable stroke and were clamped to it",
+            inv.clamped_targets,
+            t.len()
+        );
+    }
+    if inv.clamped_voltage > 0 {
+        eprintln!(
+            "warning: {} samples needed a voltage outside 0..{u_max} V and were clamped",
+            inv.clamped_voltage
+        );
+    }
+    Ok(())
+}
+
+/// `fpi export`.
+#[allow(clippy::too_many_arguments)]
+pub fn export(
+    m: &HostModel,
+    model: &Path,
+    fem: &Path,
+    out: &Path,
+    rate: u32,
+    u_max: f64,
+    slew: f64,
+    stroke: Option<f64>,
+) -> Result<()> {
+    let maps = FemMaps::read(fem)?;
+    // By default the reference may use the stroke of the calibrated voltage range.
+    let calibrated = m.pi.thresholds_v.last().copied().unwrap_or(0.0) * (m.operators() + 1) as f64
+        / m.operators().max(1) as f64;
+    let settings = crate::export::LoopSettings {
+        rate_hz: rate,
+        u_max,
+        slew_v_per_ms: slew,
+        stroke_voltage: stroke
+            .unwrap_or(if calibrated > 0.0 { calibrated } else { u_max })
+            .min(u_max),
+        force_tolerance: 15.0,
+    };
+    let e = crate::export::export(m, model, &maps, &settings)?;
+    let text = e.model.to_toml().map_err(|e| anyhow::anyhow!(e))?;
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(out, text).with_context(|| format!("writing {}", out.display()))?;
+    println!(
+        "firmware model for the {} model written to {}",
+        m.kind,
+        out.display()
+    );
+    println!(
+        "  {:<20} {:>6} {:>12} {:>14}",
+        "table", "knots", "step", "max error"
+    );
+    for t in &e.tables {
+        println!(
+            "  {:<20} {:>6} {:>12} {:>14.3e}",
+            t.name, t.knots, t.step, t.max_error
+        );
+    }
+    let k = &e.model.controller;
+    println!(
+        "  loop: {} Hz, 0..{} V, {} V/ms; references {}..{} µm; forces {}..{} N (tolerance {} N)",
+        k.rate_hz,
+        k.u_max_v,
+        k.slew_v_per_ms,
+        k.reference_min_um,
+        k.reference_max_um,
+        k.force_min_n,
+        k.force_max_n,
+        k.force_tolerance_n
+    );
+    Ok(())
+}
+
+/// `fpi demo`.
+pub fn demo(out: &Path) -> Result<()> {
+    let s = crate::demo_chain::run(out)?;
+    for l in &s.lines {
+        println!("{l}");
+    }
+    println!("report: {}", s.report.display());
+    if !s.ok {
+        bail!("a target was missed (see above)");
+    }
+    Ok(())
+}
+
+/// `fpi bench`: throughput figures (measured, printed; not a test).
+pub fn bench() -> Result<()> {
+    use std::hint::black_box;
+    use std::time::Instant;
+    // Forward PI, 10 operators (w0 + 9), one core.
+    let n = 20_000_000usize;
+    let u: Vec<f64> = (0..n)
+        .map(|k| 50.0 + 45.0 * (k as f64 * 1.3e-3).sin() * (k as f64 * 7.1e-6).cos())
+        .collect();
+    let mut y = vec![0.0; n];
+    let r = [10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0];
+    let w = [
+        0.0126, 0.0075, 0.006, 0.0038, 0.0026, 0.0012, 0.0012, 0.0007, 0.0011,
+    ];
+    let mut pi = crate::fastpi::FastPi::new(0.0626, r, w);
+    let t0 = Instant::now();
+    pi.run(black_box(&u), &mut y);
+    black_box(&y);
+    let secs = t0.elapsed().as_secs_f64();
+    println!(
+        "forward_pi_samples_per_s n=10: {:.1} M ({} samples in {:.3} s, one core)",
+        n as f64 / secs / 1e6,
+        n,
+        secs
+    );
+
+    // The coupled solve (Part III, Step 4a) on stage A's FEM maps, one core.
+    let fem = FemMaps::read(&data::dataset("stage-a/fem.csv"))?;
+    let rig = calibrate::load(&data::datasets_in("pea-rig"), None)?;
+    for kind in [Kind::Fpi, Kind::Efpi] {
+        let t0 = Instant::now();
+        let m = calibrate::calibrate(&rig, &Options::for_kind(kind))?;
+        let cal = t0.elapsed().as_secs_f64();
+        println!(
+            "calibration_seconds kind={kind}: {:.2} ({} pea-rig recordings, {} samples, {} threads)",
+            cal,
+            rig.len(),
+            rig.iter().map(|d| d.u.len()).sum::<usize>(),
+            rayon::current_num_threads()
+        );
+        let n = 1_000_000usize;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 2e-4).collect();
+        let drive: Vec<f64> = t
+            .iter()
+            .map(|t| 50.0 - 50.0 * (std::f64::consts::TAU * 5.0 * t).cos())
+            .collect();
+        let t0 = Instant::now();
+        let p = predict::predict(&m, &fem, &t, &drive)?;
+        let secs = t0.elapsed().as_secs_f64();
+        black_box(&p);
+        println!(
+            "coupled_solve_samples_per_s kind={kind}: {:.2} M ({:.2} solver iterations per sample, one core)",
+            n as f64 / secs / 1e6,
+            p.iterations as f64 / n as f64
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,212 @@
+//! The Markdown report of a comparison, with SVG plots: the paper's Table 4 (MAE
+//! of every method on every run and its reduction against the first), Fig. 16
+//! (measured and predicted loops of the stage), the error curves, and Figs. 12–13
+//! (the predicted stack loop on the preload–voltage surface, and its projection).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+
+use crate::compare::Comparison;
+use crate::fem::FemMaps;
+use crate::hmodel::{HostModel, Kind};
+use crate::plots;
+
+/// The stack's hysteresis loops at constant preloads (the FPI surface of the
+/// paper's Fig. 5b/12): for each preload, `u` from 0 to `u_top` and back.
+pub fn surface_family(
+    model: &HostModel,
+    preloads: &[f64],
+    u_top: f64,
+    f_ref: f64,
+) -> Vec<(f64, Vec<(f64, f64)>)> {
+    let n = 200;
+    preloads
+        .iter()
+        .map(|&f| {
+            let mut st = model.state(1e-3);
+            let pts = (0..=2 * n)
+                .map(|k| {
+                    let u = u_top
+                        * if k <= n {
+                            k as f64 / n as f64
+                        } else {
+                            (2 * n - k) as f64 / n as f64
+                        };
+                    (u, model.step(&mut st, u, f, f_ref))
+                })
+                .collect();
+            (f, pts)
+        })
+        .collect()
+}
+
+/// Markdown table of a comparison: per run, MAE / RMSE / MTE and the MAE
+/// reduction against the first model.
+pub fn table(c: &Comparison) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| method | model | run | MAE (µm) | RMSE (µm) | MTE (µm) | MAE reduction vs {} |",
+        c.models[0].1.kind.method()
+    );
+    let _ = writeln!(s, "|---|---|---|---:|---:|---:|---:|");
+    for (m, (name, model)) in c.models.iter().enumerate() {
+        for r in 0..c.runs.len() {
+            let x = &c.scores[r][m].metrics;
+            let red = if m == 0 {
+                "—".to_string()
+            } else {
+                format!("{:.1} %", c.reduction(r, m))
+            };
+            let _ = writeln!(
+                s,
+                "| {} | `{}` | {} | {:.3} | {:.3} | {:.3} | {} |",
+                model.kind.method(),
+                name,
+                c.run_name(r),
+                x.mae,
+                x.rmse,
+                x.mte,
+                red
+            );
+        }
+    }
+    s
+}
+
+/// The paper's Table 4 layout: methods as rows, the runs' MAE as columns.
+pub fn table4(c: &Comparison) -> String {
+    let mut s = String::from("| Method |");
+    for r in 0..c.runs.len() {
+        let _ = write!(s, " MAE, {} (µm) |", c.run_name(r));
+    }
+    s.push_str("\n|---|");
+    for _ in 0..c.runs.len() {
+        s.push_str("---:|");
+    }
+    s.push('\n');
+    for (m, (_, model)) in c.models.iter().enumerate() {
+        let _ = write!(s, "| {} |", model.kind.method());
+        for r in 0..c.runs.len() {
+            let _ = write!(s, " {:.3} |", c.scores[r][m].metrics.mae);
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// Writes the plots of a comparison into `out`; returns Markdown that shows them.
+pub fn figures(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<String> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut md = String::new();
+    for (r, run) in c.runs.iter().enumerate() {
+        let name = c.run_name(r);
+        let stem = name.trim_end_matches(".csv");
+        let preds: Vec<(String, &[f64])> = c
+            .models
+            .iter()
+            .zip(&c.scores[r])
+            .map(|((_, m), s)| (m.kind.method().to_string(), s.prediction.x_fhps.as_slice()))
+            .collect();
+        let series: Vec<(&str, &[f64])> = preds.iter().map(|(n, v)| (n.as_str(), *v)).collect();
+        let f = format!("loops_{stem}.svg");
+        plots::loops(
+            &out.join(&f),
+            &format!("Stage output vs voltage, {stem} (Fig. 16)"),
+            "voltage (V)",
+            "stage output x_fhps (µm)",
+            &run.u,
+            Some(&run.x),
+            &series,
+        )?;
+        let _ = writeln!(md, "![loops {name}]({f})\n");
+        let errs: Vec<(String, Vec<f64>)> = c
+            .models
+            .iter()
+            .zip(&c.scores[r])
+            .map(|((_, m), s)| {
+                (
+                    m.kind.method().to_string(),
+                    s.prediction
+                        .x_fhps
+                        .iter()
+                        .zip(&run.x)
+                        .map(|(p, q)| p - q)
+                        .collect(),
+                )
+            })
+            .collect();
+        let es: Vec<(&str, &[f64])> = errs
+            .iter()
+            .map(|(n, v)| (n.as_str(), v.as_slice()))
+            .collect();
+        let f = format!("errors_{stem}.svg");
+        plots::curves(
+            &out.join(&f),
+            &format!("Prediction error, {stem}"),
+            "error (µm)",
+            &run.t,
+            &es,
+        )?;
+        let _ = writeln!(md, "![errors {name}]({f})\n");
+        for ((mname, m), s) in c.models.iter().zip(&c.scores[r]) {
+            if !matches!(m.kind, Kind::Fpi | Kind::Efpi) {
+                continue;
+            }
+            let p = &s.prediction;
+            let (f_lo, f_hi) = p
+                .preload
+                .iter()
+                .fold((f64::MAX, f64::MIN), |a, &v| (a.0.min(v), a.1.max(v)));
+            let u_top = run.u.iter().cloned().fold(0.0, f64::max);
+            let preloads: Vec<f64> = (0..6)
+                .map(|k| (f_lo - 10.0) + (f_hi - f_lo + 20.0) * k as f64 / 5.0)
+                .collect();
+            let family = surface_family(m, &preloads, u_top, fem.rest_preload());
+            let path3d: Vec<(f64, f64, f64)> = (0..p.u.len())
+                .map(|k| (p.u[k], p.preload[k], p.x_pea[k]))
+                .collect();
+            let f = format!("surface_{stem}_{mname}.svg");
+            plots::surface(
+                &out.join(&f),
+                &format!(
+                    "{}, {stem}: stack loop on the preload surface (Fig. 12)",
+                    m.kind.method()
+                ),
+                &family,
+                &path3d,
+            )?;
+            let _ = writeln!(md, "![surface {name} {mname}]({f})\n");
+            let f = format!("stack_{stem}_{mname}.svg");
+            plots::loops(
+                &out.join(&f),
+                &format!(
+                    "{}, {stem}: predicted stack loop (Fig. 13)",
+                    m.kind.method()
+                ),
+                "voltage (V)",
+                "stack extension x_pea (µm)",
+                &p.u,
+                None,
+                &[(m.kind.method(), p.x_pea.as_slice())],
+            )?;
+            let _ = writeln!(md, "![stack loop {name} {mname}]({f})\n");
+        }
+    }
+    Ok(md)
+}
+
+/// Writes `report.md` and its plots into `out` (`fpi compare`).
+pub fn write(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<()> {
+    let mut md = String::from("# Stage prediction: measured vs predicted\n\n");
+    let _ = writeln!(md, "FEM maps: `{}`.\n", fem.source);
+    let _ = writeln!(md, "## MAE by method (seed 000, Table 4)\n\n{}", table4(c));
+    let _ = writeln!(md, "## All figures\n\n{}", table(c));
+    md.push_str("\n## Figures\n\n");
+    md.push_str(&figures(c, fem, out)?);
+    std::fs::write(out.join("report.md"), md)
+        .with_context(|| format!("writing {}", out.join("report.md").display()))?;
+    Ok(())
+}
