@@ -1,0 +1,381 @@
+//! The `fpi` commands as scripts call them: exact columns, written files, and
+//! errors that name the file, the line and the column.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn fpi(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fpi"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("running fpi")
+}
+
+fn ok(args: &[&str]) -> String {
+    let o = fpi(args);
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(o.status.success(), "fpi {args:?} failed:\n{out}\n{err}");
+    format!("{out}{err}")
+}
+
+fn fails(args: &[&str]) -> String {
+    let o = fpi(args);
+    assert!(!o.status.success(), "fpi {args:?} should fail");
+    String::from_utf8_lossy(&o.stderr).to_string()
+}
+
+fn tmp() -> PathBuf {
+    let d = std::env::temp_dir().join(format!("fpi-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+const FEM: &str = "data/stage-a/fem.csv.gz";
+const RUN: &str = "data/stage-a/sine_15Hz.csv.gz";
+
+/// A quick fpi model on three rig recordings, calibrated once and shared by the
+/// tests (which run in parallel).
+fn fpi_model(dir: &Path) -> PathBuf {
+    static MODEL: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    MODEL.get_or_init(|| calibrate_fpi(dir)).clone()
+}
+
+fn calibrate_fpi(dir: &Path) -> PathBuf {
+    let m = dir.join("fpi.toml");
+    {
+        ok(&[
+            "calibrate",
+            "--kind",
+            "fpi",
+            "--rig",
+            "data/pea-rig/preload_050N_sine_05Hz.csv.gz",
+            "data/pea-rig/preload_100N_sine_05Hz.csv.gz",
+            "data/pea-rig/preload_150N_sine_05Hz.csv.gz",
+            "--out",
+            s(&m),
+        ]);
+    }
+    m
+}
+
+#[test]
+fn calibrate_prints_per_file_fit_and_records_it() {
+    let d = tmp();
+    let m = d.join("pi.toml");
+    let text = ok(&[
+        "calibrate",
+        "--kind",
+        "pi",
+        "--rig",
+        "data/pea-rig/preload_050N_sine_05Hz.csv.gz",
+        "--out",
+        s(&m),
+        "--operators",
+        "8",
+    ]);
+    assert!(
+        text.contains("preload_050N_sine_05Hz.csv")
+            && text.contains("RMSE µm")
+            && text.contains("MTE µm"),
+        "{text}"
+    );
+    let model = std::fs::read_to_string(&m).unwrap();
+    assert!(
+        model.contains("kind = \"pi\"")
+            && model.contains("rmse_um")
+            && model.contains("preload_050N_sine_05Hz.csv.gz"),
+        "{model}"
+    );
+    assert!(model.contains("[[calibration.per_file]]"));
+}
+
+#[test]
+fn predict_writes_the_documented_columns() {
+    let d = tmp();
+    let m = fpi_model(&d);
+    let out = d.join("pred.csv");
+    ok(&[
+        "predict",
+        "--model",
+        s(&m),
+        "--fem",
+        FEM,
+        "--drive",
+        RUN,
+        "--out",
+        s(&out),
+    ]);
+    let text = std::fs::read_to_string(&out).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some("t_s,voltage_V,x_pea_um,preload_N,x_fhps_um")
+    );
+    assert_eq!(
+        text.lines().count(),
+        1668,
+        "header + one row per drive sample"
+    );
+}
+
+#[test]
+fn compare_writes_a_report_with_tables_and_plots() {
+    let d = tmp();
+    let m = fpi_model(&d);
+    let out = d.join("cmp");
+    let text = ok(&[
+        "compare",
+        "--fem",
+        FEM,
+        "--runs",
+        RUN,
+        "--model",
+        s(&m),
+        "--model",
+        s(&m),
+        "--out",
+        s(&out),
+    ]);
+    assert!(text.contains("MAE reduction"), "{text}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        report.contains("| Method |") && report.contains("FPI-FFEM"),
+        "{report}"
+    );
+    assert!(out.join("loops_sine_15Hz.svg").exists() && out.join("errors_sine_15Hz.svg").exists());
+    assert!(out.join("surface_sine_15Hz_fpi.svg").exists());
+}
+
+#[test]
+fn invert_clamps_unreachable_targets_and_says_how_many() {
+    let d = tmp();
+    let m = fpi_model(&d);
+    let target = d.join("target.csv");
+    let mut t = String::from("t_s,x_fhps_um\n");
+    for k in 0..100 {
+        t.push_str(&format!("{},{}\n", k as f64 * 1e-3, k as f64 * 0.9));
+    }
+    std::fs::write(&target, t).unwrap();
+    let out = d.join("drive.csv");
+    let text = ok(&[
+        "invert",
+        "--model",
+        s(&m),
+        "--fem",
+        FEM,
+        "--target",
+        s(&target),
+        "--out",
+        s(&out),
+        "--u-max",
+        "100",
+    ]);
+    assert!(
+        text.contains("target samples lie outside the reachable stroke and were clamped"),
+        "{text}"
+    );
+    let drive = std::fs::read_to_string(&out).unwrap();
+    assert!(drive.starts_with("t_s,voltage_V\n") && drive.lines().count() == 101);
+    let top: f64 = drive
+        .lines()
+        .last()
+        .unwrap()
+        .split(',')
+        .nth(1)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(top <= 100.0 + 1e-9, "{top}");
+}
+
+#[test]
+fn export_writes_a_file_the_firmware_build_accepts_and_refuses_ldpi() {
+    let d = tmp();
+    let m = fpi_model(&d);
+    let out = d.join("fw.toml");
+    let text = ok(&["export", "--model", s(&m), "--fem", FEM, "--out", s(&out)]);
+    assert!(text.contains("tables.f_k_inv"), "{text}");
+    let fw = std::fs::read_to_string(&out).unwrap();
+    fpi_host::model_file::FirmwareModel::parse(&fw, "fw.toml").unwrap();
+    let l = d.join("ldpi.toml");
+    ok(&[
+        "calibrate",
+        "--kind",
+        "ldpi",
+        "--rig",
+        "data/pea-rig/preload_050N_sine_05Hz.csv.gz",
+        "data/pea-rig/preload_150N_sine_05Hz.csv.gz",
+        "--out",
+        s(&l),
+    ]);
+    let err = fails(&[
+        "export",
+        "--model",
+        s(&l),
+        "--fem",
+        FEM,
+        "--out",
+        s(&d.join("x.toml")),
+    ]);
+    assert!(
+        err.contains("a ldpi model cannot run in the firmware"),
+        "{err}"
+    );
+}
+
+#[test]
+fn bad_inputs_name_file_line_and_column() {
+    let d = tmp();
+    let m = fpi_model(&d);
+    // A drive with a non-number.
+    let drive = d.join("bad_drive.csv");
+    std::fs::write(&drive, "t_s,voltage_V\n0,0\n0.001,1O\n").unwrap();
+    let err = fails(&[
+        "predict",
+        "--model",
+        s(&m),
+        "--fem",
+        FEM,
+        "--drive",
+        s(&drive),
+        "--out",
+        s(&d.join("p.csv")),
+    ]);
+    assert!(
+        err.contains("bad_drive.csv:3: column voltage_V: \"1O\" is not a number"),
+        "{err}"
+    );
+    // An FEM table whose x_pea does not increase.
+    let fem = d.join("bad_fem.csv");
+    std::fs::write(
+        &fem,
+        "x_pea_um,preload_N,x_fhps_um\n0,61.8,0\n0.5,63,2.8\n0.5,64,2.9\n",
+    )
+    .unwrap();
+    let err = fails(&[
+        "predict",
+        "--model",
+        s(&m),
+        "--fem",
+        s(&fem),
+        "--drive",
+        RUN,
+        "--out",
+        s(&d.join("p.csv")),
+    ]);
+    assert!(
+        err.contains("bad_fem.csv:4: column x_pea_um: 0.5 does not increase"),
+        "{err}"
+    );
+    // An FEM table with a non-finite value.
+    std::fs::write(
+        &fem,
+        "x_pea_um,preload_N,x_fhps_um\n0,61.8,0\n0.5,nan,2.8\n",
+    )
+    .unwrap();
+    let err = fails(&[
+        "predict",
+        "--model",
+        s(&m),
+        "--fem",
+        s(&fem),
+        "--drive",
+        RUN,
+        "--out",
+        s(&d.join("p.csv")),
+    ]);
+    assert!(
+        err.contains("bad_fem.csv:3: column preload_N: \"nan\" is not a finite number"),
+        "{err}"
+    );
+    // A rig recording without force for an fpi model.
+    let rig = d.join("no_force.csv");
+    std::fs::write(&rig, "t_s,voltage_V,displacement_um\n0,0,0\n").unwrap();
+    let err = fails(&[
+        "calibrate",
+        "--kind",
+        "fpi",
+        "--rig",
+        s(&rig),
+        "--out",
+        s(&d.join("x.toml")),
+    ]);
+    assert!(
+        err.contains("no_force.csv:1: column force_N: missing in the header"),
+        "{err}"
+    );
+    // A model file with a wrong key.
+    let bad = d.join("bad_model.toml");
+    std::fs::write(
+        &bad,
+        std::fs::read_to_string(&m)
+            .unwrap()
+            .replace("k_f_v_per_n", "k_f_volts"),
+    )
+    .unwrap();
+    let err = fails(&[
+        "predict",
+        "--model",
+        s(&bad),
+        "--fem",
+        FEM,
+        "--drive",
+        RUN,
+        "--out",
+        s(&d.join("p.csv")),
+    ]);
+    assert!(
+        err.contains("bad_model.toml: not a model file") && err.contains("k_f_volts"),
+        "{err}"
+    );
+    // An unknown kind.
+    let err = fails(&[
+        "calibrate",
+        "--kind",
+        "magic",
+        "--rig",
+        RUN,
+        "--out",
+        s(&d.join("x.toml")),
+    ]);
+    assert!(err.contains("unknown model kind \"magic\""), "{err}");
+}
+
+#[test]
+fn the_micromanipulator_window_is_selectable() {
+    let d = tmp();
+    let m = d.join("gpi.toml");
+    let text = ok(&[
+        "calibrate",
+        "--rig",
+        "data/real/micromanipulator/Model_Vi_Do.dat.gz",
+        "--rows",
+        "3152-3351",
+        "--out",
+        s(&m),
+    ]);
+    assert!(
+        text.starts_with("gpi model"),
+        "no force: gpi by default\n{text}"
+    );
+    let model = std::fs::read_to_string(&m).unwrap();
+    assert!(model.contains("rows = [3152, 3351]"), "{model}");
+    let err = fails(&[
+        "calibrate",
+        "--rig",
+        "data/real/micromanipulator/Model_Vi_Do.dat.gz",
+        "--rows",
+        "3152-9999",
+        "--out",
+        s(&m),
+    ]);
+    assert!(err.contains("outside the recording's 8027 rows"), "{err}");
+}

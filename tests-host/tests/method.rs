@@ -1,0 +1,75 @@
+//! The FPI-FFEM method end to end on the project's datasets (`fpi demo`), with the
+//! accuracy targets of the issue:
+//!
+//! * stage A, 5 and 15 Hz: the best model cuts PI-FEM's MAE by ≥ 75 % (the paper:
+//!   76.7 % and 75.0 %); the paper's plain FPI reaches only about 60 %;
+//! * the micromanipulator: PI about 0.33 µm on the authors' cycle, our GPI below
+//!   the discrete backlash operator's 0.21 µm;
+//! * the exported firmware model is the one the firmware embeds.
+
+use fpi_host::calibrate::{self, Options};
+use fpi_host::compare::Comparison;
+use fpi_host::data;
+use fpi_host::demo_chain;
+use fpi_host::fem::FemMaps;
+use fpi_host::hmodel::Kind;
+
+#[test]
+fn the_demo_chain_meets_every_target() {
+    let out = std::env::temp_dir().join(format!("fpi-method-{}", std::process::id()));
+    let s = demo_chain::run(&out).unwrap_or_else(|e| panic!("{e:#}"));
+    for l in &s.lines {
+        println!("{l}");
+    }
+    assert!(s.ok, "a target was missed");
+    let report = std::fs::read_to_string(&s.report).unwrap();
+    for figure in [
+        "loops_sine_05Hz.svg",
+        "surface_sine_05Hz_efpi.svg",
+        "rig_loops.svg",
+        "rig_rmse.svg",
+        "micromanipulator.svg",
+    ] {
+        assert!(report.contains(figure), "report shows {figure}");
+        assert!(out.join(figure).exists(), "{figure} written");
+    }
+}
+
+#[test]
+fn the_papers_fpi_reaches_about_sixty_percent_and_efpi_over_seventy_five() {
+    let rig = calibrate::load(&data::datasets_in("pea-rig"), None).unwrap();
+    let fem = FemMaps::read(&data::dataset("stage-a/fem.csv")).unwrap();
+    let pi_rig: Vec<_> = rig
+        .iter()
+        .filter(|d| (d.f0 / 25.0).round() == 2.0)
+        .cloned()
+        .collect();
+    let models = vec![
+        (
+            "pi".to_string(),
+            calibrate::calibrate(&pi_rig, &Options::for_kind(Kind::Pi)).unwrap(),
+        ),
+        (
+            "fpi".to_string(),
+            calibrate::calibrate(&rig, &Options::for_kind(Kind::Fpi)).unwrap(),
+        ),
+        (
+            "efpi".to_string(),
+            calibrate::calibrate(&rig, &Options::for_kind(Kind::Efpi)).unwrap(),
+        ),
+    ];
+    let runs: Vec<_> = ["stage-a/sine_05Hz.csv", "stage-a/sine_15Hz.csv"]
+        .iter()
+        .map(|r| data::read_stage(&data::dataset(r)).unwrap())
+        .collect();
+    let c = Comparison::run(&fem, &runs, &models).unwrap();
+    for r in 0..2 {
+        let (fpi, efpi) = (c.reduction(r, 1), c.reduction(r, 2));
+        println!("{}: FPI {fpi:.1} %, EFPI {efpi:.1} %", c.run_name(r));
+        assert!(
+            (45.0..70.0).contains(&fpi),
+            "the paper's FPI: about 60 %, got {fpi}"
+        );
+        assert!(efpi >= 75.0, "EFPI: at least 75 %, got {efpi}");
+    }
+}
