@@ -154,7 +154,7 @@ pub fn run(out: &Path) -> Result<Summary> {
     let e = &efpi.coupling;
     let _ = writeln!(
         md,
-        "* fpi: k_f = {:.4} V/N.\n* efpi: U_p(F) = {:.3} V + {:.4} V/N·F + {:.3e} V/N²·(F − {} N)², dead-zone softness {:.3} V, saturation {:?}, compliance {} µm/N (datasheet), creep {}.\n",
+        "* fpi: k_f = {:.4} V/N.\n* efpi: U_p(F) = {:.3} V + {:.4} V/N·F + {:.3e} V/N²·(F − {} N)², dead-zone softness {:.3} V, output saturation {}, compliance {} µm/N (datasheet), creep {}.\n",
         c.k_f_v_per_n,
         e.offset_v,
         e.k_f_v_per_n,
@@ -498,7 +498,7 @@ pub fn run(out: &Path) -> Result<Summary> {
     let _ = writeln!(
         md,
         "`firmware-stage-a.toml` from `{}`: {}.\n",
-        model_path.display(),
+        export::project_relative(&model_path),
         if same {
             "identical to the embedded `src/model/stage-a.toml`"
         } else {

@@ -318,7 +318,7 @@ pub fn export(
 
 /// A path relative to the project root when it lies inside it (provenance that
 /// means the same on every machine), else as given.
-fn project_relative(p: &Path) -> String {
+pub fn project_relative(p: &Path) -> String {
     let root = crate::firmware::project_root();
     let abs = if p.is_absolute() {
         p.to_path_buf()

@@ -150,6 +150,20 @@ pub enum OutputMap {
     },
 }
 
+impl core::fmt::Display for OutputMap {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            OutputMap::Identity => write!(f, "none (x = Y)"),
+            OutputMap::Saturation { beta_per_um } => {
+                write!(f, "x + {beta_per_um:.3e}/µm·x² = Y")
+            }
+            OutputMap::Quadratic { gamma_per_um } => {
+                write!(f, "x = Y + {gamma_per_um:.3e}/µm·Y²")
+            }
+        }
+    }
+}
+
 impl OutputMap {
     /// `z = h(Y)` and `dz/dY`.
     pub fn apply(self, y: f64) -> (f64, f64) {

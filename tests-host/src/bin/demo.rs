@@ -23,6 +23,8 @@ use fpi_host::accuracy::{self, BOUND_U_V, BOUND_X_UM};
 use fpi_host::firmware;
 
 fn main() -> ExitCode {
+    fpi_host::cli::exit_quietly_on_broken_pipe();
+    fpi_host::cli::tune_allocator();
     match run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -94,7 +96,10 @@ fn run() -> Result<()> {
     for l in &chain.lines {
         println!("  {l}");
     }
-    println!("  report with tables and plots: {}", chain.report.display());
+    println!(
+        "  report with tables and plots: {}",
+        fpi_host::export::project_relative(&chain.report)
+    );
 
     let fw_ok = q.code == Some(0);
     println!(
