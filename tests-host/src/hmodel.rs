@@ -184,6 +184,16 @@ impl OutputMap {
         }
     }
 
+    /// `d²z/dY²` where the slope is `dz = dz/dY` (as [`apply`](Self::apply) returns it).
+    pub fn curvature(self, dz: f64) -> f64 {
+        match self {
+            OutputMap::Identity => 0.0,
+            // z + βz² = Y: dz/dY = 1/(1 + 2βz), d²z/dY² = −2β·(dz/dY)³.
+            OutputMap::Saturation { beta_per_um: b } => -2.0 * b * dz * dz * dz,
+            OutputMap::Quadratic { gamma_per_um: g } => 2.0 * g,
+        }
+    }
+
     /// `Y = h⁻¹(z)`.
     pub fn invert(self, z: f64) -> f64 {
         match self {
@@ -308,6 +318,22 @@ pub fn dead_zone_inverse(s: f64, uh: f64) -> f64 {
     }
 }
 
+/// Narrows the open interval `(lo, hi)` around `at` to exclude the switch points
+/// `bs`; a switch point at `at` itself empties it.
+#[inline]
+fn narrow_to(mut lo: f64, mut hi: f64, at: f64, bs: [f64; 2]) -> (f64, f64) {
+    for b in bs {
+        if b < at {
+            lo = lo.max(b);
+        } else if b > at {
+            hi = hi.min(b);
+        } else {
+            return (at, at);
+        }
+    }
+    (lo, hi)
+}
+
 /// The state of a model while it runs (operators, creep lags).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelState {
@@ -337,6 +363,16 @@ pub struct Peek {
     /// crossed): a Newton step that stays inside it (and inside the preload map's
     /// segment) lands exactly on the root. `None` for the smooth models.
     pub linear_in: Option<(f64, f64)>,
+    /// d(û)/d(x_guess), V/µm (0 where û is clamped).
+    pub duh: f64,
+    /// d²(x)/d(x_guess)², 1/µm, inside the smooth piece (0 for piecewise-linear
+    /// models): with `dx` it bounds the error of a Newton step.
+    pub ddx: f64,
+    /// For the smooth models, the open interval of `û` around this one in which no
+    /// operator switches and no clamp or hard dead-zone edge acts, so the model is
+    /// smooth there (linear in `û` for the PI part). `None` where `û` sits on such an
+    /// edge, and for the piecewise-linear models (see `linear_in`).
+    pub smooth_in: Option<(f64, f64)>,
 }
 
 impl HostModel {
@@ -475,7 +511,9 @@ impl HostModel {
         } else {
             (u, 0.0)
         };
-        let (g, dg) = dead_zone(self.dead_zone_softness_v, e);
+        let softness = self.dead_zone_softness_v;
+        let (g, dg) = dead_zone(softness, e);
+        let clamped = g < 0.0 || g > p.input_max_v;
         let (uh, duh) = if g < 0.0 {
             (0.0, 0.0)
         } else if g > p.input_max_v {
@@ -483,8 +521,7 @@ impl HostModel {
         } else {
             (g, dg * de)
         };
-        let piecewise_linear =
-            self.dead_zone_softness_v <= 0.0 && self.output == OutputMap::Identity;
+        let piecewise_linear = softness <= 0.0 && self.output == OutputMap::Identity;
         // The e-interval of this linear piece: the dead-zone edge and the domain end…
         let (mut lo, mut hi) = if e <= 0.0 {
             (f64::NEG_INFINITY, 0.0)
@@ -493,6 +530,14 @@ impl HostModel {
         } else {
             (0.0, p.input_max_v)
         };
+        let linear_inside = piecewise_linear && e > 0.0 && e < p.input_max_v;
+        // …or, for smooth models, the û-interval without a clamp or the hard edge.
+        let (mut u_lo, mut u_hi) = if piecewise_linear || clamped || (softness <= 0.0 && e <= 0.0) {
+            (uh, uh) // none, or on an edge: empty
+        } else {
+            (f64::NEG_INFINITY, p.input_max_v)
+        };
+        let smooth_inside = u_lo < u_hi;
         // Weights (LDPI: affine in the force).
         let (w0, dw0) = match &self.ldpi {
             Some(l) => (p.w0_um_per_v + l.w0_per_n * force, l.w0_per_n * dforce),
@@ -511,14 +556,12 @@ impl HostModel {
                 (y, false)
             };
             // …and the operator's switch points: dragged above y + r, pushed below y.
-            if piecewise_linear && e > 0.0 && e < p.input_max_v {
-                for b in [y + r, y] {
-                    if b <= e {
-                        lo = lo.max(b);
-                    } else {
-                        hi = hi.min(b);
-                    }
-                }
+            // At a switch point itself the slope taken here is one side's only: the
+            // interval is empty there.
+            if linear_inside {
+                (lo, hi) = narrow_to(lo, hi, e, [y + r, y]);
+            } else if smooth_inside {
+                (u_lo, u_hi) = narrow_to(u_lo, u_hi, uh, [y + r, y]);
             }
             let mut w = p.weights_um_per_v[i];
             if let Some(l) = &self.ldpi {
@@ -540,12 +583,35 @@ impl HostModel {
         } else {
             0.0
         };
+        // Second derivative inside a smooth piece: the preload map is linear there
+        // (one FEM segment), U_p quadratic in F, the PI linear in û, so the curvature
+        // comes from U_p, the soft dead zone and the output map.
+        let dy = slope * duh + dy_w;
+        let ddx = if smooth_inside {
+            let dde = if self.kind == Kind::Ldpi {
+                0.0
+            } else {
+                -2.0 * self.coupling.k_q_v_per_n2 * dforce * dforce
+            };
+            let ddg = if softness > 0.0 {
+                dg * (1.0 - dg) / softness
+            } else {
+                0.0
+            };
+            let dduh = ddg * de * de + dg * dde;
+            self.output.curvature(dz) * dy * dy + dz * slope * dduh
+        } else {
+            0.0
+        };
         Peek {
             x: z - c * (force - force_ref),
-            dx: dz * (slope * duh + dy_w) - c * dforce,
+            dx: dz * dy - c * dforce,
             uh,
             e: (e, de),
             linear_in: piecewise_linear.then_some((lo, hi)),
+            duh,
+            ddx,
+            smooth_in: smooth_inside.then_some((u_lo, u_hi)),
         }
     }
 
@@ -632,6 +698,31 @@ mod tests {
         let fd = (b.x - a.x) / (2.0 * h);
         assert!((fd - mid.dx).abs() < 1e-6, "{fd} vs {}", mid.dx);
         assert!(mid.dx < 0.0);
+    }
+
+    #[test]
+    fn peek_curvature_matches_finite_differences() {
+        let m = efpi();
+        let mut st = m.state(2e-4);
+        for u in [20.0, 60.0, 45.0] {
+            m.step(&mut st, u, 80.0, 61.8);
+        }
+        // Deep in the stroke, and at the soft dead zone's edge (e ≈ 1 V), where the
+        // curvature is largest.
+        let df = 4.5;
+        for (u, f0) in [(50.0, 85.0), (9.5, 80.0), (8.0, 75.0)] {
+            let h = 1e-4;
+            let at = |d: f64| m.peek(&st, u, f0 + df * d, df, 61.8);
+            let (a, mid, b) = (at(-h), at(0.0), at(h));
+            assert!(mid.smooth_in.is_some() && mid.linear_in.is_none());
+            let fd = (b.dx - a.dx) / (2.0 * h);
+            assert!(
+                (fd - mid.ddx).abs() < 1e-6 * (1.0 + fd.abs()),
+                "u {u}: {fd} vs {}",
+                mid.ddx
+            );
+            assert!(mid.ddx != 0.0, "u {u}: the model is curved there");
+        }
     }
 
     #[test]
