@@ -45,7 +45,7 @@ pub enum ModelError {
     TooManyOperators,
     /// A lookup table needs at least two knots and at most [`crate::q::MAX_TABLE_LEN`].
     TableLength,
-    /// The knot spacing `2^shift` LSB is outside `1..=2^16` LSB (at most one unit).
+    /// The knot spacing `2^shift` LSB is outside `2..=2^16` LSB (at most one unit).
     TableSpacing,
     /// The table's last knot lies beyond the signal range.
     TableSpan,
@@ -82,7 +82,7 @@ impl ModelError {
             }
             Self::TooManyOperators => "more play operators than the core supports",
             Self::TableLength => "a lookup table needs 2..=4096 knots",
-            Self::TableSpacing => "table knot spacing outside 1..=2^16 LSB (at most one unit)",
+            Self::TableSpacing => "table knot spacing outside 2..=2^16 LSB (at most one unit)",
             Self::TableSpan => "table span leaves the signal range",
             Self::TableNotMonotone { .. } => "table values are not monotone",
             Self::TableTooSteep { .. } => {

@@ -2,10 +2,12 @@
 //!
 //! The firmware's `f_F` (preload vs stack extension), `f_K` (stage output vs stack
 //! extension) and `f_K⁻¹` live in flash as tables whose knot spacing is a power of
-//! two in raw `I16F16` units, so finding the interval is a shift and the
-//! interpolation weight a mask: no multiply for the index, no division, no search.
-//! Each interval is stored as its start value and its rise ([`Segment`]), so an
-//! evaluation is one bounds test, one double-word load and one multiply-add.
+//! two in raw `I16F16` units: one 32 × 32 → 64-bit multiply of the offset from the
+//! first knot by `2^(32 - shift)` puts the interval index in the high word and the
+//! position inside the interval, as a 32-bit fraction, in the low word. No division,
+//! no search, no variable shift. Each interval is stored as its start value and its
+//! rise ([`Segment`]), so an evaluation is that multiply, one bounds test, one
+//! double-word load and one rounding multiply-accumulate.
 //! The grids are chosen and filled by the host tool (`fpi export`) and quantised
 //! by `build.rs`.
 
@@ -15,6 +17,10 @@ use fixed::types::I16F16;
 
 /// Largest knot spacing, as `log2` of raw LSB: one unit (µm or N).
 pub const MAX_SHIFT: u32 = 16;
+
+/// Smallest knot spacing, as `log2` of raw LSB: 2 LSB (30 pm or 30 µN), so that
+/// `2^(32 - shift)` fits 32 bits.
+pub const MIN_SHIFT: u32 = 1;
 
 /// Largest rise of one interval, raw: half a unit, so the interpolation product
 /// (rise × 16-bit fraction) fits 32 bits.
@@ -61,17 +67,18 @@ impl Segment {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Table<'a> {
     x0: I16F16,
-    shift: u32,
-    /// `MAX_SHIFT - shift`: moves the bits below the knot index up to bit 15.
-    up: u32,
+    /// `2^(32 - shift)`: multiplying the offset from `x0` by it splits the offset
+    /// into interval index (high word) and fraction (low word).
+    scale: u32,
     segments: &'a [Segment],
     /// The last knot's value (held beyond the grid).
     end: I16F16,
+    shift: u32,
 }
 
 impl<'a> Table<'a> {
     /// Validates and builds a table: `1..4096` segments, spacing `2^shift` LSB with
-    /// `shift <= 16` (at most one unit), the last knot inside the signal range,
+    /// `1 <= shift <= 16` (2 LSB to one unit), the last knot inside the signal range,
     /// rises of one sign (monotone; flat runs allowed) and below half a unit, and
     /// each segment starting where the previous one ends.
     pub const fn new(x0: I16F16, shift: u32, segments: &'a [Segment]) -> Result<Self, ModelError> {
@@ -79,7 +86,7 @@ impl<'a> Table<'a> {
         if n < 1 || n >= MAX_TABLE_LEN {
             return Err(ModelError::TableLength);
         }
-        if shift > MAX_SHIFT {
+        if shift < MIN_SHIFT || shift > MAX_SHIFT {
             return Err(ModelError::TableSpacing);
         }
         let last = x0.to_bits() as i64 + ((n as i64) << shift);
@@ -120,28 +127,32 @@ impl<'a> Table<'a> {
         }
         Ok(Self {
             x0,
-            shift,
-            up: MAX_SHIFT - shift,
+            scale: 1 << (32 - shift),
             segments,
             end: I16F16::from_bits(value as i32),
+            shift,
         })
     }
 
     /// Interpolates at `x`; holds the end values outside the grid. No panic, no division.
     ///
-    /// The offset from the first knot splits into the interval index (a shift) and
-    /// the position inside it, normalised to a 16-bit fraction; its product with
-    /// the interval's rise (< 2^15) is exact in 32 bits and rounded once.
+    /// The offset `d` from the first knot (0 below the grid; exact as `u32`, since
+    /// `x > x0` cannot wrap) times `2^(32 - shift)` is `k·2^32 + φ·2^32`: interval
+    /// `k`, fraction `φ` of the spacing. With `|rise| < 2^15` and `φ` taken to 31
+    /// bits, `start + round(rise·φ)` is one rounding multiply-accumulate (`smmlar`);
+    /// `φ` has at most 16 significant bits, so the rounding is exact:
+    /// `⌊rise·φ + ½⌋`.
     #[inline]
     pub fn eval(&self, x: I16F16) -> I16F16 {
-        let d = x.to_bits().saturating_sub(self.x0.to_bits());
-        let d = (d & !(d >> 31)) as u32; // below the grid: the first knot
-        let k = d.wrapping_shr(self.shift) as usize;
-        match self.segments.get(k) {
+        let (x, x0) = (x.to_bits(), self.x0.to_bits());
+        let d = if x < x0 { 0 } else { x.wrapping_sub(x0) as u32 };
+        let p = d as u64 * self.scale as u64;
+        match self.segments.get((p >> 32) as usize) {
             Some(s) => {
-                // Fraction in 2^-16: the bits below the interval index moved up to bit 15.
-                let f = (d.wrapping_shl(self.up) & 0xFFFF) as i32;
-                I16F16::from_bits(s.start.to_bits() + ((s.rise.to_bits() * f + (1 << 15)) >> 16))
+                let phi = ((p as u32) >> 1) as i64; // φ·2^31, in [0, 2^31)
+                let rise = (s.rise.to_bits() << 1) as i64; // 2·rise, |2·rise| < 2^16
+                let step = ((rise * phi + (1 << 31)) >> 32) as i32;
+                I16F16::from_bits(s.start.to_bits() + step)
             }
             None => self.end,
         }
@@ -196,6 +207,50 @@ mod tests {
         assert_eq!(t.eval(I16F16::MAX), v(0.75));
     }
 
+    /// The multiply-split evaluation equals the plain one: index by a shift,
+    /// 16-bit fraction by a mask, `start + ⌊rise·f/2^16 + ½⌋`.
+    #[test]
+    fn evaluation_is_exact_for_every_spacing() {
+        let plain = |t: &Table<'_>, x: I16F16| -> I16F16 {
+            let d = (x.to_bits() as i64 - t.x_min().to_bits() as i64).max(0);
+            let k = (d >> t.shift()) as usize;
+            match t.segments().get(k) {
+                Some(s) => {
+                    let f = (d << (16 - t.shift())) & 0xFFFF;
+                    let r = (s.rise.to_bits() as i64 * f + (1 << 15)) >> 16;
+                    I16F16::from_bits(s.start.to_bits() + r as i32)
+                }
+                None => t.last(),
+            }
+        };
+        // Rises of both signs up to the largest allowed, on every spacing.
+        let values: [I16F16; 6] = [-3.0, -2.5000153, -2.0000306, -1.9, -1.41, -1.4].map(v);
+        let segs: [Segment; 5] = Segment::between(&values);
+        let down: [Segment; 5] = Segment::between(&values.map(|x| I16F16::from_bits(-x.to_bits())));
+        let mut seed = 0x2545_f491u32;
+        for shift in MIN_SHIFT..=MAX_SHIFT {
+            for segs in [&segs, &down] {
+                let t = Table::new(v(-7.25), shift, segs).unwrap();
+                let (lo, hi) = (t.x_min().to_bits(), t.x_max().to_bits());
+                let span = (hi - lo) as u32;
+                for k in 0..4000u32 {
+                    seed ^= seed << 13;
+                    seed ^= seed >> 17;
+                    seed ^= seed << 5;
+                    let x = match k {
+                        0 => i32::MIN,
+                        1 => i32::MAX,
+                        2 => lo,
+                        3 => hi,
+                        _ => lo - 3 + (seed % (span + 7)) as i32,
+                    };
+                    let x = I16F16::from_bits(x);
+                    assert_eq!(t.eval(x), plain(&t, x), "shift {shift} x {x}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn decreasing_tables_work_too() {
         let segs: [Segment; 3] = Segment::between(&[v(5.0), v(4.75), v(4.75), v(4.5)]);
@@ -227,6 +282,10 @@ mod tests {
         );
         assert_eq!(
             Table::new(v(0.0), 17, &steep[..1]).unwrap_err(),
+            ModelError::TableSpacing
+        );
+        assert_eq!(
+            Table::new(v(0.0), 0, &steep[..1]).unwrap_err(),
             ModelError::TableSpacing
         );
         assert_eq!(
