@@ -47,6 +47,33 @@ impl Interval {
     }
 }
 
+/// A validated interval (`lo <= hi`) as its lower end and its span, raw bits: `x`
+/// lies in it iff `(x - lo) mod 2^32 <= span`, one unsigned compare.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Window {
+    lo: i32,
+    span: u32,
+}
+
+impl Window {
+    /// `None` if the interval is inverted.
+    const fn new(i: Interval) -> Option<Self> {
+        let (lo, hi) = (i.lo.to_bits(), i.hi.to_bits());
+        if lo > hi {
+            return None;
+        }
+        Some(Self {
+            lo,
+            span: hi.wrapping_sub(lo) as u32,
+        })
+    }
+
+    #[inline(always)]
+    fn contains(&self, x: fixed::types::I16F16) -> bool {
+        (x.to_bits().wrapping_sub(self.lo) as u32) <= self.span
+    }
+}
+
 /// Where the preload in `u = PI⁻¹[…] + k_f·F` comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -101,6 +128,8 @@ pub struct ControllerConfig<'a, const N: usize, const C: usize = 0> {
     limits: OutputLimits,
     reference: Interval,
     force: Interval,
+    reference_window: Window,
+    force_window: Window,
     force_tolerance: Newtons,
     safe_voltage: Volts,
     force_source: ForceSource,
@@ -136,9 +165,11 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
     /// the `f_K⁻¹` grid, the safe voltage inside the limits, a positive tolerance.
     pub const fn new(p: ControllerParts<'a, N, C>) -> Result<Self, ModelError> {
         let (rl, rh) = (p.reference.lo.to_bits(), p.reference.hi.to_bits());
-        if rl > rh || p.force.lo.to_bits() > p.force.hi.to_bits() {
+        let (Some(reference_window), Some(force_window)) =
+            (Window::new(p.reference), Window::new(p.force))
+        else {
             return Err(ModelError::LimitsInverted);
-        }
+        };
         if rl < p.f_k_inv.x_min().to_bits() || rh > p.f_k_inv.x_max().to_bits() {
             return Err(ModelError::TableSpan);
         }
@@ -157,6 +188,8 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
             limits: p.limits,
             reference: p.reference,
             force: p.force,
+            reference_window,
+            force_window,
             force_tolerance: p.force_tolerance,
             safe_voltage: p.safe_voltage,
             force_source: p.force_source,
@@ -172,7 +205,7 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
         let at_rest = st.voltage == self.safe_voltage && st.fault.is_none();
         if at_rest
             && matches!(self.force_source, ForceSource::Measured)
-            && self.force.contains(force)
+            && self.force_window.contains(force)
         {
             st.force_ref = force;
             true
@@ -309,18 +342,19 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
         x_ref: Micrometres,
         force: Newtons,
     ) -> Option<Fault> {
-        if st.fault.is_none() {
-            st.fault = if MEASURED && !self.force.contains(force) {
-                Some(Fault::ForceOutOfRange)
-            } else if MEASURED && (force - self.f_f.eval(st.x_pea_est)).abs() > self.force_tolerance
-            {
-                Some(Fault::ForceImplausible)
-            } else if !self.reference.contains(x_ref) {
-                Some(Fault::ReferenceUnreachable)
-            } else {
-                None
-            };
+        if st.fault.is_some() {
+            return st.fault;
         }
+        let fault = if MEASURED && !self.force_window.contains(force) {
+            Fault::ForceOutOfRange
+        } else if MEASURED && (force - self.f_f.eval(st.x_pea_est)).abs() > self.force_tolerance {
+            Fault::ForceImplausible
+        } else if !self.reference_window.contains(x_ref) {
+            Fault::ReferenceUnreachable
+        } else {
+            return None;
+        };
+        st.fault = Some(fault);
         st.fault
     }
 
@@ -333,7 +367,8 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
     ) -> StepOutput {
         let (voltage, _) = self.limits.apply(st.voltage, self.safe_voltage);
         // Trust the sensor for the estimate only if it is in range.
-        let f = if matches!(self.force_source, ForceSource::Measured) && self.force.contains(force)
+        let f = if matches!(self.force_source, ForceSource::Measured)
+            && self.force_window.contains(force)
         {
             force
         } else {
