@@ -5,8 +5,9 @@
 //! lock-free SPSC queue. The ISR never blocks and never allocates.
 //!
 //! **Deadline.** One period of the control rate (50 µs at 20 kHz). The control step
-//! itself costs ~300 instructions for 10 operators (`cargo isr-bench`), about 2 µs
-//! at 168 MHz; reading the ADC, writing the DAC and the telemetry add a few dozen.
+//! costs at most 335 instructions for 10 paper-FPI operators and 502 for the
+//! embedded model (`cargo isr-bench`), about 2–3 µs at 168 MHz; the whole tick with
+//! reference, ADC, DAC and enable line at most 745.
 
 use core::cell::Cell;
 use core::sync::atomic::{AtomicU32, Ordering};
