@@ -22,8 +22,9 @@ pub const MAX_SHIFT: u32 = 16;
 /// `2^(32 - shift)` fits 32 bits.
 pub const MIN_SHIFT: u32 = 1;
 
-/// Largest rise of one interval, raw: half a unit, so the interpolation product
-/// (rise × 16-bit fraction) fits 32 bits.
+/// Largest rise of one interval, raw: half a unit. It keeps every interval fine
+/// (`fpi export` refines the grid until it holds) and `2·rise` within 16 bits, so
+/// the interpolation product `2·rise × 31-bit fraction` stays far inside 64 bits.
 pub const MAX_KNOT_STEP: i32 = 1 << 15;
 
 /// One interval of a table: the value at its first knot and the rise to the next.

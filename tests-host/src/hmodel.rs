@@ -683,13 +683,19 @@ mod tests {
         m
     }
 
-    #[test]
-    fn peek_derivative_matches_finite_differences() {
+    /// The efpi model after a short history with reversals (operators held apart).
+    fn efpi_driven() -> (HostModel, ModelState) {
         let m = efpi();
         let mut st = m.state(2e-4);
         for u in [20.0, 60.0, 45.0] {
             m.step(&mut st, u, 80.0, 61.8);
         }
+        (m, st)
+    }
+
+    #[test]
+    fn peek_derivative_matches_finite_differences() {
+        let (m, st) = efpi_driven();
         let (f0, df) = (85.0, 4.5);
         let h = 1e-6;
         let a = m.peek(&st, 50.0, f0 - df * h, df, 61.8);
@@ -702,11 +708,7 @@ mod tests {
 
     #[test]
     fn peek_curvature_matches_finite_differences() {
-        let m = efpi();
-        let mut st = m.state(2e-4);
-        for u in [20.0, 60.0, 45.0] {
-            m.step(&mut st, u, 80.0, 61.8);
-        }
+        let (m, st) = efpi_driven();
         // Deep in the stroke, and at the soft dead zone's edge (e ≈ 1 V), where the
         // curvature is largest.
         let df = 4.5;
