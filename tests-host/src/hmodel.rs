@@ -504,22 +504,23 @@ impl HostModel {
     /// slope there `dforce` (N/µm), and the compliance reference `force_ref` (N).
     pub fn peek(&self, st: &ModelState, u: f64, force: f64, dforce: f64, force_ref: f64) -> Peek {
         let p = &self.pi;
-        // Effective voltage and its derivative along the extension guess.
-        let (e, de) = if self.kind.uses_force() && self.kind != Kind::Ldpi {
+        // Effective voltage and its first and second derivatives along the extension
+        // guess (the preload map is linear in one FEM segment; U_p is quadratic in F).
+        let (e, de, dde) = if self.kind.uses_force() && self.kind != Kind::Ldpi {
             let (up, dup) = self.preload_offset(force);
-            (u - up, -dup * dforce)
+            let ddup = 2.0 * self.coupling.k_q_v_per_n2;
+            (u - up, -dup * dforce, -ddup * dforce * dforce)
         } else {
-            (u, 0.0)
+            (u, 0.0, 0.0)
         };
         let softness = self.dead_zone_softness_v;
         let (g, dg) = dead_zone(softness, e);
-        let clamped = g < 0.0 || g > p.input_max_v;
-        let (uh, duh) = if g < 0.0 {
-            (0.0, 0.0)
+        let (uh, duh, clamped) = if g < 0.0 {
+            (0.0, 0.0, true)
         } else if g > p.input_max_v {
-            (p.input_max_v, 0.0)
+            (p.input_max_v, 0.0, true)
         } else {
-            (g, dg * de)
+            (g, dg * de, false)
         };
         let piecewise_linear = softness <= 0.0 && self.output == OutputMap::Identity;
         // The e-interval of this linear piece: the dead-zone edge and the domain end…
@@ -583,16 +584,10 @@ impl HostModel {
         } else {
             0.0
         };
-        // Second derivative inside a smooth piece: the preload map is linear there
-        // (one FEM segment), U_p quadratic in F, the PI linear in û, so the curvature
-        // comes from U_p, the soft dead zone and the output map.
+        // Second derivative inside a smooth piece: the PI is linear in û there, so the
+        // curvature comes from U_p (through `dde`), the soft dead zone and the output map.
         let dy = slope * duh + dy_w;
         let ddx = if smooth_inside {
-            let dde = if self.kind == Kind::Ldpi {
-                0.0
-            } else {
-                -2.0 * self.coupling.k_q_v_per_n2 * dforce * dforce
-            };
             let ddg = if softness > 0.0 {
                 dg * (1.0 - dg) / softness
             } else {
