@@ -23,7 +23,7 @@
 use crate::error::ModelError;
 use crate::fpi::{CreepMemory, Fpi};
 use crate::limits::OutputLimits;
-use crate::play::PlayBank;
+use crate::play::{Bottom, PlayBank, Top};
 use crate::q::{
     narrow_inv_gain, InvGainAcc, Micrometres, Newtons, Volts, VoltsPerUm, INV_GAIN_FRAC,
     SIGNAL_ABS_MAX_BITS,
@@ -224,7 +224,7 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
     pub const fn initial_state(&self) -> ControllerState<N, C> {
         ControllerState {
             inverse: PlayBank::new(),
-            forward: PlayBank::new(),
+            forward: PlayBank::at_rest(self.fpi.pi().bank()),
             creep: CreepMemory::new(),
             force_ref: self.fpi.coupling().force_ref,
             voltage: self.safe_voltage,
@@ -453,10 +453,14 @@ pub struct StepOutput {
 }
 
 /// The controller's memory: both operator banks, the last output, the fault latch.
+///
+/// The two banks keep their gaps to opposite edges ([`crate::play::Edge`]): they
+/// move in the same direction, so each step pays one cheap and one dearer update
+/// per operator pair.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ControllerState<const N: usize, const C: usize = 0> {
-    inverse: PlayBank<N>,
-    forward: PlayBank<N>,
+    inverse: PlayBank<N, Top>,
+    forward: PlayBank<N, Bottom>,
     creep: CreepMemory<C>,
     force_ref: Newtons,
     voltage: Volts,
@@ -483,11 +487,11 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
         self.limited_steps
     }
     /// The forward (virtual sensor) bank.
-    pub const fn forward_bank(&self) -> &PlayBank<N> {
+    pub const fn forward_bank(&self) -> &PlayBank<N, Bottom> {
         &self.forward
     }
     /// The inverse (compensator) bank.
-    pub const fn inverse_bank(&self) -> &PlayBank<N> {
+    pub const fn inverse_bank(&self) -> &PlayBank<N, Top> {
         &self.inverse
     }
     /// The creep memories.

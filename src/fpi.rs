@@ -38,7 +38,7 @@
 use crate::error::ModelError;
 use crate::inverse::InversePi;
 use crate::pi::PiModel;
-use crate::play::PlayBank;
+use crate::play::{Edge, PlayBank};
 use crate::q::{
     coupling_mul, quad_mul, within, CreepRate, GainAcc, Micrometres, Newtons, UmPerNewton,
     UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2, GAIN_FRAC, QUAD_MAX_BITS,
@@ -295,15 +295,15 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
     /// Forward model: applied voltage `u` (V) under force terms `t` → stack
     /// extension (µm). Advances the forward bank and the creep memories.
     #[inline(always)]
-    pub fn forward(
+    pub fn forward<E: Edge>(
         &self,
-        bank: &mut PlayBank<N>,
+        bank: &mut PlayBank<N, E>,
         creep: &mut CreepMemory<C>,
         u: Volts,
         t: &ForceTerms,
     ) -> Micrometres {
         let uh = self.effective(u, t);
-        let mut acc = self.pi.w0().wide_mul(uh).to_bits() + bank.advance(self.pi.operators(), uh);
+        let mut acc = bank.advance(self.pi.bank(), uh);
         for (m, c) in creep.m.iter_mut().zip(&self.creep) {
             // m += (1 - a)(û - m), with m's top 32 bits as the difference's m.
             let m_hi = (*m >> 32) as i32;
@@ -324,9 +324,9 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
     /// The PI target is clamped to the PI output range; the caller applies the
     /// actuator limits to the result.
     #[inline(always)]
-    pub fn inverse(
+    pub fn inverse<E: Edge>(
         &self,
-        bank: &mut PlayBank<N>,
+        bank: &mut PlayBank<N, E>,
         creep: &CreepMemory<C>,
         x_pea: Micrometres,
         t: &ForceTerms,
@@ -339,9 +339,9 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
     /// voltage returned then drives the stack slightly harder than the inverse
     /// memory assumes, and the caller should realign it ([`Self::resync`]).
     #[inline(always)]
-    pub fn inverse_checked(
+    pub fn inverse_checked<E: Edge>(
         &self,
-        bank: &mut PlayBank<N>,
+        bank: &mut PlayBank<N, E>,
         creep: &CreepMemory<C>,
         x_pea: Micrometres,
         t: &ForceTerms,
@@ -368,7 +368,7 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
 
     /// Realigns the inverse bank with the forward bank (see [`InversePi::resync`]).
     #[inline]
-    pub fn resync(&self, forward: &PlayBank<N>, inverse: &mut PlayBank<N>) {
+    pub fn resync<F: Edge, E: Edge>(&self, forward: &PlayBank<N, F>, inverse: &mut PlayBank<N, E>) {
         self.inverse.resync(&self.pi_prime, forward, inverse);
     }
 

@@ -18,7 +18,7 @@
 
 use crate::error::ModelError;
 use crate::pi::PiModel;
-use crate::play::{Operator, PlayBank};
+use crate::play::{Edge, Operator, Operators, PlayBank};
 use crate::q::{
     narrow_inv_gain, within, InvGainAcc, Micrometres, Volts, VoltsPerUm, GAIN_FRAC, INV_GAIN_FRAC,
     SIGNAL_ABS_MAX_BITS, SIGNAL_FRAC,
@@ -34,7 +34,7 @@ use crate::q::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct InversePi<const N: usize> {
     w0: VoltsPerUm,
-    ops: [Operator<VoltsPerUm>; N],
+    ops: Operators<VoltsPerUm, N>,
     input_max: Micrometres,
     output_max: Volts,
 }
@@ -61,6 +61,8 @@ impl<const N: usize> InversePi<N> {
             return Err(ModelError::InverseWeightOutOfRange { index: 0 });
         }
         let mut abs_sum = inv_w0;
+        let mut slope = inv_w0; // w0' + Σ w'_j, INV_GAIN_FRAC bits
+        let mut offset = 0i128; // Σ w'_j r'_j, INV_GAIN_FRAC + SIGNAL_FRAC bits
         let mut ops = [Operator {
             threshold: Micrometres::ZERO,
             weight: VoltsPerUm::ZERO,
@@ -86,6 +88,8 @@ impl<const N: usize> InversePi<N> {
             }
             ops[j].weight = VoltsPerUm::from_bits(wp as i32);
             abs_sum += if wp < 0 { -wp } else { wp };
+            slope += wp;
+            offset += wp * rp;
             s_prev = s;
             j += 1;
         }
@@ -97,9 +101,14 @@ impl<const N: usize> InversePi<N> {
         if abs_sum * input_max.to_bits() as i128 >= (SIGNAL_ABS_MAX_BITS as i128) << INV_GAIN_FRAC {
             return Err(ModelError::OutputOutOfRange);
         }
+        // The final slope 1/S_N must be a weight too (the gap form's Σ w'·x).
+        if slope > i32::MAX as i128 || slope < i32::MIN as i128 {
+            return Err(ModelError::InverseWeightOutOfRange { index: 0 });
+        }
         Ok(Self {
             w0: VoltsPerUm::from_bits(inv_w0 as i32),
-            ops,
+            // |offset| <= sum|w'| * x_max, bounded just above.
+            ops: Operators::from_parts(ops, slope as i32, offset as i64),
             input_max,
             output_max: fwd.input_max(),
         })
@@ -111,10 +120,9 @@ impl<const N: usize> InversePi<N> {
     /// `x` is clamped to `[0, input_max]`; `u` then lies in `[0, output_max]` up to
     /// rounding (a few LSB; the caller's actuator limits bound it). No division, no panic.
     #[inline(always)]
-    pub fn apply(&self, state: &mut PlayBank<N>, x: Micrometres) -> Volts {
+    pub fn apply<E: Edge>(&self, state: &mut PlayBank<N, E>, x: Micrometres) -> Volts {
         let x = within(x, Micrometres::ZERO, self.input_max);
-        let sum = state.advance(&self.ops, x);
-        narrow_inv_gain(InvGainAcc::from_bits(self.w0.wide_mul(x).to_bits() + sum))
+        narrow_inv_gain(InvGainAcc::from_bits(state.advance(&self.ops, x)))
     }
 
     /// Sets the inverse operators to the state that matches a forward bank:
@@ -123,27 +131,31 @@ impl<const N: usize> InversePi<N> {
     ///
     /// Called when the output limiter changed the voltage; `fwd` must be the model
     /// this inverse was built from. N multiply-adds, no division.
-    pub fn resync(&self, fwd: &PiModel<N>, fwd_state: &PlayBank<N>, state: &mut PlayBank<N>) {
+    pub fn resync<F: Edge, E: Edge>(
+        &self,
+        fwd: &PiModel<N>,
+        fwd_state: &PlayBank<N, F>,
+        state: &mut PlayBank<N, E>,
+    ) {
         let ops = fwd.operators();
         // S_N in GAIN_FRAC bits: |S_j| <= sum|w| fits an i32 (checked by PiModel::new).
         let w0 = fwd.w0().to_bits();
-        let mut s: i32 = w0;
-        for op in ops {
-            s = s.wrapping_add(op.weight.to_bits());
-        }
+        let s = fwd.bank().slope();
         let round =
             |v: i64| Micrometres::from_bits(((v + (1 << (GAIN_FRAC - 1))) >> GAIN_FRAC) as i32);
+        let mut z = [Micrometres::ZERO; N];
+        let mut s = s;
         let mut tail: i64 = 0; // Σ_{i>j} w_i y_i, GAIN + SIGNAL bits
-        for (op, (z, y)) in ops.iter().zip(state.y.iter_mut().zip(&fwd_state.y)).rev() {
-            let y = y.to_bits();
+        for (j, (op, z)) in ops.iter().zip(z.iter_mut()).enumerate().rev() {
+            let y = fwd_state.output(fwd.bank(), j).to_bits();
             *z = round(s as i64 * y as i64 + tail);
             let wj = op.weight.to_bits();
             tail += wj as i64 * y as i64;
             s = s.wrapping_sub(wj);
         }
         // The inverse bank's last input is the forward output Y = w0·û + Σ w_i y_i.
-        let x = round(w0 as i64 * fwd_state.last.to_bits() as i64 + tail);
-        state.last = within(x, Micrometres::ZERO, self.input_max);
+        let x = round(w0 as i64 * fwd_state.last().to_bits() as i64 + tail);
+        state.set(&self.ops, within(x, Micrometres::ZERO, self.input_max), &z);
     }
 
     /// `1/w0`, V/µm.
@@ -152,15 +164,19 @@ impl<const N: usize> InversePi<N> {
     }
     /// The operators: thresholds `r'_j` (µm) with their weights `w'_j` (V/µm).
     pub const fn operators(&self) -> &[Operator<VoltsPerUm>; N] {
+        self.ops.ops()
+    }
+    /// The operators with the sums their banks need.
+    pub const fn bank(&self) -> &Operators<VoltsPerUm, N> {
         &self.ops
     }
     /// Thresholds `r'_j`, µm.
     pub fn thresholds(&self) -> [Micrometres; N] {
-        self.ops.map(|o| o.threshold)
+        self.ops.ops().map(|o| o.threshold)
     }
     /// Weights `w'_j`, V/µm.
     pub fn weights(&self) -> [VoltsPerUm; N] {
-        self.ops.map(|o| o.weight)
+        self.ops.ops().map(|o| o.weight)
     }
     /// Upper end of the input domain (the forward model's largest output), µm.
     pub const fn input_max(&self) -> Micrometres {
@@ -228,11 +244,12 @@ mod tests {
             i.apply(&mut is, x);
             let mut synced = PlayBank::new();
             i.resync(&f, &fs, &mut synced);
+            let (a, b) = (synced.outputs(i.bank()), is.outputs(i.bank()));
             for j in 0..4 {
-                let d = (synced.y[j] - is.y[j]).to_num::<f64>().abs();
+                let d = (a[j] - b[j]).to_num::<f64>().abs();
                 assert!(d < 1e-4, "u={u} j={j} d={d}");
             }
-            let d = (synced.last - is.last).to_num::<f64>().abs();
+            let d = (synced.last() - is.last()).to_num::<f64>().abs();
             assert!(d < 1e-4, "u={u}: last differs by {d}");
         }
     }

@@ -2,7 +2,7 @@
 //! `Y[u] = w0·u + Σ w_i·G_{r_i}[u]`.
 
 use crate::error::ModelError;
-use crate::play::{Operator, PlayBank};
+use crate::play::{Edge, Operator, Operators, PlayBank};
 use crate::q::{
     self, narrow_gain, within, GainAcc, Micrometres, UmPerVolt, Volts, GAIN_FRAC, MAX_OPERATORS,
     SIGNAL_ABS_MAX_BITS,
@@ -23,7 +23,7 @@ use crate::q::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PiModel<const N: usize> {
     w0: UmPerVolt,
-    ops: [Operator<UmPerVolt>; N],
+    ops: Operators<UmPerVolt, N>,
     input_max: Volts,
     output_max: Micrometres,
 }
@@ -48,6 +48,7 @@ impl<const N: usize> PiModel<N> {
             return Err(ModelError::NonPositiveSlope { index: 0 });
         }
         let mut abs_sum = slope;
+        let mut offset = 0i64; // Σ w_i r_i, GAIN_FRAC + SIGNAL_FRAC bits
         let mut prev = 0i64;
         let mut ops = [Operator {
             threshold: Volts::ZERO,
@@ -72,6 +73,7 @@ impl<const N: usize> PiModel<N> {
             prev = r;
             let w = weights[i].to_bits() as i64;
             slope += w;
+            offset += w * r;
             if slope <= 0 {
                 return Err(ModelError::NonPositiveSlope {
                     index: (i + 1) as u8,
@@ -97,7 +99,8 @@ impl<const N: usize> PiModel<N> {
         }
         Ok(Self {
             w0,
-            ops,
+            // |slope| <= sum|w| fits an i32 (checked above).
+            ops: Operators::from_parts(ops, slope as i32, offset),
             input_max,
             output_max: narrow_gain(acc),
         })
@@ -109,8 +112,8 @@ impl<const N: usize> PiModel<N> {
         let mut w = [UmPerVolt::ZERO; N];
         let mut i = 0;
         while i < N {
-            r[i] = self.ops[i].threshold;
-            w[i] = self.ops[i].weight;
+            r[i] = self.ops.ops()[i].threshold;
+            w[i] = self.ops.ops()[i].weight;
             i += 1;
         }
         Self::new(w0, r, w, self.input_max)
@@ -138,10 +141,9 @@ impl<const N: usize> PiModel<N> {
     ///
     /// `u` is clamped to `[0, input_max]`. No division, no panic, one rounding.
     #[inline(always)]
-    pub fn apply(&self, state: &mut PlayBank<N>, u: Volts) -> Micrometres {
+    pub fn apply<E: Edge>(&self, state: &mut PlayBank<N, E>, u: Volts) -> Micrometres {
         let u = within(u, Volts::ZERO, self.input_max);
-        let sum = state.advance(&self.ops, u);
-        narrow_gain(GainAcc::from_bits(self.w0.wide_mul(u).to_bits() + sum))
+        narrow_gain(GainAcc::from_bits(state.advance(&self.ops, u)))
     }
 
     /// `Y` of the current operator states for input `u`, without changing them.
@@ -149,7 +151,7 @@ impl<const N: usize> PiModel<N> {
     /// The output the model would give if `u` were applied now; used by solvers that
     /// must commit the operator state only for the solution of an implicit equation.
     #[inline]
-    pub fn peek(&self, state: &PlayBank<N>, u: Volts) -> Micrometres {
+    pub fn peek<E: Edge>(&self, state: &PlayBank<N, E>, u: Volts) -> Micrometres {
         let mut scratch = *state;
         self.apply(&mut scratch, u)
     }
@@ -160,15 +162,19 @@ impl<const N: usize> PiModel<N> {
     }
     /// The operators: thresholds `r_i` (V) with their weights `w_i` (µm/V).
     pub const fn operators(&self) -> &[Operator<UmPerVolt>; N] {
+        self.ops.ops()
+    }
+    /// The operators with the sums their banks need.
+    pub const fn bank(&self) -> &Operators<UmPerVolt, N> {
         &self.ops
     }
     /// Thresholds `r_i`, V.
     pub fn thresholds(&self) -> [Volts; N] {
-        self.ops.map(|o| o.threshold)
+        self.ops.ops().map(|o| o.threshold)
     }
     /// Weights `w_i`, µm/V.
     pub fn weights(&self) -> [UmPerVolt; N] {
-        self.ops.map(|o| o.weight)
+        self.ops.ops().map(|o| o.weight)
     }
     /// Upper end of the input domain, V.
     pub const fn input_max(&self) -> Volts {

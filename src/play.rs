@@ -49,26 +49,91 @@ impl Weight for I10F22 {
     }
 }
 
-/// Outputs of `N` play operators and the last input: the memory of a PI model
-/// (state, not configuration).
+/// The operators of one PI model with the two sums the gap form of its bank needs
+/// (configuration, built once with the model).
 ///
-/// The unit is that of the bank's input: V for a forward bank, µm for an inverse
-/// bank, `I16F16`. All operators start at rest (0), the state of a stack that has
-/// not been driven since it was zeroed.
+/// * `slope` — `w0 + Σ w_i`, raw bits of the weight type `W` (checked by the
+///   model's constructor to fit an `i32`).
+/// * `offset` — `Σ w_i·r_i`, raw bits with the weight's plus the signal's
+///   fractional bits (exact).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct PlayBank<const N: usize> {
-    /// Operator outputs.
-    pub y: [I16F16; N],
-    /// The last input the bank saw.
-    pub last: I16F16,
+pub struct Operators<W, const N: usize> {
+    ops: [Operator<W>; N],
+    slope: i32,
+    offset: i64,
 }
 
-impl<const N: usize> PlayBank<N> {
-    /// All operators at rest.
+impl<W: Copy, const N: usize> Operators<W, N> {
+    /// Bundles the operators with `slope = w0 + Σ w_i` and `offset = Σ w_i·r_i`
+    /// (raw bits); the model constructors compute both.
+    pub const fn from_parts(ops: [Operator<W>; N], slope: i32, offset: i64) -> Self {
+        Self { ops, slope, offset }
+    }
+    /// The operators, thresholds sorted.
+    pub const fn ops(&self) -> &[Operator<W>; N] {
+        &self.ops
+    }
+    /// `w0 + Σ w_i`, raw weight bits.
+    pub const fn slope(&self) -> i32 {
+        self.slope
+    }
+}
+
+/// Which edge of its band an operator's stored gap is measured from.
+///
+/// Every operator output lies in the band `[last - r, last]` of the last input.
+/// A bank stores, instead of `y`, the gap `g ∈ [0, r]` between `y` and one edge:
+///
+/// * [`Top`]: `g = last - y`. A falling input shrinks the gap, `g ← max(g - δ, 0)`;
+///   a rising one grows it, `g ← min(g + Δ, r)`.
+/// * [`Bottom`]: `g = y - (last - r)`. A rising input shrinks the gap, a falling
+///   one grows it.
+///
+/// Shrinking costs no threshold (one subtract, one sign mask); growing costs a
+/// compare with `r`. The controller's two banks move in the same direction, so
+/// it keeps one of each: per operator pair, every step pays one cheap and one
+/// dearer update, instead of two dearer ones.
+pub trait Edge: Copy + Eq + core::fmt::Debug {
+    /// `true` for [`Bottom`].
+    const BOTTOM: bool;
+}
+
+/// Gaps measured down from the top edge `last` of the band (see [`Edge`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Top;
+impl Edge for Top {
+    const BOTTOM: bool = false;
+}
+
+/// Gaps measured up from the bottom edge `last - r` of the band (see [`Edge`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Bottom;
+impl Edge for Bottom {
+    const BOTTOM: bool = true;
+}
+
+/// The memory of a PI model: the `N` operator outputs, stored as gaps to one edge
+/// of their band (`E`, see [`Edge`]), and the last input (state, not configuration).
+///
+/// The unit is that of the bank's input: V for a forward bank, µm for an inverse
+/// bank, `I16F16`; gaps lie in `[0, r_i]`. Both forms hold exactly the same
+/// outputs `y_i` ([`outputs`](Self::outputs)) and [`advance`](Self::advance) gives
+/// bit-identical results in either.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PlayBank<const N: usize, E: Edge = Top> {
+    gap: [I16F16; N],
+    last: I16F16,
+    edge: E,
+}
+
+impl<const N: usize> PlayBank<N, Top> {
+    /// All operators at rest (`y = 0` after an input of 0: every gap 0), the state
+    /// of a stack that has not been driven since it was zeroed.
     pub const fn new() -> Self {
         Self {
-            y: [I16F16::ZERO; N],
+            gap: [I16F16::ZERO; N],
             last: I16F16::ZERO,
+            edge: Top,
         }
     }
 
@@ -76,48 +141,115 @@ impl<const N: usize> PlayBank<N> {
     pub fn reset(&mut self) {
         *self = Self::new();
     }
+}
 
-    /// Advances every operator with input `u` and returns `Σ w_i·y_i` exactly (raw
-    /// bits with the weight's plus the signal's fractional bits).
+impl<const N: usize> Default for PlayBank<N, Top> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const N: usize> PlayBank<N, Bottom> {
+    /// All operators at rest for these operators (`y = 0` after an input of 0:
+    /// every gap is the threshold).
+    pub const fn at_rest<W: Copy>(ops: &Operators<W, N>) -> Self {
+        let mut gap = [I16F16::ZERO; N];
+        let mut i = 0;
+        while i < N {
+            gap[i] = ops.ops[i].threshold;
+            i += 1;
+        }
+        Self {
+            gap,
+            last: I16F16::ZERO,
+            edge: Bottom,
+        }
+    }
+}
+
+impl<const N: usize, E: Edge> PlayBank<N, E> {
+    /// The last input the bank saw.
+    pub const fn last(&self) -> I16F16 {
+        self.last
+    }
+
+    /// The gap of one operator as its output, raw bits.
+    #[inline(always)]
+    fn y_bits(last: i32, r: i32, g: i32) -> i32 {
+        if E::BOTTOM {
+            last - r + g
+        } else {
+            last - g
+        }
+    }
+
+    /// The operator outputs `y_i` (same unit as the input).
+    pub fn outputs<W: Copy>(&self, ops: &Operators<W, N>) -> [I16F16; N] {
+        core::array::from_fn(|i| self.output(ops, i))
+    }
+
+    /// The output `y_i` of operator `i` (same unit as the input); `i < N`.
+    #[inline(always)]
+    pub fn output<W: Copy>(&self, ops: &Operators<W, N>, i: usize) -> I16F16 {
+        let r = ops.ops[i].threshold.to_bits();
+        I16F16::from_bits(Self::y_bits(self.last.to_bits(), r, self.gap[i].to_bits()))
+    }
+
+    /// Sets the memory to outputs `y` after an input `last`. For a consistent
+    /// state each `y_i` lies in `[last - r_i, last]`; [`advance`](Self::advance)
+    /// then continues exactly as eq. (3) would.
+    pub fn set<W: Copy>(&mut self, ops: &Operators<W, N>, last: I16F16, y: &[I16F16; N]) {
+        let l = last.to_bits();
+        for ((g, y), op) in self.gap.iter_mut().zip(y).zip(&ops.ops) {
+            let y = y.to_bits();
+            let g_bits = if E::BOTTOM {
+                y - (l - op.threshold.to_bits())
+            } else {
+                l - y
+            };
+            *g = I16F16::from_bits(g_bits);
+        }
+        self.last = last;
+    }
+
+    /// Advances every operator with input `u` and returns `w0·u + Σ w_i·y_i`
+    /// exactly (raw bits with the weight's plus the signal's fractional bits).
     ///
     /// Eq. (3) needs a min and a max per operator, but one of them is always a
     /// no-op: every output lies in `[u_prev - r, u_prev]`, so when the input rises
     /// `min(u, y) = y` and when it falls `max(u - r, min(u, y)) = min(u, y)`. The
-    /// direction is tested once per bank, then each operator costs one compare.
-    /// Thresholds must be sorted and the state must come from this bank's history
-    /// (or [`InversePi::resync`](crate::InversePi::resync)).
+    /// direction is tested once per bank. In gap form (see [`Edge`]) the update
+    /// is then `max(g - d, 0)` or `min(g + d, r)` with `d = |u - u_prev|`, and
+    /// the sum follows from the gaps and the precomputed sums:
+    /// `Σ w_i·y_i = (Σ w_i)·u - Σ w_i·g_i` ([`Top`]) or
+    /// `(Σ w_i)·u - Σ w_i·r_i + Σ w_i·g_i` ([`Bottom`]).
     #[inline(always)]
-    pub fn advance<W: Weight>(&mut self, ops: &[Operator<W>; N], u: I16F16) -> i64 {
+    pub fn advance<W: Weight>(&mut self, ops: &Operators<W, N>, u: I16F16) -> i64 {
         let u = u.to_bits();
+        let last = self.last.to_bits();
+        let rising = u >= last;
+        let d = if rising { u - last } else { last - u };
         let mut acc = 0i64;
-        if u >= self.last.to_bits() {
-            for (op, y) in ops.iter().zip(self.y.iter_mut()) {
-                let dragged = u - op.threshold.to_bits();
-                let mut v = y.to_bits();
-                if dragged > v {
-                    v = dragged;
-                }
-                *y = I16F16::from_bits(v);
+        if rising == E::BOTTOM {
+            for (op, g) in ops.ops.iter().zip(self.gap.iter_mut()) {
+                let v = (g.to_bits() - d).max(0);
+                *g = I16F16::from_bits(v);
                 acc += op.weight.bits() as i64 * v as i64;
             }
         } else {
-            for (op, y) in ops.iter().zip(self.y.iter_mut()) {
-                let mut v = y.to_bits();
-                if u < v {
-                    v = u;
-                }
-                *y = I16F16::from_bits(v);
+            for (op, g) in ops.ops.iter().zip(self.gap.iter_mut()) {
+                let v = (g.to_bits() + d).min(op.threshold.to_bits());
+                *g = I16F16::from_bits(v);
                 acc += op.weight.bits() as i64 * v as i64;
             }
         }
         self.last = I16F16::from_bits(u);
-        acc
-    }
-}
-
-impl<const N: usize> Default for PlayBank<N> {
-    fn default() -> Self {
-        Self::new()
+        let linear = ops.slope as i64 * u as i64;
+        if E::BOTTOM {
+            linear - ops.offset + acc
+        } else {
+            linear - acc
+        }
     }
 }
 
@@ -160,30 +292,70 @@ mod tests {
         }
     }
 
-    #[test]
-    fn one_sided_update_equals_eq_3_on_any_history() {
+    fn operators() -> Operators<I4F28, 6> {
         let ops: [Operator<I4F28>; 6] = core::array::from_fn(|i| Operator {
             threshold: v([0.0, 3.0, 3.0, 10.0, 25.5, 60.0][i]),
-            weight: I4F28::from_num(0.01 * (i + 1) as f64),
+            weight: I4F28::from_num(0.01 * (i as f64 - 1.5)),
         });
-        let mut bank = PlayBank::<6>::new();
+        let w0 = I4F28::from_num(0.05).to_bits();
+        let slope = w0 + ops.iter().map(|o| o.weight.to_bits()).sum::<i32>();
+        let offset = ops
+            .iter()
+            .map(|o| o.weight.to_bits() as i64 * o.threshold.to_bits() as i64)
+            .sum();
+        Operators::from_parts(ops, slope, offset)
+    }
+
+    /// Both gap forms against eq. (3) on a wandering input with reversals of
+    /// every size and held steps: the same outputs and the same exact sum.
+    fn follows_eq_3<E: Edge>(mut bank: PlayBank<6, E>) {
+        let ops = operators();
+        let w0 = I4F28::from_num(0.05).to_bits() as i64;
         let mut plain = [v(0.0); 6];
         let mut u = 0.0f64;
         for k in 0..5000 {
-            // A wandering input with reversals of every size, held steps included.
             u = (u + 9.0 * ((k as f64) * 0.731).sin() * ((k as f64) * 0.013).cos())
                 .clamp(0.0, 150.0);
             if k % 17 == 0 {
                 u = (u * 0.5).floor();
             }
             let acc = bank.advance(&ops, v(u));
-            let mut want = 0i64;
+            let mut want = w0 * v(u).to_bits() as i64;
             for (i, p) in plain.iter_mut().enumerate() {
-                *p = osp(v(u), ops[i].threshold, *p);
-                want += ops[i].weight.to_bits() as i64 * p.to_bits() as i64;
+                *p = osp(v(u), ops.ops()[i].threshold, *p);
+                want += ops.ops()[i].weight.to_bits() as i64 * p.to_bits() as i64;
             }
-            assert_eq!(bank.y, plain, "step {k}");
-            assert_eq!(acc, want);
+            assert_eq!(bank.outputs(&ops), plain, "step {k}");
+            assert_eq!(bank.last(), v(u));
+            assert_eq!(acc, want, "step {k}");
+        }
+    }
+
+    #[test]
+    fn gaps_from_the_top_follow_eq_3_on_any_history() {
+        follows_eq_3(PlayBank::<6, Top>::new());
+    }
+
+    #[test]
+    fn gaps_from_the_bottom_follow_eq_3_on_any_history() {
+        follows_eq_3(PlayBank::<6, Bottom>::at_rest(&operators()));
+    }
+
+    #[test]
+    fn set_round_trips_through_outputs() {
+        let ops = operators();
+        let mut a = PlayBank::<6, Top>::new();
+        for u in [40.0, 12.0, 90.0, 55.0] {
+            a.advance(&ops, v(u));
+        }
+        let y = a.outputs(&ops);
+        let mut b = PlayBank::<6, Bottom>::at_rest(&ops);
+        b.set(&ops, a.last(), &y);
+        assert_eq!(b.outputs(&ops), y);
+        // Both continue identically.
+        for u in [70.0, 3.0, 150.0, 149.5] {
+            assert_eq!(a.advance(&ops, v(u)), b.advance(&ops, v(u)));
+            assert_eq!(a.outputs(&ops), b.outputs(&ops));
         }
     }
 }
