@@ -132,15 +132,32 @@ fn generate_model(path: &Path) -> Result<String, String> {
     creep.push_str("\n]");
     let map = |name: &str, section: &Option<model_file::MapSection>| -> String {
         match section {
-            Some(_) => format!("Some(Map {{ forward: {name}_FORWARD, inverse: {name}_INVERSE }})"),
-            None => "None".into(),
+            Some(_) => format!("Map {{ forward: {name}_FORWARD, inverse: {name}_INVERSE }}"),
+            None => "Identity".into(),
         }
     };
+    let shape = |section: &Option<model_file::MapSection>| match section {
+        Some(_) => "Map<'static>",
+        None => "Identity",
+    };
+    let _ = writeln!(
+        w,
+        "/// The embedded model's dead zone `g`: a soft one (`Map`) or the hard one (`Identity`).\n\
+         pub type DeadZone = {};\n\
+         /// The embedded model's output saturation `h`: a `Map`, or none (`Identity`).\n\
+         pub type Saturation = {};\n\
+         /// The embedded model's type.\n\
+         pub type Model = Fpi<'static, OPERATORS, CREEP_TERMS, DeadZone, Saturation>;\n\
+         /// The embedded controller's type.\n\
+         pub type Controller = ControllerConfig<'static, OPERATORS, CREEP_TERMS, DeadZone, Saturation>;",
+        shape(&m.dead_zone),
+        shape(&m.saturation),
+    );
     let _ = writeln!(
         w,
         "/// The FPI model: PI, the closed-form inverse (computed by the compiler), coupling,\n\
          /// dead zone, saturation and creep.\n\
-         pub const FPI: Fpi<'static, OPERATORS, CREEP_TERMS> = match Fpi::new(\n    PI,\n    Coupling {{\n        \
+         pub const FPI: Model = match Fpi::new(\n    PI,\n    Coupling {{\n        \
          offset: Volts::from_bits({}),\n        k_f: VoltsPerNewton::from_bits({}),\n        \
          k_q: VoltsPerNewton2::from_bits({}),\n        force_q: Newtons::from_bits({}),\n        \
          compliance: UmPerNewton::from_bits({}),\n        force_ref: Newtons::from_bits({}),\n    }},\n    \
@@ -214,7 +231,7 @@ fn generate_model(path: &Path) -> Result<String, String> {
     let _ = writeln!(
         w,
         "/// The control loop's configuration, in flash.\n\
-         pub static CONTROLLER: ControllerConfig<'static, OPERATORS, CREEP_TERMS> =\n    \
+         pub static CONTROLLER: Controller =\n    \
          match ControllerConfig::new(ControllerParts {{\n        \
          fpi: FPI,\n        f_f: F_F,\n        f_k: F_K,\n        f_k_inv: F_K_INV,\n        \
          limits: LIMITS,\n        \

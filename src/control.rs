@@ -21,7 +21,7 @@
 //! fault, until [`ControllerState::clear_fault`] is called once the ramp is done.
 
 use crate::error::ModelError;
-use crate::fpi::{CreepMemory, Fpi};
+use crate::fpi::{CreepMemory, Fpi, Identity, Shape};
 use crate::limits::OutputLimits;
 use crate::play::{Bottom, PlayBank, Top};
 use crate::q::{
@@ -70,7 +70,12 @@ impl Window {
 
     #[inline(always)]
     fn contains(&self, x: fixed::types::I16F16) -> bool {
-        (x.to_bits().wrapping_sub(self.lo) as u32) <= self.span
+        self.contains_bits(x.to_bits())
+    }
+
+    #[inline(always)]
+    fn contains_bits(&self, x: i32) -> bool {
+        (x.wrapping_sub(self.lo) as u32) <= self.span
     }
 }
 
@@ -120,8 +125,10 @@ impl Fault {
 
 /// Everything the control step needs that does not change while it runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ControllerConfig<'a, const N: usize, const C: usize = 0> {
-    fpi: Fpi<'a, N, C>,
+///
+/// `N`, `C`, `G` and `H` are the model's structure (see [`Fpi`]).
+pub struct ControllerConfig<'a, const N: usize, const C: usize = 0, G = Identity, H = Identity> {
+    fpi: Fpi<'a, N, C, G, H>,
     f_f: Table<'a>,
     f_k: Table<'a>,
     f_k_inv: Table<'a>,
@@ -130,6 +137,8 @@ pub struct ControllerConfig<'a, const N: usize, const C: usize = 0> {
     force: Interval,
     reference_window: Window,
     force_window: Window,
+    /// `[-tolerance, tolerance]`, for the plausibility residual `F - f_F(x_pea_est)`.
+    residual_window: Window,
     force_tolerance: Newtons,
     safe_voltage: Volts,
     force_source: ForceSource,
@@ -137,9 +146,9 @@ pub struct ControllerConfig<'a, const N: usize, const C: usize = 0> {
 
 /// The parts of a [`ControllerConfig`], named, for its constructor.
 #[derive(Debug, Clone, Copy)]
-pub struct ControllerParts<'a, const N: usize, const C: usize = 0> {
+pub struct ControllerParts<'a, const N: usize, const C: usize = 0, G = Identity, H = Identity> {
     /// The calibrated FPI model.
-    pub fpi: Fpi<'a, N, C>,
+    pub fpi: Fpi<'a, N, C, G, H>,
     /// Preload `f_F`: stack extension (µm) → force on the stack (N).
     pub f_f: Table<'a>,
     /// Kinematics `f_K`: stack extension (µm) → stage output (µm).
@@ -160,10 +169,12 @@ pub struct ControllerParts<'a, const N: usize, const C: usize = 0> {
     pub force_source: ForceSource,
 }
 
-impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
+impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
+    ControllerConfig<'a, N, C, G, H>
+{
     /// Validates the parts: intervals not inverted, the reference interval inside
     /// the `f_K⁻¹` grid, the safe voltage inside the limits, a positive tolerance.
-    pub const fn new(p: ControllerParts<'a, N, C>) -> Result<Self, ModelError> {
+    pub const fn new(p: ControllerParts<'a, N, C, G, H>) -> Result<Self, ModelError> {
         let (rl, rh) = (p.reference.lo.to_bits(), p.reference.hi.to_bits());
         let (Some(reference_window), Some(force_window)) =
             (Window::new(p.reference), Window::new(p.force))
@@ -177,9 +188,20 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
         if s < p.limits.min().to_bits() || s > p.limits.max().to_bits() {
             return Err(ModelError::LimitsInverted);
         }
-        if p.force_tolerance.to_bits() <= 0 {
+        let tol = p.force_tolerance.to_bits();
+        if tol <= 0 {
             return Err(ModelError::LimitsInverted);
         }
+        // Readings and tolerance inside the signal range keep the residual
+        // `F - f_F` (f_F is a table, inside it too) exact in 32 bits.
+        let (fl, fh) = (p.force.lo.to_bits(), p.force.hi.to_bits());
+        if fl < -SIGNAL_ABS_MAX_BITS || fh > SIGNAL_ABS_MAX_BITS || tol > SIGNAL_ABS_MAX_BITS {
+            return Err(ModelError::NotRepresentable);
+        }
+        let residual_window = Window {
+            lo: -tol,
+            span: 2 * tol as u32,
+        };
         Ok(Self {
             fpi: p.fpi,
             f_f: p.f_f,
@@ -190,6 +212,7 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
             force: p.force,
             reference_window,
             force_window,
+            residual_window,
             force_tolerance: p.force_tolerance,
             safe_voltage: p.safe_voltage,
             force_source: p.force_source,
@@ -276,19 +299,26 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
         let x_pea_est = self
             .fpi
             .forward(&mut st.forward, &mut st.creep, voltage, &terms);
+        st.voltage = voltage;
+        st.x_pea_est = x_pea_est;
         if limited || foot {
             // The stack got another drive than the inverse asked for (the limits, or
             // the foot of a soft dead zone): realign the inverse memory with it.
             self.fpi.resync(&st.forward, &mut st.inverse);
             st.limited_steps = st.limited_steps.wrapping_add(limited as u32);
+            return StepOutput {
+                voltage,
+                x_pea_ref,
+                x_pea_est,
+                limited,
+                fault: None,
+            };
         }
-        st.voltage = voltage;
-        st.x_pea_est = x_pea_est;
         StepOutput {
             voltage,
             x_pea_ref,
             x_pea_est,
-            limited,
+            limited: false,
             fault: None,
         }
     }
@@ -347,7 +377,13 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
         }
         let fault = if MEASURED && !self.force_window.contains(force) {
             Fault::ForceOutOfRange
-        } else if MEASURED && (force - self.f_f.eval(st.x_pea_est)).abs() > self.force_tolerance {
+        } else if MEASURED
+            && !self.residual_window.contains_bits(
+                force
+                    .to_bits()
+                    .wrapping_sub(self.f_f.eval(st.x_pea_est).to_bits()),
+            )
+        {
             Fault::ForceImplausible
         } else if !self.reference_window.contains(x_ref) {
             Fault::ReferenceUnreachable
@@ -396,7 +432,7 @@ impl<'a, const N: usize, const C: usize> ControllerConfig<'a, N, C> {
     }
 
     /// The calibrated model.
-    pub const fn fpi(&self) -> &Fpi<'a, N, C> {
+    pub const fn fpi(&self) -> &Fpi<'a, N, C, G, H> {
         &self.fpi
     }
     /// Preload map `f_F`.
@@ -506,7 +542,10 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
     /// Leaves the safe state once the output has reached the safe voltage; the
     /// inverse memory is realigned with the voltage history actually applied.
     /// Returns whether the fault was cleared.
-    pub fn clear_fault(&mut self, cfg: &ControllerConfig<'_, N, C>) -> bool {
+    pub fn clear_fault<'a, G: Shape<'a>, H: Shape<'a>>(
+        &mut self,
+        cfg: &ControllerConfig<'a, N, C, G, H>,
+    ) -> bool {
         if self.voltage != cfg.safe_voltage {
             return false;
         }

@@ -17,6 +17,7 @@
 //! | 5 | inverse FPI | swings to 50 µm, beyond the stroke | fault at the crossing, ramp to 0 V |
 
 use crate::control::{ControllerConfig, Fault, ForceSource, LinearDrive, Mode};
+use crate::fpi::Shape;
 use crate::io::{AdcScale, DacScale, ForceSensor, Hardware, Setpoint};
 use crate::q::{Micrometres, Newtons, Volts};
 use crate::reference::RaisedCosine;
@@ -212,8 +213,8 @@ impl Demo {
     /// The script for a controller; the baseline line runs through the compensated
     /// controller's own voltages at the ends of the 2–38 µm stroke on the loading
     /// curve (a fair straight-line drive: right at the ends, hysteresis in between).
-    pub fn new<const N: usize, const C: usize>(
-        cfg: &ControllerConfig<'static, N, C>,
+    pub fn new<const N: usize, const C: usize, G: Shape<'static>, H: Shape<'static>>(
+        cfg: &ControllerConfig<'static, N, C, G, H>,
         rate_hz: u32,
     ) -> Option<Self> {
         let predicted = cfg.with_force_source(ForceSource::Predicted);
@@ -413,8 +414,8 @@ impl Demo {
 /// Runs the whole script with the control loop called in place of the interrupt:
 /// the figures the emulated board must print. Returns the phase reports and the
 /// number of ticks.
-pub fn run_on_host<const N: usize, const C: usize>(
-    cfg: &'static ControllerConfig<'static, N, C>,
+pub fn run_on_host<const N: usize, const C: usize, G: Shape<'static>, H: Shape<'static>>(
+    cfg: &'static ControllerConfig<'static, N, C, G, H>,
     rate_hz: u32,
 ) -> Option<([Option<PhaseReport>; 5], u32)> {
     let link = SimLink::new(SIM_ADC, SIM_DAC);

@@ -117,6 +117,63 @@ impl Map<'_> {
     }
 }
 
+/// A static monotone map of the chain, `g` (the soft dead zone) or `h` (the output
+/// saturation), as a type: a [`Map`] of two tables, or [`Identity`] for a model
+/// without it (the paper's FPI has neither). The ISR code is specialised for the
+/// model's structure, so a part the model lacks costs nothing, not even a branch.
+pub trait Shape<'a>: Copy + Eq + core::fmt::Debug {
+    /// `map(x)`.
+    fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16;
+    /// `map⁻¹(y)`.
+    fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16;
+    /// `y` lies below the inverse table's first knot (for a dead zone: in its foot,
+    /// where the inverse can only hold the first value).
+    fn below_inverse(&self, y: fixed::types::I16F16) -> bool;
+    /// The tables, if the map is not the identity.
+    fn map(&self) -> Option<&Map<'a>>;
+}
+
+impl<'a> Shape<'a> for Map<'a> {
+    #[inline(always)]
+    fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
+        Map::apply(self, x)
+    }
+    #[inline(always)]
+    fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16 {
+        Map::invert(self, y)
+    }
+    #[inline(always)]
+    fn below_inverse(&self, y: fixed::types::I16F16) -> bool {
+        y < self.inverse.x_min()
+    }
+    fn map(&self) -> Option<&Map<'a>> {
+        Some(self)
+    }
+}
+
+/// The absent map: `g` is then the hard dead zone `max(e, 0)` (the effective
+/// voltage's clamp to the operator domain), `h` the identity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Identity;
+
+impl<'a> Shape<'a> for Identity {
+    #[inline(always)]
+    fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
+        x
+    }
+    #[inline(always)]
+    fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16 {
+        y
+    }
+    #[inline(always)]
+    fn below_inverse(&self, _: fixed::types::I16F16) -> bool {
+        false
+    }
+    fn map(&self) -> Option<&Map<'a>> {
+        None
+    }
+}
+
 /// One creep term: a first-order lag of the effective voltage with gain `b`.
 ///
 /// * `rate` — `1 - a = 1 - exp(-T_s/τ)`, per sample, `I0F32` in `(0, 0.5)`.
@@ -190,29 +247,33 @@ pub struct ForceTerms {
 }
 
 /// A calibrated FPI model with its closed-form inverse (configuration).
+///
+/// `N` operators, `C` creep terms, the dead zone `G` and the output map `H`
+/// ([`Shape`]: a [`Map`] or [`Identity`]). The defaults are the paper's FPI.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Fpi<'a, const N: usize, const C: usize = 0> {
+pub struct Fpi<'a, const N: usize, const C: usize = 0, G = Identity, H = Identity> {
     pi: PiModel<N>,
     /// The PI with this sample's creep folded into `w0` (`w0' = w0 + Σ b(1-a)`).
     pi_prime: PiModel<N>,
     inverse: InversePi<N>,
     coupling: Coupling,
-    dead_zone: Option<Map<'a>>,
-    saturation: Option<Map<'a>>,
+    dead_zone: G,
+    saturation: H,
     creep: [Creep; C],
+    tables: core::marker::PhantomData<&'a ()>,
 }
 
-impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
+impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, C, G, H> {
     /// Builds the model and its inverse; `const` so the firmware's model is checked
     /// when it is compiled.
     ///
-    /// * `dead_zone` — the soft dead zone `g` (`None`: the hard one, `max(e, 0)`).
-    /// * `saturation` — the output map `h` (`None`: the identity).
+    /// * `dead_zone` — the soft dead zone `g` ([`Identity`]: the hard one, `max(e, 0)`).
+    /// * `saturation` — the output map `h` ([`Identity`]: none).
     pub const fn new(
         pi: PiModel<N>,
         coupling: Coupling,
-        dead_zone: Option<Map<'a>>,
-        saturation: Option<Map<'a>>,
+        dead_zone: G,
+        saturation: H,
         creep: [Creep; C],
     ) -> Result<Self, ModelError> {
         let fr = coupling.force_ref.to_bits();
@@ -257,6 +318,7 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
             dead_zone,
             saturation,
             creep,
+            tables: core::marker::PhantomData,
         })
     }
 
@@ -285,10 +347,7 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
     #[inline(always)]
     fn effective(&self, u: Volts, t: &ForceTerms) -> Volts {
         let e = u.saturating_sub(t.preload_offset);
-        let e = match &self.dead_zone {
-            Some(g) => g.apply(e),
-            None => e,
-        };
+        let e = self.dead_zone.apply(e);
         within(e, Volts::ZERO, self.pi.input_max())
     }
 
@@ -310,11 +369,9 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
             *m += c.rate.to_bits() as i64 * (uh.to_bits() - m_hi) as i64;
             acc += c.gain.to_bits() as i64 * (*m >> 32);
         }
-        let y = narrow(acc);
-        let z = match &self.saturation {
-            Some(h) => h.apply(y),
-            None => y,
-        };
+        // The bank's sum carries the rounding half LSB (its bias).
+        let y = crate::q::narrow_gain_biased(acc);
+        let z = self.saturation.apply(y);
         z - t.compression
     }
 
@@ -347,10 +404,7 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
         t: &ForceTerms,
     ) -> (Volts, bool) {
         let z = x_pea + t.compression;
-        let mut v = match &self.saturation {
-            Some(h) => h.invert(z),
-            None => z,
-        };
+        let mut v = self.saturation.invert(z);
         if C > 0 {
             let mut held = 0i64;
             for (m, c) in creep.m.iter().zip(&self.creep) {
@@ -359,10 +413,7 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
             v -= narrow(held);
         }
         let uh = self.inverse.apply(bank, v);
-        let (e, foot) = match &self.dead_zone {
-            Some(g) => (g.invert(uh), uh < g.inverse.x_min()),
-            None => (uh, false),
-        };
+        let (e, foot) = (self.dead_zone.invert(uh), self.dead_zone.below_inverse(uh));
         (t.preload_offset.saturating_add(e), foot)
     }
 
@@ -385,12 +436,12 @@ impl<'a, const N: usize, const C: usize> Fpi<'a, N, C> {
         &self.coupling
     }
     /// The soft dead zone, if any.
-    pub const fn dead_zone(&self) -> Option<&Map<'a>> {
-        self.dead_zone.as_ref()
+    pub fn dead_zone(&self) -> Option<&Map<'a>> {
+        self.dead_zone.map()
     }
     /// The output saturation, if any.
-    pub const fn saturation(&self) -> Option<&Map<'a>> {
-        self.saturation.as_ref()
+    pub fn saturation(&self) -> Option<&Map<'a>> {
+        self.saturation.map()
     }
     /// The creep terms.
     pub const fn creep(&self) -> &[Creep; C] {
@@ -421,7 +472,7 @@ mod tests {
             force_ref: signal(60.0).unwrap(),
             ..Coupling::paper(coupling(0.1).unwrap())
         };
-        Fpi::new(pi, cp, None, None, []).unwrap()
+        Fpi::new(pi, cp, Identity, Identity, []).unwrap()
     }
 
     #[test]
@@ -482,10 +533,7 @@ mod tests {
             xs.windows(2)
                 .map(|w| {
                     let a = I16F16::from_num(w[0]);
-                    Segment {
-                        start: a,
-                        rise: I16F16::from_num(w[1]) - a,
-                    }
+                    Segment::new(a, I16F16::from_num(w[1]) - a)
                 })
                 .collect()
         };
@@ -541,7 +589,7 @@ mod tests {
             Creep::new(I0F32::from_num(0.005), UmPerVolt::from_num(0.003)).unwrap(),
             Creep::new(I0F32::from_num(0.00002), UmPerVolt::from_num(0.001)).unwrap(),
         ];
-        let m = Fpi::new(pi, cp, Some(g), Some(h), creep).unwrap();
+        let m = Fpi::new(pi, cp, g, h, creep).unwrap();
         let (mut fb, mut ib, mut cm) = (PlayBank::new(), PlayBank::new(), CreepMemory::<2>::new());
         let mut worst = 0.0f64;
         for k in 0..4000 {

@@ -20,8 +20,8 @@ use crate::error::ModelError;
 use crate::pi::PiModel;
 use crate::play::{Edge, Operator, Operators, PlayBank};
 use crate::q::{
-    narrow_inv_gain, within, InvGainAcc, Micrometres, Volts, VoltsPerUm, GAIN_FRAC, INV_GAIN_FRAC,
-    SIGNAL_ABS_MAX_BITS, SIGNAL_FRAC,
+    narrow_inv_gain_biased, within, Micrometres, Volts, VoltsPerUm, GAIN_FRAC, INV_GAIN_FRAC,
+    INV_GAIN_ROUND, SIGNAL_ABS_MAX_BITS, SIGNAL_FRAC,
 };
 
 /// Configuration of an inverse PI model: stack extension in (µm), voltage out (V).
@@ -108,7 +108,7 @@ impl<const N: usize> InversePi<N> {
         Ok(Self {
             w0: VoltsPerUm::from_bits(inv_w0 as i32),
             // |offset| <= sum|w'| * x_max, bounded just above.
-            ops: Operators::from_parts(ops, slope as i32, offset as i64),
+            ops: Operators::from_parts(ops, slope as i32, offset as i64, INV_GAIN_ROUND),
             input_max,
             output_max: fwd.input_max(),
         })
@@ -122,7 +122,7 @@ impl<const N: usize> InversePi<N> {
     #[inline(always)]
     pub fn apply<E: Edge>(&self, state: &mut PlayBank<N, E>, x: Micrometres) -> Volts {
         let x = within(x, Micrometres::ZERO, self.input_max);
-        narrow_inv_gain(InvGainAcc::from_bits(state.advance(&self.ops, x)))
+        narrow_inv_gain_biased(state.advance(&self.ops, x))
     }
 
     /// Sets the inverse operators to the state that matches a forward bank:

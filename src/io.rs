@@ -5,6 +5,7 @@
 //! embedded-hal 1.0 has no ADC or DAC trait, so these two small traits are ours.
 
 use crate::control::{ControllerConfig, ControllerState, Mode, StepOutput};
+use crate::fpi::Shape;
 use crate::q::{gain_mul, within, Micrometres, Newtons, Volts};
 use embedded_hal::digital::OutputPin;
 use fixed::types::{I16F16, I4F28};
@@ -38,9 +39,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
     /// the setpoint. Once a fault's ramp has reached the safe voltage the amplifier
     /// is switched off; otherwise it is on.
     #[inline]
-    pub fn tick<const N: usize, const C: usize>(
+    pub fn tick<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>(
         &mut self,
-        cfg: &ControllerConfig<'_, N, C>,
+        cfg: &ControllerConfig<'a, N, C, G, H>,
         st: &mut ControllerState<N, C>,
         mode: &Mode,
         x_ref: Micrometres,

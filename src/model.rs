@@ -9,7 +9,7 @@
 
 use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval};
 #[allow(unused_imports)]
-use crate::fpi::{Coupling, Creep, Fpi, Map};
+use crate::fpi::{Coupling, Creep, Fpi, Identity, Map};
 use crate::limits::OutputLimits;
 use crate::pi::PiModel;
 #[allow(unused_imports)]

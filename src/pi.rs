@@ -100,7 +100,7 @@ impl<const N: usize> PiModel<N> {
         Ok(Self {
             w0,
             // |slope| <= sum|w| fits an i32 (checked above).
-            ops: Operators::from_parts(ops, slope as i32, offset),
+            ops: Operators::from_parts(ops, slope as i32, offset, q::GAIN_ROUND),
             input_max,
             output_max: narrow_gain(acc),
         })
@@ -143,7 +143,7 @@ impl<const N: usize> PiModel<N> {
     #[inline(always)]
     pub fn apply<E: Edge>(&self, state: &mut PlayBank<N, E>, u: Volts) -> Micrometres {
         let u = within(u, Volts::ZERO, self.input_max);
-        narrow_gain(GainAcc::from_bits(state.advance(&self.ops, u)))
+        q::narrow_gain_biased(state.advance(&self.ops, u))
     }
 
     /// `Y` of the current operator states for input `u`, without changing them.

@@ -49,25 +49,35 @@ impl Weight for I10F22 {
     }
 }
 
-/// The operators of one PI model with the two sums the gap form of its bank needs
+/// The operators of one PI model with the sums the gap form of its bank needs
 /// (configuration, built once with the model).
 ///
 /// * `slope` — `w0 + Σ w_i`, raw bits of the weight type `W` (checked by the
 ///   model's constructor to fit an `i32`).
 /// * `offset` — `Σ w_i·r_i`, raw bits with the weight's plus the signal's
 ///   fractional bits (exact).
+/// * `bias` — added to every sum [`PlayBank::advance`] returns, same raw unit:
+///   the models use half an output LSB, so that narrowing the sum to a signal
+///   is a plain shift (the rounding is folded into the precomputed constants).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Operators<W, const N: usize> {
     ops: [Operator<W>; N],
     slope: i32,
-    offset: i64,
+    /// `offset - bias`.
+    offset_less_bias: i64,
+    bias: i64,
 }
 
 impl<W: Copy, const N: usize> Operators<W, N> {
-    /// Bundles the operators with `slope = w0 + Σ w_i` and `offset = Σ w_i·r_i`
-    /// (raw bits); the model constructors compute both.
-    pub const fn from_parts(ops: [Operator<W>; N], slope: i32, offset: i64) -> Self {
-        Self { ops, slope, offset }
+    /// Bundles the operators with `slope = w0 + Σ w_i`, `offset = Σ w_i·r_i` and
+    /// the `bias` of the sums (raw bits); the model constructors compute them.
+    pub const fn from_parts(ops: [Operator<W>; N], slope: i32, offset: i64, bias: i64) -> Self {
+        Self {
+            ops,
+            slope,
+            offset_less_bias: offset - bias,
+            bias,
+        }
     }
     /// The operators, thresholds sorted.
     pub const fn ops(&self) -> &[Operator<W>; N] {
@@ -212,8 +222,9 @@ impl<const N: usize, E: Edge> PlayBank<N, E> {
         self.last = last;
     }
 
-    /// Advances every operator with input `u` and returns `w0·u + Σ w_i·y_i`
-    /// exactly (raw bits with the weight's plus the signal's fractional bits).
+    /// Advances every operator with input `u` and returns `w0·u + Σ w_i·y_i +
+    /// bias` exactly (raw bits with the weight's plus the signal's fractional
+    /// bits; `bias` from [`Operators`]).
     ///
     /// Eq. (3) needs a min and a max per operator, but one of them is always a
     /// no-op: every output lies in `[u_prev - r, u_prev]`, so when the input rises
@@ -246,9 +257,9 @@ impl<const N: usize, E: Edge> PlayBank<N, E> {
         self.last = I16F16::from_bits(u);
         let linear = ops.slope as i64 * u as i64;
         if E::BOTTOM {
-            linear - ops.offset + acc
+            linear - ops.offset_less_bias + acc
         } else {
-            linear - acc
+            linear + ops.bias - acc
         }
     }
 }
@@ -303,7 +314,7 @@ mod tests {
             .iter()
             .map(|o| o.weight.to_bits() as i64 * o.threshold.to_bits() as i64)
             .sum();
-        Operators::from_parts(ops, slope, offset)
+        Operators::from_parts(ops, slope, offset, 1 << 27)
     }
 
     /// Both gap forms against eq. (3) on a wandering input with reversals of
@@ -320,7 +331,7 @@ mod tests {
                 u = (u * 0.5).floor();
             }
             let acc = bank.advance(&ops, v(u));
-            let mut want = w0 * v(u).to_bits() as i64;
+            let mut want = w0 * v(u).to_bits() as i64 + (1 << 27);
             for (i, p) in plain.iter_mut().enumerate() {
                 *p = osp(v(u), ops.ops()[i].threshold, *p);
                 want += ops.ops()[i].weight.to_bits() as i64 * p.to_bits() as i64;

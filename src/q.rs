@@ -80,6 +80,24 @@ pub(crate) const fn narrow_inv_gain(acc: InvGainAcc) -> I16F16 {
     I16F16::from_bits(((acc.to_bits() + (1 << (SHIFT - 1))) >> SHIFT) as i32)
 }
 
+/// Narrows a gain × signal accumulator that already holds the rounding half LSB
+/// (the bias of [`crate::play::Operators`]): the nearest signal, as [`narrow_gain`].
+#[inline(always)]
+pub(crate) const fn narrow_gain_biased(acc: i64) -> I16F16 {
+    I16F16::from_bits((acc >> GAIN_FRAC) as i32)
+}
+
+/// [`narrow_gain_biased`] for an inverse-gain × signal accumulator.
+#[inline(always)]
+pub(crate) const fn narrow_inv_gain_biased(acc: i64) -> I16F16 {
+    I16F16::from_bits((acc >> INV_GAIN_FRAC) as i32)
+}
+
+/// The bias that makes [`narrow_gain_biased`] round: half a signal LSB.
+pub(crate) const GAIN_ROUND: i64 = 1 << (GAIN_FRAC - 1);
+/// The bias that makes [`narrow_inv_gain_biased`] round: half a signal LSB.
+pub(crate) const INV_GAIN_ROUND: i64 = 1 << (INV_GAIN_FRAC - 1);
+
 /// Product of a forward gain and a signal, rounded to a signal.
 #[inline(always)]
 pub(crate) const fn gain_mul(g: I4F28, x: I16F16) -> I16F16 {

@@ -6,6 +6,7 @@
 //! [`Telemetry`] (out), like Stabilizer's settings swapped in by a low-priority task.
 
 use crate::control::{ControllerConfig, ControllerState, Fault, Mode};
+use crate::fpi::Shape;
 use crate::io::{ForceSensor, Hardware, Setpoint};
 use crate::q::{Micrometres, Volts};
 use crate::reference::{RaisedCosine, Waveform};
@@ -39,8 +40,11 @@ pub struct Telemetry {
 }
 
 /// The control ISR's state (one per stage channel).
-pub struct ControlLoop<'c, const N: usize, const C: usize, S, A, E> {
-    cfg: &'c ControllerConfig<'c, N, C>,
+///
+/// `N`, `C`, `G`, `H`: the model's structure (see [`crate::Fpi`]); `S`, `A`, `E`:
+/// the force sensor, the amplifier and its enable line.
+pub struct ControlLoop<'c, const N: usize, const C: usize, G, H, S, A, E> {
+    cfg: &'c ControllerConfig<'c, N, C, G, H>,
     hw: Hardware<S, A, E>,
     state: ControllerState<N, C>,
     mode: Mode,
@@ -49,14 +53,22 @@ pub struct ControlLoop<'c, const N: usize, const C: usize, S, A, E> {
     step: u32,
 }
 
-impl<'c, const N: usize, const C: usize, S: ForceSensor, A: Setpoint, E: OutputPin>
-    ControlLoop<'c, N, C, S, A, E>
+impl<
+        'c,
+        const N: usize,
+        const C: usize,
+        G: Shape<'c>,
+        H: Shape<'c>,
+        S: ForceSensor,
+        A: Setpoint,
+        E: OutputPin,
+    > ControlLoop<'c, N, C, G, H, S, A, E>
 {
     /// A loop at rest, running `first`. Reads the force sensor once and takes the
     /// reading as the compliance term's reference force ([`ControllerConfig::tare`]):
     /// the stage is at rest and its position is zero now.
     pub fn new(
-        cfg: &'c ControllerConfig<'c, N, C>,
+        cfg: &'c ControllerConfig<'c, N, C, G, H>,
         mut hw: Hardware<S, A, E>,
         first: Command,
     ) -> Self {

@@ -5,9 +5,9 @@
 //! two in raw `I16F16` units: one 32 × 32 → 64-bit multiply of the offset from the
 //! first knot by `2^(32 - shift)` puts the interval index in the high word and the
 //! position inside the interval, as a 32-bit fraction, in the low word. No division,
-//! no search, no variable shift. Each interval is stored as its start value and its
-//! rise ([`Segment`]), so an evaluation is that multiply, one bounds test, one
-//! double-word load and one rounding multiply-accumulate.
+//! no search, no variable shift. Each interval is stored as its start value and
+//! twice its rise ([`Segment`]), so an evaluation is that multiply, one bounds test,
+//! two loads and one rounding multiply-accumulate.
 //! The grids are chosen and filled by the host tool (`fpi export`) and quantised
 //! by `build.rs`.
 
@@ -28,22 +28,48 @@ pub const MIN_SHIFT: u32 = 1;
 pub const MAX_KNOT_STEP: i32 = 1 << 15;
 
 /// One interval of a table: the value at its first knot and the rise to the next.
+///
+/// The rise is stored doubled (raw bits), the factor the interpolation's
+/// multiply needs ([`Table::eval`]); a rise too large for a table (`|rise| >=`
+/// [`MAX_KNOT_STEP`]) is stored as the saturated marker `i32::MAX`/`i32::MIN`,
+/// which [`Table::new`] rejects.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(C)]
 pub struct Segment {
-    /// Value at the interval's first knot.
-    pub start: I16F16,
-    /// Value at the next knot minus `start`.
-    pub rise: I16F16,
+    start: I16F16,
+    twice_rise: i32,
 }
 
 impl Segment {
-    /// A segment from raw bits (generated code).
+    /// A segment from raw bits of its start and rise (generated code).
     pub const fn from_bits(start: i32, rise: i32) -> Self {
+        let twice_rise = if rise >= MAX_KNOT_STEP {
+            i32::MAX
+        } else if rise <= -MAX_KNOT_STEP {
+            i32::MIN
+        } else {
+            rise * 2
+        };
         Self {
             start: I16F16::from_bits(start),
-            rise: I16F16::from_bits(rise),
+            twice_rise,
         }
+    }
+
+    /// A segment from its start value and its rise to the next knot.
+    pub const fn new(start: I16F16, rise: I16F16) -> Self {
+        Self::from_bits(start.to_bits(), rise.to_bits())
+    }
+
+    /// Value at the interval's first knot.
+    pub const fn start(&self) -> I16F16 {
+        self.start
+    }
+
+    /// Value at the next knot minus [`start`](Self::start) (for a rejected
+    /// segment: a value at least [`MAX_KNOT_STEP`] in magnitude).
+    pub const fn rise(&self) -> I16F16 {
+        I16F16::from_bits(self.twice_rise >> 1)
     }
 
     /// The `K - 1` segments between `K` knot values (`S` must be `K - 1`).
@@ -53,7 +79,16 @@ impl Segment {
         let mut k = 0;
         while k < S {
             let a = values[k].to_bits();
-            out[k] = Segment::from_bits(a, values[k + 1].to_bits().wrapping_sub(a));
+            let rise = values[k + 1].to_bits() as i64 - a as i64;
+            // Out-of-range rises saturate into the marker Table::new rejects.
+            let rise = if rise > i32::MAX as i64 {
+                i32::MAX
+            } else if rise < i32::MIN as i64 {
+                i32::MIN
+            } else {
+                rise as i32
+            };
+            out[k] = Segment::from_bits(a, rise);
             k += 1;
         }
         out
@@ -104,7 +139,7 @@ impl<'a> Table<'a> {
             if s.start.to_bits() as i64 != value {
                 return Err(ModelError::TableNotMonotone { index: k as u16 });
             }
-            let r = s.rise.to_bits();
+            let r = s.rise().to_bits();
             rising |= r > 0;
             falling |= r < 0;
             if rising && falling {
@@ -151,7 +186,7 @@ impl<'a> Table<'a> {
         match self.segments.get((p >> 32) as usize) {
             Some(s) => {
                 let phi = ((p as u32) >> 1) as i64; // φ·2^31, in [0, 2^31)
-                let rise = (s.rise.to_bits() << 1) as i64; // 2·rise, |2·rise| < 2^16
+                let rise = s.twice_rise as i64; // |2·rise| < 2^16
                 let step = ((rise * phi + (1 << 31)) >> 32) as i32;
                 I16F16::from_bits(s.start.to_bits() + step)
             }
@@ -218,8 +253,8 @@ mod tests {
             match t.segments().get(k) {
                 Some(s) => {
                     let f = (d << (16 - t.shift())) & 0xFFFF;
-                    let r = (s.rise.to_bits() as i64 * f + (1 << 15)) >> 16;
-                    I16F16::from_bits(s.start.to_bits() + r as i32)
+                    let r = (s.rise().to_bits() as i64 * f + (1 << 15)) >> 16;
+                    I16F16::from_bits(s.start().to_bits() + r as i32)
                 }
                 None => t.last(),
             }
@@ -272,7 +307,7 @@ mod tests {
             ModelError::TableNotMonotone { index: 2 }
         );
         let mut broken = Segment::between::<3, 2>(&[v(0.0), v(0.25), v(0.375)]);
-        broken[1].start = v(0.3);
+        broken[1] = Segment::new(v(0.3), broken[1].rise());
         assert_eq!(
             Table::new(v(0.0), 10, &broken).unwrap_err(),
             ModelError::TableNotMonotone { index: 1 }

@@ -23,7 +23,7 @@ mod bench {
     use cortex_m_semihosting::hprintln;
     use piezo_fpi::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Mode};
     use piezo_fpi::demo::{SimLink, SIM_ADC, SIM_DAC};
-    use piezo_fpi::fpi::{Coupling, Fpi};
+    use piezo_fpi::fpi::{Coupling, Fpi, Identity, Shape};
     use piezo_fpi::model::{self, CONTROLLER};
     use piezo_fpi::pi::PiModel;
     use piezo_fpi::q::{Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton};
@@ -63,8 +63,8 @@ mod bench {
                 force_ref: Newtons::from_bits(60 << 16),
                 ..Coupling::paper(VoltsPerNewton::from_bits(((1i64 << 32) / 10) as i32))
             },
-            None,
-            None,
+            Identity,
+            Identity,
             [],
         ) {
             Ok(f) => f,
@@ -167,8 +167,8 @@ mod bench {
     /// The step as its own function, so its code can be inspected and is not
     /// scheduled into the measurement.
     #[inline(never)]
-    fn step_of<const N: usize, const C: usize>(
-        cfg: &ControllerConfig<'_, N, C>,
+    fn step_of<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>(
+        cfg: &ControllerConfig<'a, N, C, G, H>,
         st: &mut piezo_fpi::control::ControllerState<N, C>,
         x: Micrometres,
         f: Newtons,
@@ -180,8 +180,8 @@ mod bench {
 
     /// Instruction counts of the nominal steps and of the slew-limited ones (which
     /// also realign the inverse memory), over a full-stroke trajectory at `hz`.
-    fn measure<const N: usize, const C: usize>(
-        cfg: &ControllerConfig<'_, N, C>,
+    fn measure<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>(
+        cfg: &ControllerConfig<'a, N, C, G, H>,
         baseline: u32,
         hz: f32,
     ) -> (Counts, Counts) {

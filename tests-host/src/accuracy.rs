@@ -65,10 +65,7 @@ pub fn embedded_model() -> FirmwareModel {
 /// (which include a 3 kHz chirp where the stage's dynamics pull the force far
 /// from the static FEM map) exercise the arithmetic rather than the safe state;
 /// and its f64 twin with the same settings.
-pub fn controllers() -> (
-    ControllerConfig<'static, OPERATORS, CREEP_TERMS>,
-    ControllerF64,
-) {
+pub fn controllers() -> (model::Controller, ControllerF64) {
     let c = &model::CONTROLLER;
     let reference = Interval {
         lo: c.f_k_inv().x_min(),

@@ -397,10 +397,7 @@ fn check_core(m: &FirmwareModel) -> Result<()> {
         let bits: Vec<I16F16> = t.values.iter().map(|v| I16F16::from_num(*v)).collect();
         let segs: Vec<Segment> = bits
             .windows(2)
-            .map(|w| Segment {
-                start: w[0],
-                rise: w[1] - w[0],
-            })
+            .map(|w| Segment::new(w[0], w[1] - w[0]))
             .collect();
         let shift = (t.step_log2 + 16) as u32;
         Table::new(I16F16::from_num(t.x0), shift, &segs)

@@ -14,7 +14,7 @@ use core::sync::atomic::{AtomicU32, Ordering};
 
 use cortex_m::interrupt::{free, Mutex};
 use heapless::spsc::Producer;
-use piezo_fpi::model::{self, CREEP_TERMS, OPERATORS};
+use piezo_fpi::model::{self, DeadZone, Saturation, CREEP_TERMS, OPERATORS};
 use piezo_fpi::runner::{Command, ControlLoop, Telemetry};
 use stm32f4xx_hal::pac::{interrupt, Interrupt, TIM2};
 use stm32f4xx_hal::prelude::*;
@@ -26,7 +26,8 @@ use crate::board::{Amplifier, Enable, Sensor};
 use crate::emulated::{Amplifier, Enable, Sensor};
 
 /// The control loop of this build.
-pub type Loop = ControlLoop<'static, OPERATORS, CREEP_TERMS, Sensor, Amplifier, Enable>;
+pub type Loop =
+    ControlLoop<'static, OPERATORS, CREEP_TERMS, DeadZone, Saturation, Sensor, Amplifier, Enable>;
 
 /// Telemetry slots between the ISR and thread mode.
 pub const TELEMETRY_DEPTH: usize = 64;
