@@ -587,3 +587,61 @@ impl LinearDrive {
         narrow_inv_gain(InvGainAcc::from_bits(acc)).saturating_add(self.offset)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Controller, CONTROLLER};
+
+    fn parts(force: Interval, tolerance: Newtons) -> Result<Controller, ModelError> {
+        let c = &CONTROLLER;
+        ControllerConfig::new(ControllerParts {
+            fpi: *c.fpi(),
+            f_f: *c.f_f(),
+            f_k: *c.f_k(),
+            f_k_inv: *c.f_k_inv(),
+            limits: *c.limits(),
+            reference: c.reference(),
+            force,
+            force_tolerance: tolerance,
+            safe_voltage: c.safe_voltage(),
+            force_source: ForceSource::Measured,
+        })
+    }
+
+    fn n(x: f64) -> Newtons {
+        Newtons::from_num(x)
+    }
+
+    #[test]
+    fn rejects_force_settings_outside_the_signal_range() {
+        let wide = Interval {
+            lo: n(0.0),
+            hi: n(30000.0),
+        };
+        assert_eq!(parts(wide, n(5.0)), Err(ModelError::NotRepresentable));
+        let ok = CONTROLLER.force();
+        assert_eq!(parts(ok, n(30000.0)), Err(ModelError::NotRepresentable));
+        assert_eq!(parts(ok, n(0.0)), Err(ModelError::LimitsInverted));
+        assert!(parts(ok, n(5.0)).is_ok());
+    }
+
+    /// The plausibility test's window: a residual of exactly the tolerance passes,
+    /// one LSB more latches the fault, on both sides.
+    #[test]
+    fn plausibility_tolerance_is_inclusive_on_both_sides() {
+        let tol = n(5.0);
+        let cfg = parts(CONTROLLER.force(), tol).unwrap();
+        let x_ref = CONTROLLER.reference().lo + Micrometres::from_num(1);
+        for sign in [1, -1] {
+            for (extra, faults) in [(0, false), (1, true)] {
+                let mut st = cfg.initial_state();
+                let expected = cfg.f_f().eval(st.x_pea_est());
+                let d = Newtons::from_bits(sign * (tol.to_bits() + extra));
+                let out = cfg.step(&mut st, x_ref, expected + d);
+                let want = faults.then_some(Fault::ForceImplausible);
+                assert_eq!(out.fault, want, "sign {sign} extra {extra}");
+            }
+        }
+    }
+}

@@ -17,7 +17,7 @@
 //!
 //! Modules: [`play`] (the OSP operator), [`pi`] (forward PI), [`inverse`] (closed-form
 //! inverse PI), [`fpi`] (force coupling), [`table`] (lookup tables), [`limits`],
-//! [`control`] (the ISR step), [`io`] (sensor/amplifier traits), [`reference`]
+//! [`control`] (the ISR step), [`io`] (sensor/amplifier traits), [`reference`](mod@reference)
 //! (trajectory generator), [`sim`] (the virtual stage of the emulated board),
 //! [`model`] (the embedded model).
 #![cfg_attr(not(test), no_std)]

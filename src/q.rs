@@ -112,7 +112,7 @@ pub(crate) const fn coupling_mul(c: I0F32, x: I16F16) -> I16F16 {
     I16F16::from_bits(((p + (1 << 31)) >> COUPLING_FRAC) as i32)
 }
 
-/// Force span (N, raw `I16F16`) over which [`quad_mul`] is exact: `|F - F_q| <= 1024 N`.
+/// Force span (N, raw `I16F16`) over which the curvature product `quad_mul` is exact: `|F - F_q| <= 1024 N`.
 pub const QUAD_FORCE_SPAN_BITS: i32 = 1024 << SIGNAL_FRAC;
 /// Largest `|k_q|` (raw `I0F32`) so that `k_q·(1024 N)² <= 2048 V`.
 pub const QUAD_MAX_BITS: i64 = (2048i64 << 32) / (1024 * 1024);

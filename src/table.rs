@@ -301,6 +301,26 @@ mod tests {
             Table::new(v(0.0), 10, &steep).unwrap_err(),
             ModelError::TableTooSteep { index: 2 }
         );
+        // Rises beyond i32 (from `between`) or near it saturate into the marker.
+        let cliff: [Segment; 1] = Segment::between(&[I16F16::MIN, I16F16::MAX]);
+        assert_eq!(cliff[0].rise().to_bits(), i32::MAX >> 1);
+        assert_eq!(
+            Table::new(v(0.0), 10, &cliff).unwrap_err(),
+            ModelError::TableTooSteep { index: 1 }
+        );
+        for rise in [i32::MAX, i32::MIN, MAX_KNOT_STEP, -MAX_KNOT_STEP] {
+            let s = [Segment::from_bits(0, rise)];
+            assert_eq!(
+                Table::new(v(0.0), 10, &s).unwrap_err(),
+                ModelError::TableTooSteep { index: 1 },
+                "rise {rise}"
+            );
+        }
+        let s = [Segment::from_bits(0, MAX_KNOT_STEP - 1)];
+        assert_eq!(
+            Table::new(v(0.0), 16, &s).unwrap().last().to_bits(),
+            MAX_KNOT_STEP - 1
+        );
         let zigzag: [Segment; 2] = Segment::between(&[v(0.0), v(0.25), v(0.125)]);
         assert_eq!(
             Table::new(v(0.0), 10, &zigzag).unwrap_err(),

@@ -5,9 +5,9 @@
 //! lock-free SPSC queue. The ISR never blocks and never allocates.
 //!
 //! **Deadline.** One period of the control rate (50 µs at 20 kHz). The control step
-//! costs at most 335 instructions for 10 paper-FPI operators and 502 for the
+//! costs at most 295 instructions for 10 paper-FPI operators and 427 for the
 //! embedded model (`cargo isr-bench`), about 2–3 µs at 168 MHz; the whole tick with
-//! reference, ADC, DAC and enable line at most 745.
+//! reference, ADC, DAC and enable line at most 701.
 
 use core::cell::Cell;
 use core::sync::atomic::{AtomicU32, Ordering};
