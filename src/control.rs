@@ -124,9 +124,9 @@ impl Fault {
 }
 
 /// Everything the control step needs that does not change while it runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 ///
 /// `N`, `C`, `G` and `H` are the model's structure (see [`Fpi`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ControllerConfig<'a, const N: usize, const C: usize = 0, G = Identity, H = Identity> {
     fpi: Fpi<'a, N, C, G, H>,
     f_f: Table<'a>,
@@ -173,7 +173,8 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
     ControllerConfig<'a, N, C, G, H>
 {
     /// Validates the parts: intervals not inverted, the reference interval inside
-    /// the `f_K⁻¹` grid, the safe voltage inside the limits, a positive tolerance.
+    /// the `f_K⁻¹` grid, the safe voltage inside the limits, a positive tolerance,
+    /// and the force interval and tolerance inside the signal range (±4096 N).
     pub const fn new(p: ControllerParts<'a, N, C, G, H>) -> Result<Self, ModelError> {
         let (rl, rh) = (p.reference.lo.to_bits(), p.reference.hi.to_bits());
         let (Some(reference_window), Some(force_window)) =
@@ -314,6 +315,8 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
                 fault: None,
             };
         }
+        // `limited` is known to be false here; saying so spares the ISR
+        // recomputing it for the store.
         StepOutput {
             voltage,
             x_pea_ref,

@@ -101,9 +101,11 @@ impl<const N: usize> InversePi<N> {
         if abs_sum * input_max.to_bits() as i128 >= (SIGNAL_ABS_MAX_BITS as i128) << INV_GAIN_FRAC {
             return Err(ModelError::OutputOutOfRange);
         }
-        // The final slope 1/S_N must be a weight too (the gap form's Σ w'·x).
+        // The final slope w0' + Σ w'_j = 1/S_N must fit a weight too (the gap
+        // form multiplies the input by it): only a concern with negative weights,
+        // where S_N < w0 is possible. Reported at the last partial sum.
         if slope > i32::MAX as i128 || slope < i32::MIN as i128 {
-            return Err(ModelError::InverseWeightOutOfRange { index: 0 });
+            return Err(ModelError::InverseWeightOutOfRange { index: N as u8 });
         }
         Ok(Self {
             w0: VoltsPerUm::from_bits(inv_w0 as i32),
@@ -140,11 +142,11 @@ impl<const N: usize> InversePi<N> {
         let ops = fwd.operators();
         // S_N in GAIN_FRAC bits: |S_j| <= sum|w| fits an i32 (checked by PiModel::new).
         let w0 = fwd.w0().to_bits();
-        let s = fwd.bank().slope();
+        let mut s = fwd.bank().slope();
         let round =
             |v: i64| Micrometres::from_bits(((v + (1 << (GAIN_FRAC - 1))) >> GAIN_FRAC) as i32);
+        // The new outputs z_j first: the gap form needs the new last input too.
         let mut z = [Micrometres::ZERO; N];
-        let mut s = s;
         let mut tail: i64 = 0; // Σ_{i>j} w_i y_i, GAIN + SIGNAL bits
         for (j, (op, z)) in ops.iter().zip(z.iter_mut()).enumerate().rev() {
             let y = fwd_state.output(fwd.bank(), j).to_bits();
