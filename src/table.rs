@@ -43,12 +43,17 @@ pub struct Segment {
 impl Segment {
     /// A segment from raw bits of its start and rise (generated code).
     pub const fn from_bits(start: i32, rise: i32) -> Self {
-        let twice_rise = if rise >= MAX_KNOT_STEP {
+        Self::from_wide(start, rise as i64)
+    }
+
+    /// The one place a rise is stored: doubled, or saturated into the marker.
+    const fn from_wide(start: i32, rise: i64) -> Self {
+        let twice_rise = if rise >= MAX_KNOT_STEP as i64 {
             i32::MAX
-        } else if rise <= -MAX_KNOT_STEP {
+        } else if rise <= -MAX_KNOT_STEP as i64 {
             i32::MIN
         } else {
-            rise * 2
+            rise as i32 * 2
         };
         Self {
             start: I16F16::from_bits(start),
@@ -79,16 +84,8 @@ impl Segment {
         let mut k = 0;
         while k < S {
             let a = values[k].to_bits();
-            let rise = values[k + 1].to_bits() as i64 - a as i64;
-            // Out-of-range rises saturate into the marker Table::new rejects.
-            let rise = if rise > i32::MAX as i64 {
-                i32::MAX
-            } else if rise < i32::MIN as i64 {
-                i32::MIN
-            } else {
-                rise as i32
-            };
-            out[k] = Segment::from_bits(a, rise);
+            // Exact in i64; a rise out of range saturates into the marker.
+            out[k] = Segment::from_wide(a, values[k + 1].to_bits() as i64 - a as i64);
             k += 1;
         }
         out
