@@ -199,9 +199,11 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         if fl < -SIGNAL_ABS_MAX_BITS || fh > SIGNAL_ABS_MAX_BITS || tol > SIGNAL_ABS_MAX_BITS {
             return Err(ModelError::NotRepresentable);
         }
-        let residual_window = Window {
-            lo: -tol,
-            span: 2 * tol as u32,
+        let Some(residual_window) = Window::new(Interval {
+            lo: Newtons::from_bits(-tol),
+            hi: p.force_tolerance,
+        }) else {
+            return Err(ModelError::LimitsInverted);
         };
         Ok(Self {
             fpi: p.fpi,
