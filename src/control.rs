@@ -596,26 +596,42 @@ impl LinearDrive {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::{Controller, CONTROLLER};
+    use crate::testkit::{self, force_at, TestController};
 
-    fn parts(force: Interval, tolerance: Newtons) -> Result<Controller, ModelError> {
-        let c = &CONTROLLER;
+    fn with(force: Interval, tolerance: Newtons) -> Result<TestController, ModelError> {
         ControllerConfig::new(ControllerParts {
-            fpi: *c.fpi(),
-            f_f: *c.f_f(),
-            f_k: *c.f_k(),
-            f_k_inv: *c.f_k_inv(),
-            limits: *c.limits(),
-            reference: c.reference(),
             force,
             force_tolerance: tolerance,
-            safe_voltage: c.safe_voltage(),
-            force_source: ForceSource::Measured,
+            ..testkit::parts(ForceSource::Measured)
         })
     }
 
     fn n(x: f64) -> Newtons {
         Newtons::from_num(x)
+    }
+    fn um(x: f64) -> Micrometres {
+        Micrometres::from_num(x)
+    }
+
+    /// One step with the force the stage puts on the stack where it is.
+    fn plausible(
+        c: &TestController,
+        st: &mut ControllerState<3>,
+        x_ref: Micrometres,
+    ) -> StepOutput {
+        let f = force_at(c, st.x_pea_est());
+        c.step(st, x_ref, f)
+    }
+
+    /// Drives the stage along a slow ramp to `x` with plausible forces.
+    fn drive_to(c: &TestController, st: &mut ControllerState<3>, x: f64) -> StepOutput {
+        let from = c.stage_position(st.x_pea_est()).to_num::<f64>();
+        let mut out = None;
+        for k in 1..=400 {
+            let x_ref = from + (x - from) * k as f64 / 400.0;
+            out = Some(plausible(c, st, um(x_ref)));
+        }
+        out.unwrap()
     }
 
     #[test]
@@ -624,11 +640,11 @@ mod tests {
             lo: n(0.0),
             hi: n(30000.0),
         };
-        assert_eq!(parts(wide, n(5.0)), Err(ModelError::NotRepresentable));
-        let ok = CONTROLLER.force();
-        assert_eq!(parts(ok, n(30000.0)), Err(ModelError::NotRepresentable));
-        assert_eq!(parts(ok, n(0.0)), Err(ModelError::LimitsInverted));
-        assert!(parts(ok, n(5.0)).is_ok());
+        assert_eq!(with(wide, n(5.0)), Err(ModelError::NotRepresentable));
+        let ok = testkit::controller().force();
+        assert_eq!(with(ok, n(30000.0)), Err(ModelError::NotRepresentable));
+        assert_eq!(with(ok, n(0.0)), Err(ModelError::LimitsInverted));
+        assert!(with(ok, n(5.0)).is_ok());
     }
 
     /// The plausibility test's window: a residual of exactly the tolerance passes,
@@ -636,8 +652,8 @@ mod tests {
     #[test]
     fn plausibility_tolerance_is_inclusive_on_both_sides() {
         let tol = n(5.0);
-        let cfg = parts(CONTROLLER.force(), tol).unwrap();
-        let x_ref = CONTROLLER.reference().lo + Micrometres::from_num(1);
+        let cfg = with(testkit::controller().force(), tol).unwrap();
+        let x_ref = cfg.reference().lo + um(1.0);
         for sign in [1, -1] {
             for (extra, faults) in [(0, false), (1, true)] {
                 let mut st = cfg.initial_state();
@@ -648,5 +664,138 @@ mod tests {
                 assert_eq!(out.fault, want, "sign {sign} extra {extra}");
             }
         }
+    }
+
+    #[test]
+    fn compensation_follows_the_reference() {
+        let c = testkit::controller();
+        let mut st = c.initial_state();
+        for x in [12.0, 4.0, 24.5, 18.0] {
+            let out = drive_to(&c, &mut st, x);
+            assert_eq!(out.fault, None);
+            let est = c.stage_position(out.x_pea_est).to_num::<f64>();
+            assert!(
+                (est - x).abs() < 1e-3,
+                "reference {x} µm, estimate {est} µm"
+            );
+        }
+    }
+
+    #[test]
+    fn tare_takes_a_plausible_force_only_at_rest() {
+        let c = testkit::controller();
+        let mut st = c.initial_state();
+        // At rest, measured, in range: taken.
+        assert!(c.tare(&mut st, n(61.5)));
+        assert_eq!(st.force_ref(), n(61.5));
+        // Out of the sensor's range: refused, the last tare stays.
+        assert!(!c.tare(&mut st, n(5.0)));
+        assert_eq!(st.force_ref(), n(61.5));
+        // Not at rest (the output is away from the safe voltage): refused.
+        drive_to(&c, &mut st, 10.0);
+        assert!(!c.tare(&mut st, n(62.0)));
+        // A predicted force has nothing to tare.
+        let p = c.with_force_source(ForceSource::Predicted);
+        let mut sp = p.initial_state();
+        assert!(!p.tare(&mut sp, n(62.0)));
+    }
+
+    #[test]
+    fn a_fault_ramps_to_the_safe_voltage_at_the_slew_limit_and_latches() {
+        let c = testkit::controller();
+        let mut st = c.initial_state();
+        let top = drive_to(&c, &mut st, 24.0).voltage;
+        assert!(top > Volts::from_num(100));
+        // A broken wire: the reading leaves the sensor range.
+        let step = c.limits().max_step();
+        let mut prev = top;
+        let mut ticks = 0;
+        loop {
+            let out = c.step(&mut st, um(24.0), n(500.0));
+            assert_eq!(out.fault, Some(Fault::ForceOutOfRange));
+            assert!(out.limited);
+            assert!(out.voltage < prev || out.voltage == c.safe_voltage());
+            assert!(
+                prev - out.voltage <= step,
+                "never faster than the slew limit"
+            );
+            prev = out.voltage;
+            ticks += 1;
+            if out.voltage == c.safe_voltage() {
+                break;
+            }
+            assert!(ticks < 1000);
+        }
+        let need = (top.to_num::<f64>() / step.to_num::<f64>()).ceil() as usize;
+        assert_eq!(ticks, need, "ramps at the slew limit, not slower");
+        // Good inputs do not clear it; a later, different fault does not replace it.
+        let out = plausible(&c, &mut st, um(40.0));
+        assert_eq!(out.fault, Some(Fault::ForceOutOfRange));
+        assert_eq!(out.voltage, c.safe_voltage());
+    }
+
+    #[test]
+    fn clear_fault_waits_for_the_safe_voltage_and_resumes_without_a_jump() {
+        let c = testkit::controller();
+        let mut st = c.initial_state();
+        drive_to(&c, &mut st, 20.0);
+        plausible(&c, &mut st, um(35.0));
+        assert_eq!(st.fault(), Some(Fault::ReferenceUnreachable));
+        assert!(!st.clear_fault(&c), "not before the ramp has ended");
+        while st.voltage() != c.safe_voltage() {
+            plausible(&c, &mut st, um(20.0));
+        }
+        assert!(st.clear_fault(&c));
+        assert_eq!(st.fault(), None);
+        // The inverse memory was realigned with the ramp actually applied: asking for
+        // where the stage is now does not move it (the voltage may rise to the dead
+        // zone's edge, k_f·F, where the stack has not started to move).
+        let before = st.x_pea_est();
+        let here = c.stage_position(before);
+        let out = plausible(&c, &mut st, here);
+        assert_eq!(out.fault, None);
+        let moved = (out.x_pea_est - before).to_num::<f64>().abs();
+        assert!(moved < 1e-4, "{moved} µm");
+        let out = drive_to(&c, &mut st, 15.0);
+        let est = c.stage_position(out.x_pea_est).to_num::<f64>();
+        assert!((est - 15.0).abs() < 1e-3, "{est}");
+    }
+
+    #[test]
+    fn the_uncompensated_baseline_hands_over_without_a_jump() {
+        let c = testkit::controller();
+        let mut st = c.initial_state();
+        let line = LinearDrive::through(0.0, 8.0, 30.0, 100.0).unwrap();
+        let mut out = None;
+        for k in 0..=420 {
+            // A ramp, then held so that the force has settled.
+            let x = um(20.0 * k.min(400) as f64 / 400.0);
+            let f = force_at(&c, st.x_pea_est());
+            out = Some(c.step_uncompensated(&mut st, &line, x, f));
+        }
+        let out = out.unwrap();
+        assert_eq!(out.fault, None);
+        let want = line.voltage(um(20.0));
+        assert_eq!(out.voltage, want, "the straight line, inside the limits");
+        // Switching to compensation at the stage's actual position keeps the voltage.
+        let here = c.stage_position(st.x_pea_est());
+        let next = plausible(&c, &mut st, here);
+        let jump = (next.voltage - want).to_num::<f64>().abs();
+        assert!(jump < 0.01, "{jump} V");
+        // The baseline is supervised too.
+        let bad = c.step_uncompensated(&mut st, &line, um(10.0), n(1.0));
+        assert_eq!(bad.fault, Some(Fault::ForceOutOfRange));
+    }
+
+    #[test]
+    fn a_predicted_force_ignores_the_sensor() {
+        let c = testkit::controller().with_force_source(ForceSource::Predicted);
+        let mut st = c.initial_state();
+        for k in 0..=200 {
+            let out = c.step(&mut st, um(10.0 * k as f64 / 200.0), n(-999.0));
+            assert_eq!(out.fault, None);
+        }
+        let est = c.stage_position(st.x_pea_est()).to_num::<f64>();
+        assert!((est - 10.0).abs() < 0.05, "{est}");
     }
 }

@@ -17,30 +17,24 @@
 //!
 //! Modules: [`play`] (the OSP operator), [`pi`] (forward PI), [`inverse`] (closed-form
 //! inverse PI), [`fpi`] (force coupling), [`table`] (lookup tables), [`limits`],
-//! [`control`] (the ISR step), [`io`] (sensor/amplifier traits), [`reference`](mod@reference)
-//! (trajectory generator), [`sim`] (the virtual stage of the emulated board),
-//! [`model`] (the embedded model).
+//! [`control`] (the ISR step), [`io`] (sensor/amplifier traits).
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
 #![deny(clippy::panic, clippy::unwrap_used, clippy::expect_used)]
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod control;
-pub mod demo;
 pub mod error;
 pub mod fpi;
 pub mod inverse;
 pub mod io;
 pub mod limits;
-pub mod model;
 pub mod pi;
 pub mod play;
 pub mod q;
-pub mod reference;
-pub mod runner;
-pub mod sim;
-pub mod stats;
 pub mod table;
+#[cfg(test)]
+pub mod testkit;
 
 pub use control::{
     ControllerConfig, ControllerParts, ControllerState, Fault, ForceSource, Interval, LinearDrive,

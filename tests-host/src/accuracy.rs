@@ -18,9 +18,9 @@
 
 use std::path::{Path, PathBuf};
 
+use fpi_firmware::model::{self, CREEP_TERMS, OPERATORS};
 use piezo_fpi::control::{ControllerConfig, ControllerParts, Interval};
 use piezo_fpi::fpi::CreepMemory;
-use piezo_fpi::model::{self, CREEP_TERMS, OPERATORS};
 use piezo_fpi::play::PlayBank;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 

@@ -475,8 +475,11 @@ pub fn run(out: &Path) -> Result<Summary> {
     let ex = export::export(&efpi, &model_path, &fem, &settings)?;
     let text = ex.model.to_toml().map_err(|e| anyhow::anyhow!(e))?;
     std::fs::write(out.join("firmware-stage-a.toml"), &text)?;
-    let embedded = FirmwareModel::parse(piezo_fpi::model::MODEL_TOML, piezo_fpi::model::MODEL_FILE)
-        .map_err(|e| anyhow::anyhow!(e))?;
+    let embedded = FirmwareModel::parse(
+        fpi_firmware::model::MODEL_TOML,
+        fpi_firmware::model::MODEL_FILE,
+    )
+    .map_err(|e| anyhow::anyhow!(e))?;
     let same = {
         let mut a = ex.model.clone();
         let mut b = embedded;
@@ -489,9 +492,9 @@ pub fn run(out: &Path) -> Result<Summary> {
         "export: efpi model → firmware model file ({} tables); {}",
         ex.tables.len(),
         if same {
-            "identical to the model the firmware embeds (src/model/stage-a.toml)"
+            "identical to the model the firmware embeds (firmware/model/stage-a.toml)"
         } else {
-            "DIFFERS from src/model/stage-a.toml — regenerate it with `fpi export` (README)"
+            "DIFFERS from firmware/model/stage-a.toml — regenerate it with `fpi export` (README)"
         }
     ));
     let _ = writeln!(md, "## 5. Export for the firmware (`fpi export`)\n");
@@ -500,9 +503,9 @@ pub fn run(out: &Path) -> Result<Summary> {
         "`firmware-stage-a.toml` from `{}`: {}.\n",
         export::project_relative(&model_path),
         if same {
-            "identical to the embedded `src/model/stage-a.toml`"
+            "identical to the embedded `firmware/model/stage-a.toml`"
         } else {
-            "**differs from the embedded `src/model/stage-a.toml`**"
+            "**differs from the embedded `firmware/model/stage-a.toml`**"
         }
     );
     let _ = writeln!(

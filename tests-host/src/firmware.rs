@@ -109,7 +109,7 @@ pub fn build(bin: &str, features: &str) -> Result<PathBuf> {
             "--target",
             TARGET,
             "-p",
-            "piezo-fpi",
+            "fpi-firmware",
             "--bin",
             bin,
             "--features",
@@ -295,9 +295,9 @@ pub fn parse_phases(stdout: &str) -> Vec<PhaseFigures> {
 /// The same figures computed on the host: the core's control loop and virtual
 /// stage run in a plain loop instead of interrupts.
 pub fn host_phases() -> Result<Vec<PhaseFigures>> {
-    use piezo_fpi::model::{CONTROLLER, CONTROL_RATE_HZ};
-    use piezo_fpi::stats::nm;
-    let (reports, _) = piezo_fpi::demo::run_on_host(&CONTROLLER, CONTROL_RATE_HZ)
+    use fpi_firmware::model::{CONTROLLER, CONTROL_RATE_HZ};
+    use fpi_firmware::runner::nm;
+    let (reports, _) = fpi_firmware::selftest::run_on_host(&CONTROLLER, CONTROL_RATE_HZ)
         .ok_or_else(|| anyhow!("the scripted run did not finish on the host"))?;
     let mut ticks = 0;
     Ok(reports

@@ -1,8 +1,8 @@
 //! The firmware model file: the embedded one is valid, malformed ones are rejected
 //! with the file and the key (the same checks `build.rs` runs before it embeds one).
 
+use fpi_firmware::model;
 use fpi_host::model_file::FirmwareModel;
-use piezo_fpi::model;
 
 fn embedded() -> String {
     model::MODEL_TOML.to_string()

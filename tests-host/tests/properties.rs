@@ -7,10 +7,10 @@
 //!   arbitrary `I16F16` references and forces, including the extremes.
 
 use fixed::types::I16F16;
+use fpi_firmware::model::{CONTROLLER, CREEP_TERMS, OPERATORS};
 use fpi_host::accuracy::{BOUND_U_V, BOUND_X_UM};
 use piezo_fpi::fpi::CreepMemory;
 use piezo_fpi::inverse::InversePi;
-use piezo_fpi::model::{CONTROLLER, CREEP_TERMS, OPERATORS};
 use piezo_fpi::pi::PiModel;
 use piezo_fpi::play::PlayBank;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};

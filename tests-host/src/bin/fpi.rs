@@ -112,7 +112,7 @@ enum Command {
         /// FEM export of the stage.
         #[arg(long)]
         fem: PathBuf,
-        /// Where to write the firmware model file (`src/model/*.toml`).
+        /// Where to write the firmware model file (`firmware/model/*.toml`).
         #[arg(long)]
         out: PathBuf,
         /// Control ISR rate, Hz.

@@ -80,12 +80,6 @@ impl ErrorStats {
     }
 }
 
-/// A value in nanometres rounded to an integer, for logs that print no floats.
-pub fn nm(um: f32) -> i32 {
-    let x = um * 1000.0;
-    (if x < 0.0 { x - 0.5 } else { x + 0.5 }) as i32
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -116,6 +110,5 @@ mod tests {
         assert!((s.rms() - 12.5f32.sqrt()).abs() < 1e-6);
         assert_eq!(s.mae(), 3.5);
         assert_eq!(s.max_abs(), 4.0);
-        assert_eq!(nm(-0.0124), -12);
     }
 }

@@ -14,15 +14,15 @@
 
 use cortex_m_rt::entry;
 use defmt_rtt as _;
+use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
+use fpi_firmware::model::{CONTROLLER, OPERATORS};
+use fpi_firmware::reference::RaisedCosine;
+use fpi_firmware::runner::{nm, Command, Telemetry};
 use heapless::spsc::Queue;
 use panic_probe as _;
 use piezo_fpi::control::Mode;
-use piezo_fpi::io::{AdcScale, DacScale, ForceSensor, Hardware, Setpoint};
-use piezo_fpi::model::{CONTROLLER, OPERATORS};
+use piezo_fpi::io::{ForceSensor, Hardware, Setpoint};
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
-use piezo_fpi::reference::RaisedCosine;
-use piezo_fpi::runner::{Command, Telemetry};
-use piezo_fpi::stats::nm;
 use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime, Sequence};
 use stm32f4xx_hal::adc::Adc;
 use stm32f4xx_hal::dac::{DacOut, DacPin, C1};
@@ -32,12 +32,7 @@ use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
 use stm32f4xx_hal::timer::Event;
 
-use crate::isr::{self, Context, RATE_HZ, TELEMETRY_DEPTH};
-
-/// Force-sensor front end: 12 bits over −5…506.9 N, so a broken wire reads a rail.
-const FORCE_SCALE: AdcScale = piezo_fpi::demo::SIM_ADC;
-/// Setpoint: the 12-bit DAC behind a 150 V / 3.3 V amplifier.
-const SETPOINT_SCALE: DacScale = piezo_fpi::demo::SIM_DAC;
+use crate::isr::{self, Isr, RATE_HZ, TELEMETRY_DEPTH};
 
 /// The force sensor on ADC1/PA0.
 pub struct Sensor {
@@ -49,7 +44,7 @@ impl ForceSensor for Sensor {
     fn read_force(&mut self) -> Newtons {
         let counts = self.adc.current_sample();
         self.adc.start_conversion();
-        FORCE_SCALE.to_force(counts)
+        FORCE_ADC.to_force(counts)
     }
 }
 
@@ -58,12 +53,14 @@ pub struct Amplifier(C1);
 
 impl Setpoint for Amplifier {
     fn write_voltage(&mut self, voltage: Volts) {
-        self.0.set_value(SETPOINT_SCALE.to_code(voltage));
+        self.0.set_value(SETPOINT_DAC.to_code(voltage));
     }
 }
 
 /// The amplifier's enable line.
 pub type Enable = PB0<Output<PushPull>>;
+
+crate::bind_tim2!(Sensor, Amplifier, Enable);
 
 #[entry]
 fn main() -> ! {
@@ -123,7 +120,7 @@ fn main() -> ! {
         defmt::panic!("TIM2 cannot run at {=u32} Hz", RATE_HZ);
     }
     timer.listen(Event::Update);
-    isr::start(Context {
+    start(Isr {
         control: isr::Loop::new(&CONTROLLER, hw, self_test),
         timer,
         telemetry: producer,

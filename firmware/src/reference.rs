@@ -6,7 +6,7 @@
 //! board's self-test and the emulated demo; a real application streams its own
 //! references into the control step instead.
 
-use crate::q::Micrometres;
+use piezo_fpi::q::Micrometres;
 
 include!(concat!(env!("OUT_DIR"), "/cosine.rs"));
 

@@ -5,12 +5,12 @@
 //! [`ControlLoop::run`]; thread mode talks to it only through [`Command`]s (in) and
 //! [`Telemetry`] (out), like Stabilizer's settings swapped in by a low-priority task.
 
-use crate::control::{ControllerConfig, ControllerState, Fault, Mode};
-use crate::fpi::Shape;
-use crate::io::{ForceSensor, Hardware, Setpoint};
-use crate::q::{Micrometres, Volts};
 use crate::reference::{RaisedCosine, Waveform};
 use embedded_hal::digital::OutputPin;
+use piezo_fpi::control::{ControllerConfig, ControllerState, Fault, Mode};
+use piezo_fpi::fpi::Shape;
+use piezo_fpi::io::{ForceSensor, Hardware, Setpoint};
+use piezo_fpi::q::{Micrometres, Volts};
 
 /// What thread mode asks of the control ISR.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -41,7 +41,7 @@ pub struct Telemetry {
 
 /// The control ISR's state (one per stage channel).
 ///
-/// `N`, `C`, `G`, `H`: the model's structure (see [`crate::Fpi`]); `S`, `A`, `E`:
+/// `N`, `C`, `G`, `H`: the model's structure (see [`piezo_fpi::Fpi`]); `S`, `A`, `E`:
 /// the force sensor, the amplifier and its enable line.
 pub struct ControlLoop<'c, const N: usize, const C: usize, G, H, S, A, E> {
     cfg: &'c ControllerConfig<'c, N, C, G, H>,
@@ -116,4 +116,10 @@ impl<
     pub const fn state(&self) -> &ControllerState<N, C> {
         &self.state
     }
+}
+
+/// A value in nanometres rounded to an integer, for logs that print no floats.
+pub fn nm(um: f32) -> i32 {
+    let x = um * 1000.0;
+    (if x < 0.0 { x - 0.5 } else { x + 0.5 }) as i32
 }

@@ -6,22 +6,23 @@
 //! (an index, an overflow check, an `unwrap`, a division) the release build fails
 //! to link with `undefined symbol: control_path_can_panic`. CI builds it.
 //!
-//! `cargo build --release --target thumbv7em-none-eabihf --bin no-panic --features qemu`
+//! `cargo build --release --target thumbv7em-none-eabihf -p fpi-firmware --bin no-panic --features qemu`
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]
 mod proof {
     use core::hint::black_box;
     use cortex_m_rt::entry;
+    use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
+    use fpi_firmware::model::CONTROLLER;
+    use fpi_firmware::reference::RaisedCosine;
+    use fpi_firmware::runner::{Command, ControlLoop};
+    use fpi_firmware::sim_io::SimLink;
     use piezo_fpi::control::Mode;
-    use piezo_fpi::demo::{SimLink, SIM_ADC, SIM_DAC};
-    use piezo_fpi::model::CONTROLLER;
     use piezo_fpi::q::{Micrometres, Newtons};
-    use piezo_fpi::reference::RaisedCosine;
-    use piezo_fpi::runner::{Command, ControlLoop};
     use stm32f4xx_hal as _;
 
-    static LINK: SimLink = SimLink::new(SIM_ADC, SIM_DAC);
+    static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
 
     #[entry]
     fn main() -> ! {

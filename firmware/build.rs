@@ -1,7 +1,9 @@
-//! Generates the firmware's flash-resident model from the checked-in model file.
+//! Generates the firmware's flash-resident model from the checked-in model file,
+//! and puts `memory.x` (the top level of the project) on the linker's path.
 //!
 //! * `$OUT_DIR/model.rs` — the FPI parameters, the FEM tables and the loop settings
-//!   of `src/model/stage-a.toml` (or of the file named by `PIEZO_FPI_MODEL`),
+//!   of `firmware/model/stage-a.toml` (or of the file named by `PIEZO_FPI_MODEL`,
+//!   relative to the project's top level),
 //!   quantised to the core's Q formats. A malformed file fails the build with a
 //!   message naming the file and the key.
 //! * `$OUT_DIR/cosine.rs` — the reference generator's cosine table.
@@ -13,28 +15,37 @@ use std::path::{Path, PathBuf};
 
 mod q {
     #![allow(dead_code)]
-    include!("src/qformat.rs");
+    include!("../src/qformat.rs");
 }
 
-#[path = "src/model_file.rs"]
+#[path = "../src/model_file.rs"]
 #[allow(dead_code)]
 mod model_file;
 
 use model_file::{FirmwareModel, TableSection};
 
-const DEFAULT_MODEL: &str = "src/model/stage-a.toml";
+const DEFAULT_MODEL: &str = "firmware/model/stage-a.toml";
 
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
-    println!("cargo:rerun-if-changed=src/qformat.rs");
-    println!("cargo:rerun-if-changed=src/model_file.rs");
+    println!("cargo:rerun-if-changed=../src/qformat.rs");
+    println!("cargo:rerun-if-changed=../src/model_file.rs");
+    println!("cargo:rerun-if-changed=../memory.x");
     println!("cargo:rerun-if-env-changed=PIEZO_FPI_MODEL");
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
     let manifest = PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets it"));
+    let root = manifest
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or(manifest.clone());
+
+    // The linker finds memory.x (cortex-m-rt's link.x includes it) in OUT_DIR.
+    fs::copy(root.join("memory.x"), out.join("memory.x")).expect("copy memory.x");
+    println!("cargo:rustc-link-search={}", out.display());
 
     let model_path = match env::var("PIEZO_FPI_MODEL") {
-        Ok(p) if !p.is_empty() => manifest.join(p),
-        _ => manifest.join(DEFAULT_MODEL),
+        Ok(p) if !p.is_empty() => root.join(p),
+        _ => root.join(DEFAULT_MODEL),
     };
     println!("cargo:rerun-if-changed={}", model_path.display());
     let code = match generate_model(&model_path) {

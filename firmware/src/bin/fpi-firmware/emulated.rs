@@ -4,31 +4,31 @@
 //! its sensor, DAC and enable line are the core's [`SimLink`]. Thread mode waits
 //! for each tick's telemetry, steps the virtual stage (outside the ISR's budget)
 //! and leaves the next force reading on the link, following the scripted run of
-//! [`piezo_fpi::demo`]. At the end it prints a report and exits through
+//! [`fpi_firmware::selftest`]. At the end it prints a report and exits through
 //! semihosting with status 0 if every self-check passed, 1 otherwise.
 
 use cortex_m_rt::entry;
 use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
+use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
+use fpi_firmware::model::{self, CONTROLLER, CREEP_TERMS, OPERATORS};
+use fpi_firmware::runner::{nm, Telemetry};
+use fpi_firmware::selftest::{Demo, Phase, PhaseReport};
+use fpi_firmware::sim_io::{SimAmplifier, SimEnable, SimLink, SimSensor};
 use heapless::spsc::Queue;
-use piezo_fpi::demo::{Demo, Phase, PhaseReport, SimLink, SIM_ADC, SIM_DAC};
-use piezo_fpi::model::{self, CONTROLLER, CREEP_TERMS, OPERATORS};
-use piezo_fpi::runner::Telemetry;
-use piezo_fpi::stats::nm;
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
 use stm32f4xx_hal::timer::Event;
 
-use crate::isr::{self, Context, RATE_HZ, TELEMETRY_DEPTH};
+use crate::isr::{self, Isr, RATE_HZ, TELEMETRY_DEPTH};
 
-/// The emulated sensor, DAC and enable line: the ISR's half of the link.
-pub type Sensor = piezo_fpi::demo::SimSensor<'static>;
-/// The emulated DAC.
-pub type Amplifier = piezo_fpi::demo::SimAmplifier<'static>;
-/// The emulated amplifier-enable line.
-pub type Enable = piezo_fpi::demo::SimEnable<'static>;
+crate::bind_tim2!(
+    SimSensor<'static>,
+    SimAmplifier<'static>,
+    SimEnable<'static>
+);
 
-static LINK: SimLink = SimLink::new(SIM_ADC, SIM_DAC);
+static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
 
 #[entry]
 fn main() -> ! {
@@ -71,7 +71,7 @@ fn run() -> bool {
     }
     timer.listen(Event::Update);
     let control = isr::Loop::new(&CONTROLLER, LINK.hardware(), demo.command());
-    isr::start(Context {
+    start(Isr {
         control,
         timer,
         telemetry: producer,

@@ -21,14 +21,15 @@ mod bench {
     use cortex_m_rt::entry;
     use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
     use cortex_m_semihosting::hprintln;
+    use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
+    use fpi_firmware::model::{self, CONTROLLER};
+    use fpi_firmware::reference::RaisedCosine;
+    use fpi_firmware::runner::{Command, ControlLoop};
+    use fpi_firmware::sim_io::SimLink;
     use piezo_fpi::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Mode};
-    use piezo_fpi::demo::{SimLink, SIM_ADC, SIM_DAC};
     use piezo_fpi::fpi::{Coupling, Fpi, Identity, Shape};
-    use piezo_fpi::model::{self, CONTROLLER};
     use piezo_fpi::pi::PiModel;
     use piezo_fpi::q::{Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton};
-    use piezo_fpi::reference::RaisedCosine;
-    use piezo_fpi::runner::{Command, ControlLoop};
     // The device crate provides the interrupt vector table.
     use stm32f4xx_hal as _;
 
@@ -230,7 +231,7 @@ mod bench {
         );
     }
 
-    static LINK: SimLink = SimLink::new(SIM_ADC, SIM_DAC);
+    static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
 
     extern "C" {
         static mut _stack_start: u32;

@@ -16,110 +16,16 @@
 //! | 4 | inverse FPI | 5 Hz; force-sensor wire breaks | fault at once, ramp to 0 V, amplifier off |
 //! | 5 | inverse FPI | swings to 50 µm, beyond the stroke | fault at the crossing, ramp to 0 V |
 
-use crate::control::{ControllerConfig, Fault, ForceSource, LinearDrive, Mode};
-use crate::fpi::Shape;
-use crate::io::{AdcScale, DacScale, ForceSensor, Hardware, Setpoint};
-use crate::q::{Micrometres, Newtons, Volts};
+use piezo_fpi::control::{ControllerConfig, Fault, ForceSource, LinearDrive, Mode};
+use piezo_fpi::fpi::Shape;
+use piezo_fpi::q::{Micrometres, Newtons};
+use piezo_sim::stage::{stage_a, Stage, StageParams};
+use piezo_sim::stats::ErrorStats;
+
+use crate::frontend::{FORCE_ADC, SETPOINT_DAC};
 use crate::reference::RaisedCosine;
 use crate::runner::{Command, ControlLoop, Telemetry};
-use crate::sim::{stage_a, Stage, StageParams};
-use crate::stats::ErrorStats;
-use core::convert::Infallible;
-use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
-use embedded_hal::digital::{ErrorType, OutputPin};
-
-/// The emulated board's analog world: the ADC result the virtual stage leaves for
-/// the ISR, the DAC code and enable line the ISR leaves for the virtual stage.
-/// Atomics, because the ISR and thread mode share it.
-pub struct SimLink {
-    adc_counts: AtomicU32,
-    dac_code: AtomicU32,
-    enabled: AtomicBool,
-    /// Board scaling of the force ADC.
-    pub adc: AdcScale,
-    /// Board scaling of the setpoint DAC.
-    pub dac: DacScale,
-}
-
-/// The emulated board's ADC: 12 bits over −5…506.9 N (0.125 N per count).
-pub const SIM_ADC: AdcScale = AdcScale {
-    offset: Newtons::from_bits(-5 << 16),
-    per_count: fixed::types::I4F28::from_bits(1 << 25),
-};
-/// The emulated board's DAC: the STM32's 12-bit DAC behind a 0–150 V amplifier.
-pub const SIM_DAC: DacScale = DacScale {
-    codes_per_volt: fixed::types::I16F16::from_bits(1_789_132), // 4095 / 150
-    max_code: 4095,
-};
-/// Largest ADC code.
-pub const ADC_MAX: u16 = 4095;
-
-impl SimLink {
-    /// An idle link (0 counts, 0 V, amplifier off).
-    pub const fn new(adc: AdcScale, dac: DacScale) -> Self {
-        Self {
-            adc_counts: AtomicU32::new(0),
-            dac_code: AtomicU32::new(0),
-            enabled: AtomicBool::new(false),
-            adc,
-            dac,
-        }
-    }
-    /// Thread mode: the force the sensor reads from now on, N.
-    pub fn set_force(&self, force_n: f32) {
-        let c = self.adc.to_counts(force_n, ADC_MAX);
-        self.adc_counts.store(c as u32, Ordering::Release);
-    }
-    /// Thread mode: the amplifier output, V (0 while disabled), and the enable line.
-    pub fn output(&self) -> (f32, bool) {
-        let code = self.dac_code.load(Ordering::Acquire) as u16;
-        (
-            self.dac.to_voltage(code),
-            self.enabled.load(Ordering::Acquire),
-        )
-    }
-    /// The ISR's side of the link: sensor, amplifier, enable.
-    pub fn hardware(&self) -> Hardware<SimSensor<'_>, SimAmplifier<'_>, SimEnable<'_>> {
-        Hardware {
-            sensor: SimSensor(self),
-            amplifier: SimAmplifier(self),
-            enable: SimEnable(self),
-        }
-    }
-}
-
-/// The emulated force sensor (ISR side of a [`SimLink`]).
-pub struct SimSensor<'a>(&'a SimLink);
-/// The emulated DAC (ISR side of a [`SimLink`]).
-pub struct SimAmplifier<'a>(&'a SimLink);
-/// The emulated amplifier-enable line (ISR side of a [`SimLink`]).
-pub struct SimEnable<'a>(&'a SimLink);
-
-impl ForceSensor for SimSensor<'_> {
-    fn read_force(&mut self) -> Newtons {
-        let c = self.0.adc_counts.load(Ordering::Acquire) as u16;
-        self.0.adc.to_force(c)
-    }
-}
-impl Setpoint for SimAmplifier<'_> {
-    fn write_voltage(&mut self, voltage: Volts) {
-        let code = self.0.dac.to_code(voltage);
-        self.0.dac_code.store(code as u32, Ordering::Release);
-    }
-}
-impl ErrorType for SimEnable<'_> {
-    type Error = Infallible;
-}
-impl OutputPin for SimEnable<'_> {
-    fn set_low(&mut self) -> Result<(), Infallible> {
-        self.0.enabled.store(false, Ordering::Release);
-        Ok(())
-    }
-    fn set_high(&mut self) -> Result<(), Infallible> {
-        self.0.enabled.store(true, Ordering::Release);
-        Ok(())
-    }
-}
+use crate::sim_io::SimLink;
 
 /// The phases of the script.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -197,7 +103,7 @@ pub const BROKEN_WIRE_N: f32 = 500.0;
 
 /// The scripted run (state of thread mode).
 pub struct Demo {
-    f_k: crate::table::Table<'static>,
+    f_k: piezo_fpi::table::Table<'static>,
     rate_hz: f32,
     linear: LinearDrive,
     stage: Stage<{ stage_a::OPERATORS }>,
@@ -418,7 +324,7 @@ pub fn run_on_host<const N: usize, const C: usize, G: Shape<'static>, H: Shape<'
     cfg: &'static ControllerConfig<'static, N, C, G, H>,
     rate_hz: u32,
 ) -> Option<([Option<PhaseReport>; 5], u32)> {
-    let link = SimLink::new(SIM_ADC, SIM_DAC);
+    let link = SimLink::new(FORCE_ADC, SETPOINT_DAC);
     let mut demo = Demo::new(cfg, rate_hz)?;
     demo.prime(&link);
     let mut lp = ControlLoop::new(cfg, link.hardware(), demo.command());

@@ -1,4 +1,4 @@
-//! The embedded stage model, generated at build time from `src/model/stage-a.toml`
+//! The embedded stage model, generated at build time from `firmware/model/stage-a.toml`
 //! (or the file named by the `PIEZO_FPI_MODEL` environment variable at build time).
 //!
 //! Everything here is `const`/`static`: the PI weights, the inverse computed by the
@@ -7,16 +7,16 @@
 //! host crate), which calibrates on the recorded data and resamples the FEM maps
 //! onto power-of-two grids.
 
-use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval};
+use fixed::types::I16F16;
+use piezo_fpi::control::{ControllerConfig, ControllerParts, ForceSource, Interval};
 #[allow(unused_imports)]
-use crate::fpi::{Coupling, Creep, Fpi, Identity, Map};
-use crate::limits::OutputLimits;
-use crate::pi::PiModel;
+use piezo_fpi::fpi::{Coupling, Creep, Fpi, Identity, Map};
+use piezo_fpi::limits::OutputLimits;
+use piezo_fpi::pi::PiModel;
 #[allow(unused_imports)]
-use crate::q::{
+use piezo_fpi::q::{
     CreepRate, Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2,
 };
-use crate::table::{Segment, Table};
-use fixed::types::I16F16;
+use piezo_fpi::table::{Segment, Table};
 
 include!(concat!(env!("OUT_DIR"), "/model.rs"));
