@@ -20,7 +20,7 @@
 //! slew limit (a piezo stack must not be discharged with a step) and reports the
 //! fault, until [`ControllerState::clear_fault`] is called once the ramp is done.
 
-use crate::error::ModelError;
+use crate::error::{Field, Invalid, ModelError};
 use crate::fpi::{CreepMemory, Fpi, Identity, Shape};
 use crate::limits::OutputLimits;
 use crate::play::{Bottom, PlayBank, Top};
@@ -37,14 +37,6 @@ pub struct Interval {
     pub lo: fixed::types::I16F16,
     /// Upper end.
     pub hi: fixed::types::I16F16,
-}
-
-impl Interval {
-    /// `lo <= x <= hi`.
-    #[inline(always)]
-    pub fn contains(&self, x: fixed::types::I16F16) -> bool {
-        x >= self.lo && x <= self.hi
-    }
 }
 
 /// A validated interval (`lo <= hi`) as its lower end and its span, raw bits: `x`
@@ -77,6 +69,89 @@ impl Window {
     fn contains_bits(&self, x: i32) -> bool {
         (x.wrapping_sub(self.lo) as u32) <= self.span
     }
+}
+
+/// The supervision windows a validated controller checks its inputs against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Windows {
+    reference: Window,
+    force: Window,
+    /// `[-tolerance, tolerance]`, for the plausibility residual `F - f_F(x_pea_est)`.
+    residual: Window,
+}
+
+/// Checks a controller's settings against its limits and its `f_K⁻¹` table: the
+/// reference and force intervals not inverted, the reference interval inside the
+/// `f_K⁻¹` grid, the safe voltage inside the limits, a positive tolerance, and the
+/// force interval and tolerance inside the signal range (±4096 N, so that the
+/// residual `F - f_F` is exact in 32 bits). The one check, shared by
+/// [`ControllerConfig::new`] and the model validator.
+pub const fn check_settings(
+    limits: &OutputLimits,
+    f_k_inv: &Table<'_>,
+    reference: Interval,
+    force: Interval,
+    force_tolerance: Newtons,
+    safe_voltage: Volts,
+) -> Result<Windows, Invalid> {
+    let Some(reference_window) = Window::new(reference) else {
+        return Err(Invalid::at(Field::ReferenceMin, ModelError::LimitsInverted));
+    };
+    let Some(force_window) = Window::new(force) else {
+        return Err(Invalid::at(Field::ForceMin, ModelError::LimitsInverted));
+    };
+    if reference.lo.to_bits() < f_k_inv.x_min().to_bits() {
+        return Err(Invalid::at(
+            Field::ReferenceMin,
+            ModelError::ReferenceOutsideTable,
+        ));
+    }
+    if reference.hi.to_bits() > f_k_inv.x_max().to_bits() {
+        return Err(Invalid::at(
+            Field::ReferenceMax,
+            ModelError::ReferenceOutsideTable,
+        ));
+    }
+    let s = safe_voltage.to_bits();
+    if s < limits.min().to_bits() || s > limits.max().to_bits() {
+        return Err(Invalid::at(
+            Field::SafeVoltage,
+            ModelError::SafeVoltageOutsideLimits,
+        ));
+    }
+    let tol = force_tolerance.to_bits();
+    if tol <= 0 {
+        return Err(Invalid::at(
+            Field::ForceTolerance,
+            ModelError::NonPositiveTolerance,
+        ));
+    }
+    if tol > SIGNAL_ABS_MAX_BITS {
+        return Err(Invalid::at(
+            Field::ForceTolerance,
+            ModelError::NotRepresentable,
+        ));
+    }
+    if force.lo.to_bits() < -SIGNAL_ABS_MAX_BITS {
+        return Err(Invalid::at(Field::ForceMin, ModelError::NotRepresentable));
+    }
+    if force.hi.to_bits() > SIGNAL_ABS_MAX_BITS {
+        return Err(Invalid::at(Field::ForceMax, ModelError::NotRepresentable));
+    }
+    let Some(residual) = Window::new(Interval {
+        lo: Newtons::from_bits(-tol),
+        hi: force_tolerance,
+    }) else {
+        return Err(Invalid::at(
+            Field::ForceTolerance,
+            ModelError::NonPositiveTolerance,
+        ));
+    };
+    Ok(Windows {
+        reference: reference_window,
+        force: force_window,
+        residual,
+    })
 }
 
 /// Where the preload in `u = PI⁻¹[…] + k_f·F` comes from.
@@ -172,38 +247,18 @@ pub struct ControllerParts<'a, const N: usize, const C: usize = 0, G = Identity,
 impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
     ControllerConfig<'a, N, C, G, H>
 {
-    /// Validates the parts: intervals not inverted, the reference interval inside
-    /// the `f_K⁻¹` grid, the safe voltage inside the limits, a positive tolerance,
-    /// and the force interval and tolerance inside the signal range (±4096 N).
+    /// Validates the parts ([`check_settings`]) and builds the configuration.
     pub const fn new(p: ControllerParts<'a, N, C, G, H>) -> Result<Self, ModelError> {
-        let (rl, rh) = (p.reference.lo.to_bits(), p.reference.hi.to_bits());
-        let (Some(reference_window), Some(force_window)) =
-            (Window::new(p.reference), Window::new(p.force))
-        else {
-            return Err(ModelError::LimitsInverted);
-        };
-        if rl < p.f_k_inv.x_min().to_bits() || rh > p.f_k_inv.x_max().to_bits() {
-            return Err(ModelError::TableSpan);
-        }
-        let s = p.safe_voltage.to_bits();
-        if s < p.limits.min().to_bits() || s > p.limits.max().to_bits() {
-            return Err(ModelError::LimitsInverted);
-        }
-        let tol = p.force_tolerance.to_bits();
-        if tol <= 0 {
-            return Err(ModelError::LimitsInverted);
-        }
-        // Readings and tolerance inside the signal range keep the residual
-        // `F - f_F` (f_F is a table, inside it too) exact in 32 bits.
-        let (fl, fh) = (p.force.lo.to_bits(), p.force.hi.to_bits());
-        if fl < -SIGNAL_ABS_MAX_BITS || fh > SIGNAL_ABS_MAX_BITS || tol > SIGNAL_ABS_MAX_BITS {
-            return Err(ModelError::NotRepresentable);
-        }
-        let Some(residual_window) = Window::new(Interval {
-            lo: Newtons::from_bits(-tol),
-            hi: p.force_tolerance,
-        }) else {
-            return Err(ModelError::LimitsInverted);
+        let w = match check_settings(
+            &p.limits,
+            &p.f_k_inv,
+            p.reference,
+            p.force,
+            p.force_tolerance,
+            p.safe_voltage,
+        ) {
+            Ok(w) => w,
+            Err(e) => return Err(e.error),
         };
         Ok(Self {
             fpi: p.fpi,
@@ -213,9 +268,9 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             limits: p.limits,
             reference: p.reference,
             force: p.force,
-            reference_window,
-            force_window,
-            residual_window,
+            reference_window: w.reference,
+            force_window: w.force,
+            residual_window: w.residual,
             force_tolerance: p.force_tolerance,
             safe_voltage: p.safe_voltage,
             force_source: p.force_source,
@@ -643,7 +698,12 @@ mod tests {
         assert_eq!(with(wide, n(5.0)), Err(ModelError::NotRepresentable));
         let ok = testkit::controller().force();
         assert_eq!(with(ok, n(30000.0)), Err(ModelError::NotRepresentable));
-        assert_eq!(with(ok, n(0.0)), Err(ModelError::LimitsInverted));
+        assert_eq!(with(ok, n(0.0)), Err(ModelError::NonPositiveTolerance));
+        let inverted = Interval {
+            lo: n(100.0),
+            hi: n(50.0),
+        };
+        assert_eq!(with(inverted, n(5.0)), Err(ModelError::LimitsInverted));
         assert!(with(ok, n(5.0)).is_ok());
     }
 

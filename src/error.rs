@@ -1,20 +1,26 @@
-//! Why a model, table or limit set was rejected at construction.
+//! The one vocabulary of model errors: what is wrong ([`ModelError`]) and, for a
+//! whole model, where ([`Field`], named by the model file's keys) — [`Invalid`].
 //!
-//! Construction runs at compile time for the firmware's embedded model (a bad
-//! model file fails the build) and at run time for host tools; never in the ISR.
+//! The constructors of the core's types report a [`ModelError`]; the model
+//! validator ([`crate::model::validate`]) locates it in the model. Build time
+//! (`firmware/build.rs`), the host tools and the board's model upload all report
+//! an invalid model with these, so a problem reads the same wherever it is found.
+//! Construction runs at compile time for the firmware's embedded model and at run
+//! time elsewhere; never in the ISR.
 
 use core::fmt;
 
 /// A configuration the core refuses to run, with the offending index where there is one.
 ///
-/// Indices are 0-based positions in the array that was passed in.
+/// Indices are 0-based positions in the array that was passed in (for a table:
+/// the knot).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ModelError {
     /// A partial weight sum `S_j = w0 + w_1 + … + w_j` is not positive: the PI is not
     /// strictly increasing and has no inverse (`index` 0 is `w0` alone).
     NonPositiveSlope {
-        /// Position of the offending element.
+        /// `j` of the partial sum.
         index: u8,
     },
     /// A threshold is negative (one-sided play operators need `r >= 0`).
@@ -36,31 +42,53 @@ pub enum ModelError {
     DomainOutOfRange,
     /// `sum |w| * input_max` leaves the signal range: outputs would overflow.
     OutputOutOfRange,
-    /// An inverse weight does not fit `VoltsPerUm` (±512 V/µm): `w0` is too small.
+    /// An inverse weight does not fit `VoltsPerUm` (±512 V/µm): a partial sum
+    /// `S_j` (`index` = `j`) is too small.
     InverseWeightOutOfRange {
-        /// Position of the offending element.
+        /// `j` of the partial sum the weight is built from.
         index: u8,
     },
     /// More than [`crate::q::MAX_OPERATORS`] operators.
     TooManyOperators,
+    /// More than [`crate::q::MAX_CREEP_TERMS`] creep terms.
+    TooManyCreepTerms,
+    /// A creep rate `1 - a` is not in `(0, 0.5)` per sample: the time constant is
+    /// not positive or shorter than `T_s / ln 2`.
+    CreepRateOutOfRange,
+    /// The curvature `k_q` of the preload offset exceeds ±0.00195 V/N², the range
+    /// over which `k_q·(1024 N)²` stays inside the signal range.
+    CurvatureOutOfRange,
     /// A lookup table needs at least two knots and at most [`crate::q::MAX_TABLE_LEN`].
     TableLength,
-    /// The knot spacing `2^shift` LSB is outside `2..=2^16` LSB (at most one unit).
+    /// The knot spacing `2^shift` LSB is outside `2..=2^16` LSB (2⁻¹⁵ to one unit).
     TableSpacing,
-    /// The table's last knot lies beyond the signal range.
+    /// A knot (the first, the last, or a value) lies beyond the signal range.
     TableSpan,
     /// Table values are not monotone; `index` is the first knot that breaks the order.
     TableNotMonotone {
-        /// Position of the offending element.
+        /// Knot.
         index: u16,
     },
     /// Neighbouring knot values differ by half a unit or more: use a finer grid.
     TableTooSteep {
-        /// Position of the offending element.
+        /// Knot.
         index: u16,
     },
-    /// A lower limit is above its upper limit, or a rate limit is not positive.
+    /// A lower limit is above its upper limit.
     LimitsInverted,
+    /// The slew limit (largest change per step) is not positive.
+    NonPositiveSlew,
+    /// The reference interval reaches beyond the `f_K⁻¹` table's grid.
+    ReferenceOutsideTable,
+    /// The safe voltage lies outside the voltage limits.
+    SafeVoltageOutsideLimits,
+    /// The force-plausibility tolerance is not positive.
+    NonPositiveTolerance,
+    /// The control rate is outside 100 Hz – 200 kHz.
+    RateOutOfRange,
+    /// Two arrays that go together have different lengths (thresholds and
+    /// weights, a count and its items).
+    LengthMismatch,
     /// An engineering value is not finite or does not fit its Q format.
     NotRepresentable,
 }
@@ -78,19 +106,30 @@ impl ModelError {
             Self::DomainOutOfRange => "the input domain is empty or beyond the signal range",
             Self::OutputOutOfRange => "sum |w| * input_max leaves the signal range",
             Self::InverseWeightOutOfRange { .. } => {
-                "an inverse weight does not fit I10F22 (w0 too small)"
+                "an inverse weight does not fit I10F22 (a partial weight sum is too small)"
             }
-            Self::TooManyOperators => "more play operators than the core supports",
+            Self::TooManyOperators => "more play operators than the core supports (32)",
+            Self::TooManyCreepTerms => "more creep terms than the core supports (8)",
+            Self::CreepRateOutOfRange => {
+                "creep time constant not longer than T_s / ln 2 (rate 1 - a outside (0, 0.5))"
+            }
+            Self::CurvatureOutOfRange => "k_q beyond ±0.00195 V/N²",
             Self::TableLength => "a lookup table needs 2..=4096 knots",
-            Self::TableSpacing => "table knot spacing outside 2..=2^16 LSB (at most one unit)",
-            Self::TableSpan => "table span leaves the signal range",
+            Self::TableSpacing => {
+                "table knot spacing outside 2^-15..=1 units (step_log2 must be -15..=0)"
+            }
+            Self::TableSpan => "a table knot lies beyond the signal range (±4096)",
             Self::TableNotMonotone { .. } => "table values are not monotone",
             Self::TableTooSteep { .. } => {
                 "neighbouring table values differ by 0.5 or more: use a finer grid"
             }
-            Self::LimitsInverted => {
-                "a lower limit exceeds its upper limit or a rate is not positive"
-            }
+            Self::LimitsInverted => "the lower limit exceeds the upper limit",
+            Self::NonPositiveSlew => "the slew limit is not positive",
+            Self::ReferenceOutsideTable => "the reference range reaches beyond the f_K⁻¹ table",
+            Self::SafeVoltageOutsideLimits => "the safe voltage lies outside the voltage limits",
+            Self::NonPositiveTolerance => "the force tolerance is not positive",
+            Self::RateOutOfRange => "the control rate is outside 100..=200000 Hz",
+            Self::LengthMismatch => "arrays that go together have different lengths",
             Self::NotRepresentable => "a value is not finite or does not fit its Q format",
         }
     }
@@ -122,3 +161,220 @@ impl fmt::Display for ModelError {
 }
 
 impl core::error::Error for ModelError {}
+
+/// One of the lookup tables of a model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum TableId {
+    /// Preload `f_F`.
+    FF,
+    /// Kinematics `f_K`.
+    FK,
+    /// Inverse kinematics `f_K⁻¹`.
+    FKInv,
+    /// The soft dead zone `g`.
+    DeadZone,
+    /// Its inverse.
+    DeadZoneInverse,
+    /// The output saturation `h`.
+    Saturation,
+    /// Its inverse.
+    SaturationInverse,
+}
+
+impl TableId {
+    /// The table's key in the model file.
+    pub const fn key(self) -> &'static str {
+        match self {
+            Self::FF => "tables.f_f",
+            Self::FK => "tables.f_k",
+            Self::FKInv => "tables.f_k_inv",
+            Self::DeadZone => "dead_zone.forward",
+            Self::DeadZoneInverse => "dead_zone.inverse",
+            Self::Saturation => "saturation.forward",
+            Self::SaturationInverse => "saturation.inverse",
+        }
+    }
+}
+
+/// A part of a lookup table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum TablePart {
+    /// The first knot.
+    X0,
+    /// The knot spacing.
+    StepLog2,
+    /// The values at the knots.
+    Values,
+}
+
+/// Where in a model a value lives: the model file's key, without the index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Field {
+    /// The number of play operators (and of thresholds and weights).
+    Operators,
+    /// `w0`, µm/V.
+    PiW0,
+    /// Thresholds `r_i`, V.
+    PiThresholds,
+    /// Weights `w_i`, µm/V.
+    PiWeights,
+    /// Input domain, V.
+    PiInputMax,
+    /// `k0`, V.
+    CouplingOffset,
+    /// `k_f`, V/N.
+    CouplingKf,
+    /// `k_q`, V/N².
+    CouplingKq,
+    /// `F_q`, N.
+    CouplingForceQ,
+    /// Compliance, µm/N.
+    CouplingCompliance,
+    /// `F_ref`, N.
+    CouplingForceRef,
+    /// The number of creep terms.
+    Creep,
+    /// A creep term's time constant, s.
+    CreepTau,
+    /// A creep term's gain, µm/V.
+    CreepGain,
+    /// A part of a table.
+    Table(TableId, TablePart),
+    /// Control rate, Hz.
+    Rate,
+    /// Lowest setpoint, V.
+    UMin,
+    /// Highest setpoint, V.
+    UMax,
+    /// Slew limit, V/ms.
+    Slew,
+    /// Lowest reference, µm.
+    ReferenceMin,
+    /// Highest reference, µm.
+    ReferenceMax,
+    /// Lowest plausible force, N.
+    ForceMin,
+    /// Highest plausible force, N.
+    ForceMax,
+    /// Force-plausibility tolerance, N.
+    ForceTolerance,
+    /// Safe voltage, V.
+    SafeVoltage,
+    /// Measured or predicted force.
+    ForceSource,
+    /// The model as a whole (format, version, length, checksum).
+    Model,
+}
+
+impl Field {
+    /// The model file's key (the table part is added by [`Display`](fmt::Display)).
+    pub const fn key(self) -> &'static str {
+        match self {
+            Self::Operators => "pi.thresholds_v",
+            Self::PiW0 => "pi.w0_um_per_v",
+            Self::PiThresholds => "pi.thresholds_v",
+            Self::PiWeights => "pi.weights_um_per_v",
+            Self::PiInputMax => "pi.input_max_v",
+            Self::CouplingOffset => "coupling.offset_v",
+            Self::CouplingKf => "coupling.k_f_v_per_n",
+            Self::CouplingKq => "coupling.k_q_v_per_n2",
+            Self::CouplingForceQ => "coupling.force_q_n",
+            Self::CouplingCompliance => "coupling.compliance_um_per_n",
+            Self::CouplingForceRef => "coupling.force_ref_n",
+            Self::Creep => "creep",
+            Self::CreepTau => "creep.tau_s",
+            Self::CreepGain => "creep.gain_um_per_v",
+            Self::Table(t, _) => t.key(),
+            Self::Rate => "controller.rate_hz",
+            Self::UMin => "controller.u_min_v",
+            Self::UMax => "controller.u_max_v",
+            Self::Slew => "controller.slew_v_per_ms",
+            Self::ReferenceMin => "controller.reference_min_um",
+            Self::ReferenceMax => "controller.reference_max_um",
+            Self::ForceMin => "controller.force_min_n",
+            Self::ForceMax => "controller.force_max_n",
+            Self::ForceTolerance => "controller.force_tolerance_n",
+            Self::SafeVoltage => "controller.safe_voltage_v",
+            Self::ForceSource => "controller.force_source",
+            Self::Model => "model",
+        }
+    }
+}
+
+/// Why a model is invalid, and where: the field, the element (when the field is an
+/// array) and the problem.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Invalid {
+    /// Where.
+    pub field: Field,
+    /// Which element of the field, if it is an array.
+    pub index: Option<u16>,
+    /// What is wrong.
+    pub error: ModelError,
+}
+
+impl Invalid {
+    /// An error about a whole field.
+    pub const fn at(field: Field, error: ModelError) -> Self {
+        Self {
+            field,
+            index: None,
+            error,
+        }
+    }
+    /// An error about element `index` of a field.
+    pub const fn at_index(field: Field, index: usize, error: ModelError) -> Self {
+        Self {
+            field,
+            index: Some(index as u16),
+            error,
+        }
+    }
+}
+
+/// `key[index]`, e.g. `pi.weights_um_per_v[3]`, `tables.f_f.step_log2`,
+/// `creep[1].tau_s`.
+impl fmt::Display for Field {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.key())?;
+        if let Self::Table(_, part) = self {
+            f.write_str(match part {
+                TablePart::X0 => ".x0",
+                TablePart::StepLog2 => ".step_log2",
+                TablePart::Values => ".values",
+            })?;
+        }
+        Ok(())
+    }
+}
+
+impl Invalid {
+    /// Writes the located key: `pi.weights_um_per_v[3]`, `creep[1].tau_s`.
+    pub fn write_key(&self, f: &mut impl fmt::Write) -> fmt::Result {
+        match (self.field, self.index) {
+            (Field::CreepTau | Field::CreepGain, Some(i)) => {
+                let leaf = if self.field == Field::CreepTau {
+                    "tau_s"
+                } else {
+                    "gain_um_per_v"
+                };
+                write!(f, "creep[{i}].{leaf}")
+            }
+            (field, Some(i)) => write!(f, "{field}[{i}]"),
+            (field, None) => write!(f, "{field}"),
+        }
+    }
+}
+
+impl fmt::Display for Invalid {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.write_key(f)?;
+        write!(f, ": {}", self.error.message())
+    }
+}
+
+impl core::error::Error for Invalid {}

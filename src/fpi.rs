@@ -35,13 +35,13 @@
 //! The creep memories `m_j` are advanced once per sample, by the forward model
 //! with the voltage actually applied, and read by the next inverse.
 
-use crate::error::ModelError;
+use crate::error::{Field, Invalid, ModelError};
 use crate::inverse::InversePi;
 use crate::pi::PiModel;
 use crate::play::{Edge, PlayBank};
 use crate::q::{
     coupling_mul, quad_mul, within, CreepRate, GainAcc, Micrometres, Newtons, UmPerNewton,
-    UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2, GAIN_FRAC, QUAD_MAX_BITS,
+    UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2, GAIN_FRAC, MAX_CREEP_TERMS, QUAD_MAX_BITS,
     SIGNAL_ABS_MAX_BITS,
 };
 use crate::table::Table;
@@ -70,6 +70,36 @@ pub struct Coupling {
 }
 
 impl Coupling {
+    /// Checks what the model's arithmetic needs of a coupling: `F_ref` and `F_q`
+    /// inside the signal range, `|k_q|·(1024 N)²` inside it too (the curvature
+    /// product's clamp). The one check, shared by [`Fpi::new`] and the model
+    /// validator.
+    pub const fn check(&self) -> Result<(), Invalid> {
+        let fr = self.force_ref.to_bits();
+        if fr > SIGNAL_ABS_MAX_BITS || fr < -SIGNAL_ABS_MAX_BITS {
+            return Err(Invalid::at(
+                Field::CouplingForceRef,
+                ModelError::NotRepresentable,
+            ));
+        }
+        let fq = self.force_q.to_bits();
+        if fq > SIGNAL_ABS_MAX_BITS || fq < -SIGNAL_ABS_MAX_BITS {
+            return Err(Invalid::at(
+                Field::CouplingForceQ,
+                ModelError::NotRepresentable,
+            ));
+        }
+        let kq = self.k_q.to_bits() as i64;
+        let kq = if kq < 0 { -kq } else { kq };
+        if kq > QUAD_MAX_BITS {
+            return Err(Invalid::at(
+                Field::CouplingKq,
+                ModelError::CurvatureOutOfRange,
+            ));
+        }
+        Ok(())
+    }
+
     /// The paper's coupling: `U_p = k_f·F`, no compliance.
     pub const fn paper(k_f: VoltsPerNewton) -> Self {
         Self {
@@ -187,11 +217,18 @@ pub struct Creep {
 }
 
 impl Creep {
+    /// A placeholder term (rate and gain 0) for unused slots of fixed-size arrays.
+    pub(crate) const DISABLED: Self = Self {
+        rate: CreepRate::ZERO,
+        gain: UmPerVolt::ZERO,
+        held: UmPerVolt::ZERO,
+    };
+
     /// A creep term from its per-sample rate `1 - a` and gain `b`.
     pub const fn new(rate: CreepRate, gain: UmPerVolt) -> Result<Self, ModelError> {
         let r = rate.to_bits() as i64;
         if r <= 0 {
-            return Err(ModelError::NotRepresentable);
+            return Err(ModelError::CreepRateOutOfRange);
         }
         // b·a = b - b·(1 - a), in GAIN_FRAC bits.
         let g = gain.to_bits() as i64;
@@ -210,6 +247,26 @@ impl Creep {
     pub const fn gain(&self) -> UmPerVolt {
         self.gain
     }
+}
+
+/// `w0' = w0 + Σ_j b_j·(1 - a_j)`, µm/V: the linear weight of this sample's PI once
+/// the creep lags' response to it is folded in (the inverse inverts that PI). At
+/// most [`MAX_CREEP_TERMS`] terms; fails if `w0'` does not fit a weight.
+pub const fn creep_slope(w0: UmPerVolt, creep: &[Creep]) -> Result<UmPerVolt, ModelError> {
+    if creep.len() > MAX_CREEP_TERMS {
+        return Err(ModelError::TooManyCreepTerms);
+    }
+    let mut w0p = w0.to_bits() as i64;
+    let mut j = 0;
+    while j < creep.len() {
+        let c = creep[j];
+        w0p += (c.gain.to_bits() as i64 * c.rate.to_bits() as i64 + (1 << 31)) >> 32;
+        j += 1;
+    }
+    if w0p > i32::MAX as i64 || w0p < i32::MIN as i64 {
+        return Err(ModelError::NotRepresentable);
+    }
+    Ok(UmPerVolt::from_bits(w0p as i32))
 }
 
 /// The creep memories `m_j` (state), volts as `I16F48` raw bits: the extra
@@ -276,33 +333,14 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
         saturation: H,
         creep: [Creep; C],
     ) -> Result<Self, ModelError> {
-        let fr = coupling.force_ref.to_bits();
-        let fq = coupling.force_q.to_bits();
-        if fr > SIGNAL_ABS_MAX_BITS
-            || fr < -SIGNAL_ABS_MAX_BITS
-            || fq > SIGNAL_ABS_MAX_BITS
-            || fq < -SIGNAL_ABS_MAX_BITS
-        {
-            return Err(ModelError::NotRepresentable);
+        if let Err(e) = coupling.check() {
+            return Err(e.error);
         }
-        // |k_q|·(1024 N)² must stay inside the signal range (quad_mul's clamp).
-        let kq = coupling.k_q.to_bits() as i64;
-        let kq = if kq < 0 { -kq } else { kq };
-        if kq > QUAD_MAX_BITS {
-            return Err(ModelError::NotRepresentable);
-        }
-        // w0' = w0 + Σ b_j (1 - a_j), in GAIN_FRAC bits.
-        let mut w0p = pi.w0().to_bits() as i64;
-        let mut j = 0;
-        while j < C {
-            let c = creep[j];
-            w0p += (c.gain.to_bits() as i64 * c.rate.to_bits() as i64 + (1 << 31)) >> 32;
-            j += 1;
-        }
-        if w0p > i32::MAX as i64 {
-            return Err(ModelError::NotRepresentable);
-        }
-        let pi_prime = match pi.with_w0(UmPerVolt::from_bits(w0p as i32)) {
+        let w0p = match creep_slope(pi.w0(), &creep) {
+            Ok(w) => w,
+            Err(e) => return Err(e),
+        };
+        let pi_prime = match pi.with_w0(w0p) {
             Ok(p) => p,
             Err(e) => return Err(e),
         };

@@ -20,8 +20,8 @@ use crate::error::ModelError;
 use crate::pi::PiModel;
 use crate::play::{Edge, Operator, Operators, PlayBank};
 use crate::q::{
-    narrow_inv_gain_biased, within, Micrometres, Volts, VoltsPerUm, GAIN_FRAC, INV_GAIN_FRAC,
-    INV_GAIN_ROUND, SIGNAL_ABS_MAX_BITS, SIGNAL_FRAC,
+    narrow_inv_gain_biased, within, Micrometres, UmPerVolt, Volts, VoltsPerUm, GAIN_FRAC,
+    INV_GAIN_FRAC, INV_GAIN_ROUND, SIGNAL_ABS_MAX_BITS, SIGNAL_FRAC,
 };
 
 /// Configuration of an inverse PI model: stack extension in (µm), voltage out (V).
@@ -48,70 +48,114 @@ const fn div_round(num: i128, den: i128) -> i128 {
     }
 }
 
-impl<const N: usize> InversePi<N> {
-    /// Computes the inverse of a validated forward model; `const` so the firmware's
-    /// inverse is built by the compiler. Fails if an inverse weight does not fit
-    /// `I10F22` (that is, `w0 < 1/512` µm/V) or the output could leave the signal range.
-    pub const fn from_forward(fwd: &PiModel<N>) -> Result<Self, ModelError> {
-        let w0 = fwd.w0().to_bits() as i128; // GAIN_FRAC bits; > 0 by construction
-        let fops = fwd.operators();
-        // 1/w0 in INV_GAIN_FRAC bits: 2^(INV + GAIN) / w0_bits.
-        let inv_w0 = div_round(1i128 << (INV_GAIN_FRAC + GAIN_FRAC), w0);
-        if inv_w0 > i32::MAX as i128 {
-            return Err(ModelError::InverseWeightOutOfRange { index: 0 });
+/// What the closed-form inverse of a forward operator set derives (besides its
+/// operators): the sums its bank needs.
+///
+/// * `w0` — `1/w0`, V/µm.
+/// * `slope` — `w0' + Σ w'_j = 1/S_N`, raw `I10F22` bits.
+/// * `offset` — `Σ w'_j·r'_j`, raw bits with `INV_GAIN_FRAC + SIGNAL_FRAC` fractional bits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct InverseSums {
+    /// `1/w0`, V/µm.
+    pub w0: VoltsPerUm,
+    /// `1/S_N`, raw inverse-weight bits.
+    pub slope: i32,
+    /// `Σ w'_j·r'_j`, raw inverse-gain × signal bits.
+    pub offset: i64,
+}
+
+/// The closed-form inverse of a validated forward operator set (`w0`, `fwd`, whose
+/// largest output is `output_max` µm): writes the inverse operators into `out`
+/// (same length as `fwd`) and returns its sums. The one computation of the inverse,
+/// shared by [`InversePi::from_forward`] and the model validator.
+///
+/// Fails if an inverse weight does not fit `I10F22` (that is, `w0 < 1/512` µm/V;
+/// indices as [`ModelError::NonPositiveSlope`]'s: `j` for the weight built from
+/// `S_j`) or the output could leave the signal range.
+pub const fn invert(
+    w0: UmPerVolt,
+    fwd: &[Operator<UmPerVolt>],
+    output_max: Micrometres,
+    out: &mut [Operator<VoltsPerUm>],
+) -> Result<InverseSums, ModelError> {
+    let n = fwd.len();
+    if out.len() != n {
+        return Err(ModelError::LengthMismatch);
+    }
+    let w0 = w0.to_bits() as i128; // GAIN_FRAC bits; > 0 by construction
+                                   // 1/w0 in INV_GAIN_FRAC bits: 2^(INV + GAIN) / w0_bits.
+    let inv_w0 = div_round(1i128 << (INV_GAIN_FRAC + GAIN_FRAC), w0);
+    if inv_w0 > i32::MAX as i128 {
+        return Err(ModelError::InverseWeightOutOfRange { index: 0 });
+    }
+    let mut abs_sum = inv_w0;
+    let mut slope = inv_w0; // w0' + Σ w'_j, INV_GAIN_FRAC bits
+    let mut offset = 0i128; // Σ w'_j r'_j, INV_GAIN_FRAC + SIGNAL_FRAC bits
+    let mut s_prev = w0; // S_{j-1}
+    let mut sum_wr = 0i128; // Σ_{i<j} w_i r_i, GAIN_FRAC + SIGNAL_FRAC bits (r_0 = 0)
+    let mut j = 0;
+    while j < n {
+        let wj = fwd[j].weight.to_bits() as i128;
+        let rj = fwd[j].threshold.to_bits() as i128;
+        let s = s_prev + wj; // S_j > 0 by construction
+        sum_wr += wj * rj;
+        // r'_j = S_j r_j - Σ_{i<=j} w_i r_i, rounded to SIGNAL_FRAC bits.
+        let rp = div_round(s * rj - sum_wr, 1i128 << GAIN_FRAC);
+        // w'_j = -w_j / (S_j S_{j-1}), with all three in GAIN_FRAC bits:
+        // (-w_j · 2^(INV + GAIN)) / (S_j · S_{j-1}).
+        let wp = div_round(-wj * (1i128 << (INV_GAIN_FRAC + GAIN_FRAC)), s * s_prev);
+        if wp > i32::MAX as i128 || wp < i32::MIN as i128 {
+            return Err(ModelError::InverseWeightOutOfRange {
+                index: (j + 1) as u8,
+            });
         }
-        let mut abs_sum = inv_w0;
-        let mut slope = inv_w0; // w0' + Σ w'_j, INV_GAIN_FRAC bits
-        let mut offset = 0i128; // Σ w'_j r'_j, INV_GAIN_FRAC + SIGNAL_FRAC bits
+        out[j] = Operator {
+            threshold: Micrometres::from_bits(rp as i32),
+            weight: VoltsPerUm::from_bits(wp as i32),
+        };
+        abs_sum += if wp < 0 { -wp } else { wp };
+        slope += wp;
+        offset += wp * rp;
+        s_prev = s;
+        j += 1;
+    }
+    if output_max.to_bits() <= 0 {
+        return Err(ModelError::DomainOutOfRange);
+    }
+    // Bound of every partial sum: sum|w'| * x_max, in INV + SIGNAL bits.
+    if abs_sum * output_max.to_bits() as i128 >= (SIGNAL_ABS_MAX_BITS as i128) << INV_GAIN_FRAC {
+        return Err(ModelError::OutputOutOfRange);
+    }
+    // The final slope w0' + Σ w'_j = 1/S_N must fit a weight too (the gap
+    // form multiplies the input by it): only a concern with negative weights,
+    // where S_N < w0 is possible. Reported at the last partial sum.
+    if slope > i32::MAX as i128 || slope < i32::MIN as i128 {
+        return Err(ModelError::InverseWeightOutOfRange { index: n as u8 });
+    }
+    Ok(InverseSums {
+        w0: VoltsPerUm::from_bits(inv_w0 as i32),
+        slope: slope as i32,
+        // |offset| <= sum|w'| * x_max, bounded just above.
+        offset: offset as i64,
+    })
+}
+
+impl<const N: usize> InversePi<N> {
+    /// Computes the inverse of a validated forward model ([`invert`]); `const` so
+    /// the firmware's inverse is built by the compiler.
+    pub const fn from_forward(fwd: &PiModel<N>) -> Result<Self, ModelError> {
         let mut ops = [Operator {
             threshold: Micrometres::ZERO,
             weight: VoltsPerUm::ZERO,
         }; N];
-        let mut s_prev = w0; // S_{j-1}
-        let mut sum_wr = 0i128; // Σ_{i<j} w_i r_i, GAIN_FRAC + SIGNAL_FRAC bits (r_0 = 0)
-        let mut j = 0;
-        while j < N {
-            let wj = fops[j].weight.to_bits() as i128;
-            let rj = fops[j].threshold.to_bits() as i128;
-            let s = s_prev + wj; // S_j > 0 by construction
-            sum_wr += wj * rj;
-            // r'_j = S_j r_j - Σ_{i<=j} w_i r_i, rounded to SIGNAL_FRAC bits.
-            let rp = div_round(s * rj - sum_wr, 1i128 << GAIN_FRAC);
-            ops[j].threshold = Micrometres::from_bits(rp as i32);
-            // w'_j = -w_j / (S_j S_{j-1}): INV bits = GAIN + INV + 2 GAIN - 2 GAIN ... i.e.
-            // (-w_j · 2^(INV + GAIN)) / (S_j · S_{j-1}) with all three in GAIN_FRAC bits.
-            let wp = div_round(-wj * (1i128 << (INV_GAIN_FRAC + GAIN_FRAC)), s * s_prev);
-            if wp > i32::MAX as i128 || wp < i32::MIN as i128 {
-                return Err(ModelError::InverseWeightOutOfRange {
-                    index: (j + 1) as u8,
-                });
-            }
-            ops[j].weight = VoltsPerUm::from_bits(wp as i32);
-            abs_sum += if wp < 0 { -wp } else { wp };
-            slope += wp;
-            offset += wp * rp;
-            s_prev = s;
-            j += 1;
-        }
-        let input_max = fwd.output_max();
-        if input_max.to_bits() <= 0 {
-            return Err(ModelError::DomainOutOfRange);
-        }
-        // Bound of every partial sum: sum|w'| * x_max, in INV + SIGNAL bits.
-        if abs_sum * input_max.to_bits() as i128 >= (SIGNAL_ABS_MAX_BITS as i128) << INV_GAIN_FRAC {
-            return Err(ModelError::OutputOutOfRange);
-        }
-        // The final slope w0' + Σ w'_j = 1/S_N must fit a weight too (the gap
-        // form multiplies the input by it): only a concern with negative weights,
-        // where S_N < w0 is possible. Reported at the last partial sum.
-        if slope > i32::MAX as i128 || slope < i32::MIN as i128 {
-            return Err(ModelError::InverseWeightOutOfRange { index: N as u8 });
-        }
+        let sums = match invert(fwd.w0(), fwd.operators(), fwd.output_max(), &mut ops) {
+            Ok(s) => s,
+            Err(e) => return Err(e),
+        };
         Ok(Self {
-            w0: VoltsPerUm::from_bits(inv_w0 as i32),
-            // |offset| <= sum|w'| * x_max, bounded just above.
-            ops: Operators::from_parts(ops, slope as i32, offset as i64, INV_GAIN_ROUND),
-            input_max,
+            w0: sums.w0,
+            ops: Operators::from_parts(ops, sums.slope, sums.offset, INV_GAIN_ROUND),
+            input_max: fwd.output_max(),
             output_max: fwd.input_max(),
         })
     }

@@ -17,7 +17,8 @@
 //!
 //! Modules: [`play`] (the OSP operator), [`pi`] (forward PI), [`inverse`] (closed-form
 //! inverse PI), [`fpi`] (force coupling), [`table`] (lookup tables), [`limits`],
-//! [`control`] (the ISR step), [`io`] (sensor/amplifier traits).
+//! [`control`] (the ISR step), [`io`] (sensor/amplifier traits), [`model`] (the
+//! model format and its validator), [`error`] (the error vocabulary).
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
 #![deny(clippy::panic, clippy::unwrap_used, clippy::expect_used)]
@@ -29,6 +30,7 @@ pub mod fpi;
 pub mod inverse;
 pub mod io;
 pub mod limits;
+pub mod model;
 pub mod pi;
 pub mod play;
 pub mod q;
@@ -40,7 +42,7 @@ pub use control::{
     ControllerConfig, ControllerParts, ControllerState, Fault, ForceSource, Interval, LinearDrive,
     Mode, StepOutput,
 };
-pub use error::ModelError;
+pub use error::{Field, Invalid, ModelError};
 pub use fpi::{Coupling, ForceTerms, Fpi};
 pub use inverse::InversePi;
 pub use limits::OutputLimits;

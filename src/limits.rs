@@ -18,8 +18,11 @@ pub struct OutputLimits {
 impl OutputLimits {
     /// Validates `min <= max` and `max_step > 0`.
     pub const fn new(min: Volts, max: Volts, max_step: Volts) -> Result<Self, ModelError> {
-        if min.to_bits() > max.to_bits() || max_step.to_bits() <= 0 {
+        if min.to_bits() > max.to_bits() {
             return Err(ModelError::LimitsInverted);
+        }
+        if max_step.to_bits() <= 0 {
+            return Err(ModelError::NonPositiveSlew);
         }
         Ok(Self { min, max, max_step })
     }
@@ -78,7 +81,7 @@ mod tests {
         );
         assert_eq!(
             OutputLimits::new(v(0.0), v(10.0), v(0.0)).unwrap_err(),
-            ModelError::LimitsInverted
+            ModelError::NonPositiveSlew
         );
     }
 }

@@ -28,28 +28,103 @@ pub struct PiModel<const N: usize> {
     output_max: Micrometres,
 }
 
+/// What a validated operator set derives: the sums its bank needs and its range.
+///
+/// * `slope` — `w0 + Σ w_i`, raw `I4F28` bits (fits an `i32`: `Σ|w|` is checked).
+/// * `offset` — `Σ w_i·r_i`, raw bits with `GAIN_FRAC + SIGNAL_FRAC` fractional bits.
+/// * `output_max` — `Y[input_max]` on the loading curve, µm.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PiSums {
+    /// `w0 + Σ w_i`, raw weight bits.
+    pub slope: i32,
+    /// `Σ w_i·r_i`, raw gain × signal bits.
+    pub offset: i64,
+    /// `Y[input_max]`, µm.
+    pub output_max: Micrometres,
+}
+
+/// Checks a forward PI's parameters and derives its sums; the one check of an
+/// operator set, shared by [`PiModel::new`] and the model validator
+/// ([`crate::model::validate`]).
+///
+/// `w0 > 0`; thresholds in `[0, input_max]` and sorted; every partial sum
+/// `S_j = w0 + w_1 + … + w_j` positive (indices of [`ModelError::NonPositiveSlope`]
+/// are `j`, 0 for `w0` alone); `Σ|w|·input_max` inside the signal range.
+pub const fn check(
+    w0: UmPerVolt,
+    ops: &[Operator<UmPerVolt>],
+    input_max: Volts,
+) -> Result<PiSums, ModelError> {
+    let n = ops.len();
+    if n > MAX_OPERATORS {
+        return Err(ModelError::TooManyOperators);
+    }
+    let u_max = input_max.to_bits() as i64;
+    if u_max <= 0 || u_max > SIGNAL_ABS_MAX_BITS as i64 {
+        return Err(ModelError::DomainOutOfRange);
+    }
+    let mut slope = w0.to_bits() as i64;
+    if slope <= 0 {
+        return Err(ModelError::NonPositiveSlope { index: 0 });
+    }
+    let mut abs_sum = slope;
+    let mut offset = 0i64; // Σ w_i r_i, GAIN_FRAC + SIGNAL_FRAC bits
+    let mut prev = 0i64;
+    let mut i = 0;
+    while i < n {
+        let r = ops[i].threshold.to_bits() as i64;
+        if r < 0 {
+            return Err(ModelError::NegativeThreshold { index: i as u8 });
+        }
+        if r < prev {
+            return Err(ModelError::ThresholdsNotSorted { index: i as u8 });
+        }
+        if r > u_max {
+            return Err(ModelError::ThresholdBeyondDomain { index: i as u8 });
+        }
+        prev = r;
+        let w = ops[i].weight.to_bits() as i64;
+        slope += w;
+        offset += w * r;
+        if slope <= 0 {
+            return Err(ModelError::NonPositiveSlope {
+                index: (i + 1) as u8,
+            });
+        }
+        abs_sum += if w < 0 { -w } else { w };
+        i += 1;
+    }
+    // Every partial sum of products is bounded by sum|w| * input_max; it must
+    // narrow back into the signal range. Raw units: GAIN_FRAC + SIGNAL_FRAC bits.
+    // And sum|w| itself fits a gain, so every partial slope S_j is an I4F28.
+    if abs_sum * u_max >= (SIGNAL_ABS_MAX_BITS as i64) << GAIN_FRAC || abs_sum > i32::MAX as i64 {
+        return Err(ModelError::OutputOutOfRange);
+    }
+    // Y[input_max] on the loading curve: S_N * U - sum w_i r_i (operators all active).
+    let mut acc = w0.wide_mul(input_max);
+    let mut j = 0;
+    while j < n {
+        let y = Volts::from_bits(input_max.to_bits() - ops[j].threshold.to_bits());
+        acc = GainAcc::from_bits(acc.to_bits() + ops[j].weight.wide_mul(y).to_bits());
+        j += 1;
+    }
+    Ok(PiSums {
+        // |slope| <= sum|w| fits an i32 (checked above).
+        slope: slope as i32,
+        offset,
+        output_max: narrow_gain(acc),
+    })
+}
+
 impl<const N: usize> PiModel<N> {
-    /// Validates and builds a model; `const` so an embedded model is checked at compile time.
+    /// Validates ([`check`]) and builds a model; `const` so an embedded model is
+    /// checked at compile time.
     pub const fn new(
         w0: UmPerVolt,
         thresholds: [Volts; N],
         weights: [UmPerVolt; N],
         input_max: Volts,
     ) -> Result<Self, ModelError> {
-        if N > MAX_OPERATORS {
-            return Err(ModelError::TooManyOperators);
-        }
-        let u_max = input_max.to_bits() as i64;
-        if u_max <= 0 || u_max > SIGNAL_ABS_MAX_BITS as i64 {
-            return Err(ModelError::DomainOutOfRange);
-        }
-        let mut slope = w0.to_bits() as i64;
-        if slope <= 0 {
-            return Err(ModelError::NonPositiveSlope { index: 0 });
-        }
-        let mut abs_sum = slope;
-        let mut offset = 0i64; // Σ w_i r_i, GAIN_FRAC + SIGNAL_FRAC bits
-        let mut prev = 0i64;
         let mut ops = [Operator {
             threshold: Volts::ZERO,
             weight: UmPerVolt::ZERO,
@@ -60,63 +135,32 @@ impl<const N: usize> PiModel<N> {
                 threshold: thresholds[i],
                 weight: weights[i],
             };
-            let r = thresholds[i].to_bits() as i64;
-            if r < 0 {
-                return Err(ModelError::NegativeThreshold { index: i as u8 });
-            }
-            if r < prev {
-                return Err(ModelError::ThresholdsNotSorted { index: i as u8 });
-            }
-            if r > u_max {
-                return Err(ModelError::ThresholdBeyondDomain { index: i as u8 });
-            }
-            prev = r;
-            let w = weights[i].to_bits() as i64;
-            slope += w;
-            offset += w * r;
-            if slope <= 0 {
-                return Err(ModelError::NonPositiveSlope {
-                    index: (i + 1) as u8,
-                });
-            }
-            abs_sum += if w < 0 { -w } else { w };
             i += 1;
         }
-        // Every partial sum of products is bounded by sum|w| * input_max; it must
-        // narrow back into the signal range. Raw units: GAIN_FRAC + SIGNAL_FRAC bits.
-        // And sum|w| itself fits a gain, so every partial slope S_j is an I4F28.
-        if abs_sum * u_max >= (SIGNAL_ABS_MAX_BITS as i64) << GAIN_FRAC || abs_sum > i32::MAX as i64
-        {
-            return Err(ModelError::OutputOutOfRange);
-        }
-        // Y[input_max] on the loading curve: S_N * U - sum w_i r_i (operators all active).
-        let mut acc = w0.wide_mul(input_max);
-        let mut j = 0;
-        while j < N {
-            let y = Volts::from_bits(input_max.to_bits() - thresholds[j].to_bits());
-            acc = GainAcc::from_bits(acc.to_bits() + weights[j].wide_mul(y).to_bits());
-            j += 1;
-        }
+        Self::from_operators(w0, ops, input_max)
+    }
+
+    /// [`new`](Self::new) from the operators, thresholds and weights side by side.
+    pub const fn from_operators(
+        w0: UmPerVolt,
+        ops: [Operator<UmPerVolt>; N],
+        input_max: Volts,
+    ) -> Result<Self, ModelError> {
+        let sums = match check(w0, &ops, input_max) {
+            Ok(s) => s,
+            Err(e) => return Err(e),
+        };
         Ok(Self {
             w0,
-            // |slope| <= sum|w| fits an i32 (checked above).
-            ops: Operators::from_parts(ops, slope as i32, offset, q::GAIN_ROUND),
+            ops: Operators::from_parts(ops, sums.slope, sums.offset, q::GAIN_ROUND),
             input_max,
-            output_max: narrow_gain(acc),
+            output_max: sums.output_max,
         })
     }
 
     /// The same operators with another linear weight `w0` (validated again).
     pub const fn with_w0(&self, w0: UmPerVolt) -> Result<Self, ModelError> {
-        let mut r = [Volts::ZERO; N];
-        let mut w = [UmPerVolt::ZERO; N];
-        let mut i = 0;
-        while i < N {
-            r[i] = self.ops.ops()[i].threshold;
-            w[i] = self.ops.ops()[i].weight;
-            i += 1;
-        }
-        Self::new(w0, r, w, self.input_max)
+        Self::from_operators(w0, *self.ops.ops(), self.input_max)
     }
 
     /// Builds a model from engineering values (µm/V, V); for host tools and tests.
@@ -144,16 +188,6 @@ impl<const N: usize> PiModel<N> {
     pub fn apply<E: Edge>(&self, state: &mut PlayBank<N, E>, u: Volts) -> Micrometres {
         let u = within(u, Volts::ZERO, self.input_max);
         q::narrow_gain_biased(state.advance(&self.ops, u))
-    }
-
-    /// `Y` of the current operator states for input `u`, without changing them.
-    ///
-    /// The output the model would give if `u` were applied now; used by solvers that
-    /// must commit the operator state only for the solution of an implicit equation.
-    #[inline]
-    pub fn peek<E: Edge>(&self, state: &PlayBank<N, E>, u: Volts) -> Micrometres {
-        let mut scratch = *state;
-        self.apply(&mut scratch, u)
     }
 
     /// Linear weight `w0`, µm/V.
@@ -218,17 +252,6 @@ mod tests {
         assert_eq!(m.apply(&mut s, Volts::from_num(-20)), Micrometres::ZERO);
         let top = m.apply(&mut s, Volts::from_num(400));
         assert_eq!(top, m.output_max());
-    }
-
-    #[test]
-    fn peek_does_not_commit() {
-        let m = model();
-        let mut s = PlayBank::new();
-        m.apply(&mut s, Volts::from_num(80));
-        let before = s;
-        let p = m.peek(&s, Volts::from_num(40));
-        assert_eq!(s, before);
-        assert_eq!(p, m.apply(&mut s, Volts::from_num(40)));
     }
 
     #[test]

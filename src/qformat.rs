@@ -25,3 +25,5 @@ pub const INV_GAIN_ABS_MAX: f64 = 511.999;
 pub const MAX_OPERATORS: usize = 32;
 /// Most knots in one lookup table.
 pub const MAX_TABLE_LEN: usize = 4096;
+/// Most creep terms in one model.
+pub const MAX_CREEP_TERMS: usize = 8;

@@ -19,7 +19,7 @@
 use piezo_fpi::control::{ControllerConfig, Fault, ForceSource, LinearDrive, Mode};
 use piezo_fpi::fpi::Shape;
 use piezo_fpi::q::{Micrometres, Newtons};
-use piezo_sim::stage::{stage_a, Stage, StageParams};
+use piezo_sim::stage::{stage_a, Stage};
 use piezo_sim::stats::ErrorStats;
 
 use crate::frontend::{FORCE_ADC, SETPOINT_DAC};
@@ -62,9 +62,9 @@ pub struct PhaseReport {
     /// Which phase.
     pub phase: Phase,
     /// Stage position minus reference (after the settling period), µm.
-    pub tracking: ErrorStats,
+    pub tracking: ErrorStats<f32>,
     /// Virtual sensor minus stage position (after settling, outside faults), µm.
-    pub estimate: ErrorStats,
+    pub estimate: ErrorStats<f32>,
     /// Ticks in the phase.
     pub steps: u32,
     /// First fault seen, with the phase tick it appeared at.
@@ -106,8 +106,7 @@ pub struct Demo {
     f_k: piezo_fpi::table::Table<'static>,
     rate_hz: f32,
     linear: LinearDrive,
-    stage: Stage<{ stage_a::OPERATORS }>,
-    params: StageParams<'static>,
+    stage: Stage<'static>,
     phase: usize,
     tick: u32,
     report: PhaseReport,
@@ -144,8 +143,7 @@ impl Demo {
             f_k: *cfg.f_k(),
             rate_hz: rate_hz as f32,
             linear,
-            stage: Stage::new(&stage_a::PARAMS, 0x5EED),
-            params: stage_a::PARAMS,
+            stage: Stage::new(&stage_a::PARAMS, 0x5EED)?,
             phase: 0,
             tick: 0,
             report: Self::blank(PHASES[0]),
@@ -239,9 +237,7 @@ impl Demo {
         let phase = PHASES[self.phase];
         let (steps, settle) = self.length(phase);
         let (voltage_v, amplifier_on) = link.output();
-        let sample = self
-            .stage
-            .step(&self.params, if amplifier_on { voltage_v } else { 0.0 });
+        let sample = self.stage.step(if amplifier_on { voltage_v } else { 0.0 });
         let r = &mut self.report;
         if voltage_v > r.max_voltage {
             r.max_voltage = voltage_v;
@@ -283,7 +279,7 @@ impl Demo {
             }
         }
         // The sensor reading for the next tick, with the scripted wire break.
-        let mut force = self.stage.sense_force(&self.params, sample.force_n);
+        let mut force = self.stage.sense_force(sample.force_n);
         if PHASES[self.phase] == Phase::SensorFault && self.tick >= self.fault_tick() {
             force = BROKEN_WIRE_N;
         }
@@ -352,8 +348,8 @@ pub fn run_on_host<const N: usize, const C: usize, G: Shape<'static>, H: Shape<'
 impl Demo {
     /// Leaves the first force reading (the stage at rest) on the link.
     pub fn prime(&mut self, link: &SimLink) {
-        let f = Stage::<{ stage_a::OPERATORS }>::preload(&self.params, 0.0);
-        link.set_force(self.stage.sense_force(&self.params, f));
+        let f = self.stage.rest_force();
+        link.set_force(self.stage.sense_force(f));
     }
 }
 

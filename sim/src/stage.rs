@@ -1,34 +1,32 @@
-//! A virtual flexure-hinge piezo stage: what the emulated board drives instead of hardware.
+//! A virtual flexure-hinge piezo stage: what the emulated board drives instead of
+//! hardware.
 //!
-//! QEMU models no DAC and no analog world, so the `qemu` build of the firmware
-//! closes its loop through this model, stepped in thread mode between control
-//! interrupts (outside the ISR's budget). It is the best description of stage A
-//! the recorded data support, plus what the firmware's model leaves out:
+//! QEMU models no DAC and no analog world, so the emulated firmware closes its loop
+//! through this model, stepped in thread mode between control interrupts (outside
+//! the ISR's budget). It is the project's float model ([`crate::model`]) in `f32`,
+//! solved with the project's coupled solver ([`crate::solve`]) at every sample, on
+//! stage A's FEM maps, plus what the firmware's model leaves out:
 //!
 //! * the stack: the extended FPI structure identified on `pea-rig/` (preload
 //!   offset with curvature, soft dead zone, output saturation, four creep lags,
-//!   compliance) evaluated in floating point with the analytic functions, not
-//!   tables;
+//!   compliance) with the analytic maps, not tables;
 //! * an amplifier lag (first order, 0.09 ms: the small-signal lag seen in the
 //!   chirp recordings' current) that the firmware does not compensate;
 //! * a built prototype whose hinge preload is 3 % below the FEM's (the recorded
 //!   stage rests at 60 N where the FEM says 61.8 N);
 //! * a noisy force sensor (0.15 N).
 //!
-//! Plain `f32` with `micromath`'s `exp`/`ln` and [`crate::stats::sqrt`] called
-//! explicitly, so the host and the Cortex-M4F run the same instructions and get
-//! bit-identical trajectories: the host test suite predicts the emulator's
-//! figures exactly.
-//!
-//! Each step solves the coupled equation of seed 000, Table 1, step 4a,
-//! `x = h(Y[g(v - U_p(F(x)))]) - c·(F(x) - F(0))` with `F = force_scale·f_F`, by
-//! bisection (the right-hand side is non-increasing in `x`), committing the
-//! operator and creep states only for the solution, then `x_fhps = f_K(x)`.
+//! `f32` math goes through `libm` (plain Rust), so the host and the Cortex-M4F run
+//! the same instructions and get the same trajectories: the host's twin predicts
+//! the emulator's figures.
 
-use micromath::F32Ext;
+use heapless::Vec;
 
-/// Most creep lags a virtual stage may have.
-pub const MAX_CREEP: usize = 8;
+use crate::fem::Fem;
+use crate::maps::OutputMap;
+use crate::model::{lag_rate, Coupling, Creep, DeadZone, Model, Output, State};
+use crate::play::Pi;
+use crate::solve::{coupled, WarmStart};
 
 /// Parameters of a virtual stage (configuration). Units in the names.
 #[derive(Debug, Clone, Copy)]
@@ -39,6 +37,8 @@ pub struct StageParams<'a> {
     pub thresholds_v: &'a [f32],
     /// Play-operator weights, µm/V (same length).
     pub weights_um_per_v: &'a [f32],
+    /// Input domain of the PI, V.
+    pub input_max_v: f32,
     /// Preload offset `U_p(F) = offset + k_f·F + k_q·(F - F_q)²`: the constant, V.
     pub offset_v: f32,
     /// … its slope, V/N.
@@ -47,7 +47,7 @@ pub struct StageParams<'a> {
     pub k_q_v_per_n2: f32,
     /// … and the curvature's centre, N.
     pub force_q_n: f32,
-    /// Softness of the dead zone `g(e) = s·ln(1 + exp(e/s))`, V (0: hard, `max(e, 0)`).
+    /// Softness of the dead zone `g(e) = s·ln(1 + exp(e/s))`, V.
     pub softness_v: f32,
     /// Output saturation `z + β·z² = Y`, 1/µm (0: none).
     pub saturation_per_um: f32,
@@ -61,11 +61,11 @@ pub struct StageParams<'a> {
     pub amplifier_tau_s: f32,
     /// Step rate, Hz.
     pub sample_rate_hz: f32,
-    /// Knot spacing of the FEM maps in stack extension, µm (first knot at 0).
-    pub fem_step_um: f32,
-    /// FEM preload at the knots, N.
+    /// FEM: stack extension at the points, µm (increasing).
+    pub fem_x_pea_um: &'a [f32],
+    /// FEM preload at the points, N.
     pub fem_force_n: &'a [f32],
-    /// FEM stage output at the knots, µm.
+    /// FEM stage output at the points, µm.
     pub fem_output_um: &'a [f32],
     /// Built prototype's preload relative to the FEM's (e.g. 0.971).
     pub force_scale: f32,
@@ -73,15 +73,60 @@ pub struct StageParams<'a> {
     pub force_noise_n: f32,
 }
 
-/// State of a virtual stage with `M` play operators.
-#[derive(Debug, Clone, Copy)]
-pub struct Stage<const M: usize> {
-    y: [f32; M],
-    creep: [f32; MAX_CREEP],
-    creep_rate: [f32; MAX_CREEP],
+impl<'a> StageParams<'a> {
+    /// The stack model these parameters describe; `None` if the arrays do not fit
+    /// the model's capacity or do not pair up.
+    pub fn model(&self) -> Option<Model<'a, f32>> {
+        if self.creep_tau_s.len() != self.creep_gain_um_per_v.len() {
+            return None;
+        }
+        let mut creep = Vec::new();
+        for (&tau_s, &gain) in self.creep_tau_s.iter().zip(self.creep_gain_um_per_v) {
+            creep.push(Creep { tau_s, gain }).ok()?;
+        }
+        Some(Model {
+            pi: Pi::new(
+                self.w0_um_per_v,
+                self.thresholds_v,
+                self.weights_um_per_v,
+                self.input_max_v,
+            )?,
+            ldpi: None,
+            coupling: Some(Coupling {
+                offset: self.offset_v,
+                k_f: self.k_f_v_per_n,
+                k_q: self.k_q_v_per_n2,
+                force_q: self.force_q_n,
+                compliance: self.compliance_um_per_n,
+            }),
+            dead_zone: DeadZone::Soft(self.softness_v),
+            output: Output::Map(OutputMap::Saturation {
+                beta_per_um: self.saturation_per_um,
+            }),
+            offset: 0.0,
+            creep,
+        })
+    }
+
+    /// The built prototype's maps: the FEM's, with its preload scaled.
+    pub fn fem(&self) -> Option<Fem<'a, f32>> {
+        let mut fem = Fem::new(self.fem_x_pea_um, self.fem_force_n, self.fem_output_um)?;
+        fem.preload_scale = self.force_scale;
+        Some(fem)
+    }
+}
+
+/// A virtual stage (configuration and state).
+#[derive(Debug, Clone)]
+pub struct Stage<'a> {
+    model: Model<'a, f32>,
+    fem: Fem<'a, f32>,
+    state: State<f32>,
+    warm: WarmStart<f32>,
     amplifier_alpha: f32,
+    force_noise_n: f32,
+    force_ref: f32,
     voltage: f32,
-    x_pea: f32,
     rng: u32,
 }
 
@@ -98,148 +143,57 @@ pub struct StageSample {
     pub x_fhps_um: f32,
 }
 
-/// Linear interpolation on a uniform grid starting at 0, holding the ends.
-fn interp(step: f32, ys: &[f32], x: f32) -> f32 {
-    let t = x / step;
-    if t.is_nan() || t <= 0.0 {
-        return ys.first().copied().unwrap_or(0.0);
-    }
-    let k = t as usize;
-    match (ys.get(k), ys.get(k + 1)) {
-        (Some(&a), Some(&b)) => a + (b - a) * (t - k as f32),
-        _ => ys.last().copied().unwrap_or(0.0),
-    }
-}
-
-/// `1 - exp(-1/(rate·τ))`: the per-step rate of a first-order lag (1 for τ = 0).
-fn lag_rate(tau_s: f32, rate_hz: f32) -> f32 {
-    if tau_s <= 0.0 {
-        1.0
-    } else {
-        1.0 - F32Ext::exp(-1.0 / (rate_hz * tau_s))
-    }
-}
-
-impl<const M: usize> Stage<M> {
-    /// A stage at rest (0 V, operators and lags at rest), with a noise seed.
-    pub fn new(p: &StageParams<'_>, seed: u32) -> Self {
-        let mut creep_rate = [0.0; MAX_CREEP];
-        for (r, &tau) in creep_rate.iter_mut().zip(p.creep_tau_s) {
-            *r = lag_rate(tau, p.sample_rate_hz);
-        }
-        Self {
-            y: [0.0; M],
-            creep: [0.0; MAX_CREEP],
-            creep_rate,
-            amplifier_alpha: lag_rate(p.amplifier_tau_s, p.sample_rate_hz),
+impl<'a> Stage<'a> {
+    /// A stage at rest (0 V, operators and lags at rest), with a noise seed;
+    /// `None` if the parameters do not describe a model.
+    pub fn new(p: &StageParams<'a>, seed: u32) -> Option<Self> {
+        let model = p.model()?;
+        let fem = p.fem()?;
+        let state = model.state(1.0 / p.sample_rate_hz);
+        Some(Self {
+            force_ref: fem.rest_preload(),
+            model,
+            fem,
+            state,
+            warm: WarmStart::default(),
+            amplifier_alpha: lag_rate(1.0 / p.sample_rate_hz, p.amplifier_tau_s),
+            force_noise_n: p.force_noise_n,
             voltage: 0.0,
-            x_pea: 0.0,
             rng: if seed == 0 { 0x9E37_79B9 } else { seed },
-        }
+        })
     }
 
-    /// The soft (or hard) dead zone.
-    fn dead_zone(p: &StageParams<'_>, e: f32) -> f32 {
-        let s = p.softness_v;
-        if s <= 0.0 {
-            return if e > 0.0 { e } else { 0.0 };
-        }
-        let t = e / s;
-        if t > 20.0 {
-            e
-        } else if t < -20.0 {
-            s * F32Ext::exp(t)
-        } else {
-            s * F32Ext::ln(1.0 + F32Ext::exp(t))
-        }
+    /// The preload at rest (the prototype's, not the FEM's), N.
+    pub fn rest_force(&self) -> f32 {
+        self.force_ref
     }
 
-    /// Preload the built prototype puts on the stack at extension `x` (µm), N.
-    pub fn preload(p: &StageParams<'_>, x: f32) -> f32 {
-        p.force_scale * interp(p.fem_step_um, p.fem_force_n, x)
-    }
-
-    /// Stack extension for voltage `v` at extension guess `x`, advancing the
-    /// given operator and creep states (the caller decides whether to keep them).
-    fn extension(
-        &self,
-        p: &StageParams<'_>,
-        y: &mut [f32; M],
-        creep: &mut [f32; MAX_CREEP],
-        v: f32,
-        x: f32,
-    ) -> f32 {
-        let f = Self::preload(p, x);
-        let d = f - p.force_q_n;
-        let offset = p.offset_v + p.k_f_v_per_n * f + p.k_q_v_per_n2 * d * d;
-        let uh = Self::dead_zone(p, v - offset);
-        let mut out = p.w0_um_per_v * uh;
-        for ((yi, &r), &w) in y.iter_mut().zip(p.thresholds_v).zip(p.weights_um_per_v) {
-            let held = if *yi < uh { *yi } else { uh };
-            let dragged = uh - r;
-            *yi = if dragged > held { dragged } else { held };
-            out += w * *yi;
-        }
-        for ((m, &rate), &b) in creep
-            .iter_mut()
-            .zip(&self.creep_rate)
-            .zip(p.creep_gain_um_per_v)
-        {
-            *m += rate * (uh - *m);
-            out += b * *m;
-        }
-        let beta = p.saturation_per_um;
-        let z = if beta > 0.0 && out > 0.0 {
-            2.0 * out / (1.0 + crate::stats::sqrt(1.0 + 4.0 * beta * out))
-        } else {
-            out
-        };
-        z - p.compliance_um_per_n * (f - Self::preload(p, 0.0))
-    }
-
-    /// Advances one sample with amplifier command `u` (V).
-    pub fn step(&mut self, p: &StageParams<'_>, u: f32) -> StageSample {
+    /// Advances one sample with amplifier command `u` (V): the amplifier lag, then
+    /// the coupled equation solved for the voltage at the stack.
+    pub fn step(&mut self, u: f32) -> StageSample {
         self.voltage += self.amplifier_alpha * (u - self.voltage);
         let v = self.voltage;
-        // g(x) = extension(x) - x is decreasing in x: bisect on a bracket around
-        // the last solution.
-        let residual = |s: &Self, x: f32| {
-            let (mut y, mut c) = (s.y, s.creep);
-            s.extension(p, &mut y, &mut c, v, x) - x
-        };
-        let (mut lo, mut hi) = (self.x_pea - 1.0, self.x_pea + 1.0);
-        while residual(self, lo) < 0.0 {
-            lo -= 4.0;
-        }
-        while residual(self, hi) > 0.0 {
-            hi += 4.0;
-        }
-        for _ in 0..26 {
-            let mid = 0.5 * (lo + hi);
-            if residual(self, mid) > 0.0 {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        let x = 0.5 * (lo + hi);
-        // Commit the operator and creep states for the solution.
-        let (mut y, mut c) = (self.y, self.creep);
-        self.extension(p, &mut y, &mut c, v, x);
-        self.y = y;
-        self.creep = c;
-        self.x_pea = x;
+        let s = coupled(
+            &self.model,
+            &self.state,
+            v,
+            &self.fem,
+            self.force_ref,
+            self.warm.guess(),
+        );
+        self.model.commit(&mut self.state, s.uh);
+        self.warm.push(s.x);
         StageSample {
             voltage_v: v,
-            x_pea_um: x,
-            force_n: Self::preload(p, x),
-            x_fhps_um: interp(p.fem_step_um, p.fem_output_um, x),
+            x_pea_um: s.x,
+            force_n: self.fem.preload_at(s.x),
+            x_fhps_um: self.fem.stage_at(s.x),
         }
     }
 
     /// A force-sensor reading of `force` (N): adds zero-mean noise of the configured
     /// standard deviation (sum of four uniforms, deterministic xorshift generator).
-    pub fn sense_force(&mut self, p: &StageParams<'_>, force: f32) -> f32 {
+    pub fn sense_force(&mut self, force: f32) -> f32 {
         let mut s = 0.0;
         for _ in 0..4 {
             self.rng ^= self.rng << 13;
@@ -248,24 +202,24 @@ impl<const M: usize> Stage<M> {
             s += (self.rng >> 8) as f32 / 16_777_216.0 - 0.5;
         }
         // Four uniforms on [-0.5, 0.5) have variance 1/3.
-        force + s * 1.732_050_8 * p.force_noise_n
+        force + s * 1.732_050_8 * self.force_noise_n
     }
 }
 
 /// The virtual twin of stage A used by the emulated board, at 20 kHz.
 ///
 /// Stack: the extended FPI structure identified on all `pea-rig/` recordings
-/// (10 operators, 0–90 V; research fit "M2", see the README); maps:
-/// `stage-a/fem.csv` with the prototype's preload 2.9 % below the FEM's;
+/// (9 operators on 10–90 V and `w0`; a research fit of the structure `fpi calibrate`
+/// fits, kept fixed here so the plant does not change with the calibration);
+/// maps: `stage-a/fem.csv` with the prototype's preload 2.9 % below the FEM's;
 /// amplifier lag 0.09 ms; 0.15 N force noise.
 pub mod stage_a {
     use super::StageParams;
 
-    /// Play operators of the twin.
-    pub const OPERATORS: usize = 9;
+    include!(concat!(env!("OUT_DIR"), "/stage_a_fem.rs"));
 
-    const THRESHOLDS: [f32; OPERATORS] = [10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0];
-    const WEIGHTS: [f32; OPERATORS] = [
+    const THRESHOLDS: [f32; 9] = [10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0];
+    const WEIGHTS: [f32; 9] = [
         0.012_608_085,
         0.007_466_546,
         0.005_975_463,
@@ -278,27 +232,13 @@ pub mod stage_a {
     ];
     const CREEP_TAU: [f32; 4] = [0.01, 0.03, 0.3, 3.0];
     const CREEP_GAIN: [f32; 4] = [0.002_854_712, 0.000_501_681, 0.001_204_947, 0.000_263_809];
-    const FEM_FORCE: [f32; 49] = [
-        61.8, 62.8332, 63.8729, 64.919, 65.9715, 67.0305, 68.0959, 69.1677, 70.246, 71.3307,
-        72.4219, 73.5195, 74.6235, 75.734, 76.8509, 77.9742, 79.104, 80.2402, 81.3829, 82.532,
-        83.6875, 84.8495, 86.0179, 87.1927, 88.374, 89.5617, 90.7559, 91.9565, 93.1635, 94.377,
-        95.5969, 96.8232, 98.056, 99.2952, 100.5409, 101.793, 103.0515, 104.3165, 105.5879,
-        106.8657, 108.15, 109.4407, 110.7379, 112.0415, 113.3515, 114.668, 115.9909, 117.3202,
-        118.656,
-    ];
-    const FEM_OUTPUT: [f32; 49] = [
-        0.0, 1.4331, 2.8616, 4.2853, 5.7044, 7.1187, 8.5284, 9.9334, 11.3336, 12.7291, 14.12,
-        15.5061, 16.8876, 18.2644, 19.6364, 21.0038, 22.3664, 23.7243, 25.0776, 26.4261, 27.77,
-        29.1091, 30.4436, 31.7734, 33.0984, 34.4188, 35.7344, 37.0453, 38.3516, 39.6531, 40.95,
-        42.2422, 43.5296, 44.8123, 46.0904, 47.3638, 48.6324, 49.8964, 51.1556, 52.4101, 53.66,
-        54.9051, 56.1456, 57.3813, 58.6124, 59.8387, 61.0604, 62.2773, 63.4896,
-    ];
 
     /// The twin's parameters at a 20 kHz step.
     pub const PARAMS: StageParams<'static> = StageParams {
         w0_um_per_v: 0.062_582_01,
         thresholds_v: &THRESHOLDS,
         weights_um_per_v: &WEIGHTS,
+        input_max_v: 150.0,
         offset_v: -0.442_02,
         k_f_v_per_n: 0.106,
         k_q_v_per_n2: 0.000_165_53,
@@ -310,9 +250,9 @@ pub mod stage_a {
         compliance_um_per_n: 0.02,
         amplifier_tau_s: 0.000_09,
         sample_rate_hz: 20_000.0,
-        fem_step_um: 0.25,
-        fem_force_n: &FEM_FORCE,
-        fem_output_um: &FEM_OUTPUT,
+        fem_x_pea_um: &X_PEA,
+        fem_force_n: &PRELOAD,
+        fem_output_um: &X_FHPS,
         force_scale: 60.0 / 61.8,
         force_noise_n: 0.15,
     };
@@ -322,50 +262,69 @@ pub mod stage_a {
 mod tests {
     use super::*;
 
-    fn stage() -> Stage<{ stage_a::OPERATORS }> {
-        Stage::new(&stage_a::PARAMS, 1)
+    fn stage() -> Stage<'static> {
+        Stage::new(&stage_a::PARAMS, 1).unwrap()
     }
 
     #[test]
     fn rest_state_and_dead_zone() {
-        let p = stage_a::PARAMS;
         let mut s = stage();
-        let r = s.step(&p, 0.0);
+        let r = s.step(0.0);
         // The soft dead zone leaves 0.06 V of drive at 0 V: 4 nm of stack.
         assert!(r.x_pea_um.abs() < 0.01, "{}", r.x_pea_um);
         assert!((r.force_n - 60.0).abs() < 0.05, "{}", r.force_n);
         // U_p(60 N) ≈ 5.9 V: 2 V barely moves the stack (the soft dead zone's foot),
         // 12 V does.
         for _ in 0..200 {
-            s.step(&p, 2.0);
+            s.step(2.0);
         }
-        assert!(s.step(&p, 2.0).x_pea_um < 0.03);
+        assert!(s.step(2.0).x_pea_um < 0.03);
         for _ in 0..200 {
-            s.step(&p, 12.0);
+            s.step(12.0);
         }
-        assert!(s.step(&p, 12.0).x_pea_um > 0.3);
+        assert!(s.step(12.0).x_pea_um > 0.3);
     }
 
     #[test]
     fn full_stroke_matches_the_recorded_stage() {
         // The recorded stage reaches about 40.4 um at 100 V.
-        let p = stage_a::PARAMS;
         let mut s = stage();
         let mut top = 0.0;
         for k in 0..=2000 {
-            top = s.step(&p, 100.0 * k as f32 / 2000.0).x_fhps_um;
+            top = s.step(100.0 * k as f32 / 2000.0).x_fhps_um;
         }
         assert!((top - 40.4).abs() < 1.0, "{top}");
     }
 
     #[test]
-    fn sensor_noise_has_the_configured_spread() {
+    fn the_solution_is_the_coupled_equations_root() {
+        // Each sample's extension is the model's output under the preload at that
+        // very extension (to a few f32 ulps).
         let p = stage_a::PARAMS;
+        let (m, fem) = (p.model().unwrap(), p.fem().unwrap());
+        let mut s = stage();
+        for k in 0..3000 {
+            let u = 50.0 + 45.0 * (k as f32 * 0.003).sin();
+            let before = s.state.clone();
+            let v = s.voltage + s.amplifier_alpha * (u - s.voltage);
+            let r = s.step(u);
+            let f = fem.preload_at(r.x_pea_um);
+            let x = m.peek(&before, v, f, 0.0, fem.rest_preload()).x;
+            assert!(
+                (x - r.x_pea_um).abs() < 2e-5,
+                "sample {k}: {x} vs {}",
+                r.x_pea_um
+            );
+        }
+    }
+
+    #[test]
+    fn sensor_noise_has_the_configured_spread() {
         let mut s = stage();
         let n = 20_000;
         let (mut m1, mut m2) = (0.0f64, 0.0f64);
         for _ in 0..n {
-            let e = (s.sense_force(&p, 60.0) - 60.0) as f64;
+            let e = (s.sense_force(60.0) - 60.0) as f64;
             m1 += e;
             m2 += e * e;
         }

@@ -24,9 +24,11 @@ use piezo_fpi::fpi::CreepMemory;
 use piezo_fpi::play::PlayBank;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
+use piezo_sim::control::Controller;
+use piezo_sim::model::DeadZone;
+
 use crate::data::{self, DataError};
 use crate::model_file::FirmwareModel;
-use crate::reference::{BankF64, ControllerF64};
 
 /// Largest tolerated stack-extension difference, µm (1 nm).
 pub const BOUND_X_UM: f64 = 1e-3;
@@ -52,12 +54,15 @@ pub struct FileAccuracy {
     pub limited_steps: usize,
 }
 
-/// The embedded model, parsed for the f64 side.
-pub fn embedded_model() -> FirmwareModel {
-    match FirmwareModel::parse(model::MODEL_TOML, model::MODEL_FILE) {
-        Ok(m) => m,
-        Err(e) => panic!("the embedded model was validated by build.rs: {e}"),
-    }
+/// The embedded model, parsed for the f64 side (once).
+pub fn embedded_model() -> &'static FirmwareModel {
+    static MODEL: std::sync::OnceLock<FirmwareModel> = std::sync::OnceLock::new();
+    MODEL.get_or_init(
+        || match FirmwareModel::parse(model::MODEL_TOML, model::MODEL_FILE) {
+            Ok(m) => m,
+            Err(e) => panic!("the embedded model was validated by build.rs: {e}"),
+        },
+    )
 }
 
 /// The embedded controller with its supervision widened — the reference range to
@@ -65,7 +70,7 @@ pub fn embedded_model() -> FirmwareModel {
 /// (which include a 3 kHz chirp where the stage's dynamics pull the force far
 /// from the static FEM map) exercise the arithmetic rather than the safe state;
 /// and its f64 twin with the same settings.
-pub fn controllers() -> (model::Controller, ControllerF64) {
+pub fn controllers() -> (model::Controller, Controller<'static, f64>) {
     let c = &model::CONTROLLER;
     let reference = Interval {
         lo: c.f_k_inv().x_min(),
@@ -84,7 +89,9 @@ pub fn controllers() -> (model::Controller, ControllerF64) {
         force_source: c.force_source(),
     })
     .unwrap_or_else(|e| panic!("widening the reference range: {e}"));
-    let mut f64c = ControllerF64::from_model(&embedded_model());
+    let Some(mut f64c) = embedded_model().controller() else {
+        panic!("the embedded model was validated by build.rs")
+    };
     f64c.reference = (reference.lo.to_num(), reference.hi.to_num());
     f64c.force_tolerance = 1000.0;
     (fixed, f64c)
@@ -104,16 +111,13 @@ struct SetpointError {
 
 impl SetpointError {
     /// Compares the fixed-point setpoint with the f64 one at force `f`.
-    fn add(&mut self, c: &ControllerF64, u_fixed: f64, u_ref: f64, f: f64) {
-        let up = c.fpi.preload_offset(f);
-        let g = |u: f64| match &c.fpi.dead_zone {
-            Some(m) => m.apply(u - up),
-            None => (u - up).max(0.0),
-        };
+    fn add(&mut self, c: &Controller<'_, f64>, u_fixed: f64, u_ref: f64, f: f64) {
+        let up = c.model.preload_offset(f).0;
+        let g = |u: f64| c.model.dead_zone.apply(u - up).0;
         self.duh = self.duh.max((g(u_fixed) - g(u_ref)).abs());
         let h = 1e-3;
         let slope = (g(u_ref + h) - g(u_ref - h)) / (2.0 * h);
-        if slope >= 0.5 || c.fpi.dead_zone.is_none() {
+        if slope >= 0.5 || matches!(c.model.dead_zone, DeadZone::Hard) {
             self.du = self.du.max((u_fixed - u_ref).abs());
         } else {
             self.foot += 1;
@@ -129,29 +133,32 @@ pub fn rig_file(path: &Path) -> Result<FileAccuracy, DataError> {
     let rig = data::read_rig(path)?;
     let (fixed, f64c) = controllers();
     let fpi = fixed.fpi();
-    let n = f64c.fpi.pi.r.len();
+    let (m, f_ref) = (&f64c.model, f64c.force_ref);
     let (mut fb, mut ib) = (PlayBank::<OPERATORS>::new(), PlayBank::<OPERATORS>::new());
     let (mut cf, mut ci) = (
         CreepMemory::<CREEP_TERMS>::new(),
         CreepMemory::<CREEP_TERMS>::new(),
     );
-    let (mut fb64, mut ib64) = (BankF64::new(n), BankF64::new(n));
-    let (mut cf64, mut ci64) = (vec![0.0; CREEP_TERMS], vec![0.0; CREEP_TERMS]);
-    // Scratch forward banks that advance the inverse side's creep memory.
-    let (mut sb, mut sb64) = (PlayBank::<OPERATORS>::new(), BankF64::new(n));
+    // The f64 side: the forward model's state, and the inverse side's (whose
+    // forward steps advance its creep memory).
+    let (mut fst, mut ist) = (m.state(f64c.dt), m.state(f64c.dt));
+    let inv = m.inverse_pi(&ist);
+    let mut ib64 = inv.at_rest();
+    // Scratch forward bank that advances the inverse side's creep memory.
+    let mut sb = PlayBank::<OPERATORS>::new();
     let mut dx = 0.0f64;
     let mut err = SetpointError::default();
     for k in 0..rig.t.len() {
         let (u, f, x) = (rig.u[k], rig.f[k], rig.x[k]);
         let terms = fpi.force_terms(Newtons::from_num(f));
         let xf = fpi.forward(&mut fb, &mut cf, q(u), &terms).to_num::<f64>();
-        let x64 = f64c.fpi.forward(&mut fb64, &mut cf64, u, f);
+        let x64 = m.step(&mut fst, u, f, f_ref);
         dx = dx.max((xf - x64).abs());
         let uf = fpi.inverse(&mut ib, &ci, Micrometres::from_num(x), &terms);
-        let u64_ = f64c.fpi.inverse(&mut ib64, &ci64, x, f);
+        let (u64_, _) = m.inverse(&inv, &mut ib64, &ist, x, f, f_ref);
         err.add(&f64c, uf.to_num::<f64>(), u64_, f);
         fpi.forward(&mut sb, &mut ci, uf, &terms);
-        f64c.fpi.forward(&mut sb64, &mut ci64, u64_, f);
+        m.step(&mut ist, u64_, f, f_ref);
     }
     Ok(FileAccuracy {
         path: path.to_path_buf(),

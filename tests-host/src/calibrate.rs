@@ -1,11 +1,12 @@
 //! Part I of the method: identifying a model from Voltage–Force–Displacement
-//! recordings (seed 000, Table 1, Step 1).
+//! recordings (first paper, Table 1, Step 1).
 //!
 //! Every kind is linear in its weights once its nonlinear parameters are fixed:
 //! the columns are the operator outputs `G_{r_i}[û]` (and their products with the
 //! force for LDPI, the creep lags, a saturation term and an offset), fitted by
 //! weighted non-negative least squares on the normal equations ([`crate::lsq`]),
-//! accumulated over all recordings in parallel. The nonlinear parameters are
+//! accumulated over all recordings in parallel (each recording's columns are built
+//! into a buffer it keeps for the whole calibration). The nonlinear parameters are
 //! searched outside: golden section on `k_f` (fpi) and on the output curvature
 //! (gpi), Nelder–Mead (`argmin`) on `(k_f, k_q, k0, s)` (efpi), always scoring the
 //! output error (RMSE of the simulated extension against the recording).
@@ -21,16 +22,21 @@
 //!   mean preload.
 
 use std::path::Path;
+use std::sync::Mutex;
 
 use anyhow::{bail, Context, Result};
 use argmin::core::{CostFunction, Error as ArgminError, Executor, State};
 use argmin::solver::neldermead::NelderMead;
+use piezo_sim::maps::dead_zone;
+use piezo_sim::model::lag_rate;
+use piezo_sim::play::play;
+use piezo_sim::stats::ErrorStats;
 use rayon::prelude::*;
 
 use crate::data;
 use crate::hmodel::{
-    dead_zone, Calibration, CouplingParams, CreepParams, FileFit, HostModel, Kind, LdpiParams,
-    OutputMap, PiParams,
+    Calibration, CouplingParams, CreepParams, FileFit, HostModel, Kind, LdpiParams, OutputMap,
+    PiParams,
 };
 use crate::lsq::Normal;
 
@@ -208,42 +214,36 @@ impl Layout {
         v
     }
 
-    /// The effective voltage sequence of a recording.
-    fn effective(&self, d: &CalibData, p: &Nonlinear) -> Vec<f64> {
-        d.u.iter()
-            .zip(&d.f)
-            .map(|(&u, &f)| match self.kind {
-                Kind::Fpi => (u - p.k_f * f).max(0.0),
-                Kind::Efpi => {
-                    let q = f - self.force_q;
-                    dead_zone(p.softness, u - (p.k0 + p.k_f * f + p.k_q * q * q)).0
-                }
-                _ => u.max(0.0),
-            })
-            .collect()
+    /// The effective voltage of one sample.
+    #[inline]
+    fn effective(&self, u: f64, f: f64, p: &Nonlinear) -> f64 {
+        match self.kind {
+            Kind::Fpi => (u - p.k_f * f).max(0.0),
+            Kind::Efpi => {
+                let q = f - self.force_q;
+                dead_zone(p.softness, u - (p.k0 + p.k_f * f + p.k_q * q * q)).0
+            }
+            _ => u.max(0.0),
+        }
     }
 
     /// Columns of every sample of a recording (row-major), and the equation-error
-    /// target and weight of each sample.
-    fn build(&self, d: &CalibData, p: &Nonlinear) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-        let uh = self.effective(d, p);
+    /// target and weight of each sample, into the recording's buffers.
+    fn build(&self, d: &CalibData, p: &Nonlinear, ws: &mut Workspace) {
         let nc = self.columns();
         let n = d.u.len();
-        let mut cols = vec![0.0; n * nc];
+        ws.cols.resize(n * nc, 0.0);
+        ws.target.resize(n, 0.0);
+        ws.weight.resize(n, 1.0);
         let mut y = vec![0.0; self.thresholds.len()];
-        let rates: Vec<f64> = self
-            .creep
-            .iter()
-            .map(|tau| -(-d.dt / tau).exp_m1())
-            .collect();
+        let rates: Vec<f64> = self.creep.iter().map(|&tau| lag_rate(d.dt, tau)).collect();
         let mut m = vec![0.0; self.creep.len()];
-        let (mut target, mut weight) = (vec![0.0; n], vec![1.0; n]);
         for k in 0..n {
-            let v = uh[k].min(1e6);
-            let row = &mut cols[k * nc..(k + 1) * nc];
+            let v = self.effective(d.u[k], d.f[k], p).min(1e6);
+            let row = &mut ws.cols[k * nc..(k + 1) * nc];
             row[0] = v;
             for (i, r) in self.thresholds.iter().enumerate() {
-                y[i] = (v - r).max(v.min(y[i]));
+                y[i] = play(v, *r, y[i]);
                 row[1 + i] = y[i];
             }
             let mut c = 1 + self.thresholds.len();
@@ -267,6 +267,7 @@ impl Layout {
             if self.offset {
                 row[c] = 1.0;
             }
+            ws.weight[k] = 1.0;
             if self.kind == Kind::Gpi {
                 let map = OutputMap::Quadratic {
                     gamma_per_um: p.gamma,
@@ -274,11 +275,10 @@ impl Layout {
                 let yt = map.invert(z);
                 let slope = map.apply(yt).1;
                 z = yt;
-                weight[k] = slope * slope;
+                ws.weight[k] = slope * slope;
             }
-            target[k] = z;
+            ws.target[k] = z;
         }
-        (cols, target, weight)
     }
 
     /// The model's output for every sample given weights `w`.
@@ -319,6 +319,22 @@ impl Layout {
     }
 }
 
+/// One recording's column buffers, kept for the whole calibration: every trial of
+/// the nonlinear search rebuilds its columns in place.
+#[derive(Debug, Default)]
+struct Workspace {
+    cols: Vec<f64>,
+    target: Vec<f64>,
+    weight: Vec<f64>,
+}
+
+/// A calibration problem: the columns' layout, the recordings and their buffers.
+struct Problem<'a> {
+    layout: Layout,
+    data: &'a [CalibData],
+    work: Vec<Mutex<Workspace>>,
+}
+
 /// One fit: weights, and the output-error figures.
 #[derive(Debug, Clone)]
 struct Fit {
@@ -327,58 +343,81 @@ struct Fit {
     per_file: Vec<FileFit>,
 }
 
-fn fit(layout: &Layout, data: &[CalibData], p: &Nonlinear) -> Result<Fit> {
-    let built: Vec<(Vec<f64>, Vec<f64>, Vec<f64>)> =
-        data.par_iter().map(|d| layout.build(d, p)).collect();
-    let nc = layout.columns();
-    let normals: Vec<Normal> = built
-        .par_iter()
-        .zip(data)
-        .map(|((cols, target, weight), d)| {
-            let mut ne = Normal::new(nc);
-            for k in d.fit.0..d.fit.1 {
-                ne.add(&cols[k * nc..(k + 1) * nc], target[k], weight[k]);
-            }
-            ne
-        })
-        .collect();
-    let mut all = Normal::new(nc);
-    for ne in &normals {
-        all.merge(ne);
+/// The output-error figures of a simulated window against the recording.
+fn file_fit(d: &CalibData, simulated: &[f64]) -> FileFit {
+    let window = d.fit.0..d.fit.1;
+    let e = ErrorStats::of_difference(&simulated[window.clone()], &d.x[window]);
+    FileFit {
+        file: d.name.clone(),
+        samples: e.count() as usize,
+        rmse_um: e.rms(),
+        mte_um: e.max_abs(),
     }
-    let (w, _) = all.solve(&layout.nonneg())?;
-    let per_file: Vec<FileFit> = built
-        .par_iter()
-        .zip(data)
-        .map(|((cols, _, _), d)| {
-            let out = layout.output(cols, d, &w, p);
-            let (mut s2, mut mx) = (0.0, 0.0f64);
-            let window = d.fit.0..d.fit.1;
-            for (o, x) in out[window.clone()].iter().zip(&d.x[window]) {
-                let e = o - x;
-                s2 += e * e;
-                mx = mx.max(e.abs());
-            }
-            let n = d.fit.1 - d.fit.0;
-            FileFit {
-                file: d.name.clone(),
-                samples: n,
-                rmse_um: (s2 / n as f64).sqrt(),
-                mte_um: mx,
-            }
-        })
-        .collect();
+}
+
+/// RMSE over several files' fits, weighted by their samples.
+fn pooled_rmse(per_file: &[FileFit]) -> f64 {
     let total: usize = per_file.iter().map(|f| f.samples).sum();
     let s2: f64 = per_file
         .iter()
         .map(|f| f.rmse_um * f.rmse_um * f.samples as f64)
         .sum();
-    let rmse = (s2 / total as f64).sqrt();
-    Ok(Fit {
-        w,
-        rmse: if rmse.is_finite() { rmse } else { f64::MAX },
-        per_file,
-    })
+    (s2 / total as f64).sqrt()
+}
+
+impl<'a> Problem<'a> {
+    fn new(layout: Layout, data: &'a [CalibData]) -> Self {
+        let work = data.iter().map(|_| Mutex::default()).collect();
+        Self { layout, data, work }
+    }
+
+    fn with_layout(&self, layout: Layout) -> Problem<'a> {
+        Problem::new(layout, self.data)
+    }
+
+    fn fit(&self, p: &Nonlinear) -> Result<Fit> {
+        let layout = &self.layout;
+        let nc = layout.columns();
+        fn lock(m: &Mutex<Workspace>) -> std::sync::MutexGuard<'_, Workspace> {
+            m.lock().unwrap_or_else(|e| e.into_inner())
+        }
+        let normals: Vec<Normal> = self
+            .data
+            .par_iter()
+            .zip(&self.work)
+            .map(|(d, ws)| {
+                let mut ws = lock(ws);
+                layout.build(d, p, &mut ws);
+                let mut ne = Normal::new(nc);
+                for k in d.fit.0..d.fit.1 {
+                    ne.add(&ws.cols[k * nc..(k + 1) * nc], ws.target[k], ws.weight[k]);
+                }
+                ne
+            })
+            .collect();
+        let mut all = Normal::new(nc);
+        for ne in &normals {
+            all.merge(ne);
+        }
+        let (w, _) = all.solve(&layout.nonneg())?;
+        let per_file: Vec<FileFit> = self
+            .data
+            .par_iter()
+            .zip(&self.work)
+            .map(|(d, ws)| file_fit(d, &layout.output(&lock(ws).cols, d, &w, p)))
+            .collect();
+        let rmse = pooled_rmse(&per_file);
+        Ok(Fit {
+            w,
+            rmse: if rmse.is_finite() { rmse } else { f64::MAX },
+            per_file,
+        })
+    }
+
+    /// The output RMSE of a trial (`f64::MAX` if it cannot be fitted).
+    fn rmse(&self, p: &Nonlinear) -> f64 {
+        self.fit(p).map_or(f64::MAX, |f| f.rmse)
+    }
 }
 
 /// Golden-section minimisation of `f` on `[a, b]`.
@@ -404,24 +443,155 @@ fn golden(mut a: f64, mut b: f64, tol: f64, mut f: impl FnMut(f64) -> f64) -> f6
     (a + b) / 2.0
 }
 
-struct EfpiCost<'a> {
-    layout: &'a Layout,
-    data: &'a [CalibData],
+struct EfpiCost<'p, 'a> {
+    problem: &'p Problem<'a>,
 }
 
-impl CostFunction for EfpiCost<'_> {
-    type Param = Vec<f64>;
-    type Output = f64;
-    fn cost(&self, q: &Vec<f64>) -> Result<f64, ArgminError> {
-        let p = Nonlinear {
+impl EfpiCost<'_, '_> {
+    /// The efpi parameters of a Nelder–Mead point `(k_f, k_q·10⁴, k0, s)`.
+    fn params(q: &[f64]) -> Nonlinear {
+        Nonlinear {
             k_f: q[0],
             k_q: q[1] * 1e-4,
             k0: q[2],
             softness: q[3].abs().max(1e-3),
             gamma: 0.0,
-        };
-        Ok(fit(self.layout, self.data, &p).map_or(f64::MAX, |f| f.rmse))
+        }
     }
+}
+
+impl CostFunction for EfpiCost<'_, '_> {
+    type Param = Vec<f64>;
+    type Output = f64;
+    fn cost(&self, q: &Vec<f64>) -> Result<f64, ArgminError> {
+        Ok(self.problem.rmse(&Self::params(q)))
+    }
+}
+
+/// The data's top voltage rounded up to a tenth of its decade (100 V stays 100 V).
+fn voltage_span(data: &[CalibData]) -> f64 {
+    let u_top = data
+        .iter()
+        .flat_map(|d| d.u.iter())
+        .fold(0.0f64, |a, &b| a.max(b));
+    let decade = 10f64.powf(u_top.max(1e-9).log10().floor());
+    (u_top / decade * 10.0).ceil() * decade / 10.0
+}
+
+/// The thresholds `r_i = U·i/N`, `i = 1..N-1`, over the voltage span `U`.
+fn thresholds(span: f64, operators: usize) -> Vec<f64> {
+    (1..operators)
+        .map(|i| span * i as f64 / operators as f64)
+        .collect()
+}
+
+/// The data's mean preload over the fitted windows, rounded to 5 N: the centre
+/// of the preload offset's curvature.
+fn mean_preload(data: &[CalibData]) -> f64 {
+    let (s, c) = data
+        .iter()
+        .flat_map(|d| d.f[d.fit.0..d.fit.1].iter())
+        .fold((0.0, 0usize), |(s, c), f| (s + f, c + 1));
+    if c > 0 {
+        (s / c as f64 * 0.2).round() * 5.0
+    } else {
+        0.0
+    }
+}
+
+/// pi and ldpi: the weights alone.
+fn fit_linear(pr: &Problem<'_>) -> Result<(Nonlinear, Fit, String)> {
+    let p = Nonlinear::default();
+    let f = pr.fit(&p)?;
+    Ok((
+        p,
+        f,
+        "weights by least squares (NNLS for pi; signed for ldpi)".into(),
+    ))
+}
+
+/// fpi: `k_f` by golden section.
+fn fit_fpi(pr: &Problem<'_>) -> Result<(Nonlinear, Fit, String)> {
+    let with = |k_f| Nonlinear {
+        k_f,
+        ..Default::default()
+    };
+    let p = with(golden(0.0, 0.4, 1e-5, |k_f| pr.rmse(&with(k_f))));
+    let f = pr.fit(&p)?;
+    Ok((
+        p,
+        f,
+        "k_f by golden section on the output RMSE; weights by NNLS".into(),
+    ))
+}
+
+/// gpi: the output curvature by golden section (scaled by the data's range).
+fn fit_gpi(pr: &Problem<'_>) -> Result<(Nonlinear, Fit, String)> {
+    let scale = pr
+        .data
+        .iter()
+        .flat_map(|d| d.x[d.fit.0..d.fit.1].iter())
+        .fold(0.0f64, |a, &b| a.max(b.abs()))
+        .max(1e-9);
+    let with = |g: f64| Nonlinear {
+        gamma: g / scale,
+        ..Default::default()
+    };
+    let p = with(golden(-0.3, 0.3, 1e-6, |g| pr.rmse(&with(g))));
+    let f = pr.fit(&p)?;
+    Ok((
+        p,
+        f,
+        "output curvature by golden section on the output RMSE; weights by weighted NNLS \
+         on the inverse-mapped extension"
+            .into(),
+    ))
+}
+
+/// efpi: `(k_f, k_q, k0, s)` by Nelder–Mead from the paper's FPI fit.
+fn fit_efpi(pr: &Problem<'_>, opt: &Options) -> Result<(Nonlinear, Fit, String)> {
+    // Start from the paper's FPI: its k_f, no curvature, no offset, a 1 V soft edge.
+    let fpi = pr.with_layout(Layout {
+        kind: Kind::Fpi,
+        creep: Vec::new(),
+        saturation: false,
+        compliance: 0.0,
+        ..pr.layout.clone()
+    });
+    let k_f0 = golden(0.0, 0.4, 1e-4, |k_f| {
+        fpi.rmse(&Nonlinear {
+            k_f,
+            ..Default::default()
+        })
+    });
+    let start = vec![k_f0, 0.0, 0.0, 1.0];
+    let steps = [0.01, 1.0, 0.5, 0.5];
+    let mut simplex = vec![start.clone()];
+    for (i, s) in steps.iter().enumerate() {
+        let mut v = start.clone();
+        v[i] += s;
+        simplex.push(v);
+    }
+    let solver = NelderMead::new(simplex)
+        .with_sd_tolerance(1e-7)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let res = Executor::new(EfpiCost { problem: pr }, solver)
+        .configure(|s| s.max_iters(400))
+        .run()
+        .map_err(|e| anyhow::anyhow!("Nelder–Mead: {e}"))?;
+    let q = res.state().get_best_param().cloned().unwrap_or(start);
+    let p = EfpiCost::params(&q);
+    let f = pr.fit(&p)?;
+    Ok((
+        p,
+        f,
+        format!(
+            "(k_f, k_q, k0, s) by Nelder–Mead on the output RMSE from the fpi fit; weights, \
+             creep gains and saturation by NNLS (equation error); compliance {} µm/N \
+             fixed; creep time constants {:?} s fixed",
+            opt.compliance, opt.creep_taus
+        ),
+    ))
 }
 
 /// Calibrates a model on recordings.
@@ -438,169 +608,53 @@ pub fn calibrate(data: &[CalibData], opt: &Options) -> Result<HostModel> {
     if opt.operators < 1 || opt.operators > 32 {
         bail!("--operators {}: must be 1..=32", opt.operators);
     }
-    let u_top = data
-        .iter()
-        .flat_map(|d| d.u.iter())
-        .fold(0.0f64, |a, &b| a.max(b));
-    // Round the data's top voltage up to a tenth of its decade (100 V stays 100 V).
-    let decade = 10f64.powf(u_top.max(1e-9).log10().floor());
-    let span = (u_top / decade * 10.0).ceil() * decade / 10.0;
-    let n = opt.operators;
-    let thresholds: Vec<f64> = (1..n).map(|i| span * i as f64 / n as f64).collect();
-    let force_q = {
-        let (s, c) = data
-            .iter()
-            .flat_map(|d| d.f[d.fit.0..d.fit.1].iter())
-            .fold((0.0, 0usize), |(s, c), f| (s + f, c + 1));
-        if c > 0 {
-            (s / c as f64 * 0.2).round() * 5.0
-        } else {
-            0.0
-        }
-    };
+    let efpi = kind == Kind::Efpi;
+    let span = voltage_span(data);
     let layout = Layout {
         kind,
-        thresholds: thresholds.clone(),
+        thresholds: thresholds(span, opt.operators),
         ldpi: kind == Kind::Ldpi,
-        creep: if kind == Kind::Efpi {
+        creep: if efpi {
             opt.creep_taus.clone()
         } else {
             Vec::new()
         },
-        saturation: kind == Kind::Efpi,
+        saturation: efpi,
         offset: opt.offset,
-        compliance: if kind == Kind::Efpi {
-            opt.compliance
-        } else {
-            0.0
-        },
-        force_q,
+        compliance: if efpi { opt.compliance } else { 0.0 },
+        force_q: mean_preload(data),
     };
+    let pr = Problem::new(layout, data);
     let (params, best, method) = match kind {
-        Kind::Pi | Kind::Ldpi => {
-            let p = Nonlinear::default();
-            let f = fit(&layout, data, &p)?;
-            (
-                p,
-                f,
-                "weights by least squares (NNLS for pi; signed for ldpi)".to_string(),
-            )
-        }
-        Kind::Fpi => {
-            let eval = |k_f: f64| {
-                let p = Nonlinear {
-                    k_f,
-                    ..Default::default()
-                };
-                fit(&layout, data, &p).map_or(f64::MAX, |f| f.rmse)
-            };
-            let k_f = golden(0.0, 0.4, 1e-5, eval);
-            let p = Nonlinear {
-                k_f,
-                ..Default::default()
-            };
-            let f = fit(&layout, data, &p)?;
-            (
-                p,
-                f,
-                "k_f by golden section on the output RMSE; weights by NNLS".to_string(),
-            )
-        }
-        Kind::Gpi => {
-            let scale = data
-                .iter()
-                .flat_map(|d| d.x[d.fit.0..d.fit.1].iter())
-                .fold(0.0f64, |a, &b| a.max(b.abs()))
-                .max(1e-9);
-            let eval = |g: f64| {
-                let p = Nonlinear {
-                    gamma: g / scale,
-                    ..Default::default()
-                };
-                fit(&layout, data, &p).map_or(f64::MAX, |f| f.rmse)
-            };
-            let g = golden(-0.3, 0.3, 1e-6, eval);
-            let p = Nonlinear {
-                gamma: g / scale,
-                ..Default::default()
-            };
-            let f = fit(&layout, data, &p)?;
-            (
-                p,
-                f,
-                "output curvature by golden section on the output RMSE; weights by weighted NNLS \
-                 on the inverse-mapped extension"
-                    .to_string(),
-            )
-        }
-        Kind::Efpi => {
-            // Start from the paper's FPI: its k_f, no curvature, no offset, a 1 V soft edge.
-            let fpi = Layout {
-                kind: Kind::Fpi,
-                creep: Vec::new(),
-                saturation: false,
-                compliance: 0.0,
-                ..layout.clone()
-            };
-            let k_f0 = golden(0.0, 0.4, 1e-4, |k_f| {
-                let p = Nonlinear {
-                    k_f,
-                    ..Default::default()
-                };
-                fit(&fpi, data, &p).map_or(f64::MAX, |f| f.rmse)
-            });
-            let start = vec![k_f0, 0.0, 0.0, 1.0];
-            let steps = [0.01, 1.0, 0.5, 0.5];
-            let mut simplex = vec![start.clone()];
-            for (i, s) in steps.iter().enumerate() {
-                let mut v = start.clone();
-                v[i] += s;
-                simplex.push(v);
-            }
-            let solver = NelderMead::new(simplex)
-                .with_sd_tolerance(1e-7)
-                .map_err(|e| anyhow::anyhow!("{e}"))?;
-            let res = Executor::new(
-                EfpiCost {
-                    layout: &layout,
-                    data,
-                },
-                solver,
-            )
-            .configure(|s| s.max_iters(400))
-            .run()
-            .map_err(|e| anyhow::anyhow!("Nelder–Mead: {e}"))?;
-            let q = res.state().get_best_param().cloned().unwrap_or(start);
-            let p = Nonlinear {
-                k_f: q[0],
-                k_q: q[1] * 1e-4,
-                k0: q[2],
-                softness: q[3].abs().max(1e-3),
-                gamma: 0.0,
-            };
-            let f = fit(&layout, data, &p)?;
-            (
-                p,
-                f,
-                format!(
-                    "(k_f, k_q, k0, s) by Nelder–Mead on the output RMSE from the fpi fit; weights, \
-                     creep gains and saturation by NNLS (equation error); compliance {} µm/N \
-                     fixed; creep time constants {:?} s fixed",
-                    opt.compliance, opt.creep_taus
-                ),
-            )
-        }
+        Kind::Pi | Kind::Ldpi => fit_linear(&pr)?,
+        Kind::Fpi => fit_fpi(&pr)?,
+        Kind::Gpi => fit_gpi(&pr)?,
+        Kind::Efpi => fit_efpi(&pr, opt)?,
     };
-    // Unpack the weights.
-    let w = &best.w;
-    let n1 = 1 + thresholds.len();
+    let mut model = unpack(&pr.layout, &params, &best.w, opt.input_max.max(span));
+    model.calibration = Calibration {
+        created_by: format!("fpi calibrate {}", env!("CARGO_PKG_VERSION")),
+        files: data.iter().map(|d| d.name.clone()).collect(),
+        rows: None,
+        rmse_um: best.rmse,
+        mte_um: best.per_file.iter().map(|f| f.mte_um).fold(0.0, f64::max),
+        per_file: best.per_file,
+        method,
+    };
+    Ok(model)
+}
+
+/// The model a fit's weights and nonlinear parameters describe.
+fn unpack(layout: &Layout, params: &Nonlinear, w: &[f64], input_max: f64) -> HostModel {
+    let kind = layout.kind;
+    let n1 = 1 + layout.thresholds.len();
     let mut model = HostModel::new(
         kind,
         PiParams {
             w0_um_per_v: w[0],
-            thresholds_v: thresholds,
+            thresholds_v: layout.thresholds.clone(),
             weights_um_per_v: w[1..n1].to_vec(),
-            input_max_v: opt.input_max.max(span),
+            input_max_v: input_max,
         },
     );
     let mut c = n1;
@@ -621,59 +675,44 @@ pub fn calibrate(data: &[CalibData], opt: &Options) -> Result<HostModel> {
         })
         .collect();
     c += layout.creep.len();
-    model.output = layout.map(w, &params);
+    model.output = layout.map(w, params);
     if layout.saturation {
         c += 1;
     }
     if layout.offset {
         model.offset_um = w[c];
     }
-    if kind.uses_force() && kind != Kind::Ldpi {
+    if matches!(kind, Kind::Fpi | Kind::Efpi) {
         model.coupling = CouplingParams {
             offset_v: params.k0,
             k_f_v_per_n: params.k_f,
             k_q_v_per_n2: params.k_q,
-            force_q_n: if params.k_q != 0.0 { force_q } else { 0.0 },
+            force_q_n: if params.k_q != 0.0 {
+                layout.force_q
+            } else {
+                0.0
+            },
             compliance_um_per_n: layout.compliance,
         };
         model.dead_zone_softness_v = params.softness;
     }
-    let total: usize = best.per_file.iter().map(|f| f.samples).sum();
-    model.calibration = Calibration {
-        created_by: format!("fpi calibrate {}", env!("CARGO_PKG_VERSION")),
-        files: data.iter().map(|d| d.name.clone()).collect(),
-        rows: None,
-        rmse_um: best.rmse,
-        mte_um: best.per_file.iter().map(|f| f.mte_um).fold(0.0, f64::max),
-        per_file: best.per_file.clone(),
-        method,
-    };
-    debug_assert_eq!(total, data.iter().map(|d| d.fit.1 - d.fit.0).sum::<usize>());
-    Ok(model)
+    model
+}
+
+/// The model's stack extension over a recording, driven by its voltage with its
+/// measured force, µm.
+pub fn simulate(model: &HostModel, d: &CalibData) -> Vec<f64> {
+    let m = model.model();
+    let mut st = m.state(d.dt);
+    (0..d.u.len())
+        .map(|k| m.step(&mut st, d.u[k], d.f[k], d.f0))
+        .collect()
 }
 
 /// Scores a model on recordings by simulating it with the measured force
 /// (output error), per file.
 pub fn score(model: &HostModel, data: &[CalibData]) -> Vec<FileFit> {
     data.par_iter()
-        .map(|d| {
-            let mut st = model.state(d.dt);
-            let (mut s2, mut mx) = (0.0, 0.0f64);
-            for k in 0..d.u.len() {
-                let x = model.step(&mut st, d.u[k], d.f[k], d.f0);
-                if k >= d.fit.0 && k < d.fit.1 {
-                    let e = x - d.x[k];
-                    s2 += e * e;
-                    mx = mx.max(e.abs());
-                }
-            }
-            let n = d.fit.1 - d.fit.0;
-            FileFit {
-                file: d.name.clone(),
-                samples: n,
-                rmse_um: (s2 / n as f64).sqrt(),
-                mte_um: mx,
-            }
-        })
+        .map(|d| file_fit(d, &simulate(model, d)))
         .collect()
 }

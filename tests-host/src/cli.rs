@@ -345,9 +345,10 @@ pub fn bench() -> Result<()> {
     let w = [
         0.0126, 0.0075, 0.006, 0.0038, 0.0026, 0.0012, 0.0012, 0.0007, 0.0011,
     ];
-    let mut pi = crate::fastpi::FastPi::new(0.0626, r, w);
+    let pi = piezo_sim::play::Pi::new(0.0626, &r, &w, 150.0).context("the bench model")?;
+    let mut bank = pi.at_rest();
     let t0 = Instant::now();
-    pi.run(black_box(&u), &mut y);
+    pi.run(&mut bank, black_box(&u), &mut y);
     black_box(&y);
     let secs = t0.elapsed().as_secs_f64();
     println!(
@@ -388,20 +389,6 @@ pub fn bench() -> Result<()> {
         );
     }
     Ok(())
-}
-
-/// Keeps the calibration's large, short-lived column buffers (megabytes per
-/// recording per trial) in the heap instead of fresh `mmap`s. glibc only raises its
-/// mmap threshold after the first such buffer is freed, and until then every trial
-/// page-faults its buffers in again: measured, the first efpi calibration of a process
-/// took 2.6 s instead of 1.3 s, a third of it in the kernel.
-pub fn tune_allocator() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: mallopt only sets allocator parameters; called before any thread starts.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, 128 << 20);
-    }
 }
 
 /// Lets a closed stdout end the process quietly, as command-line tools do

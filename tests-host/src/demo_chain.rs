@@ -56,13 +56,6 @@ fn progress(steps: u64) -> ProgressBar {
     pb
 }
 
-fn simulate(model: &HostModel, d: &CalibData) -> Vec<f64> {
-    let mut st = model.state(d.dt);
-    (0..d.u.len())
-        .map(|k| model.step(&mut st, d.u[k], d.f[k], d.f0))
-        .collect()
-}
-
 /// Runs the chain into `out`.
 pub fn run(out: &Path) -> Result<Summary> {
     std::fs::create_dir_all(out.join("models"))
@@ -234,7 +227,7 @@ pub fn run(out: &Path) -> Result<Summary> {
         .map(|&i| {
             [&pi, &fpi, &efpi]
                 .iter()
-                .map(|m| simulate(m, &rig[i]))
+                .map(|m| calibrate::simulate(m, &rig[i]))
                 .collect()
         })
         .collect();
@@ -336,7 +329,7 @@ pub fn run(out: &Path) -> Result<Summary> {
     let periods = |m: &HostModel| -> (f64, f64, f64) {
         // Every full period of the 1 Hz drive, aligned with the identification window.
         let d = &mm[0];
-        let sim = simulate(m, d);
+        let sim = calibrate::simulate(m, d);
         let period = MM_ROWS.1 - MM_ROWS.0 + 1;
         let first = (MM_ROWS.0 - 1) % period;
         let mut rm = Vec::new();
@@ -401,7 +394,10 @@ pub fn run(out: &Path) -> Result<Summary> {
     );
     let d = &mm[0];
     let w = MM_ROWS.0 - 1..MM_ROWS.1;
-    let (sp, sg) = (simulate(&mm_pi, d), simulate(&mm_gpi, d));
+    let (sp, sg) = (
+        calibrate::simulate(&mm_pi, d),
+        calibrate::simulate(&mm_gpi, d),
+    );
     plots::loops(
         &out.join("micromanipulator.svg"),
         "Micromanipulator, identification cycle",

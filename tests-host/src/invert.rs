@@ -10,9 +10,8 @@
 use anyhow::{bail, Result};
 
 use crate::fem::FemMaps;
-use crate::hmodel::{dead_zone_inverse, HostModel, Kind};
+use crate::hmodel::{HostModel, Kind};
 use crate::predict;
-use crate::reference::BankF64;
 
 /// An inverted trajectory.
 #[derive(Debug, Clone, PartialEq)]
@@ -55,14 +54,12 @@ pub fn invert(
     let hi = reachable_top(model, fem, u_max, dt)?;
     let (lo, hi) = if lo <= hi { (lo, hi) } else { (hi, lo) };
     let f_ref = fem.rest_preload();
-    let mut st = model.state(dt);
-    let inv = model.inverse_pi(&st);
-    let mut bank = BankF64::new(model.operators());
-    let c = if model.kind.uses_force() {
-        model.coupling.compliance_um_per_n
-    } else {
-        0.0
-    };
+    let maps = fem.maps();
+    let m = model.model();
+    let mut st = m.state(dt);
+    let prime = m.prime(&st);
+    let inv = prime.inverse();
+    let mut bank = inv.at_rest();
     let mut out = Inversion {
         t: t.to_vec(),
         u: Vec::with_capacity(t.len()),
@@ -70,19 +67,20 @@ pub fn invert(
         clamped_voltage: 0,
         reachable: (lo, hi),
     };
+    let ldpi = model.kind == Kind::Ldpi;
     for &x in target {
         let xc = x.clamp(lo, hi);
         if (xc - x).abs() > 1e-9 {
             out.clamped_targets += 1;
         }
-        let x_pea = fem.stack_for(xc);
-        let force = fem.preload_at(x_pea);
-        let u = if model.kind == Kind::Ldpi {
-            // x(u) is non-decreasing: bisection on the voltage.
+        let x_pea = maps.stack_for(xc);
+        let force = maps.preload_at(x_pea);
+        let u = if ldpi {
+            // The weights depend on the force: x(u) is non-decreasing, bisect on u.
             let (mut a, mut b) = (0.0, u_max);
             for _ in 0..60 {
                 let mid = 0.5 * (a + b);
-                if model.peek(&st, mid, force, 0.0, f_ref).x < x_pea {
+                if m.peek(&st, mid, force, 0.0, f_ref).x < x_pea {
                     a = mid;
                 } else {
                     b = mid;
@@ -90,50 +88,16 @@ pub fn invert(
             }
             0.5 * (a + b)
         } else {
-            let z = x_pea + c * (force - f_ref);
-            let y = model.output.invert(z) - model.offset_um;
-            let held: f64 = model
-                .creep
-                .iter()
-                .zip(&st.m)
-                .zip(&st.rate)
-                .map(|((cr, m), r)| cr.gain_um_per_v * (1.0 - r) * m)
-                .sum();
-            let uh = inv.apply(&mut bank, y - held);
-            match model.kind {
-                Kind::Fpi | Kind::Efpi => {
-                    model.preload_offset(force).0
-                        + dead_zone_inverse(model.dead_zone_softness_v, uh)
-                }
-                _ => uh,
-            }
+            m.inverse(&inv, &mut bank, &st, x_pea, force, f_ref).0
         };
         let uc = u.clamp(0.0, u_max);
-        if (uc - u).abs() > 1e-9 {
-            out.clamped_voltage += 1;
-        }
+        let clamped = (uc - u).abs() > 1e-9;
+        out.clamped_voltage += clamped as usize;
         // Advance the model with what is applied; realign the inverse memory if that
         // is not what the inverse asked for.
-        let p = model.peek(&st, uc, force, 0.0, f_ref);
-        model.commit(&mut st, p.uh);
-        if (uc - u).abs() > 1e-9 && model.kind != Kind::Ldpi {
-            let fwd = BankF64 {
-                y: st.y.clone(),
-                last: p.uh,
-            };
-            let mut pi_prime = crate::reference::PiF64 {
-                w0: model.pi.w0_um_per_v,
-                r: model.pi.thresholds_v.clone(),
-                w: model.pi.weights_um_per_v.clone(),
-                input_max: model.pi.input_max_v,
-            };
-            pi_prime.w0 += model
-                .creep
-                .iter()
-                .zip(&st.rate)
-                .map(|(cr, r)| cr.gain_um_per_v * r)
-                .sum::<f64>();
-            pi_prime.resync(&fwd, &mut bank);
+        m.step(&mut st, uc, force, f_ref);
+        if clamped && !ldpi {
+            prime.resync(&st.bank, &mut bank);
         }
         out.u.push(uc);
     }

@@ -14,7 +14,6 @@ pub mod compare;
 pub mod data;
 pub mod demo_chain;
 pub mod export;
-pub mod fastpi;
 pub mod fem;
 pub mod firmware;
 pub mod hmodel;
@@ -22,8 +21,7 @@ pub mod invert;
 pub mod lsq;
 pub mod plots;
 pub mod predict;
-pub mod reference;
 pub mod report;
 
-#[path = "../../src/model_file.rs"]
-pub mod model_file;
+/// The firmware model file (shared with the firmware's build).
+pub use piezo_sim::file as model_file;

@@ -25,7 +25,8 @@ pub fn surface_family(
     preloads
         .iter()
         .map(|&f| {
-            let mut st = model.state(1e-3);
+            let m = model.model();
+            let mut st = m.state(1e-3);
             let pts = (0..=2 * n)
                 .map(|k| {
                     let u = u_top
@@ -34,7 +35,7 @@ pub fn surface_family(
                         } else {
                             (2 * n - k) as f64 / n as f64
                         };
-                    (u, model.step(&mut st, u, f, f_ref))
+                    (u, m.step(&mut st, u, f, f_ref))
                 })
                 .collect();
             (f, pts)

@@ -24,7 +24,6 @@ use fpi_host::firmware;
 
 fn main() -> ExitCode {
     fpi_host::cli::exit_quietly_on_broken_pipe();
-    fpi_host::cli::tune_allocator();
     match run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -153,7 +153,6 @@ fn parse_rows(s: &str) -> Result<(usize, usize), String> {
 
 fn main() -> ExitCode {
     fpi_host::cli::exit_quietly_on_broken_pipe();
-    fpi_host::cli::tune_allocator();
     match run(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -1,0 +1,658 @@
+//! The firmware model file (TOML, engineering units): what `fpi export` writes,
+//! `firmware/build.rs` embeds, and (through the core's format) the board accepts.
+//!
+//! Every value is an engineering value (V, µm, N, µm/V, V/N, µm/N); tables are
+//! sampled on uniform grids with a power-of-two spacing `2^step_log2` in the input
+//! unit. Reading a file checks it in two steps, with errors that name the file and
+//! the key:
+//!
+//! 1. [`FirmwareModel::quantize`] — every value fits its Q format (the core's
+//!    `q` module): `pi.thresholds_v[3] = 5000: not a finite value within ±4096`;
+//! 2. the core's validator, [`piezo_fpi::model::validate`] — the one check of a
+//!    model, which the board's model upload runs too:
+//!    `tables.f_f.step_log2 = -16: table knot spacing outside …`.
+//!
+//! [`FirmwareModel::float_model`] and [`FirmwareModel::controller`] give the same
+//! model in floating point, the reference the fixed-point core is measured against.
+
+use std::fmt::Write as _;
+use std::string::{String, ToString};
+use std::vec::Vec;
+
+use fixed::types::I16F16;
+use piezo_fpi::control::{ForceSource, Interval};
+use piezo_fpi::error::{Field, Invalid, ModelError, TableId, TablePart};
+use piezo_fpi::fpi::Coupling as FixedCoupling;
+use piezo_fpi::model::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
+use piezo_fpi::play::Operator;
+use piezo_fpi::q::{self, CreepRate, Newtons, UmPerVolt, Volts, VoltsPerNewton};
+use piezo_fpi::table::Segment;
+use serde::{Deserialize, Serialize};
+
+use crate::control::Controller;
+use crate::curve::Curve;
+use crate::maps::TableMap;
+use crate::model::{lag_rate, Coupling, Creep, DeadZone, Model, Output};
+use crate::play::Pi;
+
+/// The `format` string this schema reads and writes.
+pub const FORMAT: &str = "piezo-fpi-firmware/1";
+
+/// A whole firmware model file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FirmwareModel {
+    /// Always [`FORMAT`].
+    pub format: String,
+    /// Where the numbers came from.
+    pub provenance: Provenance,
+    /// The forward PI model of the stack.
+    pub pi: PiSection,
+    /// The FPI force coupling.
+    pub coupling: CouplingSection,
+    /// The soft dead zone `û = g(u - U_p(F))`; absent: the hard one, `max(·, 0)`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dead_zone: Option<MapSection>,
+    /// The output saturation `z = h(Y)`; absent: the identity.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub saturation: Option<MapSection>,
+    /// Creep: first-order lags of the effective voltage, added to `Y`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub creep: Vec<CreepSection>,
+    /// The control loop: rate, limits, fault thresholds.
+    pub controller: ControllerSection,
+    /// FEM-derived lookup tables.
+    pub tables: Tables,
+}
+
+/// Provenance of a model file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Provenance {
+    /// The calibrated model it was exported from.
+    pub model: String,
+    /// The FEM table the maps came from.
+    pub fem: String,
+    /// Tool and version that wrote it.
+    pub created_by: String,
+    /// Free text: calibration data, fit metrics.
+    pub notes: String,
+}
+
+/// `Y[u] = w0·u + Σ w_i G_{r_i}[u]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PiSection {
+    /// Linear weight, µm/V (> 0).
+    pub w0_um_per_v: f64,
+    /// Thresholds, V, non-decreasing, in `[0, input_max_v]`.
+    pub thresholds_v: Vec<f64>,
+    /// Weights, µm/V; partial sums with `w0` positive.
+    pub weights_um_per_v: Vec<f64>,
+    /// Input domain `[0, input_max_v]`, V.
+    pub input_max_v: f64,
+}
+
+/// `U_p(F) = k0 + k_f·F + k_q·(F - F_q)²`, `x = h(Y[g(u - U_p)]) - c·(F - F_ref)`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CouplingSection {
+    /// Constant part `k0` of the preload offset, V.
+    #[serde(default)]
+    pub offset_v: f64,
+    /// Force–voltage coupling, V/N.
+    pub k_f_v_per_n: f64,
+    /// Curvature `k_q` of the preload offset, V/N².
+    #[serde(default)]
+    pub k_q_v_per_n2: f64,
+    /// Centre `F_q` of the curvature term, N.
+    #[serde(default)]
+    pub force_q_n: f64,
+    /// Stack compliance, µm/N (0 for the paper's FPI).
+    pub compliance_um_per_n: f64,
+    /// Force at zero extension, N.
+    pub force_ref_n: f64,
+}
+
+/// A monotone map and its inverse, both tabulated (see the core's `fpi::Map`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MapSection {
+    /// `y = map(x)`.
+    pub forward: TableSection,
+    /// `x = map⁻¹(y)`.
+    pub inverse: TableSection,
+}
+
+/// One creep term: `m ← m + (1 - exp(-T_s/τ))·(û - m)`, contributing `b·m` to `Y`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CreepSection {
+    /// Time constant `τ`, s.
+    pub tau_s: f64,
+    /// Gain `b`, µm/V.
+    pub gain_um_per_v: f64,
+}
+
+/// Control-loop settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerSection {
+    /// ISR rate, Hz.
+    pub rate_hz: u32,
+    /// Lowest amplifier setpoint, V.
+    pub u_min_v: f64,
+    /// Highest amplifier setpoint, V.
+    pub u_max_v: f64,
+    /// Largest setpoint slew, V/ms.
+    pub slew_v_per_ms: f64,
+    /// Lowest reachable reference, µm of stage output.
+    pub reference_min_um: f64,
+    /// Highest reachable reference, µm of stage output.
+    pub reference_max_um: f64,
+    /// Lowest plausible force reading, N.
+    pub force_min_n: f64,
+    /// Highest plausible force reading, N.
+    pub force_max_n: f64,
+    /// Largest tolerated `|F - f_F(x_pea_est)|`, N.
+    pub force_tolerance_n: f64,
+    /// Safe-state voltage, V.
+    pub safe_voltage_v: f64,
+    /// `"measured"` (force sensor) or `"predicted"` (`f_F` of the reference).
+    pub force_source: String,
+}
+
+/// The three FEM-derived maps.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Tables {
+    /// Preload, N, vs stack extension, µm.
+    pub f_f: TableSection,
+    /// Stage output, µm, vs stack extension, µm.
+    pub f_k: TableSection,
+    /// Stack extension, µm, vs stage output, µm.
+    pub f_k_inv: TableSection,
+}
+
+/// A monotone function sampled at `x0 + k·2^step_log2`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TableSection {
+    /// First knot, input unit.
+    pub x0: f64,
+    /// Knot spacing is `2^step_log2` input units; `-15..=0`.
+    pub step_log2: i32,
+    /// Values at the knots, output unit.
+    pub values: Vec<f64>,
+}
+
+/// A table quantised to the core's format (owns what a [`TableSpec`] borrows).
+#[derive(Debug, Clone, PartialEq)]
+pub struct QuantizedTable {
+    /// First knot, `I16F16`.
+    pub x0: I16F16,
+    /// Spacing as `log2` of raw LSB.
+    pub shift: u32,
+    /// The intervals.
+    pub segments: Vec<Segment>,
+}
+
+impl QuantizedTable {
+    /// The borrowed form.
+    pub fn spec(&self) -> TableSpec<'_> {
+        TableSpec {
+            x0: self.x0,
+            shift: self.shift,
+            segments: &self.segments,
+        }
+    }
+}
+
+/// A model quantised to the core's formats (owns what a [`ModelSpec`] borrows).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Quantized {
+    /// Control rate, Hz.
+    pub rate_hz: u32,
+    /// `w0`.
+    pub w0: UmPerVolt,
+    /// The operators.
+    pub operators: Vec<Operator<UmPerVolt>>,
+    /// Input domain, V.
+    pub input_max: Volts,
+    /// The coupling.
+    pub coupling: FixedCoupling,
+    /// The soft dead zone's map and inverse.
+    pub dead_zone: Option<(QuantizedTable, QuantizedTable)>,
+    /// The saturation's map and inverse.
+    pub saturation: Option<(QuantizedTable, QuantizedTable)>,
+    /// Creep terms at the control rate.
+    pub creep: Vec<CreepSpec>,
+    /// `f_F`.
+    pub f_f: QuantizedTable,
+    /// `f_K`.
+    pub f_k: QuantizedTable,
+    /// `f_K⁻¹`.
+    pub f_k_inv: QuantizedTable,
+    /// Lowest setpoint, V.
+    pub u_min: Volts,
+    /// Highest setpoint, V.
+    pub u_max: Volts,
+    /// Largest change per step, V.
+    pub max_step: Volts,
+    /// Reachable references, µm.
+    pub reference: Interval,
+    /// Plausible forces, N.
+    pub force: Interval,
+    /// Force tolerance, N.
+    pub force_tolerance: Newtons,
+    /// Safe voltage, V.
+    pub safe_voltage: Volts,
+    /// Force source.
+    pub force_source: ForceSource,
+}
+
+impl Quantized {
+    /// The model in the core's format, for [`validate`] and the firmware's types.
+    pub fn spec(&self) -> ModelSpec<'_> {
+        fn map(m: &Option<(QuantizedTable, QuantizedTable)>) -> Option<MapSpec<'_>> {
+            m.as_ref().map(|(f, i)| MapSpec {
+                forward: f.spec(),
+                inverse: i.spec(),
+            })
+        }
+        ModelSpec {
+            rate_hz: self.rate_hz,
+            w0: self.w0,
+            operators: &self.operators,
+            input_max: self.input_max,
+            coupling: self.coupling,
+            dead_zone: map(&self.dead_zone),
+            saturation: map(&self.saturation),
+            creep: &self.creep,
+            f_f: self.f_f.spec(),
+            f_k: self.f_k.spec(),
+            f_k_inv: self.f_k_inv.spec(),
+            u_min: self.u_min,
+            u_max: self.u_max,
+            max_step: self.max_step,
+            reference: self.reference,
+            force: self.force,
+            force_tolerance: self.force_tolerance,
+            safe_voltage: self.safe_voltage,
+            force_source: self.force_source,
+        }
+    }
+}
+
+fn signal(key: &str, v: f64) -> Result<I16F16, String> {
+    q::signal(v).ok_or_else(|| {
+        format!(
+            "{key} = {v}: not a finite value within ±{} (I16F16 signal range)",
+            q::SIGNAL_ABS_MAX
+        )
+    })
+}
+
+fn gain(key: &str, v: f64) -> Result<UmPerVolt, String> {
+    q::gain(v).ok_or_else(|| {
+        format!(
+            "{key} = {v}: not a finite value within ±{} (I4F28 gain range)",
+            q::GAIN_ABS_MAX
+        )
+    })
+}
+
+fn coupling(key: &str, v: f64) -> Result<VoltsPerNewton, String> {
+    q::coupling(v).ok_or_else(|| {
+        format!(
+            "{key} = {v}: not a finite value within ±{} (I0F32 coupling range)",
+            q::COUPLING_ABS_MAX
+        )
+    })
+}
+
+fn quantize_table(key: &str, t: &TableSection) -> Result<QuantizedTable, String> {
+    let values = t
+        .values
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| signal(&format!("{key}.values[{i}]"), v))
+        .collect::<Result<Vec<_>, _>>()?;
+    let segments = values
+        .windows(2)
+        .map(|w| Segment::from_bits(w[0].to_bits(), w[1].to_bits() - w[0].to_bits()))
+        .collect();
+    Ok(QuantizedTable {
+        x0: signal(&format!("{key}.x0"), t.x0)?,
+        // Out-of-range spacings are passed on for the validator to name.
+        shift: (t.step_log2 + q::SIGNAL_FRAC as i32).clamp(0, 32) as u32,
+        segments,
+    })
+}
+
+impl TableSection {
+    /// Knot spacing in input units.
+    pub fn step(&self) -> f64 {
+        2f64.powi(self.step_log2)
+    }
+    /// Last knot, input unit.
+    pub fn x_max(&self) -> f64 {
+        self.x0 + self.step() * (self.values.len().saturating_sub(1)) as f64
+    }
+    /// The table as a curve (ends held, like the core's table); `None` for fewer
+    /// than two knots.
+    pub fn curve(&self) -> Option<Curve<'_, f64>> {
+        Curve::uniform(self.x0, self.step(), &self.values)
+    }
+}
+
+impl MapSection {
+    /// The map and its inverse as curves.
+    pub fn table_map(&self) -> Option<TableMap<'_, f64>> {
+        Some(TableMap {
+            forward: self.forward.curve()?,
+            inverse: self.inverse.curve()?,
+        })
+    }
+}
+
+impl FirmwareModel {
+    /// Parses and checks a model file ([`check`](Self::check)); errors name the file
+    /// and the key.
+    pub fn parse(text: &str, file: &str) -> Result<Self, String> {
+        let model: FirmwareModel =
+            toml::from_str(text).map_err(|e| format!("{file}: not a firmware model file: {e}"))?;
+        model.check().map_err(|e| format!("{file}: {e}"))?;
+        Ok(model)
+    }
+
+    /// The file's text (what `fpi export` writes), with a header comment.
+    pub fn to_toml(&self) -> Result<String, String> {
+        let body = toml::to_string(self).map_err(|e| e.to_string())?;
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "# Firmware model: FPI parameters, FEM tables and loop settings for the\n\
+             # no_std core. Written by `fpi export`; build.rs quantises it to the Q formats.\n\
+             # Units are in the key names. Regenerate rather than edit by hand.\n"
+        );
+        out.push_str(&body);
+        Ok(out)
+    }
+
+    /// Quantises the model and validates it with the core's validator; the
+    /// quantised model and its shape, or the first problem, naming its key.
+    pub fn check(&self) -> Result<(Quantized, Shape), String> {
+        let q = self.quantize()?;
+        let shape = validate(&q.spec()).map_err(|e| self.describe(e))?;
+        Ok((q, shape))
+    }
+
+    /// Every value in its Q format (the values' ranges only; [`check`](Self::check)
+    /// validates the model).
+    pub fn quantize(&self) -> Result<Quantized, String> {
+        if self.format != FORMAT {
+            return Err(format!("format = {:?}: expected {FORMAT:?}", self.format));
+        }
+        let p = &self.pi;
+        if p.weights_um_per_v.len() != p.thresholds_v.len() {
+            return Err(format!(
+                "pi.weights_um_per_v has {} values but pi.thresholds_v has {}",
+                p.weights_um_per_v.len(),
+                p.thresholds_v.len()
+            ));
+        }
+        let operators = p
+            .thresholds_v
+            .iter()
+            .zip(&p.weights_um_per_v)
+            .enumerate()
+            .map(|(i, (&r, &w))| {
+                Ok(Operator {
+                    threshold: signal(&format!("pi.thresholds_v[{i}]"), r)?,
+                    weight: gain(&format!("pi.weights_um_per_v[{i}]"), w)?,
+                })
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        let c = &self.coupling;
+        let k = &self.controller;
+        let rate = k.rate_hz as f64;
+        let creep = self
+            .creep
+            .iter()
+            .enumerate()
+            .map(|(j, cr)| {
+                let r = lag_rate(1.0 / rate, cr.tau_s);
+                let rate = if r > 0.0 && r < 0.5 {
+                    coupling(&format!("creep[{j}].tau_s"), r)?
+                } else {
+                    CreepRate::ZERO // refused by the validator, which names it
+                };
+                Ok(CreepSpec {
+                    rate,
+                    gain: gain(&format!("creep[{j}].gain_um_per_v"), cr.gain_um_per_v)?,
+                })
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        let map = |name: &str, m: &Option<MapSection>| -> Result<_, String> {
+            m.as_ref()
+                .map(|m| {
+                    Ok((
+                        quantize_table(&format!("{name}.forward"), &m.forward)?,
+                        quantize_table(&format!("{name}.inverse"), &m.inverse)?,
+                    ))
+                })
+                .transpose()
+        };
+        let force_source = match k.force_source.as_str() {
+            "measured" => ForceSource::Measured,
+            "predicted" => ForceSource::Predicted,
+            other => {
+                return Err(format!(
+                    "controller.force_source = {other:?}: expected \"measured\" or \"predicted\""
+                ))
+            }
+        };
+        let interval = |lo_key: &str, lo, hi_key: &str, hi| -> Result<Interval, String> {
+            Ok(Interval {
+                lo: signal(lo_key, lo)?,
+                hi: signal(hi_key, hi)?,
+            })
+        };
+        Ok(Quantized {
+            rate_hz: k.rate_hz,
+            w0: gain("pi.w0_um_per_v", p.w0_um_per_v)?,
+            operators,
+            input_max: signal("pi.input_max_v", p.input_max_v)?,
+            coupling: FixedCoupling {
+                offset: signal("coupling.offset_v", c.offset_v)?,
+                k_f: coupling("coupling.k_f_v_per_n", c.k_f_v_per_n)?,
+                k_q: coupling("coupling.k_q_v_per_n2", c.k_q_v_per_n2)?,
+                force_q: signal("coupling.force_q_n", c.force_q_n)?,
+                compliance: coupling("coupling.compliance_um_per_n", c.compliance_um_per_n)?,
+                force_ref: signal("coupling.force_ref_n", c.force_ref_n)?,
+            },
+            dead_zone: map("dead_zone", &self.dead_zone)?,
+            saturation: map("saturation", &self.saturation)?,
+            creep,
+            f_f: quantize_table("tables.f_f", &self.tables.f_f)?,
+            f_k: quantize_table("tables.f_k", &self.tables.f_k)?,
+            f_k_inv: quantize_table("tables.f_k_inv", &self.tables.f_k_inv)?,
+            u_min: signal("controller.u_min_v", k.u_min_v)?,
+            u_max: signal("controller.u_max_v", k.u_max_v)?,
+            max_step: signal(
+                "controller.slew_v_per_ms (per control step)",
+                k.slew_v_per_ms * 1e3 / rate,
+            )?,
+            reference: interval(
+                "controller.reference_min_um",
+                k.reference_min_um,
+                "controller.reference_max_um",
+                k.reference_max_um,
+            )?,
+            force: interval(
+                "controller.force_min_n",
+                k.force_min_n,
+                "controller.force_max_n",
+                k.force_max_n,
+            )?,
+            force_tolerance: signal("controller.force_tolerance_n", k.force_tolerance_n)?,
+            safe_voltage: signal("controller.safe_voltage_v", k.safe_voltage_v)?,
+            force_source,
+        })
+    }
+
+    fn table(&self, id: TableId) -> Option<&TableSection> {
+        fn map(m: &Option<MapSection>, inverse: bool) -> Option<&TableSection> {
+            m.as_ref()
+                .map(|m| if inverse { &m.inverse } else { &m.forward })
+        }
+        match id {
+            TableId::FF => Some(&self.tables.f_f),
+            TableId::FK => Some(&self.tables.f_k),
+            TableId::FKInv => Some(&self.tables.f_k_inv),
+            TableId::DeadZone => map(&self.dead_zone, false),
+            TableId::DeadZoneInverse => map(&self.dead_zone, true),
+            TableId::Saturation => map(&self.saturation, false),
+            TableId::SaturationInverse => map(&self.saturation, true),
+        }
+    }
+
+    /// The file's value at a located field, when it is one number.
+    pub fn value_at(&self, field: Field, index: Option<u16>) -> Option<f64> {
+        let i = index.map(usize::from);
+        let at = |v: &Vec<f64>| i.and_then(|i| v.get(i).copied());
+        let (p, c, k) = (&self.pi, &self.coupling, &self.controller);
+        match field {
+            Field::PiW0 => Some(p.w0_um_per_v),
+            Field::PiThresholds => at(&p.thresholds_v),
+            Field::PiWeights => at(&p.weights_um_per_v),
+            Field::PiInputMax => Some(p.input_max_v),
+            Field::CouplingOffset => Some(c.offset_v),
+            Field::CouplingKf => Some(c.k_f_v_per_n),
+            Field::CouplingKq => Some(c.k_q_v_per_n2),
+            Field::CouplingForceQ => Some(c.force_q_n),
+            Field::CouplingCompliance => Some(c.compliance_um_per_n),
+            Field::CouplingForceRef => Some(c.force_ref_n),
+            Field::CreepTau => i.and_then(|i| self.creep.get(i)).map(|c| c.tau_s),
+            Field::CreepGain => i.and_then(|i| self.creep.get(i)).map(|c| c.gain_um_per_v),
+            Field::Table(id, part) => {
+                let t = self.table(id)?;
+                match part {
+                    TablePart::X0 => Some(t.x0),
+                    TablePart::StepLog2 => Some(t.step_log2 as f64),
+                    TablePart::Values => at(&t.values),
+                }
+            }
+            Field::Rate => Some(k.rate_hz as f64),
+            Field::UMin => Some(k.u_min_v),
+            Field::UMax => Some(k.u_max_v),
+            Field::Slew => Some(k.slew_v_per_ms),
+            Field::ReferenceMin => Some(k.reference_min_um),
+            Field::ReferenceMax => Some(k.reference_max_um),
+            Field::ForceMin => Some(k.force_min_n),
+            Field::ForceMax => Some(k.force_max_n),
+            Field::ForceTolerance => Some(k.force_tolerance_n),
+            Field::SafeVoltage => Some(k.safe_voltage_v),
+            Field::Operators | Field::Creep | Field::ForceSource | Field::Model => None,
+        }
+    }
+
+    /// A validator's error as the file's user reads it: the key, the value there,
+    /// the problem, and for a partial sum or a table what it is compared with.
+    pub fn describe(&self, e: Invalid) -> String {
+        let mut s = String::new();
+        let _ = e.write_key(&mut s);
+        if let Some(v) = self.value_at(e.field, e.index) {
+            let _ = write!(s, " = {v}");
+        }
+        let _ = write!(s, ": {}", e.error.message());
+        match (e.error, e.field) {
+            (ModelError::NonPositiveSlope { index }, _) => {
+                let p = &self.pi;
+                let sum: f64 =
+                    p.w0_um_per_v + p.weights_um_per_v.iter().take(index as usize).sum::<f64>();
+                let _ = write!(s, " (S_{index} = w0 + w_1 + … = {sum})");
+            }
+            (ModelError::TableNotMonotone { index }, Field::Table(id, _))
+            | (ModelError::TableTooSteep { index }, Field::Table(id, _)) => {
+                if let Some(prev) = self
+                    .table(id)
+                    .and_then(|t| t.values.get((index as usize).wrapping_sub(1)))
+                {
+                    let _ = write!(s, " (previous knot {prev})");
+                }
+            }
+            (ModelError::ReferenceOutsideTable, _) => {
+                let t = &self.tables.f_k_inv;
+                let _ = write!(s, " ({}..{} µm)", t.x0, t.x_max());
+            }
+            _ => {}
+        }
+        s
+    }
+
+    /// The model in floating point with its tabulated maps (the reference of the
+    /// fixed-point core); `None` if the file does not describe one.
+    pub fn float_model(&self) -> Option<Model<'_, f64>> {
+        let p = &self.pi;
+        let c = &self.coupling;
+        let mut creep = heapless::Vec::new();
+        for cr in &self.creep {
+            creep
+                .push(Creep {
+                    tau_s: cr.tau_s,
+                    gain: cr.gain_um_per_v,
+                })
+                .ok()?;
+        }
+        Some(Model {
+            pi: Pi::new(
+                p.w0_um_per_v,
+                &p.thresholds_v,
+                &p.weights_um_per_v,
+                p.input_max_v,
+            )?,
+            ldpi: None,
+            coupling: Some(Coupling {
+                offset: c.offset_v,
+                k_f: c.k_f_v_per_n,
+                k_q: c.k_q_v_per_n2,
+                force_q: c.force_q_n,
+                compliance: c.compliance_um_per_n,
+            }),
+            dead_zone: match &self.dead_zone {
+                Some(m) => DeadZone::Table(m.table_map()?),
+                None => DeadZone::Hard,
+            },
+            output: match &self.saturation {
+                Some(m) => Output::Table(m.table_map()?),
+                None => Output::Map(crate::maps::OutputMap::Identity),
+            },
+            offset: 0.0,
+            creep,
+        })
+    }
+
+    /// The control step in floating point with this model's settings.
+    pub fn controller(&self) -> Option<Controller<'_, f64>> {
+        let k = &self.controller;
+        let t = &self.tables;
+        Some(Controller {
+            model: self.float_model()?,
+            f_f: t.f_f.curve()?,
+            f_k: t.f_k.curve()?,
+            f_k_inv: t.f_k_inv.curve()?,
+            u_min: k.u_min_v,
+            u_max: k.u_max_v,
+            max_step: k.slew_v_per_ms * 1e3 / k.rate_hz as f64,
+            reference: (k.reference_min_um, k.reference_max_um),
+            force: (k.force_min_n, k.force_max_n),
+            force_tolerance: k.force_tolerance_n,
+            safe_voltage: k.safe_voltage_v,
+            measured: k.force_source == "measured",
+            force_ref: self.coupling.force_ref_n,
+            dt: 1.0 / k.rate_hz as f64,
+        })
+    }
+}

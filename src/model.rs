@@ -1,0 +1,484 @@
+//! The model format and its validator.
+//!
+//! A [`ModelSpec`] is a whole stage model in the core's formats — the PI operators,
+//! the force coupling, the static maps and creep terms, the FEM tables, and the
+//! loop's limits and supervision settings — borrowed from wherever it lives (flash,
+//! a host tool's buffers, a model received over the link). [`validate`] is the one
+//! check of a model: it runs exactly the checks the core's constructors run
+//! ([`crate::pi::check`], [`crate::inverse::invert`], [`Coupling::check`],
+//! [`crate::fpi::creep_slope`], [`Table::new`], [`OutputLimits::new`],
+//! [`crate::control::check_settings`]), and locates the first failure by the model
+//! file's key ([`Invalid`]). The firmware's build, the host tools and the board's
+//! model upload all validate through it, so a model one of them accepts, the others
+//! accept too, and a refusal reads the same everywhere.
+//!
+//! The model *file* (TOML, engineering units) is read and quantised into a
+//! `ModelSpec` by the host side (`piezo-sim`'s `file` feature).
+
+use fixed::types::I16F16;
+
+use crate::control::{check_settings, ForceSource, Interval};
+use crate::error::{Field, Invalid, ModelError, TableId, TablePart};
+use crate::fpi::{creep_slope, Coupling, Creep};
+use crate::limits::OutputLimits;
+use crate::play::Operator;
+use crate::q::{
+    CreepRate, Micrometres, Newtons, UmPerVolt, Volts, VoltsPerUm, MAX_CREEP_TERMS, MAX_OPERATORS,
+};
+use crate::table::{Segment, Table};
+
+/// A lookup table: first knot, spacing `2^shift` raw LSB of the input, intervals.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TableSpec<'a> {
+    /// First knot (input unit), `I16F16`.
+    pub x0: I16F16,
+    /// Knot spacing as `log2` of raw LSB (`step_log2 + 16` of the model file).
+    pub shift: u32,
+    /// The intervals between the knots.
+    pub segments: &'a [Segment],
+}
+
+impl<'a> TableSpec<'a> {
+    /// The table, validated ([`Table::new`]).
+    pub const fn table(&self) -> Result<Table<'a>, ModelError> {
+        Table::new(self.x0, self.shift, self.segments)
+    }
+}
+
+/// A monotone map and its inverse, both tabulated (see [`crate::fpi::Map`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MapSpec<'a> {
+    /// `y = map(x)`.
+    pub forward: TableSpec<'a>,
+    /// `x = map⁻¹(y)`.
+    pub inverse: TableSpec<'a>,
+}
+
+/// One creep term as stored: its per-sample rate and gain (see [`Creep`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CreepSpec {
+    /// `1 - a = 1 - exp(-T_s/τ)`, per sample, `I0F32`.
+    pub rate: CreepRate,
+    /// `b`, µm/V, `I4F28`.
+    pub gain: UmPerVolt,
+}
+
+/// A whole stage model in the core's formats (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ModelSpec<'a> {
+    /// Control ISR rate, Hz (100 – 200 000).
+    pub rate_hz: u32,
+    /// Linear PI weight `w0`, µm/V.
+    pub w0: UmPerVolt,
+    /// Play operators: thresholds (V) with weights (µm/V).
+    pub operators: &'a [Operator<UmPerVolt>],
+    /// Input domain `[0, input_max]`, V.
+    pub input_max: Volts,
+    /// Force coupling and compliance.
+    pub coupling: Coupling,
+    /// Soft dead zone `g`; `None`: the hard one.
+    pub dead_zone: Option<MapSpec<'a>>,
+    /// Output saturation `h`; `None`: the identity.
+    pub saturation: Option<MapSpec<'a>>,
+    /// Creep terms.
+    pub creep: &'a [CreepSpec],
+    /// Preload `f_F`: stack extension (µm) → force (N).
+    pub f_f: TableSpec<'a>,
+    /// Kinematics `f_K`: stack extension (µm) → stage output (µm).
+    pub f_k: TableSpec<'a>,
+    /// Inverse kinematics `f_K⁻¹`: stage output (µm) → stack extension (µm).
+    pub f_k_inv: TableSpec<'a>,
+    /// Lowest setpoint, V.
+    pub u_min: Volts,
+    /// Highest setpoint, V.
+    pub u_max: Volts,
+    /// Largest setpoint change per control step, V.
+    pub max_step: Volts,
+    /// Reachable references, µm of stage output.
+    pub reference: Interval,
+    /// Plausible force readings, N.
+    pub force: Interval,
+    /// Largest tolerated `|F - f_F(x_pea_est)|`, N.
+    pub force_tolerance: Newtons,
+    /// Safe-state voltage, V.
+    pub safe_voltage: Volts,
+    /// Measured or predicted preload.
+    pub force_source: ForceSource,
+}
+
+/// The shape of a valid model: what the firmware's types are built from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shape {
+    /// Play operators.
+    pub operators: usize,
+    /// Creep terms.
+    pub creep_terms: usize,
+    /// A soft dead zone (else the hard one).
+    pub dead_zone: bool,
+    /// An output saturation (else none).
+    pub saturation: bool,
+    /// `Y[input_max]` of the PI with this sample's creep, µm (the inverse's input domain).
+    pub output_max: Micrometres,
+}
+
+/// Lowest control rate a model may ask for, Hz.
+pub const MIN_RATE_HZ: u32 = 100;
+/// Highest control rate a model may ask for, Hz.
+pub const MAX_RATE_HZ: u32 = 200_000;
+
+/// Validates a whole model; the first problem, located by the model file's key.
+///
+/// The checks, in order: rate; PI (operator count, thresholds, partial sums,
+/// ranges); creep terms; the PI with this sample's creep and its closed-form
+/// inverse; coupling; dead zone and saturation tables; FEM tables; limits;
+/// supervision settings. Each is the check the corresponding constructor runs.
+pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
+    if m.rate_hz < MIN_RATE_HZ || m.rate_hz > MAX_RATE_HZ {
+        return Err(Invalid::at(Field::Rate, ModelError::RateOutOfRange));
+    }
+    let n = m.operators.len();
+    if n > MAX_OPERATORS {
+        return Err(Invalid::at(Field::Operators, ModelError::TooManyOperators));
+    }
+    crate::pi::check(m.w0, m.operators, m.input_max).map_err(locate_pi)?;
+    let creep = creep_terms(m.creep)?;
+    let w0p =
+        creep_slope(m.w0, &creep[..m.creep.len()]).map_err(|e| Invalid::at(Field::CreepGain, e))?;
+    let sums = crate::pi::check(w0p, m.operators, m.input_max).map_err(|e| match e {
+        // With the creep's share in w0 only the range can fail.
+        ModelError::OutputOutOfRange => Invalid::at(Field::CreepGain, e),
+        e => locate_pi(e),
+    })?;
+    let mut inverse = [Operator {
+        threshold: Micrometres::ZERO,
+        weight: VoltsPerUm::ZERO,
+    }; MAX_OPERATORS];
+    crate::inverse::invert(w0p, m.operators, sums.output_max, &mut inverse[..n])
+        .map_err(locate_pi)?;
+    m.coupling.check()?;
+    let maps = [
+        (m.dead_zone, TableId::DeadZone, TableId::DeadZoneInverse),
+        (
+            m.saturation,
+            TableId::Saturation,
+            TableId::SaturationInverse,
+        ),
+    ];
+    for (map, forward, inverse) in maps {
+        if let Some(map) = map {
+            table(&map.forward, forward)?;
+            table(&map.inverse, inverse)?;
+        }
+    }
+    table(&m.f_f, TableId::FF)?;
+    table(&m.f_k, TableId::FK)?;
+    let f_k_inv = table(&m.f_k_inv, TableId::FKInv)?;
+    let limits = OutputLimits::new(m.u_min, m.u_max, m.max_step).map_err(|e| match e {
+        ModelError::NonPositiveSlew => Invalid::at(Field::Slew, e),
+        e => Invalid::at(Field::UMin, e),
+    })?;
+    check_settings(
+        &limits,
+        &f_k_inv,
+        m.reference,
+        m.force,
+        m.force_tolerance,
+        m.safe_voltage,
+    )?;
+    Ok(Shape {
+        operators: n,
+        creep_terms: m.creep.len(),
+        dead_zone: m.dead_zone.is_some(),
+        saturation: m.saturation.is_some(),
+        output_max: sums.output_max,
+    })
+}
+
+/// The creep terms, each checked by [`Creep::new`].
+fn creep_terms(specs: &[CreepSpec]) -> Result<[Creep; MAX_CREEP_TERMS], Invalid> {
+    if specs.len() > MAX_CREEP_TERMS {
+        return Err(Invalid::at(Field::Creep, ModelError::TooManyCreepTerms));
+    }
+    let mut out = [Creep::DISABLED; MAX_CREEP_TERMS];
+    for (j, (c, o)) in specs.iter().zip(out.iter_mut()).enumerate() {
+        *o = Creep::new(c.rate, c.gain).map_err(|e| Invalid::at_index(Field::CreepTau, j, e))?;
+    }
+    Ok(out)
+}
+
+/// A table, validated, its errors located in its part of the model file.
+fn table<'a>(t: &TableSpec<'a>, id: TableId) -> Result<Table<'a>, Invalid> {
+    t.table().map_err(|e| {
+        let part = match e {
+            ModelError::TableSpacing => TablePart::StepLog2,
+            ModelError::TableSpan if t.x0.to_bits().unsigned_abs() > (4096 << 16) => TablePart::X0,
+            _ => TablePart::Values,
+        };
+        match e.index() {
+            Some(i) => Invalid::at_index(Field::Table(id, part), i, e),
+            None => Invalid::at(Field::Table(id, part), e),
+        }
+    })
+}
+
+/// Locates an error of [`crate::pi::check`] or [`crate::inverse::invert`]: partial
+/// sum `S_j` is `w0` for `j = 0`, else weight `j - 1`; threshold errors name the
+/// threshold.
+fn locate_pi(e: ModelError) -> Invalid {
+    match e {
+        ModelError::NonPositiveSlope { index } | ModelError::InverseWeightOutOfRange { index } => {
+            if index == 0 {
+                Invalid::at(Field::PiW0, e)
+            } else {
+                Invalid::at_index(Field::PiWeights, index as usize - 1, e)
+            }
+        }
+        ModelError::NegativeThreshold { index }
+        | ModelError::ThresholdsNotSorted { index }
+        | ModelError::ThresholdBeyondDomain { index } => {
+            Invalid::at_index(Field::PiThresholds, index as usize, e)
+        }
+        ModelError::DomainOutOfRange => Invalid::at(Field::PiInputMax, e),
+        ModelError::TooManyOperators => Invalid::at(Field::Operators, e),
+        e => Invalid::at(Field::PiWeights, e),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::q::{coupling, gain, signal};
+
+    fn v(x: f64) -> I16F16 {
+        signal(x).unwrap()
+    }
+
+    fn segs(values: &[f64]) -> Vec<Segment> {
+        values
+            .windows(2)
+            .map(|w| Segment::new(v(w[0]), v(w[1]) - v(w[0])))
+            .collect()
+    }
+
+    struct Owned {
+        ops: Vec<Operator<UmPerVolt>>,
+        creep: Vec<CreepSpec>,
+        f_f: Vec<Segment>,
+        f_k: Vec<Segment>,
+        f_k_inv: Vec<Segment>,
+    }
+
+    fn owned() -> Owned {
+        let line = |x0: f64, h: f64, n: usize, f: &dyn Fn(f64) -> f64| {
+            segs(&(0..=n).map(|k| f(x0 + k as f64 * h)).collect::<Vec<_>>())
+        };
+        Owned {
+            ops: [(10.0, 0.02), (30.0, 0.016), (60.0, 0.008)]
+                .map(|(r, w)| Operator {
+                    threshold: v(r),
+                    weight: gain(w).unwrap(),
+                })
+                .to_vec(),
+            creep: vec![CreepSpec {
+                rate: coupling(0.005).unwrap(),
+                gain: gain(0.003).unwrap(),
+            }],
+            f_f: line(0.0, 1.0 / 16.0, 512, &|x| 60.0 + 4.0 * x),
+            f_k: line(0.0, 1.0 / 16.0, 512, &|x| 1.4 * x),
+            f_k_inv: line(0.0, 0.25, 179, &|y| y / 1.4),
+        }
+    }
+
+    fn spec(o: &Owned) -> ModelSpec<'_> {
+        let t = |segments| TableSpec {
+            x0: I16F16::ZERO,
+            shift: 12,
+            segments,
+        };
+        ModelSpec {
+            rate_hz: 20_000,
+            w0: gain(0.12).unwrap(),
+            operators: &o.ops,
+            input_max: v(150.0),
+            coupling: Coupling {
+                compliance: coupling(0.02).unwrap(),
+                force_ref: v(60.0),
+                ..Coupling::paper(coupling(0.1).unwrap())
+            },
+            dead_zone: None,
+            saturation: None,
+            creep: &o.creep,
+            f_f: t(&o.f_f),
+            f_k: t(&o.f_k),
+            f_k_inv: TableSpec {
+                shift: 14,
+                ..t(&o.f_k_inv)
+            },
+            u_min: Volts::ZERO,
+            u_max: v(150.0),
+            max_step: v(5.0),
+            reference: Interval {
+                lo: Micrometres::ZERO,
+                hi: v(25.0),
+            },
+            force: Interval {
+                lo: v(20.0),
+                hi: v(200.0),
+            },
+            force_tolerance: v(15.0),
+            safe_voltage: Volts::ZERO,
+            force_source: ForceSource::Measured,
+        }
+    }
+
+    fn key(e: Invalid) -> String {
+        let mut s = String::new();
+        e.write_key(&mut s).unwrap();
+        s
+    }
+
+    #[test]
+    fn a_valid_model_passes_with_its_shape() {
+        let o = owned();
+        let shape = validate(&spec(&o)).unwrap();
+        assert_eq!((shape.operators, shape.creep_terms), (3, 1));
+        assert!(!shape.dead_zone && !shape.saturation);
+    }
+
+    #[test]
+    fn every_failure_names_its_key() {
+        let o = owned();
+        let base = spec(&o);
+        let check = |m: ModelSpec<'_>, want_key: &str, want: ModelError| {
+            let e = validate(&m).unwrap_err();
+            assert_eq!((key(e).as_str(), e.error), (want_key, want), "{e}");
+        };
+        check(
+            ModelSpec {
+                rate_hz: 50,
+                ..base
+            },
+            "controller.rate_hz",
+            ModelError::RateOutOfRange,
+        );
+        let mut ops = o.ops.clone();
+        ops[1].weight = gain(-0.2).unwrap();
+        check(
+            ModelSpec {
+                operators: &ops,
+                ..base
+            },
+            "pi.weights_um_per_v[1]",
+            ModelError::NonPositiveSlope { index: 2 },
+        );
+        let mut ops = o.ops.clone();
+        ops.swap(0, 2);
+        check(
+            ModelSpec {
+                operators: &ops,
+                ..base
+            },
+            "pi.thresholds_v[1]",
+            ModelError::ThresholdsNotSorted { index: 1 },
+        );
+        check(
+            ModelSpec {
+                w0: gain(0.001).unwrap(),
+                ..base
+            },
+            "pi.w0_um_per_v",
+            ModelError::InverseWeightOutOfRange { index: 0 },
+        );
+        let creep = [CreepSpec {
+            rate: CreepRate::ZERO,
+            gain: gain(0.003).unwrap(),
+        }];
+        check(
+            ModelSpec {
+                creep: &creep,
+                ..base
+            },
+            "creep[0].tau_s",
+            ModelError::CreepRateOutOfRange,
+        );
+        check(
+            ModelSpec {
+                coupling: Coupling {
+                    k_q: CreepRate::from_bits(i32::MAX),
+                    ..base.coupling
+                },
+                ..base
+            },
+            "coupling.k_q_v_per_n2",
+            ModelError::CurvatureOutOfRange,
+        );
+        // The spacing the old file check let through (step_log2 = -16) is refused by name.
+        check(
+            ModelSpec {
+                f_f: TableSpec {
+                    shift: 0,
+                    ..base.f_f
+                },
+                ..base
+            },
+            "tables.f_f.step_log2",
+            ModelError::TableSpacing,
+        );
+        let mut bad = o.f_k.clone();
+        bad[7] = Segment::new(bad[7].start(), -bad[7].rise());
+        check(
+            ModelSpec {
+                f_k: TableSpec {
+                    segments: &bad,
+                    ..base.f_k
+                },
+                ..base
+            },
+            "tables.f_k.values[8]",
+            ModelError::TableNotMonotone { index: 8 },
+        );
+        check(
+            ModelSpec {
+                u_min: v(200.0),
+                ..base
+            },
+            "controller.u_min_v",
+            ModelError::LimitsInverted,
+        );
+        check(
+            ModelSpec {
+                max_step: Volts::ZERO,
+                ..base
+            },
+            "controller.slew_v_per_ms",
+            ModelError::NonPositiveSlew,
+        );
+        check(
+            ModelSpec {
+                reference: Interval {
+                    lo: Micrometres::ZERO,
+                    hi: v(500.0),
+                },
+                ..base
+            },
+            "controller.reference_max_um",
+            ModelError::ReferenceOutsideTable,
+        );
+        check(
+            ModelSpec {
+                safe_voltage: v(-1.0),
+                ..base
+            },
+            "controller.safe_voltage_v",
+            ModelError::SafeVoltageOutsideLimits,
+        );
+        check(
+            ModelSpec {
+                force_tolerance: Newtons::ZERO,
+                ..base
+            },
+            "controller.force_tolerance_n",
+            ModelError::NonPositiveTolerance,
+        );
+    }
+}
