@@ -71,6 +71,21 @@ impl Window {
     }
 }
 
+/// What the controller supervises, and where it goes when something is wrong.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Supervision {
+    /// Reachable references (µm of stage output); anything else is a fault.
+    pub reference: Interval,
+    /// Plausible force readings (N); anything else is a fault.
+    pub force: Interval,
+    /// Largest tolerated `|F - f_F(x_pea_est)|` (N).
+    pub force_tolerance: Newtons,
+    /// Voltage of the safe state (V), inside the limits.
+    pub safe_voltage: Volts,
+    /// Measured or predicted preload.
+    pub force_source: ForceSource,
+}
+
 /// The supervision windows a validated controller checks its inputs against.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Windows {
@@ -89,11 +104,10 @@ pub struct Windows {
 pub const fn check_settings(
     limits: &OutputLimits,
     f_k_inv: &Table<'_>,
-    reference: Interval,
-    force: Interval,
-    force_tolerance: Newtons,
-    safe_voltage: Volts,
+    s: &Supervision,
 ) -> Result<Windows, Invalid> {
+    let (reference, force) = (s.reference, s.force);
+    let (force_tolerance, safe_voltage) = (s.force_tolerance, s.safe_voltage);
     let Some(reference_window) = Window::new(reference) else {
         return Err(Invalid::at(Field::ReferenceMin, ModelError::LimitsInverted));
     };
@@ -232,16 +246,8 @@ pub struct ControllerParts<'a, const N: usize, const C: usize = 0, G = Identity,
     pub f_k_inv: Table<'a>,
     /// Actuator range and slew.
     pub limits: OutputLimits,
-    /// Reachable references (µm of stage output); anything else is a fault.
-    pub reference: Interval,
-    /// Plausible force readings (N); anything else is a fault.
-    pub force: Interval,
-    /// Largest tolerated `|F - f_F(x_pea_est)|` (N).
-    pub force_tolerance: Newtons,
-    /// Voltage of the safe state (V), inside the limits.
-    pub safe_voltage: Volts,
-    /// Measured or predicted preload.
-    pub force_source: ForceSource,
+    /// Supervision and safe state.
+    pub supervision: Supervision,
 }
 
 impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
@@ -249,31 +255,25 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
 {
     /// Validates the parts ([`check_settings`]) and builds the configuration.
     pub const fn new(p: ControllerParts<'a, N, C, G, H>) -> Result<Self, ModelError> {
-        let w = match check_settings(
-            &p.limits,
-            &p.f_k_inv,
-            p.reference,
-            p.force,
-            p.force_tolerance,
-            p.safe_voltage,
-        ) {
+        let w = match check_settings(&p.limits, &p.f_k_inv, &p.supervision) {
             Ok(w) => w,
             Err(e) => return Err(e.error),
         };
+        let v = p.supervision;
         Ok(Self {
             fpi: p.fpi,
             f_f: p.f_f,
             f_k: p.f_k,
             f_k_inv: p.f_k_inv,
             limits: p.limits,
-            reference: p.reference,
-            force: p.force,
+            reference: v.reference,
+            force: v.force,
             reference_window: w.reference,
             force_window: w.force,
             residual_window: w.residual,
-            force_tolerance: p.force_tolerance,
-            safe_voltage: p.safe_voltage,
-            force_source: p.force_source,
+            force_tolerance: v.force_tolerance,
+            safe_voltage: v.safe_voltage,
+            force_source: v.force_source,
         })
     }
 
@@ -511,6 +511,16 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
     pub const fn limits(&self) -> &OutputLimits {
         &self.limits
     }
+    /// The supervision settings.
+    pub const fn supervision(&self) -> Supervision {
+        Supervision {
+            reference: self.reference,
+            force: self.force,
+            force_tolerance: self.force_tolerance,
+            safe_voltage: self.safe_voltage,
+            force_source: self.force_source,
+        }
+    }
     /// Reachable references, µm.
     pub const fn reference(&self) -> Interval {
         self.reference
@@ -582,18 +592,6 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
     pub const fn limited_steps(&self) -> u32 {
         self.limited_steps
     }
-    /// The forward (virtual sensor) bank.
-    pub const fn forward_bank(&self) -> &PlayBank<N, Bottom> {
-        &self.forward
-    }
-    /// The inverse (compensator) bank.
-    pub const fn inverse_bank(&self) -> &PlayBank<N, Top> {
-        &self.inverse
-    }
-    /// The creep memories.
-    pub const fn creep(&self) -> &CreepMemory<C> {
-        &self.creep
-    }
     /// The reference force of the compliance term in use (N).
     pub const fn force_ref(&self) -> Newtons {
         self.force_ref
@@ -654,10 +652,14 @@ mod tests {
     use crate::testkit::{self, force_at, TestController};
 
     fn with(force: Interval, tolerance: Newtons) -> Result<TestController, ModelError> {
+        let p = testkit::parts(ForceSource::Measured);
         ControllerConfig::new(ControllerParts {
-            force,
-            force_tolerance: tolerance,
-            ..testkit::parts(ForceSource::Measured)
+            supervision: Supervision {
+                force,
+                force_tolerance: tolerance,
+                ..p.supervision
+            },
+            ..p
         })
     }
 

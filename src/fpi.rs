@@ -1,4 +1,5 @@
-//! The Force-dependent Prandtl–Ishlinskii model (seed 000, eqs. 5–7) and the
+//! The Force-dependent Prandtl–Ishlinskii model (Actuators 2025, 14(8):411,
+//! eqs. 5–7) and the
 //! effects the recorded data hold beyond it.
 //!
 //! The stack responds to an effective voltage: the preload `F` induces a reverse
@@ -282,10 +283,6 @@ impl<const C: usize> CreepMemory<C> {
     pub const fn new() -> Self {
         Self { m: [0; C] }
     }
-    /// The memories in volts.
-    pub fn volts(&self) -> [f64; C] {
-        self.m.map(|m| m as f64 / (1u64 << 48) as f64)
-    }
 }
 
 impl<const C: usize> Default for CreepMemory<C> {
@@ -464,10 +461,6 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
     /// The forward PI model.
     pub const fn pi(&self) -> &PiModel<N> {
         &self.pi
-    }
-    /// The closed-form inverse of `PI'` (the PI with this sample's creep in `w0`).
-    pub const fn inverse_pi(&self) -> &InversePi<N> {
-        &self.inverse
     }
     /// The force coupling.
     pub const fn coupling(&self) -> &Coupling {

@@ -129,6 +129,84 @@ impl DacScale {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testkit;
+    use core::convert::Infallible;
+    use embedded_hal::digital::ErrorType;
+
+    /// A sensor that reads what the test sets, an amplifier and an enable line
+    /// that remember what the tick wrote.
+    struct Bench {
+        force: Newtons,
+        written: Option<Volts>,
+        enabled: Option<bool>,
+    }
+    struct Sensor<'a>(&'a core::cell::RefCell<Bench>);
+    struct Amp<'a>(&'a core::cell::RefCell<Bench>);
+    struct Enable<'a>(&'a core::cell::RefCell<Bench>);
+    impl ForceSensor for Sensor<'_> {
+        fn read_force(&mut self) -> Newtons {
+            self.0.borrow().force
+        }
+    }
+    impl Setpoint for Amp<'_> {
+        fn write_voltage(&mut self, v: Volts) {
+            self.0.borrow_mut().written = Some(v);
+        }
+    }
+    impl ErrorType for Enable<'_> {
+        type Error = Infallible;
+    }
+    impl OutputPin for Enable<'_> {
+        fn set_low(&mut self) -> Result<(), Infallible> {
+            self.0.borrow_mut().enabled = Some(false);
+            Ok(())
+        }
+        fn set_high(&mut self) -> Result<(), Infallible> {
+            self.0.borrow_mut().enabled = Some(true);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_tick_writes_the_setpoint_and_switches_off_only_at_the_safe_voltage() {
+        let cfg = testkit::controller();
+        let mut st = cfg.initial_state();
+        let bench = core::cell::RefCell::new(Bench {
+            force: Newtons::from_num(60),
+            written: None,
+            enabled: None,
+        });
+        let mut hw = Hardware {
+            sensor: Sensor(&bench),
+            amplifier: Amp(&bench),
+            enable: Enable(&bench),
+        };
+        // Up the stroke: the setpoint the step computed reaches the amplifier,
+        // which stays on.
+        for k in 0..300 {
+            let x = Micrometres::from_num(15.0 * k as f64 / 300.0);
+            let f = cfg.f_f().eval(st.x_pea_est());
+            bench.borrow_mut().force = f;
+            let out = hw.tick(&cfg, &mut st, &Mode::Compensated, x);
+            let b = bench.borrow();
+            assert_eq!(b.written, Some(out.voltage));
+            assert_eq!(b.enabled, Some(true));
+        }
+        assert!(st.voltage() > Volts::from_num(50));
+        // A broken wire: the output ramps down with the amplifier on, and only at
+        // the safe voltage is it switched off.
+        bench.borrow_mut().force = Newtons::from_num(999);
+        loop {
+            let out = hw.tick(&cfg, &mut st, &Mode::Compensated, Micrometres::from_num(15));
+            let b = bench.borrow();
+            assert_eq!(b.written, Some(out.voltage));
+            if out.voltage == cfg.safe_voltage() {
+                assert_eq!(b.enabled, Some(false));
+                break;
+            }
+            assert_eq!(b.enabled, Some(true), "off only at the safe voltage");
+        }
+    }
 
     #[test]
     fn adc_scale_round_trips() {

@@ -5,7 +5,11 @@
 //! The stack responds to the effective voltage `û = u - k_f·F_p`, where `F_p` is the
 //! preload the flexure hinge puts on it; a bank of one-sided play operators maps
 //! `û` to stack extension; FEM tables give the preload `f_F(x_pea)` and the stage
-//! output `f_K(x_pea)` (seed 000). The control step ([`ControllerConfig::step`])
+//! output `f_K(x_pea)` ("Nonlinearity Characterization of Flexible Hinge
+//! Piezoelectric Stages Under Dynamic Preload via a Force-Dependent
+//! Prandtl–Ishlinskii Model with a Force-Analyzed Finite Element Method",
+//! Actuators 2025, 14(8):411, doi:10.3390/act14080411; cited below as
+//! "Actuators 2025"). The control step ([`ControllerConfig::step`])
 //! inverts that chain in closed form once per ISR.
 //!
 //! * No `std`, no allocation, no panic and no division on the control path; every

@@ -17,13 +17,13 @@
 
 use fixed::types::I16F16;
 
-use crate::control::{check_settings, ForceSource, Interval};
+use crate::control::{check_settings, Supervision};
 use crate::error::{Field, Invalid, ModelError, TableId, TablePart};
 use crate::fpi::{creep_slope, Coupling, Creep};
 use crate::limits::OutputLimits;
 use crate::play::Operator;
 use crate::q::{
-    CreepRate, Micrometres, Newtons, UmPerVolt, Volts, VoltsPerUm, MAX_CREEP_TERMS, MAX_OPERATORS,
+    CreepRate, Micrometres, UmPerVolt, Volts, VoltsPerUm, MAX_CREEP_TERMS, MAX_OPERATORS,
 };
 use crate::table::{Segment, Table};
 
@@ -94,16 +94,8 @@ pub struct ModelSpec<'a> {
     pub u_max: Volts,
     /// Largest setpoint change per control step, V.
     pub max_step: Volts,
-    /// Reachable references, µm of stage output.
-    pub reference: Interval,
-    /// Plausible force readings, N.
-    pub force: Interval,
-    /// Largest tolerated `|F - f_F(x_pea_est)|`, N.
-    pub force_tolerance: Newtons,
-    /// Safe-state voltage, V.
-    pub safe_voltage: Volts,
-    /// Measured or predicted preload.
-    pub force_source: ForceSource,
+    /// Supervision and safe state.
+    pub supervision: Supervision,
 }
 
 /// The shape of a valid model: what the firmware's types are built from.
@@ -177,14 +169,7 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
         ModelError::NonPositiveSlew => Invalid::at(Field::Slew, e),
         e => Invalid::at(Field::UMin, e),
     })?;
-    check_settings(
-        &limits,
-        &f_k_inv,
-        m.reference,
-        m.force,
-        m.force_tolerance,
-        m.safe_voltage,
-    )?;
+    check_settings(&limits, &f_k_inv, &m.supervision)?;
     Ok(Shape {
         operators: n,
         creep_terms: m.creep.len(),
@@ -247,87 +232,54 @@ fn locate_pi(e: ModelError) -> Invalid {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::q::{coupling, gain, signal};
+    use crate::control::{ControllerParts, ForceSource, Interval};
+    use crate::q::{coupling, gain, signal, Newtons};
+    use crate::testkit;
 
     fn v(x: f64) -> I16F16 {
         signal(x).unwrap()
     }
 
-    fn segs(values: &[f64]) -> Vec<Segment> {
-        values
-            .windows(2)
-            .map(|w| Segment::new(v(w[0]), v(w[1]) - v(w[0])))
-            .collect()
-    }
-
+    /// The test stage's parts with one creep term.
     struct Owned {
-        ops: Vec<Operator<UmPerVolt>>,
+        parts: ControllerParts<'static, 3>,
         creep: Vec<CreepSpec>,
-        f_f: Vec<Segment>,
-        f_k: Vec<Segment>,
-        f_k_inv: Vec<Segment>,
     }
 
     fn owned() -> Owned {
-        let line = |x0: f64, h: f64, n: usize, f: &dyn Fn(f64) -> f64| {
-            segs(&(0..=n).map(|k| f(x0 + k as f64 * h)).collect::<Vec<_>>())
-        };
         Owned {
-            ops: [(10.0, 0.02), (30.0, 0.016), (60.0, 0.008)]
-                .map(|(r, w)| Operator {
-                    threshold: v(r),
-                    weight: gain(w).unwrap(),
-                })
-                .to_vec(),
+            parts: testkit::parts(ForceSource::Measured),
             creep: vec![CreepSpec {
                 rate: coupling(0.005).unwrap(),
                 gain: gain(0.003).unwrap(),
             }],
-            f_f: line(0.0, 1.0 / 16.0, 512, &|x| 60.0 + 4.0 * x),
-            f_k: line(0.0, 1.0 / 16.0, 512, &|x| 1.4 * x),
-            f_k_inv: line(0.0, 0.25, 179, &|y| y / 1.4),
         }
     }
 
     fn spec(o: &Owned) -> ModelSpec<'_> {
-        let t = |segments| TableSpec {
-            x0: I16F16::ZERO,
-            shift: 12,
-            segments,
+        let p = &o.parts;
+        let pi = p.fpi.pi();
+        let t = |t: &Table<'static>| TableSpec {
+            x0: t.x_min(),
+            shift: t.shift(),
+            segments: t.segments(),
         };
         ModelSpec {
             rate_hz: 20_000,
-            w0: gain(0.12).unwrap(),
-            operators: &o.ops,
-            input_max: v(150.0),
-            coupling: Coupling {
-                compliance: coupling(0.02).unwrap(),
-                force_ref: v(60.0),
-                ..Coupling::paper(coupling(0.1).unwrap())
-            },
+            w0: pi.w0(),
+            operators: pi.operators(),
+            input_max: pi.input_max(),
+            coupling: *p.fpi.coupling(),
             dead_zone: None,
             saturation: None,
             creep: &o.creep,
-            f_f: t(&o.f_f),
-            f_k: t(&o.f_k),
-            f_k_inv: TableSpec {
-                shift: 14,
-                ..t(&o.f_k_inv)
-            },
-            u_min: Volts::ZERO,
-            u_max: v(150.0),
-            max_step: v(5.0),
-            reference: Interval {
-                lo: Micrometres::ZERO,
-                hi: v(25.0),
-            },
-            force: Interval {
-                lo: v(20.0),
-                hi: v(200.0),
-            },
-            force_tolerance: v(15.0),
-            safe_voltage: Volts::ZERO,
-            force_source: ForceSource::Measured,
+            f_f: t(&p.f_f),
+            f_k: t(&p.f_k),
+            f_k_inv: t(&p.f_k_inv),
+            u_min: p.limits.min(),
+            u_max: p.limits.max(),
+            max_step: p.limits.max_step(),
+            supervision: p.supervision,
         }
     }
 
@@ -353,6 +305,10 @@ mod tests {
             let e = validate(&m).unwrap_err();
             assert_eq!((key(e).as_str(), e.error), (want_key, want), "{e}");
         };
+        let sup = |s: Supervision| ModelSpec {
+            supervision: s,
+            ..base
+        };
         check(
             ModelSpec {
                 rate_hz: 50,
@@ -361,7 +317,7 @@ mod tests {
             "controller.rate_hz",
             ModelError::RateOutOfRange,
         );
-        let mut ops = o.ops.clone();
+        let mut ops = base.operators.to_vec();
         ops[1].weight = gain(-0.2).unwrap();
         check(
             ModelSpec {
@@ -371,7 +327,7 @@ mod tests {
             "pi.weights_um_per_v[1]",
             ModelError::NonPositiveSlope { index: 2 },
         );
-        let mut ops = o.ops.clone();
+        let mut ops = base.operators.to_vec();
         ops.swap(0, 2);
         check(
             ModelSpec {
@@ -424,7 +380,7 @@ mod tests {
             "tables.f_f.step_log2",
             ModelError::TableSpacing,
         );
-        let mut bad = o.f_k.clone();
+        let mut bad = base.f_k.segments.to_vec();
         bad[7] = Segment::new(bad[7].start(), -bad[7].rise());
         check(
             ModelSpec {
@@ -453,30 +409,31 @@ mod tests {
             "controller.slew_v_per_ms",
             ModelError::NonPositiveSlew,
         );
+        let s = base.supervision;
         check(
-            ModelSpec {
+            sup(Supervision {
                 reference: Interval {
                     lo: Micrometres::ZERO,
                     hi: v(500.0),
                 },
-                ..base
-            },
+                ..s
+            }),
             "controller.reference_max_um",
             ModelError::ReferenceOutsideTable,
         );
         check(
-            ModelSpec {
+            sup(Supervision {
                 safe_voltage: v(-1.0),
-                ..base
-            },
+                ..s
+            }),
             "controller.safe_voltage_v",
             ModelError::SafeVoltageOutsideLimits,
         );
         check(
-            ModelSpec {
+            sup(Supervision {
                 force_tolerance: Newtons::ZERO,
-                ..base
-            },
+                ..s
+            }),
             "controller.force_tolerance_n",
             ModelError::NonPositiveTolerance,
         );

@@ -1,4 +1,4 @@
-//! The classical Prandtl–Ishlinskii model with one-sided play operators (seed 000, eq. 4):
+//! The classical Prandtl–Ishlinskii model with one-sided play operators (Actuators 2025, 14(8):411, eq. 4):
 //! `Y[u] = w0·u + Σ w_i·G_{r_i}[u]`.
 
 use crate::error::ModelError;
@@ -201,14 +201,6 @@ impl<const N: usize> PiModel<N> {
     /// The operators with the sums their banks need.
     pub const fn bank(&self) -> &Operators<UmPerVolt, N> {
         &self.ops
-    }
-    /// Thresholds `r_i`, V.
-    pub fn thresholds(&self) -> [Volts; N] {
-        self.ops.ops().map(|o| o.threshold)
-    }
-    /// Weights `w_i`, µm/V.
-    pub fn weights(&self) -> [UmPerVolt; N] {
-        self.ops.ops().map(|o| o.weight)
     }
     /// Upper end of the input domain, V.
     pub const fn input_max(&self) -> Volts {

@@ -1,4 +1,4 @@
-//! The one-sided play (OSP) operator and banks of them (seed 000, eqs. 1–3).
+//! The one-sided play (OSP) operator and banks of them (Actuators 2025, 14(8):411, eqs. 1–3).
 
 use fixed::types::{I10F22, I16F16, I4F28};
 

@@ -8,7 +8,7 @@
 //! * Limits 0–150 V, 2 V per step; references 0–25 µm; forces 20–200 N, tolerance
 //!   15 N; safe voltage 0 V.
 
-use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval};
+use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Supervision};
 use crate::fpi::{Coupling, Fpi, Identity};
 use crate::limits::OutputLimits;
 use crate::pi::PiModel;
@@ -52,17 +52,19 @@ pub fn parts(source: ForceSource) -> ControllerParts<'static, 3> {
         f_k: table(0.0, -4, 512, |x| 1.4 * x),
         f_k_inv: table(0.0, -2, 179, |y| y / 1.4),
         limits: OutputLimits::new(Volts::ZERO, v(150.0), v(2.0)).unwrap(),
-        reference: Interval {
-            lo: Micrometres::ZERO,
-            hi: v(25.0),
+        supervision: Supervision {
+            reference: Interval {
+                lo: Micrometres::ZERO,
+                hi: v(25.0),
+            },
+            force: Interval {
+                lo: v(20.0),
+                hi: v(200.0),
+            },
+            force_tolerance: v(15.0),
+            safe_voltage: Volts::ZERO,
+            force_source: source,
         },
-        force: Interval {
-            lo: v(20.0),
-            hi: v(200.0),
-        },
-        force_tolerance: v(15.0),
-        safe_voltage: Volts::ZERO,
-        force_source: source,
     }
 }
 

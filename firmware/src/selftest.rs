@@ -79,6 +79,146 @@ pub struct PhaseReport {
     pub pass: bool,
 }
 
+/// A value rounded to the nearest integer (halves away from zero), for logs that
+/// print no floats.
+pub fn round(x: f32) -> i64 {
+    (if x < 0.0 { x - 0.5 } else { x + 0.5 }) as i64
+}
+
+/// The figures of a phase the emulator reports and the host's twin recomputes,
+/// compared value by value within [`TWIN_BOUND_UM`].
+///
+/// The emulated board prints them as one line ([`write`](Self::write)) that the
+/// host reads back ([`parse`](Self::parse)), lengths in picometres (integers: no
+/// float formatting in the firmware):
+/// `values phase 1 ticks 12000 rms_pm 37068 max_pm 93630 est_rms_pm 37082 fault 0 0 safe_at - amp_off 0 pass 1`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PhaseValues {
+    /// Position of the phase in the script.
+    pub phase: u8,
+    /// Ticks in the phase.
+    pub ticks: u32,
+    /// Tracking error RMS, µm.
+    pub rms_um: f32,
+    /// Largest tracking error, µm.
+    pub max_um: f32,
+    /// Virtual-sensor error RMS, µm.
+    pub est_rms_um: f32,
+    /// First fault (its code, 0 for none) and the phase tick it latched at.
+    pub fault: (u8, u32),
+    /// Phase tick at which the output reached the safe voltage.
+    pub safe_at: Option<u32>,
+    /// The amplifier was switched off in the safe state.
+    pub amplifier_off: bool,
+    /// The phase's self-check.
+    pub pass: bool,
+}
+
+/// How far the emulator's figures may lie from the host twin's, µm (0.5 nm, a
+/// hundredth of the smallest figure). The two run the same fixed-point core and
+/// the same `f32` virtual stage (`libm` on both), so they agree to the bit; the
+/// bound is what a legitimate difference in float evaluation could cost.
+pub const TWIN_BOUND_UM: f32 = 5e-4;
+
+impl PhaseValues {
+    /// The values of a phase report, the phase at position `phase` of the script.
+    pub fn of(phase: u8, r: &PhaseReport) -> Self {
+        Self {
+            phase,
+            ticks: r.steps,
+            rms_um: r.tracking.rms(),
+            max_um: r.tracking.max_abs(),
+            est_rms_um: r.estimate.rms(),
+            fault: r.fault.map_or((0, 0), |(f, at)| (f as u8, at)),
+            safe_at: r.safe_at,
+            amplifier_off: r.amplifier_off,
+            pass: r.pass,
+        }
+    }
+
+    /// The line the emulator prints (lengths rounded to 1 pm).
+    pub fn write(&self, w: &mut impl core::fmt::Write) -> core::fmt::Result {
+        let pm = |um: f32| round(um * 1e6);
+        write!(
+            w,
+            "values phase {} ticks {} rms_pm {} max_pm {} est_rms_pm {} fault {} {} safe_at ",
+            self.phase,
+            self.ticks,
+            pm(self.rms_um),
+            pm(self.max_um),
+            pm(self.est_rms_um),
+            self.fault.0,
+            self.fault.1
+        )?;
+        match self.safe_at {
+            Some(t) => write!(w, "{t}")?,
+            None => w.write_str("-")?,
+        }
+        write!(
+            w,
+            " amp_off {} pass {}",
+            self.amplifier_off as u8, self.pass as u8
+        )
+    }
+
+    /// Reads a line [`write`](Self::write) made; `None` for any other line.
+    pub fn parse(line: &str) -> Option<Self> {
+        let mut f = line.strip_prefix("values ")?.split_whitespace();
+        // `key value`; an empty key reads the next value alone.
+        let mut field = |key: &str| -> Option<&str> {
+            if !key.is_empty() {
+                (f.next()? == key).then_some(())?;
+            }
+            f.next()
+        };
+        let phase = field("phase")?.parse().ok()?;
+        let ticks = field("ticks")?.parse().ok()?;
+        let mut um =
+            |key: &str| -> Option<f32> { Some(field(key)?.parse::<i64>().ok()? as f32 * 1e-6) };
+        let rms_um = um("rms_pm")?;
+        let max_um = um("max_pm")?;
+        let est_rms_um = um("est_rms_pm")?;
+        let code = field("fault")?.parse().ok()?;
+        let at = field("")?.parse().ok()?;
+        let safe_at = match field("safe_at")? {
+            "-" => None,
+            t => Some(t.parse().ok()?),
+        };
+        let amplifier_off = field("amp_off")? == "1";
+        let pass = field("pass")? == "1";
+        Some(Self {
+            phase,
+            ticks,
+            rms_um,
+            max_um,
+            est_rms_um,
+            fault: (code, at),
+            safe_at,
+            amplifier_off,
+            pass,
+        })
+    }
+
+    /// What differs from another run's values: events and ticks exactly, the
+    /// error figures within `bound_um`; `None` if they agree.
+    pub fn differs(&self, other: &Self, bound_um: f32) -> Option<&'static str> {
+        let near = |a: f32, b: f32| (a - b).abs() <= bound_um;
+        if (self.phase, self.ticks) != (other.phase, other.ticks) {
+            Some("phase or ticks")
+        } else if (self.fault, self.safe_at, self.amplifier_off, self.pass)
+            != (other.fault, other.safe_at, other.amplifier_off, other.pass)
+        {
+            Some("fault, safe state or self-check")
+        } else if !near(self.rms_um, other.rms_um) || !near(self.max_um, other.max_um) {
+            Some("tracking error")
+        } else if !near(self.est_rms_um, other.est_rms_um) {
+            Some("virtual-sensor error")
+        } else {
+            None
+        }
+    }
+}
+
 /// What thread mode does after a tick.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Advance {
@@ -164,11 +304,6 @@ impl Demo {
             max_voltage: 0.0,
             pass: false,
         }
-    }
-
-    /// The straight-line baseline drive.
-    pub const fn linear_drive(&self) -> LinearDrive {
-        self.linear
     }
 
     fn wave(
@@ -359,15 +494,42 @@ mod tests {
     use crate::model;
 
     #[test]
-    fn scripted_run_passes_on_the_host() {
+    fn phase_values_round_trip_through_their_line() {
+        let v = PhaseValues {
+            phase: 3,
+            ticks: 6000,
+            rms_um: 0.043_187_2,
+            max_um: 0.083_001,
+            est_rms_um: 1.0e-7,
+            fault: (1, 2000),
+            safe_at: Some(2018),
+            amplifier_off: true,
+            pass: true,
+        };
+        let mut line = String::new();
+        v.write(&mut line).unwrap();
+        let back = PhaseValues::parse(&line).unwrap();
+        assert_eq!(v.differs(&back, 1e-6), None, "{line}");
+        let off = PhaseValues {
+            rms_um: v.rms_um + 1e-3,
+            ..v
+        };
+        assert_eq!(v.differs(&off, TWIN_BOUND_UM), Some("tracking error"));
+        assert_eq!(PhaseValues::parse("phase compensated 5 Hz ..."), None);
+    }
+
+    #[test]
+    fn scripted_run_passes_its_self_checks_on_the_host() {
         let (reports, ticks) = run_on_host(&model::CONTROLLER, model::CONTROL_RATE_HZ).unwrap();
-        for r in reports.iter().flatten() {
-            println!(
-                "{:32} rms {:7.4} um  max {:7.4} um  est rms {:7.4}  fault {:?} safe_at {:?} amp_off {} vmax {:.2} pass {}",
-                r.phase.name(), r.tracking.rms(), r.tracking.max_abs(), r.estimate.rms(),
-                r.fault, r.safe_at, r.amplifier_off, r.max_voltage, r.pass
-            );
+        let r: Vec<&PhaseReport> = reports.iter().flatten().collect();
+        assert_eq!(r.len(), PHASES.len(), "every phase reported");
+        assert_eq!(ticks, r.iter().map(|r| r.steps).sum::<u32>());
+        for r in &r {
+            assert!(r.pass, "{} failed its self-check: {r:?}", r.phase.name());
         }
-        println!("ticks {ticks}");
+        let (off, on) = (r[0].tracking.rms(), r[1].tracking.rms());
+        assert!(on <= Demo::REQUIRED_RATIO * off, "{on} µm vs {off} µm");
+        assert!(matches!(r[3].fault, Some((Fault::ForceOutOfRange, _))));
+        assert!(matches!(r[4].fault, Some((Fault::ReferenceUnreachable, _))));
     }
 }

@@ -43,11 +43,11 @@ impl<'a, F: Real> Curve<'a, F> {
         if n < 2 || ys.len() != n {
             return None;
         }
-        let step = (xs[n - 1] - xs[0]) / F::of((n - 1) as f64);
+        let step = (xs[n - 1] - xs[0]) / F::of_count(n - 1);
         let uniform = xs
             .iter()
             .enumerate()
-            .all(|(k, &x)| (x - (xs[0] + F::of(k as f64) * step)).abs() <= F::of(1e-9) * step);
+            .all(|(k, &x)| (x - (xs[0] + F::of_count(k) * step)).abs() <= F::of(1e-9) * step);
         Some(Self {
             grid: if uniform && step > F::ZERO {
                 Grid::Uniform { x0: xs[0], step }
@@ -80,7 +80,7 @@ impl<'a, F: Real> Curve<'a, F> {
     #[inline]
     pub fn x(&self, k: usize) -> F {
         match self.grid {
-            Grid::Uniform { x0, step } => x0 + F::of(k as f64) * step,
+            Grid::Uniform { x0, step } => x0 + F::of_count(k) * step,
             Grid::Points(xs) => xs[k],
         }
     }
@@ -113,10 +113,10 @@ impl<'a, F: Real> Curve<'a, F> {
         match self.grid {
             Grid::Uniform { x0, step } => {
                 let k = ((x - x0) / step).floor();
-                if k >= F::of((n - 2) as f64) {
+                if k >= F::of_count(n - 2) {
                     n - 2
                 } else if k > F::ZERO {
-                    k.to_f64() as usize
+                    k.to_index()
                 } else {
                     0
                 }

@@ -1,4 +1,4 @@
-//! The FFEM maps of a stage (first paper, Part II): the preload the flexure hinge
+//! The FFEM maps of a stage (Actuators 2025, 14(8):411, Part II): the preload the flexure hinge
 //! puts on the stack, `f_F(x_pea)`, and the stage output, `f_K(x_pea)`, linear
 //! between the FEM's points, with the inverse kinematics `f_K⁻¹`.
 

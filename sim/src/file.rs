@@ -20,12 +20,12 @@ use std::string::{String, ToString};
 use std::vec::Vec;
 
 use fixed::types::I16F16;
-use piezo_fpi::control::{ForceSource, Interval};
+use piezo_fpi::control::{ForceSource, Interval, Supervision};
 use piezo_fpi::error::{Field, Invalid, ModelError, TableId, TablePart};
 use piezo_fpi::fpi::Coupling as FixedCoupling;
 use piezo_fpi::model::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
 use piezo_fpi::play::Operator;
-use piezo_fpi::q::{self, CreepRate, Newtons, UmPerVolt, Volts, VoltsPerNewton};
+use piezo_fpi::q::{self, CreepRate, UmPerVolt, VoltsPerNewton};
 use piezo_fpi::table::Segment;
 use serde::{Deserialize, Serialize};
 
@@ -93,8 +93,10 @@ pub struct PiSection {
     pub input_max_v: f64,
 }
 
-/// `U_p(F) = k0 + k_f·F + k_q·(F - F_q)²`, `x = h(Y[g(u - U_p)]) - c·(F - F_ref)`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// `U_p(F) = k0 + k_f·F + k_q·(F - F_q)²`, `x = h(Y[g(u - U_p)]) - c·(F - F_ref)`
+/// (also the coupling of the host tools' calibrated models, which have no `F_ref`:
+/// that belongs to a stage).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 pub struct CouplingSection {
     /// Constant part `k0` of the preload offset, V.
@@ -109,9 +111,12 @@ pub struct CouplingSection {
     #[serde(default)]
     pub force_q_n: f64,
     /// Stack compliance, µm/N (0 for the paper's FPI).
+    #[serde(default)]
     pub compliance_um_per_n: f64,
-    /// Force at zero extension, N.
-    pub force_ref_n: f64,
+    /// Force at zero extension, N: the stage's rest preload (a firmware model
+    /// needs it; a calibrated actuator model has none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_ref_n: Option<f64>,
 }
 
 /// A monotone map and its inverse, both tabulated (see the core's `fpi::Map`).
@@ -208,78 +213,38 @@ impl QuantizedTable {
     }
 }
 
-/// A model quantised to the core's formats (owns what a [`ModelSpec`] borrows).
+/// A model quantised to the core's formats: owns the arrays a [`ModelSpec`]
+/// borrows, and lends them with [`spec`](Self::spec).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Quantized {
-    /// Control rate, Hz.
-    pub rate_hz: u32,
-    /// `w0`.
-    pub w0: UmPerVolt,
-    /// The operators.
-    pub operators: Vec<Operator<UmPerVolt>>,
-    /// Input domain, V.
-    pub input_max: Volts,
-    /// The coupling.
-    pub coupling: FixedCoupling,
-    /// The soft dead zone's map and inverse.
-    pub dead_zone: Option<(QuantizedTable, QuantizedTable)>,
-    /// The saturation's map and inverse.
-    pub saturation: Option<(QuantizedTable, QuantizedTable)>,
-    /// Creep terms at the control rate.
-    pub creep: Vec<CreepSpec>,
-    /// `f_F`.
-    pub f_f: QuantizedTable,
-    /// `f_K`.
-    pub f_k: QuantizedTable,
-    /// `f_K⁻¹`.
-    pub f_k_inv: QuantizedTable,
-    /// Lowest setpoint, V.
-    pub u_min: Volts,
-    /// Highest setpoint, V.
-    pub u_max: Volts,
-    /// Largest change per step, V.
-    pub max_step: Volts,
-    /// Reachable references, µm.
-    pub reference: Interval,
-    /// Plausible forces, N.
-    pub force: Interval,
-    /// Force tolerance, N.
-    pub force_tolerance: Newtons,
-    /// Safe voltage, V.
-    pub safe_voltage: Volts,
-    /// Force source.
-    pub force_source: ForceSource,
+    /// Everything but the arrays (which are empty here).
+    base: ModelSpec<'static>,
+    operators: Vec<Operator<UmPerVolt>>,
+    creep: Vec<CreepSpec>,
+    dead_zone: Option<[QuantizedTable; 2]>,
+    saturation: Option<[QuantizedTable; 2]>,
+    tables: [QuantizedTable; 3],
 }
 
 impl Quantized {
     /// The model in the core's format, for [`validate`] and the firmware's types.
     pub fn spec(&self) -> ModelSpec<'_> {
-        fn map(m: &Option<(QuantizedTable, QuantizedTable)>) -> Option<MapSpec<'_>> {
-            m.as_ref().map(|(f, i)| MapSpec {
+        fn map(m: &Option<[QuantizedTable; 2]>) -> Option<MapSpec<'_>> {
+            m.as_ref().map(|[f, i]| MapSpec {
                 forward: f.spec(),
                 inverse: i.spec(),
             })
         }
+        let [f_f, f_k, f_k_inv] = &self.tables;
         ModelSpec {
-            rate_hz: self.rate_hz,
-            w0: self.w0,
             operators: &self.operators,
-            input_max: self.input_max,
-            coupling: self.coupling,
+            creep: &self.creep,
             dead_zone: map(&self.dead_zone),
             saturation: map(&self.saturation),
-            creep: &self.creep,
-            f_f: self.f_f.spec(),
-            f_k: self.f_k.spec(),
-            f_k_inv: self.f_k_inv.spec(),
-            u_min: self.u_min,
-            u_max: self.u_max,
-            max_step: self.max_step,
-            reference: self.reference,
-            force: self.force,
-            force_tolerance: self.force_tolerance,
-            safe_voltage: self.safe_voltage,
-            force_source: self.force_source,
+            f_f: f_f.spec(),
+            f_k: f_k.spec(),
+            f_k_inv: f_k_inv.spec(),
+            ..self.base
         }
     }
 }
@@ -309,6 +274,97 @@ fn coupling(key: &str, v: f64) -> Result<VoltsPerNewton, String> {
             q::COUPLING_ABS_MAX
         )
     })
+}
+
+impl PiSection {
+    /// The operators in the core's formats.
+    fn operators(&self) -> Result<Vec<Operator<UmPerVolt>>, String> {
+        if self.weights_um_per_v.len() != self.thresholds_v.len() {
+            return Err(format!(
+                "pi.weights_um_per_v has {} values but pi.thresholds_v has {}",
+                self.weights_um_per_v.len(),
+                self.thresholds_v.len()
+            ));
+        }
+        self.thresholds_v
+            .iter()
+            .zip(&self.weights_um_per_v)
+            .enumerate()
+            .map(|(i, (&r, &w))| {
+                Ok(Operator {
+                    threshold: signal(&format!("pi.thresholds_v[{i}]"), r)?,
+                    weight: gain(&format!("pi.weights_um_per_v[{i}]"), w)?,
+                })
+            })
+            .collect()
+    }
+}
+
+impl CouplingSection {
+    /// The coupling in the core's formats (a firmware model needs `force_ref_n`).
+    fn quantize(&self) -> Result<FixedCoupling, String> {
+        let force_ref = self
+            .force_ref_n
+            .ok_or("coupling.force_ref_n: missing (the stage's force at zero extension, N)")?;
+        Ok(FixedCoupling {
+            offset: signal("coupling.offset_v", self.offset_v)?,
+            k_f: coupling("coupling.k_f_v_per_n", self.k_f_v_per_n)?,
+            k_q: coupling("coupling.k_q_v_per_n2", self.k_q_v_per_n2)?,
+            force_q: signal("coupling.force_q_n", self.force_q_n)?,
+            compliance: coupling("coupling.compliance_um_per_n", self.compliance_um_per_n)?,
+            force_ref: signal("coupling.force_ref_n", force_ref)?,
+        })
+    }
+}
+
+impl ControllerSection {
+    /// The supervision settings in the core's formats.
+    fn supervision(&self) -> Result<Supervision, String> {
+        let force_source = match self.force_source.as_str() {
+            "measured" => ForceSource::Measured,
+            "predicted" => ForceSource::Predicted,
+            other => {
+                return Err(format!(
+                    "controller.force_source = {other:?}: expected \"measured\" or \"predicted\""
+                ))
+            }
+        };
+        let interval = |lo_key: &str, lo, hi_key: &str, hi| -> Result<Interval, String> {
+            Ok(Interval {
+                lo: signal(lo_key, lo)?,
+                hi: signal(hi_key, hi)?,
+            })
+        };
+        Ok(Supervision {
+            reference: interval(
+                "controller.reference_min_um",
+                self.reference_min_um,
+                "controller.reference_max_um",
+                self.reference_max_um,
+            )?,
+            force: interval(
+                "controller.force_min_n",
+                self.force_min_n,
+                "controller.force_max_n",
+                self.force_max_n,
+            )?,
+            force_tolerance: signal("controller.force_tolerance_n", self.force_tolerance_n)?,
+            safe_voltage: signal("controller.safe_voltage_v", self.safe_voltage_v)?,
+            force_source,
+        })
+    }
+}
+
+/// A tabulated map and its inverse in the core's format.
+fn quantize_map(name: &str, m: &Option<MapSection>) -> Result<Option<[QuantizedTable; 2]>, String> {
+    m.as_ref()
+        .map(|m| {
+            Ok([
+                quantize_table(&format!("{name}.forward"), &m.forward)?,
+                quantize_table(&format!("{name}.inverse"), &m.inverse)?,
+            ])
+        })
+        .transpose()
 }
 
 fn quantize_table(key: &str, t: &TableSection) -> Result<QuantizedTable, String> {
@@ -394,112 +450,65 @@ impl FirmwareModel {
         if self.format != FORMAT {
             return Err(format!("format = {:?}: expected {FORMAT:?}", self.format));
         }
-        let p = &self.pi;
-        if p.weights_um_per_v.len() != p.thresholds_v.len() {
-            return Err(format!(
-                "pi.weights_um_per_v has {} values but pi.thresholds_v has {}",
-                p.weights_um_per_v.len(),
-                p.thresholds_v.len()
-            ));
-        }
-        let operators = p
-            .thresholds_v
-            .iter()
-            .zip(&p.weights_um_per_v)
-            .enumerate()
-            .map(|(i, (&r, &w))| {
-                Ok(Operator {
-                    threshold: signal(&format!("pi.thresholds_v[{i}]"), r)?,
-                    weight: gain(&format!("pi.weights_um_per_v[{i}]"), w)?,
-                })
-            })
-            .collect::<Result<Vec<_>, String>>()?;
-        let c = &self.coupling;
+        let empty = TableSpec {
+            x0: I16F16::ZERO,
+            shift: 0,
+            segments: &[],
+        };
         let k = &self.controller;
-        let rate = k.rate_hz as f64;
-        let creep = self
-            .creep
+        Ok(Quantized {
+            base: ModelSpec {
+                rate_hz: k.rate_hz,
+                w0: gain("pi.w0_um_per_v", self.pi.w0_um_per_v)?,
+                operators: &[],
+                input_max: signal("pi.input_max_v", self.pi.input_max_v)?,
+                coupling: self.coupling.quantize()?,
+                dead_zone: None,
+                saturation: None,
+                creep: &[],
+                f_f: empty,
+                f_k: empty,
+                f_k_inv: empty,
+                u_min: signal("controller.u_min_v", k.u_min_v)?,
+                u_max: signal("controller.u_max_v", k.u_max_v)?,
+                max_step: signal(
+                    "controller.slew_v_per_ms (per control step)",
+                    k.slew_v_per_ms * 1e3 / k.rate_hz as f64,
+                )?,
+                supervision: k.supervision()?,
+            },
+            operators: self.pi.operators()?,
+            creep: self.creep_terms()?,
+            dead_zone: quantize_map("dead_zone", &self.dead_zone)?,
+            saturation: quantize_map("saturation", &self.saturation)?,
+            tables: [
+                quantize_table("tables.f_f", &self.tables.f_f)?,
+                quantize_table("tables.f_k", &self.tables.f_k)?,
+                quantize_table("tables.f_k_inv", &self.tables.f_k_inv)?,
+            ],
+        })
+    }
+
+    /// The creep terms at the control rate (a rate outside `(0, 0.5)` is passed
+    /// on as 0, which the validator refuses by name).
+    fn creep_terms(&self) -> Result<Vec<CreepSpec>, String> {
+        let dt = 1.0 / self.controller.rate_hz as f64;
+        self.creep
             .iter()
             .enumerate()
             .map(|(j, cr)| {
-                let r = lag_rate(1.0 / rate, cr.tau_s);
+                let r = lag_rate(dt, cr.tau_s);
                 let rate = if r > 0.0 && r < 0.5 {
                     coupling(&format!("creep[{j}].tau_s"), r)?
                 } else {
-                    CreepRate::ZERO // refused by the validator, which names it
+                    CreepRate::ZERO
                 };
                 Ok(CreepSpec {
                     rate,
                     gain: gain(&format!("creep[{j}].gain_um_per_v"), cr.gain_um_per_v)?,
                 })
             })
-            .collect::<Result<Vec<_>, String>>()?;
-        let map = |name: &str, m: &Option<MapSection>| -> Result<_, String> {
-            m.as_ref()
-                .map(|m| {
-                    Ok((
-                        quantize_table(&format!("{name}.forward"), &m.forward)?,
-                        quantize_table(&format!("{name}.inverse"), &m.inverse)?,
-                    ))
-                })
-                .transpose()
-        };
-        let force_source = match k.force_source.as_str() {
-            "measured" => ForceSource::Measured,
-            "predicted" => ForceSource::Predicted,
-            other => {
-                return Err(format!(
-                    "controller.force_source = {other:?}: expected \"measured\" or \"predicted\""
-                ))
-            }
-        };
-        let interval = |lo_key: &str, lo, hi_key: &str, hi| -> Result<Interval, String> {
-            Ok(Interval {
-                lo: signal(lo_key, lo)?,
-                hi: signal(hi_key, hi)?,
-            })
-        };
-        Ok(Quantized {
-            rate_hz: k.rate_hz,
-            w0: gain("pi.w0_um_per_v", p.w0_um_per_v)?,
-            operators,
-            input_max: signal("pi.input_max_v", p.input_max_v)?,
-            coupling: FixedCoupling {
-                offset: signal("coupling.offset_v", c.offset_v)?,
-                k_f: coupling("coupling.k_f_v_per_n", c.k_f_v_per_n)?,
-                k_q: coupling("coupling.k_q_v_per_n2", c.k_q_v_per_n2)?,
-                force_q: signal("coupling.force_q_n", c.force_q_n)?,
-                compliance: coupling("coupling.compliance_um_per_n", c.compliance_um_per_n)?,
-                force_ref: signal("coupling.force_ref_n", c.force_ref_n)?,
-            },
-            dead_zone: map("dead_zone", &self.dead_zone)?,
-            saturation: map("saturation", &self.saturation)?,
-            creep,
-            f_f: quantize_table("tables.f_f", &self.tables.f_f)?,
-            f_k: quantize_table("tables.f_k", &self.tables.f_k)?,
-            f_k_inv: quantize_table("tables.f_k_inv", &self.tables.f_k_inv)?,
-            u_min: signal("controller.u_min_v", k.u_min_v)?,
-            u_max: signal("controller.u_max_v", k.u_max_v)?,
-            max_step: signal(
-                "controller.slew_v_per_ms (per control step)",
-                k.slew_v_per_ms * 1e3 / rate,
-            )?,
-            reference: interval(
-                "controller.reference_min_um",
-                k.reference_min_um,
-                "controller.reference_max_um",
-                k.reference_max_um,
-            )?,
-            force: interval(
-                "controller.force_min_n",
-                k.force_min_n,
-                "controller.force_max_n",
-                k.force_max_n,
-            )?,
-            force_tolerance: signal("controller.force_tolerance_n", k.force_tolerance_n)?,
-            safe_voltage: signal("controller.safe_voltage_v", k.safe_voltage_v)?,
-            force_source,
-        })
+            .collect()
     }
 
     fn table(&self, id: TableId) -> Option<&TableSection> {
@@ -533,7 +542,7 @@ impl FirmwareModel {
             Field::CouplingKq => Some(c.k_q_v_per_n2),
             Field::CouplingForceQ => Some(c.force_q_n),
             Field::CouplingCompliance => Some(c.compliance_um_per_n),
-            Field::CouplingForceRef => Some(c.force_ref_n),
+            Field::CouplingForceRef => c.force_ref_n,
             Field::CreepTau => i.and_then(|i| self.creep.get(i)).map(|c| c.tau_s),
             Field::CreepGain => i.and_then(|i| self.creep.get(i)).map(|c| c.gain_um_per_v),
             Field::Table(id, part) => {
@@ -651,7 +660,7 @@ impl FirmwareModel {
             force_tolerance: k.force_tolerance_n,
             safe_voltage: k.safe_voltage_v,
             measured: k.force_source == "measured",
-            force_ref: self.coupling.force_ref_n,
+            force_ref: self.coupling.force_ref_n?,
             dt: 1.0 / k.rate_hz as f64,
         })
     }

@@ -10,7 +10,7 @@
 //! x  = h(Y + offset) - c·(F - F_ref)        output map h: analytic or a table
 //! ```
 //!
-//! The first paper's FPI is `k0 = k_q = 0`, the hard dead zone, no creep, `h` the
+//! The FPI of Actuators 2025, 14(8):411, is `k0 = k_q = 0`, the hard dead zone, no creep, `h` the
 //! identity, `c = 0`. [`Model::peek`] evaluates one sample without committing it
 //! and returns the derivatives and the validity intervals the coupled solver
 //! ([`crate::solve`]) needs; [`Model::inverse`] is the closed-form inverse the
@@ -83,23 +83,26 @@ pub enum DeadZone<'a, F> {
 }
 
 impl<F: Real> DeadZone<'_, F> {
-    /// `g(e)`, `g'(e)` and `g''(e)`.
+    /// `g(e)` and `g'(e)`.
     #[inline]
-    pub fn apply(&self, e: F) -> (F, F, F) {
+    pub fn apply(&self, e: F) -> (F, F) {
         match self {
-            DeadZone::Hard => {
-                let (g, dg) = dead_zone(F::ZERO, e);
-                (g, dg, F::ZERO)
-            }
-            DeadZone::Soft(s) => {
-                let (g, dg) = dead_zone(*s, e);
-                (g, dg, dg * (F::ONE - dg) / *s)
-            }
+            DeadZone::Hard => dead_zone(F::ZERO, e),
+            DeadZone::Soft(s) => dead_zone(*s, e),
             DeadZone::Table(t) => {
-                let g = t.apply(e);
                 let h = F::of(1e-6);
-                (g, (t.apply(e + h) - t.apply(e - h)) / (h + h), F::ZERO)
+                (t.apply(e), (t.apply(e + h) - t.apply(e - h)) / (h + h))
             }
+        }
+    }
+
+    /// `g''` where the slope is `dg` (as [`apply`](Self::apply) returns it): the
+    /// soft dead zone's `g' (1 - g') / s`, 0 for the others.
+    #[inline]
+    fn curvature(&self, dg: F) -> F {
+        match self {
+            DeadZone::Soft(s) => dg * (F::ONE - dg) / *s,
+            _ => F::ZERO,
         }
     }
 
@@ -334,7 +337,7 @@ impl<F: Real> Model<'_, F> {
             }
             None => (u, zero, zero),
         };
-        let (g, dg, ddg) = self.dead_zone.apply(e);
+        let (g, dg) = self.dead_zone.apply(e);
         let (uh, duh, clamped) = if g < zero {
             (zero, zero, true)
         } else if g > p.input_max {
@@ -401,7 +404,7 @@ impl<F: Real> Model<'_, F> {
         let dy = slope * duh + dy_w;
         let ddx = match (&self.output, smooth_inside) {
             (Output::Map(map), true) => {
-                let dduh = ddg * de * de + dg * dde;
+                let dduh = self.dead_zone.curvature(dg) * de * de + dg * dde;
                 map.curvature(dz) * dy * dy + dz * slope * dduh
             }
             _ => zero,

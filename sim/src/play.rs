@@ -1,5 +1,5 @@
 //! The one-sided play operator and the Prandtl–Ishlinskii model in floating point
-//! (first paper, eqs. 1–4), with its closed-form inverse.
+//! (Actuators 2025, 14(8):411, eqs. 1–4), with its closed-form inverse.
 //!
 //! [`play`] is the operator, written once for every float type: the host's
 //! reference, its calibration columns, the coupled solver and the virtual stage all

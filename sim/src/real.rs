@@ -36,6 +36,10 @@ pub trait Real:
     fn of(x: f64) -> Self;
     /// As `f64` (exact).
     fn to_f64(self) -> f64;
+    /// A count or an index (exact below 2^24 for `f32`).
+    fn of_count(n: usize) -> Self;
+    /// The integer part of a value in `[0, usize::MAX]` (0 below, saturating).
+    fn to_index(self) -> usize;
     /// `e^x`.
     fn exp(self) -> Self;
     /// `e^x - 1`, accurate near 0.
@@ -97,6 +101,14 @@ impl Real for f32 {
     fn to_f64(self) -> f64 {
         self as f64
     }
+    #[inline(always)]
+    fn of_count(n: usize) -> Self {
+        n as f32
+    }
+    #[inline(always)]
+    fn to_index(self) -> usize {
+        self as usize
+    }
     fn exp(self) -> Self {
         libm::expf(self)
     }
@@ -133,6 +145,14 @@ impl Real for f64 {
     #[inline(always)]
     fn to_f64(self) -> f64 {
         self
+    }
+    #[inline(always)]
+    fn of_count(n: usize) -> Self {
+        n as f64
+    }
+    #[inline(always)]
+    fn to_index(self) -> usize {
+        self as usize
     }
     #[cfg(feature = "std")]
     fn exp(self) -> Self {

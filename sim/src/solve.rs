@@ -1,4 +1,4 @@
-//! The coupled equation of the FPI-FFEM method (first paper, Table 1, step 4a): at
+//! The coupled equation of the FPI-FFEM method (Actuators 2025, 14(8):411, Table 1, step 4a): at
 //! every sample, the stack extension that the model gives under the preload the
 //! stage puts on the stack at that very extension,
 //!

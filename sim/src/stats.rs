@@ -55,7 +55,7 @@ impl<F: Real> ErrorStats<F> {
         if self.count == 0 {
             F::ZERO
         } else {
-            (self.sum_sq / F::of(self.count as f64)).sqrt()
+            (self.sum_sq / F::of_count(self.count as usize)).sqrt()
         }
     }
 
@@ -64,7 +64,7 @@ impl<F: Real> ErrorStats<F> {
         if self.count == 0 {
             F::ZERO
         } else {
-            self.sum_abs / F::of(self.count as f64)
+            self.sum_abs / F::of_count(self.count as usize)
         }
     }
 

@@ -5,64 +5,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 
-use crate::calibrate::{self, Options};
-use crate::data::{self, DataError, Finite};
-use crate::fem::FemMaps;
-use crate::hmodel::{HostModel, Kind};
-use crate::predict;
-
-/// A drive sample (`t_s,voltage_V`, other columns ignored).
-#[derive(Debug, Clone, Copy, serde::Deserialize)]
-struct DriveRow {
-    t_s: f64,
-    #[serde(rename = "voltage_V")]
-    voltage_v: f64,
-}
-impl Finite for DriveRow {
-    fn non_finite(&self) -> Option<&'static str> {
-        if !self.t_s.is_finite() {
-            Some("t_s")
-        } else if !self.voltage_v.is_finite() {
-            Some("voltage_V")
-        } else {
-            None
-        }
-    }
-}
-
-/// Reads a drive file: time and voltage.
-pub fn read_drive(path: &Path) -> Result<(Vec<f64>, Vec<f64>), DataError> {
-    let rows: Vec<DriveRow> = data::read_csv(path, &["t_s", "voltage_V"])?;
-    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
-    data::strictly_increasing(path, "t_s", &t)?;
-    Ok((t, rows.iter().map(|r| r.voltage_v).collect()))
-}
-
-/// A target sample (`t_s,x_fhps_um`).
-#[derive(Debug, Clone, Copy, serde::Deserialize)]
-struct TargetRow {
-    t_s: f64,
-    x_fhps_um: f64,
-}
-impl Finite for TargetRow {
-    fn non_finite(&self) -> Option<&'static str> {
-        if !self.t_s.is_finite() {
-            Some("t_s")
-        } else if !self.x_fhps_um.is_finite() {
-            Some("x_fhps_um")
-        } else {
-            None
-        }
-    }
-}
-
-/// Reads a target trajectory: time and stage position.
-pub fn read_target(path: &Path) -> Result<(Vec<f64>, Vec<f64>), DataError> {
-    let rows: Vec<TargetRow> = data::read_csv(path, &["t_s", "x_fhps_um"])?;
-    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
-    data::strictly_increasing(path, "t_s", &t)?;
-    Ok((t, rows.iter().map(|r| r.x_fhps_um).collect()))
-}
+use crate::data::fem::FemMaps;
+use crate::data::{self, read_drive, read_target};
+use crate::method::calibrate::{self, Options};
+use crate::method::model::{HostModel, Kind};
+use crate::method::predict;
 
 /// Writes a CSV with a header and `f64` columns of equal length.
 pub fn write_columns(path: &Path, header: &[&str], columns: &[&[f64]]) -> Result<()> {
@@ -217,8 +164,8 @@ pub fn compare(fem: &Path, runs: &[PathBuf], models: &[PathBuf], out: &Path) -> 
         .iter()
         .map(|p| data::read_stage(p))
         .collect::<Result<_, _>>()?;
-    let cmp = crate::compare::Comparison::run(&maps, &runs, &models)?;
-    crate::compare::print_table(&cmp);
+    let cmp = crate::method::compare::Comparison::run(&maps, &runs, &models)?;
+    crate::method::compare::print_table(&cmp);
     crate::report::write(&cmp, &maps, out)?;
     println!("report written to {}", out.join("report.md").display());
     Ok(())
@@ -229,7 +176,7 @@ pub fn invert(model: &Path, fem: &Path, target: &Path, out: &Path, u_max: f64) -
     let m = HostModel::read(model)?;
     let maps = FemMaps::read(fem)?;
     let (t, x) = read_target(target)?;
-    let inv = crate::invert::invert(&m, &maps, &t, &x, u_max)?;
+    let inv = crate::method::invert::invert(&m, &maps, &t, &x, u_max)?;
     write_columns(out, &["t_s", "voltage_V"], &[&inv.t, &inv.u])?;
     println!(
         "{} inverse ({}): {} samples written to {}; reachable stroke {:.3}..{:.3} µm at 0..{} V",
@@ -273,7 +220,7 @@ pub fn export(
     // By default the reference may use the stroke of the calibrated voltage range.
     let calibrated = m.pi.thresholds_v.last().copied().unwrap_or(0.0) * (m.operators() + 1) as f64
         / m.operators().max(1) as f64;
-    let settings = crate::export::LoopSettings {
+    let settings = crate::method::export::LoopSettings {
         rate_hz: rate,
         u_max,
         slew_v_per_ms: slew,
@@ -282,7 +229,7 @@ pub fn export(
             .min(u_max),
         force_tolerance: 15.0,
     };
-    let e = crate::export::export(m, model, &maps, &settings)?;
+    let e = crate::method::export::export(m, model, &maps, &settings)?;
     let text = e.model.to_toml().map_err(|e| anyhow::anyhow!(e))?;
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;
@@ -320,7 +267,7 @@ pub fn export(
 
 /// `fpi demo`.
 pub fn demo(out: &Path) -> Result<()> {
-    let s = crate::demo_chain::run(out)?;
+    let s = crate::report::demo::run(out)?;
     for l in &s.lines {
         println!("{l}");
     }

@@ -1,26 +1,22 @@
-//! Host side of the piezo FPI project: the recorded datasets, an f64 reference of
-//! the fixed-point core, and the tools of the FPI-FFEM method, all on the same
-//! `piezo-fpi` core the firmware runs.
+//! The host side of the piezo FPI project, in layers (each uses only those above it):
 //!
-//! * [`data`] — reading the datasets (CSV via `csv` + `serde`, gzip), errors with
-//!   file, line and column.
-//! * [`model_file`] — the firmware model file (shared with the core's `build.rs`).
-//! * [`reference`] — the f64 twin of the fixed-point model and control step.
+//! * [`data`] — the recorded datasets and the stage's FEM export, read with errors
+//!   that name the file, the line and the column.
+//! * [`method`] — the FPI-FFEM method (Actuators 2025, 14(8):411, Table 1): the calibrated
+//!   models and their file ([`method::model`]), calibration, the coupled
+//!   prediction, comparison, offline inversion, and the export of a firmware model.
+//!   The models are evaluated by the project's float model (`piezo-sim`).
+//! * [`report`] — the Markdown report, its SVG plots, and `fpi demo`, the whole
+//!   chain on the project's datasets.
+//! * [`board`] — the firmware from the host: building it for the Cortex-M4,
+//!   running it on the emulated board (QEMU), and measuring the fixed-point core
+//!   against its f64 reference ([`board::accuracy`]).
+//! * [`cli`] — the `fpi` commands (the binaries only parse arguments).
 
-pub mod accuracy;
-pub mod calibrate;
+pub mod board;
 pub mod cli;
-pub mod compare;
 pub mod data;
-pub mod demo_chain;
-pub mod export;
-pub mod fem;
-pub mod firmware;
-pub mod hmodel;
-pub mod invert;
-pub mod lsq;
-pub mod plots;
-pub mod predict;
+pub mod method;
 pub mod report;
 
 /// The firmware model file (shared with the firmware's build).

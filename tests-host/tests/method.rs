@@ -7,17 +7,17 @@
 //!   the discrete backlash operator's 0.21 µm;
 //! * the exported firmware model is the one the firmware embeds.
 
-use fpi_host::calibrate::{self, Options};
-use fpi_host::compare::Comparison;
 use fpi_host::data;
-use fpi_host::demo_chain;
-use fpi_host::fem::FemMaps;
-use fpi_host::hmodel::Kind;
+use fpi_host::data::fem::FemMaps;
+use fpi_host::method::calibrate::{self, Options};
+use fpi_host::method::compare::Comparison;
+use fpi_host::method::model::Kind;
+use fpi_host::report::demo;
 
 #[test]
 fn the_demo_chain_meets_every_target() {
     let out = std::env::temp_dir().join(format!("fpi-method-{}", std::process::id()));
-    let s = demo_chain::run(&out).unwrap_or_else(|e| panic!("{e:#}"));
+    let s = demo::run(&out).unwrap_or_else(|e| panic!("{e:#}"));
     for l in &s.lines {
         println!("{l}");
     }

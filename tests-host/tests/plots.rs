@@ -1,11 +1,11 @@
-//! The report figures ([`fpi_host::plots`]) from synthetic data shaped like the real
+//! The report figures ([`fpi_host::report::plots`]) from synthetic data shaped like the real
 //! runs: each SVG must exist, start with `<svg` and stay below 1.5 MB; degenerate
 //! inputs must not panic.
 
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
-use fpi_host::plots::{self, Panel};
+use fpi_host::report::plots::{self, Panel};
 
 fn out_dir() -> PathBuf {
     std::env::temp_dir().join("fpi-host-plots")

@@ -8,7 +8,7 @@
 
 use fixed::types::I16F16;
 use fpi_firmware::model::{CONTROLLER, CREEP_TERMS, OPERATORS};
-use fpi_host::accuracy::{BOUND_U_V, BOUND_X_UM};
+use fpi_host::board::accuracy::{BOUND_U_V, BOUND_X_UM};
 use piezo_fpi::fpi::CreepMemory;
 use piezo_fpi::inverse::InversePi;
 use piezo_fpi::pi::PiModel;

@@ -26,7 +26,9 @@ mod bench {
     use fpi_firmware::reference::RaisedCosine;
     use fpi_firmware::runner::{Command, ControlLoop};
     use fpi_firmware::sim_io::SimLink;
-    use piezo_fpi::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Mode};
+    use piezo_fpi::control::{
+        ControllerConfig, ControllerParts, ForceSource, Interval, Mode, Supervision,
+    };
     use piezo_fpi::fpi::{Coupling, Fpi, Identity, Shape};
     use piezo_fpi::pi::PiModel;
     use piezo_fpi::q::{Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton};
@@ -80,14 +82,16 @@ mod bench {
             f_k: model::F_K,
             f_k_inv: model::F_K_INV,
             limits: model::LIMITS,
-            reference: CONTROLLER.reference(),
-            force: Interval {
-                lo: Newtons::from_bits(20 << 16),
-                hi: Newtons::from_bits(200 << 16),
+            supervision: Supervision {
+                reference: CONTROLLER.reference(),
+                force: Interval {
+                    lo: Newtons::from_bits(20 << 16),
+                    hi: Newtons::from_bits(200 << 16),
+                },
+                force_tolerance: Newtons::from_bits(1000 << 16),
+                safe_voltage: Volts::ZERO,
+                force_source: ForceSource::Measured,
             },
-            force_tolerance: Newtons::from_bits(1000 << 16),
-            safe_voltage: Volts::ZERO,
-            force_source: ForceSource::Measured,
         }) {
             Ok(c) => c,
             Err(e) => panic!("{}", e.message()),

@@ -11,7 +11,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{bail, Result};
-use fpi_host::firmware;
+use fpi_host::board;
 
 fn main() -> ExitCode {
     match run() {
@@ -24,20 +24,15 @@ fn main() -> ExitCode {
 }
 
 fn run() -> Result<()> {
-    firmware::qemu()?;
-    let bench = firmware::build("isr-bench", "qemu")?;
-    let q = firmware::run(
-        &bench,
-        firmware::ICOUNT_BENCH,
-        Duration::from_secs(300),
-        true,
-    )?;
+    board::qemu()?;
+    let bench = board::build("isr-bench", "qemu")?;
+    let q = board::run(&bench, board::ICOUNT_BENCH, Duration::from_secs(300), true)?;
     if q.code != Some(0) {
         bail!("the benchmark firmware failed (exit {:?})", q.code);
     }
     for (name, features) in [("board", "defmt"), ("emulated", "qemu")] {
-        let elf = firmware::build("fpi-firmware", features)?;
-        let f = firmware::footprint(&elf)?;
+        let elf = board::build("fpi-firmware", features)?;
+        let f = board::footprint(&elf)?;
         println!(
             "firmware_{name}_flash_bytes: {} ({:.1} KiB of 1024 KiB)",
             f.flash,

@@ -1,4 +1,4 @@
-//! `fpi`: the FPI-FFEM method (seed 000, Table 1) as a command-line tool.
+//! `fpi`: the FPI-FFEM method (Actuators 2025, 14(8):411, Table 1) as a command-line tool.
 //!
 //! ```text
 //! fpi calibrate [--kind KIND] --rig FILE.csv... --out MODEL.toml [--operators N]
@@ -17,8 +17,8 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use fpi_host::hmodel::Kind;
-use fpi_host::{cli, hmodel::HostModel};
+use fpi_host::method::model::Kind;
+use fpi_host::{cli, method::model::HostModel};
 
 #[derive(Parser)]
 #[command(

@@ -12,7 +12,7 @@ use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
 use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
 use fpi_firmware::model::{self, CONTROLLER, CREEP_TERMS, OPERATORS};
 use fpi_firmware::runner::{nm, Telemetry};
-use fpi_firmware::selftest::{Demo, Phase, PhaseReport};
+use fpi_firmware::selftest::{Demo, Phase, PhaseReport, PhaseValues};
 use fpi_firmware::sim_io::{SimAmplifier, SimEnable, SimLink, SimSensor};
 use heapless::spsc::Queue;
 use stm32f4xx_hal::pac;
@@ -96,6 +96,7 @@ fn run() -> bool {
         }
         if let Some(r) = adv.report {
             print_phase(&r, tel.step + 1);
+            print_values(&PhaseValues::of(k as u8, &r));
             all_pass &= r.pass;
             if let Some(slot) = reports.get_mut(k) {
                 *slot = Some(r);
@@ -127,6 +128,16 @@ fn print_phase(r: &PhaseReport, tick: u32) {
             ramp,
             if r.amplifier_off { "switched off" } else { "STILL ON" }
         );
+    }
+}
+
+/// The phase's figures to full precision, for the host's twin comparison.
+fn print_values(v: &PhaseValues) {
+    let mut line = heapless::String::<256>::new();
+    if v.write(&mut line).is_ok() {
+        say!("{}", line.as_str());
+    } else {
+        say!("values line too long");
     }
 }
 

@@ -7,8 +7,8 @@ use anyhow::{bail, Result};
 use piezo_sim::solve::{coupled, WarmStart};
 use piezo_sim::stats::ErrorStats;
 
-use crate::fem::FemMaps;
-use crate::hmodel::HostModel;
+use crate::data::fem::FemMaps;
+use crate::method::model::HostModel;
 
 /// A predicted run.
 #[derive(Debug, Clone, PartialEq)]
@@ -83,9 +83,9 @@ pub fn metrics(predicted: &[f64], measured: &[f64]) -> Metrics {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calibrate::{self, Options};
     use crate::data;
-    use crate::hmodel::Kind;
+    use crate::method::calibrate::{self, Options};
+    use crate::method::model::Kind;
 
     /// Bisection on the coupled equation: slow, but obviously right.
     fn bisect(model: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Vec<f64> {

@@ -4,12 +4,15 @@
 //! installs the rustup target if it is missing and asks, with the command to run,
 //! for `qemu-system-arm` if that is missing. QEMU always runs under a timeout.
 
+pub mod accuracy;
+
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
+use fpi_firmware::selftest::{PhaseValues, TWIN_BOUND_UM};
 use object::{Object, ObjectSection, SectionFlags};
 
 /// The firmware's target triple.
@@ -246,73 +249,44 @@ pub fn footprint(elf: &Path) -> Result<Footprint> {
     Ok(Footprint { flash, ram })
 }
 
-/// Integer figures of one phase of the scripted run, as the firmware prints them:
-/// ticks at its end, tracking RMS and max (nm), virtual-sensor RMS (nm), pass.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct PhaseFigures {
-    /// The phase's name.
-    pub name: String,
-    /// Control ticks at the end of the phase.
-    pub ticks: u32,
-    /// Tracking error RMS, nm.
-    pub rms_nm: i32,
-    /// Tracking error max, nm.
-    pub max_nm: i32,
-    /// Virtual sensor RMS error, nm.
-    pub est_nm: i32,
-    /// The phase's self-check.
-    pub pass: bool,
+/// The figures of every phase the emulated firmware printed (its `values` lines).
+pub fn parse_phases(stdout: &str) -> Vec<PhaseValues> {
+    stdout.lines().filter_map(PhaseValues::parse).collect()
 }
 
-/// The phase lines of the emulated firmware's output.
-pub fn parse_phases(stdout: &str) -> Vec<PhaseFigures> {
-    stdout
-        .lines()
-        .filter_map(|l| l.strip_prefix("phase "))
-        .filter_map(|rest| {
-            let (name, nums) = rest.split_once("ticks")?;
-            let words: Vec<&str> = nums.split_whitespace().collect();
-            let num = |key: &str| -> Option<i64> {
-                let i = words.iter().position(|w| *w == key)?;
-                words.get(i + 1)?.parse().ok()
-            };
-            Some(PhaseFigures {
-                name: name.trim().to_string(),
-                ticks: words.first()?.parse().ok()?,
-                rms_nm: num("rms")? as i32,
-                max_nm: num("max")? as i32,
-                est_nm: words
-                    .iter()
-                    .position(|w| *w == "virtual-sensor")
-                    .and_then(|i| words.get(i + 2))
-                    .and_then(|w| w.parse().ok())?,
-                pass: words.last() == Some(&"ok"),
-            })
-        })
-        .collect()
-}
-
-/// The same figures computed on the host: the core's control loop and virtual
+/// The same figures computed on the host: the firmware's control loop and virtual
 /// stage run in a plain loop instead of interrupts.
-pub fn host_phases() -> Result<Vec<PhaseFigures>> {
+pub fn host_phases() -> Result<Vec<PhaseValues>> {
     use fpi_firmware::model::{CONTROLLER, CONTROL_RATE_HZ};
-    use fpi_firmware::runner::nm;
     let (reports, _) = fpi_firmware::selftest::run_on_host(&CONTROLLER, CONTROL_RATE_HZ)
         .ok_or_else(|| anyhow!("the scripted run did not finish on the host"))?;
-    let mut ticks = 0;
     Ok(reports
         .iter()
         .flatten()
-        .map(|r| {
-            ticks += r.steps;
-            PhaseFigures {
-                name: r.phase.name().to_string(),
-                ticks,
-                rms_nm: nm(r.tracking.rms()),
-                max_nm: nm(r.tracking.max_abs()),
-                est_nm: nm(r.estimate.rms()),
-                pass: r.pass,
-            }
-        })
+        .enumerate()
+        .map(|(k, r)| PhaseValues::of(k as u8, r))
         .collect())
+}
+
+/// The emulator's figures against the host twin's, phase by phase (events and
+/// ticks exactly, error figures within [`TWIN_BOUND_UM`]): one line per
+/// disagreement, empty if they agree.
+pub fn twin_differences(emulated: &[PhaseValues], host: &[PhaseValues]) -> Vec<String> {
+    let mut out = Vec::new();
+    if emulated.len() != host.len() {
+        out.push(format!(
+            "{} phases on the emulator, {} on the host",
+            emulated.len(),
+            host.len()
+        ));
+    }
+    for (e, h) in emulated.iter().zip(host) {
+        if let Some(what) = e.differs(h, TWIN_BOUND_UM) {
+            out.push(format!(
+                "phase {}: {what} differs\n  emulator {e:?}\n  host     {h:?}",
+                e.phase
+            ));
+        }
+    }
+    out
 }

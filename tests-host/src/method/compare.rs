@@ -1,12 +1,13 @@
-//! Scoring models against measured stage runs (seed 000, Table 4 and Figs. 14–16).
+//! Scoring models against measured stage runs (Actuators 2025, 14(8):411, Table 4 and
+//! Figs. 14–16).
 
 use anyhow::Result;
 use rayon::prelude::*;
 
+use crate::data::fem::FemMaps;
 use crate::data::StageRun;
-use crate::fem::FemMaps;
-use crate::hmodel::HostModel;
-use crate::predict::{self, Metrics, Prediction};
+use crate::method::model::HostModel;
+use crate::method::predict::{self, Metrics, Prediction};
 
 /// One model's prediction of one run.
 #[derive(Debug, Clone)]

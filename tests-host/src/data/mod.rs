@@ -3,6 +3,8 @@
 //! Every error names the file, the line (1-based, header = line 1) and the column,
 //! e.g. `stage-a/fem.csv:17: column x_pea_um: "1,5" is not a number`.
 
+pub mod fem;
+
 use std::fmt;
 use std::fs::File;
 use std::io::{BufReader, Read};
@@ -265,6 +267,45 @@ finite_record!(StageRow {
     force_n: "force_N",
     x_fhps_um: "x_fhps_um"
 });
+
+/// One sample of a drive (`t_s,voltage_V`; extra columns ignored).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+struct DriveRow {
+    t_s: f64,
+    #[serde(rename = "voltage_V")]
+    voltage_v: f64,
+}
+finite_record!(DriveRow {
+    t_s: "t_s",
+    voltage_v: "voltage_V"
+});
+
+/// Reads a drive file: time (strictly increasing) and voltage.
+pub fn read_drive(path: &Path) -> Result<(Vec<f64>, Vec<f64>), DataError> {
+    let rows: Vec<DriveRow> = read_csv(path, &["t_s", "voltage_V"])?;
+    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
+    strictly_increasing(path, "t_s", &t)?;
+    Ok((t, rows.iter().map(|r| r.voltage_v).collect()))
+}
+
+/// One sample of a target trajectory (`t_s,x_fhps_um`; extra columns ignored).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+struct TargetRow {
+    t_s: f64,
+    x_fhps_um: f64,
+}
+finite_record!(TargetRow {
+    t_s: "t_s",
+    x_fhps_um: "x_fhps_um"
+});
+
+/// Reads a target trajectory: time (strictly increasing) and stage position.
+pub fn read_target(path: &Path) -> Result<(Vec<f64>, Vec<f64>), DataError> {
+    let rows: Vec<TargetRow> = read_csv(path, &["t_s", "x_fhps_um"])?;
+    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
+    strictly_increasing(path, "t_s", &t)?;
+    Ok((t, rows.iter().map(|r| r.x_fhps_um).collect()))
+}
 
 /// One point of an FEM export (`fem.csv`).
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]

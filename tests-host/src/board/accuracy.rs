@@ -19,7 +19,7 @@
 use std::path::{Path, PathBuf};
 
 use fpi_firmware::model::{self, CREEP_TERMS, OPERATORS};
-use piezo_fpi::control::{ControllerConfig, ControllerParts, Interval};
+use piezo_fpi::control::{ControllerConfig, ControllerParts, Interval, Supervision};
 use piezo_fpi::fpi::CreepMemory;
 use piezo_fpi::play::PlayBank;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
@@ -82,11 +82,11 @@ pub fn controllers() -> (model::Controller, Controller<'static, f64>) {
         f_k: *c.f_k(),
         f_k_inv: *c.f_k_inv(),
         limits: *c.limits(),
-        reference,
-        force: c.force(),
-        force_tolerance: Newtons::from_num(1000),
-        safe_voltage: c.safe_voltage(),
-        force_source: c.force_source(),
+        supervision: Supervision {
+            reference,
+            force_tolerance: Newtons::from_num(1000),
+            ..c.supervision()
+        },
     })
     .unwrap_or_else(|e| panic!("widening the reference range: {e}"));
     let Some(mut f64c) = embedded_model().controller() else {

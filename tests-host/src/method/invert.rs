@@ -9,9 +9,9 @@
 
 use anyhow::{bail, Result};
 
-use crate::fem::FemMaps;
-use crate::hmodel::{HostModel, Kind};
-use crate::predict;
+use crate::data::fem::FemMaps;
+use crate::method::model::{HostModel, Kind};
+use crate::method::predict;
 
 /// An inverted trajectory.
 #[derive(Debug, Clone, PartialEq)]

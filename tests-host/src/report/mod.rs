@@ -3,15 +3,18 @@
 //! (measured and predicted loops of the stage), the error curves, and Figs. 12–13
 //! (the predicted stack loop on the preload–voltage surface, and its projection).
 
+pub mod demo;
+pub mod plots;
+
 use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, Result};
 
-use crate::compare::Comparison;
-use crate::fem::FemMaps;
-use crate::hmodel::{HostModel, Kind};
-use crate::plots;
+use crate::data::fem::FemMaps;
+use crate::method::compare::Comparison;
+use crate::method::model::{HostModel, Kind};
+use crate::method::predict::Prediction;
 
 /// The stack's hysteresis loops at constant preloads (the FPI surface of the
 /// paper's Fig. 5b/12): for each preload, `u` from 0 to `u_top` and back.
@@ -102,108 +105,124 @@ pub fn table4(c: &Comparison) -> String {
 pub fn figures(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<String> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let mut md = String::new();
-    for (r, run) in c.runs.iter().enumerate() {
-        let name = c.run_name(r);
-        let stem = name.trim_end_matches(".csv");
-        let preds: Vec<(String, &[f64])> = c
-            .models
-            .iter()
-            .zip(&c.scores[r])
-            .map(|((_, m), s)| (m.kind.method().to_string(), s.prediction.x_fhps.as_slice()))
-            .collect();
-        let series: Vec<(&str, &[f64])> = preds.iter().map(|(n, v)| (n.as_str(), *v)).collect();
-        let f = format!("loops_{stem}.svg");
-        plots::loops(
-            &out.join(&f),
-            &format!("Stage output vs voltage, {stem} (Fig. 16)"),
-            "voltage (V)",
-            "stage output x_fhps (µm)",
-            &run.u,
-            Some(&run.x),
-            &series,
-        )?;
-        let _ = writeln!(md, "![loops {name}]({f})\n");
-        let errs: Vec<(String, Vec<f64>)> = c
-            .models
-            .iter()
-            .zip(&c.scores[r])
-            .map(|((_, m), s)| {
-                (
-                    m.kind.method().to_string(),
-                    s.prediction
-                        .x_fhps
-                        .iter()
-                        .zip(&run.x)
-                        .map(|(p, q)| p - q)
-                        .collect(),
-                )
-            })
-            .collect();
-        let es: Vec<(&str, &[f64])> = errs
-            .iter()
-            .map(|(n, v)| (n.as_str(), v.as_slice()))
-            .collect();
-        let f = format!("errors_{stem}.svg");
-        plots::curves(
-            &out.join(&f),
-            &format!("Prediction error, {stem}"),
-            "error (µm)",
-            &run.t,
-            &es,
-        )?;
-        let _ = writeln!(md, "![errors {name}]({f})\n");
-        for ((mname, m), s) in c.models.iter().zip(&c.scores[r]) {
-            if !matches!(m.kind, Kind::Fpi | Kind::Efpi) {
-                continue;
+    for r in 0..c.runs.len() {
+        run_figures(c, r, out, &mut md)?;
+        for ((name, m), s) in c.models.iter().zip(&c.scores[r]) {
+            if matches!(m.kind, Kind::Fpi | Kind::Efpi) {
+                stack_figures(c, r, (name, m), &s.prediction, fem, out, &mut md)?;
             }
-            let p = &s.prediction;
-            let (f_lo, f_hi) = p
-                .preload
-                .iter()
-                .fold((f64::MAX, f64::MIN), |a, &v| (a.0.min(v), a.1.max(v)));
-            let u_top = run.u.iter().cloned().fold(0.0, f64::max);
-            let preloads: Vec<f64> = (0..6)
-                .map(|k| (f_lo - 10.0) + (f_hi - f_lo + 20.0) * k as f64 / 5.0)
-                .collect();
-            let family = surface_family(m, &preloads, u_top, fem.rest_preload());
-            let path3d: Vec<(f64, f64, f64)> = (0..p.u.len())
-                .map(|k| (p.u[k], p.preload[k], p.x_pea[k]))
-                .collect();
-            let f = format!("surface_{stem}_{mname}.svg");
-            plots::surface(
-                &out.join(&f),
-                &format!(
-                    "{}, {stem}: stack loop on the preload surface (Fig. 12)",
-                    m.kind.method()
-                ),
-                &family,
-                &path3d,
-            )?;
-            let _ = writeln!(md, "![surface {name} {mname}]({f})\n");
-            let f = format!("stack_{stem}_{mname}.svg");
-            plots::loops(
-                &out.join(&f),
-                &format!(
-                    "{}, {stem}: predicted stack loop (Fig. 13)",
-                    m.kind.method()
-                ),
-                "voltage (V)",
-                "stack extension x_pea (µm)",
-                &p.u,
-                None,
-                &[(m.kind.method(), p.x_pea.as_slice())],
-            )?;
-            let _ = writeln!(md, "![stack loop {name} {mname}]({f})\n");
         }
     }
     Ok(md)
+}
+
+/// Fig. 16 and the error curves of run `r`: every model's prediction against the
+/// measured stage output.
+fn run_figures(c: &Comparison, r: usize, out: &Path, md: &mut String) -> Result<()> {
+    let run = &c.runs[r];
+    let name = c.run_name(r);
+    let stem = name.trim_end_matches(".csv");
+    let predictions = c.models.iter().zip(&c.scores[r]);
+    let series: Vec<(&str, &[f64])> = predictions
+        .clone()
+        .map(|((_, m), s)| (m.kind.method(), s.prediction.x_fhps.as_slice()))
+        .collect();
+    let f = format!("loops_{stem}.svg");
+    plots::loops(
+        &out.join(&f),
+        &format!("Stage output vs voltage, {stem} (Fig. 16)"),
+        "voltage (V)",
+        "stage output x_fhps (µm)",
+        &run.u,
+        Some(&run.x),
+        &series,
+    )?;
+    let _ = writeln!(md, "![loops {name}]({f})\n");
+    let errors: Vec<Vec<f64>> = predictions
+        .clone()
+        .map(|(_, s)| {
+            s.prediction
+                .x_fhps
+                .iter()
+                .zip(&run.x)
+                .map(|(p, q)| p - q)
+                .collect()
+        })
+        .collect();
+    let es: Vec<(&str, &[f64])> = series
+        .iter()
+        .zip(&errors)
+        .map(|((n, _), e)| (*n, e.as_slice()))
+        .collect();
+    let f = format!("errors_{stem}.svg");
+    plots::curves(
+        &out.join(&f),
+        &format!("Prediction error, {stem}"),
+        "error (µm)",
+        &run.t,
+        &es,
+    )?;
+    let _ = writeln!(md, "![errors {name}]({f})\n");
+    Ok(())
+}
+
+/// Figs. 12–13 of one FPI model on run `r`: the predicted stack loop on the
+/// preload–voltage surface, and on its own.
+fn stack_figures(
+    c: &Comparison,
+    r: usize,
+    (mname, m): (&str, &HostModel),
+    p: &Prediction,
+    fem: &FemMaps,
+    out: &Path,
+    md: &mut String,
+) -> Result<()> {
+    let name = c.run_name(r);
+    let stem = name.trim_end_matches(".csv");
+    let (f_lo, f_hi) = p
+        .preload
+        .iter()
+        .fold((f64::MAX, f64::MIN), |a, &v| (a.0.min(v), a.1.max(v)));
+    let u_top = c.runs[r].u.iter().cloned().fold(0.0, f64::max);
+    let preloads: Vec<f64> = (0..6)
+        .map(|k| (f_lo - 10.0) + (f_hi - f_lo + 20.0) * k as f64 / 5.0)
+        .collect();
+    let family = surface_family(m, &preloads, u_top, fem.rest_preload());
+    let path3d: Vec<(f64, f64, f64)> = (0..p.u.len())
+        .map(|k| (p.u[k], p.preload[k], p.x_pea[k]))
+        .collect();
+    let method = m.kind.method();
+    let f = format!("surface_{stem}_{mname}.svg");
+    plots::surface(
+        &out.join(&f),
+        &format!("{method}, {stem}: stack loop on the preload surface (Fig. 12)"),
+        &family,
+        &path3d,
+    )?;
+    let _ = writeln!(md, "![surface {name} {mname}]({f})\n");
+    let f = format!("stack_{stem}_{mname}.svg");
+    plots::loops(
+        &out.join(&f),
+        &format!("{method}, {stem}: predicted stack loop (Fig. 13)"),
+        "voltage (V)",
+        "stack extension x_pea (µm)",
+        &p.u,
+        None,
+        &[(method, p.x_pea.as_slice())],
+    )?;
+    let _ = writeln!(md, "![stack loop {name} {mname}]({f})\n");
+    Ok(())
 }
 
 /// Writes `report.md` and its plots into `out` (`fpi compare`).
 pub fn write(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<()> {
     let mut md = String::from("# Stage prediction: measured vs predicted\n\n");
     let _ = writeln!(md, "FEM maps: `{}`.\n", fem.source);
-    let _ = writeln!(md, "## MAE by method (seed 000, Table 4)\n\n{}", table4(c));
+    let _ = writeln!(
+        md,
+        "## MAE by method (Actuators 2025, 14(8):411, Table 4)\n\n{}",
+        table4(c)
+    );
     let _ = writeln!(md, "## All figures\n\n{}", table(c));
     md.push_str("\n## Figures\n\n");
     md.push_str(&figures(c, fem, out)?);

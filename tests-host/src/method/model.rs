@@ -17,6 +17,7 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 
+use piezo_sim::file::{CouplingSection, CreepSection, PiSection};
 use piezo_sim::model::{Coupling, Creep, DeadZone, Ldpi, Model, Output, MAX_CREEP};
 use piezo_sim::play::{Pi, Values, MAX_OPERATORS};
 
@@ -87,20 +88,6 @@ impl fmt::Display for Kind {
     }
 }
 
-/// The PI part: `w0·v + Σ w_i·G_{r_i}[v]`, inputs clamped to `[0, input_max]`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PiParams {
-    /// Linear weight, µm/V.
-    pub w0_um_per_v: f64,
-    /// Thresholds, V (sorted, > 0).
-    pub thresholds_v: Vec<f64>,
-    /// Weights, µm/V.
-    pub weights_um_per_v: Vec<f64>,
-    /// Input domain, V.
-    pub input_max_v: f64,
-}
-
 /// LDPI: the slopes of the weights in the preload, `w_i(F) = w_i + b_i·F`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
@@ -111,38 +98,8 @@ pub struct LdpiParams {
     pub weights_per_n: Vec<f64>,
 }
 
-/// The force coupling (FPI kinds).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields)]
-pub struct CouplingParams {
-    /// Constant part of the preload offset `k0`, V.
-    #[serde(default)]
-    pub offset_v: f64,
-    /// `k_f`, V/N.
-    pub k_f_v_per_n: f64,
-    /// Curvature `k_q`, V/N².
-    #[serde(default)]
-    pub k_q_v_per_n2: f64,
-    /// Centre `F_q` of the curvature, N.
-    #[serde(default)]
-    pub force_q_n: f64,
-    /// Stack compliance `c`, µm/N (the datasheet's 1/50 N/µm for stage A's stack).
-    #[serde(default)]
-    pub compliance_um_per_n: f64,
-}
-
 /// The map after the PI (analytic), as the model file stores it.
 pub type OutputMap = piezo_sim::maps::OutputMap<f64>;
-
-/// A creep lag.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CreepParams {
-    /// Time constant, s.
-    pub tau_s: f64,
-    /// Gain, µm/V.
-    pub gain_um_per_v: f64,
-}
 
 /// Fit of one calibration file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -188,13 +145,13 @@ pub struct HostModel {
     /// Which model.
     pub kind: Kind,
     /// The PI part.
-    pub pi: PiParams,
+    pub pi: PiSection,
     /// LDPI weight slopes.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ldpi: Option<LdpiParams>,
     /// Force coupling (FPI kinds).
     #[serde(default)]
-    pub coupling: CouplingParams,
+    pub coupling: CouplingSection,
     /// Softness `s` of the dead zone `g(e) = s·ln(1 + e^{e/s})`, V (0: hard).
     #[serde(default)]
     pub dead_zone_softness_v: f64,
@@ -207,20 +164,20 @@ pub struct HostModel {
     pub offset_um: f64,
     /// Creep lags.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub creep: Vec<CreepParams>,
+    pub creep: Vec<CreepSection>,
     /// Provenance and fit metrics.
     pub calibration: Calibration,
 }
 
 impl HostModel {
     /// A new model of `kind` with the given PI part and everything else off.
-    pub fn new(kind: Kind, pi: PiParams) -> Self {
+    pub fn new(kind: Kind, pi: PiSection) -> Self {
         Self {
             format: FORMAT.into(),
             kind,
             pi,
             ldpi: None,
-            coupling: CouplingParams::default(),
+            coupling: CouplingSection::default(),
             dead_zone_softness_v: 0.0,
             output: OutputMap::Identity,
             offset_um: 0.0,
@@ -367,25 +324,26 @@ mod tests {
     fn efpi() -> HostModel {
         let mut m = HostModel::new(
             Kind::Efpi,
-            PiParams {
+            PiSection {
                 w0_um_per_v: 0.06,
                 thresholds_v: vec![10.0, 30.0, 60.0],
                 weights_um_per_v: vec![0.01, 0.008, 0.004],
                 input_max_v: 150.0,
             },
         );
-        m.coupling = CouplingParams {
+        m.coupling = CouplingSection {
             offset_v: -0.4,
             k_f_v_per_n: 0.106,
             k_q_v_per_n2: 1.6e-4,
             force_q_n: 75.0,
             compliance_um_per_n: 0.02,
+            force_ref_n: None,
         };
         m.dead_zone_softness_v = 1.8;
         m.output = OutputMap::Saturation {
             beta_per_um: 0.0037,
         };
-        m.creep = vec![CreepParams {
+        m.creep = vec![CreepSection {
             tau_s: 0.01,
             gain_um_per_v: 0.003,
         }];

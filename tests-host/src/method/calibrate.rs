@@ -1,10 +1,10 @@
 //! Part I of the method: identifying a model from Voltage–Force–Displacement
-//! recordings (first paper, Table 1, Step 1).
+//! recordings (Actuators 2025, 14(8):411, Table 1, Step 1).
 //!
 //! Every kind is linear in its weights once its nonlinear parameters are fixed:
 //! the columns are the operator outputs `G_{r_i}[û]` (and their products with the
 //! force for LDPI, the creep lags, a saturation term and an offset), fitted by
-//! weighted non-negative least squares on the normal equations ([`crate::lsq`]),
+//! weighted non-negative least squares on the normal equations ([`crate::method::lsq`]),
 //! accumulated over all recordings in parallel (each recording's columns are built
 //! into a buffer it keeps for the whole calibration). The nonlinear parameters are
 //! searched outside: golden section on `k_f` (fpi) and on the output curvature
@@ -34,11 +34,9 @@ use piezo_sim::stats::ErrorStats;
 use rayon::prelude::*;
 
 use crate::data;
-use crate::hmodel::{
-    Calibration, CouplingParams, CreepParams, FileFit, HostModel, Kind, LdpiParams, OutputMap,
-    PiParams,
-};
-use crate::lsq::Normal;
+use crate::method::lsq::Normal;
+use crate::method::model::{Calibration, FileFit, HostModel, Kind, LdpiParams, OutputMap};
+use crate::model_file::{CouplingSection, CreepSection, PiSection};
 
 /// One recording prepared for calibration.
 #[derive(Debug, Clone, PartialEq)]
@@ -166,6 +164,12 @@ impl Options {
             offset: kind == Kind::Gpi,
             input_max: 150.0,
         }
+    }
+
+    /// The same options with another operator count.
+    pub fn with_operators(mut self, n: usize) -> Self {
+        self.operators = n;
+        self
     }
 }
 
@@ -650,7 +654,7 @@ fn unpack(layout: &Layout, params: &Nonlinear, w: &[f64], input_max: f64) -> Hos
     let n1 = 1 + layout.thresholds.len();
     let mut model = HostModel::new(
         kind,
-        PiParams {
+        PiSection {
             w0_um_per_v: w[0],
             thresholds_v: layout.thresholds.clone(),
             weights_um_per_v: w[1..n1].to_vec(),
@@ -669,7 +673,7 @@ fn unpack(layout: &Layout, params: &Nonlinear, w: &[f64], input_max: f64) -> Hos
         .creep
         .iter()
         .enumerate()
-        .map(|(j, &tau)| CreepParams {
+        .map(|(j, &tau)| CreepSection {
             tau_s: tau,
             gain_um_per_v: w[c + j],
         })
@@ -683,7 +687,7 @@ fn unpack(layout: &Layout, params: &Nonlinear, w: &[f64], input_max: f64) -> Hos
         model.offset_um = w[c];
     }
     if matches!(kind, Kind::Fpi | Kind::Efpi) {
-        model.coupling = CouplingParams {
+        model.coupling = CouplingSection {
             offset_v: params.k0,
             k_f_v_per_n: params.k_f,
             k_q_v_per_n2: params.k_q,
@@ -693,6 +697,7 @@ fn unpack(layout: &Layout, params: &Nonlinear, w: &[f64], input_max: f64) -> Hos
                 0.0
             },
             compliance_um_per_n: layout.compliance,
+            force_ref_n: None,
         };
         model.dead_zone_softness_v = params.softness;
     }

@@ -1,4 +1,4 @@
-//! A stage's FEM export (first paper, Part II) read from its file: the points of
+//! A stage's FEM export (Actuators 2025, 14(8):411, Part II) read from its file: the points of
 //! the preload `f_F(x_pea)` and the stage output `f_K(x_pea)`, validated, and the
 //! maps through them ([`piezo_sim::fem::Fem`], linear between the points).
 

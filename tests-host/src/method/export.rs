@@ -15,9 +15,9 @@ use anyhow::{bail, Result};
 
 use piezo_sim::maps::{dead_zone, dead_zone_inverse};
 
-use crate::fem::FemMaps;
-use crate::hmodel::{HostModel, Kind, OutputMap};
-use crate::invert::reachable_top;
+use crate::data::fem::FemMaps;
+use crate::method::invert::reachable_top;
+use crate::method::model::{HostModel, Kind, OutputMap};
 use crate::model_file::{
     ControllerSection, CouplingSection, CreepSection, FirmwareModel, MapSection, PiSection,
     Provenance, TableSection, Tables, FORMAT,
@@ -219,7 +219,7 @@ fn coupling_section(model: &HostModel, f_rest: f64) -> CouplingSection {
         k_q_v_per_n2: pick(c.k_q_v_per_n2),
         force_q_n: pick(c.force_q_n),
         compliance_um_per_n: pick(c.compliance_um_per_n),
-        force_ref_n: f_rest,
+        force_ref_n: Some(f_rest),
     }
 }
 
@@ -323,7 +323,7 @@ pub fn export(
 /// A path relative to the project root when it lies inside it (provenance that
 /// means the same on every machine), else as given.
 pub fn project_relative(p: &Path) -> String {
-    let root = crate::firmware::project_root();
+    let root = crate::board::project_root();
     let abs = if p.is_absolute() {
         p.to_path_buf()
     } else {

@@ -1,0 +1,16 @@
+//! The FPI-FFEM method (Actuators 2025, 14(8):411, Table 1) on the host.
+//!
+//! * [`model`] — the kinds of model and their file (`piezo-fpi-model/1`);
+//! * [`calibrate`] (Part I, with [`lsq`]) — identifying a model from
+//!   Voltage–Force–Displacement recordings;
+//! * [`predict`] (Parts II–III) — the stage from its FEM maps, solving the coupled
+//!   equation at every sample; [`compare`] — scoring models against measured runs;
+//! * [`invert`] — offline feedforward; [`export`] — the firmware model file.
+
+pub mod calibrate;
+pub mod compare;
+pub mod export;
+pub mod invert;
+pub mod lsq;
+pub mod model;
+pub mod predict;
