@@ -49,12 +49,14 @@ fn main() {
             std::process::exit(1);
         }
     };
-    fs::write(out.join("model.rs"), code).expect("write model.rs");
+    fs::write(out.join("model.rs"), code.0).expect("write model.rs");
+    fs::write(out.join("model.image"), code.1).expect("write model.image");
     fs::write(out.join("cosine.rs"), cosine_table()).expect("write cosine.rs");
 }
 
-/// Reads, quantises and validates the model file; the Rust code of its model.
-fn generate_model(path: &Path) -> Result<String, String> {
+/// Reads, quantises and validates the model file; the Rust code of its model and
+/// its image (the board's factory default).
+fn generate_model(path: &Path) -> Result<(String, Vec<u8>), String> {
     let shown = path.display().to_string();
     let text = fs::read_to_string(path).map_err(|e| format!("{shown}: cannot read: {e}"))?;
     let file = FirmwareModel::parse(&text, &shown)?;
@@ -95,7 +97,9 @@ fn generate_model(path: &Path) -> Result<String, String> {
         &q.f_k_inv,
     );
     controller(&mut s, &q, file.controller.slew_v_per_ms);
-    Ok(s)
+    let mut image = vec![0; piezo_fpi::model::image::encoded_len(&q)];
+    piezo_fpi::model::image::encode(&q, &mut image).map_err(|e| format!("{shown}: {e}"))?;
+    Ok((s, image))
 }
 
 fn header(w: &mut String, shown: &str, q: &ModelSpec<'_>, operators: usize) {

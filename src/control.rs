@@ -326,15 +326,19 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         x_ref: Micrometres,
         force: Newtons,
     ) -> StepOutput {
-        match self.force_source {
-            ForceSource::Measured => self.step_with::<true>(st, x_ref, force),
-            ForceSource::Predicted => self.step_with::<false>(st, x_ref, force),
+        let measured = matches!(self.force_source, ForceSource::Measured);
+        match (measured, self.fpi.is_bare()) {
+            (true, true) => self.step_with::<true, true>(st, x_ref, force),
+            (true, false) => self.step_with::<true, false>(st, x_ref, force),
+            (false, true) => self.step_with::<false, true>(st, x_ref, force),
+            (false, false) => self.step_with::<false, false>(st, x_ref, force),
         }
     }
 
-    /// [`step`](Self::step) with the force source resolved at compile time.
+    /// [`step`](Self::step) with the force source and whether the model is the
+    /// paper's bare FPI ([`Fpi::is_bare`]) resolved at compile time.
     #[inline(always)]
-    fn step_with<const MEASURED: bool>(
+    fn step_with<const MEASURED: bool, const BARE: bool>(
         &self,
         st: &mut ControllerState<N, C>,
         x_ref: Micrometres,
@@ -350,13 +354,13 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             self.f_f.eval(x_pea_ref)
         };
         let terms = self.fpi.force_terms_at(f, st.force_ref);
-        let (want, foot) = self
-            .fpi
-            .inverse_checked(&mut st.inverse, &st.creep, x_pea_ref, &terms);
+        let (want, foot) =
+            self.fpi
+                .inverse_as::<_, BARE>(&mut st.inverse, &st.creep, x_pea_ref, &terms);
         let (voltage, limited) = self.limits.apply(st.voltage, want);
-        let x_pea_est = self
-            .fpi
-            .forward(&mut st.forward, &mut st.creep, voltage, &terms);
+        let x_pea_est =
+            self.fpi
+                .forward_as::<_, BARE>(&mut st.forward, &mut st.creep, voltage, &terms);
         st.voltage = voltage;
         st.x_pea_est = x_pea_est;
         if limited || foot {

@@ -91,6 +91,22 @@ pub enum ModelError {
     LengthMismatch,
     /// An engineering value is not finite or does not fit its Q format.
     NotRepresentable,
+    /// A model image does not start with the format's magic number.
+    NotAModelImage,
+    /// A model image's format version is not the one this build reads.
+    UnsupportedVersion,
+    /// A model image's checksum does not match its contents.
+    ChecksumMismatch,
+    /// A model image ends before its contents do, or runs on past them.
+    Truncated,
+    /// The model needs more operators, creep terms or table knots than the board
+    /// has room for.
+    OverCapacity,
+    /// The model's control rate is not the board's.
+    RateMismatch,
+    /// The model asks for a wider voltage range, a faster slew or a safe voltage
+    /// outside the window the board's hardware allows (a model may only narrow them).
+    WidensHardwareLimit,
 }
 
 impl ModelError {
@@ -131,6 +147,15 @@ impl ModelError {
             Self::RateOutOfRange => "the control rate is outside 100..=200000 Hz",
             Self::LengthMismatch => "arrays that go together have different lengths",
             Self::NotRepresentable => "a value is not finite or does not fit its Q format",
+            Self::NotAModelImage => "not a model image (wrong magic number)",
+            Self::UnsupportedVersion => "model image format version not supported by this build",
+            Self::ChecksumMismatch => "model image checksum mismatch (corrupted)",
+            Self::Truncated => "model image truncated or longer than its contents",
+            Self::OverCapacity => "more operators, creep terms or table knots than the board holds",
+            Self::RateMismatch => "the model's control rate is not the board's",
+            Self::WidensHardwareLimit => {
+                "widens a hardware limit of the board (a model may only narrow them)"
+            }
         }
     }
 

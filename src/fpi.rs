@@ -162,9 +162,16 @@ pub trait Shape<'a>: Copy + Eq + core::fmt::Debug {
     fn below_inverse(&self, y: fixed::types::I16F16) -> bool;
     /// The tables, if the map is not the identity.
     fn map(&self) -> Option<&Map<'a>>;
+    /// Whether the map is not the identity (a constant for [`Map`] and
+    /// [`Identity`], so a branch on it costs nothing in their code).
+    fn present(&self) -> bool;
+    /// [`present`](Self::present) when the type decides it; `None` when only the
+    /// value does (a map chosen at run time).
+    const FIXED: Option<bool>;
 }
 
 impl<'a> Shape<'a> for Map<'a> {
+    const FIXED: Option<bool> = Some(true);
     #[inline(always)]
     fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
         Map::apply(self, x)
@@ -180,6 +187,10 @@ impl<'a> Shape<'a> for Map<'a> {
     fn map(&self) -> Option<&Map<'a>> {
         Some(self)
     }
+    #[inline(always)]
+    fn present(&self) -> bool {
+        true
+    }
 }
 
 /// The absent map: `g` is then the hard dead zone `max(e, 0)` (the effective
@@ -188,6 +199,7 @@ impl<'a> Shape<'a> for Map<'a> {
 pub struct Identity;
 
 impl<'a> Shape<'a> for Identity {
+    const FIXED: Option<bool> = Some(false);
     #[inline(always)]
     fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
         x
@@ -202,6 +214,44 @@ impl<'a> Shape<'a> for Identity {
     }
     fn map(&self) -> Option<&Map<'a>> {
         None
+    }
+    #[inline(always)]
+    fn present(&self) -> bool {
+        false
+    }
+}
+
+/// A map chosen at run time (a model received by the board): a [`Map`] or the
+/// absent one, behind one branch.
+impl<'a> Shape<'a> for Option<Map<'a>> {
+    const FIXED: Option<bool> = None;
+    #[inline(always)]
+    fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
+        match self {
+            Some(m) => m.apply(x),
+            None => x,
+        }
+    }
+    #[inline(always)]
+    fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16 {
+        match self {
+            Some(m) => m.invert(y),
+            None => y,
+        }
+    }
+    #[inline(always)]
+    fn below_inverse(&self, y: fixed::types::I16F16) -> bool {
+        match self {
+            Some(m) => y < m.inverse.x_min(),
+            None => false,
+        }
+    }
+    fn map(&self) -> Option<&Map<'a>> {
+        self.as_ref()
+    }
+    #[inline(always)]
+    fn present(&self) -> bool {
+        self.is_some()
     }
 }
 
@@ -218,8 +268,9 @@ pub struct Creep {
 }
 
 impl Creep {
-    /// A placeholder term (rate and gain 0) for unused slots of fixed-size arrays.
-    pub(crate) const DISABLED: Self = Self {
+    /// A placeholder term (rate and gain 0) for unused slots of fixed-size arrays:
+    /// it contributes nothing.
+    pub const DISABLED: Self = Self {
         rate: CreepRate::ZERO,
         gain: UmPerVolt::ZERO,
         held: UmPerVolt::ZERO,
@@ -314,6 +365,12 @@ pub struct Fpi<'a, const N: usize, const C: usize = 0, G = Identity, H = Identit
     dead_zone: G,
     saturation: H,
     creep: [Creep; C],
+    /// The creep terms in use: `C` for a model built with its own count, fewer for
+    /// a model received at run time into capacity `C`.
+    creep_len: u8,
+    /// The model is the paper's FPI (see [`is_bare`](Self::is_bare)), as far as
+    /// is known when it is built ([`resolved`](Self::resolved) completes it).
+    bare: bool,
     tables: core::marker::PhantomData<&'a ()>,
 }
 
@@ -353,7 +410,45 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
             dead_zone,
             saturation,
             creep,
+            creep_len: C as u8,
+            bare: Self::bare_by_type(C),
             tables: core::marker::PhantomData,
+        })
+    }
+
+    /// The same model using only its first `len` creep terms (the rest are slots of
+    /// a model received into capacity `C`); `None` if `len > C`. The closed-form
+    /// inverse is rebuilt for the terms in use, and the slots beyond them are
+    /// cleared ([`Creep::DISABLED`] contributes exactly nothing), so a model whose
+    /// structure is in its type may run all `C` terms and get the same result.
+    pub const fn with_creep_terms(mut self, len: usize) -> Result<Self, ModelError> {
+        if len > C {
+            return Err(ModelError::TooManyCreepTerms);
+        }
+        let mut j = len;
+        while j < C {
+            self.creep[j] = Creep::DISABLED;
+            j += 1;
+        }
+        let (used, _) = self.creep.split_at(len);
+        let w0p = match creep_slope(self.pi.w0(), used) {
+            Ok(w) => w,
+            Err(e) => return Err(e),
+        };
+        let pi_prime = match self.pi.with_w0(w0p) {
+            Ok(p) => p,
+            Err(e) => return Err(e),
+        };
+        let inverse = match InversePi::from_forward(&pi_prime) {
+            Ok(i) => i,
+            Err(e) => return Err(e),
+        };
+        Ok(Self {
+            pi_prime,
+            inverse,
+            creep_len: len as u8,
+            bare: Self::bare_by_type(len),
+            ..self
         })
     }
 
@@ -378,11 +473,52 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
         }
     }
 
+    /// Whether this model is the paper's FPI: no soft dead zone, no saturation, no
+    /// creep terms in use. A constant for a model whose structure is in its type; for
+    /// a model received at run time, the control step branches on it once and runs
+    /// the paper's FPI without looking at the parts it lacks
+    /// ([`forward_as`](Self::forward_as), [`inverse_as`](Self::inverse_as)).
+    #[inline(always)]
+    pub fn is_bare(&self) -> bool {
+        match (G::FIXED, H::FIXED) {
+            (Some(true), _) | (_, Some(true)) => false,
+            (Some(false), Some(false)) if C == 0 => true,
+            _ => self.bare,
+        }
+    }
+
+    /// Creep terms the loops run: all `C` for a model whose structure is in its type
+    /// (a constant trip count; unused slots are [`Creep::DISABLED`]), the terms in
+    /// use for a model received at run time.
+    #[inline(always)]
+    fn creep_terms(&self) -> usize {
+        if G::FIXED.is_some() && H::FIXED.is_some() {
+            C
+        } else {
+            self.creep_len as usize
+        }
+    }
+
+    /// Whether the types alone make a model with `creep` terms bare.
+    const fn bare_by_type(creep: usize) -> bool {
+        matches!(G::FIXED, Some(false)) && matches!(H::FIXED, Some(false)) && creep == 0
+    }
+
+    /// The same model with [`is_bare`](Self::is_bare) decided from its values: for
+    /// a model whose maps are chosen at run time (`Option<Map>`), so the control
+    /// step reads one flag instead of inspecting the parts.
+    pub fn resolved(self) -> Self {
+        let bare = !self.dead_zone.present()
+            && !self.saturation.present()
+            && (C == 0 || self.creep_len == 0);
+        Self { bare, ..self }
+    }
+
     /// The effective voltage the bank sees for an applied voltage, V, in `[0, input_max]`.
     #[inline(always)]
-    fn effective(&self, u: Volts, t: &ForceTerms) -> Volts {
+    fn effective<const BARE: bool>(&self, u: Volts, t: &ForceTerms) -> Volts {
         let e = u.saturating_sub(t.preload_offset);
-        let e = self.dead_zone.apply(e);
+        let e = if BARE { e } else { self.dead_zone.apply(e) };
         within(e, Volts::ZERO, self.pi.input_max())
     }
 
@@ -396,13 +532,32 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
         u: Volts,
         t: &ForceTerms,
     ) -> Micrometres {
-        let uh = self.effective(u, t);
+        self.forward_as::<E, false>(bank, creep, u, t)
+    }
+
+    /// [`forward`](Self::forward); with `BARE` the caller has checked
+    /// [`is_bare`](Self::is_bare) and the dead zone, creep and saturation are skipped.
+    #[inline(always)]
+    pub fn forward_as<E: Edge, const BARE: bool>(
+        &self,
+        bank: &mut PlayBank<N, E>,
+        creep: &mut CreepMemory<C>,
+        u: Volts,
+        t: &ForceTerms,
+    ) -> Micrometres {
+        let uh = self.effective::<BARE>(u, t);
         let mut acc = bank.advance(self.pi.bank(), uh);
-        for (m, c) in creep.m.iter_mut().zip(&self.creep) {
-            // m += (1 - a)(û - m), with m's top 32 bits as the difference's m.
+        if BARE {
+            return crate::q::narrow_gain_biased(acc) - t.compression;
+        }
+        // m += (1 - a)(û - m), with m's top 32 bits as the difference's m.
+        let lag = |m: &mut i64, c: &Creep| {
             let m_hi = (*m >> 32) as i32;
             *m += c.rate.to_bits() as i64 * (uh.to_bits() - m_hi) as i64;
-            acc += c.gain.to_bits() as i64 * (*m >> 32);
+            c.gain.to_bits() as i64 * (*m >> 32)
+        };
+        for (m, c) in creep.m.iter_mut().zip(&self.creep).take(self.creep_terms()) {
+            acc += lag(m, c);
         }
         // The bank's sum carries the rounding half LSB (its bias).
         let y = crate::q::narrow_gain_biased(acc);
@@ -438,13 +593,30 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
         x_pea: Micrometres,
         t: &ForceTerms,
     ) -> (Volts, bool) {
+        self.inverse_as::<E, false>(bank, creep, x_pea, t)
+    }
+
+    /// [`inverse_checked`](Self::inverse_checked); with `BARE` the caller has
+    /// checked [`is_bare`](Self::is_bare) (see [`forward_as`](Self::forward_as)).
+    #[inline(always)]
+    pub fn inverse_as<E: Edge, const BARE: bool>(
+        &self,
+        bank: &mut PlayBank<N, E>,
+        creep: &CreepMemory<C>,
+        x_pea: Micrometres,
+        t: &ForceTerms,
+    ) -> (Volts, bool) {
         let z = x_pea + t.compression;
+        if BARE {
+            let e = self.inverse.apply(bank, z);
+            return (t.preload_offset.saturating_add(e), false);
+        }
         let mut v = self.saturation.invert(z);
         if C > 0 {
-            let mut held = 0i64;
-            for (m, c) in creep.m.iter().zip(&self.creep) {
-                held += c.held.to_bits() as i64 * (*m >> 32);
-            }
+            let held: i64 = (creep.m.iter().zip(&self.creep))
+                .take(self.creep_terms())
+                .map(|(m, c)| c.held.to_bits() as i64 * (*m >> 32))
+                .sum();
             v -= narrow(held);
         }
         let uh = self.inverse.apply(bank, v);
@@ -474,9 +646,9 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
     pub fn saturation(&self) -> Option<&Map<'a>> {
         self.saturation.map()
     }
-    /// The creep terms.
-    pub const fn creep(&self) -> &[Creep; C] {
-        &self.creep
+    /// The creep terms in use.
+    pub const fn creep(&self) -> &[Creep] {
+        self.creep.split_at(self.creep_len as usize).0
     }
 }
 
@@ -504,6 +676,47 @@ mod tests {
             ..Coupling::paper(coupling(0.1).unwrap())
         };
         Fpi::new(pi, cp, Identity, Identity, []).unwrap()
+    }
+
+    #[test]
+    fn the_bare_path_is_the_general_path_for_the_papers_fpi() {
+        // A model received at run time: maps chosen by value, creep capacity unused.
+        let typed = paper(0.02);
+        let m: Fpi<'static, 3, 2, Option<Map<'static>>, Option<Map<'static>>> = Fpi::new(
+            *typed.pi(),
+            *typed.coupling(),
+            None,
+            None,
+            [Creep::DISABLED; 2],
+        )
+        .and_then(|f| f.with_creep_terms(0))
+        .unwrap()
+        .resolved();
+        assert!(m.is_bare() && typed.is_bare());
+        let mut fa: PlayBank<3, crate::play::Bottom> = PlayBank::at_rest(m.pi().bank());
+        let mut fb = fa;
+        let (mut ia, mut ib): (PlayBank<3>, PlayBank<3>) = (PlayBank::new(), PlayBank::new());
+        let (mut ca, mut cb) = (CreepMemory::new(), CreepMemory::new());
+        for k in 0..2000 {
+            let x = Micrometres::from_num(6.0 + 5.5 * (k as f64 * 0.013).sin());
+            let t = m.force_terms(Newtons::from_num(60.0 + 20.0 * (k as f64 * 0.007).cos()));
+            let ua = m.inverse_as::<_, true>(&mut ia, &ca, x, &t);
+            let ub = m.inverse_as::<_, false>(&mut ib, &cb, x, &t);
+            assert_eq!(ua, ub, "inverse at {k}");
+            let xa = m.forward_as::<_, true>(&mut fa, &mut ca, ua.0, &t);
+            let xb = m.forward_as::<_, false>(&mut fb, &mut cb, ub.0, &t);
+            assert_eq!((xa, fa, ia), (xb, fb, ib), "forward at {k}");
+        }
+        let with_creep = Fpi::<'static, 3, 2, Option<Map<'static>>, Option<Map<'static>>>::new(
+            *typed.pi(),
+            *typed.coupling(),
+            None,
+            None,
+            [Creep::new(CreepRate::from_num(0.01), UmPerVolt::from_num(0.001)).unwrap(); 2],
+        )
+        .unwrap()
+        .resolved();
+        assert!(!with_creep.is_bare());
     }
 
     #[test]

@@ -47,7 +47,7 @@ impl Segment {
     }
 
     /// The one place a rise is stored: doubled, or saturated into the marker.
-    const fn from_wide(start: i32, rise: i64) -> Self {
+    pub(crate) const fn from_wide(start: i32, rise: i64) -> Self {
         let twice_rise = if rise >= MAX_KNOT_STEP as i64 {
             i32::MAX
         } else if rise <= -MAX_KNOT_STEP as i64 {

@@ -11,6 +11,7 @@
 use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Supervision};
 use crate::fpi::{Coupling, Fpi, Identity};
 use crate::limits::OutputLimits;
+use crate::model::{CreepSpec, ModelSpec, TableSpec};
 use crate::pi::PiModel;
 use crate::q::{coupling, signal, Micrometres, Newtons, Volts};
 use crate::table::{Segment, Table};
@@ -76,4 +77,32 @@ pub fn controller() -> TestController {
 /// The force the test stage puts on the stack at an estimated extension, N.
 pub fn force_at(c: &TestController, x_pea: Micrometres) -> Newtons {
     c.f_f().eval(x_pea)
+}
+
+/// The model of a controller's parts in the core's format, at 20 kHz, with the
+/// given creep terms (the parts' model has none).
+pub fn spec<'a>(p: &'a ControllerParts<'static, 3>, creep: &'a [CreepSpec]) -> ModelSpec<'a> {
+    let pi = p.fpi.pi();
+    let t = |t: &Table<'static>| TableSpec {
+        x0: t.x_min(),
+        shift: t.shift(),
+        segments: t.segments(),
+    };
+    ModelSpec {
+        rate_hz: 20_000,
+        w0: pi.w0(),
+        operators: pi.operators(),
+        input_max: pi.input_max(),
+        coupling: *p.fpi.coupling(),
+        dead_zone: None,
+        saturation: None,
+        creep,
+        f_f: t(&p.f_f),
+        f_k: t(&p.f_k),
+        f_k_inv: t(&p.f_k_inv),
+        u_min: p.limits.min(),
+        u_max: p.limits.max(),
+        max_step: p.limits.max_step(),
+        supervision: p.supervision,
+    }
 }

@@ -6,7 +6,8 @@
 //! * [`runner`] — the control loop the timer interrupt runs (reference, sensor,
 //!   control step, amplifier, telemetry);
 //! * [`reference`](mod@reference) — the on-board reference generator;
-//! * [`frontend`] — the board's ADC and DAC scaling;
+//! * [`frontend`] — the board's ADC and DAC scaling; [`hardware`] — its limits
+//!   and its capacity for a model;
 //! * [`sim_io`] — the emulated board's virtual sensor, DAC and enable line;
 //! * with the `sim` feature, [`selftest`] — the emulated board's scripted run on
 //!   the virtual stage, which the host also runs as its twin.
@@ -19,6 +20,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod frontend;
+pub mod hardware;
 pub mod model;
 pub mod reference;
 pub mod runner;

@@ -9,8 +9,12 @@
 //! For n = 4, 10, 16 and 32 operators it drives `ControllerConfig::step` along a
 //! full-stroke reference with a realistic force and prints
 //! `control_step_instructions n=<N>: <worst>` plus min/mean/max, then the same for
-//! the slew-limited path (which realigns the inverse memory) and for a whole ISR
-//! tick of the embedded model, and the stack high-water mark (painted stack).
+//! the slew-limited path (which realigns the inverse memory); the embedded model
+//! (its structure in its types); models received at run time
+//! (`runtime_model_step_instructions`: the synthetic n = 10 paper FPI and the
+//! embedded model as images, loaded into the board's RAM store with its capacity of
+//! 10 operators); a whole ISR tick of the embedded model; and the stack high-water
+//! mark (painted stack).
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]
@@ -22,7 +26,8 @@ mod bench {
     use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
     use cortex_m_semihosting::hprintln;
     use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
-    use fpi_firmware::model::{self, CONTROLLER};
+    use fpi_firmware::hardware::{self, Store, BOARD};
+    use fpi_firmware::model::{self, CONTROLLER, MODEL_IMAGE};
     use fpi_firmware::reference::RaisedCosine;
     use fpi_firmware::runner::{Command, ControlLoop};
     use fpi_firmware::sim_io::SimLink;
@@ -30,6 +35,7 @@ mod bench {
         ControllerConfig, ControllerParts, ForceSource, Interval, Mode, Supervision,
     };
     use piezo_fpi::fpi::{Coupling, Fpi, Identity, Shape};
+    use piezo_fpi::model::{image, ModelSpec, TableSpec};
     use piezo_fpi::pi::PiModel;
     use piezo_fpi::q::{Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton};
     // The device crate provides the interrupt vector table.
@@ -235,6 +241,61 @@ mod bench {
         );
     }
 
+    /// The synthetic n = 10 model as the board would receive it: an image.
+    fn spec_of_c10() -> ModelSpec<'static> {
+        let (fpi, sup) = (C10.fpi(), C10.supervision());
+        ModelSpec {
+            rate_hz: hardware::RATE_HZ,
+            w0: fpi.pi().w0(),
+            operators: fpi.pi().operators(),
+            input_max: fpi.pi().input_max(),
+            coupling: *fpi.coupling(),
+            dead_zone: None,
+            saturation: None,
+            creep: &[],
+            f_f: TableSpec::of(C10.f_f()),
+            f_k: TableSpec::of(C10.f_k()),
+            f_k_inv: TableSpec::of(C10.f_k_inv()),
+            u_min: C10.limits().min(),
+            u_max: C10.limits().max(),
+            max_step: C10.limits().max_step(),
+            supervision: sup,
+        }
+    }
+
+    /// Loads an image into a store as the board does at run time and measures the
+    /// step of the runtime controller (operators padded to the board's capacity).
+    fn report_runtime<const CC: usize>(
+        store: &mut piezo_fpi::model::store::ModelStore<10, CC, 3072>,
+        image: &[u8],
+        what: &str,
+        baseline: u32,
+    ) -> bool {
+        let shape = match store.load(image, &BOARD) {
+            Ok(s) => s,
+            Err(e) => {
+                hprintln!("{}: image refused: {}", what, e);
+                return false;
+            }
+        };
+        let Ok(cfg) = store.controller() else {
+            return false;
+        };
+        let (c, start) = measure(&cfg, baseline, 5.0);
+        let (_, l) = measure(&cfg, baseline, 500.0);
+        hprintln!(
+            "runtime_model_step_instructions n={} creep={} dead_zone={} saturation={} capacity={}: {}",
+            shape.operators,
+            shape.creep_terms,
+            if shape.dead_zone { "soft" } else { "hard" },
+            if shape.saturation { "yes" } else { "no" },
+            hardware::OPERATORS,
+            c.max
+        );
+        detail(what, shape.operators, &c, &l, &start);
+        true
+    }
+
     static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
 
     extern "C" {
@@ -273,7 +334,7 @@ mod bench {
         let baseline = (0..64).map(|_| ticks(|| ())).min().unwrap_or(0);
         // A function of 1000 nops minus an empty function: exactly 1000 instructions.
         let best = |f: fn()| (0..8).map(|_| ticks(f)).min().unwrap_or(0);
-        let nops = instructions(best(nop_1000), baseline) - instructions(best(nop_0), baseline);
+        let nops = instructions(best(nop_1000).saturating_sub(best(nop_0)), 0);
         hprintln!(
             "calibration: 1000 nops counted as {} instructions (baseline {} SysTick ticks)",
             nops,
@@ -306,6 +367,21 @@ mod bench {
         );
         detail("embedded model", model::OPERATORS, &c, &l, &start);
 
+        // Models received at run time (the board's RAM store).
+        let mut runtime_ok = false;
+        let store = cortex_m::singleton!(: Store = Store::new());
+        let buf = cortex_m::singleton!(: [u8; hardware::IMAGE_BYTES] = [0; hardware::IMAGE_BYTES]);
+        if let (Some(store), Some(buf)) = (store, buf) {
+            runtime_ok =
+                match image::encode(&spec_of_c10(), buf) {
+                    Ok(len) => report_runtime(store, &buf[..len], "runtime paper FPI", baseline),
+                    Err(e) => {
+                        hprintln!("cannot encode the synthetic model: {}", e);
+                        false
+                    }
+                } && report_runtime(store, MODEL_IMAGE, "runtime embedded model", baseline);
+        }
+
         // The whole ISR body of the embedded model: reference, sensor, step, DAC, enable.
         let first = Command {
             mode: Mode::Compensated,
@@ -332,7 +408,9 @@ mod bench {
             model::OPERATORS, c.max, c.min, c.mean_x10() / 10, c.mean_x10() % 10
         );
         hprintln!("stack_high_water_bytes: {}", stack_used());
-        debug::exit(if nops == 1000 {
+        // ±1: the two calibration calls may be compiled with call sequences that
+        // differ by an instruction.
+        debug::exit(if nops.abs_diff(1000) <= 1 && runtime_ok {
             EXIT_SUCCESS
         } else {
             EXIT_FAILURE

@@ -15,6 +15,9 @@
 //! The model *file* (TOML, engineering units) is read and quantised into a
 //! `ModelSpec` by the host side (`piezo-sim`'s `file` feature).
 
+pub mod image;
+pub mod store;
+
 use fixed::types::I16F16;
 
 use crate::control::{check_settings, Supervision};
@@ -39,6 +42,15 @@ pub struct TableSpec<'a> {
 }
 
 impl<'a> TableSpec<'a> {
+    /// The spec of a built table (its grid and intervals).
+    pub const fn of(t: &Table<'a>) -> Self {
+        Self {
+            x0: t.x_min(),
+            shift: t.shift(),
+            segments: t.segments(),
+        }
+    }
+
     /// The table, validated ([`Table::new`]).
     pub const fn table(&self) -> Result<Table<'a>, ModelError> {
         Table::new(self.x0, self.shift, self.segments)
@@ -257,30 +269,7 @@ mod tests {
     }
 
     fn spec(o: &Owned) -> ModelSpec<'_> {
-        let p = &o.parts;
-        let pi = p.fpi.pi();
-        let t = |t: &Table<'static>| TableSpec {
-            x0: t.x_min(),
-            shift: t.shift(),
-            segments: t.segments(),
-        };
-        ModelSpec {
-            rate_hz: 20_000,
-            w0: pi.w0(),
-            operators: pi.operators(),
-            input_max: pi.input_max(),
-            coupling: *p.fpi.coupling(),
-            dead_zone: None,
-            saturation: None,
-            creep: &o.creep,
-            f_f: t(&p.f_f),
-            f_k: t(&p.f_k),
-            f_k_inv: t(&p.f_k_inv),
-            u_min: p.limits.min(),
-            u_max: p.limits.max(),
-            max_step: p.limits.max_step(),
-            supervision: p.supervision,
-        }
+        testkit::spec(&o.parts, &o.creep)
     }
 
     fn key(e: Invalid) -> String {

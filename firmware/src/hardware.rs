@@ -1,0 +1,46 @@
+//! What the driver board's hardware allows and what it has room for: the limits a
+//! model may narrow but never widen, and the capacity of the model it runs.
+//!
+//! * Control rate 20 kHz (TIM2 on the board, SysTick on the emulated board).
+//! * Amplifier: 0–150 V, at most 100 V/ms (5 V per control step): the amplifier's
+//!   current limit into the stack's capacitance.
+//! * Safe voltage: 0–10 V, where the stack is at rest under any preload.
+//! * Capacity: 10 play operators, 4 creep terms, 3 072 table intervals (24 KiB of
+//!   RAM per model; the board holds two, the running one and the one it receives).
+
+use piezo_fpi::control::Interval;
+use piezo_fpi::model::image;
+use piezo_fpi::model::store::{Board, HardwareLimits, ModelStore, RuntimeController};
+use piezo_fpi::q::Volts;
+
+/// Play operators a model may have.
+pub const OPERATORS: usize = 10;
+/// Creep terms a model may have.
+pub const CREEP_TERMS: usize = 4;
+/// Table intervals a model may have, all tables together.
+pub const TABLE_INTERVALS: usize = 3072;
+/// Bytes of the largest model image (the room to receive one).
+pub const IMAGE_BYTES: usize = image::max_len(OPERATORS, CREEP_TERMS, TABLE_INTERVALS);
+
+/// The control rate, Hz.
+pub const RATE_HZ: u32 = 20_000;
+
+/// The board: its rate and hardware limits.
+pub const BOARD: Board = Board {
+    rate_hz: RATE_HZ,
+    limits: HardwareLimits {
+        u_min: Volts::ZERO,
+        u_max: Volts::from_bits(150 << 16),
+        max_step: Volts::from_bits(5 << 16),
+        safe: Interval {
+            lo: Volts::ZERO,
+            hi: Volts::from_bits(10 << 16),
+        },
+    },
+};
+
+/// A model in the board's RAM.
+pub type Store = ModelStore<OPERATORS, CREEP_TERMS, TABLE_INTERVALS>;
+
+/// The control step's configuration for a model in the board's RAM.
+pub type Controller<'a> = RuntimeController<'a, OPERATORS, CREEP_TERMS>;

@@ -1,0 +1,540 @@
+//! A model held in RAM: loaded from an image, checked against the board, and run
+//! by the control step as a [`RuntimeController`].
+//!
+//! A board has room for at most `N` play operators, `C` creep terms and `S` table
+//! intervals (its capacity, set when the firmware is built) and hardware limits it
+//! cannot exceed ([`Board`]). [`ModelStore::load`] reads an image
+//! ([`super::image`]), refuses one that does not fit the capacity or widens a
+//! hardware limit, and runs the validator ([`super::validate`]). A model with fewer
+//! operators than `N` is padded with operators of zero weight at the top of the
+//! input domain, which contribute nothing (bit for bit); its creep terms are run
+//! as many as it has.
+
+use fixed::types::I16F16;
+
+use super::image::{Reader, FLAG_DEAD_ZONE, FLAG_PREDICTED, FLAG_SATURATION};
+use super::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
+use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Supervision};
+use crate::error::{Field, Invalid, ModelError, TableId, TablePart};
+use crate::fpi::{Coupling, Creep, Fpi, Map};
+use crate::limits::OutputLimits;
+use crate::pi::PiModel;
+use crate::play::Operator;
+use crate::q::{CreepRate, UmPerVolt, Volts};
+use crate::table::{Segment, Table};
+
+/// The control step's configuration for a model received at run time: `N`
+/// operators (padded), up to `C` creep terms, and dead zone and saturation
+/// chosen at run time.
+pub type RuntimeController<'a, const N: usize, const C: usize> =
+    ControllerConfig<'a, N, C, Option<Map<'a>>, Option<Map<'a>>>;
+
+/// What the board's hardware allows: a model may narrow these, never widen them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct HardwareLimits {
+    /// Lowest amplifier setpoint, V.
+    pub u_min: Volts,
+    /// Highest amplifier setpoint, V.
+    pub u_max: Volts,
+    /// Largest setpoint change per control step, V (the amplifier's current into the
+    /// stack's capacitance).
+    pub max_step: Volts,
+    /// The window the safe voltage must lie in (the stack's safe voltages), V.
+    pub safe: Interval,
+}
+
+/// The board a model must fit: its control rate and hardware limits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Board {
+    /// The control ISR's rate, Hz.
+    pub rate_hz: u32,
+    /// What the hardware allows.
+    pub limits: HardwareLimits,
+}
+
+impl Board {
+    /// Checks that a model runs at this board's rate and stays inside its hardware
+    /// limits; the first limit it would widen, by key.
+    pub fn check(&self, m: &ModelSpec<'_>) -> Result<(), Invalid> {
+        let h = &self.limits;
+        let widens = |field| Err(Invalid::at(field, ModelError::WidensHardwareLimit));
+        if m.rate_hz != self.rate_hz {
+            return Err(Invalid::at(Field::Rate, ModelError::RateMismatch));
+        }
+        if m.u_min < h.u_min {
+            return widens(Field::UMin);
+        }
+        if m.u_max > h.u_max {
+            return widens(Field::UMax);
+        }
+        if m.max_step > h.max_step {
+            return widens(Field::Slew);
+        }
+        let s = m.supervision.safe_voltage;
+        if s < h.safe.lo || s > h.safe.hi {
+            return widens(Field::SafeVoltage);
+        }
+        Ok(())
+    }
+}
+
+/// Where a table lies in the store's pool of intervals.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Span {
+    x0: I16F16,
+    shift: u32,
+    start: usize,
+    len: usize,
+}
+
+const NO_SPAN: Span = Span {
+    x0: I16F16::ZERO,
+    shift: 0,
+    start: 0,
+    len: 0,
+};
+
+/// A model in RAM with room for `N` operators, `C` creep terms and `S` table
+/// intervals (configuration, loaded at start-up or when the board receives one).
+#[derive(Debug, Clone)]
+pub struct ModelStore<const N: usize, const C: usize, const S: usize> {
+    /// The scalars; its arrays are empty and lent by [`spec`](Self::spec).
+    base: ModelSpec<'static>,
+    operators: [Operator<UmPerVolt>; N],
+    n: usize,
+    creep: [CreepSpec; C],
+    c: usize,
+    pool: [Segment; S],
+    /// f_F, f_K, f_K⁻¹, dead zone (map, inverse), saturation (map, inverse).
+    spans: [Span; 7],
+    loaded: bool,
+}
+
+const ORDER: [TableId; 7] = [
+    TableId::FF,
+    TableId::FK,
+    TableId::FKInv,
+    TableId::DeadZone,
+    TableId::DeadZoneInverse,
+    TableId::Saturation,
+    TableId::SaturationInverse,
+];
+
+impl<const N: usize, const C: usize, const S: usize> Default for ModelStore<N, C, S> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
+    /// An empty store (no model).
+    pub const fn new() -> Self {
+        let empty = TableSpec {
+            x0: I16F16::ZERO,
+            shift: 0,
+            segments: &[],
+        };
+        let zero = I16F16::ZERO;
+        Self {
+            base: ModelSpec {
+                rate_hz: 0,
+                w0: UmPerVolt::ZERO,
+                operators: &[],
+                input_max: zero,
+                coupling: Coupling::paper(crate::q::VoltsPerNewton::ZERO),
+                dead_zone: None,
+                saturation: None,
+                creep: &[],
+                f_f: empty,
+                f_k: empty,
+                f_k_inv: empty,
+                u_min: zero,
+                u_max: zero,
+                max_step: zero,
+                supervision: Supervision {
+                    reference: Interval { lo: zero, hi: zero },
+                    force: Interval { lo: zero, hi: zero },
+                    force_tolerance: zero,
+                    safe_voltage: zero,
+                    force_source: ForceSource::Measured,
+                },
+            },
+            operators: [Operator {
+                threshold: zero,
+                weight: UmPerVolt::ZERO,
+            }; N],
+            n: 0,
+            creep: [CreepSpec {
+                rate: CreepRate::ZERO,
+                gain: UmPerVolt::ZERO,
+            }; C],
+            c: 0,
+            pool: [Segment::from_bits(0, 0); S],
+            spans: [NO_SPAN; 7],
+            loaded: false,
+        }
+    }
+
+    /// Whether the store holds a valid model.
+    pub const fn is_loaded(&self) -> bool {
+        self.loaded
+    }
+
+    /// The model, borrowing the store's arrays (empty before a model is loaded).
+    pub fn spec(&self) -> ModelSpec<'_> {
+        let table = |k: usize| {
+            let s = self.spans[k];
+            TableSpec {
+                x0: s.x0,
+                shift: s.shift,
+                segments: self.pool.get(s.start..s.start + s.len).unwrap_or(&[]),
+            }
+        };
+        let map = |k: usize, present: bool| {
+            present.then(|| MapSpec {
+                forward: table(k),
+                inverse: table(k + 1),
+            })
+        };
+        ModelSpec {
+            operators: self.operators.get(..self.n).unwrap_or(&[]),
+            creep: self.creep.get(..self.c).unwrap_or(&[]),
+            f_f: table(0),
+            f_k: table(1),
+            f_k_inv: table(2),
+            dead_zone: map(3, self.base.dead_zone.is_some()),
+            saturation: map(5, self.base.saturation.is_some()),
+            ..self.base
+        }
+    }
+
+    /// Reads an image into the store, checks it against the board and validates
+    /// it; its shape. On any error the store is left empty (a board keeps running
+    /// the model in its other store).
+    pub fn load(&mut self, image: &[u8], board: &Board) -> Result<Shape, Invalid> {
+        self.loaded = false;
+        self.read(image)?;
+        let spec = self.spec();
+        board.check(&spec)?;
+        let shape = validate(&spec)?;
+        self.loaded = true;
+        Ok(shape)
+    }
+
+    fn read(&mut self, image: &[u8]) -> Result<(), Invalid> {
+        let mut r = Reader::new(image)?;
+        let over = |field| Invalid::at(field, ModelError::OverCapacity);
+        let b = &mut self.base;
+        b.rate_hz = r.u32()?;
+        b.w0 = UmPerVolt::from_bits(r.i32()?);
+        b.input_max = I16F16::from_bits(r.i32()?);
+        let (n, c) = (r.u8()? as usize, r.u8()? as usize);
+        r.u8()?;
+        r.u8()?;
+        if n > N {
+            return Err(over(Field::Operators));
+        }
+        if c > C {
+            return Err(over(Field::Creep));
+        }
+        for o in self.operators.iter_mut().take(n) {
+            o.threshold = I16F16::from_bits(r.i32()?);
+            o.weight = UmPerVolt::from_bits(r.i32()?);
+        }
+        self.n = n;
+        let k = &mut b.coupling;
+        k.offset = I16F16::from_bits(r.i32()?);
+        k.k_f = crate::q::VoltsPerNewton::from_bits(r.i32()?);
+        k.k_q = crate::q::VoltsPerNewton2::from_bits(r.i32()?);
+        k.force_q = I16F16::from_bits(r.i32()?);
+        k.compliance = crate::q::UmPerNewton::from_bits(r.i32()?);
+        k.force_ref = I16F16::from_bits(r.i32()?);
+        for t in self.creep.iter_mut().take(c) {
+            t.rate = CreepRate::from_bits(r.i32()?);
+            t.gain = UmPerVolt::from_bits(r.i32()?);
+        }
+        self.c = c;
+        let mut signal = || r.i32().map(I16F16::from_bits);
+        b.u_min = signal()?;
+        b.u_max = signal()?;
+        b.max_step = signal()?;
+        let sup = &mut b.supervision;
+        sup.reference = Interval {
+            lo: signal()?,
+            hi: signal()?,
+        };
+        sup.force = Interval {
+            lo: signal()?,
+            hi: signal()?,
+        };
+        sup.force_tolerance = signal()?;
+        sup.safe_voltage = signal()?;
+        sup.force_source = if r.flags & FLAG_PREDICTED != 0 {
+            ForceSource::Predicted
+        } else {
+            ForceSource::Measured
+        };
+        // A placeholder map marks presence; the tables are lent by `spec`.
+        let present = |flag: u16| {
+            (r.flags & flag != 0).then_some(MapSpec {
+                forward: TableSpec {
+                    x0: I16F16::ZERO,
+                    shift: 0,
+                    segments: &[],
+                },
+                inverse: TableSpec {
+                    x0: I16F16::ZERO,
+                    shift: 0,
+                    segments: &[],
+                },
+            })
+        };
+        b.dead_zone = present(FLAG_DEAD_ZONE);
+        b.saturation = present(FLAG_SATURATION);
+        let (dz, sat) = (b.dead_zone.is_some(), b.saturation.is_some());
+        let mut used = 0;
+        for (k, id) in ORDER.into_iter().enumerate() {
+            let wanted = k < 3 || (k < 5 && dz) || (k >= 5 && sat);
+            self.spans[k] = if wanted {
+                read_table(&mut r, &mut self.pool, &mut used, id)?
+            } else {
+                NO_SPAN
+            };
+        }
+        if !r.finished() {
+            return Err(Invalid::at(Field::Model, ModelError::Truncated));
+        }
+        Ok(())
+    }
+
+    /// The control step's configuration for the loaded model: operators padded to
+    /// `N` with zero weights at the top of the domain, the creep terms in use.
+    pub fn controller(&self) -> Result<RuntimeController<'_, N, C>, Invalid> {
+        let model = |e: ModelError| Invalid::at(Field::Model, e);
+        if !self.loaded {
+            return Err(model(ModelError::Truncated));
+        }
+        let m = self.spec();
+        let mut ops = [Operator {
+            threshold: m.input_max,
+            weight: UmPerVolt::ZERO,
+        }; N];
+        for (o, s) in ops.iter_mut().zip(m.operators) {
+            *o = *s;
+        }
+        let pi = PiModel::from_operators(m.w0, ops, m.input_max).map_err(model)?;
+        let mut creep = [Creep::DISABLED; C];
+        for (t, s) in creep.iter_mut().zip(m.creep) {
+            *t = Creep::new(s.rate, s.gain).map_err(model)?;
+        }
+        fn table<'t>(t: &TableSpec<'t>) -> Result<Table<'t>, Invalid> {
+            t.table().map_err(|e| Invalid::at(Field::Model, e))
+        }
+        fn map<'t>(m: &Option<MapSpec<'t>>) -> Result<Option<Map<'t>>, Invalid> {
+            m.as_ref()
+                .map(|m| {
+                    Ok(Map {
+                        forward: table(&m.forward)?,
+                        inverse: table(&m.inverse)?,
+                    })
+                })
+                .transpose()
+        }
+        let fpi = Fpi::new(
+            pi,
+            m.coupling,
+            map(&m.dead_zone)?,
+            map(&m.saturation)?,
+            creep,
+        )
+        .and_then(|f| f.with_creep_terms(m.creep.len()))
+        .map_err(model)?
+        .resolved();
+        ControllerConfig::new(ControllerParts {
+            fpi,
+            f_f: table(&m.f_f)?,
+            f_k: table(&m.f_k)?,
+            f_k_inv: table(&m.f_k_inv)?,
+            limits: OutputLimits::new(m.u_min, m.u_max, m.max_step).map_err(model)?,
+            supervision: m.supervision,
+        })
+        .map_err(model)
+    }
+}
+
+/// Reads one table's knots into the pool as intervals; where it lies.
+fn read_table<const S: usize>(
+    r: &mut Reader<'_>,
+    pool: &mut [Segment; S],
+    used: &mut usize,
+    id: TableId,
+) -> Result<Span, Invalid> {
+    let x0 = I16F16::from_bits(r.i32()?);
+    let shift = r.u32()?;
+    let knots = r.u32()? as usize;
+    let intervals = knots.saturating_sub(1);
+    if *used + intervals > S {
+        return Err(Invalid::at(
+            Field::Table(id, TablePart::Values),
+            ModelError::OverCapacity,
+        ));
+    }
+    let start = *used;
+    let mut prev = if knots > 0 { Some(r.i32()?) } else { None };
+    for seg in pool.iter_mut().skip(start).take(intervals) {
+        let (a, b) = (prev.unwrap_or(0), r.i32()?);
+        *seg = Segment::from_wide(a, b as i64 - a as i64);
+        prev = Some(b);
+    }
+    *used += intervals;
+    Ok(Span {
+        x0,
+        shift,
+        start,
+        len: intervals,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::ControllerState;
+    use crate::model::image::{encode, encoded_len, HEADER_LEN};
+    use crate::q::{coupling, gain, signal};
+    use crate::testkit;
+
+    const BOARD: Board = Board {
+        rate_hz: 20_000,
+        limits: HardwareLimits {
+            u_min: Volts::ZERO,
+            u_max: Volts::from_bits(150 << 16),
+            max_step: Volts::from_bits(5 << 16),
+            safe: Interval {
+                lo: Volts::ZERO,
+                hi: Volts::from_bits(10 << 16),
+            },
+        },
+    };
+
+    type Store = ModelStore<5, 2, 2048>;
+
+    fn image(spec: &ModelSpec<'_>) -> Vec<u8> {
+        let mut out = vec![0; encoded_len(spec)];
+        let n = encode(spec, &mut out).unwrap();
+        assert_eq!(n, out.len());
+        out
+    }
+
+    fn parts() -> ControllerParts<'static, 3> {
+        testkit::parts(ForceSource::Measured)
+    }
+
+    #[test]
+    fn an_image_round_trips_into_the_store() {
+        let p = parts();
+        let creep = [CreepSpec {
+            rate: coupling(0.005).unwrap(),
+            gain: gain(0.003).unwrap(),
+        }];
+        let spec = testkit::spec(&p, &creep);
+        let img = image(&spec);
+        let mut store = Store::new();
+        let shape = store.load(&img, &BOARD).unwrap();
+        assert_eq!((shape.operators, shape.creep_terms), (3, 1));
+        assert_eq!(store.spec(), spec);
+        // And back to the same bytes.
+        assert_eq!(image(&store.spec()), img);
+    }
+
+    /// The padded runtime controller steps bit for bit as the typed one.
+    #[test]
+    fn the_runtime_controller_is_the_typed_one_bit_for_bit() {
+        let p = parts();
+        let typed = ControllerConfig::new(p).unwrap();
+        let mut store = Store::new();
+        store.load(&image(&testkit::spec(&p, &[])), &BOARD).unwrap();
+        let runtime = store.controller().unwrap();
+        let (mut a, mut b): (ControllerState<3>, ControllerState<5, 2>) =
+            (typed.initial_state(), runtime.initial_state());
+        for k in 0..3000 {
+            let x = signal(12.0 + 11.0 * (k as f64 * 0.01).sin()).unwrap();
+            let f = typed.f_f().eval(a.x_pea_est());
+            let (oa, ob) = (typed.step(&mut a, x, f), runtime.step(&mut b, x, f));
+            assert_eq!(oa, ob, "step {k}");
+        }
+    }
+
+    #[test]
+    fn bad_images_are_refused_by_name() {
+        let p = parts();
+        let spec = testkit::spec(&p, &[]);
+        let good = image(&spec);
+        let refuse = |img: &[u8]| Store::new().load(img, &BOARD).unwrap_err().error;
+        let mut bad = good.clone();
+        bad[HEADER_LEN + 40] ^= 1;
+        assert_eq!(refuse(&bad), ModelError::ChecksumMismatch);
+        assert_eq!(refuse(&good[..good.len() - 3]), ModelError::Truncated);
+        assert_eq!(refuse(&good[..10]), ModelError::Truncated);
+        let mut bad = good.clone();
+        bad[0] = b'X';
+        assert_eq!(refuse(&bad), ModelError::NotAModelImage);
+        let mut bad = good.clone();
+        bad[4] = 9;
+        assert_eq!(refuse(&bad), ModelError::UnsupportedVersion);
+        let small = ModelStore::<2, 2, 2048>::new()
+            .load(&good, &BOARD)
+            .unwrap_err();
+        assert_eq!(
+            (small.field, small.error),
+            (Field::Operators, ModelError::OverCapacity)
+        );
+        let tiny = ModelStore::<5, 2, 600>::new()
+            .load(&good, &BOARD)
+            .unwrap_err();
+        assert_eq!(tiny.error, ModelError::OverCapacity);
+    }
+
+    #[test]
+    fn a_model_may_narrow_the_hardware_limits_but_not_widen_them() {
+        let p = parts();
+        let spec = testkit::spec(&p, &[]);
+        let load = |s: ModelSpec<'_>| Store::new().load(&image(&s), &BOARD);
+        assert!(load(ModelSpec {
+            u_max: signal(120.0).unwrap(),
+            max_step: signal(1.0).unwrap(),
+            ..spec
+        })
+        .is_ok());
+        let widens = |s: ModelSpec<'_>, field| {
+            let e = load(s).unwrap_err();
+            assert_eq!((e.field, e.error), (field, ModelError::WidensHardwareLimit));
+        };
+        widens(
+            ModelSpec {
+                u_max: signal(160.0).unwrap(),
+                ..spec
+            },
+            Field::UMax,
+        );
+        widens(
+            ModelSpec {
+                max_step: signal(6.0).unwrap(),
+                ..spec
+            },
+            Field::Slew,
+        );
+        let e = load(ModelSpec {
+            rate_hz: 10_000,
+            ..spec
+        })
+        .unwrap_err();
+        assert_eq!(e.error, ModelError::RateMismatch);
+        // A store that failed to load holds no model.
+        let mut s = Store::new();
+        assert!(s.load(&image(&spec), &BOARD).is_ok() && s.is_loaded());
+        let mut bad = image(&spec);
+        bad[20] ^= 0xff;
+        assert!(s.load(&bad, &BOARD).is_err());
+        assert!(!s.is_loaded() && s.controller().is_err());
+    }
+}
