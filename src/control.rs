@@ -199,16 +199,42 @@ pub enum Fault {
     ForceImplausible = 2,
     /// The reference lies outside the stage's reachable stroke.
     ReferenceUnreachable = 3,
+    /// The application parked the stage in its safe state (at start-up, after a
+    /// model change, or on a host's `safe` command); the next motion command
+    /// re-arms it.
+    Stopped = 4,
+    /// The host controlling the stage fell silent for longer than its heartbeat timeout.
+    LinkLost = 5,
+    /// The analog reference input left its range or jumped implausibly (open or shorted wire).
+    ReferenceInput = 6,
 }
 
 impl Fault {
+    /// Every fault, by code.
+    pub const ALL: [Fault; 6] = [
+        Self::ForceOutOfRange,
+        Self::ForceImplausible,
+        Self::ReferenceUnreachable,
+        Self::Stopped,
+        Self::LinkLost,
+        Self::ReferenceInput,
+    ];
+
     /// A one-line description for logs.
     pub const fn message(&self) -> &'static str {
         match self {
             Self::ForceOutOfRange => "force reading outside the sensor range",
             Self::ForceImplausible => "force reading disagrees with the FEM preload map",
             Self::ReferenceUnreachable => "reference outside the reachable stroke",
+            Self::Stopped => "parked in the safe state (start-up, new model or stop command)",
+            Self::LinkLost => "host link lost: no heartbeat within the timeout",
+            Self::ReferenceInput => "analog reference input out of range or implausible",
         }
+    }
+
+    /// The fault with code `code` (its `repr(u8)` value).
+    pub fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.into_iter().find(|f| *f as u8 == code)
     }
 }
 
@@ -318,8 +344,9 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
     /// One control step. Call it once per ISR with the reference stage position
     /// (µm) and the force reading (N); write [`StepOutput::voltage`] to the amplifier.
     ///
-    /// Bounded time, no division, no panic, no allocation.
-    #[inline]
+    /// Bounded time, no division, no panic, no allocation. Always inlined: the ISR
+    /// calls it once, and a call would cost the ISR a frame and its spills.
+    #[inline(always)]
     pub fn step(
         &self,
         st: &mut ControllerState<N, C>,
@@ -601,6 +628,18 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
         self.force_ref
     }
 
+    /// Latches `fault` (if none is latched yet): from the next step the controller
+    /// ramps to the safe voltage, as for a fault it detects itself. For the faults
+    /// the application detects (a stop command, a lost host, a bad reference input).
+    /// Returns whether this fault was latched.
+    pub fn trip(&mut self, fault: Fault) -> bool {
+        if self.fault.is_some() {
+            return false;
+        }
+        self.fault = Some(fault);
+        true
+    }
+
     /// Leaves the safe state once the output has reached the safe voltage; the
     /// inverse memory is realigned with the voltage history actually applied.
     /// Returns whether the fault was cleared.
@@ -764,6 +803,26 @@ mod tests {
         let p = c.with_force_source(ForceSource::Predicted);
         let mut sp = p.initial_state();
         assert!(!p.tare(&mut sp, n(62.0)));
+    }
+
+    #[test]
+    fn a_tripped_fault_ramps_to_safe_like_a_detected_one_and_codes_round_trip() {
+        let c = testkit::controller();
+        let mut st = c.initial_state();
+        let top = drive_to(&c, &mut st, 24.0).voltage;
+        assert!(st.trip(Fault::LinkLost));
+        assert!(!st.trip(Fault::Stopped), "the first fault stays latched");
+        let out = plausible(&c, &mut st, um(24.0));
+        assert_eq!(out.fault, Some(Fault::LinkLost));
+        assert_eq!(
+            top - out.voltage,
+            c.limits().max_step(),
+            "ramps at the slew limit"
+        );
+        for f in Fault::ALL {
+            assert_eq!(Fault::from_code(f as u8), Some(f));
+        }
+        assert_eq!(Fault::from_code(0), None);
     }
 
     #[test]

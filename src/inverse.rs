@@ -39,13 +39,18 @@ pub struct InversePi<const N: usize> {
     output_max: Volts,
 }
 
-/// `round(num / den)` for `den > 0`, ties away from zero.
-const fn div_round(num: i128, den: i128) -> i128 {
-    if num >= 0 {
+/// `round(num / den)`, ties away from zero; `None` unless `den > 0` (which the
+/// callers' validated partial sums guarantee: the check makes the division
+/// panic-free, as the firmware's link-time proof requires).
+const fn div_round(num: i128, den: i128) -> Option<i128> {
+    if den <= 0 {
+        return None;
+    }
+    Some(if num >= 0 {
         (num + den / 2) / den
     } else {
         (num - den / 2) / den
-    }
+    })
 }
 
 /// What the closed-form inverse of a forward operator set derives (besides its
@@ -84,7 +89,9 @@ pub const fn invert(
     }
     let w0 = w0.to_bits() as i128; // GAIN_FRAC bits; > 0 by construction
                                    // 1/w0 in INV_GAIN_FRAC bits: 2^(INV + GAIN) / w0_bits.
-    let inv_w0 = div_round(1i128 << (INV_GAIN_FRAC + GAIN_FRAC), w0);
+    let Some(inv_w0) = div_round(1i128 << (INV_GAIN_FRAC + GAIN_FRAC), w0) else {
+        return Err(ModelError::NonPositiveSlope { index: 0 });
+    };
     if inv_w0 > i32::MAX as i128 {
         return Err(ModelError::InverseWeightOutOfRange { index: 0 });
     }
@@ -100,10 +107,16 @@ pub const fn invert(
         let s = s_prev + wj; // S_j > 0 by construction
         sum_wr += wj * rj;
         // r'_j = S_j r_j - Σ_{i<=j} w_i r_i, rounded to SIGNAL_FRAC bits.
-        let rp = div_round(s * rj - sum_wr, 1i128 << GAIN_FRAC);
+        let Some(rp) = div_round(s * rj - sum_wr, 1i128 << GAIN_FRAC) else {
+            return Err(ModelError::NonPositiveSlope { index: j as u8 });
+        };
         // w'_j = -w_j / (S_j S_{j-1}), with all three in GAIN_FRAC bits:
         // (-w_j · 2^(INV + GAIN)) / (S_j · S_{j-1}).
-        let wp = div_round(-wj * (1i128 << (INV_GAIN_FRAC + GAIN_FRAC)), s * s_prev);
+        let Some(wp) = div_round(-wj * (1i128 << (INV_GAIN_FRAC + GAIN_FRAC)), s * s_prev) else {
+            return Err(ModelError::NonPositiveSlope {
+                index: (j + 1) as u8,
+            });
+        };
         if wp > i32::MAX as i128 || wp < i32::MIN as i128 {
             return Err(ModelError::InverseWeightOutOfRange {
                 index: (j + 1) as u8,

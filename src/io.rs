@@ -34,6 +34,15 @@ pub struct Hardware<S, A, E> {
     pub enable: E,
 }
 
+/// What one [`Hardware::tick`] did: the step's result and the force it read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Tick {
+    /// The control step's output (the voltage written, the estimate, the fault).
+    pub out: StepOutput,
+    /// The force reading the step was given, N.
+    pub force: Newtons,
+}
+
 impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
     /// One control period, the body of the ISR: read the force, run the step, write
     /// the setpoint. Once a fault's ramp has reached the safe voltage the amplifier
@@ -45,7 +54,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
         st: &mut ControllerState<N, C>,
         mode: &Mode,
         x_ref: Micrometres,
-    ) -> StepOutput {
+    ) -> Tick {
         let force = self.sensor.read_force();
         let out = match mode {
             Mode::Compensated => cfg.step(st, x_ref, force),
@@ -58,7 +67,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
         } else {
             self.enable.set_high()
         };
-        out
+        Tick { out, force }
     }
 }
 
@@ -187,7 +196,8 @@ mod tests {
             let x = Micrometres::from_num(15.0 * k as f64 / 300.0);
             let f = cfg.f_f().eval(st.x_pea_est());
             bench.borrow_mut().force = f;
-            let out = hw.tick(&cfg, &mut st, &Mode::Compensated, x);
+            let Tick { out, force } = hw.tick(&cfg, &mut st, &Mode::Compensated, x);
+            assert_eq!(force, f, "the reading is reported");
             let b = bench.borrow();
             assert_eq!(b.written, Some(out.voltage));
             assert_eq!(b.enabled, Some(true));
@@ -197,7 +207,9 @@ mod tests {
         // the safe voltage is it switched off.
         bench.borrow_mut().force = Newtons::from_num(999);
         loop {
-            let out = hw.tick(&cfg, &mut st, &Mode::Compensated, Micrometres::from_num(15));
+            let out = hw
+                .tick(&cfg, &mut st, &Mode::Compensated, Micrometres::from_num(15))
+                .out;
             let b = bench.borrow();
             assert_eq!(b.written, Some(out.voltage));
             if out.voltage == cfg.safe_voltage() {

@@ -1,5 +1,6 @@
 //! The board's analog front end: how ADC counts become newtons and volts become DAC
-//! codes. The driver board and the emulated board share it.
+//! codes, and the analog reference input's channel. The driver board and the
+//! emulated board share it.
 
 use piezo_fpi::io::{AdcScale, DacScale};
 use piezo_fpi::q::Newtons;
@@ -17,3 +18,9 @@ pub const SETPOINT_DAC: DacScale = DacScale {
 };
 /// Largest code of the 12-bit ADC.
 pub const ADC_MAX: u16 = 4095;
+
+/// The analog reference input's ADC channel (`crate::reference::analog` scales it).
+pub trait AnalogIn {
+    /// The latest conversion, 12-bit counts.
+    fn read_counts(&mut self) -> u16;
+}

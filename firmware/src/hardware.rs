@@ -11,7 +11,7 @@
 use piezo_fpi::control::Interval;
 use piezo_fpi::model::image;
 use piezo_fpi::model::store::{Board, HardwareLimits, ModelStore, RuntimeController};
-use piezo_fpi::q::Volts;
+use piezo_fpi::q::{Micrometres, Volts};
 
 /// Play operators a model may have.
 pub const OPERATORS: usize = 10;
@@ -21,6 +21,14 @@ pub const CREEP_TERMS: usize = 4;
 pub const TABLE_INTERVALS: usize = 3072;
 /// Bytes of the largest model image (the room to receive one).
 pub const IMAGE_BYTES: usize = image::max_len(OPERATORS, CREEP_TERMS, TABLE_INTERVALS);
+
+/// Recorder ring: samples (28 bytes each, 14 KiB).
+pub const RECORDER_SAMPLES: usize = 512;
+/// Streamed points buffered on the board.
+pub const STREAM_POINTS: usize = 1024;
+/// Speed of the approach to a new source's entry point: 0.05 µm per tick (1 mm/s
+/// at 20 kHz; a 40 µm stroke in 40 ms).
+pub const APPROACH_STEP: Micrometres = Micrometres::from_bits(3277);
 
 /// The control rate, Hz.
 pub const RATE_HZ: u32 = 20_000;

@@ -1,5 +1,6 @@
-//! The emulated board's analog world: the ISR's sensor, DAC and enable line on one
-//! side, the virtual stage (stepped in thread mode) on the other.
+//! The emulated board's analog world: the ISR's sensor, DAC, enable line and analog
+//! reference input on one side, the virtual stage (stepped after each tick) on the
+//! other.
 
 use core::convert::Infallible;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
@@ -7,13 +8,14 @@ use embedded_hal::digital::{ErrorType, OutputPin};
 use piezo_fpi::io::{AdcScale, DacScale, ForceSensor, Hardware, Setpoint};
 use piezo_fpi::q::{Newtons, Volts};
 
-use crate::frontend::ADC_MAX;
+use crate::frontend::{AnalogIn, ADC_MAX};
 
 /// The emulated board's analog world: the ADC result the virtual stage leaves for
 /// the ISR, the DAC code and enable line the ISR leaves for the virtual stage.
 /// Atomics, because the ISR and thread mode share it.
 pub struct SimLink {
     adc_counts: AtomicU32,
+    analog_counts: AtomicU32,
     dac_code: AtomicU32,
     enabled: AtomicBool,
     /// Board scaling of the force ADC.
@@ -27,6 +29,7 @@ impl SimLink {
     pub const fn new(adc: AdcScale, dac: DacScale) -> Self {
         Self {
             adc_counts: AtomicU32::new(0),
+            analog_counts: AtomicU32::new(0),
             dac_code: AtomicU32::new(0),
             enabled: AtomicBool::new(false),
             adc,
@@ -38,6 +41,10 @@ impl SimLink {
         let c = self.adc.to_counts(force_n, ADC_MAX);
         self.adc_counts.store(c as u32, Ordering::Release);
     }
+    /// Thread mode: the analog reference input's reading from now on, ADC counts.
+    pub fn set_analog_counts(&self, counts: u16) {
+        self.analog_counts.store(counts as u32, Ordering::Release);
+    }
     /// Thread mode: the amplifier output, V (0 while disabled), and the enable line.
     pub fn output(&self) -> (f32, bool) {
         let code = self.dac_code.load(Ordering::Acquire) as u16;
@@ -45,6 +52,10 @@ impl SimLink {
             self.dac.to_voltage(code),
             self.enabled.load(Ordering::Acquire),
         )
+    }
+    /// The ISR's side of the analog reference input.
+    pub fn analog(&self) -> SimAnalog<'_> {
+        SimAnalog(self)
     }
     /// The ISR's side of the link: sensor, amplifier, enable.
     pub fn hardware(&self) -> Hardware<SimSensor<'_>, SimAmplifier<'_>, SimEnable<'_>> {
@@ -62,6 +73,14 @@ pub struct SimSensor<'a>(&'a SimLink);
 pub struct SimAmplifier<'a>(&'a SimLink);
 /// The emulated amplifier-enable line (ISR side of a [`SimLink`]).
 pub struct SimEnable<'a>(&'a SimLink);
+/// The emulated analog reference input (ISR side of a [`SimLink`]).
+pub struct SimAnalog<'a>(&'a SimLink);
+
+impl AnalogIn for SimAnalog<'_> {
+    fn read_counts(&mut self) -> u16 {
+        self.0.analog_counts.load(Ordering::Acquire) as u16
+    }
+}
 
 impl ForceSensor for SimSensor<'_> {
     fn read_force(&mut self) -> Newtons {

@@ -98,8 +98,8 @@ const NO_SPAN: Span = Span {
 /// intervals (configuration, loaded at start-up or when the board receives one).
 #[derive(Debug, Clone)]
 pub struct ModelStore<const N: usize, const C: usize, const S: usize> {
-    /// The scalars; its arrays are empty and lent by [`spec`](Self::spec).
-    base: ModelSpec<'static>,
+    /// The scalars; the arrays are lent by [`spec`](Self::spec).
+    base: Scalars,
     operators: [Operator<UmPerVolt>; N],
     n: usize,
     creep: [CreepSpec; C],
@@ -126,41 +126,56 @@ impl<const N: usize, const C: usize, const S: usize> Default for ModelStore<N, C
     }
 }
 
+/// A model's scalars as a store keeps them: all zero before an image is read,
+/// so an empty store is all zero bytes (a board's stores go to `.bss` and cost no
+/// flash for their initial value).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Scalars {
+    rate_hz: u32,
+    w0: UmPerVolt,
+    input_max: I16F16,
+    coupling: Coupling,
+    u_min: Volts,
+    u_max: Volts,
+    max_step: Volts,
+    supervision: Supervision,
+    dead_zone: bool,
+    saturation: bool,
+}
+
+const NO_SCALARS: Scalars = Scalars {
+    rate_hz: 0,
+    w0: UmPerVolt::ZERO,
+    input_max: I16F16::ZERO,
+    coupling: Coupling::paper(crate::q::VoltsPerNewton::ZERO),
+    u_min: Volts::ZERO,
+    u_max: Volts::ZERO,
+    max_step: Volts::ZERO,
+    supervision: Supervision {
+        reference: Interval {
+            lo: I16F16::ZERO,
+            hi: I16F16::ZERO,
+        },
+        force: Interval {
+            lo: I16F16::ZERO,
+            hi: I16F16::ZERO,
+        },
+        force_tolerance: I16F16::ZERO,
+        safe_voltage: I16F16::ZERO,
+        force_source: ForceSource::Measured,
+    },
+    dead_zone: false,
+    saturation: false,
+};
+
 impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
-    /// An empty store (no model).
+    /// An empty store (no model). All its bytes are zero, so a board's stores
+    /// cost no flash for their initial value (they go to `.bss`).
     pub const fn new() -> Self {
-        let empty = TableSpec {
-            x0: I16F16::ZERO,
-            shift: 0,
-            segments: &[],
-        };
-        let zero = I16F16::ZERO;
         Self {
-            base: ModelSpec {
-                rate_hz: 0,
-                w0: UmPerVolt::ZERO,
-                operators: &[],
-                input_max: zero,
-                coupling: Coupling::paper(crate::q::VoltsPerNewton::ZERO),
-                dead_zone: None,
-                saturation: None,
-                creep: &[],
-                f_f: empty,
-                f_k: empty,
-                f_k_inv: empty,
-                u_min: zero,
-                u_max: zero,
-                max_step: zero,
-                supervision: Supervision {
-                    reference: Interval { lo: zero, hi: zero },
-                    force: Interval { lo: zero, hi: zero },
-                    force_tolerance: zero,
-                    safe_voltage: zero,
-                    force_source: ForceSource::Measured,
-                },
-            },
+            base: NO_SCALARS,
             operators: [Operator {
-                threshold: zero,
+                threshold: I16F16::ZERO,
                 weight: UmPerVolt::ZERO,
             }; N],
             n: 0,
@@ -182,6 +197,7 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
 
     /// The model, borrowing the store's arrays (empty before a model is loaded).
     pub fn spec(&self) -> ModelSpec<'_> {
+        let b = &self.base;
         let table = |k: usize| {
             let s = self.spans[k];
             TableSpec {
@@ -197,14 +213,21 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             })
         };
         ModelSpec {
+            rate_hz: b.rate_hz,
+            w0: b.w0,
             operators: self.operators.get(..self.n).unwrap_or(&[]),
+            input_max: b.input_max,
+            coupling: b.coupling,
+            dead_zone: map(3, b.dead_zone),
+            saturation: map(5, b.saturation),
             creep: self.creep.get(..self.c).unwrap_or(&[]),
             f_f: table(0),
             f_k: table(1),
             f_k_inv: table(2),
-            dead_zone: map(3, self.base.dead_zone.is_some()),
-            saturation: map(5, self.base.saturation.is_some()),
-            ..self.base
+            u_min: b.u_min,
+            u_max: b.u_max,
+            max_step: b.max_step,
+            supervision: b.supervision,
         }
     }
 
@@ -274,24 +297,9 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
         } else {
             ForceSource::Measured
         };
-        // A placeholder map marks presence; the tables are lent by `spec`.
-        let present = |flag: u16| {
-            (r.flags & flag != 0).then_some(MapSpec {
-                forward: TableSpec {
-                    x0: I16F16::ZERO,
-                    shift: 0,
-                    segments: &[],
-                },
-                inverse: TableSpec {
-                    x0: I16F16::ZERO,
-                    shift: 0,
-                    segments: &[],
-                },
-            })
-        };
-        b.dead_zone = present(FLAG_DEAD_ZONE);
-        b.saturation = present(FLAG_SATURATION);
-        let (dz, sat) = (b.dead_zone.is_some(), b.saturation.is_some());
+        b.dead_zone = r.flags & FLAG_DEAD_ZONE != 0;
+        b.saturation = r.flags & FLAG_SATURATION != 0;
+        let (dz, sat) = (b.dead_zone, b.saturation);
         let mut used = 0;
         for (k, id) in ORDER.into_iter().enumerate() {
             let wanted = k < 3 || (k < 5 && dz) || (k >= 5 && sat);

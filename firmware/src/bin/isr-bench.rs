@@ -13,8 +13,8 @@
 //! (its structure in its types); models received at run time
 //! (`runtime_model_step_instructions`: the synthetic n = 10 paper FPI and the
 //! embedded model as images, loaded into the board's RAM store with its capacity of
-//! 10 operators); a whole ISR tick of the embedded model; and the stack high-water
-//! mark (painted stack).
+//! 10 operators); the board's whole control task on the runtime embedded model
+//! (`isr_tick_instructions`); and the stack high-water mark (painted stack).
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]
@@ -25,14 +25,20 @@ mod bench {
     use cortex_m_rt::entry;
     use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
     use cortex_m_semihosting::hprintln;
+    use fpi_firmware::control_loop::ControlLoop;
+    use fpi_firmware::exchange::{Exchange, Order};
     use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
     use fpi_firmware::hardware::{self, Store, BOARD};
+    use fpi_firmware::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
     use fpi_firmware::model::{self, CONTROLLER, MODEL_IMAGE};
-    use fpi_firmware::reference::RaisedCosine;
-    use fpi_firmware::runner::{Command, ControlLoop};
+    use fpi_firmware::recorder::Recorder;
+    use fpi_firmware::reference::stream::Points;
+    use fpi_firmware::reference::wave::{Shape as WaveShape, Wave, WavePhase};
+    use fpi_firmware::reference::SourceOrder;
     use fpi_firmware::sim_io::SimLink;
+    use fpi_firmware::slots::{Origin, Spare};
     use piezo_fpi::control::{
-        ControllerConfig, ControllerParts, ForceSource, Interval, Mode, Supervision,
+        ControllerConfig, ControllerParts, ForceSource, Interval, Supervision,
     };
     use piezo_fpi::fpi::{Coupling, Fpi, Identity, Shape};
     use piezo_fpi::model::{image, ModelSpec, TableSpec};
@@ -189,6 +195,17 @@ mod bench {
 
     const STEPS: u32 = 4000;
 
+    /// A raised cosine over 2–38 µm at `hz`, continuous.
+    fn full_stroke(hz: f32) -> Wave {
+        Wave {
+            shape: WaveShape::RaisedCosine,
+            offset: Micrometres::from_num(20),
+            amplitude: Micrometres::from_num(18),
+            phase_step: Wave::phase_step_for((hz * 1000.0) as u32, 20_000),
+            cycles: 0,
+        }
+    }
+
     /// Instruction counts of the nominal steps and of the slew-limited ones (which
     /// also realign the inverse memory), over a full-stroke trajectory at `hz`.
     fn measure<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>(
@@ -196,13 +213,8 @@ mod bench {
         baseline: u32,
         hz: f32,
     ) -> (Counts, Counts) {
-        let wave = RaisedCosine {
-            center: Micrometres::from_num(20),
-            amplitude: Micrometres::from_num(18),
-            phase_step: RaisedCosine::phase_step_for(hz, 20_000.0),
-            amplitude_step: Micrometres::ZERO,
-        };
-        let mut w = wave.start();
+        let wave = full_stroke(hz);
+        let mut w = WavePhase::default();
         let mut st = cfg.initial_state();
         let (mut nominal, mut limited) = (Counts::new(), Counts::new());
         // The firmware's ISR reaches its configuration through a reference held in
@@ -296,25 +308,85 @@ mod bench {
         true
     }
 
-    static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
-
-    extern "C" {
-        static mut _stack_start: u32;
-        static mut __ebss: u32;
+    /// The board's control task on the embedded model received at run time: its
+    /// instruction counts per tick.
+    fn report_tick(store: &'static mut Store, mut x: Exchange<'static>, baseline: u32) -> bool {
+        let mut spare = Spare::new(store);
+        if spare.load(MODEL_IMAGE).is_err() {
+            return false;
+        }
+        let Ok(running) = spare.activate(MODEL_IMAGE, Origin::Factory) else {
+            return false;
+        };
+        let rest = CONTROLLER.f_f().eval(Micrometres::ZERO).to_num::<f32>();
+        LINK.set_force(rest);
+        let mut lp = ControlLoop::new(running, LINK.hardware(), LINK.analog());
+        x.order = Some((1, Order::Record { decimation: 1 }));
+        lp.tick(&mut x);
+        x.order = Some((2, Order::Source(SourceOrder::Wave(full_stroke(5.0)))));
+        lp.tick(&mut x);
+        let mut c = Counts::new();
+        const PAINT: usize = 8192;
+        let sp = paint_below(PAINT);
+        for _ in 0..STEPS {
+            let t = ticks(|| {
+                let t = lp.tick(&mut x);
+                lp.record(&mut x, &t, None)
+            });
+            c.add(instructions(t, baseline));
+            // The link task reads the recorder; the sensor follows the stage.
+            while x.recorder.take().is_some() {}
+            let f = CONTROLLER.f_f().eval(lp.state().x_pea_est());
+            LINK.set_force(f.to_num::<f32>());
+        }
+        let ok = x.snapshot.fault.is_none() && x.recorder.kept() >= STEPS;
+        hprintln!(
+            "isr_tick_instructions n={}: {} (the board's control task on the runtime embedded model: order check, reference, supervision, sensor, step, DAC, enable, snapshot, recorder; min {} mean {}.{}){}",
+            model::OPERATORS,
+            c.max,
+            c.min,
+            c.mean_x10() / 10,
+            c.mean_x10() % 10,
+            if ok { "" } else { " FAILED: faulted or not recording" }
+        );
+        if let Some((f, at)) = x.snapshot.fault {
+            hprintln!("  fault at tick {}: {}", at, f.message());
+        }
+        // The tick's own stack, without the benchmark's frames above it (the
+        // measurement closure included, a few words).
+        hprintln!("isr_tick_stack_bytes: {}", depth_below(sp, PAINT));
+        ok
     }
 
-    /// Lowest stack address written since reset (cortex-m-rt's `paint-stack`
-    /// fills the stack with 0xCCCC_CCCC before `main`).
-    fn stack_used() -> u32 {
-        // SAFETY: reads the unused stack region between the statics and the stack top.
+    static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
+
+    /// Paints `bytes` of the unused stack below the current stack pointer with a
+    /// pattern; [`depth_below`] then tells how much of it a call used.
+    #[inline(never)]
+    fn paint_below(bytes: usize) -> usize {
+        let sp = cortex_m::register::msp::read() as usize;
+        // SAFETY: the region lies below the stack pointer of this function, in the
+        // stack's free space (the benchmark's statics are far below); nothing else
+        // runs (no interrupts are enabled in the benchmark).
         unsafe {
-            let top = &raw const _stack_start as usize;
-            let mut p = &raw const __ebss as usize;
-            while p < top && core::ptr::read_volatile(p as *const u32) == 0xCCCC_CCCC {
+            let mut p = sp - bytes;
+            while p < sp - 64 {
+                core::ptr::write_volatile(p as *mut u32, 0xCCCC_CCCC);
                 p += 4;
             }
-            (top - p) as u32
         }
+        sp
+    }
+
+    /// Bytes below `sp` (from [`paint_below`]) that were written since it painted.
+    #[inline(never)]
+    fn depth_below(sp: usize, bytes: usize) -> usize {
+        let mut p = sp - bytes;
+        // SAFETY: reads the region `paint_below` painted.
+        while p < sp && unsafe { core::ptr::read_volatile(p as *const u32) } == 0xCCCC_CCCC {
+            p += 4;
+        }
+        sp - p
     }
 
     #[entry]
@@ -369,9 +441,9 @@ mod bench {
 
         // Models received at run time (the board's RAM store).
         let mut runtime_ok = false;
-        let store = cortex_m::singleton!(: Store = Store::new());
+        let mut store = cortex_m::singleton!(: Store = Store::new());
         let buf = cortex_m::singleton!(: [u8; hardware::IMAGE_BYTES] = [0; hardware::IMAGE_BYTES]);
-        if let (Some(store), Some(buf)) = (store, buf) {
+        if let (Some(store), Some(buf)) = (store.as_deref_mut(), buf) {
             runtime_ok =
                 match image::encode(&spec_of_c10(), buf) {
                     Ok(len) => report_runtime(store, &buf[..len], "runtime paper FPI", baseline),
@@ -382,35 +454,22 @@ mod bench {
                 } && report_runtime(store, MODEL_IMAGE, "runtime embedded model", baseline);
         }
 
-        // The whole ISR body of the embedded model: reference, sensor, step, DAC, enable.
-        let first = Command {
-            mode: Mode::Compensated,
-            wave: RaisedCosine {
-                center: Micrometres::from_num(20),
-                amplitude: Micrometres::from_num(18),
-                phase_step: RaisedCosine::phase_step_for(5.0, model::CONTROL_RATE_HZ as f32),
-                amplitude_step: Micrometres::ZERO,
-            },
-            clear_fault: false,
+        // The board's whole control task, on the embedded model loaded at run time:
+        // order check, reference, supervision, sensor, step, DAC, enable, status
+        // snapshot, recorder (recording every tick).
+        let tick_ok = match (
+            store,
+            cortex_m::singleton!(: Recorder<RECORDER_SAMPLES> = Recorder::new()),
+            cortex_m::singleton!(: Points<STREAM_POINTS> = Points::new()),
+        ) {
+            (Some(store), Some(recorder), Some(points)) => {
+                report_tick(store, Exchange::new(recorder, points), baseline)
+            }
+            _ => false,
         };
-        LINK.set_force(60.0);
-        let mut lp = ControlLoop::new(&CONTROLLER, LINK.hardware(), first);
-        let mut c = Counts::new();
-        for _ in 0..STEPS {
-            let t = ticks(|| lp.run());
-            c.add(instructions(t, baseline));
-            // Keep the force plausible for the stage position.
-            let x = lp.state().x_pea_est();
-            LINK.set_force(CONTROLLER.f_f().eval(x).to_num::<f32>());
-        }
-        hprintln!(
-            "isr_tick_instructions n={}: {} (embedded model; reference + sensor + step + DAC + enable; min {} mean {}.{})",
-            model::OPERATORS, c.max, c.min, c.mean_x10() / 10, c.mean_x10() % 10
-        );
-        hprintln!("stack_high_water_bytes: {}", stack_used());
         // ±1: the two calibration calls may be compiled with call sequences that
         // differ by an instruction.
-        debug::exit(if nops.abs_diff(1000) <= 1 && runtime_ok {
+        debug::exit(if nops.abs_diff(1000) <= 1 && runtime_ok && tick_ok {
             EXIT_SUCCESS
         } else {
             EXIT_FAILURE

@@ -1,10 +1,13 @@
 //! Link-time proof that the control path cannot panic.
 //!
-//! This firmware only runs the embedded model's control step and the whole ISR
-//! body (`ControlLoop::run`) on opaque inputs. Its panic handler calls a function
-//! that exists nowhere, so if the optimiser leaves any panic branch reachable
-//! (an index, an overflow check, an `unwrap`, a division) the release build fails
-//! to link with `undefined symbol: control_path_can_panic`. CI builds it.
+//! This firmware runs the control task of the board on opaque inputs: the
+//! embedded model's typed control step, and the whole tick the ISR runs
+//! (`ControlLoop::tick` and the recorder) on a model loaded at run time, orders
+//! included. Its panic handler calls a function that exists nowhere, so if the
+//! optimiser leaves any panic branch reachable (an index, an overflow check, an
+//! `unwrap`, a division) the release build fails to link with
+//! `undefined symbol: control_path_can_panic`. Loading the model (the link
+//! task's work) is reachable too, so the proof covers it. CI builds it.
 //!
 //! `cargo build --release --target thumbv7em-none-eabihf -p fpi-firmware --bin no-panic --features qemu`
 #![cfg_attr(target_os = "none", no_std, no_main)]
@@ -13,39 +16,58 @@
 mod proof {
     use core::hint::black_box;
     use cortex_m_rt::entry;
+    use fpi_firmware::control_loop::ControlLoop;
+    use fpi_firmware::exchange::{Exchange, Order};
     use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
-    use fpi_firmware::model::CONTROLLER;
-    use fpi_firmware::reference::RaisedCosine;
-    use fpi_firmware::runner::{Command, ControlLoop};
+    use fpi_firmware::hardware::{Store, RECORDER_SAMPLES, STREAM_POINTS};
+    use fpi_firmware::model::{CONTROLLER, MODEL_IMAGE};
+    use fpi_firmware::recorder::Recorder;
+    use fpi_firmware::reference::stream::Points;
+    use fpi_firmware::reference::SourceOrder;
     use fpi_firmware::sim_io::SimLink;
-    use piezo_fpi::control::Mode;
+    use fpi_firmware::slots::{Origin, Spare};
     use piezo_fpi::q::{Micrometres, Newtons};
     use stm32f4xx_hal as _;
 
     static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
 
+    fn halt() -> ! {
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
     #[entry]
     fn main() -> ! {
         let cfg = black_box(&CONTROLLER);
         let mut st = cfg.initial_state();
-        let first = Command {
-            mode: black_box(Mode::Compensated),
-            wave: black_box(RaisedCosine {
-                center: Micrometres::ZERO,
-                amplitude: Micrometres::ZERO,
-                phase_step: 0,
-                amplitude_step: Micrometres::ZERO,
-            }),
-            clear_fault: false,
+        let (Some(store), Some(recorder), Some(points)) = (
+            cortex_m::singleton!(: Store = Store::new()),
+            cortex_m::singleton!(: Recorder<RECORDER_SAMPLES> = Recorder::new()),
+            cortex_m::singleton!(: Points<STREAM_POINTS> = Points::new()),
+        ) else {
+            halt()
         };
-        let mut lp = ControlLoop::new(cfg, LINK.hardware(), first);
+        let mut spare = Spare::new(store);
+        if spare.load(black_box(MODEL_IMAGE)).is_err() {
+            halt()
+        }
+        let Ok(running) = spare.activate(MODEL_IMAGE, Origin::Factory) else {
+            halt()
+        };
+        let mut x = Exchange::new(recorder, points);
+        let mut lp = ControlLoop::new(running, LINK.hardware(), LINK.analog());
         loop {
-            let x = Micrometres::from_bits(black_box(0));
+            let xr = Micrometres::from_bits(black_box(0));
             let f = Newtons::from_bits(black_box(0));
-            black_box(cfg.step(&mut st, x, f));
-            black_box(lp.run());
+            black_box(cfg.step(&mut st, xr, f));
             if black_box(false) {
-                lp.apply(black_box(first));
+                x.order = Some((1, Order::Source(black_box(SourceOrder::Analog))));
+            }
+            let t = lp.tick(&mut x);
+            black_box(lp.record(&mut x, &t, None));
+            if let Some(back) = x.returned.take() {
+                black_box(back.retire());
             }
         }
     }

@@ -5,6 +5,11 @@
 //! for `qemu-system-arm` if that is missing. QEMU always runs under a timeout.
 
 pub mod accuracy;
+pub mod client;
+pub mod emulator;
+pub mod port;
+pub mod recording;
+pub mod twin;
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -12,7 +17,6 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
-use fpi_firmware::selftest::{PhaseValues, TWIN_BOUND_UM};
 use object::{Object, ObjectSection, SectionFlags};
 
 /// The firmware's target triple.
@@ -21,10 +25,6 @@ pub const TARGET: &str = "thumbv7em-none-eabihf";
 /// The emulated STM32F405 board.
 pub const QEMU_MACHINE: &str = "netduinoplus2";
 
-/// Virtual time of the emulated demo: 1 ns per instruction, idle time skipped.
-/// Deterministic (the interleaving of interrupt and thread mode repeats exactly)
-/// and fast.
-pub const ICOUNT_DEMO: &str = "shift=0,align=off,sleep=off";
 /// Virtual time of the benchmark: 2^10 ns per instruction, so SysTick differences
 /// are exact instruction counts.
 pub const ICOUNT_BENCH: &str = "shift=10,align=off,sleep=off";
@@ -239,7 +239,7 @@ pub fn footprint(elf: &Path) -> Result<Footprint> {
         let a = s.address();
         if (0x0800_0000..0x0810_0000).contains(&a) {
             flash += s.size();
-        } else if (0x2000_0000..0x2002_0000).contains(&a) {
+        } else if (0x2000_0000..0x2003_0000).contains(&a) {
             ram += s.size();
             if s.name().ok() == Some(".data") {
                 flash += s.size(); // its initial values are copied from flash
@@ -247,46 +247,4 @@ pub fn footprint(elf: &Path) -> Result<Footprint> {
         }
     }
     Ok(Footprint { flash, ram })
-}
-
-/// The figures of every phase the emulated firmware printed (its `values` lines).
-pub fn parse_phases(stdout: &str) -> Vec<PhaseValues> {
-    stdout.lines().filter_map(PhaseValues::parse).collect()
-}
-
-/// The same figures computed on the host: the firmware's control loop and virtual
-/// stage run in a plain loop instead of interrupts.
-pub fn host_phases() -> Result<Vec<PhaseValues>> {
-    use fpi_firmware::model::{CONTROLLER, CONTROL_RATE_HZ};
-    let (reports, _) = fpi_firmware::selftest::run_on_host(&CONTROLLER, CONTROL_RATE_HZ)
-        .ok_or_else(|| anyhow!("the scripted run did not finish on the host"))?;
-    Ok(reports
-        .iter()
-        .flatten()
-        .enumerate()
-        .map(|(k, r)| PhaseValues::of(k as u8, r))
-        .collect())
-}
-
-/// The emulator's figures against the host twin's, phase by phase (events and
-/// ticks exactly, error figures within [`TWIN_BOUND_UM`]): one line per
-/// disagreement, empty if they agree.
-pub fn twin_differences(emulated: &[PhaseValues], host: &[PhaseValues]) -> Vec<String> {
-    let mut out = Vec::new();
-    if emulated.len() != host.len() {
-        out.push(format!(
-            "{} phases on the emulator, {} on the host",
-            emulated.len(),
-            host.len()
-        ));
-    }
-    for (e, h) in emulated.iter().zip(host) {
-        if let Some(what) = e.differs(h, TWIN_BOUND_UM) {
-            out.push(format!(
-                "phase {}: {what} differs\n  emulator {e:?}\n  host     {h:?}",
-                e.phase
-            ));
-        }
-    }
-    out
 }

@@ -3,36 +3,41 @@
 //! | signal | pin | peripheral |
 //! |---|---|---|
 //! | force sensor (0–3.3 V = −5…507 N) | PA0 | ADC1 channel 0 |
+//! | analog reference (0–3.3 V = the model's stroke) | PA1 | ADC2 channel 1 |
 //! | amplifier setpoint (0–3.3 V = 0–150 V) | PA4 | DAC channel 1 |
 //! | amplifier enable (high = on) | PB0 | GPIO |
+//! | host link (115 200 Bd, 8N1) | PA9 TX, PA10 RX | USART1 |
 //!
-//! The ADC conversion for tick k+1 is started at the end of tick k, so the ISR
-//! reads a finished result (a 3.4 µs conversion in a 50 µs period) instead of
-//! waiting for one. The board runs the self-test trajectory (full stroke at
-//! 5 Hz, compensated) and logs a status line every 0.1 s over RTT. A fault keeps
-//! the stage in its safe state (0 V, amplifier off) until the board is reset.
+//! The ADC conversions for tick k+1 are started at the end of tick k, so the ISR
+//! reads finished results (3.4 µs conversions in a 50 µs period) instead of
+//! waiting. The stored model lives in flash sectors 10 and 11 (reserved in
+//! `memory.x`); erasing a sector stalls instruction fetch for up to 2 s, which the
+//! firmware only does with the stage parked at its safe voltage.
 
-use cortex_m_rt::entry;
 use defmt_rtt as _;
-use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
-use fpi_firmware::model::{CONTROLLER, OPERATORS};
-use fpi_firmware::reference::RaisedCosine;
-use fpi_firmware::runner::{nm, Command, Telemetry};
-use heapless::spsc::Queue;
+use fpi_firmware::control_loop::ControlLoop;
+use fpi_firmware::exchange::Exchange;
+use fpi_firmware::frontend::{AnalogIn, FORCE_ADC, SETPOINT_DAC};
+use fpi_firmware::link::protocol::BoardKind;
+use fpi_firmware::slots::Running;
+use fpi_firmware::storage::{ModelFlash, BOARD_SLOTS};
 use panic_probe as _;
-use piezo_fpi::control::Mode;
 use piezo_fpi::io::{ForceSensor, Hardware, Setpoint};
-use piezo_fpi::q::{Micrometres, Newtons, Volts};
+use piezo_fpi::q::{Newtons, Volts};
 use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime, Sequence};
 use stm32f4xx_hal::adc::Adc;
 use stm32f4xx_hal::dac::{DacOut, DacPin, C1};
-use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA0, PB0};
-use stm32f4xx_hal::pac::{self, ADC1};
+use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
+use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA0, PA1, PB0};
+use stm32f4xx_hal::pac::{self, ADC1, ADC2, USART1};
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
-use stm32f4xx_hal::timer::Event;
+use stm32f4xx_hal::serial::{Event, Serial};
 
-use crate::isr::{self, Isr, RATE_HZ, TELEMETRY_DEPTH};
+/// Which board this is.
+pub const KIND: BoardKind = BoardKind::Driver;
+/// The core clock SysTick counts, Hz.
+pub const CORE_HZ: u32 = 168_000_000;
 
 /// The force sensor on ADC1/PA0.
 pub struct Sensor {
@@ -48,6 +53,36 @@ impl ForceSensor for Sensor {
     }
 }
 
+/// The analog reference input on ADC2/PA1, driven through its registers: the
+/// HAL's `Adc::new` only takes ADC1 (its calibration needs ADC1's VREF channel).
+pub struct Reference {
+    adc: ADC2,
+    _pin: PA1<Analog>,
+}
+
+impl Reference {
+    /// ADC2 converting channel 1 (56-cycle sample time) on software start, the
+    /// first conversion started.
+    fn new(adc: ADC2, pin: PA1<Analog>, rcc: &mut stm32f4xx_hal::rcc::Rcc) -> Self {
+        <ADC2 as stm32f4xx_hal::rcc::Enable>::enable(rcc);
+        <ADC2 as stm32f4xx_hal::rcc::Reset>::reset(rcc);
+        adc.smpr2().modify(|_, w| w.smp1().cycles56());
+        // SAFETY: channel 1 is one of ADC2's channels (0–18).
+        adc.sqr3().write(|w| unsafe { w.sq1().bits(1) });
+        adc.cr2().modify(|_, w| w.adon().set_bit());
+        adc.cr2().modify(|_, w| w.swstart().set_bit());
+        Self { adc, _pin: pin }
+    }
+}
+
+impl AnalogIn for Reference {
+    fn read_counts(&mut self) -> u16 {
+        let counts = self.adc.dr().read().data().bits();
+        self.adc.cr2().modify(|_, w| w.swstart().set_bit());
+        counts
+    }
+}
+
 /// The amplifier setpoint on DAC channel 1 (PA4).
 pub struct Amplifier(C1);
 
@@ -60,97 +95,108 @@ impl Setpoint for Amplifier {
 /// The amplifier's enable line.
 pub type Enable = PB0<Output<PushPull>>;
 
-crate::bind_tim2!(Sensor, Amplifier, Enable);
+/// The model's flash sectors: each erase or write unlocks the flash only for
+/// its own duration.
+pub struct Flash(LockedFlash);
 
-#[entry]
-fn main() -> ! {
-    let (Some(dp), Some(_cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
-        defmt::panic!("peripherals taken twice");
-    };
+impl embedded_storage::nor_flash::ErrorType for Flash {
+    type Error = stm32f4xx_hal::flash::Error;
+}
+
+impl embedded_storage::nor_flash::ReadNorFlash for Flash {
+    const READ_SIZE: usize = 1;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        embedded_storage::nor_flash::ReadNorFlash::read(&mut self.0, offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        embedded_storage::nor_flash::ReadNorFlash::capacity(&self.0)
+    }
+}
+
+impl embedded_storage::nor_flash::NorFlash for Flash {
+    const WRITE_SIZE: usize = 1;
+    const ERASE_SIZE: usize = 128 * 1024;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        embedded_storage::nor_flash::NorFlash::erase(&mut self.0.unlocked(), from, to)
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        embedded_storage::nor_flash::NorFlash::write(&mut self.0.unlocked(), offset, bytes)
+    }
+}
+
+/// The control task's hardware: the loop on the board's converters.
+pub struct TickIo {
+    control: ControlLoop<Sensor, Amplifier, Enable, Reference>,
+}
+
+impl TickIo {
+    /// One period.
+    #[inline]
+    pub fn tick(&mut self, x: &mut Exchange<'_>) {
+        let t = self.control.tick(x);
+        self.control.record(x, &t, None);
+    }
+}
+
+/// What `init` hands on to the control task.
+pub struct Io {
+    hw: Hardware<Sensor, Amplifier, Enable>,
+    reference: Reference,
+}
+
+impl Io {
+    /// The control task's hardware, running `model`.
+    pub fn tick(self, model: Running) -> TickIo {
+        TickIo {
+            control: ControlLoop::new(model, self.hw, self.reference),
+        }
+    }
+}
+
+/// Sets up the board: 168 MHz, converters with their first conversions done,
+/// amplifier off at 0 V, USART1 with its receive interrupt, the flash store.
+pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
     let mut rcc = dp.RCC.freeze(Config::hse(8.MHz()).sysclk(168.MHz()));
     let gpioa = dp.GPIOA.split(&mut rcc);
     let gpiob = dp.GPIOB.split(&mut rcc);
 
     let mut enable = gpiob.pb0.into_push_pull_output();
     enable.set_low();
-
-    let pa0 = gpioa.pa0.into_analog();
-    let mut adc = Adc::new(dp.ADC1, true, AdcConfig::default(), &mut rcc);
-    adc.configure_channel(&pa0, Sequence::One, SampleTime::Cycles_56);
-    adc.enable();
-    // One conversion before the first tick, so the first reading is real.
-    let _ = adc.convert(&pa0, SampleTime::Cycles_56);
-    adc.start_conversion();
-
     let mut dac = dp.DAC.constrain(gpioa.pa4.into_analog(), &mut rcc);
     dac.enable();
     dac.set_value(0);
 
-    defmt::info!(
-        "fpi-firmware: {=usize} operators, control ISR at {=u32} Hz, sysclk {=u32} Hz",
-        OPERATORS,
-        RATE_HZ,
-        rcc.clocks.sysclk().raw()
-    );
+    let pa0 = gpioa.pa0.into_analog();
+    let mut adc1 = Adc::<ADC1>::new(dp.ADC1, true, AdcConfig::default(), &mut rcc);
+    adc1.configure_channel(&pa0, Sequence::One, SampleTime::Cycles_56);
+    adc1.enable();
+    let _ = adc1.convert(&pa0, SampleTime::Cycles_56);
+    adc1.start_conversion();
 
-    let queue: &'static mut Queue<Telemetry, TELEMETRY_DEPTH> = match cortex_m::singleton!(: Queue<Telemetry, TELEMETRY_DEPTH> = Queue::new())
-    {
-        Some(q) => q,
-        None => defmt::panic!("telemetry queue taken twice"),
+    let reference = Reference::new(dp.ADC2, gpioa.pa1.into_analog(), &mut rcc);
+
+    let Ok(mut serial) = Serial::new(dp.USART1, (gpioa.pa9, gpioa.pa10), 115_200.bps(), &mut rcc)
+    else {
+        halt("USART1 configuration")
     };
-    let (producer, mut consumer) = queue.split();
+    serial.listen(Event::RxNotEmpty);
 
-    let self_test = Command {
-        mode: Mode::Compensated,
-        wave: RaisedCosine {
-            center: Micrometres::from_num(20),
-            amplitude: Micrometres::from_num(18),
-            phase_step: RaisedCosine::phase_step_for(5.0, RATE_HZ as f32),
-            amplitude_step: Micrometres::ZERO,
+    let flash = ModelFlash::new(Flash(LockedFlash::new(dp.FLASH)), BOARD_SLOTS);
+    let io = Io {
+        hw: Hardware {
+            sensor: Sensor {
+                adc: adc1,
+                _pin: pa0,
+            },
+            amplifier: Amplifier(dac),
+            enable,
         },
-        clear_fault: false,
+        reference,
     };
-    let hw = Hardware {
-        sensor: Sensor { adc, _pin: pa0 },
-        amplifier: Amplifier(dac),
-        enable,
-    };
-    let mut timer = dp.TIM2.counter_hz(&mut rcc);
-    if timer.start(RATE_HZ.Hz()).is_err() {
-        defmt::panic!("TIM2 cannot run at {=u32} Hz", RATE_HZ);
-    }
-    timer.listen(Event::Update);
-    start(Isr {
-        control: isr::Loop::new(&CONTROLLER, hw, self_test),
-        timer,
-        telemetry: producer,
-    });
+    (flash, serial, io)
+}
 
-    let mut last_fault = None;
-    loop {
-        let Some(t) = consumer.dequeue() else {
-            cortex_m::asm::wfi();
-            continue;
-        };
-        if t.fault != last_fault {
-            if let Some(f) = t.fault {
-                defmt::error!(
-                    "FAULT at tick {=u32}: {=str}; ramping to the safe voltage, then amplifier off. Reset to re-arm.",
-                    t.step,
-                    f.message()
-                );
-            }
-            last_fault = t.fault;
-        }
-        if t.step % (RATE_HZ / 10) == 0 {
-            say!(
-                "tick {} ref {} nm est {} nm setpoint {} mV dropped {}",
-                t.step,
-                nm(t.x_ref.to_num::<f32>()),
-                nm(CONTROLLER.stage_position(t.x_pea_est).to_num::<f32>()),
-                nm(t.voltage.to_num::<f32>()),
-                isr::dropped()
-            );
-        }
-    }
+/// Stops with the amplifier off, saying why over RTT.
+pub fn halt(what: &str) -> ! {
+    defmt::panic!("fpi-firmware: cannot start: {=str}", what)
 }

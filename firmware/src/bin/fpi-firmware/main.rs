@@ -1,37 +1,205 @@
-//! Firmware of the STM32F405 piezo driver board: FPI hysteresis compensation in a
-//! timer ISR.
+//! Firmware of the STM32F405 piezo driver board: FPI hysteresis compensation in
+//! the control interrupt, a command link on USART1, a data recorder and model
+//! upload — one RTIC application for the board and the emulated board.
 //!
-//! * Board build (`cargo fw`): 168 MHz from the HSE crystal, TIM2 interrupts at the
-//!   model's control rate (20 kHz), force sensor on ADC1/PA0, amplifier setpoint on
-//!   DAC1/PA4, amplifier enable on PB0, defmt logs over RTT.
-//! * Emulated build (`cargo qemu`, feature `qemu`): the same ISR on QEMU's
-//!   `netduinoplus2` (an STM32F405 memory map). QEMU models no PLL, DAC or analog
-//!   world, so the clock stays on the 16 MHz HSI and the ADC/DAC are replaced by
-//!   the core's virtual stage, stepped in thread mode between interrupts. Plain
-//!   text over semihosting; the exit status says whether the self-checks passed.
+//! | task | priority | runs |
+//! |---|---|---|
+//! | `control` (SysTick, 20 kHz) | 3 | one control tick: order, reference, sensor, step, DAC, recorder |
+//! | `usart1` (USART1 RX) | 2 | moves received bytes into a queue |
+//! | `idle` (link task) | 0 | frames, commands, replies, model loading, flash |
+//!
+//! The control task and the link task share one [`Exchange`], which the control
+//! task reaches without a lock (it is the highest-priority user) and the link
+//! task locks briefly; a new model reaches the control task by value
+//! ([`fpi_firmware::slots`]). So parsing, validation and flash writes never delay
+//! a tick, as in quartiq's Stabilizer, where settings are rebuilt at low priority
+//! and swapped in.
+//!
+//! * Board build (`cargo fw`): 168 MHz from the 8 MHz HSE crystal; force sensor on
+//!   ADC1/PA0, analog reference on ADC2/PA1, amplifier setpoint on DAC1/PA4,
+//!   amplifier enable on PB0, link on USART1 (PA9 TX, PA10 RX, 115 200 Bd),
+//!   stored model in flash sectors 10/11, defmt logs over RTT.
+//! * Emulated build (feature `qemu`, run by `fpi board emulate`): the same
+//!   application on QEMU's `netduinoplus2` (an STM32F405 memory map) with USART1
+//!   bridged to a TCP port. QEMU models no PLL, DAC, analog world or flash
+//!   programming, so the clock stays on the 16 MHz HSI, the ADCs and DAC are the
+//!   virtual stage's ([`fpi_firmware::emulated`]) and the model store is
+//!   RAM-backed.
 //!
 //! On the host this binary only explains how to build it.
+//!
+//! [`Exchange`]: fpi_firmware::exchange::Exchange
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]
 #[macro_use]
 mod log;
 
-#[cfg(target_os = "none")]
-mod isr;
-
 #[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod board;
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
+use board as io;
 
 #[cfg(all(target_os = "none", feature = "qemu"))]
 mod emulated;
+#[cfg(all(target_os = "none", feature = "qemu"))]
+use emulated as io;
+
+#[cfg(target_os = "none")]
+#[rtic::app(device = stm32f4xx_hal::pac, peripherals = true)]
+mod app {
+    use cortex_m::peripheral::syst::SystClkSource;
+    use embedded_hal_nb::serial::Read as _;
+    use embedded_io::Write as _;
+    use fpi_firmware::exchange::Exchange;
+    use fpi_firmware::hardware::{Store, IMAGE_BYTES, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS};
+    use fpi_firmware::link::frame::{FrameReader, Push};
+    use fpi_firmware::link::handler::{Board, Handler};
+    use fpi_firmware::link::protocol::MAX_FRAME;
+    use fpi_firmware::model::MODEL_IMAGE;
+    use fpi_firmware::recorder::Recorder;
+    use fpi_firmware::reference::stream::Points;
+    use fpi_firmware::slots::Spare;
+    use heapless::spsc::{Consumer, Producer, Queue};
+    use rtic::Mutex;
+    use stm32f4xx_hal::pac::USART1;
+    use stm32f4xx_hal::serial::{Rx, Tx};
+
+    use super::io;
+
+    /// Received bytes between the USART interrupt and the link task.
+    const RX_QUEUE: usize = 2048;
+
+    #[shared]
+    struct Shared {
+        exchange: Exchange<'static>,
+    }
+
+    #[local]
+    struct Local {
+        tick: io::TickIo,
+        rx: Rx<USART1>,
+        rx_in: Producer<'static, u8>,
+        rx_out: Consumer<'static, u8>,
+        tx: Tx<USART1>,
+        handler: Handler<io::Flash>,
+    }
+
+    #[init(local = [
+        store_a: Store = Store::new(),
+        store_b: Store = Store::new(),
+        image: [u8; IMAGE_BYTES] = [0; IMAGE_BYTES],
+        recorder: Recorder<RECORDER_SAMPLES> = Recorder::new(),
+        points: Points<STREAM_POINTS> = Points::new(),
+        rx_queue: Queue<u8, RX_QUEUE> = Queue::new(),
+    ])]
+    fn init(cx: init::Context) -> (Shared, Local) {
+        let (flash, serial, board) = io::init(cx.device);
+        let stores = [Spare::new(cx.local.store_a), Spare::new(cx.local.store_b)];
+        let Some((handler, running)) =
+            Handler::boot(io::KIND, stores, cx.local.image, flash, MODEL_IMAGE)
+        else {
+            io::halt("the factory model does not load")
+        };
+        let summary = *running.summary();
+        say!(
+            "fpi-firmware: control at {} Hz, model crc {} ({} operators), link on USART1",
+            RATE_HZ,
+            summary.crc,
+            summary.shape.operators as u32
+        );
+        let tick = board.tick(running);
+
+        let mut syst = cx.core.SYST;
+        syst.set_clock_source(SystClkSource::Core);
+        syst.set_reload(io::CORE_HZ / RATE_HZ - 1);
+        syst.clear_current();
+        syst.enable_counter();
+        syst.enable_interrupt();
+
+        let (rx_in, rx_out) = cx.local.rx_queue.split();
+        let (tx, rx) = serial.split();
+        (
+            Shared {
+                exchange: Exchange::new(cx.local.recorder, cx.local.points),
+            },
+            Local {
+                tick,
+                rx,
+                rx_in,
+                rx_out,
+                tx,
+                handler,
+            },
+        )
+    }
+
+    /// The control tick. Deadline: one period (50 µs); `cargo isr-bench` counts
+    /// its instructions.
+    #[task(binds = SysTick, priority = 3, local = [tick], shared = [exchange])]
+    fn control(mut cx: control::Context) {
+        let tick = cx.local.tick;
+        cx.shared.exchange.lock(|x| tick.tick(x));
+    }
+
+    /// Received bytes into the queue (dropped, and then seen as a malformed frame,
+    /// if the link task has fallen 2 KiB behind).
+    #[task(binds = USART1, priority = 2, local = [rx, rx_in])]
+    fn usart1(cx: usart1::Context) {
+        while let Ok(b) = cx.local.rx.read() {
+            let _ = cx.local.rx_in.enqueue(b);
+        }
+    }
+
+    /// The link task: frames in, replies out.
+    #[idle(
+        local = [
+            rx_out, tx, handler,
+            reader: FrameReader<MAX_FRAME> = FrameReader::new(),
+            scratch: [u8; MAX_FRAME] = [0; MAX_FRAME],
+            out: [u8; MAX_FRAME] = [0; MAX_FRAME],
+        ],
+        shared = [exchange]
+    )]
+    fn idle(cx: idle::Context) -> ! {
+        let l = cx.local;
+        let mut board = Link(cx.shared.exchange);
+        loop {
+            let Some(b) = l.rx_out.dequeue() else {
+                cortex_m::asm::wfi();
+                continue;
+            };
+            let n = match l.reader.push(b) {
+                Push::Pending => continue,
+                Push::Frame => l
+                    .handler
+                    .handle(&mut board, l.reader.frame(), l.scratch, l.out),
+                Push::Overlong => l.handler.overlong(l.scratch, l.out),
+            };
+            // A write error leaves the host without a reply; it times out and retries.
+            let _ = l.tx.write_all(l.out.get(..n).unwrap_or(&[]));
+        }
+    }
+
+    /// The handler's view of the board: the exchange behind the RTIC lock.
+    struct Link<M>(M);
+
+    impl<M: Mutex<T = Exchange<'static>>> Board for Link<M> {
+        fn exchange<R>(&mut self, f: impl FnOnce(&mut Exchange<'_>) -> R) -> R {
+            self.0.lock(|x| f(x))
+        }
+        fn wait(&mut self) {
+            cortex_m::asm::wfi();
+        }
+    }
+}
 
 #[cfg(not(target_os = "none"))]
 fn main() {
     eprintln!(
         "fpi-firmware runs on the STM32F405 driver board or on the emulated board:\n  \
-         cargo fw      build and flash the board (probe-rs)\n  \
-         cargo qemu    run it on QEMU's netduinoplus2\n\
+         cargo fw                  build and flash the board (probe-rs)\n  \
+         fpi board emulate         run it on QEMU's netduinoplus2, link on a TCP port\n\
          The host tools live in tests-host (cargo run -p fpi-host --bin fpi)."
     );
     std::process::exit(2);

@@ -1,0 +1,401 @@
+//! The control ISR's whole job, hardware-independent: take an order, generate the
+//! reference, supervise the link, run one control tick, report.
+//!
+//! The board's control task owns a [`ControlLoop`] and calls [`ControlLoop::tick`]
+//! once per period with the [`Exchange`] it shares with the link task, then
+//! [`ControlLoop::record`] (the emulated board first steps its virtual stage, so
+//! the recording carries the true position too). The host's twin of the emulated
+//! board calls the same two functions in a plain loop.
+//!
+//! **Parked.** At start-up, after a model change, after a `safe` order and after a
+//! fault is cleared, the stage is *parked*: [`Fault::Stopped`] is latched, so the
+//! output sits at the safe voltage with the amplifier off. The next source order
+//! re-arms the loop and the reference approaches the new source from where the
+//! stage rests, so no order ever makes the stage jump. Any other fault must be
+//! cleared before the stage moves again.
+
+use embedded_hal::digital::OutputPin;
+use piezo_fpi::control::{ControllerState, Fault, Mode};
+use piezo_fpi::io::{ForceSensor, Hardware, Setpoint, Tick};
+use piezo_fpi::q::{Micrometres, Newtons, Volts};
+
+use crate::exchange::{Applied, Exchange, Order, Refused, Snapshot};
+use crate::frontend::AnalogIn;
+use crate::hardware::{Controller, APPROACH_STEP, CREEP_TERMS, OPERATORS, RATE_HZ};
+
+/// Heartbeat timeout a stream gets when the host has configured none: 0.5 s.
+pub const STREAM_TIMEOUT_TICKS: u32 = RATE_HZ / 2;
+use crate::recorder::{status, Sample, NO_TRUE_POSITION};
+use crate::reference::analog::AnalogInput;
+use crate::reference::{Reference, SourceKind, SourceOrder};
+use crate::slots::Running;
+
+/// What one tick did (for the recorder and the emulated board's virtual stage).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Telemetry {
+    /// Tick number since start-up.
+    pub tick: u32,
+    /// Reference, µm.
+    pub x_ref: Micrometres,
+    /// Setpoint written, V.
+    pub voltage: Volts,
+    /// Force read, N.
+    pub force: Newtons,
+    /// Estimated stage position, µm.
+    pub x_est: Micrometres,
+    /// [`status`] bits.
+    pub status: u8,
+}
+
+impl Telemetry {
+    /// The amplifier is enabled after this tick.
+    pub const fn amplifier_on(&self) -> bool {
+        self.status & status::AMPLIFIER_ON != 0
+    }
+
+    /// The recorder's sample of this tick, with the stage's true position where the
+    /// board knows it (the emulated board's virtual stage).
+    #[inline]
+    pub fn sample(&self, x_true: Option<Micrometres>) -> Sample {
+        Sample {
+            tick: self.tick,
+            x_ref: self.x_ref.to_bits(),
+            voltage: self.voltage.to_bits(),
+            force: self.force.to_bits(),
+            x_est: self.x_est.to_bits(),
+            x_true: x_true.map_or(NO_TRUE_POSITION, |v| v.to_bits()),
+            status: self.status,
+        }
+    }
+}
+
+/// The control ISR's state (one per stage channel); `S`, `A`, `E`, `R`: the force
+/// sensor, the amplifier, its enable line and the analog reference input.
+pub struct ControlLoop<S, A, E, R> {
+    model: Running,
+    state: ControllerState<OPERATORS, CREEP_TERMS>,
+    hw: Hardware<S, A, E>,
+    analog_in: R,
+    reference: Reference,
+    compensated: bool,
+    timeout: u32,
+    silent: u32,
+    last_heartbeat: u32,
+    tick: u32,
+    fault_at: Option<(Fault, u32)>,
+    safe_at: Option<u32>,
+    underruns: u32,
+    force: Newtons,
+}
+
+/// Where a parked stage rests on the stroke: `f_K` of the estimate, inside the
+/// model's reference window.
+fn rest_position(
+    cfg: &Controller<'_>,
+    st: &ControllerState<OPERATORS, CREEP_TERMS>,
+) -> Micrometres {
+    let r = cfg.reference();
+    cfg.stage_position(st.x_pea_est()).max(r.lo).min(r.hi)
+}
+
+impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E, R> {
+    /// A parked loop running `model`. Reads the force once and takes it as the
+    /// compliance term's reference force (the stage is at rest now).
+    pub fn new(model: Running, mut hw: Hardware<S, A, E>, analog_in: R) -> Self {
+        let force = hw.sensor.read_force();
+        let (state, reference) = Self::parked(&model, force);
+        Self {
+            model,
+            state,
+            hw,
+            analog_in,
+            reference,
+            compensated: true,
+            timeout: 0,
+            silent: 0,
+            last_heartbeat: 0,
+            tick: 0,
+            fault_at: Some((Fault::Stopped, 0)),
+            safe_at: None,
+            underruns: 0,
+            force,
+        }
+    }
+
+    /// A fresh controller state for `model`, tared and parked, and its reference.
+    fn parked(
+        model: &Running,
+        force: Newtons,
+    ) -> (ControllerState<OPERATORS, CREEP_TERMS>, Reference) {
+        let cfg = model.get();
+        let mut state = cfg.initial_state();
+        cfg.tare(&mut state, force);
+        state.trip(Fault::Stopped);
+        let analog = AnalogInput::over(cfg.reference());
+        let reference = Reference::new(rest_position(cfg, &state), APPROACH_STEP, analog);
+        (state, reference)
+    }
+
+    /// One control period. Bounded time, no panic.
+    #[inline]
+    pub fn tick(&mut self, x: &mut Exchange<'_>) -> Telemetry {
+        if x.order.is_some() {
+            self.take_order(x);
+        }
+        self.supervise(x.heartbeats);
+        let counts = if self.reference.wants_analog() {
+            self.analog_in.read_counts()
+        } else {
+            0
+        };
+        let x_ref = match self.reference.next(x.points, counts) {
+            Ok(r) => r,
+            Err(_) => {
+                self.trip(Fault::ReferenceInput);
+                self.reference.position()
+            }
+        };
+        let cfg = self.model.get();
+        let mode = if self.compensated {
+            Mode::Compensated
+        } else {
+            Mode::Uncompensated(self.model.summary().baseline)
+        };
+        let Tick { out, force } = self.hw.tick(cfg, &mut self.state, &mode, x_ref);
+        let t = Telemetry {
+            tick: self.tick,
+            x_ref,
+            voltage: out.voltage,
+            force,
+            x_est: cfg.stage_position(out.x_pea_est),
+            status: self.status(out.limited, out.fault, out.voltage == cfg.safe_voltage()),
+        };
+        if let Some(f) = out.fault {
+            self.reference.freeze();
+            if self.fault_at.is_none() {
+                self.fault_at = Some((f, self.tick));
+            }
+            if self.safe_at.is_none() && out.voltage == cfg.safe_voltage() {
+                self.safe_at = Some(self.tick);
+            }
+        }
+        self.underruns = self
+            .underruns
+            .wrapping_add(self.reference.underrun() as u32);
+        self.force = force;
+        self.snapshot(&mut x.snapshot, &t);
+        self.tick = self.tick.wrapping_add(1);
+        t
+    }
+
+    /// Offers this tick to the recorder, with the stage's true position where the
+    /// board knows it (the emulated board's virtual stage); the sample.
+    #[inline]
+    pub fn record(
+        &self,
+        x: &mut Exchange<'_>,
+        t: &Telemetry,
+        x_true: Option<Micrometres>,
+    ) -> Sample {
+        let s = t.sample(x_true);
+        x.recorder.offer(&s);
+        s
+    }
+
+    /// The number the next tick will have.
+    pub const fn next_tick(&self) -> u32 {
+        self.tick
+    }
+
+    /// The model running now.
+    pub const fn model(&self) -> &Running {
+        &self.model
+    }
+
+    /// The controller's memory (for diagnostics).
+    pub const fn state(&self) -> &ControllerState<OPERATORS, CREEP_TERMS> {
+        &self.state
+    }
+
+    fn status(&self, limited: bool, fault: Option<Fault>, at_safe: bool) -> u8 {
+        let mut s = 0;
+        if fault.is_some() {
+            s |= status::FAULT;
+        }
+        if !(fault.is_some() && at_safe) {
+            s |= status::AMPLIFIER_ON;
+        }
+        if limited {
+            s |= status::LIMITED;
+        }
+        if self.reference.underrun() {
+            s |= status::UNDERRUN;
+        }
+        if !self.compensated {
+            s |= status::UNCOMPENSATED;
+        }
+        if self.reference.approaching() {
+            s |= status::APPROACHING;
+        }
+        s
+    }
+
+    fn snapshot(&self, s: &mut Snapshot, t: &Telemetry) {
+        *s = Snapshot {
+            tick: t.tick,
+            x_ref: t.x_ref,
+            x_est: t.x_est,
+            voltage: t.voltage,
+            force: t.force,
+            fault: self.state.fault().and(self.fault_at),
+            safe_at: self.safe_at,
+            amplifier_on: t.amplifier_on(),
+            source: self.reference.kind(),
+            approaching: self.reference.approaching(),
+            compensated: self.compensated,
+            timeout_ticks: self.timeout,
+            silent_ticks: self.silent,
+            underruns: self.underruns,
+            limited_steps: self.state.limited_steps(),
+        };
+    }
+
+    /// Latches `fault` and stops the reference where it is.
+    fn trip(&mut self, fault: Fault) {
+        self.state.trip(fault);
+        self.reference.freeze();
+    }
+
+    /// Counts silent ticks; trips [`Fault::LinkLost`] when the host, driving the
+    /// stage, has been silent for longer than the timeout.
+    #[inline]
+    fn supervise(&mut self, heartbeats: u32) {
+        if heartbeats != self.last_heartbeat {
+            self.last_heartbeat = heartbeats;
+            self.silent = 0;
+        } else {
+            self.silent = self.silent.saturating_add(1);
+        }
+        if self.timeout != 0
+            && self.silent > self.timeout
+            && self.state.fault().is_none()
+            && self.reference.kind() != SourceKind::Analog
+        {
+            self.trip(Fault::LinkLost);
+        }
+    }
+
+    /// Applies the pending order. Out of line: an order (a model swap carries a
+    /// whole controller) needs a stack frame the ordinary tick does not.
+    #[inline(never)]
+    #[cold]
+    fn take_order(&mut self, x: &mut Exchange<'_>) {
+        if let Some((seq, order)) = x.order.take() {
+            let result = self.apply(order, x);
+            x.applied = Some(Applied {
+                seq,
+                tick: self.tick,
+                result,
+            });
+        }
+    }
+
+    fn apply(&mut self, order: Order, x: &mut Exchange<'_>) -> Result<(), Refused> {
+        match order {
+            Order::Source(s) => {
+                self.arm()?;
+                if matches!(s, SourceOrder::Stream { .. }) {
+                    self.underruns = 0;
+                    // A stream is always supervised.
+                    if self.timeout == 0 {
+                        self.timeout = STREAM_TIMEOUT_TICKS;
+                        self.silent = 0;
+                    }
+                }
+                self.reference.select(s);
+                Ok(())
+            }
+            Order::Drive { compensated } => {
+                self.compensated = compensated;
+                Ok(())
+            }
+            Order::Safe => {
+                self.trip(Fault::Stopped);
+                Ok(())
+            }
+            Order::ClearFault => self.clear(),
+            Order::Supervise { timeout_ticks } => {
+                self.timeout = timeout_ticks;
+                self.silent = 0;
+                Ok(())
+            }
+            Order::Record { decimation } => {
+                x.recorder.start(decimation);
+                Ok(())
+            }
+            Order::StopRecording => {
+                x.recorder.stop();
+                Ok(())
+            }
+            Order::Swap(new) => self.swap(new, x),
+            Order::Bench(_) => Ok(()),
+        }
+    }
+
+    /// The output is at the safe voltage.
+    fn at_safe_voltage(&self) -> bool {
+        self.state.voltage() == self.model.get().safe_voltage()
+    }
+
+    /// Leaves the parked state for a source order.
+    #[inline(never)]
+    fn arm(&mut self) -> Result<(), Refused> {
+        match self.state.fault() {
+            None => Ok(()),
+            Some(Fault::Stopped) if self.at_safe_voltage() => {
+                let cfg = self.model.get();
+                self.state.clear_fault(cfg);
+                let rest = rest_position(cfg, &self.state);
+                self.reference
+                    .reset(rest, AnalogInput::over(cfg.reference()));
+                self.fault_at = None;
+                self.safe_at = None;
+                Ok(())
+            }
+            Some(Fault::Stopped) => Err(Refused::StillRamping),
+            Some(f) => Err(Refused::Fault(f)),
+        }
+    }
+
+    /// Clears a fault into the parked state.
+    fn clear(&mut self) -> Result<(), Refused> {
+        if self.state.fault().is_none() {
+            return Ok(());
+        }
+        if !self.at_safe_voltage() {
+            return Err(Refused::StillRamping);
+        }
+        self.state.clear_fault(self.model.get());
+        self.state.trip(Fault::Stopped);
+        self.fault_at = Some((Fault::Stopped, self.tick));
+        self.safe_at = Some(self.tick);
+        Ok(())
+    }
+
+    /// Runs `new` from this tick on if the stage is parked at the safe voltage;
+    /// the model it replaces (or `new`, refused) goes back to the link task.
+    #[inline(never)]
+    fn swap(&mut self, new: Running, x: &mut Exchange<'_>) -> Result<(), Refused> {
+        if self.state.fault().is_none() || !self.at_safe_voltage() {
+            x.returned = Some(new);
+            return Err(Refused::NotAtRest);
+        }
+        let (state, reference) = Self::parked(&new, self.force);
+        x.returned = Some(core::mem::replace(&mut self.model, new));
+        self.state = state;
+        self.reference = reference;
+        self.fault_at = Some((Fault::Stopped, self.tick));
+        self.safe_at = Some(self.tick);
+        Ok(())
+    }
+}

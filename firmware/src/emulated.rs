@@ -1,0 +1,583 @@
+//! The emulated board's virtual bench: the virtual stage (`piezo_sim::stage`,
+//! stage A) behind the [`SimLink`], stepped after every control tick, with the
+//! fault injection a test needs (an open or stuck force sensor, the analog input's
+//! reading).
+//!
+//! [`tick`] is one period of the emulated board: bench orders, the control loop,
+//! the virtual stage, the recorder. The QEMU firmware's control task calls it; the
+//! host's twin calls the same function in a plain loop with the same orders at the
+//! same ticks, and so reproduces a recording bit for bit (fixed-point core, IEEE
+//! `f32` virtual stage with `libm` on both, seeded sensor noise).
+
+use embedded_hal::digital::OutputPin;
+use piezo_fpi::io::{ForceSensor, Setpoint};
+use piezo_fpi::q::Micrometres;
+use piezo_sim::stage::{stage_a, Stage};
+
+use embedded_storage::nor_flash::NorFlash;
+
+use crate::control_loop::ControlLoop;
+use crate::exchange::{Applied, Exchange, Order};
+use crate::frontend::AnalogIn;
+use crate::hardware::{Store, IMAGE_BYTES};
+use crate::link::handler::{Board, Handler};
+use crate::link::protocol::{BenchOrder, BoardKind};
+use crate::model::MODEL_IMAGE;
+use crate::recorder::Sample;
+use crate::sim_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor};
+use crate::slots::Spare;
+use crate::storage::{ModelFlash, RamFlash, Slots};
+
+/// Sensor reading of a broken wire: the ADC's top rail through the board's scale (N).
+pub const BROKEN_WIRE_N: f32 = 500.0;
+/// Seed of the virtual sensor's noise.
+pub const SEED: u32 = 0x5EED;
+/// Bytes of one of the emulated board's flash slots (a model image and its header).
+pub const FLASH_SLOT: usize = 13_056;
+/// The emulated board's flash: two slots in RAM (QEMU cannot program its flash).
+pub type EmulatedFlash = RamFlash<{ 2 * FLASH_SLOT }, FLASH_SLOT>;
+/// Where the two slots lie in [`EmulatedFlash`].
+pub const FLASH_SLOTS: Slots = Slots {
+    a: 0,
+    b: FLASH_SLOT as u32,
+    len: FLASH_SLOT as u32,
+};
+
+/// The virtual stage and the faults injected into its sensor (state).
+pub struct Bench {
+    stage: Stage<'static>,
+    sensor_open: bool,
+    stuck: Option<f32>,
+    force: f32,
+}
+
+impl Bench {
+    /// Stage A at rest; `None` if its built-in parameters do not make a model.
+    pub fn new() -> Option<Self> {
+        let stage = Stage::new(&stage_a::PARAMS, SEED)?;
+        let force = stage.rest_force();
+        Some(Self {
+            stage,
+            sensor_open: false,
+            stuck: None,
+            force,
+        })
+    }
+
+    /// Leaves the first force reading (the stage at rest) on the link.
+    pub fn prime(&mut self, link: &SimLink) {
+        let f = self.stage.sense_force(self.force);
+        link.set_force(f);
+    }
+
+    /// Carries out a bench order.
+    pub fn apply(&mut self, order: BenchOrder, link: &SimLink) {
+        match order {
+            BenchOrder::SensorOpen(open) => self.sensor_open = open,
+            BenchOrder::SensorStuck(stuck) => {
+                self.stuck = stuck.then_some(self.force);
+            }
+            BenchOrder::Analog(counts) => link.set_analog_counts(counts),
+        }
+    }
+
+    /// Steps the stage with the amplifier's output (0 V while it is disabled) and
+    /// leaves the next force reading on the link; the stage's true position, µm.
+    pub fn after_tick(&mut self, link: &SimLink) -> Micrometres {
+        let (voltage, on) = link.output();
+        let s = self.stage.step(if on { voltage } else { 0.0 });
+        let sensed = self.stage.sense_force(s.force_n);
+        let reading = match (self.sensor_open, self.stuck) {
+            (true, _) => BROKEN_WIRE_N,
+            (false, Some(f)) => f,
+            (false, None) => sensed,
+        };
+        self.force = reading;
+        link.set_force(reading);
+        Micrometres::from_num(s.x_fhps_um)
+    }
+}
+
+/// One period of the emulated board: a pending bench order, the control tick, the
+/// virtual stage, the recorder (with the true position); the tick's sample.
+pub fn tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
+    lp: &mut ControlLoop<S, A, E, R>,
+    bench: &mut Bench,
+    link: &SimLink,
+    x: &mut Exchange<'_>,
+) -> Sample {
+    if let Some((seq, Order::Bench(b))) = x.order {
+        x.order = None;
+        bench.apply(b, link);
+        x.applied = Some(Applied {
+            seq,
+            tick: lp.next_tick(),
+            result: Ok(()),
+        });
+    }
+    let t = lp.tick(x);
+    let x_true = bench.after_tick(link);
+    lp.record(x, &t, Some(x_true))
+}
+
+/// The control loop of the emulated board (its I/O is the [`SimLink`]).
+pub type Loop =
+    ControlLoop<SimSensor<'static>, SimAmplifier<'static>, SimEnable<'static>, SimAnalog<'static>>;
+
+/// The emulated board in one thread: the control loop, the bench and the exchange,
+/// advanced one tick whenever the link handler waits. The host runs it as the
+/// twin of the QEMU board, and tests drive its handler without QEMU.
+pub struct Virtual {
+    /// The virtual analog world.
+    pub link: &'static SimLink,
+    /// The control loop.
+    pub control: Loop,
+    /// The virtual stage.
+    pub bench: Bench,
+    /// What the loop shares with the link handler.
+    pub exchange: Exchange<'static>,
+}
+
+impl Virtual {
+    /// Boots the emulated board as the firmware does: the newest model in `flash`
+    /// or the factory default, a parked loop, the stage at rest. The handler that
+    /// serves its link comes with it.
+    pub fn boot<F: NorFlash>(
+        link: &'static SimLink,
+        stores: [&'static mut Store; 2],
+        image: &'static mut [u8; IMAGE_BYTES],
+        exchange: Exchange<'static>,
+        flash: ModelFlash<F>,
+    ) -> Option<(Self, Handler<F>)> {
+        let [a, b] = stores;
+        let (handler, running) = Handler::boot(
+            BoardKind::Emulated,
+            [Spare::new(a), Spare::new(b)],
+            image,
+            flash,
+            MODEL_IMAGE,
+        )?;
+        let mut bench = Bench::new()?;
+        bench.prime(link);
+        let control = ControlLoop::new(running, link.hardware(), link.analog());
+        Some((
+            Self {
+                link,
+                control,
+                bench,
+                exchange,
+            },
+            handler,
+        ))
+    }
+
+    /// One period; its sample.
+    pub fn tick(&mut self) -> Sample {
+        tick(
+            &mut self.control,
+            &mut self.bench,
+            self.link,
+            &mut self.exchange,
+        )
+    }
+}
+
+impl Board for Virtual {
+    fn exchange<T>(&mut self, f: impl FnOnce(&mut Exchange<'_>) -> T) -> T {
+        f(&mut self.exchange)
+    }
+    fn wait(&mut self) {
+        self.tick();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frontend::{FORCE_ADC, SETPOINT_DAC};
+    use crate::link::frame;
+    use crate::link::protocol::{
+        Command, Header, Refusal, Reply, ReplyHeader, Status, MAX_CHUNK, MAX_FRAME, NO_SEQ, VERSION,
+    };
+    use crate::recorder::{signal, Recorder};
+    use crate::reference::stream::Points;
+    use crate::reference::wave::Shape;
+    use piezo_fpi::control::Fault;
+
+    type Flash = EmulatedFlash;
+
+    struct Host {
+        board: Virtual,
+        handler: Handler<Flash>,
+        seq: u16,
+    }
+
+    fn leak<T>(v: T) -> &'static mut T {
+        Box::leak(Box::new(v))
+    }
+
+    fn host() -> Host {
+        let link = leak(SimLink::new(FORCE_ADC, SETPOINT_DAC));
+        let flash = ModelFlash::new(Flash::new(), FLASH_SLOTS);
+        let (board, handler) = Virtual::boot(
+            link,
+            [leak(Store::new()), leak(Store::new())],
+            leak([0; IMAGE_BYTES]),
+            Exchange::new(leak(Recorder::new()), leak(Points::new())),
+            flash,
+        )
+        .unwrap();
+        Host {
+            board,
+            handler,
+            seq: 0,
+        }
+    }
+
+    impl Host {
+        fn raw(&mut self, frame_bytes: &mut [u8]) -> (ReplyHeader, Reply) {
+            let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
+            let n = self
+                .handler
+                .handle(&mut self.board, frame_bytes, &mut scratch, &mut out);
+            assert!(n > 0 && out[n - 1] == 0);
+            let (h, body) = frame::decode::<ReplyHeader>(&mut out[..n - 1]).unwrap();
+            (h, frame::body::<Reply>(body, 7).unwrap())
+        }
+
+        fn send(&mut self, cmd: Command<'_>) -> Reply {
+            self.exchange(cmd).1
+        }
+
+        fn exchange(&mut self, cmd: Command<'_>) -> (u32, Reply) {
+            self.seq += 1;
+            let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
+            let h = Header {
+                version: VERSION,
+                seq: self.seq,
+            };
+            let n = frame::encode(&h, &cmd, &mut scratch, &mut out).unwrap();
+            let (back, reply) = self.raw(&mut out[..n - 1]);
+            assert_eq!(back.seq, self.seq, "the reply echoes the request");
+            (back.tick, reply)
+        }
+
+        fn ack(&mut self, cmd: Command<'_>) -> u32 {
+            match self.exchange(cmd) {
+                (tick, Reply::Ack) => tick,
+                (_, r) => panic!("not acknowledged: {r:?}"),
+            }
+        }
+
+        fn refused(&mut self, cmd: Command<'_>) -> Refusal {
+            match self.send(cmd) {
+                Reply::Refused { code, .. } => code,
+                r => panic!("not refused: {r:?}"),
+            }
+        }
+
+        fn status(&mut self) -> Status {
+            match self.send(Command::Status) {
+                Reply::Status(s) => s,
+                r => panic!("{r:?}"),
+            }
+        }
+
+        fn run(&mut self, ticks: u32) {
+            for _ in 0..ticks {
+                self.board.tick();
+            }
+        }
+    }
+
+    fn um(x: f64) -> i32 {
+        (x * 65536.0).round() as i32
+    }
+
+    #[test]
+    fn the_board_boots_parked_and_moves_without_a_jump() {
+        let mut h = host();
+        h.run(10);
+        let s = h.status();
+        assert_eq!(
+            s.fault.map(|f| f.code),
+            Some(Fault::Stopped as u8),
+            "parked"
+        );
+        assert!(!s.amplifier_on);
+        let t0 = h.ack(Command::Move {
+            target: um(20.0),
+            speed: um(1000.0),
+        });
+        assert!(t0 > 0);
+        h.run(1000);
+        let s = h.status();
+        assert_eq!(s.fault, None, "armed by the move");
+        assert_eq!(s.signals[0], um(20.0));
+        // The estimate follows within a few nm after settling.
+        assert!((s.signals[1] - um(20.0)).abs() < um(0.05), "{s:?}");
+    }
+
+    #[test]
+    fn targets_outside_the_stroke_and_bad_arguments_are_refused() {
+        let mut h = host();
+        assert_eq!(
+            h.refused(Command::Move {
+                target: um(500.0),
+                speed: um(100.0)
+            }),
+            Refusal::OutOfRange
+        );
+        assert_eq!(
+            h.refused(Command::Move {
+                target: um(5.0),
+                speed: 0
+            }),
+            Refusal::BadArgument
+        );
+        let wave = |freq_mhz, amplitude| Command::Wave {
+            shape: Shape::Sine,
+            offset: um(20.0),
+            amplitude,
+            freq_mhz,
+            cycles: 1,
+        };
+        assert_eq!(h.refused(wave(15_000, um(30.0))), Refusal::OutOfRange);
+        assert_eq!(h.refused(wave(10_000_000, um(1.0))), Refusal::BadArgument);
+        h.ack(Command::Bench(BenchOrder::Analog(1)));
+    }
+
+    fn upload(h: &mut Host, image: &[u8], store: bool) -> Reply {
+        let crc = piezo_fpi::model::image::CRC32.checksum(image);
+        h.ack(Command::ModelBegin {
+            len: image.len() as u32,
+            crc,
+        });
+        for (k, chunk) in image.chunks(MAX_CHUNK).enumerate() {
+            h.ack(Command::ModelChunk {
+                offset: (k * MAX_CHUNK) as u32,
+                data: chunk,
+            });
+        }
+        h.send(Command::ModelCommit { store })
+    }
+
+    #[test]
+    fn a_model_is_uploaded_validated_swapped_at_rest_and_stored() {
+        let mut h = host();
+        h.run(5);
+        let before = h.status().model_crc;
+        // A corrupted model (a weight made negative, the CRC recomputed so only the
+        // validator can catch it) is refused by key and the old model kept.
+        let mut bad = MODEL_IMAGE.to_vec();
+        let w0 = piezo_fpi::model::image::HEADER_LEN + 4;
+        bad[w0..w0 + 4].copy_from_slice(&(-1i32).to_le_bytes());
+        let body = piezo_fpi::model::image::CRC32.checksum(&bad[16..]);
+        bad[12..16].copy_from_slice(&body.to_le_bytes());
+        match upload(&mut h, &bad, true) {
+            Reply::Refused { code, reason } => {
+                assert_eq!(code, Refusal::Model);
+                assert!(reason.starts_with("pi."), "names the key: {reason}");
+            }
+            r => panic!("{r:?}"),
+        }
+        assert_eq!(h.status().model_crc, before);
+        // While the stage moves, a good model is refused too.
+        h.ack(Command::Move {
+            target: um(10.0),
+            speed: um(1000.0),
+        });
+        h.run(200);
+        assert!(matches!(
+            upload(&mut h, MODEL_IMAGE, false),
+            Reply::Refused {
+                code: Refusal::NotAtRest,
+                ..
+            }
+        ));
+        // Parked, it is taken, and stored.
+        h.ack(Command::Safe);
+        h.run(400);
+        assert!(matches!(upload(&mut h, MODEL_IMAGE, true), Reply::Ack));
+        match h.send(Command::ModelInfo) {
+            Reply::Model(m) => {
+                assert_eq!(m.crc, piezo_fpi::model::image::CRC32.checksum(MODEL_IMAGE));
+                assert_eq!(m.origin, crate::slots::Origin::Received);
+                assert_eq!(m.stored.map(|s| s.0), Some(1));
+            }
+            r => panic!("{r:?}"),
+        }
+        // Out-of-order chunks are refused.
+        h.ack(Command::ModelBegin { len: 100, crc: 0 });
+        assert_eq!(
+            h.refused(Command::ModelChunk {
+                offset: 50,
+                data: &[1, 2]
+            }),
+            Refusal::Upload
+        );
+        assert_eq!(
+            h.refused(Command::ModelCommit { store: false }),
+            Refusal::Upload
+        );
+    }
+
+    #[test]
+    fn garbage_truncated_and_wrong_crc_frames_are_refused_and_counted() {
+        let mut h = host();
+        h.run(5);
+        let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
+        let hd = Header {
+            version: VERSION,
+            seq: 77,
+        };
+        let n = frame::encode(&hd, &Command::Hello, &mut scratch, &mut out).unwrap();
+        let good = out[..n - 1].to_vec();
+        let mut bad_crc = good.clone();
+        bad_crc[2] ^= 0x10;
+        let mut cut = good[..good.len() - 2].to_vec();
+        let mut garbage = vec![0x55u8; 40];
+        for f in [&mut bad_crc, &mut cut, &mut garbage] {
+            let (head, reply) = h.raw(f);
+            assert_eq!(head.seq, NO_SEQ);
+            assert!(
+                matches!(
+                    reply,
+                    Reply::Refused {
+                        code: Refusal::Malformed,
+                        ..
+                    }
+                ),
+                "{reply:?}"
+            );
+        }
+        // An unknown command, a wrong version.
+        let n = frame::encode(&hd, &99u8, &mut scratch, &mut out).unwrap();
+        let (head, reply) = h.raw(&mut out[..n - 1]);
+        assert_eq!(head.seq, 77);
+        assert!(matches!(
+            reply,
+            Reply::Refused {
+                code: Refusal::Unknown,
+                ..
+            }
+        ));
+        let old = Header {
+            version: 0,
+            seq: 78,
+        };
+        let n = frame::encode(&old, &Command::Hello, &mut scratch, &mut out).unwrap();
+        assert!(matches!(
+            h.raw(&mut out[..n - 1]).1,
+            Reply::Refused {
+                code: Refusal::Version,
+                ..
+            }
+        ));
+        match h.send(Command::Counters) {
+            Reply::Counters(c) => {
+                assert_eq!(
+                    (c.malformed, c.crc_errors, c.unknown, c.version),
+                    (3, 1, 1, 1)
+                );
+                assert_eq!(c.refused, 5);
+            }
+            r => panic!("{r:?}"),
+        }
+    }
+
+    #[test]
+    fn a_recording_reads_back_with_its_ticks_and_drops_are_counted() {
+        let mut h = host();
+        h.run(5);
+        h.ack(Command::Record {
+            decimation: 4,
+            signals: signal::X_REF | signal::X_TRUE,
+        });
+        h.ack(Command::Move {
+            target: um(5.0),
+            speed: um(2000.0),
+        });
+        h.run(2000);
+        let mut ticks = Vec::new();
+        loop {
+            match h.send(Command::ReadRecord { max: 1000 }) {
+                Reply::Record(b) => {
+                    assert_eq!(b.values.len() % 3, 0);
+                    ticks.extend(b.values.chunks(3).map(|c| c[0] as u32));
+                    if b.waiting == 0 {
+                        assert_eq!(b.dropped, 0);
+                        break;
+                    }
+                }
+                r => panic!("{r:?}"),
+            }
+        }
+        assert!(ticks.len() > 400);
+        assert!(
+            ticks.windows(2).all(|w| w[1] - w[0] == 4),
+            "every 4th tick, none lost"
+        );
+        // Not read for long enough, the ring fills and the rest is counted as dropped.
+        h.run(4 * crate::hardware::RECORDER_SAMPLES as u32 + 400);
+        let s = h.status();
+        assert_eq!(s.recorder[3], crate::hardware::RECORDER_SAMPLES as u32);
+        assert!(s.recorder[2] >= 90, "dropped: {:?}", s.recorder);
+    }
+
+    #[test]
+    fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
+        let mut h = host();
+        h.run(5);
+        let points: heapless::Vec<i32, 64> = (0..64).map(|k| um(2.0 + 0.05 * k as f64)).collect();
+        h.ack(Command::Points { first: 0, points });
+        assert_eq!(
+            h.refused(Command::Points {
+                first: 5,
+                points: heapless::Vec::new()
+            }),
+            Refusal::Stream
+        );
+        h.ack(Command::Supervise { timeout_ms: 50 });
+        h.ack(Command::Stream { interval: 10 });
+        // 64 points × 10 ticks, then underruns; no request for 50 ms = 1000 ticks.
+        h.run(1200);
+        let s = h.status();
+        assert!(s.stream[3] > 0, "underruns counted: {:?}", s.stream);
+        let f = s.fault.unwrap();
+        assert_eq!(f.code, Fault::LinkLost as u8);
+        let safe_at = f.safe_at.unwrap();
+        assert!(safe_at > f.at && safe_at - f.at < 100, "{f:?}");
+        // A fault must be cleared before the stage moves again.
+        assert_eq!(
+            h.refused(Command::Move {
+                target: um(5.0),
+                speed: um(100.0)
+            }),
+            Refusal::Fault
+        );
+        h.ack(Command::ClearFault);
+        h.ack(Command::Move {
+            target: um(5.0),
+            speed: um(100.0),
+        });
+    }
+
+    #[test]
+    fn an_open_force_sensor_parks_the_stage_and_the_analog_input_drives_it() {
+        let mut h = host();
+        h.run(5);
+        h.ack(Command::Bench(BenchOrder::Analog(2048)));
+        h.ack(Command::Analog);
+        h.run(3000);
+        let s = h.status();
+        assert_eq!(s.fault, None);
+        let x = s.signals[0] as f64 / 65536.0;
+        assert!(x > 15.0 && x < 25.0, "mid-scale: {x}");
+        h.ack(Command::Bench(BenchOrder::SensorOpen(true)));
+        h.run(200);
+        let f = h.status().fault.unwrap();
+        assert_eq!(f.code, Fault::ForceOutOfRange as u8);
+        assert!(f.safe_at.is_some());
+    }
+}

@@ -1,0 +1,179 @@
+//! What the control ISR and the link task share: one order at a time in, its
+//! outcome and a status snapshot out, the recorder's ring and the streamed points.
+//!
+//! The board keeps one [`Exchange`] in a static and shares it as an RTIC resource:
+//! the ISR, the highest-priority task using it, reaches it for free; the link task
+//! locks it for the few microseconds it needs to post an order, read the status,
+//! take a batch of samples or append points. The link task never holds the lock
+//! while it parses or sends a frame.
+
+use piezo_fpi::control::Fault;
+use piezo_fpi::q::{Micrometres, Newtons, Volts};
+
+use crate::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
+use crate::link::protocol::BenchOrder;
+use crate::recorder::Recorder;
+use crate::reference::stream::Points;
+use crate::reference::{SourceKind, SourceOrder};
+use crate::slots::Running;
+
+/// What the link task asks of the control ISR; applied at the start of a tick.
+// A model swap carries a whole controller; there is no heap to box it in, and one
+// order is moved once.
+#[allow(clippy::large_enum_variant)]
+pub enum Order {
+    /// Switch the reference source (re-arms a stage parked by [`Fault::Stopped`]).
+    Source(SourceOrder),
+    /// Inverse FPI (`true`) or the straight-line baseline (`false`).
+    Drive {
+        /// Compensated.
+        compensated: bool,
+    },
+    /// Park the stage: ramp to the safe voltage, amplifier off ([`Fault::Stopped`]).
+    Safe,
+    /// Clear a latched fault (once the output is at the safe voltage).
+    ClearFault,
+    /// Trip [`Fault::LinkLost`] after this many ticks without a heartbeat while the
+    /// host drives the stage; 0 switches the supervision off.
+    Supervise {
+        /// Timeout, ticks.
+        timeout_ticks: u32,
+    },
+    /// Start recording every `decimation`-th tick.
+    Record {
+        /// Keep one tick in this many.
+        decimation: u16,
+    },
+    /// Stop recording.
+    StopRecording,
+    /// Run this model from now on (only with the stage at rest in its safe state).
+    Swap(Running),
+    /// An order for the emulated board's virtual bench (taken by the emulated
+    /// board before the loop sees it; the loop ignores it).
+    Bench(BenchOrder),
+}
+
+/// Why the ISR did not carry out an order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refused {
+    /// A fault other than a parked stage is latched: clear it first.
+    Fault(Fault),
+    /// The output has not reached the safe voltage yet.
+    StillRamping,
+    /// A new model needs the stage parked at the safe voltage.
+    NotAtRest,
+}
+
+/// The outcome of the last order: which, when, and whether it was carried out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Applied {
+    /// The order's sequence number (the link's request number).
+    pub seq: u16,
+    /// The tick at whose start it was applied.
+    pub tick: u32,
+    /// Carried out, or why not.
+    pub result: Result<(), Refused>,
+}
+
+/// The loop's state, refreshed by the ISR every tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Snapshot {
+    /// Ticks since start-up.
+    pub tick: u32,
+    /// Reference, µm.
+    pub x_ref: Micrometres,
+    /// Estimated stage position, µm.
+    pub x_est: Micrometres,
+    /// Setpoint, V.
+    pub voltage: Volts,
+    /// Force reading, N.
+    pub force: Newtons,
+    /// The latched fault, with the tick it latched at.
+    pub fault: Option<(Fault, u32)>,
+    /// Tick at which the output reached the safe voltage after the fault.
+    pub safe_at: Option<u32>,
+    /// Amplifier enabled.
+    pub amplifier_on: bool,
+    /// The reference's source.
+    pub source: SourceKind,
+    /// The reference is ramping to a new source's entry point.
+    pub approaching: bool,
+    /// Inverse FPI (else the straight-line baseline).
+    pub compensated: bool,
+    /// Heartbeat timeout, ticks (0: not supervised).
+    pub timeout_ticks: u32,
+    /// Ticks since the last heartbeat.
+    pub silent_ticks: u32,
+    /// Ticks a stream spent holding for want of points.
+    pub underruns: u32,
+    /// Ticks in which the output limits bit.
+    pub limited_steps: u32,
+}
+
+impl Snapshot {
+    /// The state at start-up, before the first tick (all zero, so the board's
+    /// exchange costs no flash for its initial value).
+    pub const fn new() -> Self {
+        Self {
+            tick: 0,
+            x_ref: Micrometres::ZERO,
+            x_est: Micrometres::ZERO,
+            voltage: Volts::ZERO,
+            force: Newtons::ZERO,
+            fault: None,
+            safe_at: None,
+            amplifier_on: false,
+            source: SourceKind::Hold,
+            approaching: false,
+            compensated: false,
+            timeout_ticks: 0,
+            silent_ticks: 0,
+            underruns: 0,
+            limited_steps: 0,
+        }
+    }
+}
+
+impl Default for Snapshot {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Everything the ISR and the link task share. The recorder's ring and the stream
+/// buffer are statics of their own (all zero, so they cost no flash), lent here.
+pub struct Exchange<'a> {
+    /// The next order and its sequence number (link → ISR).
+    pub order: Option<(u16, Order)>,
+    /// The outcome of the last order (ISR → link).
+    pub applied: Option<Applied>,
+    /// A model the ISR is done with: the one it ran before a swap, or a new one it
+    /// would not take (ISR → link).
+    pub returned: Option<Running>,
+    /// Heartbeats the link task has counted (every valid request is one).
+    pub heartbeats: u32,
+    /// The loop's state (ISR → link).
+    pub snapshot: Snapshot,
+    /// The data recorder (ISR fills, link empties).
+    pub recorder: &'a mut Recorder<RECORDER_SAMPLES>,
+    /// The streamed trajectory (link fills, ISR empties).
+    pub points: &'a mut Points<STREAM_POINTS>,
+}
+
+impl<'a> Exchange<'a> {
+    /// Nothing ordered yet, around an empty recorder and stream buffer.
+    pub fn new(
+        recorder: &'a mut Recorder<RECORDER_SAMPLES>,
+        points: &'a mut Points<STREAM_POINTS>,
+    ) -> Self {
+        Self {
+            order: None,
+            applied: None,
+            returned: None,
+            heartbeats: 0,
+            snapshot: Snapshot::new(),
+            recorder,
+            points,
+        }
+    }
+}

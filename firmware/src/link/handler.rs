@@ -1,0 +1,752 @@
+//! The link task's command handler: reads a request, checks it against the running
+//! model and the board, turns it into an [`Order`] for the control ISR or answers
+//! it from the shared state, and writes the reply.
+//!
+//! It runs at the lowest priority (the board's idle loop), so parsing, validation,
+//! model loading and flash writes never delay a control tick. It reaches the ISR
+//! only through the [`Exchange`], briefly locked, and waits for an order to be
+//! applied (one tick) so every acknowledgement carries the tick at which it took
+//! effect. Everything a request carries is checked here before the ISR sees it:
+//! positions against the model's stroke, frequencies against the control rate,
+//! upload steps against their order, models against the shared validator.
+
+use core::fmt::Write as _;
+
+use embedded_storage::nor_flash::NorFlash;
+use heapless::Vec;
+use piezo_fpi::control::Fault;
+use piezo_fpi::model::image::CRC32;
+use piezo_fpi::q::Micrometres;
+
+use super::frame::{self, FrameError};
+use super::protocol::{
+    Batch, BoardKind, Command, Counters, FaultReport, Header, Hello, ModelReport, Refusal, Reply,
+    ReplyHeader, Status, Text, COMMAND_KINDS, MAX_FRAME, MAX_VALUES, NO_SEQ, VERSION,
+};
+use crate::exchange::{Exchange, Order, Refused};
+use crate::hardware::{
+    BOARD, CREEP_TERMS, IMAGE_BYTES, OPERATORS, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS,
+    TABLE_INTERVALS,
+};
+use crate::recorder::{signal, Sample};
+use crate::reference::wave::Wave;
+use crate::reference::SourceOrder;
+use crate::slots::{Origin, Running, Spare, Summary};
+use crate::storage::{ModelFlash, Stored};
+
+/// What the handler needs from the board it runs on.
+pub trait Board {
+    /// Runs `f` with the exchange locked (the control ISR waits meanwhile).
+    fn exchange<R>(&mut self, f: impl FnOnce(&mut Exchange<'_>) -> R) -> R;
+    /// Waits a little: at least until the next control tick has run.
+    fn wait(&mut self);
+}
+
+/// Ticks the handler waits for an order to be applied before giving up.
+const APPLY_TIMEOUT_WAITS: u32 = 100_000;
+/// Fastest move, µm/s (a 40 µm stroke in 1.3 ms; the top of the `I16F16` range).
+const MAX_SPEED_UM_S: i64 = 30_000;
+
+/// A request refused: its code and reason.
+type Refuse = (Refusal, Text);
+
+fn refuse(code: Refusal, args: core::fmt::Arguments<'_>) -> Refuse {
+    let mut t = Text::new();
+    // A reason longer than the text is cut; the code still says what happened.
+    let _ = t.write_fmt(args);
+    (code, t)
+}
+
+/// µm (or V, N) with three decimals, for reasons.
+struct Milli(i32);
+
+impl core::fmt::Display for Milli {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let m = (self.0 as i64 * 1000 + (1 << 15)).div_euclid(1 << 16);
+        let sign = if m < 0 { "-" } else { "" };
+        write!(f, "{sign}{}.{:03}", m.abs() / 1000, m.abs() % 1000)
+    }
+}
+
+/// A model being received.
+struct Upload {
+    image: &'static mut [u8; IMAGE_BYTES],
+    expected: Option<(usize, u32)>,
+    received: usize,
+}
+
+/// The link task's state (its configuration is the board kind and the flash).
+pub struct Handler<F> {
+    kind: BoardKind,
+    summary: Summary,
+    spare: Option<Spare>,
+    upload: Upload,
+    flash: ModelFlash<F>,
+    stored: Option<Stored>,
+    signals: u8,
+    timeout_ms: u32,
+    counters: Counters,
+    /// The tick of the request being handled (see [`ReplyHeader::tick`]).
+    tick: Option<u32>,
+}
+
+impl<F: NorFlash> Handler<F> {
+    /// Starts the board's model: the newest valid model in flash, else the factory
+    /// default `factory`. Returns the handler (holding the other store as its spare)
+    /// and the running model for the control loop. `None` only if not even the
+    /// factory image loads (a firmware built with a model that does not fit).
+    pub fn boot(
+        kind: BoardKind,
+        stores: [Spare; 2],
+        image: &'static mut [u8; IMAGE_BYTES],
+        mut flash: ModelFlash<F>,
+        factory: &[u8],
+    ) -> Option<(Self, Running)> {
+        let [a, spare] = stores;
+        let stored = flash.newest().ok().flatten();
+        let (running, stored) = match Self::stored(a, &mut flash, stored, image) {
+            Ok(r) => (r, stored),
+            Err(mut a) => {
+                a.load(factory).ok()?;
+                (a.activate(factory, Origin::Factory).ok()?, None)
+            }
+        };
+        let handler = Self {
+            kind,
+            summary: *running.summary(),
+            spare: Some(spare),
+            upload: Upload {
+                image,
+                expected: None,
+                received: 0,
+            },
+            flash,
+            stored,
+            signals: signal::ALL,
+            timeout_ms: 0,
+            counters: Counters::default(),
+            tick: None,
+        };
+        Some((handler, running))
+    }
+
+    /// The stored model `s`, read into `image` and loaded into `a`; `a` back if it
+    /// is missing or does not load.
+    fn stored(
+        mut a: Spare,
+        flash: &mut ModelFlash<F>,
+        s: Option<Stored>,
+        image: &mut [u8; IMAGE_BYTES],
+    ) -> Result<Running, Spare> {
+        let Some(s) = s else { return Err(a) };
+        let Ok(n) = flash.read(&s, image) else {
+            return Err(a);
+        };
+        let img = image.get(..n).unwrap_or(&[]);
+        if a.load(img).is_err() {
+            return Err(a);
+        }
+        a.activate(img, Origin::Stored(s.generation))
+            .map_err(|(back, _)| back)
+    }
+
+    /// The link's counters.
+    pub const fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    /// The running model's summary.
+    pub const fn summary(&self) -> &Summary {
+        &self.summary
+    }
+
+    /// Counts a frame the reader dropped for being longer than the buffer and
+    /// writes the refusal into `out`; its length.
+    pub fn overlong(&mut self, scratch: &mut [u8], out: &mut [u8]) -> usize {
+        self.counters.overlong = self.counters.overlong.wrapping_add(1);
+        self.counters.malformed = self.counters.malformed.wrapping_add(1);
+        self.counters.refused = self.counters.refused.wrapping_add(1);
+        let reply = Reply::Refused {
+            code: Refusal::Malformed,
+            reason: refuse(
+                Refusal::Malformed,
+                format_args!("frame longer than {MAX_FRAME} bytes"),
+            )
+            .1,
+        };
+        let header = ReplyHeader {
+            version: VERSION,
+            seq: NO_SEQ,
+            tick: 0,
+        };
+        frame::encode(&header, &reply, scratch, out).unwrap_or(0)
+    }
+
+    /// Handles one received frame (decoded in place) and writes the reply frame
+    /// into `out` (`scratch` is working space); the reply's length.
+    pub fn handle(
+        &mut self,
+        board: &mut impl Board,
+        request: &mut [u8],
+        scratch: &mut [u8],
+        out: &mut [u8],
+    ) -> usize {
+        self.tick = None;
+        let (seq, reply) = match frame::decode::<Header>(request) {
+            Ok((h, _)) if h.version != VERSION => {
+                self.counters.version = self.counters.version.wrapping_add(1);
+                let reason = format_args!(
+                    "protocol {} requested, this firmware speaks {VERSION}",
+                    h.version
+                );
+                (h.seq, Err(refuse(Refusal::Version, reason)))
+            }
+            Ok((h, body)) => match frame::body::<Command<'_>>(body, COMMAND_KINDS) {
+                Ok(cmd) => {
+                    self.counters.requests = self.counters.requests.wrapping_add(1);
+                    let reply = self.command(board, h.seq, cmd);
+                    if self.tick.is_none() {
+                        // Refused before it reached the exchange: still a heartbeat.
+                        self.locked(board, |_| ());
+                    }
+                    (h.seq, reply)
+                }
+                Err(e) => (h.seq, Err(self.unreadable(e))),
+            },
+            Err(e) => (NO_SEQ, Err(self.unreadable(e))),
+        };
+        let reply = reply.unwrap_or_else(|(code, reason)| {
+            self.counters.refused = self.counters.refused.wrapping_add(1);
+            Reply::Refused { code, reason }
+        });
+        let tick = match self.tick {
+            Some(t) => t,
+            None => board.exchange(|x| x.snapshot.tick.wrapping_add(1)),
+        };
+        let header = ReplyHeader {
+            version: VERSION,
+            seq,
+            tick,
+        };
+        frame::encode(&header, &reply, scratch, out).unwrap_or(0)
+    }
+
+    /// Runs `f` on the exchange and counts the request as a heartbeat in the same
+    /// lock; the request's tick is the next one (the first to see its effect).
+    fn locked<R>(&mut self, board: &mut impl Board, f: impl FnOnce(&mut Exchange<'_>) -> R) -> R {
+        let (r, tick) = board.exchange(|x| {
+            x.heartbeats = x.heartbeats.wrapping_add(1);
+            (f(x), x.snapshot.tick.wrapping_add(1))
+        });
+        self.tick = Some(tick);
+        r
+    }
+
+    fn unreadable(&mut self, e: FrameError) -> Refuse {
+        let c = &mut self.counters;
+        match e {
+            FrameError::UnknownKind => c.unknown = c.unknown.wrapping_add(1),
+            FrameError::Crc => {
+                c.crc_errors = c.crc_errors.wrapping_add(1);
+                c.malformed = c.malformed.wrapping_add(1);
+            }
+            _ => c.malformed = c.malformed.wrapping_add(1),
+        }
+        refuse(e.refusal(), format_args!("{}", e.message()))
+    }
+
+    fn command(
+        &mut self,
+        board: &mut impl Board,
+        seq: u16,
+        cmd: Command<'_>,
+    ) -> Result<Reply, Refuse> {
+        match cmd {
+            Command::Hello => self.ack(board).map(|_| Reply::Hello(self.hello())),
+            Command::Status => {
+                let summary = self.summary;
+                Ok(Reply::Status(self.locked(board, |x| status(x, &summary))))
+            }
+            Command::Ping => self.ack(board),
+            Command::Move { target, speed } => {
+                let target = self.in_stroke("target", target)?;
+                if speed <= 0 || speed as i64 > MAX_SPEED_UM_S << 16 {
+                    return Err(refuse(
+                        Refusal::BadArgument,
+                        format_args!("speed {} µm/s outside 0–{MAX_SPEED_UM_S}", Milli(speed)),
+                    ));
+                }
+                let step = Micrometres::from_bits((speed / RATE_HZ as i32).max(1));
+                self.order(
+                    board,
+                    seq,
+                    Order::Source(SourceOrder::Move { target, step }),
+                )
+            }
+            Command::Wave {
+                shape,
+                offset,
+                amplitude,
+                freq_mhz,
+                cycles,
+            } => {
+                let wave = self.wave(shape, offset, amplitude, freq_mhz, cycles)?;
+                self.order(board, seq, Order::Source(SourceOrder::Wave(wave)))
+            }
+            Command::Points { first, points } => self.points(board, first, &points),
+            Command::Stream { interval } => self.stream(board, seq, interval),
+            Command::StreamEnd => {
+                self.locked(board, |x| x.points.end());
+                Ok(Reply::Ack)
+            }
+            Command::StreamClear => {
+                self.locked(board, |x| x.points.clear());
+                Ok(Reply::Ack)
+            }
+            Command::Analog => self.order(board, seq, Order::Source(SourceOrder::Analog)),
+            Command::Hold => self.order(board, seq, Order::Source(SourceOrder::Hold)),
+            Command::Safe => self.order(board, seq, Order::Safe),
+            Command::ClearFault => self.order(board, seq, Order::ClearFault),
+            Command::Drive { compensated } => self.order(board, seq, Order::Drive { compensated }),
+            Command::Supervise { timeout_ms } => {
+                self.timeout_ms = timeout_ms;
+                self.supervise(board, seq, timeout_ms)
+            }
+            Command::Record {
+                decimation,
+                signals,
+            } => {
+                if decimation == 0 || signals & !signal::ALL != 0 {
+                    return Err(refuse(
+                        Refusal::BadArgument,
+                        format_args!("decimation {decimation} (≥ 1) or signal mask {signals:#x}"),
+                    ));
+                }
+                self.signals = signals;
+                self.order(board, seq, Order::Record { decimation })
+            }
+            Command::RecordStop => self.order(board, seq, Order::StopRecording),
+            Command::ReadRecord { max } => {
+                let signals = self.signals;
+                Ok(Reply::Record(
+                    self.locked(board, |x| batch(x, signals, max)),
+                ))
+            }
+            Command::ModelBegin { len, crc } => self.begin(board, len, crc),
+            Command::ModelChunk { offset, data } => self.chunk(board, offset, data),
+            Command::ModelCommit { store } => self.commit(board, seq, store),
+            Command::ModelInfo => self.ack(board).map(|_| Reply::Model(self.model_report())),
+            Command::ModelFactory => self.factory(board, seq),
+            Command::Counters => self.ack(board).map(|_| Reply::Counters(self.counters)),
+            Command::Bench(b) => match self.kind {
+                BoardKind::Emulated => self.order(board, seq, Order::Bench(b)),
+                BoardKind::Driver => Err(refuse(
+                    Refusal::NotEmulated,
+                    format_args!("bench orders exist only on the emulated board"),
+                )),
+            },
+        }
+    }
+
+    /// Acknowledges a request that only counts as a heartbeat.
+    fn ack(&mut self, board: &mut impl Board) -> Result<Reply, Refuse> {
+        self.locked(board, |_| ());
+        Ok(Reply::Ack)
+    }
+
+    /// Posts an order (the request's heartbeat with it), waits until the ISR has
+    /// applied it, and acknowledges it; the request's tick is the one it took
+    /// effect at.
+    fn order(&mut self, board: &mut impl Board, seq: u16, order: Order) -> Result<Reply, Refuse> {
+        self.post(board, seq, order).map(|_| Reply::Ack)
+    }
+
+    fn post(&mut self, board: &mut impl Board, seq: u16, order: Order) -> Result<u32, Refuse> {
+        let mut order = Some(order);
+        board.exchange(|x| {
+            x.heartbeats = x.heartbeats.wrapping_add(1);
+            x.applied = None;
+            x.order = order.take().map(|o| (seq, o));
+        });
+        for _ in 0..APPLY_TIMEOUT_WAITS {
+            board.wait();
+            let applied = board.exchange(|x| x.applied.filter(|a| a.seq == seq));
+            if let Some(a) = applied {
+                self.tick = Some(a.tick);
+                return a.result.map(|_| a.tick).map_err(refused);
+            }
+        }
+        Err(refuse(
+            Refusal::Fault,
+            format_args!("the control loop did not take the order"),
+        ))
+    }
+
+    fn in_stroke(&self, what: &str, x: i32) -> Result<Micrometres, Refuse> {
+        let r = self.summary.reference;
+        if x < r.lo.to_bits() || x > r.hi.to_bits() {
+            return Err(refuse(
+                Refusal::OutOfRange,
+                format_args!(
+                    "{what} {} µm outside the stroke {}–{} µm",
+                    Milli(x),
+                    Milli(r.lo.to_bits()),
+                    Milli(r.hi.to_bits())
+                ),
+            ));
+        }
+        Ok(Micrometres::from_bits(x))
+    }
+
+    fn wave(
+        &self,
+        shape: crate::reference::wave::Shape,
+        offset: i32,
+        amplitude: i32,
+        freq_mhz: u32,
+        cycles: u32,
+    ) -> Result<Wave, Refuse> {
+        let nyquist_mhz = RATE_HZ / 2 * 1000;
+        if amplitude < 0 || freq_mhz == 0 || freq_mhz >= nyquist_mhz {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!(
+                    "amplitude {} µm (≥ 0) or frequency {} mHz (0 < f < {nyquist_mhz})",
+                    Milli(amplitude),
+                    freq_mhz
+                ),
+            ));
+        }
+        self.in_stroke("lowest point", offset.saturating_sub(amplitude))?;
+        self.in_stroke("highest point", offset.saturating_add(amplitude))?;
+        Ok(Wave {
+            shape,
+            offset: Micrometres::from_bits(offset),
+            amplitude: Micrometres::from_bits(amplitude),
+            phase_step: Wave::phase_step_for(freq_mhz, RATE_HZ),
+            cycles,
+        })
+    }
+
+    fn points(
+        &mut self,
+        board: &mut impl Board,
+        first: u32,
+        points: &[i32],
+    ) -> Result<Reply, Refuse> {
+        for (i, &p) in points.iter().enumerate() {
+            let mut what = Text::new();
+            let _ = write!(what, "point {}", first.wrapping_add(i as u32));
+            self.in_stroke(&what, p)?;
+        }
+        self.locked(board, |x| {
+            let q = &mut x.points;
+            if first != q.received() {
+                return Err(refuse(
+                    Refusal::Stream,
+                    format_args!("point {first} sent, point {} expected", q.received()),
+                ));
+            }
+            if points.len() > q.free() {
+                return Err(refuse(
+                    Refusal::Stream,
+                    format_args!("{} points sent, room for {}", points.len(), q.free()),
+                ));
+            }
+            for &p in points {
+                q.push(Micrometres::from_bits(p));
+            }
+            Ok(Reply::Ack)
+        })
+    }
+
+    fn stream(&mut self, board: &mut impl Board, seq: u16, interval: u16) -> Result<Reply, Refuse> {
+        if interval == 0 {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!("interval 0 (≥ 1 tick)"),
+            ));
+        }
+        if board.exchange(|x| x.points.is_empty()) {
+            return Err(refuse(
+                Refusal::Stream,
+                format_args!("no points buffered: send points first"),
+            ));
+        }
+        self.order(board, seq, Order::Source(SourceOrder::Stream { interval }))
+    }
+
+    fn supervise(
+        &mut self,
+        board: &mut impl Board,
+        seq: u16,
+        timeout_ms: u32,
+    ) -> Result<Reply, Refuse> {
+        let ticks = (timeout_ms as u64 * RATE_HZ as u64 / 1000).min(u32::MAX as u64) as u32;
+        self.order(
+            board,
+            seq,
+            Order::Supervise {
+                timeout_ticks: ticks,
+            },
+        )
+    }
+
+    fn hello(&self) -> Hello {
+        let mut firmware = Text::new();
+        let _ = firmware.push_str(env!("CARGO_PKG_VERSION"));
+        let l = &BOARD.limits;
+        Hello {
+            protocol: VERSION,
+            firmware,
+            board: self.kind,
+            rate_hz: RATE_HZ,
+            capacity: [
+                OPERATORS as u32,
+                CREEP_TERMS as u32,
+                TABLE_INTERVALS as u32,
+                IMAGE_BYTES as u32,
+            ],
+            buffers: [RECORDER_SAMPLES as u32, STREAM_POINTS as u32],
+            limits: [
+                l.u_min.to_bits(),
+                l.u_max.to_bits(),
+                l.max_step.to_bits(),
+                l.safe.lo.to_bits(),
+                l.safe.hi.to_bits(),
+            ],
+        }
+    }
+
+    fn model_report(&self) -> ModelReport {
+        let s = &self.summary;
+        ModelReport {
+            crc: s.crc,
+            origin: s.origin,
+            size: [s.shape.operators as u8, s.shape.creep_terms as u8],
+            maps: [s.shape.dead_zone, s.shape.saturation],
+            window: [
+                s.reference.lo.to_bits(),
+                s.reference.hi.to_bits(),
+                s.safe_voltage.to_bits(),
+            ],
+            stored: self.stored.map(|st| (st.generation, st.crc)),
+        }
+    }
+
+    fn begin(&mut self, board: &mut impl Board, len: u32, crc: u32) -> Result<Reply, Refuse> {
+        if len == 0 || len as usize > IMAGE_BYTES {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!("image of {len} bytes: this board takes 1–{IMAGE_BYTES}"),
+            ));
+        }
+        self.upload.expected = Some((len as usize, crc));
+        self.upload.received = 0;
+        self.ack(board)
+    }
+
+    fn chunk(&mut self, board: &mut impl Board, offset: u32, data: &[u8]) -> Result<Reply, Refuse> {
+        let u = &mut self.upload;
+        let Some((len, _)) = u.expected else {
+            return Err(refuse(Refusal::Upload, format_args!("no upload begun")));
+        };
+        if offset as usize != u.received {
+            return Err(refuse(
+                Refusal::Upload,
+                format_args!("bytes from {offset} sent, from {} expected", u.received),
+            ));
+        }
+        let end = u.received + data.len();
+        match u.image.get_mut(u.received..end) {
+            Some(dst) if end <= len => dst.copy_from_slice(data),
+            _ => {
+                return Err(refuse(
+                    Refusal::Upload,
+                    format_args!("bytes up to {end} sent, the image has {len}"),
+                ))
+            }
+        }
+        u.received = end;
+        self.ack(board)
+    }
+
+    /// The parked stage's check before a model change.
+    fn parked(&self, board: &mut impl Board) -> Result<(), Refuse> {
+        let (fault, voltage) = board.exchange(|x| (x.snapshot.fault, x.snapshot.voltage));
+        match fault {
+            Some(_) if voltage == self.summary.safe_voltage => Ok(()),
+            Some(_) => Err(refuse(
+                Refusal::StillRamping,
+                format_args!("the output is still ramping to the safe voltage"),
+            )),
+            None => Err(refuse(
+                Refusal::NotAtRest,
+                format_args!("a new model needs the stage parked: send `safe` first"),
+            )),
+        }
+    }
+
+    fn commit(&mut self, board: &mut impl Board, seq: u16, store: bool) -> Result<Reply, Refuse> {
+        let Some((len, crc)) = self.upload.expected else {
+            return Err(refuse(Refusal::Upload, format_args!("no upload begun")));
+        };
+        if self.upload.received != len {
+            return Err(refuse(
+                Refusal::Upload,
+                format_args!("{} of {len} bytes received", self.upload.received),
+            ));
+        }
+        let image = self.upload.image.get(..len).unwrap_or(&[]);
+        if CRC32.checksum(image) != crc {
+            return Err(refuse(
+                Refusal::Model,
+                format_args!("the received image does not match its CRC"),
+            ));
+        }
+        self.parked(board)?;
+        let running = self.activate(Origin::Received, len)?;
+        if store {
+            let image = self.upload.image.get(..len).unwrap_or(&[]);
+            match self.flash.store(image) {
+                Ok(s) => self.stored = Some(s),
+                Err(e) => {
+                    self.spare = Some(running.retire());
+                    return Err(refuse(
+                        Refusal::Storage,
+                        format_args!("{}; the board keeps its model", e.message()),
+                    ));
+                }
+            }
+        }
+        self.upload.expected = None;
+        self.swap(board, seq, running)
+    }
+
+    /// Loads the first `len` bytes of the upload buffer into the spare store and
+    /// activates it.
+    fn activate(&mut self, origin: Origin, len: usize) -> Result<Running, Refuse> {
+        let Some(mut spare) = self.spare.take() else {
+            return Err(refuse(Refusal::Model, format_args!("no free model store")));
+        };
+        let image = self.upload.image.get(..len).unwrap_or(&[]);
+        if let Err(e) = spare.load(image) {
+            self.spare = Some(spare);
+            return Err(refuse(Refusal::Model, format_args!("{e}")));
+        }
+        match spare.activate(image, origin) {
+            Ok(r) => Ok(r),
+            Err((back, e)) => {
+                self.spare = Some(back);
+                Err(refuse(Refusal::Model, format_args!("{e}")))
+            }
+        }
+    }
+
+    /// Hands `running` to the ISR and takes back the model it replaces.
+    fn swap(
+        &mut self,
+        board: &mut impl Board,
+        seq: u16,
+        running: Running,
+    ) -> Result<Reply, Refuse> {
+        let summary = *running.summary();
+        let result = self.post(board, seq, Order::Swap(running));
+        if let Some(back) = board.exchange(|x| x.returned.take()) {
+            self.spare = Some(back.retire());
+        }
+        result?;
+        self.summary = summary;
+        Ok(Reply::Ack)
+    }
+
+    fn factory(&mut self, board: &mut impl Board, seq: u16) -> Result<Reply, Refuse> {
+        self.parked(board)?;
+        if let Err(e) = self.flash.erase_all() {
+            return Err(refuse(Refusal::Storage, format_args!("{}", e.message())));
+        }
+        self.stored = None;
+        let factory = crate::model::MODEL_IMAGE;
+        let n = factory.len().min(IMAGE_BYTES);
+        if let (Some(dst), Some(src)) = (self.upload.image.get_mut(..n), factory.get(..n)) {
+            dst.copy_from_slice(src);
+        }
+        self.upload.expected = None;
+        let running = self.activate(Origin::Factory, n)?;
+        self.swap(board, seq, running)
+    }
+}
+
+/// The reason the ISR gave, as a refusal.
+fn refused(r: Refused) -> Refuse {
+    match r {
+        Refused::Fault(f) => refuse(
+            Refusal::Fault,
+            format_args!("fault latched ({}): clear it first", f.message()),
+        ),
+        Refused::StillRamping => refuse(
+            Refusal::StillRamping,
+            format_args!("the output is still ramping to the safe voltage"),
+        ),
+        Refused::NotAtRest => refuse(
+            Refusal::NotAtRest,
+            format_args!("a new model needs the stage parked: send `safe` first"),
+        ),
+    }
+}
+
+/// The latched fault of a status, if any.
+pub fn fault_of(status: &Status) -> Option<Fault> {
+    status.fault.and_then(|f| Fault::from_code(f.code))
+}
+
+/// The status a request gets.
+fn status(x: &Exchange<'_>, summary: &Summary) -> Status {
+    let s = &x.snapshot;
+    let (q, r) = (&x.points, &x.recorder);
+    Status {
+        tick: s.tick,
+        signals: [
+            s.x_ref.to_bits(),
+            s.x_est.to_bits(),
+            s.voltage.to_bits(),
+            s.force.to_bits(),
+        ],
+        fault: s.fault.map(|(f, at)| FaultReport {
+            code: f as u8,
+            at,
+            safe_at: s.safe_at,
+        }),
+        amplifier_on: s.amplifier_on,
+        source: s.source,
+        approaching: s.approaching,
+        compensated: s.compensated,
+        supervision: [s.timeout_ticks, s.silent_ticks],
+        stream: [q.len() as u32, q.free() as u32, q.received(), s.underruns],
+        recorder: [r.active() as u32, r.kept(), r.dropped(), r.len() as u32],
+        limited_steps: s.limited_steps,
+        model_crc: summary.crc,
+    }
+}
+
+/// Up to `max` recorded samples, the `signals` of each.
+fn batch(x: &mut Exchange<'_>, signals: u8, max: u16) -> Batch {
+    let width = Sample::width(signals);
+    let room = (MAX_VALUES / width).min(max as usize);
+    let mut values = Vec::new();
+    for _ in 0..room {
+        let Some(s) = x.recorder.take() else { break };
+        for v in s.values(signals) {
+            // `room` leaves space for every value.
+            let _ = values.push(v);
+        }
+    }
+    Batch {
+        signals,
+        decimation: x.recorder.decimation(),
+        active: x.recorder.active(),
+        dropped: x.recorder.dropped(),
+        waiting: x.recorder.len() as u32,
+        values,
+    }
+}

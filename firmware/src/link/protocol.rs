@@ -1,0 +1,360 @@
+//! The messages of the board's command link (see `PROTOCOL.md` at the top level).
+//!
+//! Every request is a [`Header`] (protocol version, sequence number) and a
+//! [`Command`]; every reply is a [`Header`] echoing the sequence number and a
+//! [`Reply`]: an acknowledgement, the data asked for, or [`Reply::Refused`] with a
+//! [`Refusal`] code and a one-line reason. Positions, voltages and forces travel
+//! as the core's raw `I16F16` bits (µm, V, N: multiply by 2⁻¹⁶), so the host sends
+//! and receives exactly the values the control loop uses.
+
+use heapless::{String, Vec};
+use serde::{Deserialize, Serialize};
+
+use crate::reference::wave::Shape;
+use crate::reference::SourceKind;
+use crate::slots::Origin;
+
+/// The protocol version this firmware speaks.
+pub const VERSION: u8 = 1;
+/// Largest encoded frame, delimiter included, bytes.
+pub const MAX_FRAME: usize = 1280;
+/// Model bytes per [`Command::ModelChunk`].
+pub const MAX_CHUNK: usize = 256;
+/// Points per [`Command::Points`].
+pub const MAX_POINTS: usize = 64;
+/// Values per [`Reply::Record`].
+pub const MAX_VALUES: usize = 200;
+/// The sequence number of a reply to a frame that could not be read.
+pub const NO_SEQ: u16 = u16::MAX;
+
+/// Variants of [`Command`] (the last one, [`Command::Bench`], is number
+/// `COMMAND_KINDS - 1`): a request whose variant number is beyond is refused as
+/// [`Refusal::Unknown`] rather than as garbage.
+pub const COMMAND_KINDS: u32 = 25;
+
+/// A short text (a refusal's reason, a firmware version).
+pub type Text = String<96>;
+
+/// The start of every request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Header {
+    /// [`VERSION`] of the sender.
+    pub version: u8,
+    /// Request number, echoed by its reply.
+    pub seq: u16,
+}
+
+/// The start of every reply.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ReplyHeader {
+    /// [`VERSION`] of the board.
+    pub version: u8,
+    /// The request's number ([`NO_SEQ`]: the request was unreadable).
+    pub seq: u16,
+    /// The first control tick that saw the request: the tick an order took effect
+    /// at, or the tick after the request was handled. Replaying the requests at
+    /// their ticks reproduces the board's run (the host's twin does).
+    pub tick: u32,
+}
+
+/// Orders for the emulated board's virtual bench (a real board refuses them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum BenchOrder {
+    /// The force sensor's wire is open (the reading sits on the ADC's top rail), or intact.
+    SensorOpen(bool),
+    /// The force sensor freezes at its present reading, or follows the stage again.
+    SensorStuck(bool),
+    /// The analog reference input reads this many ADC counts.
+    Analog(u16),
+}
+
+/// What the host asks.
+// Messages are built once per request and there is no heap to box the large ones.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Command<'a> {
+    /// Who are you? → [`Reply::Hello`].
+    Hello,
+    /// The loop's state → [`Reply::Status`].
+    Status,
+    /// A heartbeat (any valid request is one) → [`Reply::Ack`].
+    Ping,
+    /// Ramp to `target` at `speed`, then hold.
+    Move {
+        /// Position, µm (`I16F16` bits).
+        target: i32,
+        /// Speed, µm/s (`I16F16` bits, > 0).
+        speed: i32,
+    },
+    /// Run a waveform between `offset − amplitude` and `offset + amplitude`.
+    Wave {
+        /// Sine, triangle or raised cosine.
+        shape: Shape,
+        /// Mid-point, µm (`I16F16` bits).
+        offset: i32,
+        /// Half-swing, µm (`I16F16` bits, ≥ 0).
+        amplitude: i32,
+        /// Frequency, mHz (below half the control rate).
+        freq_mhz: u32,
+        /// Periods to run; 0 runs until another source is chosen.
+        cycles: u32,
+    },
+    /// Append points to the stream buffer; `first` must be the index the board
+    /// expects next (the count of points received since the last `Stream`).
+    Points {
+        /// Index of the first point.
+        first: u32,
+        /// Positions, µm (`I16F16` bits).
+        points: Vec<i32, MAX_POINTS>,
+    },
+    /// Play the buffered points, one every `interval` ticks, interpolated.
+    Stream {
+        /// Ticks per point (≥ 1).
+        interval: u16,
+    },
+    /// The stream has no more points: hold the last without an underrun flag.
+    StreamEnd,
+    /// Drop the stream buffer and count points from 0 again.
+    StreamClear,
+    /// Follow the analog reference input.
+    Analog,
+    /// Stop where the reference is.
+    Hold,
+    /// Park the stage: ramp to the safe voltage, amplifier off.
+    Safe,
+    /// Clear a latched fault (the stage stays parked until the next motion command).
+    ClearFault,
+    /// Inverse FPI (`true`) or the straight-line baseline (`false`).
+    Drive {
+        /// Compensated.
+        compensated: bool,
+    },
+    /// Supervise the host: a motion with no request for `timeout_ms` parks the stage
+    /// with a [`LinkLost`](piezo_fpi::control::Fault::LinkLost) fault; 0 switches it off.
+    Supervise {
+        /// Timeout, ms.
+        timeout_ms: u32,
+    },
+    /// Start recording every `decimation`-th tick; `signals` (recorder::signal bits)
+    /// says what [`Command::ReadRecord`] sends.
+    Record {
+        /// Keep one tick in this many (≥ 1).
+        decimation: u16,
+        /// Signal mask.
+        signals: u8,
+    },
+    /// Stop recording (the samples stay readable).
+    RecordStop,
+    /// Take up to `max` recorded samples → [`Reply::Record`].
+    ReadRecord {
+        /// Most samples to send.
+        max: u16,
+    },
+    /// Announce a model image of `len` bytes with CRC-32 `crc` (of the whole image).
+    ModelBegin {
+        /// Bytes.
+        len: u32,
+        /// CRC-32 (ISO-HDLC) of the image.
+        crc: u32,
+    },
+    /// The image's bytes from `offset` (in order, at most [`MAX_CHUNK`]).
+    ModelChunk {
+        /// Where these bytes go.
+        offset: u32,
+        /// The bytes.
+        #[serde(borrow)]
+        data: &'a [u8],
+    },
+    /// Validate the received image and run it (the stage must be parked);
+    /// `store` also writes it to flash, where it survives a reset.
+    ModelCommit {
+        /// Keep it in flash.
+        store: bool,
+    },
+    /// The running model → [`Reply::Model`].
+    ModelInfo,
+    /// Forget the stored model and run the factory default (the stage must be parked).
+    ModelFactory,
+    /// The link's counters → [`Reply::Counters`].
+    Counters,
+    /// An order for the emulated board's virtual bench.
+    Bench(BenchOrder),
+}
+
+/// Why a request was not carried out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Refusal {
+    /// The frame could not be read (COBS, CRC or encoding).
+    Malformed,
+    /// The request's protocol version is not this firmware's.
+    Version,
+    /// A command this firmware does not know.
+    Unknown,
+    /// A fault is latched: clear it first.
+    Fault,
+    /// Needs the stage parked at the safe voltage (`safe` first).
+    NotAtRest,
+    /// The output is still ramping to the safe voltage: try again shortly.
+    StillRamping,
+    /// A position outside the running model's stroke.
+    OutOfRange,
+    /// An argument outside its allowed range.
+    BadArgument,
+    /// The model image is invalid (the reason names the key).
+    Model,
+    /// An upload step out of order.
+    Upload,
+    /// The flash store failed.
+    Storage,
+    /// Only the emulated board has a virtual bench.
+    NotEmulated,
+    /// The stream buffer is full or the points are out of sequence.
+    Stream,
+}
+
+/// Which board answers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum BoardKind {
+    /// The STM32F405 driver board.
+    Driver,
+    /// The emulated board (QEMU) with its virtual stage.
+    Emulated,
+}
+
+/// The board's identity and capacity.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Hello {
+    /// [`VERSION`].
+    pub protocol: u8,
+    /// Firmware version.
+    pub firmware: Text,
+    /// Board.
+    pub board: BoardKind,
+    /// Control rate, Hz.
+    pub rate_hz: u32,
+    /// Capacity: operators, creep terms, table intervals, image bytes.
+    pub capacity: [u32; 4],
+    /// Recorder ring, samples; stream buffer, points.
+    pub buffers: [u32; 2],
+    /// Hardware limits: lowest and highest setpoint, largest step per tick, safe
+    /// window low and high, V (`I16F16` bits).
+    pub limits: [i32; 5],
+}
+
+/// A latched fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FaultReport {
+    /// `piezo_fpi::control::Fault` code.
+    pub code: u8,
+    /// Tick it latched at.
+    pub at: u32,
+    /// Tick the output reached the safe voltage.
+    pub safe_at: Option<u32>,
+}
+
+/// The loop's state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Status {
+    /// Ticks since start-up.
+    pub tick: u32,
+    /// Reference, estimated position (µm), setpoint (V), force (N): `I16F16` bits.
+    pub signals: [i32; 4],
+    /// The latched fault (code 4, *parked*, is the resting state).
+    pub fault: Option<FaultReport>,
+    /// Amplifier enabled.
+    pub amplifier_on: bool,
+    /// Reference source.
+    pub source: SourceKind,
+    /// Approaching a new source's entry point.
+    pub approaching: bool,
+    /// Inverse FPI drive (else the straight-line baseline).
+    pub compensated: bool,
+    /// Heartbeat timeout, ticks (0: off), and ticks since the last request.
+    pub supervision: [u32; 2],
+    /// Stream: points queued, free, received since `Stream`/`StreamClear`; underrun ticks.
+    pub stream: [u32; 4],
+    /// Recorder: recording (0/1), samples kept, dropped, waiting to be read.
+    pub recorder: [u32; 4],
+    /// Ticks in which the output limits bit.
+    pub limited_steps: u32,
+    /// CRC-32 of the running model's image body.
+    pub model_crc: u32,
+}
+
+/// The running model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ModelReport {
+    /// CRC-32 of its image body.
+    pub crc: u32,
+    /// Where it came from.
+    pub origin: Origin,
+    /// Operators, creep terms.
+    pub size: [u8; 2],
+    /// Soft dead zone, saturation.
+    pub maps: [bool; 2],
+    /// Reference window (stroke) low and high, µm; safe voltage, V (`I16F16` bits).
+    pub window: [i32; 3],
+    /// The model in flash: generation and body CRC.
+    pub stored: Option<(u32, u32)>,
+}
+
+/// The link's counters since start-up.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Counters {
+    /// Requests read and answered.
+    pub requests: u32,
+    /// Frames refused as unreadable (COBS, length, CRC or encoding).
+    pub malformed: u32,
+    /// Of those, CRC mismatches.
+    pub crc_errors: u32,
+    /// Frames longer than [`MAX_FRAME`], dropped to the next delimiter.
+    pub overlong: u32,
+    /// Requests with another protocol version.
+    pub version: u32,
+    /// Unknown commands.
+    pub unknown: u32,
+    /// Requests refused for any reason (the above included).
+    pub refused: u32,
+}
+
+/// A batch of recorded samples.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Batch {
+    /// The signal mask of `values` (recorder::signal bits).
+    pub signals: u8,
+    /// Ticks between samples.
+    pub decimation: u16,
+    /// Recording now.
+    pub active: bool,
+    /// Samples dropped so far because the ring was full.
+    pub dropped: u32,
+    /// Samples still waiting after this batch.
+    pub waiting: u32,
+    /// Per sample: the tick, then the chosen signals in wire order.
+    pub values: Vec<i32, MAX_VALUES>,
+}
+
+/// What the board answers.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Reply {
+    /// Done (the header's tick says when).
+    Ack,
+    /// Identity and capacity.
+    Hello(Hello),
+    /// State.
+    Status(Status),
+    /// Recorded samples.
+    Record(Batch),
+    /// The running model.
+    Model(ModelReport),
+    /// The link's counters.
+    Counters(Counters),
+    /// Not done, and why.
+    Refused {
+        /// The kind of refusal.
+        code: Refusal,
+        /// A one-line reason.
+        reason: Text,
+    },
+}

@@ -1,0 +1,349 @@
+//! The reference the control loop follows, from one of five sources chosen at run
+//! time: hold, move (a slew-limited ramp to a position), a waveform
+//! ([`wave`]), a streamed trajectory ([`stream`]) or the analog input ([`analog`]).
+//!
+//! Switching never makes the reference jump: a new waveform, stream or analog input
+//! starts with an *approach*, a ramp at the board's approach speed from where the
+//! reference is to where the new source begins (the wave's phase-0 value, the first
+//! streamed point, the live analog reading), and only then hands over. A move is a
+//! ramp by itself. When a move arrives, a finite wave has run its cycles or an
+//! ended stream is drained, the source becomes *hold* at that point.
+//!
+//! Everything here runs in the control ISR: integer arithmetic, no division, no
+//! panic, constant time per tick.
+
+pub mod analog;
+pub mod stream;
+pub mod wave;
+
+use piezo_fpi::q::Micrometres;
+use serde::{Deserialize, Serialize};
+
+use analog::{AnalogFault, AnalogInput};
+use stream::{Playback, Points};
+use wave::{Wave, WavePhase};
+
+/// Which source drives the reference.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum SourceKind {
+    /// Standing still.
+    Hold = 0,
+    /// Ramping to a position.
+    Move = 1,
+    /// The waveform generator.
+    Wave = 2,
+    /// The host's streamed trajectory.
+    Stream = 3,
+    /// The analog reference input.
+    Analog = 4,
+}
+
+/// A new source, as the link task orders it (values already checked against the
+/// model's stroke).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SourceOrder {
+    /// Stop where the reference is.
+    Hold,
+    /// Ramp to `target` (µm) at `step` µm per tick (> 0).
+    Move {
+        /// Where to, µm.
+        target: Micrometres,
+        /// Ramp speed, µm per tick.
+        step: Micrometres,
+    },
+    /// Run a waveform.
+    Wave(Wave),
+    /// Play the streamed points, one every `interval` ticks.
+    Stream {
+        /// Ticks per point (≥ 1).
+        interval: u16,
+    },
+    /// Follow the analog input.
+    Analog,
+}
+
+/// The running source (state).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Active {
+    Hold,
+    Move {
+        target: Micrometres,
+        step: Micrometres,
+    },
+    Wave {
+        wave: Wave,
+        phase: WavePhase,
+    },
+    Stream {
+        interval: u16,
+        playback: Playback,
+    },
+    Analog,
+}
+
+/// The reference generator (state; its approach speed is configuration).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Reference {
+    x: Micrometres,
+    active: Active,
+    /// Still ramping to the source's entry point.
+    approaching: bool,
+    /// Approach speed, µm per tick.
+    approach: Micrometres,
+    analog: AnalogInput,
+}
+
+/// Moves `x` toward `to` by at most `step`; whether it arrived.
+#[inline]
+fn toward(x: &mut Micrometres, to: Micrometres, step: Micrometres) -> bool {
+    let d = to.to_bits() as i64 - x.to_bits() as i64;
+    let s = step.to_bits() as i64;
+    if d.abs() <= s {
+        *x = to;
+        true
+    } else {
+        let moved = if d > 0 { s } else { -s };
+        *x = Micrometres::from_bits((x.to_bits() as i64 + moved) as i32);
+        false
+    }
+}
+
+impl Reference {
+    /// Holding at `x`, with transitions at `approach` µm per tick and the analog
+    /// input scaled by `analog`.
+    pub const fn new(x: Micrometres, approach: Micrometres, analog: AnalogInput) -> Self {
+        Self {
+            x,
+            active: Active::Hold,
+            approaching: false,
+            approach,
+            analog,
+        }
+    }
+
+    /// Switches to a new source (at the start of the next tick, without a jump).
+    pub fn select(&mut self, order: SourceOrder) {
+        self.approaching = !matches!(order, SourceOrder::Hold | SourceOrder::Move { .. });
+        self.active = match order {
+            SourceOrder::Hold => Active::Hold,
+            SourceOrder::Move { target, step } => Active::Move { target, step },
+            SourceOrder::Wave(wave) => Active::Wave {
+                wave,
+                phase: WavePhase::default(),
+            },
+            SourceOrder::Stream { interval } => Active::Stream {
+                interval,
+                playback: Playback::new(self.x, interval),
+            },
+            SourceOrder::Analog => {
+                self.analog.restart();
+                Active::Analog
+            }
+        };
+    }
+
+    /// Stops where the reference is (a fault, or a new model).
+    pub fn freeze(&mut self) {
+        self.active = Active::Hold;
+        self.approaching = false;
+    }
+
+    /// Restarts holding at `x` (after a model swap: the stage is at rest there).
+    pub fn reset(&mut self, x: Micrometres, analog: AnalogInput) {
+        *self = Self::new(x, self.approach, analog);
+    }
+
+    /// The next reference, µm. `points` feeds a stream; `counts` is this tick's
+    /// analog reading (read by the caller only while [`wants_analog`](Self::wants_analog)).
+    #[inline]
+    pub fn next<const P: usize>(
+        &mut self,
+        points: &mut Points<P>,
+        counts: u16,
+    ) -> Result<Micrometres, AnalogFault> {
+        if self.approaching {
+            let entry = match &self.active {
+                Active::Wave { wave, .. } => wave.start_value(),
+                Active::Stream { .. } => points.peek().unwrap_or(self.x),
+                Active::Analog => self.analog.read(counts)?,
+                Active::Hold | Active::Move { .. } => self.x,
+            };
+            self.approaching = !toward(&mut self.x, entry, self.approach);
+            if let (false, Active::Stream { interval, playback }) =
+                (self.approaching, &mut self.active)
+            {
+                *playback = Playback::new(self.x, *interval);
+            }
+            return Ok(self.x);
+        }
+        match &mut self.active {
+            Active::Hold => {}
+            Active::Move { target, step } => {
+                if toward(&mut self.x, *target, *step) {
+                    self.active = Active::Hold;
+                }
+            }
+            Active::Wave { wave, phase } => {
+                self.x = wave.next(phase);
+                if phase.finished() {
+                    // Back at phase 0: end exactly on the start value.
+                    self.x = wave.start_value();
+                    self.active = Active::Hold;
+                }
+            }
+            Active::Stream { playback, .. } => {
+                self.x = playback.next(points);
+                if playback.done() {
+                    self.active = Active::Hold;
+                }
+            }
+            Active::Analog => self.x = self.analog.read(counts)?,
+        }
+        Ok(self.x)
+    }
+
+    /// The analog input is read this tick.
+    #[inline]
+    pub fn wants_analog(&self) -> bool {
+        matches!(self.active, Active::Analog)
+    }
+
+    /// The current reference, µm.
+    pub const fn position(&self) -> Micrometres {
+        self.x
+    }
+
+    /// The source in charge.
+    pub const fn kind(&self) -> SourceKind {
+        match self.active {
+            Active::Hold => SourceKind::Hold,
+            Active::Move { .. } => SourceKind::Move,
+            Active::Wave { .. } => SourceKind::Wave,
+            Active::Stream { .. } => SourceKind::Stream,
+            Active::Analog => SourceKind::Analog,
+        }
+    }
+
+    /// Ramping to the new source's entry point.
+    pub const fn approaching(&self) -> bool {
+        self.approaching
+    }
+
+    /// A stream is holding its last point because the next one is missing.
+    pub const fn underrun(&self) -> bool {
+        match &self.active {
+            Active::Stream { playback, .. } => playback.underrun(),
+            _ => false,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::wave::Shape;
+    use super::*;
+    use piezo_fpi::control::Interval;
+
+    fn um(x: f64) -> Micrometres {
+        Micrometres::from_num(x)
+    }
+
+    const STEP: f64 = 1.0 / 128.0;
+
+    fn reference(x: f64) -> Reference {
+        let stroke = Interval {
+            lo: um(0.0),
+            hi: um(40.95),
+        };
+        // 1/128 µm per tick: exact in I16F16.
+        Reference::new(um(x), um(STEP), AnalogInput::over(stroke))
+    }
+
+    /// Runs `ticks` ticks; the largest step between two references, µm.
+    fn run(r: &mut Reference, points: &mut Points<64>, counts: u16, ticks: usize) -> f64 {
+        let mut last = r.position();
+        let mut worst: f64 = 0.0;
+        for _ in 0..ticks {
+            let x = r.next(points, counts).unwrap();
+            worst = worst.max((x - last).abs().to_num());
+            last = x;
+        }
+        worst
+    }
+
+    #[test]
+    fn a_move_ramps_at_its_speed_then_holds() {
+        let mut r = reference(5.0);
+        let mut p = Points::new();
+        r.select(SourceOrder::Move {
+            target: um(6.0),
+            step: um(0.125),
+        });
+        assert_eq!(run(&mut r, &mut p, 0, 7), 0.125);
+        assert_eq!(r.kind(), SourceKind::Move);
+        run(&mut r, &mut p, 0, 1);
+        assert_eq!((r.position(), r.kind()), (um(6.0), SourceKind::Hold));
+    }
+
+    #[test]
+    fn switching_to_a_wave_approaches_its_start_without_a_jump() {
+        let mut r = reference(30.0);
+        let mut p = Points::new();
+        let wave = Wave {
+            shape: Shape::RaisedCosine,
+            offset: um(20.0),
+            amplitude: um(15.0),
+            phase_step: Wave::phase_step_for(15_000, 20_000),
+            cycles: 2,
+        };
+        r.select(SourceOrder::Wave(wave));
+        // 25 µm down to the wave's bottom at 1/128 µm per tick.
+        let worst = run(&mut r, &mut p, 0, 3200);
+        assert_eq!(worst, STEP);
+        assert_eq!(r.position(), um(5.0));
+        assert!(!r.approaching());
+        // Two periods of 4000/3 ticks, never faster than the cosine's top speed.
+        let worst = run(&mut r, &mut p, 0, 2700);
+        assert!(
+            worst < core::f64::consts::TAU * 15.0 / 1333.3 + 1e-4,
+            "{worst}"
+        );
+        assert_eq!(r.kind(), SourceKind::Hold, "finite wave done");
+        assert_eq!(r.position(), um(5.0), "ends where it started");
+    }
+
+    #[test]
+    fn a_stream_starts_at_its_first_point_and_flags_an_underrun() {
+        let mut r = reference(1.0);
+        let mut p = Points::new();
+        p.push(um(1.5));
+        p.push(um(1.6));
+        r.select(SourceOrder::Stream { interval: 2 });
+        run(&mut r, &mut p, 0, 100);
+        assert_eq!(r.position(), um(1.6));
+        assert!(r.underrun() && r.kind() == SourceKind::Stream);
+        p.end();
+        run(&mut r, &mut p, 0, 3);
+        assert_eq!(r.kind(), SourceKind::Hold);
+    }
+
+    #[test]
+    fn the_analog_input_is_approached_then_followed_and_checked() {
+        let mut r = reference(0.0);
+        let mut p = Points::new();
+        r.select(SourceOrder::Analog);
+        assert!(r.wants_analog());
+        // 2048 counts = 20.48 µm on this stroke: approached at 1/128 µm per tick.
+        let worst = run(&mut r, &mut p, 2048, 2700);
+        assert_eq!(worst, STEP);
+        assert!(!r.approaching());
+        assert!((r.position().to_num::<f64>() - 20.48).abs() < 1e-3);
+        assert_eq!(
+            r.next(&mut p, 2100).map(|x| x.to_num::<f64>() > 20.5),
+            Ok(true)
+        );
+        assert_eq!(r.next(&mut p, 4095), Err(AnalogFault::OutOfRange));
+    }
+}

@@ -1,0 +1,191 @@
+//! The board's two model stores and who may touch which: the control ISR runs one
+//! ([`Running`]), the link task fills the other ([`Spare`]).
+//!
+//! A model is swapped in between two ticks by moving values, not by sharing
+//! memory: the link task loads an image into its [`Spare`] store and turns it into
+//! a [`Running`] model ([`Spare::activate`], which validates it); the ISR takes the
+//! `Running` at the start of a tick and hands the one it ran before back; the link
+//! task turns that into a `Spare` again ([`Running::retire`]). Neither type is
+//! `Copy` or `Clone`, so at any time each store has exactly one owner, and a
+//! store is never written while the ISR reads it.
+//!
+//! The controller of a running model borrows the store's tables; [`Running::get`]
+//! lends it only for as long as the `Running` is borrowed, so nothing keeps a
+//! reference into a store once it has been retired. This is the one place the
+//! firmware needs `unsafe`: turning the spare's `&'static mut` store into the
+//! shared borrow the controller holds, and back.
+
+use core::ptr::NonNull;
+
+use piezo_fpi::control::{Interval, LinearDrive};
+use piezo_fpi::error::{Field, Invalid, ModelError};
+use piezo_fpi::model::image::CRC32;
+use piezo_fpi::model::Shape;
+use piezo_fpi::q::Volts;
+
+use crate::hardware::{Controller, Store, BOARD};
+
+/// Where the running model came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Origin {
+    /// The model compiled into the firmware (the factory default).
+    Factory,
+    /// A model read from the board's flash at start-up; its generation.
+    Stored(u32),
+    /// A model received over the link (and not stored).
+    Received,
+}
+
+/// What the link task needs to know about a model, copied out of it: the link
+/// task checks commands against it while the ISR owns the model itself.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Summary {
+    /// CRC-32 of the whole image (its identity; what the host computes of the file).
+    pub crc: u32,
+    /// Operators, creep terms, dead zone and saturation.
+    pub shape: Shape,
+    /// The reachable stroke: references must lie in it, µm.
+    pub reference: Interval,
+    /// The safe voltage, V.
+    pub safe_voltage: Volts,
+    /// Where it came from.
+    pub origin: Origin,
+    /// The straight-line drive of the uncompensated mode.
+    pub baseline: LinearDrive,
+}
+
+/// A store the link task owns: free to load an image into.
+pub struct Spare {
+    store: &'static mut Store,
+    /// The shape of the model loaded into the store, if one is.
+    loaded: Option<Shape>,
+}
+
+/// A validated model with its controller, owned by whoever runs it.
+pub struct Running {
+    store: NonNull<Store>,
+    cfg: Controller<'static>,
+    summary: Summary,
+}
+
+// SAFETY: a `Running` is the unique owner of its store (it was made from the
+// store's `&'static mut`, which it consumed), so it may move to another task
+// like the `&'static mut Store` it stands for.
+unsafe impl Send for Running {}
+
+impl Spare {
+    /// A spare store (for start-up: the board's two stores are statics).
+    pub fn new(store: &'static mut Store) -> Self {
+        Self {
+            store,
+            loaded: None,
+        }
+    }
+
+    /// Reads an image into the store and validates it against the board
+    /// ([`piezo_fpi::model::store::ModelStore::load`]); the store keeps it.
+    pub fn load(&mut self, image: &[u8]) -> Result<Shape, Invalid> {
+        self.loaded = None;
+        let shape = self.store.load(image, &BOARD)?;
+        self.loaded = Some(shape);
+        Ok(shape)
+    }
+
+    /// Makes the loaded model a running one: builds its controller and the
+    /// straight-line baseline drive. The image is the one loaded (for its CRC).
+    /// On failure the spare comes back with the reason.
+    pub fn activate(self, image: &[u8], origin: Origin) -> Result<Running, (Spare, Invalid)> {
+        let shape = self.loaded;
+        let ptr = NonNull::from(&mut *self.store);
+        // SAFETY: `self.store` is consumed here; from now on the store is only
+        // reached through `ptr`, shared, until `Running::retire` (which needs the
+        // `Running` by value, so every borrow lent by `Running::get` has ended)
+        // makes it exclusive again.
+        let shared: &'static Store = unsafe { ptr.as_ref() };
+        let built = shared.controller().and_then(|cfg| {
+            let shape = shape.ok_or(Invalid::at(Field::Model, ModelError::Truncated))?;
+            let baseline = crate::baseline::drive(&cfg)?;
+            Ok((cfg, baseline, shape))
+        });
+        match built {
+            Ok((cfg, baseline, shape)) => Ok(Running {
+                store: ptr,
+                summary: Summary {
+                    crc: CRC32.checksum(image),
+                    shape,
+                    reference: cfg.reference(),
+                    safe_voltage: cfg.safe_voltage(),
+                    origin,
+                    baseline,
+                },
+                cfg,
+            }),
+            // SAFETY: `shared` and `built` are gone; the store is exclusive again.
+            Err(e) => Err((
+                Spare {
+                    store: unsafe { &mut *ptr.as_ptr() },
+                    loaded: shape,
+                },
+                e,
+            )),
+        }
+    }
+}
+
+impl Running {
+    /// The controller, lent for as long as this model is borrowed.
+    #[inline(always)]
+    pub fn get(&self) -> &Controller<'_> {
+        &self.cfg
+    }
+
+    /// What the link task keeps about the model.
+    pub const fn summary(&self) -> &Summary {
+        &self.summary
+    }
+
+    /// Gives the store back to be filled again.
+    pub fn retire(self) -> Spare {
+        let Running { store, .. } = self;
+        // SAFETY: `self` is consumed, and with it the controller; every borrow of
+        // it lent by `get` has ended, so nothing reads the store any more.
+        Spare {
+            store: unsafe { &mut *store.as_ptr() },
+            loaded: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::MODEL_IMAGE;
+
+    fn spare() -> Spare {
+        Spare::new(Box::leak(Box::new(Store::new())))
+    }
+
+    #[test]
+    fn a_model_goes_from_spare_to_running_and_back() {
+        let mut s = spare();
+        let shape = s.load(MODEL_IMAGE).unwrap();
+        let running = s.activate(MODEL_IMAGE, Origin::Factory).ok().unwrap();
+        assert_eq!(running.summary().shape.operators, shape.operators);
+        assert_eq!(running.summary().crc, CRC32.checksum(MODEL_IMAGE));
+        assert!(running.get().reference().hi > running.get().reference().lo);
+        let mut again = running.retire();
+        // The store can be filled again and gives the same model.
+        again.load(MODEL_IMAGE).unwrap();
+        let r2 = again.activate(MODEL_IMAGE, Origin::Received).ok().unwrap();
+        assert_eq!(r2.summary().origin, Origin::Received);
+    }
+
+    #[test]
+    fn a_store_without_a_model_cannot_run() {
+        let s = spare();
+        let (back, e) = s.activate(MODEL_IMAGE, Origin::Factory).err().unwrap();
+        assert_eq!(e.error, piezo_fpi::error::ModelError::Truncated);
+        let mut back = back;
+        back.load(MODEL_IMAGE).unwrap();
+    }
+}

@@ -1,0 +1,337 @@
+//! The host's side of the command link: requests out, replies in, the log of
+//! what the board did when.
+//!
+//! [`Client`] speaks the firmware's own protocol types (`fpi_firmware::link`), so
+//! the host and the board cannot disagree on a message. Every request the board
+//! read is kept in [`Client::log`] with the tick its reply names (the first tick
+//! that saw it); the twin ([`super::twin`]) replays that log to reproduce the run.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, Context, Result};
+use fpi_firmware::link::frame::{self, FrameReader, Push};
+use fpi_firmware::link::protocol::{
+    Batch, BenchOrder, Command, Counters, Header, Hello, ModelReport, Refusal, Reply, ReplyHeader,
+    Status, MAX_CHUNK, MAX_FRAME, MAX_POINTS, NO_SEQ, VERSION,
+};
+use fpi_firmware::recorder::Sample;
+use fpi_firmware::reference::wave::Shape;
+use piezo_fpi::model::image::CRC32;
+
+use super::port::{self, Port};
+
+/// How long a reply may take (a model commit with a flash write: much longer).
+pub const REPLY_TIMEOUT: Duration = Duration::from_secs(3);
+/// How long a commit that stores the model in flash may take (the board erases a
+/// 128 KiB sector: up to 2 s).
+pub const STORE_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// A request the board read, with the first tick that saw it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Logged {
+    /// The tick.
+    pub tick: u32,
+    /// The request's frame as sent (without its delimiter).
+    pub frame: Vec<u8>,
+}
+
+/// The board refused a request.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Refused {
+    /// The request, by name.
+    pub what: String,
+    /// The refusal's kind.
+    pub code: Refusal,
+    /// The board's reason.
+    pub reason: String,
+}
+
+impl std::fmt::Display for Refused {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the board refused {}: {} ({:?})",
+            self.what, self.reason, self.code
+        )
+    }
+}
+
+impl std::error::Error for Refused {}
+
+/// An open link to a board.
+pub struct Client {
+    port: Box<dyn Port>,
+    name: String,
+    seq: u16,
+    reader: FrameReader<MAX_FRAME>,
+    hello: Hello,
+    /// Every request the board read, in order.
+    pub log: Vec<Logged>,
+}
+
+/// µm (or V, N) as the board's `I16F16` bits.
+pub fn bits(x: f64) -> i32 {
+    (x * 65536.0)
+        .round()
+        .clamp(i32::MIN as f64, i32::MAX as f64) as i32
+}
+
+/// The board's `I16F16` bits as µm (or V, N).
+pub fn real(bits: i32) -> f64 {
+    bits as f64 / 65536.0
+}
+
+/// A command's name for messages.
+fn name_of(c: &Command<'_>) -> String {
+    let dbg = format!("{c:?}");
+    let end = dbg.find([' ', '(', '{']).unwrap_or(dbg.len());
+    dbg[..end].to_string()
+}
+
+impl Client {
+    /// Opens `port` (a serial device or `tcp:HOST:PORT`) and greets the board;
+    /// refuses a board that speaks another protocol version.
+    pub fn open(port: &str) -> Result<Self> {
+        let p = port::open(port, Duration::from_secs(10))?;
+        let mut c = Self {
+            port: p,
+            name: port.to_string(),
+            seq: 0,
+            reader: FrameReader::new(),
+            hello: Hello {
+                protocol: 0,
+                firmware: Default::default(),
+                board: fpi_firmware::link::protocol::BoardKind::Driver,
+                rate_hz: 0,
+                capacity: [0; 4],
+                buffers: [0; 2],
+                limits: [0; 5],
+            },
+            log: Vec::new(),
+        };
+        match c.request(&Command::Hello)? {
+            (_, Reply::Hello(h)) if h.protocol == VERSION => c.hello = h,
+            (_, Reply::Hello(h)) => bail!(
+                "the board on {port} speaks protocol {}, these tools {VERSION}: update one of them",
+                h.protocol
+            ),
+            (_, r) => bail!("the board on {port} answered hello with {r:?}"),
+        }
+        Ok(c)
+    }
+
+    /// The board's identity and capacity.
+    pub const fn hello(&self) -> &Hello {
+        &self.hello
+    }
+
+    /// The control rate, Hz.
+    pub fn rate_hz(&self) -> f64 {
+        self.hello.rate_hz as f64
+    }
+
+    /// Sends a request and waits for its reply: the reply's tick and the reply.
+    pub fn request(&mut self, cmd: &Command<'_>) -> Result<(u32, Reply)> {
+        let timeout = match cmd {
+            Command::ModelCommit { store: true } | Command::ModelFactory => STORE_TIMEOUT,
+            _ => REPLY_TIMEOUT,
+        };
+        self.seq = self.seq.wrapping_add(1) % NO_SEQ;
+        let header = Header {
+            version: VERSION,
+            seq: self.seq,
+        };
+        let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
+        let n = frame::encode(&header, cmd, &mut scratch, &mut out)
+            .map_err(|e| anyhow!("encoding {}: {}", name_of(cmd), e.message()))?;
+        let frame = out[..n].to_vec();
+        let (h, reply) = self.exchange(&frame, Some(self.seq), timeout)?;
+        let read = !matches!(
+            reply,
+            Reply::Refused {
+                code: Refusal::Malformed | Refusal::Version | Refusal::Unknown,
+                ..
+            }
+        );
+        if read {
+            self.log.push(Logged {
+                tick: h.tick,
+                frame: frame[..n - 1].to_vec(),
+            });
+        }
+        Ok((h.tick, reply))
+    }
+
+    /// Sends raw bytes (for tests of the link itself) and reads the next reply.
+    pub fn send_raw(&mut self, bytes: &[u8]) -> Result<(ReplyHeader, Reply)> {
+        self.exchange(bytes, None, REPLY_TIMEOUT)
+    }
+
+    fn exchange(
+        &mut self,
+        bytes: &[u8],
+        seq: Option<u16>,
+        timeout: Duration,
+    ) -> Result<(ReplyHeader, Reply)> {
+        self.port
+            .send(bytes)
+            .with_context(|| format!("writing to {}", self.name))?;
+        let start = Instant::now();
+        let mut buf = [0u8; 4096];
+        while start.elapsed() < timeout {
+            let n = self
+                .port
+                .recv(&mut buf, Duration::from_millis(20))
+                .with_context(|| format!("reading from {}", self.name))?;
+            for &b in &buf[..n] {
+                if self.reader.push(b) != Push::Frame {
+                    continue;
+                }
+                let Ok((h, body)) = frame::decode::<ReplyHeader>(self.reader.frame()) else {
+                    continue;
+                };
+                let Ok(reply) = frame::body::<Reply>(body, u32::MAX) else {
+                    continue;
+                };
+                if seq.is_none_or(|s| s == h.seq) {
+                    return Ok((h, reply));
+                }
+            }
+        }
+        bail!(
+            "no reply from the board on {} within {:.1} s",
+            self.name,
+            timeout.as_secs_f64()
+        )
+    }
+
+    /// Sends a request that must be acknowledged; its tick.
+    pub fn ack(&mut self, cmd: &Command<'_>) -> Result<u32> {
+        match self.request(cmd)? {
+            (tick, Reply::Ack) => Ok(tick),
+            (_, Reply::Refused { code, reason }) => Err(Refused {
+                what: name_of(cmd),
+                code,
+                reason: reason.to_string(),
+            }
+            .into()),
+            (_, r) => bail!("unexpected reply to {}: {r:?}", name_of(cmd)),
+        }
+    }
+
+    /// The loop's state.
+    pub fn status(&mut self) -> Result<Status> {
+        match self.request(&Command::Status)? {
+            (_, Reply::Status(s)) => Ok(s),
+            (_, r) => bail!("unexpected reply to status: {r:?}"),
+        }
+    }
+
+    /// The running model.
+    pub fn model(&mut self) -> Result<ModelReport> {
+        match self.request(&Command::ModelInfo)? {
+            (_, Reply::Model(m)) => Ok(m),
+            (_, r) => bail!("unexpected reply to model info: {r:?}"),
+        }
+    }
+
+    /// The link's counters.
+    pub fn counters(&mut self) -> Result<Counters> {
+        match self.request(&Command::Counters)? {
+            (_, Reply::Counters(c)) => Ok(c),
+            (_, r) => bail!("unexpected reply to counters: {r:?}"),
+        }
+    }
+
+    /// Ramps to `target_um` at `speed_um_s`, then holds; the tick it started.
+    pub fn move_to(&mut self, target_um: f64, speed_um_s: f64) -> Result<u32> {
+        self.ack(&Command::Move {
+            target: bits(target_um),
+            speed: bits(speed_um_s),
+        })
+    }
+
+    /// Runs a waveform (`cycles` 0: continuous); the tick its approach started.
+    pub fn wave(
+        &mut self,
+        shape: Shape,
+        amplitude_um: f64,
+        offset_um: f64,
+        freq_hz: f64,
+        cycles: u32,
+    ) -> Result<u32> {
+        self.ack(&Command::Wave {
+            shape,
+            offset: bits(offset_um),
+            amplitude: bits(amplitude_um),
+            freq_mhz: (freq_hz * 1000.0).round() as u32,
+            cycles,
+        })
+    }
+
+    /// An order for the emulated board's virtual bench.
+    pub fn bench(&mut self, order: BenchOrder) -> Result<u32> {
+        self.ack(&Command::Bench(order))
+    }
+
+    /// Uploads a model image and commits it (`store`: also to flash); the tick
+    /// the board started running it. Refused (and the old model kept) unless the
+    /// stage is parked and the image is valid.
+    pub fn upload(
+        &mut self,
+        image: &[u8],
+        store: bool,
+        mut progress: impl FnMut(usize),
+    ) -> Result<u32> {
+        self.ack(&Command::ModelBegin {
+            len: image.len() as u32,
+            crc: CRC32.checksum(image),
+        })?;
+        for (k, chunk) in image.chunks(MAX_CHUNK).enumerate() {
+            self.ack(&Command::ModelChunk {
+                offset: (k * MAX_CHUNK) as u32,
+                data: chunk,
+            })?;
+            progress((k * MAX_CHUNK + chunk.len()).min(image.len()));
+        }
+        self.ack(&Command::ModelCommit { store })
+    }
+
+    /// Takes one batch of recorded samples.
+    pub fn read_batch(&mut self) -> Result<Batch> {
+        match self.request(&Command::ReadRecord { max: u16::MAX })? {
+            (_, Reply::Record(b)) => Ok(b),
+            (_, r) => bail!("unexpected reply to read record: {r:?}"),
+        }
+    }
+
+    /// Takes every recorded sample waiting; the samples and the dropped count so far.
+    pub fn drain(&mut self) -> Result<(Vec<Sample>, u32)> {
+        let mut out = Vec::new();
+        loop {
+            let b = self.read_batch()?;
+            let w = Sample::width(b.signals);
+            for v in b.values.chunks(w) {
+                out.extend(Sample::from_values(b.signals, v));
+            }
+            if b.waiting == 0 {
+                return Ok((out, b.dropped));
+            }
+        }
+    }
+
+    /// Queues streamed points (µm) from index `first`, as many as fit in one request.
+    pub fn points(&mut self, first: u32, points_um: &[f64]) -> Result<u32> {
+        let pts: heapless::Vec<i32, MAX_POINTS> = points_um
+            .iter()
+            .take(MAX_POINTS)
+            .map(|&x| bits(x))
+            .collect();
+        self.ack(&Command::Points { first, points: pts })
+    }
+}
+
+/// The refusal inside an error, if the board refused.
+pub fn refusal(e: &anyhow::Error) -> Option<&Refused> {
+    e.downcast_ref::<Refused>()
+}

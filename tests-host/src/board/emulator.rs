@@ -1,0 +1,147 @@
+//! The emulated board as a process: QEMU's `netduinoplus2` running the `qemu`
+//! firmware, its USART1 bridged to a TCP port, so every host tool that talks to a
+//! board talks to it unchanged (`tcp:127.0.0.1:PORT`).
+//!
+//! Virtual time: `-icount shift=0,sleep=on` — one instruction per nanosecond of
+//! board time, and idle time (the firmware waits in `wfi` most of each 50 µs
+//! period) kept in step with the host's clock. Board time therefore runs at real
+//! time, or slower if the host cannot keep up; it never runs ahead, so the host's
+//! heartbeats arrive as often in board time as in real time. Runs are
+//! deterministic between two requests (the twin relies on it, see [`super::twin`]).
+
+use std::io::{BufRead, BufReader};
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+
+use super::{build, qemu, QEMU_MACHINE};
+
+/// QEMU's virtual clock for the instrument: see the module docs.
+pub const ICOUNT_INSTRUMENT: &str = "shift=0,align=off,sleep=on";
+
+/// A running emulated board. Dropping it stops QEMU.
+pub struct Emulator {
+    child: Child,
+    port: String,
+    output: Arc<Mutex<String>>,
+}
+
+/// A free TCP port on the loopback interface.
+fn free_port() -> Result<u16> {
+    let l = TcpListener::bind("127.0.0.1:0").context("finding a free TCP port")?;
+    Ok(l.local_addr()?.port())
+}
+
+impl Emulator {
+    /// Builds the emulated firmware and starts it, its link on `listen`
+    /// (`HOST:PORT`; a free loopback port if `None`).
+    pub fn start(listen: Option<&str>) -> Result<Self> {
+        let elf = build("fpi-firmware", "qemu")?;
+        Self::start_elf(&elf, listen)
+    }
+
+    /// Starts a built emulated firmware.
+    pub fn start_elf(elf: &Path, listen: Option<&str>) -> Result<Self> {
+        let qemu = qemu()?;
+        let addr = match listen {
+            Some(a) => a.to_string(),
+            None => format!("127.0.0.1:{}", free_port()?),
+        };
+        let serial = format!("tcp:{addr},server=on,wait=off,nodelay=on");
+        let mut child = Command::new(&qemu)
+            .args([
+                "-machine",
+                QEMU_MACHINE,
+                "-display",
+                "none",
+                "-monitor",
+                "none",
+            ])
+            .args(["-semihosting-config", "enable=on,target=native"])
+            .args(["-icount", ICOUNT_INSTRUMENT, "-serial", &serial, "-kernel"])
+            .arg(elf)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .with_context(|| format!("starting {}", qemu.display()))?;
+        let output = Arc::new(Mutex::new(String::new()));
+        for pipe in [
+            child
+                .stdout
+                .take()
+                .map(|p| Box::new(p) as Box<dyn std::io::Read + Send>),
+            child
+                .stderr
+                .take()
+                .map(|p| Box::new(p) as Box<dyn std::io::Read + Send>),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            let out = Arc::clone(&output);
+            std::thread::spawn(move || {
+                for line in BufReader::new(pipe).lines().map_while(|l| l.ok()) {
+                    if let Ok(mut o) = out.lock() {
+                        o.push_str(&line);
+                        o.push('\n');
+                    }
+                }
+            });
+        }
+        std::thread::sleep(Duration::from_millis(100));
+        let mut e = Self {
+            child,
+            port: format!("tcp:{addr}"),
+            output,
+        };
+        if let Some(st) = e.child.try_wait()? {
+            bail!("QEMU stopped at once ({st}):\n{}", e.output());
+        }
+        e.check_alive()?;
+        Ok(e)
+    }
+
+    /// The port to open: `tcp:HOST:PORT`.
+    pub fn port(&self) -> &str {
+        &self.port
+    }
+
+    /// What the firmware and QEMU printed so far.
+    pub fn output(&self) -> String {
+        self.output.lock().map(|o| o.clone()).unwrap_or_default()
+    }
+
+    /// An error if QEMU has stopped.
+    pub fn check_alive(&mut self) -> Result<()> {
+        if let Some(st) = self.child.try_wait()? {
+            bail!("the emulated board stopped ({st}):\n{}", self.output());
+        }
+        Ok(())
+    }
+
+    /// Runs until QEMU exits (or is interrupted).
+    pub fn wait(mut self) -> Result<()> {
+        let st = self.child.wait()?;
+        if !st.success() {
+            bail!("QEMU exited with {st}:\n{}", self.output());
+        }
+        Ok(())
+    }
+
+    /// The firmware image it runs.
+    pub fn firmware() -> Result<PathBuf> {
+        build("fpi-firmware", "qemu")
+    }
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
