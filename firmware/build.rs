@@ -113,8 +113,7 @@ fn generate_model(path: &Path) -> Result<(String, Vec<u8>), String> {
         &q.f_k_inv,
     );
     controller(&mut s, &q, file.controller.slew_v_per_ms);
-    let mut image = vec![0; piezo_fpi::model::image::encoded_len(&q)];
-    piezo_fpi::model::image::encode(&q, &mut image).map_err(|e| format!("{shown}: {e}"))?;
+    let image = file.image().map_err(|e| format!("{shown}: {e}"))?;
     Ok((s, image))
 }
 

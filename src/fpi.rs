@@ -390,16 +390,8 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
         if let Err(e) = coupling.check() {
             return Err(e.error);
         }
-        let w0p = match creep_slope(pi.w0(), &creep) {
-            Ok(w) => w,
-            Err(e) => return Err(e),
-        };
-        let pi_prime = match pi.with_w0(w0p) {
+        let (pi_prime, inverse) = match Self::primed(&pi, &creep) {
             Ok(p) => p,
-            Err(e) => return Err(e),
-        };
-        let inverse = match InversePi::from_forward(&pi_prime) {
-            Ok(i) => i,
             Err(e) => return Err(e),
         };
         Ok(Self {
@@ -414,6 +406,26 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
             bare: Self::bare_by_type(C),
             tables: core::marker::PhantomData,
         })
+    }
+
+    /// The PI with `creep`'s share of this sample folded into `w0`, and its
+    /// closed-form inverse.
+    const fn primed(
+        pi: &PiModel<N>,
+        creep: &[Creep],
+    ) -> Result<(PiModel<N>, InversePi<N>), ModelError> {
+        let w0p = match creep_slope(pi.w0(), creep) {
+            Ok(w) => w,
+            Err(e) => return Err(e),
+        };
+        let pi_prime = match pi.with_w0(w0p) {
+            Ok(p) => p,
+            Err(e) => return Err(e),
+        };
+        match InversePi::from_forward(&pi_prime) {
+            Ok(i) => Ok((pi_prime, i)),
+            Err(e) => Err(e),
+        }
     }
 
     /// The same model using only its first `len` creep terms (the rest are slots of
@@ -431,16 +443,8 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
             j += 1;
         }
         let (used, _) = self.creep.split_at(len);
-        let w0p = match creep_slope(self.pi.w0(), used) {
-            Ok(w) => w,
-            Err(e) => return Err(e),
-        };
-        let pi_prime = match self.pi.with_w0(w0p) {
+        let (pi_prime, inverse) = match Self::primed(&self.pi, used) {
             Ok(p) => p,
-            Err(e) => return Err(e),
-        };
-        let inverse = match InversePi::from_forward(&pi_prime) {
-            Ok(i) => i,
             Err(e) => return Err(e),
         };
         Ok(Self {

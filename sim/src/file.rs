@@ -444,6 +444,17 @@ impl FirmwareModel {
         Ok((q, shape))
     }
 
+    /// The model as an image (`piezo_fpi::model::image`): checked, quantised and
+    /// encoded — what the firmware embeds as its factory default and what the
+    /// host uploads to a board.
+    pub fn image(&self) -> Result<Vec<u8>, String> {
+        let (q, _) = self.check()?;
+        let spec = q.spec();
+        let mut out = vec![0; piezo_fpi::model::image::encoded_len(&spec)];
+        piezo_fpi::model::image::encode(&spec, &mut out).map_err(|e| e.to_string())?;
+        Ok(out)
+    }
+
     /// Every value in its Q format (the values' ranges only; [`check`](Self::check)
     /// validates the model).
     pub fn quantize(&self) -> Result<Quantized, String> {

@@ -211,24 +211,10 @@ pub fn export(
     model: &Path,
     fem: &Path,
     out: &Path,
-    rate: u32,
-    u_max: f64,
-    slew: f64,
-    stroke: Option<f64>,
+    o: &crate::method::export::ExportOptions,
 ) -> Result<()> {
     let maps = FemMaps::read(fem)?;
-    // By default the reference may use the stroke of the calibrated voltage range.
-    let calibrated = m.pi.thresholds_v.last().copied().unwrap_or(0.0) * (m.operators() + 1) as f64
-        / m.operators().max(1) as f64;
-    let settings = crate::method::export::LoopSettings {
-        rate_hz: rate,
-        u_max,
-        slew_v_per_ms: slew,
-        stroke_voltage: stroke
-            .unwrap_or(if calibrated > 0.0 { calibrated } else { u_max })
-            .min(u_max),
-        force_tolerance: 15.0,
-    };
+    let settings = crate::method::export::LoopSettings::for_model(m, o);
     let e = crate::method::export::export(m, model, &maps, &settings)?;
     let text = e.model.to_toml().map_err(|e| anyhow::anyhow!(e))?;
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {

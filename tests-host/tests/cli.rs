@@ -379,3 +379,78 @@ fn the_micromanipulator_window_is_selectable() {
     ]);
     assert!(err.contains("outside the recording's 8027 rows"), "{err}");
 }
+
+/// `fpi board …` against the emulated board, as a user without a board runs it:
+/// load a model (a calibrated model with the stage's FEM tables, as `fpi export`
+/// takes them), move, run a wave, record it to a CSV that `fpi compare` reads as a
+/// dataset; an unreachable target is refused with the reason.
+#[test]
+fn board_commands_drive_the_emulated_board() {
+    let e = fpi_host::board::emulator::Emulator::start(None).unwrap_or_else(|e| panic!("{e:#}"));
+    let port = e.port().to_string();
+    let board = |args: &[&str]| -> Vec<String> {
+        let mut a = vec!["board", "--port", port.as_str()];
+        a.extend_from_slice(args);
+        a.iter().map(|s| s.to_string()).collect()
+    };
+    let run = |args: &[&str]| {
+        let a = board(args);
+        ok(&a.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let dir = tmp();
+    let model = fpi_model(&dir);
+    let out = run(&["load", s(&model), "--fem", FEM, "--store"]);
+    assert!(out.contains("stored in flash as generation 1"), "{out}");
+    let out = run(&["status"]);
+    assert!(
+        out.contains("received over the link") && out.contains("state: parked"),
+        "{out}"
+    );
+    run(&["move", "10", "--speed", "2000"]);
+    run(&[
+        "wave",
+        "--shape",
+        "triangle",
+        "--amplitude-um",
+        "8",
+        "--offset-um",
+        "15",
+        "--freq-hz",
+        "10",
+        "--cycles",
+        "0",
+    ]);
+    let rec = dir.join("board-record.csv");
+    let out = run(&[
+        "record",
+        "--seconds",
+        "0.3",
+        "--out",
+        s(&rec),
+        "--decimation",
+        "20",
+    ]);
+    assert!(
+        out.contains("300 samples") && out.contains("0 dropped"),
+        "{out}"
+    );
+    let csv = std::fs::read_to_string(&rec).unwrap();
+    assert!(csv.starts_with("t_s,voltage_V,force_N,x_ref_um,x_est_um,status,x_fhps_um\n"));
+    let a = board(&["move", "45"]);
+    let err = fails(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(err.contains("outside the stroke"), "{err}");
+    // The recording is a dataset: `fpi compare` scores the model on it.
+    let cmp = dir.join("board-compare");
+    let out = ok(&[
+        "compare",
+        "--fem",
+        FEM,
+        "--runs",
+        s(&rec),
+        "--model",
+        s(&model),
+        "--out",
+        s(&cmp),
+    ]);
+    assert!(out.contains("board-record.csv"), "{out}");
+}

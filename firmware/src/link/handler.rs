@@ -14,15 +14,14 @@ use core::fmt::Write as _;
 
 use embedded_storage::nor_flash::NorFlash;
 use heapless::Vec;
-use piezo_fpi::control::Fault;
-use piezo_fpi::model::image::CRC32;
 use piezo_fpi::q::Micrometres;
 
 use super::frame::{self, FrameError};
 use super::protocol::{
-    Batch, BoardKind, Command, Counters, FaultReport, Header, Hello, ModelReport, Refusal, Reply,
-    ReplyHeader, Status, Text, COMMAND_KINDS, MAX_FRAME, MAX_VALUES, NO_SEQ, VERSION,
+    Batch, BoardKind, Command, Counters, FaultReport, Header, Hello, Refusal, Reply, ReplyHeader,
+    Status, Text, COMMAND_KINDS, MAX_FRAME, MAX_VALUES, NO_SEQ, VERSION,
 };
+use super::upload::Upload;
 use crate::exchange::{Exchange, Order, Refused};
 use crate::hardware::{
     BOARD, CREEP_TERMS, IMAGE_BYTES, OPERATORS, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS,
@@ -40,6 +39,11 @@ pub trait Board {
     fn exchange<R>(&mut self, f: impl FnOnce(&mut Exchange<'_>) -> R) -> R;
     /// Waits a little: at least until the next control tick has run.
     fn wait(&mut self);
+    /// The deepest the stack has been since start-up, bytes, where the board can
+    /// tell (a painted stack).
+    fn stack_high_water(&self) -> Option<u32> {
+        None
+    }
 }
 
 /// Ticks the handler waits for an order to be applied before giving up.
@@ -48,9 +52,9 @@ const APPLY_TIMEOUT_WAITS: u32 = 100_000;
 const MAX_SPEED_UM_S: i64 = 30_000;
 
 /// A request refused: its code and reason.
-type Refuse = (Refusal, Text);
+pub(super) type Refuse = (Refusal, Text);
 
-fn refuse(code: Refusal, args: core::fmt::Arguments<'_>) -> Refuse {
+pub(super) fn refuse(code: Refusal, args: core::fmt::Arguments<'_>) -> Refuse {
     let mut t = Text::new();
     // A reason longer than the text is cut; the code still says what happened.
     let _ = t.write_fmt(args);
@@ -58,7 +62,7 @@ fn refuse(code: Refusal, args: core::fmt::Arguments<'_>) -> Refuse {
 }
 
 /// µm (or V, N) with three decimals, for reasons.
-struct Milli(i32);
+pub(super) struct Milli(pub(super) i32);
 
 impl core::fmt::Display for Milli {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
@@ -68,26 +72,19 @@ impl core::fmt::Display for Milli {
     }
 }
 
-/// A model being received.
-struct Upload {
-    image: &'static mut [u8; IMAGE_BYTES],
-    expected: Option<(usize, u32)>,
-    received: usize,
-}
-
 /// The link task's state (its configuration is the board kind and the flash).
 pub struct Handler<F> {
-    kind: BoardKind,
-    summary: Summary,
-    spare: Option<Spare>,
-    upload: Upload,
-    flash: ModelFlash<F>,
-    stored: Option<Stored>,
-    signals: u8,
-    timeout_ms: u32,
-    counters: Counters,
+    pub(super) kind: BoardKind,
+    pub(super) summary: Summary,
+    pub(super) spare: Option<Spare>,
+    pub(super) upload: Upload,
+    pub(super) flash: ModelFlash<F>,
+    pub(super) stored: Option<Stored>,
+    pub(super) signals: u8,
+    pub(super) timeout_ms: u32,
+    pub(super) counters: Counters,
     /// The tick of the request being handled (see [`ReplyHeader::tick`]).
-    tick: Option<u32>,
+    pub(super) tick: Option<u32>,
 }
 
 impl<F: NorFlash> Handler<F> {
@@ -337,7 +334,10 @@ impl<F: NorFlash> Handler<F> {
             Command::ModelCommit { store } => self.commit(board, seq, store),
             Command::ModelInfo => self.ack(board).map(|_| Reply::Model(self.model_report())),
             Command::ModelFactory => self.factory(board, seq),
-            Command::Counters => self.ack(board).map(|_| Reply::Counters(self.counters)),
+            Command::Counters => {
+                self.counters.stack_bytes = board.stack_high_water().unwrap_or(0);
+                self.ack(board).map(|_| Reply::Counters(self.counters))
+            }
             Command::Bench(b) => match self.kind {
                 BoardKind::Emulated => self.order(board, seq, Order::Bench(b)),
                 BoardKind::Driver => Err(refuse(
@@ -349,7 +349,7 @@ impl<F: NorFlash> Handler<F> {
     }
 
     /// Acknowledges a request that only counts as a heartbeat.
-    fn ack(&mut self, board: &mut impl Board) -> Result<Reply, Refuse> {
+    pub(super) fn ack(&mut self, board: &mut impl Board) -> Result<Reply, Refuse> {
         self.locked(board, |_| ());
         Ok(Reply::Ack)
     }
@@ -361,7 +361,12 @@ impl<F: NorFlash> Handler<F> {
         self.post(board, seq, order).map(|_| Reply::Ack)
     }
 
-    fn post(&mut self, board: &mut impl Board, seq: u16, order: Order) -> Result<u32, Refuse> {
+    pub(super) fn post(
+        &mut self,
+        board: &mut impl Board,
+        seq: u16,
+        order: Order,
+    ) -> Result<u32, Refuse> {
         let mut order = Some(order);
         board.exchange(|x| {
             x.heartbeats = x.heartbeats.wrapping_add(1);
@@ -517,168 +522,10 @@ impl<F: NorFlash> Handler<F> {
             ],
         }
     }
-
-    fn model_report(&self) -> ModelReport {
-        let s = &self.summary;
-        ModelReport {
-            crc: s.crc,
-            origin: s.origin,
-            size: [s.shape.operators as u8, s.shape.creep_terms as u8],
-            maps: [s.shape.dead_zone, s.shape.saturation],
-            window: [
-                s.reference.lo.to_bits(),
-                s.reference.hi.to_bits(),
-                s.safe_voltage.to_bits(),
-            ],
-            stored: self.stored.map(|st| (st.generation, st.crc)),
-        }
-    }
-
-    fn begin(&mut self, board: &mut impl Board, len: u32, crc: u32) -> Result<Reply, Refuse> {
-        if len == 0 || len as usize > IMAGE_BYTES {
-            return Err(refuse(
-                Refusal::BadArgument,
-                format_args!("image of {len} bytes: this board takes 1–{IMAGE_BYTES}"),
-            ));
-        }
-        self.upload.expected = Some((len as usize, crc));
-        self.upload.received = 0;
-        self.ack(board)
-    }
-
-    fn chunk(&mut self, board: &mut impl Board, offset: u32, data: &[u8]) -> Result<Reply, Refuse> {
-        let u = &mut self.upload;
-        let Some((len, _)) = u.expected else {
-            return Err(refuse(Refusal::Upload, format_args!("no upload begun")));
-        };
-        if offset as usize != u.received {
-            return Err(refuse(
-                Refusal::Upload,
-                format_args!("bytes from {offset} sent, from {} expected", u.received),
-            ));
-        }
-        let end = u.received + data.len();
-        match u.image.get_mut(u.received..end) {
-            Some(dst) if end <= len => dst.copy_from_slice(data),
-            _ => {
-                return Err(refuse(
-                    Refusal::Upload,
-                    format_args!("bytes up to {end} sent, the image has {len}"),
-                ))
-            }
-        }
-        u.received = end;
-        self.ack(board)
-    }
-
-    /// The parked stage's check before a model change.
-    fn parked(&self, board: &mut impl Board) -> Result<(), Refuse> {
-        let (fault, voltage) = board.exchange(|x| (x.snapshot.fault, x.snapshot.voltage));
-        match fault {
-            Some(_) if voltage == self.summary.safe_voltage => Ok(()),
-            Some(_) => Err(refuse(
-                Refusal::StillRamping,
-                format_args!("the output is still ramping to the safe voltage"),
-            )),
-            None => Err(refuse(
-                Refusal::NotAtRest,
-                format_args!("a new model needs the stage parked: send `safe` first"),
-            )),
-        }
-    }
-
-    fn commit(&mut self, board: &mut impl Board, seq: u16, store: bool) -> Result<Reply, Refuse> {
-        let Some((len, crc)) = self.upload.expected else {
-            return Err(refuse(Refusal::Upload, format_args!("no upload begun")));
-        };
-        if self.upload.received != len {
-            return Err(refuse(
-                Refusal::Upload,
-                format_args!("{} of {len} bytes received", self.upload.received),
-            ));
-        }
-        let image = self.upload.image.get(..len).unwrap_or(&[]);
-        if CRC32.checksum(image) != crc {
-            return Err(refuse(
-                Refusal::Model,
-                format_args!("the received image does not match its CRC"),
-            ));
-        }
-        self.parked(board)?;
-        let running = self.activate(Origin::Received, len)?;
-        if store {
-            let image = self.upload.image.get(..len).unwrap_or(&[]);
-            match self.flash.store(image) {
-                Ok(s) => self.stored = Some(s),
-                Err(e) => {
-                    self.spare = Some(running.retire());
-                    return Err(refuse(
-                        Refusal::Storage,
-                        format_args!("{}; the board keeps its model", e.message()),
-                    ));
-                }
-            }
-        }
-        self.upload.expected = None;
-        self.swap(board, seq, running)
-    }
-
-    /// Loads the first `len` bytes of the upload buffer into the spare store and
-    /// activates it.
-    fn activate(&mut self, origin: Origin, len: usize) -> Result<Running, Refuse> {
-        let Some(mut spare) = self.spare.take() else {
-            return Err(refuse(Refusal::Model, format_args!("no free model store")));
-        };
-        let image = self.upload.image.get(..len).unwrap_or(&[]);
-        if let Err(e) = spare.load(image) {
-            self.spare = Some(spare);
-            return Err(refuse(Refusal::Model, format_args!("{e}")));
-        }
-        match spare.activate(image, origin) {
-            Ok(r) => Ok(r),
-            Err((back, e)) => {
-                self.spare = Some(back);
-                Err(refuse(Refusal::Model, format_args!("{e}")))
-            }
-        }
-    }
-
-    /// Hands `running` to the ISR and takes back the model it replaces.
-    fn swap(
-        &mut self,
-        board: &mut impl Board,
-        seq: u16,
-        running: Running,
-    ) -> Result<Reply, Refuse> {
-        let summary = *running.summary();
-        let result = self.post(board, seq, Order::Swap(running));
-        if let Some(back) = board.exchange(|x| x.returned.take()) {
-            self.spare = Some(back.retire());
-        }
-        result?;
-        self.summary = summary;
-        Ok(Reply::Ack)
-    }
-
-    fn factory(&mut self, board: &mut impl Board, seq: u16) -> Result<Reply, Refuse> {
-        self.parked(board)?;
-        if let Err(e) = self.flash.erase_all() {
-            return Err(refuse(Refusal::Storage, format_args!("{}", e.message())));
-        }
-        self.stored = None;
-        let factory = crate::model::MODEL_IMAGE;
-        let n = factory.len().min(IMAGE_BYTES);
-        if let (Some(dst), Some(src)) = (self.upload.image.get_mut(..n), factory.get(..n)) {
-            dst.copy_from_slice(src);
-        }
-        self.upload.expected = None;
-        let running = self.activate(Origin::Factory, n)?;
-        self.swap(board, seq, running)
-    }
 }
 
 /// The reason the ISR gave, as a refusal.
-fn refused(r: Refused) -> Refuse {
+pub(super) fn refused(r: Refused) -> Refuse {
     match r {
         Refused::Fault(f) => refuse(
             Refusal::Fault,
@@ -693,11 +540,6 @@ fn refused(r: Refused) -> Refuse {
             format_args!("a new model needs the stage parked: send `safe` first"),
         ),
     }
-}
-
-/// The latched fault of a status, if any.
-pub fn fault_of(status: &Status) -> Option<Fault> {
-    status.fault.and_then(|f| Fault::from_code(f.code))
 }
 
 /// The status a request gets.

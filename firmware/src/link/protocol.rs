@@ -1,4 +1,4 @@
-//! The messages of the board's command link (see `PROTOCOL.md` at the top level).
+//! The messages of the board's command link (see `firmware/PROTOCOL.md`).
 //!
 //! Every request is a [`Header`] (protocol version, sequence number) and a
 //! [`Command`]; every reply is a [`Header`] echoing the sequence number and a
@@ -315,6 +315,8 @@ pub struct Counters {
     pub unknown: u32,
     /// Requests refused for any reason (the above included).
     pub refused: u32,
+    /// The deepest the board's stack has been since start-up, bytes (0: unknown).
+    pub stack_bytes: u32,
 }
 
 /// A batch of recorded samples.

@@ -8,6 +8,9 @@
 //! fpi export    --model MODEL.toml --fem FEM.csv --out FIRMWARE.toml
 //! fpi demo      [--out DIR]
 //! fpi bench
+//! fpi board emulate [--listen 127.0.0.1:PORT]
+//! fpi board --port PORT status | move UM | wave … | stream FILE.csv | record --seconds S --out FILE.csv
+//!                       load MODEL.toml [--fem FEM.csv] | safe | clear-fault | hold | analog | drive … | supervise MS
 //! ```
 //!
 //! Run from `tests-host/` as `cargo run --release --bin fpi -- …`.
@@ -24,7 +27,7 @@ use fpi_host::{cli, method::model::HostModel};
 #[command(
     name = "fpi",
     version,
-    about = "The FPI-FFEM method: calibrate, predict, compare, invert, export"
+    about = "The FPI-FFEM method (calibrate, predict, compare, invert, export) and the board"
 )]
 struct Args {
     #[command(subcommand)]
@@ -115,19 +118,8 @@ enum Command {
         /// Where to write the firmware model file (`firmware/model/*.toml`).
         #[arg(long)]
         out: PathBuf,
-        /// Control ISR rate, Hz.
-        #[arg(long, default_value_t = 20_000)]
-        rate: u32,
-        /// Highest amplifier voltage, V.
-        #[arg(long, default_value_t = 150.0)]
-        u_max: f64,
-        /// Largest setpoint slew, V/ms.
-        #[arg(long, default_value_t = 100.0)]
-        slew: f64,
-        /// Highest voltage of the reachable stroke the reference may ask for, V
-        /// (default: the calibrated range of the model).
-        #[arg(long)]
-        stroke_voltage: Option<f64>,
+        #[command(flatten)]
+        settings: LoopArgs,
     },
     /// The whole chain on the datasets the project carries, into a folder.
     Demo {
@@ -137,6 +129,139 @@ enum Command {
     },
     /// Throughput of the host model and the calibration (figures, not a test).
     Bench,
+    /// A driver board (or the emulated board) over its command link.
+    Board {
+        /// The board's port: a serial device (/dev/ttyUSB0, COM3) or tcp:HOST:PORT
+        /// (the emulated board). Not needed by `emulate`.
+        #[arg(long, global = true, env = "FPI_BOARD")]
+        port: Option<String>,
+        #[command(subcommand)]
+        command: BoardCommand,
+    },
+}
+
+/// The loop settings of an exported model (`fpi export`, `fpi board load`).
+#[derive(clap::Args)]
+struct LoopArgs {
+    /// Control ISR rate, Hz.
+    #[arg(long, default_value_t = 20_000)]
+    rate: u32,
+    /// Highest amplifier voltage, V.
+    #[arg(long, default_value_t = 150.0)]
+    u_max: f64,
+    /// Largest setpoint slew, V/ms.
+    #[arg(long, default_value_t = 100.0)]
+    slew: f64,
+    /// Highest voltage of the reachable stroke the reference may ask for, V
+    /// (default: the calibrated range of the model).
+    #[arg(long)]
+    stroke_voltage: Option<f64>,
+}
+
+impl LoopArgs {
+    fn options(&self) -> fpi_host::method::export::ExportOptions {
+        fpi_host::method::export::ExportOptions {
+            rate_hz: self.rate,
+            u_max: self.u_max,
+            slew: self.slew,
+            stroke_voltage: self.stroke_voltage,
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum BoardCommand {
+    /// Run the emulated board (QEMU with the firmware and its virtual stage) until
+    /// stopped; its link listens on a TCP port.
+    Emulate {
+        /// Where the link listens.
+        #[arg(long, default_value = "127.0.0.1:4545")]
+        listen: String,
+    },
+    /// The board, its model and the loop's state.
+    Status,
+    /// Ramp to a position and hold it.
+    Move {
+        /// Target, µm.
+        um: f64,
+        /// Speed, µm/s.
+        #[arg(long, default_value_t = 1000.0)]
+        speed: f64,
+    },
+    /// Run the waveform generator.
+    Wave {
+        /// sine, triangle or cosine (a raised cosine from the bottom of the swing).
+        #[arg(long, default_value = "sine")]
+        shape: String,
+        /// Half-swing, µm.
+        #[arg(long)]
+        amplitude_um: f64,
+        /// Mid-point, µm.
+        #[arg(long)]
+        offset_um: f64,
+        /// Frequency, Hz.
+        #[arg(long)]
+        freq_hz: f64,
+        /// Periods to run (default: until another command).
+        #[arg(long, default_value_t = 0)]
+        cycles: u32,
+    },
+    /// Stream a trajectory: column `x_ref_um` of a CSV, one point every
+    /// `--interval` control ticks, interpolated.
+    Stream {
+        /// The trajectory.
+        file: PathBuf,
+        /// Control ticks per point (20 = 1 kHz at 20 kHz).
+        #[arg(long, default_value_t = 20)]
+        interval: u16,
+    },
+    /// Record what the stage does into a CSV (the datasets' columns).
+    Record {
+        /// Board time to record, s.
+        #[arg(long)]
+        seconds: f64,
+        /// Where to write it.
+        #[arg(long)]
+        out: PathBuf,
+        /// Keep one tick in this many.
+        #[arg(long, default_value_t = 20)]
+        decimation: u16,
+    },
+    /// Load a model into the board: a calibrated model with the stage's FEM tables
+    /// (as `fpi export` takes them), or a firmware model file.
+    Load {
+        /// The model.
+        model: PathBuf,
+        /// FEM export of the stage (for a calibrated model).
+        #[arg(long)]
+        fem: Option<PathBuf>,
+        /// Keep it in the board's flash (it survives a reset).
+        #[arg(long)]
+        store: bool,
+        #[command(flatten)]
+        settings: LoopArgs,
+    },
+    /// Forget the stored model and run the factory default.
+    Factory,
+    /// Park the stage: ramp to the safe voltage, amplifier off.
+    Safe,
+    /// Clear a latched fault (the stage stays parked until the next motion).
+    ClearFault,
+    /// Stop the reference where it is.
+    Hold,
+    /// Follow the analog reference input.
+    Analog,
+    /// Compensated (inverse FPI) or uncompensated (straight line) drive.
+    Drive {
+        /// compensated or uncompensated.
+        mode: String,
+    },
+    /// Park the stage if the host is silent this long while it drives the stage
+    /// (0: off).
+    Supervise {
+        /// Timeout, ms.
+        ms: u32,
+    },
 }
 
 fn parse_rows(s: &str) -> Result<(usize, usize), String> {
@@ -198,15 +323,95 @@ fn run(args: Args) -> Result<()> {
             model,
             fem,
             out,
-            rate,
-            u_max,
-            slew,
-            stroke_voltage,
+            settings,
         } => {
             let m = HostModel::read(&model)?;
-            cli::export(&m, &model, &fem, &out, rate, u_max, slew, stroke_voltage)
+            cli::export(&m, &model, &fem, &out, &settings.options())
         }
         Command::Demo { out } => cli::demo(&out).context("demo"),
         Command::Bench => cli::bench(),
+        Command::Board { port, command } => board(port, command),
+    }
+}
+
+fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
+    use fpi_firmware::link::protocol::Command as C;
+    use fpi_host::board::{client::Client, commands as b, emulator::Emulator};
+    if let BoardCommand::Emulate { listen } = &command {
+        let e = Emulator::start(Some(listen))?;
+        println!(
+            "emulated board running; its link is --port {} (Ctrl-C stops it)",
+            e.port()
+        );
+        return e.wait();
+    }
+    let Some(port) = port else {
+        anyhow::bail!("which board? --port /dev/ttyUSB0 (or COM3), or --port tcp:127.0.0.1:4545 for `fpi board emulate`");
+    };
+    let mut c = Client::open(&port)?;
+    match command {
+        BoardCommand::Emulate { .. } => Ok(()),
+        BoardCommand::Status => b::status(&mut c),
+        BoardCommand::Move { um, speed } => {
+            let t = c.move_to(um, speed)?;
+            println!("moving to {um} µm at {speed} µm/s from tick {t}");
+            Ok(())
+        }
+        BoardCommand::Wave {
+            shape,
+            amplitude_um,
+            offset_um,
+            freq_hz,
+            cycles,
+        } => {
+            let t = c.wave(b::shape(&shape)?, amplitude_um, offset_um, freq_hz, cycles)?;
+            println!("{shape} wave from tick {t} (after an approach to its start)");
+            Ok(())
+        }
+        BoardCommand::Stream { file, interval } => {
+            let points = b::read_points(&file)?;
+            b::stream(&mut c, &points, interval)
+        }
+        BoardCommand::Record {
+            seconds,
+            out,
+            decimation,
+        } => b::record(&mut c, seconds, decimation, &out).map(|_| ()),
+        BoardCommand::Load {
+            model,
+            fem,
+            store,
+            settings,
+        } => {
+            let image = b::model_image(&model, fem.as_deref(), &settings.options())?;
+            b::load(&mut c, &image, store)
+        }
+        BoardCommand::Factory => c
+            .ack(&C::ModelFactory)
+            .map(|t| println!("factory model from tick {t}")),
+        BoardCommand::Safe => c.ack(&C::Safe).map(|t| println!("parking from tick {t}")),
+        BoardCommand::ClearFault => c
+            .ack(&C::ClearFault)
+            .map(|t| println!("cleared at tick {t}; parked")),
+        BoardCommand::Hold => c.ack(&C::Hold).map(|t| println!("holding from tick {t}")),
+        BoardCommand::Analog => c
+            .ack(&C::Analog)
+            .map(|t| println!("following the analog input from tick {t}")),
+        BoardCommand::Drive { mode } => {
+            let compensated = match mode.as_str() {
+                "compensated" => true,
+                "uncompensated" => false,
+                m => anyhow::bail!("drive {m:?}: compensated or uncompensated"),
+            };
+            c.ack(&C::Drive { compensated })
+                .map(|t| println!("{mode} from tick {t}"))
+        }
+        BoardCommand::Supervise { ms } => c.ack(&C::Supervise { timeout_ms: ms }).map(|_| {
+            if ms == 0 {
+                println!("host supervision off");
+            } else {
+                println!("the stage parks if the host is silent for {ms} ms while it drives it");
+            }
+        }),
     }
 }

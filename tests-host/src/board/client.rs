@@ -335,3 +335,73 @@ impl Client {
 pub fn refusal(e: &anyhow::Error) -> Option<&Refused> {
     e.downcast_ref::<Refused>()
 }
+
+/// How a streamed trajectory went.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StreamReport {
+    /// Points sent.
+    pub points: usize,
+    /// The tick the stream started (its approach to the first point).
+    pub started: u32,
+    /// Ticks the board held a point for want of the next one.
+    pub underruns: u32,
+}
+
+impl Client {
+    /// Streams `points_um` (one every `interval` ticks): fills the board's
+    /// buffer, starts the stream, keeps the buffer topped up, ends the stream and
+    /// waits until the last point has been played. `progress` gets the number of
+    /// points sent; `idle` runs while the host waits for room (e.g. to read the
+    /// recorder).
+    pub fn stream(
+        &mut self,
+        points_um: &[f64],
+        interval: u16,
+        mut progress: impl FnMut(usize),
+        mut idle: impl FnMut(&mut Self) -> Result<()>,
+    ) -> Result<StreamReport> {
+        self.ack(&Command::StreamClear)?;
+        let capacity = self.hello.buffers[1] as usize;
+        let mut sent = 0;
+        while sent < points_um.len() && sent + MAX_POINTS <= capacity {
+            sent += self.send_points(sent, points_um)?;
+            progress(sent);
+        }
+        let started = self.ack(&Command::Stream { interval })?;
+        loop {
+            let s = self.status()?;
+            let free = s.stream[1] as usize;
+            if sent == points_um.len() {
+                self.ack(&Command::StreamEnd)?;
+                break;
+            }
+            if free >= MAX_POINTS.min(points_um.len() - sent) {
+                sent += self.send_points(sent, points_um)?;
+                progress(sent);
+            } else {
+                idle(self)?;
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        }
+        // Until the board has played the last point (and holds it).
+        let underruns = loop {
+            let s = self.status()?;
+            if s.source != fpi_firmware::reference::SourceKind::Stream || s.fault.is_some() {
+                break s.stream[3];
+            }
+            idle(self)?;
+            std::thread::sleep(Duration::from_millis(10));
+        };
+        Ok(StreamReport {
+            points: sent,
+            started,
+            underruns,
+        })
+    }
+
+    fn send_points(&mut self, from: usize, points_um: &[f64]) -> Result<usize> {
+        let chunk = &points_um[from..points_um.len().min(from + MAX_POINTS)];
+        self.points(from as u32, chunk)?;
+        Ok(chunk.len())
+    }
+}

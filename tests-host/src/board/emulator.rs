@@ -12,13 +12,13 @@
 use std::io::{BufRead, BufReader};
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 
-use super::{build, qemu, QEMU_MACHINE};
+use super::{build, qemu, qemu_command};
 
 /// QEMU's virtual clock for the instrument: see the module docs.
 pub const ICOUNT_INSTRUMENT: &str = "shift=0,align=off,sleep=on";
@@ -52,18 +52,8 @@ impl Emulator {
             None => format!("127.0.0.1:{}", free_port()?),
         };
         let serial = format!("tcp:{addr},server=on,wait=off,nodelay=on");
-        let mut child = Command::new(&qemu)
-            .args([
-                "-machine",
-                QEMU_MACHINE,
-                "-display",
-                "none",
-                "-monitor",
-                "none",
-            ])
-            .args(["-semihosting-config", "enable=on,target=native"])
-            .args(["-icount", ICOUNT_INSTRUMENT, "-serial", &serial, "-kernel"])
-            .arg(elf)
+        let mut child = qemu_command(&qemu, elf, ICOUNT_INSTRUMENT)
+            .args(["-display", "none", "-serial", &serial])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())

@@ -6,9 +6,11 @@
 
 pub mod accuracy;
 pub mod client;
+pub mod commands;
 pub mod emulator;
 pub mod port;
 pub mod recording;
+pub mod session;
 pub mod twin;
 
 use std::io::{BufRead, BufReader, Read};
@@ -136,6 +138,18 @@ pub fn build(bin: &str, features: &str) -> Result<PathBuf> {
     Ok(elf)
 }
 
+/// QEMU's command line for an ELF on the emulated board: the machine, no monitor,
+/// semihosting (the firmware's output) and the `-icount` setting; the caller adds
+/// the display and serial options.
+pub fn qemu_command(qemu: &Path, elf: &Path, icount: &str) -> Command {
+    let mut c = Command::new(qemu);
+    c.args(["-machine", QEMU_MACHINE, "-monitor", "none"])
+        .args(["-semihosting-config", "enable=on,target=native"])
+        .args(["-icount", icount, "-kernel"])
+        .arg(elf);
+    c
+}
+
 /// What a QEMU run printed and how it ended.
 #[derive(Debug, Clone)]
 pub struct QemuRun {
@@ -152,22 +166,8 @@ pub struct QemuRun {
 pub fn run(elf: &Path, icount: &str, timeout: Duration, echo: bool) -> Result<QemuRun> {
     let qemu = qemu()?;
     let start = Instant::now();
-    let mut child = Command::new(&qemu)
-        .args([
-            "-machine",
-            QEMU_MACHINE,
-            "-nographic",
-            "-monitor",
-            "none",
-            "-serial",
-            "null",
-            "-semihosting-config",
-            "enable=on,target=native",
-            "-icount",
-            icount,
-            "-kernel",
-        ])
-        .arg(elf)
+    let mut child = qemu_command(&qemu, elf, icount)
+        .args(["-nographic", "-serial", "null"])
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

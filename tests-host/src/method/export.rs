@@ -38,6 +38,39 @@ pub struct LoopSettings {
     pub force_tolerance: f64,
 }
 
+/// The loop settings as `fpi export` and `fpi board load` take them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExportOptions {
+    /// Control rate, Hz.
+    pub rate_hz: u32,
+    /// Highest amplifier voltage, V.
+    pub u_max: f64,
+    /// Largest slew, V/ms.
+    pub slew: f64,
+    /// Highest voltage of the reachable stroke, V (default: the calibrated range).
+    pub stroke_voltage: Option<f64>,
+}
+
+impl LoopSettings {
+    /// The settings for model `m`: by default the reference may use the stroke the
+    /// model's calibrated voltage range reaches (`stroke_voltage`, capped at `u_max`).
+    pub fn for_model(m: &HostModel, o: &ExportOptions) -> Self {
+        let (rate_hz, u_max, slew, stroke) = (o.rate_hz, o.u_max, o.slew, o.stroke_voltage);
+        let calibrated = m.pi.thresholds_v.last().copied().unwrap_or(0.0)
+            * (m.operators() + 1) as f64
+            / m.operators().max(1) as f64;
+        Self {
+            rate_hz,
+            u_max,
+            slew_v_per_ms: slew,
+            stroke_voltage: stroke
+                .unwrap_or(if calibrated > 0.0 { calibrated } else { u_max })
+                .min(u_max),
+            force_tolerance: 15.0,
+        }
+    }
+}
+
 /// One table's grid and how far it is from the map it samples.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TableReport {

@@ -191,6 +191,31 @@ mod app {
         fn wait(&mut self) {
             cortex_m::asm::wfi();
         }
+        fn stack_high_water(&self) -> Option<u32> {
+            Some(super::stack_used())
+        }
+    }
+}
+
+#[cfg(target_os = "none")]
+extern "C" {
+    static mut _stack_start: u32;
+    static mut __euninit: u32;
+}
+
+/// The deepest the stack has been since reset, bytes: cortex-m-rt's
+/// `paint-stack` fills the free RAM with a pattern before `main`.
+#[cfg(target_os = "none")]
+pub fn stack_used() -> u32 {
+    // SAFETY: reads (only) the free region between the statics and the stack
+    // top, word by word, until the first word the stack has written.
+    unsafe {
+        let top = &raw const _stack_start as usize;
+        let mut p = &raw const __euninit as usize;
+        while p < top && core::ptr::read_volatile(p as *const u32) == 0xCCCC_CCCC {
+            p += 4;
+        }
+        (top - p) as u32
     }
 }
 

@@ -1,0 +1,195 @@
+//! The link task's model upload: the image arrives in chunks into a buffer, is
+//! checked (its CRC, the validator, the board's capacity and hardware limits),
+//! written to flash if asked, and handed to the control ISR between two ticks —
+//! only with the stage parked. On any failure the running model stays.
+
+use embedded_storage::nor_flash::NorFlash;
+use piezo_fpi::model::image::CRC32;
+
+use super::handler::{refuse, Board, Handler, Refuse};
+use super::protocol::{ModelReport, Refusal, Reply};
+use crate::exchange::Order;
+use crate::hardware::IMAGE_BYTES;
+use crate::slots::{Origin, Running};
+
+/// A model being received.
+pub(super) struct Upload {
+    pub(super) image: &'static mut [u8; IMAGE_BYTES],
+    pub(super) expected: Option<(usize, u32)>,
+    pub(super) received: usize,
+}
+
+impl<F: NorFlash> Handler<F> {
+    pub(super) fn model_report(&self) -> ModelReport {
+        let s = &self.summary;
+        ModelReport {
+            crc: s.crc,
+            origin: s.origin,
+            size: [s.shape.operators as u8, s.shape.creep_terms as u8],
+            maps: [s.shape.dead_zone, s.shape.saturation],
+            window: [
+                s.reference.lo.to_bits(),
+                s.reference.hi.to_bits(),
+                s.safe_voltage.to_bits(),
+            ],
+            stored: self.stored.map(|st| (st.generation, st.crc)),
+        }
+    }
+
+    pub(super) fn begin(
+        &mut self,
+        board: &mut impl Board,
+        len: u32,
+        crc: u32,
+    ) -> Result<Reply, Refuse> {
+        if len == 0 || len as usize > IMAGE_BYTES {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!("image of {len} bytes: this board takes 1–{IMAGE_BYTES}"),
+            ));
+        }
+        self.upload.expected = Some((len as usize, crc));
+        self.upload.received = 0;
+        self.ack(board)
+    }
+
+    pub(super) fn chunk(
+        &mut self,
+        board: &mut impl Board,
+        offset: u32,
+        data: &[u8],
+    ) -> Result<Reply, Refuse> {
+        let u = &mut self.upload;
+        let Some((len, _)) = u.expected else {
+            return Err(refuse(Refusal::Upload, format_args!("no upload begun")));
+        };
+        if offset as usize != u.received {
+            return Err(refuse(
+                Refusal::Upload,
+                format_args!("bytes from {offset} sent, from {} expected", u.received),
+            ));
+        }
+        let end = u.received + data.len();
+        match u.image.get_mut(u.received..end) {
+            Some(dst) if end <= len => dst.copy_from_slice(data),
+            _ => {
+                return Err(refuse(
+                    Refusal::Upload,
+                    format_args!("bytes up to {end} sent, the image has {len}"),
+                ))
+            }
+        }
+        u.received = end;
+        self.ack(board)
+    }
+
+    /// The parked stage's check before a model change.
+    fn parked(&self, board: &mut impl Board) -> Result<(), Refuse> {
+        let (fault, voltage) = board.exchange(|x| (x.snapshot.fault, x.snapshot.voltage));
+        match fault {
+            Some(_) if voltage == self.summary.safe_voltage => Ok(()),
+            Some(_) => Err(refuse(
+                Refusal::StillRamping,
+                format_args!("the output is still ramping to the safe voltage"),
+            )),
+            None => Err(refuse(
+                Refusal::NotAtRest,
+                format_args!("a new model needs the stage parked: send `safe` first"),
+            )),
+        }
+    }
+
+    pub(super) fn commit(
+        &mut self,
+        board: &mut impl Board,
+        seq: u16,
+        store: bool,
+    ) -> Result<Reply, Refuse> {
+        let Some((len, crc)) = self.upload.expected else {
+            return Err(refuse(Refusal::Upload, format_args!("no upload begun")));
+        };
+        if self.upload.received != len {
+            return Err(refuse(
+                Refusal::Upload,
+                format_args!("{} of {len} bytes received", self.upload.received),
+            ));
+        }
+        let image = self.upload.image.get(..len).unwrap_or(&[]);
+        if CRC32.checksum(image) != crc {
+            return Err(refuse(
+                Refusal::Model,
+                format_args!("the received image does not match its CRC"),
+            ));
+        }
+        self.parked(board)?;
+        let running = self.activate(Origin::Received, len)?;
+        if store {
+            let image = self.upload.image.get(..len).unwrap_or(&[]);
+            match self.flash.store(image) {
+                Ok(s) => self.stored = Some(s),
+                Err(e) => {
+                    self.spare = Some(running.retire());
+                    return Err(refuse(
+                        Refusal::Storage,
+                        format_args!("{}; the board keeps its model", e.message()),
+                    ));
+                }
+            }
+        }
+        self.upload.expected = None;
+        self.swap(board, seq, running)
+    }
+
+    /// Loads the first `len` bytes of the upload buffer into the spare store and
+    /// activates it.
+    fn activate(&mut self, origin: Origin, len: usize) -> Result<Running, Refuse> {
+        let Some(mut spare) = self.spare.take() else {
+            return Err(refuse(Refusal::Model, format_args!("no free model store")));
+        };
+        let image = self.upload.image.get(..len).unwrap_or(&[]);
+        if let Err(e) = spare.load(image) {
+            self.spare = Some(spare);
+            return Err(refuse(Refusal::Model, format_args!("{e}")));
+        }
+        match spare.activate(image, origin) {
+            Ok(r) => Ok(r),
+            Err((back, e)) => {
+                self.spare = Some(back);
+                Err(refuse(Refusal::Model, format_args!("{e}")))
+            }
+        }
+    }
+
+    /// Hands `running` to the ISR and takes back the model it replaces.
+    fn swap(
+        &mut self,
+        board: &mut impl Board,
+        seq: u16,
+        running: Running,
+    ) -> Result<Reply, Refuse> {
+        let summary = *running.summary();
+        let result = self.post(board, seq, Order::Swap(running));
+        if let Some(back) = board.exchange(|x| x.returned.take()) {
+            self.spare = Some(back.retire());
+        }
+        result?;
+        self.summary = summary;
+        Ok(Reply::Ack)
+    }
+
+    pub(super) fn factory(&mut self, board: &mut impl Board, seq: u16) -> Result<Reply, Refuse> {
+        self.parked(board)?;
+        if let Err(e) = self.flash.erase_all() {
+            return Err(refuse(Refusal::Storage, format_args!("{}", e.message())));
+        }
+        self.stored = None;
+        let factory = crate::model::MODEL_IMAGE;
+        let n = factory.len().min(IMAGE_BYTES);
+        if let (Some(dst), Some(src)) = (self.upload.image.get_mut(..n), factory.get(..n)) {
+            dst.copy_from_slice(src);
+        }
+        self.upload.expected = None;
+        let running = self.activate(Origin::Factory, n)?;
+        self.swap(board, seq, running)
+    }
+}

@@ -1,0 +1,215 @@
+//! The main job (`cargo demo`): the FPI-FFEM method on the host, then the
+//! compensation loop on the emulated Cortex-M4, driven through its command link as
+//! a user would drive a real board.
+//!
+//! 1. Runs the method on the host (`fpi demo`): calibration on the rig, prediction
+//!    of stage A, the micromanipulator, feedforward, export of the efpi model for
+//!    the firmware; the report goes to `tests-host/out/demo/report.md`.
+//! 2. Measures the fixed-point core against its f64 reference on every recording.
+//! 3. Builds the firmware for the emulated STM32F405, starts it on QEMU's
+//!    `netduinoplus2` with its USART bridged to a TCP port, and runs a session over
+//!    the link ([`fpi_host::board::session`]): uploads the model just exported,
+//!    records, tracks the stroke without and with FPI compensation, streams nested
+//!    minor loops, breaks the force sensor's wire, asks for an unreachable
+//!    position, sends bad frames. Each phase is scored from the board's recording
+//!    (written to `tests-host/out/demo/board-session.csv`), and the session is
+//!    replayed on the host twin, which must reproduce every recorded sample.
+//!
+//! Exits non-zero if a target of the method, the accuracy bounds, a phase's check
+//! or the twin fail.
+
+use std::fmt::Write as _;
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use fpi_host::board::accuracy::{self, BOUND_U_V, BOUND_X_UM};
+use fpi_host::board::client::Client;
+use fpi_host::board::emulator::Emulator;
+use fpi_host::board::session::{self, SessionReport};
+use fpi_host::board::{self, twin};
+use piezo_sim::file::FirmwareModel;
+
+fn main() -> ExitCode {
+    fpi_host::cli::exit_quietly_on_broken_pipe();
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("demo failed: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<()> {
+    // Ask for QEMU before spending time on anything else.
+    board::qemu()?;
+    println!("== 1. FPI-FFEM method on the host (fpi demo) ==");
+    let out = board::project_root().join("tests-host/out/demo");
+    let chain = fpi_host::report::demo::run(&out)?;
+    for l in &chain.lines {
+        println!("  {l}");
+    }
+    println!("\n== 2. Fixed-point core against its f64 reference ==");
+    let acc_ok = accuracy()?;
+
+    println!("\n== 3. The emulated board, driven over its link ==");
+    let exported = out.join("firmware-stage-a.toml");
+    let text = std::fs::read_to_string(&exported)
+        .with_context(|| format!("reading {}", exported.display()))?;
+    let image = FirmwareModel::parse(&text, &exported.display().to_string())
+        .and_then(|m| m.image())
+        .map_err(anyhow::Error::msg)?;
+    let elf = Emulator::firmware()?;
+    let emulator = Emulator::start_elf(&elf, None)?;
+    println!(
+        "QEMU {} running the firmware, link on {}",
+        board::QEMU_MACHINE,
+        emulator.port()
+    );
+    let mut c = Client::open(emulator.port())?;
+    let report = session::run(&mut c, &image).context("the board session")?;
+    drop(emulator);
+    print_session(&report);
+    let csv = out.join("board-session.csv");
+    report.recording.write_csv(&csv)?;
+    append_report(&out.join("report.md"), &report)?;
+    println!(
+        "  recording: {} ({} samples)",
+        fpi_host::method::export::project_relative(&csv),
+        report.recording.samples.len()
+    );
+    println!(
+        "\nreport with tables and plots: {}",
+        fpi_host::method::export::project_relative(&chain.report)
+    );
+    let ok = chain.ok && acc_ok && report.pass();
+    println!("RESULT {}", if ok { "PASS" } else { "FAIL" });
+    if !ok {
+        bail!("see the report above");
+    }
+    Ok(())
+}
+
+fn print_session(r: &SessionReport) {
+    println!(
+        "  {:<42} {:>10} {:>10} {:>12}  check",
+        "phase", "rms nm", "max nm", "sensor nm"
+    );
+    for p in &r.phases {
+        let nm = |x: f64| format!("{:.0}", x * 1e3);
+        let (rms, max, est) = if p.tracking.count() > 0 {
+            (
+                nm(p.tracking.rms()),
+                nm(p.tracking.max_abs()),
+                nm(p.estimate.rms()),
+            )
+        } else {
+            ("-".into(), "-".into(), "-".into())
+        };
+        println!(
+            "  {:<42} {:>10} {:>10} {:>12}  {}",
+            p.name,
+            rms,
+            max,
+            est,
+            if p.pass { "ok" } else { "FAILED" }
+        );
+        if !p.note.is_empty() {
+            println!("      {}", p.note);
+        }
+    }
+    let a = &r.twin;
+    println!(
+        "  host twin (the session's requests replayed at their ticks on the same code): {} \
+         samples, positions within {:.3} nm, setpoint within {:.3} mV, force within {:.3} mN, \
+         {} status differences (bound {} nm/mV/mN): {}",
+        a.samples,
+        a.position_um * 1e3,
+        a.voltage_v * 1e3,
+        a.force_n * 1e3,
+        a.status,
+        twin::TWIN_BOUND * 1e3,
+        if a.within(twin::TWIN_BOUND) {
+            "ok"
+        } else {
+            "DIFFERS"
+        }
+    );
+    let k = &r.counters;
+    println!(
+        "  link: {} requests, {} refused ({} malformed); recorder: {} samples, {} dropped; board \
+         time ran at {:.0} ticks/s of wall-clock time ({:.0} % of real time), session {:.1} s",
+        k.requests,
+        k.refused,
+        k.malformed,
+        r.recording.samples.len(),
+        r.recording.dropped,
+        r.ticks_per_second,
+        r.ticks_per_second / 200.0,
+        r.elapsed.as_secs_f64()
+    );
+}
+
+/// Adds the board session to the report.
+fn append_report(path: &std::path::Path, r: &SessionReport) -> Result<()> {
+    let mut md = std::fs::read_to_string(path).unwrap_or_default();
+    let _ = writeln!(md, "\n## 6. The emulated board, driven over its link\n");
+    let _ = writeln!(
+        md,
+        "The firmware on QEMU's netduinoplus2 with its virtual stage; the efpi model exported \
+         above uploaded over the link; every figure from the board's own recording \
+         (`board-session.csv`, one sample every {} ticks).\n",
+        session::DECIMATION
+    );
+    let _ = writeln!(
+        md,
+        "| phase | RMS nm | max nm | virtual sensor nm | check | notes |"
+    );
+    let _ = writeln!(md, "|---|---:|---:|---:|---|---|");
+    for p in &r.phases {
+        let _ = writeln!(
+            md,
+            "| {} | {:.0} | {:.0} | {:.0} | {} | {} |",
+            p.name,
+            p.tracking.rms() * 1e3,
+            p.tracking.max_abs() * 1e3,
+            p.estimate.rms() * 1e3,
+            if p.pass { "ok" } else { "FAILED" },
+            p.note
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\nTwin: {} samples replayed on the host, largest difference {:.3} nm.",
+        r.twin.samples,
+        r.twin.position_um * 1e3
+    );
+    std::fs::write(path, md).with_context(|| format!("writing {}", path.display()))
+}
+
+/// The fixed-point core against its f64 reference on every recording; whether it
+/// meets the bounds.
+fn accuracy() -> Result<bool> {
+    let files = accuracy::all_files()?;
+    let worst = |f: fn(&accuracy::FileAccuracy) -> f64| files.iter().map(f).fold(0.0, f64::max);
+    let (dx, du, duh) = (
+        worst(|f| f.max_dx_um),
+        worst(|f| f.max_du_v),
+        worst(|f| f.max_duh_v),
+    );
+    let samples: usize = files.iter().map(|f| f.samples).sum();
+    let ok = dx <= BOUND_X_UM && du <= BOUND_U_V && duh <= BOUND_U_V;
+    println!(
+        "  on {} recordings ({} samples): stack extension within {:.3} nm (bound 1 nm); setpoint \
+         within {:.3} mV where the stack responds and effective voltage within {:.3} mV \
+         everywhere (bound {:.3} mV = 1 LSB of 16 bits over 150 V): {}",
+        files.len(),
+        samples,
+        dx * 1e3,
+        du * 1e3,
+        duh * 1e3,
+        BOUND_U_V * 1e3,
+        if ok { "ok" } else { "FAILED" }
+    );
+    Ok(ok)
+}

@@ -1,0 +1,304 @@
+//! `fpi board …`: a board (or the emulated board) driven from the command line,
+//! through the same [`Client`] the tests and the demo use.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use fpi_firmware::link::protocol::{BoardKind, Command, Status};
+use fpi_firmware::recorder::signal;
+use fpi_firmware::reference::wave::Shape;
+use fpi_firmware::slots::Origin;
+use indicatif::{ProgressBar, ProgressStyle};
+use piezo_fpi::control::Fault;
+use piezo_sim::file::FirmwareModel;
+
+use super::client::{real, Client};
+use super::recording::Recording;
+use crate::data::fem::FemMaps;
+use crate::method::export::{self, ExportOptions, LoopSettings};
+use crate::method::model::HostModel;
+
+/// The image of a model file for the board: a firmware model file
+/// (`format = "piezo-fpi-firmware/1"`, from `fpi export`) as it is, or a
+/// calibrated model (`fpi calibrate`) exported with the stage's FEM tables and the
+/// loop settings, as `fpi export` would.
+pub fn model_image(model: &Path, fem: Option<&Path>, o: &ExportOptions) -> Result<Vec<u8>> {
+    let text =
+        std::fs::read_to_string(model).with_context(|| format!("reading {}", model.display()))?;
+    let shown = model.display().to_string();
+    let firmware = if text.contains(piezo_sim::file::FORMAT) {
+        if fem.is_some() {
+            bail!("{shown} is a firmware model (it carries its tables): drop --fem");
+        }
+        FirmwareModel::parse(&text, &shown).map_err(anyhow::Error::msg)?
+    } else {
+        let Some(fem) = fem else {
+            bail!("{shown} is a calibrated model: give the stage's FEM tables with --fem FEM.csv");
+        };
+        let m = HostModel::read(model)?;
+        let maps = FemMaps::read(fem)?;
+        let settings = LoopSettings::for_model(&m, o);
+        export::export(&m, model, &maps, &settings)?.model
+    };
+    firmware
+        .image()
+        .map_err(|e| anyhow::anyhow!("{shown}: {e}"))
+}
+
+fn bar(len: u64, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template("{msg:>10} [{bar:40}] {pos}/{len} ({eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    pb.set_message(what.to_string());
+    pb
+}
+
+/// `fpi board load`.
+pub fn load(c: &mut Client, image: &[u8], store: bool) -> Result<()> {
+    let pb = bar(image.len() as u64, "upload");
+    let tick = c.upload(image, store, |n| pb.set_position(n as u64))?;
+    pb.finish_and_clear();
+    let m = c.model()?;
+    println!(
+        "model {:08x} ({} bytes) running since tick {tick}{}",
+        m.crc,
+        image.len(),
+        match (store, m.stored) {
+            (true, Some((g, _))) => format!("; stored in flash as generation {g}"),
+            _ => String::new(),
+        }
+    );
+    Ok(())
+}
+
+/// `fpi board status`.
+pub fn status(c: &mut Client) -> Result<()> {
+    let h = c.hello().clone();
+    let s = c.status()?;
+    let m = c.model()?;
+    let k = c.counters()?;
+    let rate = h.rate_hz as f64;
+    println!(
+        "board: {}, firmware {}, protocol {}, control at {} Hz; room for {} operators, {} creep \
+         terms, {} table intervals",
+        match h.board {
+            BoardKind::Driver => "STM32F405 driver board",
+            BoardKind::Emulated => "emulated board (QEMU netduinoplus2, virtual stage)",
+        },
+        h.firmware,
+        h.protocol,
+        h.rate_hz,
+        h.capacity[0],
+        h.capacity[1],
+        h.capacity[2]
+    );
+    println!(
+        "model: {:08x}, {}; {} operators, {} creep terms{}{}; stroke {:.3}–{:.3} µm, safe at {:.3} V",
+        m.crc,
+        match m.origin {
+            Origin::Factory => "factory default".to_string(),
+            Origin::Stored(g) => format!("read from flash (generation {g})"),
+            Origin::Received => "received over the link".to_string(),
+        },
+        m.size[0],
+        m.size[1],
+        if m.maps[0] { ", soft dead zone" } else { "" },
+        if m.maps[1] { ", saturation" } else { "" },
+        real(m.window[0]),
+        real(m.window[1]),
+        real(m.window[2]),
+    );
+    print_state(&s, rate);
+    println!(
+        "link: {} requests, {} refused; {} malformed ({} CRC errors, {} too long), {} of another \
+         protocol version, {} unknown commands",
+        k.requests, k.refused, k.malformed, k.crc_errors, k.overlong, k.version, k.unknown
+    );
+    Ok(())
+}
+
+/// The loop's state, for people.
+pub fn print_state(s: &Status, rate: f64) {
+    println!(
+        "tick {} ({:.3} s): reference {:.4} µm, estimate {:.4} µm, setpoint {:.3} V, force {:.2} N; \
+         amplifier {}",
+        s.tick,
+        s.tick as f64 / rate,
+        real(s.signals[0]),
+        real(s.signals[1]),
+        real(s.signals[2]),
+        real(s.signals[3]),
+        if s.amplifier_on { "on" } else { "off" }
+    );
+    println!(
+        "source: {:?}{}, {} drive; host supervision {}",
+        s.source,
+        if s.approaching { " (approaching)" } else { "" },
+        if s.compensated {
+            "compensated (inverse FPI)"
+        } else {
+            "uncompensated (straight line)"
+        },
+        if s.supervision[0] == 0 {
+            "off".to_string()
+        } else {
+            format!(
+                "{:.0} ms (last request {:.0} ms ago)",
+                s.supervision[0] as f64 / rate * 1e3,
+                s.supervision[1] as f64 / rate * 1e3
+            )
+        }
+    );
+    match s.fault {
+        None => println!("state: running"),
+        Some(f) => {
+            let what = Fault::from_code(f.code).map_or("unknown fault", |f| f.message());
+            let safe = f
+                .safe_at
+                .map_or("still ramping to the safe voltage".to_string(), |t| {
+                    format!("at the safe voltage since tick {t}")
+                });
+            if f.code == Fault::Stopped as u8 {
+                println!("state: parked ({safe}); a motion command re-arms it");
+            } else {
+                println!(
+                    "state: FAULT since tick {}: {what}; {safe}; clear it with `clear-fault`",
+                    f.at
+                );
+            }
+        }
+    }
+    println!(
+        "stream: {} points queued, {} free, {} received, {} underrun ticks; recorder: {}, {} \
+         samples kept, {} dropped, {} waiting",
+        s.stream[0],
+        s.stream[1],
+        s.stream[2],
+        s.stream[3],
+        if s.recorder[0] == 1 {
+            "recording"
+        } else {
+            "idle"
+        },
+        s.recorder[1],
+        s.recorder[2],
+        s.recorder[3]
+    );
+}
+
+/// `fpi board record`: records every `decimation`-th tick for `seconds` of board
+/// time into a CSV.
+pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Result<Recording> {
+    let rate = c.rate_hz();
+    let ticks = (seconds * rate).round() as u32;
+    let start = c.ack(&Command::Record {
+        decimation,
+        signals: signal::ALL,
+    })?;
+    let pb = bar(ticks as u64, "record");
+    let mut rec = Recording {
+        rate_hz: rate,
+        signals: signal::ALL,
+        ..Recording::default()
+    };
+    let started = Instant::now();
+    loop {
+        let (samples, dropped) = c.drain()?;
+        rec.samples.extend(samples);
+        rec.dropped = dropped;
+        let now = c.status()?.tick;
+        pb.set_position(now.saturating_sub(start).min(ticks) as u64);
+        if now >= start + ticks {
+            break;
+        }
+        if started.elapsed() > Duration::from_secs_f64(seconds * 20.0 + 30.0) {
+            bail!("the board's clock does not advance (tick {now})");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    c.ack(&Command::RecordStop)?;
+    let (samples, dropped) = c.drain()?;
+    rec.samples.extend(samples);
+    rec.dropped = dropped;
+    rec.samples.retain(|s| s.tick < start + ticks);
+    pb.finish_and_clear();
+    rec.write_csv(out)?;
+    println!(
+        "{} samples ({} s at {:.0} Hz) written to {}; {} dropped",
+        rec.samples.len(),
+        seconds,
+        rate / decimation as f64,
+        out.display(),
+        rec.dropped
+    );
+    if rec.dropped > 0 {
+        eprintln!(
+            "warning: the board dropped {} samples (the link could not keep up): raise --decimation",
+            rec.dropped
+        );
+    }
+    Ok(rec)
+}
+
+/// Reads column `x_ref_um` of a CSV, µm.
+pub fn read_points(path: &Path) -> Result<Vec<f64>> {
+    let bytes = crate::data::read_bytes(path)?;
+    let mut r = csv::Reader::from_reader(bytes.as_slice());
+    let col = r
+        .headers()
+        .with_context(|| format!("{}: no header", path.display()))?
+        .iter()
+        .position(|h| h.trim() == "x_ref_um")
+        .with_context(|| format!("{}: no column x_ref_um", path.display()))?;
+    let mut out = Vec::new();
+    for (k, rec) in r.records().enumerate() {
+        let rec = rec.with_context(|| format!("{}:{}", path.display(), k + 2))?;
+        let v = rec.get(col).unwrap_or("").trim();
+        let x: f64 = v
+            .parse()
+            .ok()
+            .filter(|x: &f64| x.is_finite())
+            .with_context(|| {
+                format!(
+                    "{}:{}: column x_ref_um: {v:?} is not a number",
+                    path.display(),
+                    k + 2
+                )
+            })?;
+        out.push(x);
+    }
+    if out.is_empty() {
+        bail!("{}: no points", path.display());
+    }
+    Ok(out)
+}
+
+/// `fpi board stream`.
+pub fn stream(c: &mut Client, points: &[f64], interval: u16) -> Result<()> {
+    let pb = bar(points.len() as u64, "stream");
+    let r = c.stream(points, interval, |n| pb.set_position(n as u64), |_| Ok(()))?;
+    pb.finish_and_clear();
+    println!(
+        "{} points streamed from tick {} ({:.3} s at {} ticks per point); {} underrun ticks",
+        r.points,
+        r.started,
+        r.points as f64 * interval as f64 / c.rate_hz(),
+        interval,
+        r.underruns
+    );
+    Ok(())
+}
+
+/// A waveform shape by name.
+pub fn shape(name: &str) -> Result<Shape> {
+    Ok(match name {
+        "sine" => Shape::Sine,
+        "triangle" => Shape::Triangle,
+        "cosine" | "raised-cosine" => Shape::RaisedCosine,
+        _ => bail!("--shape {name:?}: sine, triangle or cosine"),
+    })
+}
