@@ -439,6 +439,19 @@ fn board_commands_drive_the_emulated_board() {
     let a = board(&["move", "45"]);
     let err = fails(&a.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(err.contains("outside the stroke"), "{err}");
+    // The analog input on the virtual bench, then a broken sensor wire.
+    run(&["bench", "--analog-v", "1.65"]);
+    run(&["analog"]);
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let out = run(&["status"]);
+    assert!(out.contains("source: Analog"), "{out}");
+    run(&["bench", "--sensor", "open"]);
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let out = run(&["status"]);
+    assert!(
+        out.contains("FAULT") && out.contains("force reading outside the sensor range"),
+        "{out}"
+    );
     // The recording is a dataset: `fpi compare` scores the model on it.
     let cmp = dir.join("board-compare");
     let out = ok(&[

@@ -96,7 +96,8 @@ fn the_session_passes_every_check_and_the_twin_reproduces_its_recording() {
     assert!(r.twin.within(twin::TWIN_BOUND), "{:?}", r.twin);
     assert!(r.twin.samples > 1000);
     assert_eq!(r.recording.dropped, 0);
-    assert_eq!(r.counters.malformed, 3);
+    // The three bad frames (a frame cut by the board's start-up may add one).
+    assert!((3..=4).contains(&r.counters.malformed), "{:?}", r.counters);
     let m = c.model().unwrap();
     assert_eq!(m.crc, CRC32.checksum(&image));
     assert_eq!(m.origin, Origin::Received);
@@ -251,6 +252,7 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
     let mut last = c.status().unwrap().tick;
     // Stream for a while, then the host goes away mid-stream.
     let t = Instant::now();
+    let first = c.status().unwrap().tick;
     let mut sent = 1024;
     while t.elapsed() < Duration::from_millis(600) {
         let s = c.status().unwrap();
@@ -261,13 +263,18 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
         }
     }
     let last_request = c.log.last().unwrap().tick.max(last);
+    // Board ticks per wall-clock second (30–40 % of real time on two cores, less
+    // when the tests share them).
+    let pace = (last - first) as f64 / t.elapsed().as_secs_f64();
     drop(c);
-    // The board runs on, unattended; a new host comes back later (any request is
-    // a heartbeat: it must not look before the board had time to notice). Board
-    // time runs at 30–40 % of real time on a loaded two-core machine.
+    // The board runs on, unattended; a new host comes back later. Any request is a
+    // heartbeat, so it must not look before the board has had time to notice:
+    // twice the time the timeout and the ramp take at the pace measured.
     let rate = 20_000.0;
     let timeout_ticks = (timeout_ms as f64 * rate / 1000.0) as u32;
-    std::thread::sleep(Duration::from_secs(4));
+    let wait = 2.0 * (timeout_ticks + 2000) as f64 / pace.max(500.0);
+    println!("board pace {pace:.0} ticks/s: waiting {wait:.1} s");
+    std::thread::sleep(Duration::from_secs_f64(wait.clamp(1.0, 60.0)));
     let mut c = Client::open(e.port()).unwrap();
     let s = c.status().unwrap();
     assert!(

@@ -262,6 +262,16 @@ enum BoardCommand {
         /// Timeout, ms.
         ms: u32,
     },
+    /// The emulated board's virtual bench: what its analog input reads, what its
+    /// force sensor does.
+    Bench {
+        /// Voltage on the analog reference input, 0–3.3 V.
+        #[arg(long)]
+        analog_v: Option<f64>,
+        /// The force sensor: ok, open (a broken wire) or stuck (frozen reading).
+        #[arg(long)]
+        sensor: Option<String>,
+    },
 }
 
 fn parse_rows(s: &str) -> Result<(usize, usize), String> {
@@ -406,6 +416,7 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             c.ack(&C::Drive { compensated })
                 .map(|t| println!("{mode} from tick {t}"))
         }
+        BoardCommand::Bench { analog_v, sensor } => b::bench(&mut c, analog_v, sensor.as_deref()),
         BoardCommand::Supervise { ms } => c.ack(&C::Supervise { timeout_ms: ms }).map(|_| {
             if ms == 0 {
                 println!("host supervision off");

@@ -109,7 +109,7 @@ impl Client {
             },
             log: Vec::new(),
         };
-        match c.request(&Command::Hello)? {
+        match c.greet()? {
             (_, Reply::Hello(h)) if h.protocol == VERSION => c.hello = h,
             (_, Reply::Hello(h)) => bail!(
                 "the board on {port} speaks protocol {}, these tools {VERSION}: update one of them",
@@ -118,6 +118,20 @@ impl Client {
             (_, r) => bail!("the board on {port} answered hello with {r:?}"),
         }
         Ok(c)
+    }
+
+    /// Says hello until the board answers: a board that is still starting (or an
+    /// emulator whose USART is not enabled yet) drops what it receives, and the
+    /// start of a frame lost that way makes the next one unreadable.
+    fn greet(&mut self) -> Result<(u32, Reply)> {
+        let mut last = None;
+        for _ in 0..5 {
+            match self.request_within(&Command::Hello, Duration::from_millis(800)) {
+                Ok(r) => return Ok(r),
+                Err(e) => last = Some(e),
+            }
+        }
+        Err(last.unwrap_or_else(|| anyhow!("no answer to hello")))
     }
 
     /// The board's identity and capacity.
@@ -136,6 +150,10 @@ impl Client {
             Command::ModelCommit { store: true } | Command::ModelFactory => STORE_TIMEOUT,
             _ => REPLY_TIMEOUT,
         };
+        self.request_within(cmd, timeout)
+    }
+
+    fn request_within(&mut self, cmd: &Command<'_>, timeout: Duration) -> Result<(u32, Reply)> {
         self.seq = self.seq.wrapping_add(1) % NO_SEQ;
         let header = Header {
             version: VERSION,
@@ -145,7 +163,9 @@ impl Client {
         let n = frame::encode(&header, cmd, &mut scratch, &mut out)
             .map_err(|e| anyhow!("encoding {}: {}", name_of(cmd), e.message()))?;
         let frame = out[..n].to_vec();
-        let (h, reply) = self.exchange(&frame, Some(self.seq), timeout)?;
+        let (h, reply) = self
+            .exchange(&frame, Some(self.seq), timeout)
+            .with_context(|| format!("request {} ({})", self.seq, name_of(cmd)))?;
         let read = !matches!(
             reply,
             Reply::Refused {

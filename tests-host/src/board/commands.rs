@@ -302,3 +302,35 @@ pub fn shape(name: &str) -> Result<Shape> {
         _ => bail!("--shape {name:?}: sine, triangle or cosine"),
     })
 }
+
+/// `fpi board bench`: the emulated board's analog input (V) and force sensor.
+pub fn bench(c: &mut Client, analog_v: Option<f64>, sensor: Option<&str>) -> Result<()> {
+    use fpi_firmware::link::protocol::BenchOrder;
+    if analog_v.is_none() && sensor.is_none() {
+        bail!("nothing to set: --analog-v V and/or --sensor ok|open|stuck");
+    }
+    if let Some(v) = analog_v {
+        if !(0.0..=3.3).contains(&v) {
+            bail!("--analog-v {v}: the input spans 0–3.3 V");
+        }
+        let counts = (v / 3.3 * fpi_firmware::frontend::ADC_MAX as f64).round() as u16;
+        c.bench(BenchOrder::Analog(counts))?;
+        println!("analog input at {v} V ({counts} counts)");
+    }
+    if let Some(s) = sensor {
+        let orders: &[BenchOrder] = match s {
+            "ok" => &[
+                BenchOrder::SensorOpen(false),
+                BenchOrder::SensorStuck(false),
+            ],
+            "open" => &[BenchOrder::SensorOpen(true)],
+            "stuck" => &[BenchOrder::SensorStuck(true)],
+            _ => bail!("--sensor {s:?}: ok, open or stuck"),
+        };
+        for o in orders {
+            c.bench(*o)?;
+        }
+        println!("force sensor {s}");
+    }
+    Ok(())
+}
