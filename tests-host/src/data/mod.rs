@@ -119,9 +119,18 @@ pub fn read_csv<T: DeserializeOwned + Finite>(
     columns: &[&str],
 ) -> Result<Vec<T>, DataError> {
     let bytes = read_bytes(path)?;
+    parse_csv(path, &bytes, columns)
+}
+
+/// [`read_csv`] on the bytes of a file (`path` names it in errors).
+pub fn parse_csv<T: DeserializeOwned + Finite>(
+    path: &Path,
+    bytes: &[u8],
+    columns: &[&str],
+) -> Result<Vec<T>, DataError> {
     let mut rdr = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
-        .from_reader(bytes.as_slice());
+        .from_reader(bytes);
     let headers = rdr
         .headers()
         .map_err(|e| DataError::file(path, format!("cannot read the header: {e}")))?

@@ -190,10 +190,14 @@ impl HostModel {
     pub fn read(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("{}: cannot read", path.display()))?;
-        let m: HostModel = toml::from_str(&text)
-            .with_context(|| format!("{}: not a model file", path.display()))?;
-        m.validate()
-            .with_context(|| format!("{}", path.display()))?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// A model from the text of a model file named `name` (for messages).
+    pub fn parse(text: &str, name: &str) -> Result<Self> {
+        let m: HostModel =
+            toml::from_str(text).with_context(|| format!("{name}: not a model file"))?;
+        m.validate().with_context(|| name.to_string())?;
         Ok(m)
     }
 
