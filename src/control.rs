@@ -207,17 +207,21 @@ pub enum Fault {
     LinkLost = 5,
     /// The analog reference input left its range or jumped implausibly (open or shorted wire).
     ReferenceInput = 6,
+    /// Control ticks kept starting before the previous one had finished (the loop
+    /// cannot keep its rate).
+    Overrun = 7,
 }
 
 impl Fault {
     /// Every fault, by code.
-    pub const ALL: [Fault; 6] = [
+    pub const ALL: [Fault; 7] = [
         Self::ForceOutOfRange,
         Self::ForceImplausible,
         Self::ReferenceUnreachable,
         Self::Stopped,
         Self::LinkLost,
         Self::ReferenceInput,
+        Self::Overrun,
     ];
 
     /// A one-line description for logs.
@@ -229,6 +233,7 @@ impl Fault {
             Self::Stopped => "parked in the safe state (start-up, new model or stop command)",
             Self::LinkLost => "host link lost: no heartbeat within the timeout",
             Self::ReferenceInput => "analog reference input out of range or implausible",
+            Self::Overrun => "control ticks overran their period",
         }
     }
 

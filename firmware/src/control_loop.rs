@@ -25,6 +25,9 @@ use crate::hardware::{Controller, APPROACH_STEP, CREEP_TERMS, OPERATORS, RATE_HZ
 
 /// Heartbeat timeout a stream gets when the host has configured none: 0.5 s.
 pub const STREAM_TIMEOUT_TICKS: u32 = RATE_HZ / 2;
+/// Late ticks in a row that latch [`Fault::Overrun`]: 1 ms of a loop that cannot
+/// keep its rate (a single late tick is counted, not a fault).
+pub const OVERRUN_RUN: u32 = RATE_HZ / 1000;
 use crate::recorder::{status, Sample, NO_TRUE_POSITION};
 use crate::reference::analog::AnalogInput;
 use crate::reference::{Reference, SourceKind, SourceOrder};
@@ -85,6 +88,8 @@ pub struct ControlLoop<S, A, E, R> {
     fault_at: Option<(Fault, u32)>,
     safe_at: Option<u32>,
     underruns: u32,
+    overruns: u32,
+    late_run: u32,
     force: Newtons,
 }
 
@@ -118,6 +123,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             fault_at: Some((Fault::Stopped, 0)),
             safe_at: None,
             underruns: 0,
+            overruns: 0,
+            late_run: 0,
             force,
         }
     }
@@ -202,6 +209,23 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         s
     }
 
+    /// Tells the loop whether the tick just run ended after the next one was due
+    /// (the board checks its timer's pending flag). Late ticks are counted; a run
+    /// of [`OVERRUN_RUN`] latches [`Fault::Overrun`] and the output ramps to the
+    /// safe voltage.
+    #[inline]
+    pub fn late(&mut self, late: bool) {
+        if !late {
+            self.late_run = 0;
+            return;
+        }
+        self.overruns = self.overruns.wrapping_add(1);
+        self.late_run += 1;
+        if self.late_run >= OVERRUN_RUN {
+            self.trip(Fault::Overrun);
+        }
+    }
+
     /// The number the next tick will have.
     pub const fn next_tick(&self) -> u32 {
         self.tick
@@ -257,6 +281,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             silent_ticks: self.silent,
             underruns: self.underruns,
             limited_steps: self.state.limited_steps(),
+            overruns: self.overruns,
         };
     }
 

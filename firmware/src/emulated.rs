@@ -21,7 +21,7 @@ use crate::exchange::{Applied, Exchange, Order};
 use crate::frontend::AnalogIn;
 use crate::hardware::{Store, IMAGE_BYTES};
 use crate::link::handler::{Board, Handler};
-use crate::link::protocol::{BenchOrder, BoardKind};
+use crate::link::protocol::{BenchOrder, BoardKind, ResetReason};
 use crate::model::MODEL_IMAGE;
 use crate::recorder::Sample;
 use crate::sim_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor};
@@ -48,6 +48,8 @@ pub struct Bench {
     stage: Stage<'static>,
     sensor_open: bool,
     stuck: Option<f32>,
+    offset: f32,
+    stall: u16,
     force: f32,
 }
 
@@ -60,6 +62,8 @@ impl Bench {
             stage,
             sensor_open: false,
             stuck: None,
+            offset: 0.0,
+            stall: 0,
             force,
         })
     }
@@ -78,7 +82,26 @@ impl Bench {
                 self.stuck = stuck.then_some(self.force);
             }
             BenchOrder::Analog(counts) => link.set_analog_counts(counts),
+            BenchOrder::SensorOffset(bits) => self.offset = bits as f32 / 65536.0,
+            BenchOrder::Stall(ticks) => self.stall = ticks,
+            // The link handler damages the stored model itself.
+            BenchOrder::DamageStored => {}
         }
+    }
+
+    /// Burns more than a control period if a stall was ordered (a control tick
+    /// that cannot keep its rate); whether it did.
+    pub fn stall(&mut self) -> bool {
+        if self.stall == 0 {
+            return false;
+        }
+        self.stall -= 1;
+        // ~80 000 instructions: longer than the 50 000 of a period under QEMU's
+        // one instruction per nanosecond.
+        for k in 0..20_000u32 {
+            core::hint::black_box(k);
+        }
+        true
     }
 
     /// Steps the stage with the amplifier's output (0 V while it is disabled) and
@@ -90,7 +113,7 @@ impl Bench {
         let reading = match (self.sensor_open, self.stuck) {
             (true, _) => BROKEN_WIRE_N,
             (false, Some(f)) => f,
-            (false, None) => sensed,
+            (false, None) => sensed + self.offset,
         };
         self.force = reading;
         link.set_force(reading);
@@ -117,6 +140,7 @@ pub fn tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
     }
     let t = lp.tick(x);
     let x_true = bench.after_tick(link);
+    bench.stall();
     lp.record(x, &t, Some(x_true))
 }
 
@@ -156,6 +180,7 @@ impl Virtual {
             image,
             flash,
             MODEL_IMAGE,
+            ResetReason::PowerOn,
         )?;
         let mut bench = Bench::new()?;
         bench.prime(link);
@@ -197,7 +222,8 @@ mod tests {
     use crate::frontend::{FORCE_ADC, SETPOINT_DAC};
     use crate::link::frame;
     use crate::link::protocol::{
-        Command, Header, Refusal, Reply, ReplyHeader, Status, MAX_CHUNK, MAX_FRAME, NO_SEQ, VERSION,
+        Command, Header, Refusal, Reply, ReplyHeader, SlotReport, Status, MAX_CHUNK, MAX_FRAME,
+        NO_SEQ, VERSION,
     };
     use crate::recorder::{signal, Recorder};
     use crate::reference::stream::Points;
@@ -217,8 +243,13 @@ mod tests {
     }
 
     fn host() -> Host {
+        host_with(Flash::new())
+    }
+
+    /// A board booted with `flash` as its model flash.
+    fn host_with(flash: Flash) -> Host {
         let link = leak(SimLink::new(FORCE_ADC, SETPOINT_DAC));
-        let flash = ModelFlash::new(Flash::new(), FLASH_SLOTS);
+        let flash = ModelFlash::new(flash, FLASH_SLOTS);
         let (board, handler) = Virtual::boot(
             link,
             [leak(Store::new()), leak(Store::new())],
@@ -579,5 +610,80 @@ mod tests {
         let f = h.status().fault.unwrap();
         assert_eq!(f.code, Fault::ForceOutOfRange as u8);
         assert!(f.safe_at.is_some());
+    }
+
+    #[test]
+    fn late_ticks_are_counted_and_a_run_of_them_parks_the_stage() {
+        use crate::control_loop::OVERRUN_RUN;
+        let mut h = host();
+        h.ack(Command::Move {
+            target: um(10.0),
+            speed: um(1000.0),
+        });
+        h.run(100);
+        // Runs one short of the limit, broken by a tick on time, are only counted.
+        for _ in 0..3 {
+            for _ in 0..OVERRUN_RUN - 1 {
+                h.board.control.late(true);
+                h.run(1);
+            }
+            h.board.control.late(false);
+            h.run(1);
+        }
+        let s = h.status();
+        assert_eq!(s.fault, None);
+        assert_eq!(s.overruns, 3 * (OVERRUN_RUN - 1));
+        for _ in 0..OVERRUN_RUN {
+            h.board.control.late(true);
+        }
+        h.run(40);
+        let s = h.status();
+        let f = s.fault.unwrap();
+        assert_eq!(f.code, Fault::Overrun as u8);
+        assert!(f.safe_at.is_some() && !s.amplifier_on, "{s:?}");
+        assert_eq!(s.overruns, 4 * OVERRUN_RUN - 3);
+    }
+
+    #[test]
+    fn a_damaged_stored_model_is_reported_and_the_older_one_runs() {
+        let mut flash = ModelFlash::new(Flash::new(), FLASH_SLOTS);
+        flash.store(MODEL_IMAGE).unwrap();
+        let newest = flash.store(MODEL_IMAGE).unwrap();
+        flash.damage(&newest, 100).unwrap();
+        let mut h = host_with(flash.into_inner());
+        match h.send(Command::ModelInfo) {
+            Reply::Model(m) => {
+                assert_eq!(m.origin, crate::slots::Origin::Stored(1));
+                assert!(m.slots.contains(&SlotReport::Damaged), "{:?}", m.slots);
+                assert!(m.slots.contains(&SlotReport::Valid(1)), "{:?}", m.slots);
+            }
+            r => panic!("{r:?}"),
+        }
+        // Both damaged: the factory model.
+        let mut flash = ModelFlash::new(Flash::new(), FLASH_SLOTS);
+        let stored = [MODEL_IMAGE; 2].map(|image| flash.store(image).unwrap());
+        for s in &stored {
+            flash.damage(s, 7).unwrap();
+        }
+        let mut h = host_with(flash.into_inner());
+        match h.send(Command::ModelInfo) {
+            Reply::Model(m) => {
+                assert_eq!(m.origin, crate::slots::Origin::Factory);
+                assert_eq!(m.slots, [SlotReport::Damaged; 2]);
+            }
+            r => panic!("{r:?}"),
+        }
+    }
+
+    #[test]
+    fn a_reset_is_acknowledged_before_it_happens_and_the_reason_told() {
+        let mut h = host();
+        match h.send(Command::Hello) {
+            Reply::Hello(hello) => assert_eq!(hello.reset, ResetReason::PowerOn),
+            r => panic!("{r:?}"),
+        }
+        assert!(!h.handler.reset_requested());
+        h.ack(Command::Reset);
+        assert!(h.handler.reset_requested());
     }
 }

@@ -108,6 +108,8 @@ pub struct Snapshot {
     pub underruns: u32,
     /// Ticks in which the output limits bit.
     pub limited_steps: u32,
+    /// Ticks that started late.
+    pub overruns: u32,
 }
 
 impl Snapshot {
@@ -130,6 +132,7 @@ impl Snapshot {
             silent_ticks: 0,
             underruns: 0,
             limited_steps: 0,
+            overruns: 0,
         }
     }
 }
@@ -152,6 +155,7 @@ pub struct Exchange<'a> {
     pub returned: Option<Running>,
     /// Heartbeats the link task has counted (every valid request is one).
     pub heartbeats: u32,
+
     /// The loop's state (ISR → link).
     pub snapshot: Snapshot,
     /// The data recorder (ISR fills, link empties).

@@ -248,6 +248,51 @@ impl<F: NorFlash> ModelFlash<F> {
         self.slots
     }
 
+    /// What each slot holds: nothing (erased), an intact image, or something
+    /// damaged (a header that is neither erased nor valid, or an image whose CRC
+    /// fails).
+    pub fn survey(&mut self) -> Result<[Slot; 2], StorageError> {
+        Ok([self.slot_state(0)?, self.slot_state(1)?])
+    }
+
+    fn slot_state(&mut self, slot: u8) -> Result<Slot, StorageError> {
+        let mut raw = [0; HEADER_SPAN];
+        self.flash
+            .read(self.slot_base(slot)?, &mut raw)
+            .map_err(flash_error)?;
+        if raw.iter().all(|b| *b == 0xFF) {
+            return Ok(Slot::Empty);
+        }
+        Ok(match self.scan(slot)? {
+            Some(s) => Slot::Holds(s),
+            None => Slot::Damaged,
+        })
+    }
+
+    /// Clears the first word of the image `stored` describes, from `offset` bytes
+    /// into it (wrapped to its length), that holds a set bit: a deliberately damaged
+    /// model, for fault-injection tests of the start-up check. Programming can only
+    /// clear bits, as on the real flash. An image of zeros only cannot be damaged.
+    pub fn damage(&mut self, stored: &Stored, offset: u32) -> Result<(), StorageError> {
+        let base = self.image_base(stored.slot)?;
+        let (len, word) = (stored.len.max(1), F::WRITE_SIZE.max(F::READ_SIZE) as u32);
+        let mut raw = [0u8; HEADER_SPAN];
+        let w = raw.get_mut(..word as usize).ok_or(OUT_OF_BOUNDS)?;
+        for k in 0..len.div_ceil(word) {
+            let at = base + (offset + k * word) % len;
+            let aligned = at - at % word;
+            self.flash.read(aligned, w).map_err(flash_error)?;
+            if w.iter().any(|&b| b != 0) {
+                w.iter_mut().for_each(|b| *b = 0);
+                // Programming over programmed bits may be reported as an error (the
+                // simulated flash does); the bits are cleared either way.
+                let _ = self.flash.write(aligned, w);
+                return Ok(());
+            }
+        }
+        Ok(())
+    }
+
     /// The valid image with the highest generation, if any slot holds one.
     pub fn newest(&mut self) -> Result<Option<Stored>, StorageError> {
         let a = self.scan(0)?;
@@ -422,6 +467,17 @@ impl<F: NorFlash> ModelFlash<F> {
     }
 }
 
+/// What a slot holds ([`ModelFlash::survey`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Slot {
+    /// Erased.
+    Empty,
+    /// An intact image.
+    Holds(Stored),
+    /// Neither erased nor an intact image.
+    Damaged,
+}
+
 /// Sectors a [`RamFlash`] may have (its erase counters).
 pub const RAM_FLASH_MAX_SECTORS: usize = 32;
 
@@ -465,6 +521,13 @@ impl<const N: usize, const SECTOR: usize> RamFlash<N, SECTOR> {
     /// The flash's contents.
     pub const fn as_bytes(&self) -> &[u8] {
         &self.data
+    }
+
+    /// Takes `bytes` as the flash's content (the rest stays as it is): what a
+    /// real flash kept across a power cycle, for the emulated board, whose flash
+    /// is seeded from a file the host gives QEMU.
+    pub fn load(&mut self, bytes: &[u8]) {
+        self.data.iter_mut().zip(bytes).for_each(|(d, s)| *d = *s);
     }
 
     /// Times sector `sector` (counted from 0) has been erased.

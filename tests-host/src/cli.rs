@@ -1,4 +1,9 @@
 //! The `fpi` commands (the binary only parses arguments and calls these).
+//!
+//! Every command checks its outputs before it works (an output that is one of its
+//! inputs is refused, the output's folder must take a file: [`crate::output`]),
+//! refuses numbers outside what the model and the board take, naming the option,
+//! file or line and the value, and writes every file atomically.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -6,28 +11,89 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 
 use crate::data::fem::FemMaps;
-use crate::data::{self, read_drive, read_target};
+use crate::data::{self, read_drive, read_target, Num};
 use crate::method::calibrate::{self, Options};
+use crate::method::checks;
+use crate::method::compare::{note_renamed, unique_names};
 use crate::method::model::{HostModel, Kind};
 use crate::method::predict;
+use crate::output::{self, not_an_input};
 
-/// Writes a CSV with a header and `f64` columns of equal length.
+/// Fewest rows `--rows` may select: a fit of even one operator needs a handful of
+/// samples of motion (and [`min_fit_rows`] asks more of larger models).
+pub const MIN_FIT_ROWS: usize = 20;
+
+/// Fewest rows a fit of `operators` play operators takes: [`MIN_FIT_ROWS`], and
+/// at least two per operator.
+pub fn min_fit_rows(operators: usize) -> usize {
+    MIN_FIT_ROWS.max(2 * operators)
+}
+
+/// Writes a CSV with a header and `f64` columns of equal length, atomically
+/// ([`output::write_atomic_with`]). Refuses columns of different lengths and
+/// non-finite values (naming the column and the line it would have had) before
+/// anything is written.
 pub fn write_columns(path: &Path, header: &[&str], columns: &[&[f64]]) -> Result<()> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
-    let mut w =
-        csv::Writer::from_path(path).with_context(|| format!("writing {}", path.display()))?;
-    w.write_record(header)?;
     let n = columns.first().map_or(0, |c| c.len());
-    let mut rec = Vec::with_capacity(columns.len());
-    for k in 0..n {
-        rec.clear();
-        rec.extend(columns.iter().map(|c| format!("{:.6}", c[k])));
-        w.write_record(&rec)?;
+    if header.len() != columns.len() || columns.iter().any(|c| c.len() != n) {
+        bail!(
+            "{}: not written: columns of different lengths",
+            path.display()
+        );
     }
-    w.flush()?;
+    for (name, c) in header.iter().zip(columns) {
+        if let Some(k) = c.iter().position(|v| !v.is_finite()) {
+            bail!(
+                "{}: not written: column {name}, line {}: {} is not a finite number",
+                path.display(),
+                k + 2,
+                c[k]
+            );
+        }
+    }
+    output::write_atomic_with(path, |w| {
+        let mut csv = csv::Writer::from_writer(w);
+        csv.write_record(header)?;
+        let mut rec = Vec::with_capacity(columns.len());
+        for k in 0..n {
+            rec.clear();
+            rec.extend(columns.iter().map(|c| format!("{:.6}", c[k])));
+            csv.write_record(&rec)?;
+        }
+        csv.flush()
+    })
+}
+
+/// Reads an FEM export and prints its plausibility warnings (each with the
+/// number, line and column that triggered it) to stderr as `warning: …`.
+pub fn read_fem(path: &Path) -> Result<FemMaps> {
+    let maps = FemMaps::read(path)?;
+    for w in maps.warnings() {
+        eprintln!("warning: {w}");
+    }
+    Ok(maps)
+}
+
+/// Refuses a drive (`voltage_V` of file `path`) outside the model's input range,
+/// naming the file, the line and the voltage.
+fn drive_in_range(path: &Path, model: &HostModel, u: &[f64]) -> Result<()> {
+    if let Some((k, v)) = predict::outside_range(model, u) {
+        let (lo, hi) = predict::input_range(model);
+        bail!(
+            "{}:{}: column voltage_V: {} V is outside the model's input range {lo}..{hi} V \
+             (the amplifier spans 0..{} V); the model would clamp it",
+            path.display(),
+            k + 2,
+            Num(v),
+            crate::method::export::AMPLIFIER_MAX_V
+        );
+    }
     Ok(())
+}
+
+/// `(option, path)` pairs of the inputs given as one option.
+fn inputs<'a>(option: &'a str, paths: &'a [PathBuf]) -> Vec<(&'a str, &'a Path)> {
+    paths.iter().map(|p| (option, p.as_path())).collect()
 }
 
 /// `fpi calibrate`.
@@ -39,9 +105,23 @@ pub fn calibrate(
     compliance: Option<f64>,
     rows: Option<(usize, usize)>,
 ) -> Result<()> {
+    not_an_input("--out", out, &inputs("--rig", rig))?;
+    output::prepare(out)?;
     let data = calibrate::load(rig, rows)?;
     let has_force = data.iter().all(|d| d.has_force);
-    let kind = kind.unwrap_or(if has_force { Kind::Efpi } else { Kind::Gpi });
+    // The default: efpi, or gpi where the force cannot identify k_f.
+    let kind = kind.unwrap_or_else(|| match checks::force_unusable(&data) {
+        None => Kind::Efpi,
+        Some(why) => {
+            if has_force {
+                eprintln!(
+                    "note: {why}, so k_f cannot be identified: calibrating gpi instead of the \
+                     default efpi"
+                );
+            }
+            Kind::Gpi
+        }
+    });
     let mut opt = Options::for_kind(kind);
     if let Some(n) = operators {
         opt.operators = n;
@@ -52,23 +132,20 @@ pub fn calibrate(
         }
         opt.compliance = c;
     }
-    if !has_force {
-        opt.offset = true;
-    }
-    if kind == Kind::Pi && has_force {
-        let means: Vec<f64> = data
-            .iter()
-            .map(|d| d.f.iter().sum::<f64>() / d.f.len().max(1) as f64)
-            .collect();
-        let lo = means.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = means.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        if hi - lo > 10.0 {
-            eprintln!(
-                "warning: a pi model ignores force, and these recordings span mean preloads \
-                 {lo:.0}–{hi:.0} N; the paper identifies PI at one preload (the rig preload \
-                 nearest the stage's f_F(0))"
+    if let Some((a, b)) = rows {
+        let (n, need) = (
+            b.saturating_sub(a).saturating_add(1),
+            min_fit_rows(opt.operators),
+        );
+        if n < need {
+            bail!(
+                "--rows {a}-{b}: {n} rows; a {kind} fit of {} operators needs at least {need}",
+                opt.operators
             );
         }
+    }
+    if !has_force {
+        opt.offset = true;
     }
     let start = std::time::Instant::now();
     let mut model = calibrate::calibrate(&data, &opt)?;
@@ -118,15 +195,22 @@ pub fn print_fit(m: &HostModel) {
         m.calibration.rmse_um,
         m.calibration.mte_um
     );
+    for w in &m.calibration.warnings {
+        eprintln!("warning: {w}");
+    }
 }
 
 /// `fpi predict`.
 pub fn predict(model: &Path, fem: &Path, drive: &Path, out: &Path) -> Result<()> {
+    let given = [("--model", model), ("--fem", fem), ("--drive", drive)];
+    not_an_input("--out", out, &given)?;
+    output::prepare(out)?;
     let m = HostModel::read(model)?;
-    let maps = FemMaps::read(fem)?;
+    let maps = read_fem(fem)?;
     let (t, u) = read_drive(drive)?;
+    drive_in_range(drive, &m, &u)?;
     let start = std::time::Instant::now();
-    let p = predict::predict(&m, &maps, &t, &u)?;
+    let p = predict::predict(&m, &maps, &t, &u).with_context(|| drive.display().to_string())?;
     let secs = start.elapsed().as_secs_f64();
     write_columns(
         out,
@@ -146,24 +230,44 @@ pub fn predict(model: &Path, fem: &Path, drive: &Path, out: &Path) -> Result<()>
     Ok(())
 }
 
-/// `fpi compare`.
-pub fn compare(fem: &Path, runs: &[PathBuf], models: &[PathBuf], out: &Path) -> Result<()> {
-    let maps = FemMaps::read(fem)?;
-    let models: Vec<(String, HostModel)> = models
+/// The models of `fpi compare`, named by their file stems made unique.
+fn read_models(paths: &[PathBuf]) -> Result<Vec<(String, HostModel)>> {
+    let stems: Vec<String> = paths
         .iter()
         .map(|p| {
-            let m = HostModel::read(p)?;
-            let name = p
-                .file_stem()
+            p.file_stem()
                 .map(|s| s.to_string_lossy().to_string())
-                .unwrap_or_default();
-            Ok((name, m))
+                .unwrap_or_default()
         })
-        .collect::<Result<_>>()?;
+        .collect();
+    let names = unique_names(&stems);
+    let refs: Vec<&Path> = paths.iter().map(PathBuf::as_path).collect();
+    note_renamed("model", &refs, &stems, &names);
+    paths
+        .iter()
+        .zip(names)
+        .map(|(p, name)| Ok((name, HostModel::read(p)?)))
+        .collect()
+}
+
+/// `fpi compare`.
+pub fn compare(fem: &Path, runs: &[PathBuf], models: &[PathBuf], out: &Path) -> Result<()> {
+    let mut given = vec![("--fem", fem)];
+    given.extend(inputs("--runs", runs));
+    given.extend(inputs("--model", models));
+    output::folder_spares_inputs("--out", out, &given, crate::report::writes)?;
+    output::prepare_folder(out)?;
+    let maps = read_fem(fem)?;
+    let models = read_models(models)?;
     let runs: Vec<data::StageRun> = runs
         .iter()
         .map(|p| data::read_stage(p))
         .collect::<Result<_, _>>()?;
+    for r in &runs {
+        for (_, m) in &models {
+            drive_in_range(&r.path, m, &r.u)?;
+        }
+    }
     let cmp = crate::method::compare::Comparison::run(&maps, &runs, &models)?;
     crate::method::compare::print_table(&cmp);
     crate::report::write(&cmp, &maps, out)?;
@@ -171,12 +275,17 @@ pub fn compare(fem: &Path, runs: &[PathBuf], models: &[PathBuf], out: &Path) -> 
     Ok(())
 }
 
-/// `fpi invert`.
+/// `fpi invert`: `u_max` (V) must be finite, > 0 and within the model's input range
+/// (and so the amplifier's span).
 pub fn invert(model: &Path, fem: &Path, target: &Path, out: &Path, u_max: f64) -> Result<()> {
+    let given = [("--model", model), ("--fem", fem), ("--target", target)];
+    not_an_input("--out", out, &given)?;
+    output::prepare(out)?;
     let m = HostModel::read(model)?;
-    let maps = FemMaps::read(fem)?;
+    let maps = read_fem(fem)?;
     let (t, x) = read_target(target)?;
-    let inv = crate::method::invert::invert(&m, &maps, &t, &x, u_max)?;
+    let inv = crate::method::invert::invert(&m, &maps, &t, &x, u_max)
+        .with_context(|| target.display().to_string())?;
     write_columns(out, &["t_s", "voltage_V"], &[&inv.t, &inv.u])?;
     println!(
         "{} inverse ({}): {} samples written to {}; reachable stroke {:.3}..{:.3} µm at 0..{} V",
@@ -205,7 +314,6 @@ pub fn invert(model: &Path, fem: &Path, target: &Path, out: &Path, u_max: f64) -
 }
 
 /// `fpi export`.
-#[allow(clippy::too_many_arguments)]
 pub fn export(
     m: &HostModel,
     model: &Path,
@@ -213,19 +321,24 @@ pub fn export(
     out: &Path,
     o: &crate::method::export::ExportOptions,
 ) -> Result<()> {
-    let maps = FemMaps::read(fem)?;
+    not_an_input("--out", out, &[("--model", model), ("--fem", fem)])?;
+    output::prepare(out)?;
+    let maps = read_fem(fem)?;
     let settings = crate::method::export::LoopSettings::for_model(m, o);
     let e = crate::method::export::export(m, model, &maps, &settings)?;
     let text = e.model.to_toml().map_err(|e| anyhow::anyhow!(e))?;
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)?;
-    }
-    std::fs::write(out, text).with_context(|| format!("writing {}", out.display()))?;
+    output::write_atomic(out, text.as_bytes())?;
     println!(
         "firmware model for the {} model written to {}",
         m.kind,
         out.display()
     );
+    print_export(&e);
+    Ok(())
+}
+
+/// The tables and loop settings of an export.
+fn print_export(e: &crate::method::export::Export) {
     println!(
         "  {:<20} {:>6} {:>12} {:>14}",
         "table", "knots", "step", "max error"
@@ -248,11 +361,11 @@ pub fn export(
         k.force_max_n,
         k.force_tolerance_n
     );
-    Ok(())
 }
 
 /// `fpi demo`.
 pub fn demo(out: &Path) -> Result<()> {
+    output::prepare_folder(out)?;
     let s = crate::report::demo::run(out)?;
     for l in &s.lines {
         println!("{l}");
@@ -290,6 +403,8 @@ pub fn bench() -> Result<()> {
         n,
         secs
     );
+    // Their 320 MB would count in the scaling figures' peak below.
+    drop((u, y));
 
     // The coupled solve (Part III, Step 4a) on stage A's FEM maps, one core.
     let fem = FemMaps::read(&data::dataset("stage-a/fem.csv"))?;
@@ -321,6 +436,13 @@ pub fn bench() -> Result<()> {
             p.iterations as f64 / n as f64
         );
     }
+
+    // Calibration on 5 million samples: linear in time and memory (the default
+    // kind within 30 s and 300 MB on two cores).
+    print!(
+        "{}",
+        crate::method::bench::scaling(crate::method::bench::SAMPLES)?
+    );
     Ok(())
 }
 

@@ -17,6 +17,7 @@ pub mod board;
 pub mod cli;
 pub mod data;
 pub mod method;
+pub mod output;
 pub mod report;
 
 /// The firmware model file (shared with the firmware's build).

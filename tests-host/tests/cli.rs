@@ -386,6 +386,9 @@ fn the_micromanipulator_window_is_selectable() {
 /// dataset; an unreachable target is refused with the reason.
 #[test]
 fn board_commands_drive_the_emulated_board() {
+    if !fpi_host::board::emulator::available_for("board_commands_drive_the_emulated_board") {
+        return;
+    }
     let e = fpi_host::board::emulator::Emulator::start(None).unwrap_or_else(|e| panic!("{e:#}"));
     let port = e.port().to_string();
     let board = |args: &[&str]| -> Vec<String> {

@@ -110,3 +110,82 @@ fn extra_columns_are_ignored() {
     let run = read_stage(&p).unwrap();
     assert_eq!(run.u, vec![0.0, 1.0]);
 }
+
+#[test]
+fn a_duplicate_column_is_named_by_its_fields() {
+    let p = write(
+        "dup_header.csv",
+        "t_s,voltage_V,force_N,x_fhps_um,force_N\n0,0,60,0,61\n0.1,1,60,0.2,61\n",
+    );
+    let m = message(read_stage(&p));
+    assert!(
+        m.ends_with(
+            "dup_header.csv:1: column force_N: appears twice in the header (fields 3 and 5): \
+             which one holds the data?"
+        ),
+        "{m}"
+    );
+}
+
+#[test]
+fn content_beyond_the_limits_is_refused_while_reading() {
+    use fpi_host::data::{read_bytes, read_bytes_within, ReadLimits};
+    use std::io::Write;
+    let p = write("long.csv", &"0123456789".repeat(1000));
+    let small = ReadLimits {
+        max_bytes: 4096,
+        ..ReadLimits::INPUT
+    };
+    let m = message(read_bytes_within(&p, small));
+    assert!(
+        m.starts_with(&format!("{}: more than 4096 bytes of content", p.display())),
+        "{m}"
+    );
+    assert_eq!(read_bytes(&p).unwrap().len(), 10_000);
+
+    // A gzip bomb: 200 MB of zeros in about 200 kB, refused after a few MB.
+    let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    let zeros = vec![0u8; 1 << 20];
+    for _ in 0..200 {
+        gz.write_all(&zeros).unwrap();
+    }
+    let packed = gz.finish().unwrap();
+    assert!(packed.len() < 1 << 20, "{}", packed.len());
+    let dir = std::env::temp_dir().join(format!("fpi-host-data-errors-{}", std::process::id()));
+    let bomb = dir.join("bomb.csv.gz");
+    std::fs::write(&bomb, &packed).unwrap();
+    let start = std::time::Instant::now();
+    let m = message(read_bytes(&bomb));
+    assert!(
+        m.starts_with(&format!("{}: ", bomb.display()))
+            && m.contains("a ratio above 100:1")
+            && m.contains("a gzip bomb?"),
+        "{m}"
+    );
+    assert!(start.elapsed().as_secs() < 5, "{:?}", start.elapsed());
+    let m = message(read_stage(&bomb));
+    assert!(m.contains("bomb.csv.gz") && m.contains("gzip bomb"), "{m}");
+}
+
+#[test]
+fn fem_values_beyond_the_signal_range_are_refused_by_line() {
+    use fpi_host::data::fem::FemMaps;
+    let p = write(
+        "fem_huge.csv",
+        "x_pea_um,preload_N,x_fhps_um\n0,61.8,0\n0.5,63,2.8\n1e300,64,5.6\n",
+    );
+    let m = message(FemMaps::read(&p));
+    assert!(
+        m.contains("fem_huge.csv:4: column x_pea_um: 1e300 µm is outside ±4096 µm"),
+        "{m}"
+    );
+    let p = write(
+        "fem_preload.csv",
+        "x_pea_um,preload_N,x_fhps_um\n0,61.8,0\n0.5,-1e9,2.8\n1,64,5.6\n",
+    );
+    let m = message(FemMaps::read(&p));
+    assert!(
+        m.contains("fem_preload.csv:3: column preload_N: -1e9 N is outside ±4096 N"),
+        "{m}"
+    );
+}

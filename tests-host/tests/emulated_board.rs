@@ -71,6 +71,11 @@ fn start() -> (Emulator, Client) {
 
 #[test]
 fn the_session_passes_every_check_and_the_twin_reproduces_its_recording() {
+    if !fpi_host::board::emulator::available_for(
+        "the_session_passes_every_check_and_the_twin_reproduces_its_recording",
+    ) {
+        return;
+    }
     let image = image_of(Kind::Efpi, 10);
     let (e, mut c) = start();
     let r = session::run(&mut c, &image).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
@@ -113,6 +118,11 @@ fn the_session_passes_every_check_and_the_twin_reproduces_its_recording() {
 
 #[test]
 fn the_papers_fpi_with_ten_operators_runs_as_a_received_model() {
+    if !fpi_host::board::emulator::available_for(
+        "the_papers_fpi_with_ten_operators_runs_as_a_received_model",
+    ) {
+        return;
+    }
     // Ten thresholded operators and the linear one: the board's capacity.
     let image = image_of(Kind::Fpi, 11);
     let (e, mut c) = start();
@@ -163,6 +173,11 @@ fn the_papers_fpi_with_ten_operators_runs_as_a_received_model() {
 
 #[test]
 fn bad_model_uploads_are_refused_with_reasons_and_the_old_model_kept() {
+    if !fpi_host::board::emulator::available_for(
+        "bad_model_uploads_are_refused_with_reasons_and_the_old_model_kept",
+    ) {
+        return;
+    }
     let good = fpi_firmware::model::MODEL_IMAGE.to_vec();
     let (e, mut c) = start();
     let before = c.model().unwrap();
@@ -229,6 +244,11 @@ fn bad_model_uploads_are_refused_with_reasons_and_the_old_model_kept() {
 
 #[test]
 fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
+    if !fpi_host::board::emulator::available_for(
+        "a_silent_host_parks_a_streaming_stage_within_its_timeout",
+    ) {
+        return;
+    }
     let (e, mut c) = start();
     let timeout_ms = 200;
     c.ack(&Command::Supervise { timeout_ms }).unwrap();

@@ -1,5 +1,8 @@
-//! The firmware model file: the embedded one is valid, malformed ones are rejected
-//! with the file and the key (the same checks `build.rs` runs before it embeds one).
+//! The model files: the firmware model file (the embedded one is valid, malformed
+//! ones are rejected with the file and the key: the same checks `build.rs` runs
+//! before it embeds one), and the calibrated (host) model file, whose validator
+//! refuses models that cannot move or invert, by key and value, when reading and
+//! before writing.
 
 use fpi_firmware::model;
 use fpi_host::model_file::FirmwareModel;
@@ -131,4 +134,100 @@ fn non_numbers_and_syntax_errors_give_line_and_column() {
     );
     let e = error_of("format = \"something else\"\n");
     assert!(e.contains("m.toml: not a firmware model file"), "{e}");
+}
+
+/// A calibrated fpi model's file (as `fpi calibrate` writes it).
+const HOST_MODEL: &str = r#"format = "piezo-fpi-model/1"
+kind = "fpi"
+dead_zone_softness_v = 0.0
+offset_um = 0.0
+
+[pi]
+w0_um_per_v = 0.0645
+thresholds_v = [10.0, 20.0, 30.0]
+weights_um_per_v = [0.006, 0.01, 0.005]
+input_max_v = 150.0
+
+[coupling]
+offset_v = 0.0
+k_f_v_per_n = 0.1
+k_q_v_per_n2 = 0.0
+force_q_n = 0.0
+compliance_um_per_n = 0.0
+
+[output]
+map = "identity"
+
+[calibration]
+created_by = "tests/model_file.rs"
+files = []
+rmse_um = 0.05
+mte_um = 0.2
+per_file = []
+method = "by hand"
+"#;
+
+/// The error reading [`HOST_MODEL`] with `from` replaced by `to`.
+fn host_error(from: &str, to: &str) -> String {
+    use fpi_host::method::model::HostModel;
+    assert!(HOST_MODEL.contains(from), "{from:?}");
+    let text = HOST_MODEL.replacen(from, to, 1);
+    format!(
+        "{:#}",
+        HostModel::parse(&text, "h.toml").expect_err("must be rejected")
+    )
+}
+
+#[test]
+fn host_models_that_cannot_move_or_invert_name_their_key() {
+    use fpi_host::method::model::HostModel;
+    HostModel::parse(HOST_MODEL, "h.toml").unwrap();
+    let cases = [
+        (
+            ("w0_um_per_v = 0.0645", "w0_um_per_v = 0.0"),
+            "pi.w0_um_per_v = 0: must be > 0 µm/V",
+        ),
+        (
+            ("weights_um_per_v = [0.006,", "weights_um_per_v = [-0.07,"),
+            "pi.weights_um_per_v[0] = -0.07: the slope w0 + w_1 = ",
+        ),
+        (
+            ("0.01, 0.005]", "-0.0805, 0.005]"),
+            "pi.weights_um_per_v[1] = -0.0805: the slope w0 + w_1 + … + w_2 = ",
+        ),
+        (
+            ("dead_zone_softness_v = 0.0", "dead_zone_softness_v = -1.5"),
+            "dead_zone_softness_v = -1.5: must be ≥ 0 V (0: the hard dead zone)",
+        ),
+        (
+            ("compliance_um_per_n = 0.0", "compliance_um_per_n = -0.02"),
+            "coupling.compliance_um_per_n = -0.02: must be ≥ 0 µm/N",
+        ),
+        (
+            ("thresholds_v = [10.0,", "thresholds_v = [-10.0,"),
+            "pi.thresholds_v[0] = -10: thresholds are voltages ≥ 0 V",
+        ),
+    ];
+    for ((from, to), want) in cases {
+        let e = host_error(from, to);
+        assert!(e.starts_with("h.toml: ") && e.contains(want), "{e}");
+    }
+}
+
+#[test]
+fn a_host_model_without_motion_is_not_written() {
+    use fpi_host::method::model::HostModel;
+    let mut m = HostModel::parse(HOST_MODEL, "h.toml").unwrap();
+    m.pi.w0_um_per_v = 0.0;
+    m.pi.weights_um_per_v = vec![0.0; 3];
+    let dir = std::env::temp_dir().join(format!("fpi-model-file-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("still.toml");
+    let e = format!("{:#}", m.write(&p).expect_err("must not be written"));
+    assert!(
+        e.contains("still.toml: not written")
+            && e.contains("pi.w0_um_per_v and pi.weights_um_per_v are all 0"),
+        "{e}"
+    );
+    assert!(!p.exists());
 }

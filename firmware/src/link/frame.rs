@@ -309,11 +309,7 @@ mod tests {
         .unwrap();
         assert!(read(&out[..n])[0].is_ok());
         let mut raw = [0u8; 8];
-        let used = postcard::to_slice(
-            &Command::Bench(super::super::protocol::BenchOrder::Analog(7)),
-            &mut raw,
-        )
-        .unwrap();
+        let used = postcard::to_slice(&Command::Reset, &mut raw).unwrap();
         assert_eq!(
             used[0] as u32,
             COMMAND_KINDS - 1,

@@ -18,8 +18,9 @@ use piezo_fpi::q::Micrometres;
 
 use super::frame::{self, FrameError};
 use super::protocol::{
-    Batch, BoardKind, Command, Counters, FaultReport, Header, Hello, Refusal, Reply, ReplyHeader,
-    Status, Text, COMMAND_KINDS, MAX_FRAME, MAX_VALUES, NO_SEQ, VERSION,
+    Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, Header, Hello, Refusal, Reply,
+    ReplyHeader, ResetReason, SlotReport, Status, Text, COMMAND_KINDS, MAX_FRAME, MAX_VALUES,
+    NO_SEQ, VERSION,
 };
 use super::upload::Upload;
 use crate::exchange::{Exchange, Order, Refused};
@@ -31,7 +32,7 @@ use crate::recorder::{signal, Sample};
 use crate::reference::wave::Wave;
 use crate::reference::SourceOrder;
 use crate::slots::{Origin, Running, Spare, Summary};
-use crate::storage::{ModelFlash, Stored};
+use crate::storage::{ModelFlash, Slot, Stored};
 
 /// What the handler needs from the board it runs on.
 pub trait Board {
@@ -44,6 +45,10 @@ pub trait Board {
     fn stack_high_water(&self) -> Option<u32> {
         None
     }
+    /// A long operation of the link task begins (`true`) or ends: a flash erase,
+    /// which stalls the STM32F405 for up to 2 s. The board runs its watchdog with
+    /// a longer period meanwhile.
+    fn long_operation(&mut self, _on: bool) {}
 }
 
 /// Ticks the handler waits for an order to be applied before giving up.
@@ -80,6 +85,12 @@ pub struct Handler<F> {
     pub(super) upload: Upload,
     pub(super) flash: ModelFlash<F>,
     pub(super) stored: Option<Stored>,
+    /// What the flash slots held at start-up.
+    pub(super) slots: [SlotReport; 2],
+    /// Why the board last started.
+    reset: ResetReason,
+    /// A `Reset` was answered.
+    reset_requested: bool,
     pub(super) signals: u8,
     pub(super) timeout_ms: u32,
     pub(super) counters: Counters,
@@ -98,12 +109,43 @@ impl<F: NorFlash> Handler<F> {
         image: &'static mut [u8; IMAGE_BYTES],
         mut flash: ModelFlash<F>,
         factory: &[u8],
+        reset: ResetReason,
     ) -> Option<(Self, Running)> {
         let [a, spare] = stores;
-        let stored = flash.newest().ok().flatten();
-        let (running, stored) = match Self::stored(a, &mut flash, stored, image) {
-            Ok(r) => (r, stored),
-            Err(mut a) => {
+        let mut a = Some(a);
+        let survey = flash.survey().unwrap_or([Slot::Damaged; 2]);
+        let mut slots = survey.map(|s| match s {
+            Slot::Empty => SlotReport::Empty,
+            Slot::Holds(st) => SlotReport::Valid(st.generation),
+            Slot::Damaged => SlotReport::Damaged,
+        });
+        // The newest intact model the validator takes, else the older, else the
+        // factory model.
+        let mut candidates = survey.map(|s| match s {
+            Slot::Holds(st) => Some(st),
+            _ => None,
+        });
+        candidates.sort_unstable_by_key(|c| core::cmp::Reverse(c.map(|s| s.generation)));
+        let mut chosen = None;
+        for s in candidates.into_iter().flatten() {
+            let Some(store) = a.take() else { break };
+            match Self::stored(store, &mut flash, s, image) {
+                Ok(r) => {
+                    chosen = Some((r, s));
+                    break;
+                }
+                Err(back) => {
+                    a = Some(back);
+                    if let Some(r) = slots.get_mut(s.slot as usize) {
+                        *r = SlotReport::Refused(s.generation);
+                    }
+                }
+            }
+        }
+        let (running, stored) = match chosen {
+            Some((r, s)) => (r, Some(s)),
+            None => {
+                let mut a = a?;
                 a.load(factory).ok()?;
                 (a.activate(factory, Origin::Factory).ok()?, None)
             }
@@ -119,6 +161,9 @@ impl<F: NorFlash> Handler<F> {
             },
             flash,
             stored,
+            slots,
+            reset,
+            reset_requested: false,
             signals: signal::ALL,
             timeout_ms: 0,
             counters: Counters::default(),
@@ -128,14 +173,13 @@ impl<F: NorFlash> Handler<F> {
     }
 
     /// The stored model `s`, read into `image` and loaded into `a`; `a` back if it
-    /// is missing or does not load.
+    /// does not read back or does not load.
     fn stored(
         mut a: Spare,
         flash: &mut ModelFlash<F>,
-        s: Option<Stored>,
+        s: Stored,
         image: &mut [u8; IMAGE_BYTES],
     ) -> Result<Running, Spare> {
-        let Some(s) = s else { return Err(a) };
         let Ok(n) = flash.read(&s, image) else {
             return Err(a);
         };
@@ -145,6 +189,12 @@ impl<F: NorFlash> Handler<F> {
         }
         a.activate(img, Origin::Stored(s.generation))
             .map_err(|(back, _)| back)
+    }
+
+    /// Whether a `Reset` command was answered: the board resets once the reply
+    /// has gone out.
+    pub fn reset_requested(&self) -> bool {
+        self.reset_requested
     }
 
     /// The link's counters.
@@ -338,6 +388,13 @@ impl<F: NorFlash> Handler<F> {
                 self.counters.stack_bytes = board.stack_high_water().unwrap_or(0);
                 self.ack(board).map(|_| Reply::Counters(self.counters))
             }
+            Command::Reset => {
+                self.reset_requested = true;
+                self.ack(board)
+            }
+            Command::Bench(BenchOrder::DamageStored) if self.kind == BoardKind::Emulated => {
+                self.damage_stored(board)
+            }
             Command::Bench(b) => match self.kind {
                 BoardKind::Emulated => self.order(board, seq, Order::Bench(b)),
                 BoardKind::Driver => Err(refuse(
@@ -346,6 +403,18 @@ impl<F: NorFlash> Handler<F> {
                 )),
             },
         }
+    }
+
+    /// Clears a byte of the newest stored model (a fault-injection aid of the
+    /// emulated board).
+    fn damage_stored(&mut self, board: &mut impl Board) -> Result<Reply, Refuse> {
+        let Some(s) = self.flash.newest().ok().flatten() else {
+            return Err(refuse(Refusal::Storage, format_args!("no model is stored")));
+        };
+        self.flash
+            .damage(&s, s.len / 2)
+            .map_err(|e| refuse(Refusal::Storage, format_args!("{}", e.message())))?;
+        self.ack(board)
     }
 
     /// Acknowledges a request that only counts as a heartbeat.
@@ -520,6 +589,7 @@ impl<F: NorFlash> Handler<F> {
                 l.safe.lo.to_bits(),
                 l.safe.hi.to_bits(),
             ],
+            reset: self.reset,
         }
     }
 }
@@ -567,6 +637,7 @@ fn status(x: &Exchange<'_>, summary: &Summary) -> Status {
         stream: [q.len() as u32, q.free() as u32, q.received(), s.underruns],
         recorder: [r.active() as u32, r.kept(), r.dropped(), r.len() as u32],
         limited_steps: s.limited_steps,
+        overruns: s.overruns,
         model_crc: summary.crc,
     }
 }

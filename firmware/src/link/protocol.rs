@@ -15,7 +15,7 @@ use crate::reference::SourceKind;
 use crate::slots::Origin;
 
 /// The protocol version this firmware speaks.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
 /// Largest encoded frame, delimiter included, bytes.
 pub const MAX_FRAME: usize = 1280;
 /// Model bytes per [`Command::ModelChunk`].
@@ -27,10 +27,10 @@ pub const MAX_VALUES: usize = 200;
 /// The sequence number of a reply to a frame that could not be read.
 pub const NO_SEQ: u16 = u16::MAX;
 
-/// Variants of [`Command`] (the last one, [`Command::Bench`], is number
+/// Variants of [`Command`] (the last one, [`Command::Reset`], is number
 /// `COMMAND_KINDS - 1`): a request whose variant number is beyond is refused as
 /// [`Refusal::Unknown`] rather than as garbage.
-pub const COMMAND_KINDS: u32 = 25;
+pub const COMMAND_KINDS: u32 = 26;
 
 /// A short text (a refusal's reason, a firmware version).
 pub type Text = String<96>;
@@ -66,6 +66,47 @@ pub enum BenchOrder {
     SensorStuck(bool),
     /// The analog reference input reads this many ADC counts.
     Analog(u16),
+    /// The force sensor's reading is offset by this much (N, `I16F16` bits): a
+    /// sudden step, as a loose connector or a knock would cause.
+    SensorOffset(i32),
+    /// The next this-many control ticks take longer than the control period (the
+    /// emulated board burns time in its control task): a loop that cannot keep
+    /// its rate.
+    Stall(u16),
+    /// Damage the newest model stored in flash (one byte cleared), to see the
+    /// board refuse it at its next start.
+    DamageStored,
+}
+
+/// Why the board last started.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ResetReason {
+    /// Power was applied.
+    PowerOn,
+    /// The reset pin.
+    Pin,
+    /// The board reset itself on a `Reset` command.
+    Command,
+    /// The independent watchdog expired: a task hung.
+    Watchdog,
+    /// The supply dipped below the brown-out threshold.
+    BrownOut,
+    /// Another or unknown cause (the emulated board cannot tell power-on from a
+    /// pin reset).
+    Unknown,
+}
+
+/// What a flash slot held when the board started.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SlotReport {
+    /// Erased.
+    Empty,
+    /// A model of this generation, intact.
+    Valid(u32),
+    /// Something that is not an intact model (a damaged header or image).
+    Damaged,
+    /// An intact image the validator refused (e.g. from another firmware).
+    Refused(u32),
 }
 
 /// What the host asks.
@@ -179,6 +220,8 @@ pub enum Command<'a> {
     Counters,
     /// An order for the emulated board's virtual bench.
     Bench(BenchOrder),
+    /// Reset the board (after this reply); it starts parked with its stored model.
+    Reset,
 }
 
 /// Why a request was not carried out.
@@ -239,6 +282,8 @@ pub struct Hello {
     /// Hardware limits: lowest and highest setpoint, largest step per tick, safe
     /// window low and high, V (`I16F16` bits).
     pub limits: [i32; 5],
+    /// Why the board last started.
+    pub reset: ResetReason,
 }
 
 /// A latched fault.
@@ -277,7 +322,9 @@ pub struct Status {
     pub recorder: [u32; 4],
     /// Ticks in which the output limits bit.
     pub limited_steps: u32,
-    /// CRC-32 of the running model's image body.
+    /// Control ticks that started late (after their period), since start-up.
+    pub overruns: u32,
+    /// CRC-32 of the running model's image.
     pub model_crc: u32,
 }
 
@@ -294,8 +341,10 @@ pub struct ModelReport {
     pub maps: [bool; 2],
     /// Reference window (stroke) low and high, µm; safe voltage, V (`I16F16` bits).
     pub window: [i32; 3],
-    /// The model in flash: generation and body CRC.
+    /// The model in flash: generation and CRC.
     pub stored: Option<(u32, u32)>,
+    /// What the two flash slots held when the board started.
+    pub slots: [SlotReport; 2],
 }
 
 /// The link's counters since start-up.

@@ -33,6 +33,7 @@ impl<F: NorFlash> Handler<F> {
                 s.safe_voltage.to_bits(),
             ],
             stored: self.stored.map(|st| (st.generation, st.crc)),
+            slots: self.slots,
         }
     }
 
@@ -125,7 +126,10 @@ impl<F: NorFlash> Handler<F> {
         let running = self.activate(Origin::Received, len)?;
         if store {
             let image = self.upload.image.get(..len).unwrap_or(&[]);
-            match self.flash.store(image) {
+            board.long_operation(true);
+            let stored = self.flash.store(image);
+            board.long_operation(false);
+            match stored {
                 Ok(s) => self.stored = Some(s),
                 Err(e) => {
                     self.spare = Some(running.retire());
@@ -179,7 +183,10 @@ impl<F: NorFlash> Handler<F> {
 
     pub(super) fn factory(&mut self, board: &mut impl Board, seq: u16) -> Result<Reply, Refuse> {
         self.parked(board)?;
-        if let Err(e) = self.flash.erase_all() {
+        board.long_operation(true);
+        let erased = self.flash.erase_all();
+        board.long_operation(false);
+        if let Err(e) = erased {
             return Err(refuse(Refusal::Storage, format_args!("{}", e.message())));
         }
         self.stored = None;

@@ -20,6 +20,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use fpi_host::data::Num;
 use fpi_host::method::model::Kind;
 use fpi_host::{cli, method::model::HostModel};
 
@@ -49,13 +50,14 @@ enum Command {
         /// Where to write the model.
         #[arg(long)]
         out: PathBuf,
-        /// Play operators, including the `r = 0` one (default 10; gpi 21).
-        #[arg(long)]
+        /// Play operators, including the `r = 0` one (default 10; gpi 21; 1..=32).
+        #[arg(long, value_parser = parse_operators)]
         operators: Option<usize>,
-        /// Stack compliance for efpi, µm/N (default: the datasheet's 0.02).
-        #[arg(long)]
+        /// Stack compliance for efpi, µm/N, ≥ 0 (default: the datasheet's 0.02).
+        #[arg(long, value_parser = parse_compliance, allow_negative_numbers = true)]
         compliance: Option<f64>,
-        /// Fit only rows A-B (1-based, inclusive) of a single recording.
+        /// Fit only rows A-B (1-based, inclusive) of a single recording (at least
+        /// 20 rows).
         #[arg(long, value_parser = parse_rows)]
         rows: Option<(usize, usize)>,
     },
@@ -103,8 +105,10 @@ enum Command {
         /// Where to write `t_s,voltage_V`.
         #[arg(long)]
         out: PathBuf,
-        /// Highest voltage the amplifier may apply, V.
-        #[arg(long, default_value_t = 150.0)]
+        /// Highest voltage the amplifier may apply, V (0 < U_MAX ≤ 150, the board's
+        /// amplifier span).
+        #[arg(long, default_value_t = 150.0, value_parser = parse_amplifier_volts,
+              allow_negative_numbers = true)]
         u_max: f64,
     },
     /// The fixed-point parameters and tables the firmware embeds.
@@ -143,18 +147,21 @@ enum Command {
 /// The loop settings of an exported model (`fpi export`, `fpi board load`).
 #[derive(clap::Args)]
 struct LoopArgs {
-    /// Control ISR rate, Hz.
-    #[arg(long, default_value_t = 20_000)]
+    /// Control ISR rate, Hz (100..=200000).
+    #[arg(long, default_value_t = 20_000,
+          value_parser = clap::value_parser!(u32).range(100..=200_000))]
     rate: u32,
-    /// Highest amplifier voltage, V.
-    #[arg(long, default_value_t = 150.0)]
+    /// Highest amplifier voltage, V (0 < U_MAX ≤ 150, the board's amplifier span).
+    #[arg(long, default_value_t = 150.0, value_parser = parse_amplifier_volts,
+          allow_negative_numbers = true)]
     u_max: f64,
-    /// Largest setpoint slew, V/ms.
-    #[arg(long, default_value_t = 100.0)]
+    /// Largest setpoint slew, V/ms (0 < SLEW ≤ 100, the amplifier's).
+    #[arg(long, default_value_t = 100.0, value_parser = parse_slew,
+          allow_negative_numbers = true)]
     slew: f64,
     /// Highest voltage of the reachable stroke the reference may ask for, V
-    /// (default: the calibrated range of the model).
-    #[arg(long)]
+    /// (0 < V ≤ --u-max; default: the calibrated range of the model).
+    #[arg(long, value_parser = parse_amplifier_volts, allow_negative_numbers = true)]
     stroke_voltage: Option<f64>,
 }
 
@@ -183,9 +190,11 @@ enum BoardCommand {
     /// Ramp to a position and hold it.
     Move {
         /// Target, µm.
+        #[arg(value_parser = parse_finite, allow_negative_numbers = true)]
         um: f64,
-        /// Speed, µm/s.
-        #[arg(long, default_value_t = 1000.0)]
+        /// Speed, µm/s (> 0).
+        #[arg(long, default_value_t = 1000.0, value_parser = parse_positive,
+              allow_negative_numbers = true)]
         speed: f64,
     },
     /// Run the waveform generator.
@@ -193,14 +202,14 @@ enum BoardCommand {
         /// sine, triangle or cosine (a raised cosine from the bottom of the swing).
         #[arg(long, default_value = "sine")]
         shape: String,
-        /// Half-swing, µm.
-        #[arg(long)]
+        /// Half-swing, µm (> 0).
+        #[arg(long, value_parser = parse_positive, allow_negative_numbers = true)]
         amplitude_um: f64,
         /// Mid-point, µm.
-        #[arg(long)]
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
         offset_um: f64,
-        /// Frequency, Hz.
-        #[arg(long)]
+        /// Frequency, Hz (> 0).
+        #[arg(long, value_parser = parse_positive, allow_negative_numbers = true)]
         freq_hz: f64,
         /// Periods to run (default: until another command).
         #[arg(long, default_value_t = 0)]
@@ -211,20 +220,20 @@ enum BoardCommand {
     Stream {
         /// The trajectory.
         file: PathBuf,
-        /// Control ticks per point (20 = 1 kHz at 20 kHz).
-        #[arg(long, default_value_t = 20)]
+        /// Control ticks per point (20 = 1 kHz at 20 kHz; ≥ 1).
+        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u16).range(1..))]
         interval: u16,
     },
     /// Record what the stage does into a CSV (the datasets' columns).
     Record {
-        /// Board time to record, s.
-        #[arg(long)]
+        /// Board time to record, s (0 < S ≤ 3600).
+        #[arg(long, value_parser = parse_record_seconds, allow_negative_numbers = true)]
         seconds: f64,
         /// Where to write it.
         #[arg(long)]
         out: PathBuf,
-        /// Keep one tick in this many.
-        #[arg(long, default_value_t = 20)]
+        /// Keep one tick in this many (≥ 1).
+        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u16).range(1..))]
         decimation: u16,
     },
     /// Load a model into the board: a calibrated model with the stage's FEM tables
@@ -262,6 +271,8 @@ enum BoardCommand {
         /// Timeout, ms.
         ms: u32,
     },
+    /// Reset the board (it starts parked, with its stored model).
+    Reset,
     /// The emulated board's virtual bench: what its analog input reads, what its
     /// force sensor does.
     Bench {
@@ -271,9 +282,19 @@ enum BoardCommand {
         /// The force sensor: ok, open (a broken wire) or stuck (frozen reading).
         #[arg(long)]
         sensor: Option<String>,
+        /// A step added to the force reading, N (a loose connector; 0 removes it).
+        #[arg(long)]
+        force_offset_n: Option<f64>,
+        /// Make this many control ticks overrun their period.
+        #[arg(long)]
+        stall_ticks: Option<u16>,
+        /// Damage the newest model stored in flash (the next start refuses it).
+        #[arg(long)]
+        damage_stored: bool,
     },
 }
 
+/// `A-B`: rows A to B (1-based, inclusive), at least [`cli::MIN_FIT_ROWS`] of them.
 fn parse_rows(s: &str) -> Result<(usize, usize), String> {
     let (a, b) = s
         .split_once('-')
@@ -283,7 +304,99 @@ fn parse_rows(s: &str) -> Result<(usize, usize), String> {
             .parse::<usize>()
             .map_err(|_| format!("{v:?} is not a row number"))
     };
-    Ok((p(a)?, p(b)?))
+    let (a, b) = (p(a)?, p(b)?);
+    if a < 1 {
+        return Err(format!("{s}: rows are numbered from 1"));
+    }
+    if b < a {
+        return Err(format!("{s}: the last row {b} comes before the first {a}"));
+    }
+    let n = b - a + 1;
+    if n < cli::MIN_FIT_ROWS {
+        return Err(format!(
+            "{s}: {n} row(s); a fit needs at least {} rows of motion",
+            cli::MIN_FIT_ROWS
+        ));
+    }
+    Ok((a, b))
+}
+
+/// A finite number.
+fn parse_finite(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{s} is not a finite number"))
+    }
+}
+
+/// A finite number > 0.
+fn parse_positive(s: &str) -> Result<f64, String> {
+    let v = parse_finite(s)?;
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v}: must be > 0"))
+    }
+}
+
+/// A finite number in `(0, max]` of unit `unit`; `limit` says what `max` is.
+fn in_span(s: &str, unit: &str, max: f64, limit: &str) -> Result<f64, String> {
+    let v = parse_finite(s)?;
+    if v <= 0.0 {
+        return Err(format!("{} {unit}: must be > 0 {unit}", Num(v)));
+    }
+    if v > max {
+        return Err(format!("{} {unit}: above {limit} ({max} {unit})", Num(v)));
+    }
+    Ok(v)
+}
+
+/// A voltage within the board's amplifier span `(0, 150] V`.
+fn parse_amplifier_volts(s: &str) -> Result<f64, String> {
+    use fpi_host::method::export::AMPLIFIER_MAX_V;
+    in_span(s, "V", AMPLIFIER_MAX_V, "the board's amplifier span")
+}
+
+/// A slew within the amplifier's `(0, 100] V/ms`.
+fn parse_slew(s: &str) -> Result<f64, String> {
+    use fpi_host::method::export::AMPLIFIER_MAX_SLEW_V_PER_MS;
+    in_span(
+        s,
+        "V/ms",
+        AMPLIFIER_MAX_SLEW_V_PER_MS,
+        "the amplifier's largest slew",
+    )
+}
+
+/// A recording time, `(0, 3600] s`.
+fn parse_record_seconds(s: &str) -> Result<f64, String> {
+    in_span(s, "s", 3600.0, "an hour of recording")
+}
+
+/// A stack compliance, finite and ≥ 0 µm/N.
+fn parse_compliance(s: &str) -> Result<f64, String> {
+    let v = parse_finite(s)?;
+    if v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{v} µm/N: must be ≥ 0 µm/N (a stack yields under load)"
+        ))
+    }
+}
+
+/// A count of play operators, 1..=32.
+fn parse_operators(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(n) if (1..=32).contains(&n) => Ok(n),
+        Ok(n) => Err(format!("{n}: a model has 1..=32 play operators")),
+        Err(_) => Err(format!("{s:?} is not a count")),
+    }
 }
 
 fn main() -> ExitCode {
@@ -358,6 +471,10 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
     let Some(port) = port else {
         anyhow::bail!("which board? --port /dev/ttyUSB0 (or COM3), or --port tcp:127.0.0.1:4545 for `fpi board emulate`");
     };
+    if let BoardCommand::Record { out, .. } = &command {
+        // The output must take a file before the board records anything.
+        fpi_host::output::prepare(out)?;
+    }
     let mut c = Client::open(&port)?;
     match command {
         BoardCommand::Emulate { .. } => Ok(()),
@@ -416,7 +533,27 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             c.ack(&C::Drive { compensated })
                 .map(|t| println!("{mode} from tick {t}"))
         }
-        BoardCommand::Bench { analog_v, sensor } => b::bench(&mut c, analog_v, sensor.as_deref()),
+        BoardCommand::Reset => {
+            let h = c.reset()?;
+            println!("reset; the board answers again ({:?})", h.reset);
+            Ok(())
+        }
+        BoardCommand::Bench {
+            analog_v,
+            sensor,
+            force_offset_n,
+            stall_ticks,
+            damage_stored,
+        } => b::bench(
+            &mut c,
+            &b::BenchSettings {
+                analog_v,
+                sensor,
+                force_offset_n,
+                stall_ticks,
+                damage_stored,
+            },
+        ),
         BoardCommand::Supervise { ms } => c.ack(&C::Supervise { timeout_ms: ms }).map(|_| {
             if ms == 0 {
                 println!("host supervision off");

@@ -106,6 +106,7 @@ impl Client {
                 capacity: [0; 4],
                 buffers: [0; 2],
                 limits: [0; 5],
+                reset: fpi_firmware::link::protocol::ResetReason::Unknown,
             },
             log: Vec::new(),
         };
@@ -132,6 +133,11 @@ impl Client {
             }
         }
         Err(last.unwrap_or_else(|| anyhow!("no answer to hello")))
+    }
+
+    /// The port it was opened on (e.g. `tcp:127.0.0.1:4545`, `virtual`).
+    pub fn port_name(&self) -> &str {
+        &self.name
     }
 
     /// The board's identity and capacity.
@@ -237,6 +243,19 @@ impl Client {
             .into()),
             (_, r) => bail!("unexpected reply to {}: {r:?}", name_of(cmd)),
         }
+    }
+
+    /// Resets the board and greets it again once it has started; its new hello
+    /// (which says why it started). The log starts afresh with the new run.
+    pub fn reset(&mut self) -> Result<&Hello> {
+        self.ack(&Command::Reset)?;
+        std::thread::sleep(Duration::from_millis(300));
+        self.log.clear();
+        match self.greet()? {
+            (_, Reply::Hello(h)) => self.hello = h,
+            (_, r) => bail!("unexpected reply to hello after a reset: {r:?}"),
+        }
+        Ok(&self.hello)
     }
 
     /// The loop's state.

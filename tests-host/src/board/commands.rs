@@ -5,7 +5,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use fpi_firmware::link::protocol::{BoardKind, Command, Status};
+use fpi_firmware::link::protocol::{BoardKind, Command, ResetReason, SlotReport, Status};
 use fpi_firmware::recorder::signal;
 use fpi_firmware::reference::wave::Shape;
 use fpi_firmware::slots::Origin;
@@ -13,9 +13,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use piezo_fpi::control::Fault;
 use piezo_sim::file::FirmwareModel;
 
-use super::client::{real, Client};
+use super::client::{bits, real, Client};
 use super::recording::Recording;
-use crate::data::fem::FemMaps;
 use crate::method::export::{self, ExportOptions, LoopSettings};
 use crate::method::model::HostModel;
 
@@ -37,7 +36,7 @@ pub fn model_image(model: &Path, fem: Option<&Path>, o: &ExportOptions) -> Resul
             bail!("{shown} is a calibrated model: give the stage's FEM tables with --fem FEM.csv");
         };
         let m = HostModel::read(model)?;
-        let maps = FemMaps::read(fem)?;
+        let maps = crate::cli::read_fem(fem)?;
         let settings = LoopSettings::for_model(&m, o);
         export::export(&m, model, &maps, &settings)?.model
     };
@@ -87,6 +86,9 @@ pub fn status(c: &mut Client) -> Result<()> {
          terms, {} table intervals",
         match h.board {
             BoardKind::Driver => "STM32F405 driver board",
+            BoardKind::Emulated if c.port_name() == super::inprocess::PORT_NAME => {
+                "emulated board's firmware built for this host (in-process, virtual stage)"
+            }
             BoardKind::Emulated => "emulated board (QEMU netduinoplus2, virtual stage)",
         },
         h.firmware,
@@ -95,6 +97,27 @@ pub fn status(c: &mut Client) -> Result<()> {
         h.capacity[0],
         h.capacity[1],
         h.capacity[2]
+    );
+    println!(
+        "started by: {}; flash slots at start-up: {}",
+        match h.reset {
+            ResetReason::PowerOn => "power-on",
+            ResetReason::Pin => "the reset pin",
+            ResetReason::Command => "a reset command",
+            ResetReason::Watchdog => "THE WATCHDOG (a task hung)",
+            ResetReason::BrownOut => "a brown-out",
+            ResetReason::Unknown => "unknown",
+        },
+        m.slots
+            .iter()
+            .map(|s| match s {
+                SlotReport::Empty => "empty".to_string(),
+                SlotReport::Valid(g) => format!("model generation {g}"),
+                SlotReport::Damaged => "DAMAGED (ignored)".to_string(),
+                SlotReport::Refused(g) => format!("generation {g} REFUSED by the validator"),
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
     );
     println!(
         "model: {:08x}, {}; {} operators, {} creep terms{}{}; stroke {:.3}–{:.3} µm, safe at {:.3} V",
@@ -174,7 +197,7 @@ pub fn print_state(s: &Status, rate: f64) {
     }
     println!(
         "stream: {} points queued, {} free, {} received, {} underrun ticks; recorder: {}, {} \
-         samples kept, {} dropped, {} waiting",
+         samples kept, {} dropped, {} waiting; late control ticks: {}",
         s.stream[0],
         s.stream[1],
         s.stream[2],
@@ -186,7 +209,8 @@ pub fn print_state(s: &Status, rate: f64) {
         },
         s.recorder[1],
         s.recorder[2],
-        s.recorder[3]
+        s.recorder[3],
+        s.overruns
     );
 }
 
@@ -304,11 +328,31 @@ pub fn shape(name: &str) -> Result<Shape> {
 }
 
 /// `fpi board bench`: the emulated board's analog input (V) and force sensor.
-pub fn bench(c: &mut Client, analog_v: Option<f64>, sensor: Option<&str>) -> Result<()> {
+/// What `fpi board bench` sets on the emulated board's virtual bench.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BenchSettings {
+    /// Voltage on the analog reference input, V (0–3.3).
+    pub analog_v: Option<f64>,
+    /// The force sensor: `ok`, `open` or `stuck`.
+    pub sensor: Option<String>,
+    /// A step added to the force reading, N.
+    pub force_offset_n: Option<f64>,
+    /// Control ticks made to overrun their period.
+    pub stall_ticks: Option<u16>,
+    /// Damage the newest stored model (seen at the next start).
+    pub damage_stored: bool,
+}
+
+/// `fpi board bench`: the emulated board's virtual bench (a real board refuses).
+pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<()> {
     use fpi_firmware::link::protocol::BenchOrder;
-    if analog_v.is_none() && sensor.is_none() {
-        bail!("nothing to set: --analog-v V and/or --sensor ok|open|stuck");
+    if *b == BenchSettings::default() {
+        bail!(
+            "nothing to set: --analog-v V, --sensor ok|open|stuck, --force-offset-n N, \
+             --stall-ticks T or --damage-stored"
+        );
     }
+    let (analog_v, sensor) = (b.analog_v, b.sensor.as_deref());
     if let Some(v) = analog_v {
         if !(0.0..=3.3).contains(&v) {
             bail!("--analog-v {v}: the input spans 0–3.3 V");
@@ -331,6 +375,28 @@ pub fn bench(c: &mut Client, analog_v: Option<f64>, sensor: Option<&str>) -> Res
             c.bench(*o)?;
         }
         println!("force sensor {s}");
+    }
+    bench_faults(c, b)
+}
+
+/// The fault injections of [`bench`]: a force step, overrunning ticks, a damaged
+/// stored model.
+fn bench_faults(c: &mut Client, b: &BenchSettings) -> Result<()> {
+    use fpi_firmware::link::protocol::BenchOrder;
+    if let Some(n) = b.force_offset_n {
+        if !n.is_finite() || n.abs() > 4096.0 {
+            bail!("--force-offset-n {n}: a finite step within ±4096 N");
+        }
+        let tick = c.bench(BenchOrder::SensorOffset(bits(n)))?;
+        println!("force reading offset by {n} N from tick {tick}");
+    }
+    if let Some(t) = b.stall_ticks {
+        let tick = c.bench(BenchOrder::Stall(t))?;
+        println!("{t} control ticks overrun their period from tick {tick}");
+    }
+    if b.damage_stored {
+        c.bench(BenchOrder::DamageStored)?;
+        println!("the newest stored model is damaged: `fpi board reset` shows the start-up check");
     }
     Ok(())
 }

@@ -20,6 +20,32 @@ use anyhow::{bail, Context, Result};
 
 use super::{build, qemu, qemu_command};
 
+/// Where the emulated firmware takes its model flash's content from at start-up
+/// (the board's stored-model sector; QEMU's `-device loader` puts a file there).
+pub const FLASH_SEED: u32 = 0x080C_0000;
+
+/// A file of the emulated board's model flash holding `images` stored one after
+/// the other (generations 1, 2, …), with the images listed in `damage` damaged
+/// afterwards (a byte cleared in the middle, as a flash fault would): for starting
+/// the emulated board with models in its flash ([`Emulator::start_with_flash`]).
+pub fn flash_file(path: &Path, images: &[&[u8]], damage: &[usize]) -> Result<()> {
+    use fpi_firmware::emulated::{EmulatedFlash, FLASH_SLOTS};
+    use fpi_firmware::storage::ModelFlash;
+    let mut flash = Box::new(EmulatedFlash::new());
+    let mut f = ModelFlash::new(&mut *flash, FLASH_SLOTS);
+    let mut stored = Vec::new();
+    for image in images {
+        stored.push(f.store(image).map_err(|e| anyhow::anyhow!(e.message()))?);
+    }
+    for &k in damage {
+        if let Some(s) = stored.get(k) {
+            f.damage(s, s.len / 2)
+                .map_err(|e| anyhow::anyhow!(e.message()))?;
+        }
+    }
+    crate::output::write_atomic(path, f.flash().as_bytes())
+}
+
 /// QEMU's virtual clock for the instrument: see the module docs.
 pub const ICOUNT_INSTRUMENT: &str = "shift=0,align=off,sleep=on";
 
@@ -46,14 +72,33 @@ impl Emulator {
 
     /// Starts a built emulated firmware.
     pub fn start_elf(elf: &Path, listen: Option<&str>) -> Result<Self> {
+        Self::start_with_flash(elf, listen, None)
+    }
+
+    /// Starts a built emulated firmware whose model flash holds what `flash` (a
+    /// file made by [`flash_file`]) holds: as a real board whose flash kept its
+    /// models while it was off.
+    pub fn start_with_flash(
+        elf: &Path,
+        listen: Option<&str>,
+        flash: Option<&Path>,
+    ) -> Result<Self> {
         let qemu = qemu()?;
         let addr = match listen {
             Some(a) => a.to_string(),
             None => format!("127.0.0.1:{}", free_port()?),
         };
         let serial = format!("tcp:{addr},server=on,wait=off,nodelay=on");
-        let mut child = qemu_command(&qemu, elf, ICOUNT_INSTRUMENT)
-            .args(["-display", "none", "-serial", &serial])
+        let mut cmd = qemu_command(&qemu, elf, ICOUNT_INSTRUMENT);
+        cmd.args(["-display", "none", "-serial", &serial]);
+        if let Some(f) = flash {
+            let loader = format!(
+                "loader,file={},addr={FLASH_SEED:#x},force-raw=on",
+                f.display()
+            );
+            cmd.args(["-device", &loader]);
+        }
+        let mut child = cmd
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -134,4 +179,27 @@ impl Drop for Emulator {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+}
+
+/// Whether the tests that run the emulated board can run: `qemu-system-arm` is
+/// installed. Without it, under CI (`CI` set and not `false`/`0`) this panics with
+/// how to install it, since CI must run them; elsewhere it prints a loud notice
+/// naming `test` and returns `false`, and the test returns early (skipped).
+pub fn available_for(test: &str) -> bool {
+    let Err(e) = qemu() else {
+        return true;
+    };
+    if under_ci() {
+        panic!("{test}: CI must run the emulated board: {e:#}");
+    }
+    eprintln!(
+        "\n!!!!! SKIPPED {test}: it needs the emulated board, and {e:#}\n\
+         !!!!! (under CI=true this is a failure)\n"
+    );
+    false
+}
+
+/// Whether this runs under CI (`CI` set to anything but `false` or `0`).
+pub fn under_ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| !v.is_empty() && v != "false" && v != "0")
 }

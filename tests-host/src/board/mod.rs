@@ -8,6 +8,7 @@ pub mod accuracy;
 pub mod client;
 pub mod commands;
 pub mod emulator;
+pub mod inprocess;
 pub mod port;
 pub mod recording;
 pub mod session;
@@ -79,7 +80,14 @@ pub fn ensure_target() -> Result<()> {
 /// clear request to install it.
 pub fn qemu() -> Result<PathBuf> {
     if let Ok(p) = std::env::var("QEMU_SYSTEM_ARM") {
-        return Ok(PathBuf::from(p));
+        let p = PathBuf::from(p);
+        if !p.is_file() {
+            bail!(
+                "qemu-system-arm was not found: QEMU_SYSTEM_ARM names {}, which is not a file",
+                p.display()
+            );
+        }
+        return Ok(p);
     }
     let found = std::env::var_os("PATH").and_then(|paths| {
         std::env::split_paths(&paths)

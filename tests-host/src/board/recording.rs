@@ -9,7 +9,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use fpi_firmware::recorder::{signal, status, Sample};
 use piezo_sim::stats::ErrorStats;
 
@@ -68,8 +68,15 @@ impl Recording {
         }
     }
 
-    /// Writes the CSV (see the module docs).
+    /// Writes the CSV (see the module docs) atomically
+    /// ([`crate::output::write_atomic_with`]: a failure leaves no partial file and
+    /// names `path`).
     pub fn write_csv(&self, path: &Path) -> Result<()> {
+        crate::output::write_atomic_with(path, |w| self.write_rows(w))
+    }
+
+    /// The CSV's header and rows into `w`.
+    fn write_rows(&self, w: &mut dyn Write) -> std::io::Result<()> {
         let cols = [
             (signal::VOLTAGE, "voltage_V"),
             (signal::FORCE, "force_N"),
@@ -78,9 +85,6 @@ impl Recording {
             (signal::STATUS, "status"),
             (signal::X_TRUE, "x_fhps_um"),
         ];
-        let mut w = std::io::BufWriter::new(
-            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
-        );
         let mut head = String::from("t_s");
         for (bit, name) in cols {
             if self.signals & bit != 0 {
@@ -108,7 +112,6 @@ impl Recording {
             }
             writeln!(w, "{line}")?;
         }
-        w.flush()
-            .with_context(|| format!("writing {}", path.display()))
+        Ok(())
     }
 }

@@ -7,23 +7,14 @@
 //! and every request at the tick that first saw it. So the twin reproduces every
 //! sample the board recorded; [`compare`] says by how much it does not.
 
-use anyhow::{anyhow, Result};
-use fpi_firmware::emulated::{EmulatedFlash, Virtual, FLASH_SLOTS};
+use anyhow::Result;
+use fpi_firmware::emulated::Virtual;
 use fpi_firmware::exchange::Exchange;
-use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
-use fpi_firmware::hardware::{Store, IMAGE_BYTES};
 use fpi_firmware::link::handler::Board;
 use fpi_firmware::link::protocol::MAX_FRAME;
-use fpi_firmware::recorder::{signal, Recorder, Sample};
-use fpi_firmware::reference::stream::Points;
-use fpi_firmware::sim_io::SimLink;
-use fpi_firmware::storage::ModelFlash;
+use fpi_firmware::recorder::{signal, Sample};
 
 use super::client::{real, Logged};
-
-fn leak<T>(v: T) -> &'static mut T {
-    Box::leak(Box::new(v))
-}
 
 /// The virtual board with every tick's sample kept.
 struct Traced {
@@ -50,16 +41,7 @@ impl Board for Traced {
 /// Replays `log` on a freshly booted virtual board (as the emulated board boots:
 /// the factory model, empty flash) through tick `until`; every tick's sample.
 pub fn replay(log: &[Logged], until: u32) -> Result<Vec<Sample>> {
-    let link: &'static SimLink = leak(SimLink::new(FORCE_ADC, SETPOINT_DAC));
-    let exchange = Exchange::new(leak(Recorder::new()), leak(Points::new()));
-    let (board, mut handler) = Virtual::boot(
-        link,
-        [leak(Store::new()), leak(Store::new())],
-        leak([0; IMAGE_BYTES]),
-        exchange,
-        ModelFlash::new(leak(EmulatedFlash::new()), FLASH_SLOTS),
-    )
-    .ok_or_else(|| anyhow!("the virtual board does not boot"))?;
+    let (board, mut handler) = super::inprocess::boot()?;
     let mut t = Traced {
         board,
         trace: Vec::with_capacity(until as usize + 1),

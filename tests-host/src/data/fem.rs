@@ -1,13 +1,29 @@
 //! A stage's FEM export (Actuators 2025, 14(8):411, Part II) read from its file: the points of
 //! the preload `f_F(x_pea)` and the stage output `f_K(x_pea)`, validated, and the
 //! maps through them ([`piezo_sim::fem::Fem`], linear between the points).
+//!
+//! Reading refuses values no stage has and the firmware cannot hold (beyond
+//! ±[`SIGNAL_ABS_MAX`] µm or N), and keeps warnings, each with the number and the
+//! line that triggered it, for values that are possible but implausible (a unit
+//! slip, a stack under tension, an extreme lever ratio).
 
 use std::path::Path;
 
 use piezo_sim::curve::Curve;
 use piezo_sim::fem::Fem;
 
-use crate::data::{self, DataError};
+use piezo_fpi::q::SIGNAL_ABS_MAX;
+
+use crate::data::{self, DataError, Num};
+
+/// Longest plausible stack extension, µm (piezo stacks reach 300 µm at most).
+pub const PLAUSIBLE_STACK_UM: f64 = 500.0;
+/// Shortest plausible span of stack extension, µm (below: a unit slip, m or mm).
+pub const PLAUSIBLE_SPAN_UM: f64 = 0.01;
+/// Largest plausible preload, N.
+pub const PLAUSIBLE_PRELOAD_N: f64 = 2000.0;
+/// Plausible lever ratios of a stage, output over stack travel.
+pub const PLAUSIBLE_RATIO: (f64, f64) = (0.01, 100.0);
 
 /// An FEM export's points and the maps through them.
 #[derive(Debug, Clone, PartialEq)]
@@ -23,35 +39,33 @@ pub struct FemMaps {
     /// The points' spacing when it is uniform (FEM sweeps usually are): lookups
     /// are then an index computation instead of a search.
     uniform_step: Option<f64>,
+    /// Implausible values found on reading, each naming the file, line and column.
+    warnings: Vec<String>,
 }
 
 impl FemMaps {
     /// Reads and validates an FEM export (`x_pea_um,preload_N,x_fhps_um`): finite
-    /// values, strictly increasing `x_pea_um`, strictly monotone `x_fhps_um`.
+    /// values within ±[`SIGNAL_ABS_MAX`], strictly increasing `x_pea_um`, strictly
+    /// monotone `x_fhps_um`. Implausible values are kept as [`warnings`](Self::warnings).
     pub fn read(path: &Path) -> Result<Self, DataError> {
         let fem = data::read_fem(path)?;
-        let up = fem.x_fhps[fem.x_fhps.len() - 1] > fem.x_fhps[0];
-        for (i, w) in fem.x_fhps.windows(2).enumerate() {
-            if (up && w[1] <= w[0]) || (!up && w[1] >= w[0]) {
-                return Err(DataError::at(
-                    &fem.path,
-                    i as u64 + 3,
-                    "x_fhps_um",
-                    format!(
-                        "{} after {}: the stage output must be strictly monotone in the stack \
-                         extension for the inverse kinematics",
-                        w[1], w[0]
-                    ),
-                ));
-            }
-        }
-        Self::new(
+        in_range(&fem)?;
+        monotone_output(&fem)?;
+        let warnings = plausibility(&fem);
+        let mut maps = Self::new(
             fem.path.display().to_string(),
             fem.x_pea,
             fem.preload,
             fem.x_fhps,
         )
-        .ok_or_else(|| DataError::file(path, "an FEM table needs at least two points"))
+        .ok_or_else(|| DataError::file(path, "an FEM table needs at least two points"))?;
+        maps.warnings = warnings;
+        Ok(maps)
+    }
+
+    /// What looked implausible in the file (empty for maps made with [`new`](Self::new)).
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
     }
 
     /// Maps through points (`x_pea` strictly increasing); `None` for fewer than
@@ -70,6 +84,7 @@ impl FemMaps {
             preload,
             x_fhps,
             uniform_step,
+            warnings: Vec::new(),
         })
     }
 
@@ -121,6 +136,143 @@ impl FemMaps {
     pub fn x_pea_max(&self) -> f64 {
         self.x_pea[self.x_pea.len() - 1]
     }
+}
+
+/// The line of data row `i` (0-based; the header is line 1).
+fn line(i: usize) -> u64 {
+    i as u64 + 2
+}
+
+/// Refuses values beyond ±[`SIGNAL_ABS_MAX`] µm or N: no stage comes near them,
+/// the firmware's fixed-point signals cannot hold them, and a prediction through
+/// them would be meaningless (e.g. a preload of 1e300 N).
+fn in_range(fem: &data::Fem) -> Result<(), DataError> {
+    let columns = [
+        ("x_pea_um", "µm", &fem.x_pea),
+        ("preload_N", "N", &fem.preload),
+        ("x_fhps_um", "µm", &fem.x_fhps),
+    ];
+    for (column, unit, values) in columns {
+        if let Some(i) = values.iter().position(|v| v.abs() > SIGNAL_ABS_MAX) {
+            return Err(DataError::at(
+                &fem.path,
+                line(i),
+                column,
+                format!(
+                    "{} {unit} is outside ±{SIGNAL_ABS_MAX} {unit}: no stage comes near it, and \
+                     the firmware's fixed-point signals cannot hold it",
+                    Num(values[i])
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses a stage output that is not strictly monotone in the stack extension.
+fn monotone_output(fem: &data::Fem) -> Result<(), DataError> {
+    let up = fem.x_fhps[fem.x_fhps.len() - 1] > fem.x_fhps[0];
+    for (i, w) in fem.x_fhps.windows(2).enumerate() {
+        if (up && w[1] <= w[0]) || (!up && w[1] >= w[0]) {
+            return Err(DataError::at(
+                &fem.path,
+                line(i + 1),
+                "x_fhps_um",
+                format!(
+                    "{} after {}: the stage output must be strictly monotone in the stack \
+                     extension for the inverse kinematics",
+                    w[1], w[0]
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The row of the largest value of a column by `key`.
+fn arg_max(values: &[f64], key: impl Fn(f64) -> f64) -> usize {
+    (0..values.len())
+        .max_by(|&a, &b| key(values[a]).total_cmp(&key(values[b])))
+        .unwrap_or(0)
+}
+
+/// Warnings for possible but implausible values, each with its number and line.
+fn plausibility(fem: &data::Fem) -> Vec<String> {
+    let at = |i: usize, column: &str, m: String| {
+        DataError::at(&fem.path, line(i), column, m).to_string()
+    };
+    let n = fem.x_pea.len() - 1;
+    let (x0, x1) = (fem.x_pea[0], fem.x_pea[n]);
+    let mut w = Vec::new();
+    let i = arg_max(&fem.x_pea, f64::abs);
+    if fem.x_pea[i].abs() > PLAUSIBLE_STACK_UM {
+        w.push(at(
+            i,
+            "x_pea_um",
+            format!(
+            "{} µm: longer than any piezo stack's stroke (at most ~300 µm); is the column in µm?",
+            fem.x_pea[i]
+        ),
+        ));
+    }
+    if x1 - x0 < PLAUSIBLE_SPAN_UM {
+        w.push(at(n, "x_pea_um", format!(
+            "the table spans only {} µm of stack extension: is the column in m or mm instead of µm?",
+            x1 - x0
+        )));
+    }
+    if !(x0..=x1).contains(&0.0) {
+        w.push(at(
+            0,
+            "x_pea_um",
+            format!(
+                "the table covers {x0}..{x1} µm, not 0: the rest preload f_F(0) is extrapolated"
+            ),
+        ));
+    }
+    w.extend(preload_warnings(fem, &at));
+    let ratio = (fem.x_fhps[n] - fem.x_fhps[0]).abs() / (x1 - x0);
+    if !(PLAUSIBLE_RATIO.0..=PLAUSIBLE_RATIO.1).contains(&ratio) {
+        w.push(at(
+            n,
+            "x_fhps_um",
+            format!(
+                "the stage output moves {ratio:.3e} µm per µm of stack: a lever ratio outside \
+             {}..{} (a unit slip?)",
+                PLAUSIBLE_RATIO.0, PLAUSIBLE_RATIO.1
+            ),
+        ));
+    }
+    w
+}
+
+/// Warnings for a preload that pulls the stack or is implausibly large.
+fn preload_warnings(fem: &data::Fem, at: &impl Fn(usize, &str, String) -> String) -> Vec<String> {
+    let mut w = Vec::new();
+    let lo = arg_max(&fem.preload, |v| -v);
+    if fem.preload[lo] < 0.0 {
+        w.push(at(
+            lo,
+            "preload_N",
+            format!(
+                "{} N: the stack is under tension there (a preload presses it: > 0 N)",
+                fem.preload[lo]
+            ),
+        ));
+    }
+    let hi = arg_max(&fem.preload, |v| v);
+    if fem.preload[hi] > PLAUSIBLE_PRELOAD_N {
+        w.push(at(
+            hi,
+            "preload_N",
+            format!(
+                "{} N: more than the {PLAUSIBLE_PRELOAD_N} N a stage's preload plausibly reaches; \
+             is the column in N?",
+                fem.preload[hi]
+            ),
+        ));
+    }
+    w
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
 
-use flate2::read::GzDecoder;
+use flate2::read::MultiGzDecoder;
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
 
@@ -61,6 +61,22 @@ impl fmt::Display for DataError {
 
 impl std::error::Error for DataError {}
 
+/// A number for a message: as Rust writes it (`0.25`, `150`) within
+/// `1e-4 ≤ |v| < 1e9`, else in scientific notation (`1e300`, not 301 digits).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+impl fmt::Display for Num {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let a = self.0.abs();
+        if a == 0.0 || !a.is_finite() || (1e-4..1e9).contains(&a) {
+            write!(f, "{}", self.0)
+        } else {
+            write!(f, "{:e}", self.0)
+        }
+    }
+}
+
 /// Where the project's copies of the datasets live (`tests-host/data`).
 pub fn data_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data")
@@ -92,17 +108,119 @@ pub fn datasets_in(folder: &str) -> Vec<PathBuf> {
     v
 }
 
-/// The whole content of a file, gunzipped if its name ends in `.gz`.
-pub fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
-    let file = File::open(path).map_err(|e| DataError::file(path, format!("cannot open: {e}")))?;
-    let mut out = Vec::new();
-    let res = if path.extension().is_some_and(|e| e == "gz") {
-        GzDecoder::new(BufReader::new(file)).read_to_end(&mut out)
-    } else {
-        BufReader::new(file).read_to_end(&mut out)
+/// Most bytes an input file may hold once decompressed: 1 GiB (the largest dataset
+/// is 2.5 MB).
+pub const MAX_BYTES: u64 = 1 << 30;
+
+/// Most bytes a gzip file may expand to per compressed byte, checked once more than
+/// [`RATIO_FROM`] bytes came out. The datasets expand 1–11 times; a recording's
+/// strictly increasing time column alone keeps a CSV far below 100; gzip bombs
+/// expand about 1000 times.
+pub const MAX_RATIO: u64 = 100;
+
+/// Decompressed size from which [`MAX_RATIO`] applies, bytes (16 MiB).
+pub const RATIO_FROM: u64 = 16 << 20;
+
+/// Limits on what [`read_bytes_within`] reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReadLimits {
+    /// Most bytes of content (decompressed), bytes.
+    pub max_bytes: u64,
+    /// Most decompressed bytes per compressed byte, beyond `ratio_from` bytes.
+    pub max_ratio: u64,
+    /// Decompressed size from which `max_ratio` applies, bytes.
+    pub ratio_from: u64,
+}
+
+impl ReadLimits {
+    /// The limits of every input file: [`MAX_BYTES`], [`MAX_RATIO`], [`RATIO_FROM`].
+    pub const INPUT: Self = Self {
+        max_bytes: MAX_BYTES,
+        max_ratio: MAX_RATIO,
+        ratio_from: RATIO_FROM,
     };
-    res.map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
-    Ok(out)
+}
+
+/// The whole content of a file, gunzipped if its name ends in `.gz` (every member
+/// of a multi-member file), within [`ReadLimits::INPUT`].
+pub fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
+    read_bytes_within(path, ReadLimits::INPUT)
+}
+
+/// [`read_bytes`] within other limits: stops reading, with an error naming the
+/// file, as soon as the content exceeds `limits` (a gzip bomb is never expanded
+/// in full).
+pub fn read_bytes_within(path: &Path, limits: ReadLimits) -> Result<Vec<u8>, DataError> {
+    let file = File::open(path).map_err(|e| DataError::file(path, format!("cannot open: {e}")))?;
+    let counted = Counted {
+        inner: BufReader::new(file),
+        bytes: 0,
+    };
+    if path.extension().is_some_and(|e| e == "gz") {
+        let mut gz = MultiGzDecoder::new(counted);
+        read_limited(path, &mut gz, limits, |gz| gz.get_ref().bytes)
+    } else {
+        let mut plain = counted;
+        read_limited(path, &mut plain, limits, |_| 0)
+    }
+}
+
+/// A reader that counts the bytes read through it.
+struct Counted<R> {
+    inner: R,
+    bytes: u64,
+}
+
+impl<R: Read> Read for Counted<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.bytes += n as u64;
+        Ok(n)
+    }
+}
+
+/// Reads `r` to its end in chunks, checking the size (and, where `compressed`
+/// reports the compressed bytes read so far, the expansion ratio) after each.
+fn read_limited<R: Read>(
+    path: &Path,
+    r: &mut R,
+    limits: ReadLimits,
+    compressed: impl Fn(&R) -> u64,
+) -> Result<Vec<u8>, DataError> {
+    let mut out = Vec::new();
+    let mut chunk = vec![0u8; 1 << 16];
+    loop {
+        let n = match r.read(&mut chunk) {
+            Ok(0) => return Ok(out),
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(DataError::file(path, format!("cannot read: {e}"))),
+        };
+        out.extend_from_slice(&chunk[..n]);
+        let size = out.len() as u64;
+        if size > limits.max_bytes {
+            return Err(DataError::file(
+                path,
+                format!(
+                    "more than {} bytes of content: refusing to read further (no dataset is \
+                     that large; a gzip bomb?)",
+                    limits.max_bytes
+                ),
+            ));
+        }
+        let packed = compressed(r);
+        if packed > 0 && size > limits.ratio_from && size > packed.saturating_mul(limits.max_ratio)
+        {
+            return Err(DataError::file(
+                path,
+                format!(
+                    "{packed} compressed bytes expand to more than {size}: a ratio above \
+                     {}:1, which no CSV recording has (a gzip bomb?); refusing to read further",
+                    limits.max_ratio
+                ),
+            ));
+        }
+    }
 }
 
 /// Records whose every number must be finite; names the first that is not.
@@ -135,6 +253,7 @@ pub fn parse_csv<T: DeserializeOwned + Finite>(
         .headers()
         .map_err(|e| DataError::file(path, format!("cannot read the header: {e}")))?
         .clone();
+    duplicate_column(path, &headers)?;
     let missing: Vec<&str> = columns
         .iter()
         .filter(|c| !headers.iter().any(|h| h == **c))
@@ -190,6 +309,26 @@ pub fn parse_csv<T: DeserializeOwned + Finite>(
     Ok(out)
 }
 
+/// Refuses a header that names a column twice (by name, on line 1; unnamed
+/// columns aside).
+fn duplicate_column(path: &Path, headers: &csv::StringRecord) -> Result<(), DataError> {
+    for (j, h) in headers.iter().enumerate().filter(|(_, h)| !h.is_empty()) {
+        if let Some(i) = headers.iter().take(j).position(|g| g == h) {
+            return Err(DataError::at(
+                path,
+                1,
+                h,
+                format!(
+                    "appears twice in the header (fields {} and {}): which one holds the data?",
+                    i + 1,
+                    j + 1
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 fn csv_error(path: &Path, e: csv::Error) -> DataError {
     let line = e.position().map(|p| p.line());
     let message = match e.kind() {
@@ -217,7 +356,11 @@ pub fn strictly_increasing(path: &Path, column: &str, values: &[f64]) -> Result<
                 path,
                 i as u64 + 3,
                 column,
-                format!("{} does not increase (previous row {})", w[1], w[0]),
+                format!(
+                    "{} does not increase (previous row {})",
+                    Num(w[1]),
+                    Num(w[0])
+                ),
             ));
         }
     }

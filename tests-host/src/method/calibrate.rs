@@ -5,11 +5,18 @@
 //! the columns are the operator outputs `G_{r_i}[û]` (and their products with the
 //! force for LDPI, the creep lags, a saturation term and an offset), fitted by
 //! weighted non-negative least squares on the normal equations ([`crate::method::lsq`]),
-//! accumulated over all recordings in parallel (each recording's columns are built
-//! into a buffer it keeps for the whole calibration). The nonlinear parameters are
+//! accumulated over all recordings in parallel. The nonlinear parameters are
 //! searched outside: golden section on `k_f` (fpi) and on the output curvature
 //! (gpi), Nelder–Mead (`argmin`) on `(k_f, k_q, k0, s)` (efpi), always scoring the
 //! output error (RMSE of the simulated extension against the recording).
+//!
+//! Calibration is linear in the samples, in time and memory: the columns'
+//! recurrences run over every sample in one pass per trial, and only the rows of
+//! the least squares are kept, at most [`SEARCH_SAMPLES`] of them: beyond that
+//! the search decimates its rows (one sample in each run of `stride`, at a
+//! pseudo-random place; the operators still see every sample), and the final
+//! weights and figures come from every sample, its normal equations accumulated
+//! in a streaming pass (exact; the design matrix is never stored).
 //!
 //! * Thresholds: `r_i = U·i/N`, `i = 1..N-1`, with `U` the largest voltage in the
 //!   data rounded up to 10 % steps (10 operators on 0–100 V data: 0, 10, …, 90 V,
@@ -34,6 +41,7 @@ use piezo_sim::stats::ErrorStats;
 use rayon::prelude::*;
 
 use crate::data;
+use crate::method::checks;
 use crate::method::lsq::Normal;
 use crate::method::model::{Calibration, FileFit, HostModel, Kind, LdpiParams, OutputMap};
 use crate::model_file::{CouplingSection, CreepSection, PiSection};
@@ -79,7 +87,7 @@ pub fn load(paths: &[impl AsRef<Path>], rows: Option<(usize, usize)>) -> Result<
             .map(|n| n.to_string_lossy().trim_end_matches(".gz").to_string())
             .unwrap_or_default();
         let is_dat = name.ends_with(".dat");
-        let (dt, u, f, mut x, has_force) = if is_dat {
+        let (dt, u, f, x, has_force) = if is_dat {
             let m = data::read_micromanipulator(p)?;
             let n = m.u.len();
             (1.0 / 200.0, m.u, vec![0.0; n], m.sensor, false)
@@ -102,11 +110,8 @@ pub fn load(paths: &[impl AsRef<Path>], rows: Option<(usize, usize)>) -> Result<
             }
             None => (0, n),
         };
-        // Zero the extension at the first fitted sample (the recordings are zeroed at t = 0).
-        let x0 = x[fit.0];
-        x.iter_mut().for_each(|v| *v -= x0);
         let f0 = f[fit.0];
-        out.push(CalibData {
+        let mut d = CalibData {
             name,
             dt,
             u,
@@ -115,7 +120,13 @@ pub fn load(paths: &[impl AsRef<Path>], rows: Option<(usize, usize)>) -> Result<
             f0,
             fit,
             has_force,
-        });
+        };
+        // Values beyond the fixed-point range, as the file has them.
+        checks::ranges(&d)?;
+        // Zero the extension at the first fitted sample (the recordings are zeroed at t = 0).
+        let x0 = d.x[fit.0];
+        d.x.iter_mut().for_each(|v| *v -= x0);
+        out.push(d);
     }
     if out.is_empty() {
         bail!("no calibration recordings given");
@@ -162,7 +173,7 @@ impl Options {
                 Vec::new()
             },
             offset: kind == Kind::Gpi,
-            input_max: 150.0,
+            input_max: checks::AMPLIFIER_MAX_V,
         }
     }
 
@@ -231,39 +242,62 @@ impl Layout {
         }
     }
 
-    /// Columns of every sample of a recording (row-major), and the equation-error
-    /// target and weight of each sample, into the recording's buffers.
-    fn build(&self, d: &CalibData, p: &Nonlinear, ws: &mut Workspace) {
+    /// Runs the columns' recurrences (effective voltage, play operators, creep
+    /// lags) over every sample of a recording up to the end of its fitted window,
+    /// and calls `visit(k, row, target, weight)` for the fitted samples `pick`
+    /// takes: the sample's columns, its equation-error target and its weight.
+    /// Nothing is stored: memory does not grow with the samples. `pre`: the
+    /// effective voltages, if [`effective_all`](Self::effective_all) computed them.
+    fn scan(
+        &self,
+        d: &CalibData,
+        p: &Nonlinear,
+        pick: Pick,
+        pre: Option<&[f64]>,
+        mut visit: impl FnMut(usize, &[f64], f64, f64),
+    ) {
         let nc = self.columns();
-        let n = d.u.len();
-        ws.cols.resize(n * nc, 0.0);
-        ws.target.resize(n, 0.0);
-        ws.weight.resize(n, 1.0);
-        let mut y = vec![0.0; self.thresholds.len()];
+        let nt = self.thresholds.len();
+        let mut row = vec![0.0; nc];
+        let mut y = vec![0.0; nt];
         let rates: Vec<f64> = self.creep.iter().map(|&tau| lag_rate(d.dt, tau)).collect();
         let mut m = vec![0.0; self.creep.len()];
-        for k in 0..n {
-            let v = self.effective(d.u[k], d.f[k], p).min(1e6);
-            let row = &mut ws.cols[k * nc..(k + 1) * nc];
-            row[0] = v;
-            for (i, r) in self.thresholds.iter().enumerate() {
-                y[i] = play(v, *r, y[i]);
-                row[1 + i] = y[i];
+        let gpi = (self.kind == Kind::Gpi).then_some(OutputMap::Quadratic {
+            gamma_per_um: p.gamma,
+        });
+        let end = d.fit.1.min(d.u.len());
+        let mut run = 0;
+        let mut next = d.fit.0 + pick.taken_in_run(0);
+        for k in 0..end {
+            let (u, f) = (d.u[k], d.f[k]);
+            let v = match pre {
+                Some(pre) => pre[k],
+                None => self.effective(u, f, p).min(1e6),
+            };
+            for (yi, r) in y.iter_mut().zip(&self.thresholds) {
+                *yi = play(v, *r, *yi);
             }
-            let mut c = 1 + self.thresholds.len();
+            for (mj, rate) in m.iter_mut().zip(&rates) {
+                *mj += rate * (v - *mj);
+            }
+            if k != next {
+                continue;
+            }
+            run += 1;
+            next = d.fit.0 + pick.taken_in_run(run);
+            row[0] = v;
+            row[1..=nt].copy_from_slice(&y);
+            let mut c = 1 + nt;
             if self.ldpi {
                 for i in 0..c {
-                    row[c + i] = row[i] * d.f[k];
+                    row[c + i] = row[i] * f;
                 }
                 c *= 2;
             }
-            for (j, rate) in rates.iter().enumerate() {
-                m[j] += rate * (v - m[j]);
-                row[c + j] = m[j];
-            }
-            c += rates.len();
+            row[c..c + m.len()].copy_from_slice(&m);
+            c += m.len();
             // Targets: the extension (plus the compliance term for efpi).
-            let mut z = d.x[k] + self.compliance * (d.f[k] - d.f0);
+            let mut z = d.x[k] + self.compliance * (f - d.f0);
             if self.saturation {
                 row[c] = -z * z;
                 c += 1;
@@ -271,48 +305,59 @@ impl Layout {
             if self.offset {
                 row[c] = 1.0;
             }
-            ws.weight[k] = 1.0;
-            if self.kind == Kind::Gpi {
-                let map = OutputMap::Quadratic {
-                    gamma_per_um: p.gamma,
-                };
+            let mut weight = 1.0;
+            if let Some(map) = gpi {
                 let yt = map.invert(z);
                 let slope = map.apply(yt).1;
                 z = yt;
-                ws.weight[k] = slope * slope;
+                weight = slope * slope;
             }
-            ws.target[k] = z;
+            visit(k, &row, z, weight);
         }
     }
 
-    /// The model's output for every sample given weights `w`.
-    fn output(&self, cols: &[f64], d: &CalibData, w: &[f64], p: &Nonlinear) -> Vec<f64> {
-        let nc = self.columns();
-        let sat_col = if self.saturation {
-            Some(nc - 1 - self.offset as usize)
-        } else {
-            None
-        };
-        let map = self.map(w, p);
-        (0..d.u.len())
-            .map(|k| {
-                let row = &cols[k * nc..(k + 1) * nc];
-                let mut yv = 0.0;
-                for (j, (r, wj)) in row.iter().zip(w).enumerate() {
-                    if Some(j) != sat_col {
-                        yv += r * wj;
-                    }
+    /// The effective voltage of every sample [`scan`](Self::scan) runs over, in
+    /// parallel chunks, into `out`: the costly part of a long recording's scan
+    /// (the soft dead zone), taken off its serial recurrences. The same values
+    /// as `scan` computes itself.
+    fn effective_all(&self, d: &CalibData, p: &Nonlinear, out: &mut Vec<f64>) {
+        const CHUNK: usize = 1 << 14;
+        let end = d.fit.1.min(d.u.len());
+        out.resize(end, 0.0);
+        out.par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                let k0 = c * CHUNK;
+                for (v, (u, f)) in chunk.iter_mut().zip(d.u[k0..].iter().zip(&d.f[k0..])) {
+                    *v = self.effective(*u, *f, p).min(1e6);
                 }
-                map.apply(yv).0 - self.compliance * (d.f[k] - d.f0)
-            })
-            .collect()
+            });
+    }
+
+    /// The model's output at a sample with columns `row`, given weights `w` and
+    /// the output map `map` ([`Layout::map`]).
+    #[inline]
+    fn output(&self, row: &[f64], w: &[f64], map: &OutputMap, d: &CalibData, k: usize) -> f64 {
+        let sat_col = self.saturation_column();
+        let mut yv = 0.0;
+        for (j, (r, wj)) in row.iter().zip(w).enumerate() {
+            if Some(j) != sat_col {
+                yv += r * wj;
+            }
+        }
+        map.apply(yv).0 - self.compliance * (d.f[k] - d.f0)
+    }
+
+    /// The column of the saturation term, if any (it shapes the output map, not
+    /// the output's sum).
+    fn saturation_column(&self) -> Option<usize> {
+        self.saturation
+            .then(|| self.columns() - 1 - self.offset as usize)
     }
 
     fn map(&self, w: &[f64], p: &Nonlinear) -> OutputMap {
-        if self.saturation {
-            OutputMap::Saturation {
-                beta_per_um: w[self.columns() - 1 - self.offset as usize],
-            }
+        if let Some(c) = self.saturation_column() {
+            OutputMap::Saturation { beta_per_um: w[c] }
         } else if self.kind == Kind::Gpi {
             OutputMap::Quadratic {
                 gamma_per_um: p.gamma,
@@ -323,19 +368,81 @@ impl Layout {
     }
 }
 
-/// One recording's column buffers, kept for the whole calibration: every trial of
-/// the nonlinear search rebuilds its columns in place.
+/// Which fitted samples a fit uses: every one (`stride` 1), or one in each run
+/// of `stride` consecutive samples at a pseudo-random place in the run (a
+/// decimation that cannot alias with a periodic drive, as a fixed stride could).
+/// The recurrences always run over every sample: only the rows of the least
+/// squares and the scored samples are thinned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Pick {
+    stride: usize,
+}
+
+impl Pick {
+    const ALL: Pick = Pick { stride: 1 };
+
+    /// The fitted sample taken in run `run` (samples `run·stride..(run+1)·stride`).
+    #[inline]
+    fn taken_in_run(self, run: usize) -> usize {
+        let s = self.stride.max(1);
+        if s == 1 {
+            return run;
+        }
+        // SplitMix64's finaliser: a fixed, well-spread place in each run.
+        let mut h = (run as u64).wrapping_add(0x9E37_79B9_7F4A_7C15);
+        h = (h ^ (h >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        h = (h ^ (h >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        h ^= h >> 31;
+        run * s + (h % s as u64) as usize
+    }
+
+    /// Whether the `i`-th fitted sample is taken.
+    #[cfg(test)]
+    fn takes(self, i: usize) -> bool {
+        self.taken_in_run(i / self.stride.max(1)) == i
+    }
+
+    /// How many of `n` fitted samples are taken.
+    fn count(self, n: usize) -> usize {
+        let s = self.stride.max(1);
+        n / s + usize::from(!n.is_multiple_of(s) && self.taken_in_run(n / s) < n)
+    }
+}
+
+/// Samples the nonlinear search fits and scores at most: more are decimated
+/// ([`Pick`]) for the search, and the final weights are fitted on all of them.
+/// Up to this many (the 166 000 of the pea-rig recordings) the search uses
+/// every sample.
+pub const SEARCH_SAMPLES: usize = 200_000;
+
+/// Largest design matrix a fit keeps in memory, bytes; a larger one is streamed
+/// twice (once for the normal equations, once for the output), which gives the
+/// same figures.
+const STORED_BYTES: usize = 64 << 20;
+
+/// One recording's stored rows in a fit: the columns (row-major), target,
+/// weight and sample of every taken sample. Kept between the trials of the
+/// nonlinear search, so its buffers are allocated once.
 #[derive(Debug, Default)]
 struct Workspace {
     cols: Vec<f64>,
     target: Vec<f64>,
     weight: Vec<f64>,
+    sample: Vec<usize>,
+    /// A long recording's effective voltages ([`Layout::effective_all`]).
+    v: Vec<f64>,
 }
 
-/// A calibration problem: the columns' layout, the recordings and their buffers.
+/// A calibration problem: the columns' layout, the recordings, the decimation of
+/// the nonlinear search and the recordings' buffers.
 struct Problem<'a> {
     layout: Layout,
     data: &'a [CalibData],
+    search: Pick,
+    /// Per recording: whether it is long, more than a thread's share of all
+    /// samples, so that its serial scan would hold up the others: its effective
+    /// voltages are then computed in parallel first (the same figures).
+    long: Vec<bool>,
     work: Vec<Mutex<Workspace>>,
 }
 
@@ -347,10 +454,8 @@ struct Fit {
     per_file: Vec<FileFit>,
 }
 
-/// The output-error figures of a simulated window against the recording.
-fn file_fit(d: &CalibData, simulated: &[f64]) -> FileFit {
-    let window = d.fit.0..d.fit.1;
-    let e = ErrorStats::of_difference(&simulated[window.clone()], &d.x[window]);
+/// The output-error figures of a recording's window.
+fn file_fit(d: &CalibData, e: &ErrorStats<f64>) -> FileFit {
     FileFit {
         file: d.name.clone(),
         samples: e.count() as usize,
@@ -369,32 +474,87 @@ fn pooled_rmse(per_file: &[FileFit]) -> f64 {
     (s2 / total as f64).sqrt()
 }
 
+fn lock(m: &Mutex<Workspace>) -> std::sync::MutexGuard<'_, Workspace> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 impl<'a> Problem<'a> {
     fn new(layout: Layout, data: &'a [CalibData]) -> Self {
+        let fitted: usize = data.iter().map(|d| d.fit.1 - d.fit.0).sum();
+        let search = Pick {
+            stride: fitted.div_ceil(SEARCH_SAMPLES).max(1),
+        };
+        let total: usize = data.iter().map(|d| d.fit.1).sum();
+        let threads = rayon::current_num_threads();
+        let long = data
+            .iter()
+            .map(|d| threads > 1 && d.fit.1 >= 1 << 16 && d.fit.1 * threads > total)
+            .collect();
         let work = data.iter().map(|_| Mutex::default()).collect();
-        Self { layout, data, work }
+        Self {
+            layout,
+            data,
+            search,
+            long,
+            work,
+        }
     }
 
     fn with_layout(&self, layout: Layout) -> Problem<'a> {
         Problem::new(layout, self.data)
     }
 
-    fn fit(&self, p: &Nonlinear) -> Result<Fit> {
+    /// Fits the weights for nonlinear parameters `p` on the samples `pick`
+    /// takes, and scores the output on the same samples.
+    fn fit(&self, p: &Nonlinear, pick: Pick) -> Result<Fit> {
+        let rows: usize = self
+            .data
+            .iter()
+            .map(|d| pick.count(d.fit.1 - d.fit.0))
+            .sum();
+        let bytes = rows.saturating_mul(self.layout.columns()).saturating_mul(8);
+        self.fit_with(p, pick, bytes <= STORED_BYTES)
+    }
+
+    /// [`fit`](Self::fit), keeping the rows in memory (`stored`) or streaming the
+    /// recordings twice: the same figures either way.
+    fn fit_with(&self, p: &Nonlinear, pick: Pick, stored: bool) -> Result<Fit> {
         let layout = &self.layout;
         let nc = layout.columns();
-        fn lock(m: &Mutex<Workspace>) -> std::sync::MutexGuard<'_, Workspace> {
-            m.lock().unwrap_or_else(|e| e.into_inner())
-        }
+        // The normal equations, per recording in parallel, merged in order.
         let normals: Vec<Normal> = self
             .data
             .par_iter()
             .zip(&self.work)
-            .map(|(d, ws)| {
-                let mut ws = lock(ws);
-                layout.build(d, p, &mut ws);
+            .zip(&self.long)
+            .map(|((d, ws), &long)| {
                 let mut ne = Normal::new(nc);
-                for k in d.fit.0..d.fit.1 {
-                    ne.add(&ws.cols[k * nc..(k + 1) * nc], ws.target[k], ws.weight[k]);
+                let mut ws = lock(ws);
+                let Workspace {
+                    cols,
+                    target,
+                    weight,
+                    sample,
+                    v,
+                } = &mut *ws;
+                let pre = long.then(|| {
+                    layout.effective_all(d, p, v);
+                    &v[..]
+                });
+                if stored {
+                    cols.clear();
+                    target.clear();
+                    weight.clear();
+                    sample.clear();
+                    layout.scan(d, p, pick, pre, |k, row, z, wt| {
+                        ne.add(row, z, wt);
+                        cols.extend_from_slice(row);
+                        target.push(z);
+                        weight.push(wt);
+                        sample.push(k);
+                    });
+                } else {
+                    layout.scan(d, p, pick, pre, |_, row, z, wt| ne.add(row, z, wt));
                 }
                 ne
             })
@@ -404,11 +564,28 @@ impl<'a> Problem<'a> {
             all.merge(ne);
         }
         let (w, _) = all.solve(&layout.nonneg())?;
+        // The output error, from the stored rows or a second pass.
+        let map = layout.map(&w, p);
         let per_file: Vec<FileFit> = self
             .data
             .par_iter()
             .zip(&self.work)
-            .map(|(d, ws)| file_fit(d, &layout.output(&lock(ws).cols, d, &w, p)))
+            .zip(&self.long)
+            .map(|((d, ws), &long)| {
+                let mut e = ErrorStats::new();
+                let ws = lock(ws);
+                if stored {
+                    for (row, &k) in ws.cols.chunks_exact(nc.max(1)).zip(&ws.sample) {
+                        e.add(layout.output(row, &w, &map, d, k) - d.x[k]);
+                    }
+                } else {
+                    let pre = long.then_some(&ws.v[..]);
+                    layout.scan(d, p, pick, pre, |k, row, _, _| {
+                        e.add(layout.output(row, &w, &map, d, k) - d.x[k]);
+                    });
+                }
+                file_fit(d, &e)
+            })
             .collect();
         let rmse = pooled_rmse(&per_file);
         Ok(Fit {
@@ -418,9 +595,24 @@ impl<'a> Problem<'a> {
         })
     }
 
-    /// The output RMSE of a trial (`f64::MAX` if it cannot be fitted).
+    /// The fit on every fitted sample: the result's weights and figures.
+    fn fit_all(&self, p: &Nonlinear) -> Result<Fit> {
+        // The search's buffers are not needed any more.
+        let free = || {
+            for ws in &self.work {
+                *lock(ws) = Workspace::default();
+            }
+        };
+        free();
+        let f = self.fit(p, Pick::ALL);
+        free();
+        f
+    }
+
+    /// The output RMSE of a trial of the nonlinear search (`f64::MAX` if it
+    /// cannot be fitted), on the search's samples.
     fn rmse(&self, p: &Nonlinear) -> f64 {
-        self.fit(p).map_or(f64::MAX, |f| f.rmse)
+        self.fit(p, self.search).map_or(f64::MAX, |f| f.rmse)
     }
 }
 
@@ -506,7 +698,7 @@ fn mean_preload(data: &[CalibData]) -> f64 {
 /// pi and ldpi: the weights alone.
 fn fit_linear(pr: &Problem<'_>) -> Result<(Nonlinear, Fit, String)> {
     let p = Nonlinear::default();
-    let f = pr.fit(&p)?;
+    let f = pr.fit_all(&p)?;
     Ok((
         p,
         f,
@@ -521,7 +713,7 @@ fn fit_fpi(pr: &Problem<'_>) -> Result<(Nonlinear, Fit, String)> {
         ..Default::default()
     };
     let p = with(golden(0.0, 0.4, 1e-5, |k_f| pr.rmse(&with(k_f))));
-    let f = pr.fit(&p)?;
+    let f = pr.fit_all(&p)?;
     Ok((
         p,
         f,
@@ -542,7 +734,7 @@ fn fit_gpi(pr: &Problem<'_>) -> Result<(Nonlinear, Fit, String)> {
         ..Default::default()
     };
     let p = with(golden(-0.3, 0.3, 1e-6, |g| pr.rmse(&with(g))));
-    let f = pr.fit(&p)?;
+    let f = pr.fit_all(&p)?;
     Ok((
         p,
         f,
@@ -568,6 +760,7 @@ fn fit_efpi(pr: &Problem<'_>, opt: &Options) -> Result<(Nonlinear, Fit, String)>
             ..Default::default()
         })
     });
+    drop(fpi);
     let start = vec![k_f0, 0.0, 0.0, 1.0];
     let steps = [0.01, 1.0, 0.5, 0.5];
     let mut simplex = vec![start.clone()];
@@ -585,7 +778,7 @@ fn fit_efpi(pr: &Problem<'_>, opt: &Options) -> Result<(Nonlinear, Fit, String)>
         .map_err(|e| anyhow::anyhow!("Nelder–Mead: {e}"))?;
     let q = res.state().get_best_param().cloned().unwrap_or(start);
     let p = EfpiCost::params(&q);
-    let f = pr.fit(&p)?;
+    let f = pr.fit_all(&p)?;
     Ok((
         p,
         f,
@@ -601,14 +794,7 @@ fn fit_efpi(pr: &Problem<'_>, opt: &Options) -> Result<(Nonlinear, Fit, String)>
 /// Calibrates a model on recordings.
 pub fn calibrate(data: &[CalibData], opt: &Options) -> Result<HostModel> {
     let kind = opt.kind;
-    if kind.uses_force() {
-        if let Some(d) = data.iter().find(|d| !d.has_force) {
-            bail!(
-                "{}: a {kind} model needs a force channel; this recording has none",
-                d.name
-            );
-        }
-    }
+    let warnings = checks::check(data, kind)?;
     if opt.operators < 1 || opt.operators > 32 {
         bail!("--operators {}: must be 1..=32", opt.operators);
     }
@@ -644,6 +830,7 @@ pub fn calibrate(data: &[CalibData], opt: &Options) -> Result<HostModel> {
         mte_um: best.per_file.iter().map(|f| f.mte_um).fold(0.0, f64::max),
         per_file: best.per_file,
         method,
+        warnings,
     };
     Ok(model)
 }
@@ -718,6 +905,135 @@ pub fn simulate(model: &HostModel, d: &CalibData) -> Vec<f64> {
 /// (output error), per file.
 pub fn score(model: &HostModel, data: &[CalibData]) -> Vec<FileFit> {
     data.par_iter()
-        .map(|d| file_fit(d, &simulate(model, d)))
+        .map(|d| {
+            let window = d.fit.0..d.fit.1;
+            let e = ErrorStats::of_difference(&simulate(model, d)[window.clone()], &d.x[window]);
+            file_fit(d, &e)
+        })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_decimation_takes_one_sample_in_every_run() {
+        assert!((0..50).all(|i| Pick::ALL.takes(i)));
+        assert_eq!(Pick::ALL.count(17), 17);
+        for stride in [2, 3, 7, 26] {
+            let pick = Pick { stride };
+            for run in 0..200 {
+                let taken: Vec<usize> = (run * stride..(run + 1) * stride)
+                    .filter(|&i| pick.takes(i))
+                    .collect();
+                assert_eq!(taken, vec![pick.taken_in_run(run)], "stride {stride}");
+            }
+            for n in [0, 1, stride - 1, stride, 5 * stride + 1, 1000] {
+                let by_hand = (0..n).filter(|&i| pick.takes(i)).count();
+                assert_eq!(pick.count(n), by_hand, "stride {stride}, {n} samples");
+            }
+            // Not a fixed phase: a drive whose period is the stride is sampled
+            // at every phase.
+            let phases: std::collections::BTreeSet<usize> =
+                (0..400).map(|r| pick.taken_in_run(r) % stride).collect();
+            assert_eq!(phases.len(), stride, "stride {stride}");
+        }
+    }
+
+    /// Three pea-rig recordings at different preloads.
+    fn rig() -> Vec<CalibData> {
+        let names = [
+            "preload_050N_sine_05Hz.csv.gz",
+            "preload_100N_sine_15Hz.csv.gz",
+            "preload_125N_minor_05Hz.csv.gz",
+        ];
+        let paths: Vec<_> = data::datasets_in("pea-rig")
+            .into_iter()
+            .filter(|p| names.iter().any(|n| p.ends_with(n)))
+            .collect();
+        assert_eq!(paths.len(), 3, "{paths:?}");
+        load(&paths, None).unwrap()
+    }
+
+    fn layout(kind: Kind, data: &[CalibData]) -> Layout {
+        let opt = Options::for_kind(kind);
+        let efpi = kind == Kind::Efpi;
+        Layout {
+            kind,
+            thresholds: thresholds(voltage_span(data), opt.operators),
+            ldpi: kind == Kind::Ldpi,
+            creep: opt.creep_taus.clone(),
+            saturation: efpi,
+            offset: opt.offset,
+            compliance: opt.compliance,
+            force_q: mean_preload(data),
+        }
+    }
+
+    #[test]
+    fn stored_and_streamed_fits_agree_to_the_bit() {
+        let data = rig();
+        let p = Nonlinear {
+            k_f: 0.05,
+            k_q: 1e-5,
+            k0: 0.5,
+            softness: 1.0,
+            gamma: 0.0,
+        };
+        for kind in [Kind::Efpi, Kind::Ldpi, Kind::Gpi] {
+            let pr = Problem::new(layout(kind, &data), &data);
+            let mut long = Problem::new(layout(kind, &data), &data);
+            long.long = vec![true; data.len()];
+            for pick in [Pick::ALL, Pick { stride: 5 }] {
+                let a = pr.fit_with(&p, pick, true).unwrap();
+                let b = pr.fit_with(&p, pick, false).unwrap();
+                assert_eq!(a.w, b.w, "{kind}");
+                assert_eq!(a.per_file, b.per_file, "{kind}");
+                for stored in [true, false] {
+                    let c = long.fit_with(&p, pick, stored).unwrap();
+                    assert_eq!((&a.w, &a.per_file), (&c.w, &c.per_file), "{kind}");
+                }
+                let rows: usize = data.iter().map(|d| pick.count(d.fit.1 - d.fit.0)).sum();
+                let scored: usize = a.per_file.iter().map(|f| f.samples).sum();
+                assert_eq!(scored, rows);
+            }
+        }
+    }
+
+    #[test]
+    fn a_decimated_search_finds_the_same_coupling() {
+        let data = rig();
+        let mut pr = Problem::new(layout(Kind::Fpi, &data), &data);
+        assert_eq!(pr.search, Pick::ALL, "few samples: no decimation");
+        let with = |k_f| Nonlinear {
+            k_f,
+            ..Default::default()
+        };
+        let full = golden(0.0, 0.4, 1e-5, |k| pr.rmse(&with(k)));
+        pr.search = Pick { stride: 10 };
+        let thinned = golden(0.0, 0.4, 1e-5, |k| pr.rmse(&with(k)));
+        assert!(
+            (full - thinned).abs() < 0.02 * full,
+            "k_f {full} from every sample, {thinned} from one in ten"
+        );
+        // The final weights and figures come from every sample.
+        let a = pr.fit_all(&with(thinned)).unwrap();
+        let all: usize = data.iter().map(|d| d.fit.1 - d.fit.0).sum();
+        assert_eq!(a.per_file.iter().map(|f| f.samples).sum::<usize>(), all);
+    }
+
+    #[test]
+    fn many_samples_decimate_the_search_only() {
+        let mut d = rig().remove(0);
+        let n = SEARCH_SAMPLES + SEARCH_SAMPLES / 2;
+        let cat = |v: &[f64]| v.iter().cycle().take(n).copied().collect::<Vec<f64>>();
+        d.u = cat(&d.u);
+        d.f = cat(&d.f);
+        d.x = cat(&d.x);
+        d.fit = (0, n);
+        let data = [d];
+        let pr = Problem::new(layout(Kind::Fpi, &data), &data);
+        assert_eq!(pr.search, Pick { stride: 2 });
+    }
 }

@@ -27,6 +27,60 @@ pub struct Comparison {
     pub runs: Vec<StageRun>,
     /// `scores[run][model]`.
     pub scores: Vec<Vec<Scored>>,
+    /// The runs' names in the report and its plots' file names (file names,
+    /// made unique by [`unique_names`]).
+    pub run_names: Vec<String>,
+}
+
+/// Names made unique: the first of equal names keeps it, the next get `-2`, `-3`,
+/// … before the extension (skipping names already taken), so that two inputs
+/// named alike do not share their plots.
+pub fn unique_names(names: &[String]) -> Vec<String> {
+    let mut taken: std::collections::HashSet<String> = names.iter().cloned().collect();
+    let mut seen = std::collections::HashSet::new();
+    let mut out = Vec::with_capacity(names.len());
+    for (i, name) in names.iter().enumerate() {
+        if seen.insert(name.as_str()) {
+            out.push(name.clone());
+            continue;
+        }
+        let (stem, ext) = split_extension(name);
+        let renamed = (2..=names.len() + 1)
+            .map(|k| format!("{stem}-{k}{ext}"))
+            .find(|n| !taken.contains(n))
+            .unwrap_or_else(|| format!("{stem}-input{}{ext}", i + 1));
+        taken.insert(renamed.clone());
+        out.push(renamed);
+    }
+    out
+}
+
+/// Prints a note for every input renamed by [`unique_names`] (`what`: "run",
+/// "model").
+pub fn note_renamed(what: &str, paths: &[&std::path::Path], names: &[String], unique: &[String]) {
+    for ((p, a), b) in paths.iter().zip(names).zip(unique) {
+        if a != b {
+            eprintln!(
+                "note: another {what} is also named {a:?}: {} is {b:?} in the report",
+                p.display()
+            );
+        }
+    }
+}
+
+/// `("run", ".csv")` from `"run.csv"`; `("model", "")` from `"model"`.
+fn split_extension(name: &str) -> (&str, &str) {
+    match name.rfind('.') {
+        Some(i) if i > 0 => name.split_at(i),
+        _ => (name, ""),
+    }
+}
+
+/// A run's name: its file name without `.gz`.
+pub fn run_file_name(path: &std::path::Path) -> String {
+    path.file_name()
+        .map(|n| n.to_string_lossy().trim_end_matches(".gz").to_string())
+        .unwrap_or_default()
 }
 
 impl Comparison {
@@ -48,10 +102,15 @@ impl Comparison {
                     .collect::<Result<Vec<_>>>()
             })
             .collect::<Result<Vec<_>>>()?;
+        let names: Vec<String> = runs.iter().map(|r| run_file_name(&r.path)).collect();
+        let run_names = unique_names(&names);
+        let paths: Vec<&std::path::Path> = runs.iter().map(|r| r.path.as_path()).collect();
+        note_renamed("run", &paths, &names, &run_names);
         Ok(Self {
             models: models.to_vec(),
             runs: runs.to_vec(),
             scores,
+            run_names,
         })
     }
 
@@ -61,13 +120,12 @@ impl Comparison {
         100.0 * (base - self.scores[r][m].metrics.mae) / base
     }
 
-    /// The run's file name.
+    /// The run's name (its file name, made unique among the runs).
     pub fn run_name(&self, r: usize) -> String {
-        self.runs[r]
-            .path
-            .file_name()
-            .map(|n| n.to_string_lossy().trim_end_matches(".gz").to_string())
-            .unwrap_or_default()
+        self.run_names
+            .get(r)
+            .cloned()
+            .unwrap_or_else(|| run_file_name(&self.runs[r].path))
     }
 }
 

@@ -15,13 +15,32 @@ use anyhow::{bail, Result};
 
 use piezo_sim::maps::{dead_zone, dead_zone_inverse};
 
+use fpi_firmware::hardware::{BOARD, RATE_HZ};
+
 use crate::data::fem::FemMaps;
+use crate::data::Num;
 use crate::method::invert::reachable_top;
 use crate::method::model::{HostModel, Kind, OutputMap};
 use crate::model_file::{
     ControllerSection, CouplingSection, CreepSection, FirmwareModel, MapSection, PiSection,
     Provenance, TableSection, Tables, FORMAT,
 };
+
+/// The board's amplifier span, V: its DAC drives the stack over `0..=150 V`
+/// ([`fpi_firmware::hardware::BOARD`]); no drive, limit or stroke voltage may exceed it.
+pub const AMPLIFIER_MAX_V: f64 = BOARD.limits.u_max.to_bits() as f64 / 65536.0;
+
+/// The amplifier's largest slew, V/ms: its current limit into the stack's
+/// capacitance (5 V per control step at the board's 20 kHz: 100 V/ms).
+pub const AMPLIFIER_MAX_SLEW_V_PER_MS: f64 =
+    BOARD.limits.max_step.to_bits() as f64 / 65536.0 * RATE_HZ as f64 / 1000.0;
+
+/// Control rates the firmware model file accepts, Hz.
+pub const RATE_RANGE_HZ: std::ops::RangeInclusive<u32> = 100..=200_000;
+
+/// Most knots a resampled table may have (the firmware's tables hold at most 4096;
+/// grids finer than this are not tried, and never allocated).
+pub const MAX_KNOTS: usize = 4000;
 
 /// Loop settings of an export.
 #[derive(Debug, Clone, PartialEq)]
@@ -53,22 +72,82 @@ pub struct ExportOptions {
 
 impl LoopSettings {
     /// The settings for model `m`: by default the reference may use the stroke the
-    /// model's calibrated voltage range reaches (`stroke_voltage`, capped at `u_max`).
+    /// model's calibrated voltage range reaches (capped at `u_max`); a
+    /// `stroke_voltage` given is kept as it is ([`check`](Self::check) refuses one
+    /// above `u_max`).
     pub fn for_model(m: &HostModel, o: &ExportOptions) -> Self {
         let (rate_hz, u_max, slew, stroke) = (o.rate_hz, o.u_max, o.slew, o.stroke_voltage);
         let calibrated = m.pi.thresholds_v.last().copied().unwrap_or(0.0)
             * (m.operators() + 1) as f64
             / m.operators().max(1) as f64;
+        let default = if calibrated > 0.0 { calibrated } else { u_max };
         Self {
             rate_hz,
             u_max,
             slew_v_per_ms: slew,
-            stroke_voltage: stroke
-                .unwrap_or(if calibrated > 0.0 { calibrated } else { u_max })
-                .min(u_max),
+            stroke_voltage: stroke.unwrap_or(default.min(u_max)),
             force_tolerance: 15.0,
         }
     }
+
+    /// Refuses settings the board cannot run, naming the option and its value: a
+    /// rate outside [`RATE_RANGE_HZ`], a `u_max` outside `(0, AMPLIFIER_MAX_V]`, a
+    /// slew outside `(0, AMPLIFIER_MAX_SLEW_V_PER_MS]`, a stroke voltage outside
+    /// `(0, u_max]`, a force tolerance that is not positive (all finite).
+    pub fn check(&self) -> Result<()> {
+        if !RATE_RANGE_HZ.contains(&self.rate_hz) {
+            bail!(
+                "--rate {} Hz: the firmware runs at {}..={} Hz",
+                self.rate_hz,
+                RATE_RANGE_HZ.start(),
+                RATE_RANGE_HZ.end()
+            );
+        }
+        within(
+            "--u-max",
+            self.u_max,
+            "V",
+            AMPLIFIER_MAX_V,
+            "the board's amplifier span",
+        )?;
+        within(
+            "--slew",
+            self.slew_v_per_ms,
+            "V/ms",
+            AMPLIFIER_MAX_SLEW_V_PER_MS,
+            "the amplifier's largest slew",
+        )?;
+        within(
+            "--stroke-voltage",
+            self.stroke_voltage,
+            "V",
+            self.u_max,
+            "--u-max",
+        )?;
+        within(
+            "force tolerance",
+            self.force_tolerance,
+            "N",
+            f64::MAX,
+            "any finite force",
+        )
+    }
+}
+
+/// Refuses a value of option `what` that is not finite or outside `(0, max]`
+/// (`limit` says what `max` is).
+pub fn within(what: &str, v: f64, unit: &str, max: f64, limit: &str) -> Result<()> {
+    if !v.is_finite() {
+        bail!("{what} {v}: not a finite number");
+    }
+    let n = Num(v);
+    if v <= 0.0 {
+        bail!("{what} {n} {unit}: must be > 0 {unit}");
+    }
+    if v > max {
+        bail!("{what} {n} {unit}: above {limit} ({max} {unit})");
+    }
+    Ok(())
 }
 
 /// One table's grid and how far it is from the map it samples.
@@ -93,15 +172,24 @@ pub struct Export {
     pub tables: Vec<TableReport>,
 }
 
-/// Samples `f` on `[x0, x0 + k·2^step_log2]` covering `x1`; returns the table.
-fn sample(x0: f64, x1: f64, step_log2: i32, f: impl Fn(f64) -> f64) -> TableSection {
+/// Knots of a grid of spacing `step` from `x0` covering `x1`; `None` beyond
+/// [`MAX_KNOTS`] (checked before anything is allocated).
+fn knots(x0: f64, x1: f64, step: f64) -> Option<usize> {
+    let intervals = ((x1 - x0) / step).ceil();
+    (intervals.is_finite() && (0.0..MAX_KNOTS as f64).contains(&intervals))
+        .then_some(intervals as usize + 1)
+}
+
+/// Samples `f` on `[x0, x0 + k·2^step_log2]` covering `x1`; `None` when that takes
+/// more than [`MAX_KNOTS`] knots.
+fn sample(x0: f64, x1: f64, step_log2: i32, f: impl Fn(f64) -> f64) -> Option<TableSection> {
     let step = 2f64.powi(step_log2);
-    let n = ((x1 - x0) / step).ceil() as usize;
-    TableSection {
+    let n = knots(x0, x1, step)?;
+    Some(TableSection {
         x0,
         step_log2,
-        values: (0..=n).map(|k| f(x0 + k as f64 * step)).collect(),
-    }
+        values: (0..n).map(|k| f(x0 + k as f64 * step)).collect(),
+    })
 }
 
 /// The coarsest grid (≤ one unit, ≥ 2^-10) over `[x0, x1]` whose knot rise stays
@@ -115,11 +203,13 @@ fn tabulate(
     f: impl Fn(f64) -> f64 + Copy,
     weight: impl Fn(f64) -> f64 + Copy,
 ) -> Result<(TableSection, TableReport)> {
+    if !(x0.is_finite() && x1.is_finite() && x0 <= x1) {
+        bail!("{name}: the range [{x0}, {x1}] to tabulate is not a finite interval");
+    }
     for step_log2 in (-10..=0).rev() {
-        let t = sample(x0, x1, step_log2, f);
-        if t.values.len() > 4000 {
+        let Some(t) = sample(x0, x1, step_log2, f) else {
             continue;
-        }
+        };
         let rise = t
             .values
             .windows(2)
@@ -148,7 +238,10 @@ fn tabulate(
             return Ok((t, report));
         }
     }
-    bail!("{name}: no power-of-two grid over [{x0}, {x1}] meets the knot-rise and error limits")
+    bail!(
+        "{name}: no power-of-two grid over [{x0}, {x1}] with at most {MAX_KNOTS} knots meets \
+         the knot-rise and error limits"
+    )
 }
 
 /// The FEM maps on the stack-extension grid, `f_K⁻¹` on the stage-output grid.
@@ -297,6 +390,7 @@ pub fn export(
             model.offset_um
         );
     }
+    s.check()?;
     let mut reports = Vec::new();
     let tables = fem_tables(fem, &mut reports)?;
     let softness = model.dead_zone_softness_v;

@@ -10,6 +10,7 @@
 use anyhow::{bail, Result};
 
 use crate::data::fem::FemMaps;
+use crate::method::export::within;
 use crate::method::model::{HostModel, Kind};
 use crate::method::predict;
 
@@ -38,7 +39,9 @@ pub fn reachable_top(model: &HostModel, fem: &FemMaps, u_top: f64, dt: f64) -> R
     Ok(p.x_fhps[p.x_fhps.len() - 1])
 }
 
-/// Inverts a target trajectory `x_fhps(t)` (µm) into voltages within `[0, u_max]`.
+/// Inverts a target trajectory `x_fhps(t)` (µm) into voltages within `[0, u_max]`
+/// (V; `u_max` finite, > 0 and within the model's [`predict::input_range`]). Every
+/// voltage is finite, or this is an error naming the target sample.
 pub fn invert(
     model: &HostModel,
     fem: &FemMaps,
@@ -49,9 +52,20 @@ pub fn invert(
     if t.len() != target.len() || t.len() < 2 {
         bail!("a target needs at least two samples of time and position");
     }
+    let (_, top) = predict::input_range(model);
+    within(
+        "--u-max",
+        u_max,
+        "V",
+        top,
+        "the model's input range and the amplifier span",
+    )?;
     let dt = (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
     let lo = fem.stage_at(0.0);
     let hi = reachable_top(model, fem, u_max, dt)?;
+    if !(lo.is_finite() && hi.is_finite()) {
+        bail!("the model predicts no finite stroke (stage output {lo}..{hi} µm at 0..{u_max} V)");
+    }
     let (lo, hi) = if lo <= hi { (lo, hi) } else { (hi, lo) };
     let f_ref = fem.rest_preload();
     let maps = fem.maps();
@@ -90,6 +104,12 @@ pub fn invert(
         } else {
             m.inverse(&inv, &mut bank, &st, x_pea, force, f_ref).0
         };
+        if u.is_nan() {
+            bail!(
+                "target sample {} ({x} µm): the model's inverse gives no voltage (NaN)",
+                out.u.len() + 1
+            );
+        }
         let uc = u.clamp(0.0, u_max);
         let clamped = (uc - u).abs() > 1e-9;
         out.clamped_voltage += clamped as usize;

@@ -7,7 +7,9 @@
 //!   equation at every sample; [`compare`] — scoring models against measured runs;
 //! * [`invert`] — offline feedforward; [`export`] — the firmware model file.
 
+pub mod bench;
 pub mod calibrate;
+pub mod checks;
 pub mod compare;
 pub mod export;
 pub mod invert;

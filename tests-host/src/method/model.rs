@@ -24,6 +24,9 @@ use piezo_sim::play::{Pi, Values, MAX_OPERATORS};
 /// The model-file format string.
 pub const FORMAT: &str = "piezo-fpi-model/1";
 
+/// Largest model file read, bytes (1 MiB; a model file is about 2 kB).
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+
 /// Which model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -82,6 +85,15 @@ impl Kind {
     }
 }
 
+/// Refuses a non-finite value of key `key`.
+fn finite(key: &str, v: f64) -> Result<()> {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        bail!("{key} = {v}: not finite")
+    }
+}
+
 impl fmt::Display for Kind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
@@ -134,6 +146,10 @@ pub struct Calibration {
     pub per_file: Vec<FileFit>,
     /// How it was fitted.
     pub method: String,
+    /// What looked suspicious in the data (each names the file, the column and the
+    /// value); empty when nothing did.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 /// A calibrated model.
@@ -186,10 +202,16 @@ impl HostModel {
         }
     }
 
-    /// Reads a model file; errors name the file and the key.
+    /// Reads a model file (at most [`MAX_FILE_BYTES`]); errors name the file and
+    /// the key.
     pub fn read(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("{}: cannot read", path.display()))?;
+        let limits = crate::data::ReadLimits {
+            max_bytes: MAX_FILE_BYTES,
+            ..crate::data::ReadLimits::INPUT
+        };
+        let bytes = crate::data::read_bytes_within(path, limits)?;
+        let text = String::from_utf8(bytes)
+            .map_err(|e| anyhow::anyhow!("{}: not a text file: {e}", path.display()))?;
         Self::parse(&text, &path.display().to_string())
     }
 
@@ -201,21 +223,44 @@ impl HostModel {
         Ok(m)
     }
 
-    /// Writes the model file.
+    /// Writes the model file atomically ([`crate::output::write_atomic`]), after
+    /// [`validate`](Self::validate): a model that reading would refuse is never
+    /// written.
     pub fn write(&self, path: &Path) -> Result<()> {
-        let text = toml::to_string(self)?;
+        self.validate()
+            .with_context(|| format!("{}: not written", path.display()))?;
+        let text = toml::to_string(self)
+            .with_context(|| format!("{}: cannot format the model", path.display()))?;
         let header = format!(
             "# A calibrated {} model (`fpi calibrate`). Units are in the key names.\n\n",
             self.kind
         );
-        std::fs::write(path, header + &text).with_context(|| format!("writing {}", path.display()))
+        crate::output::write_atomic(path, (header + &text).as_bytes())
     }
 
-    /// Checks the parameters; names the key that is wrong.
+    /// Checks the parameters; names the key that is wrong. This is the one
+    /// validator of host model files: every reader and [`write`](Self::write) run
+    /// it, and the commands that use a model (predict, invert, export) run it again.
     pub fn validate(&self) -> Result<()> {
         if self.format != FORMAT {
             bail!("format = {:?}: expected {FORMAT:?}", self.format);
         }
+        self.validate_sizes()?;
+        self.validate_pi()?;
+        self.validate_motion()?;
+        self.validate_coupling()?;
+        self.validate_maps()?;
+        self.validate_ldpi()?;
+        for (j, c) in self.creep.iter().enumerate() {
+            if !(c.tau_s.is_finite() && c.tau_s > 0.0 && c.gain_um_per_v.is_finite()) {
+                bail!("creep[{j}]: tau_s must be > 0 and gain_um_per_v finite");
+            }
+        }
+        Ok(())
+    }
+
+    /// Counts: one weight per threshold, at most [`MAX_OPERATORS`] and [`MAX_CREEP`].
+    fn validate_sizes(&self) -> Result<()> {
         let p = &self.pi;
         if p.thresholds_v.len() != p.weights_um_per_v.len() {
             bail!(
@@ -233,13 +278,13 @@ impl HostModel {
         if self.creep.len() > MAX_CREEP {
             bail!("creep has {} terms: at most {MAX_CREEP}", self.creep.len());
         }
-        let finite = |k: &str, v: f64| -> Result<()> {
-            if v.is_finite() {
-                Ok(())
-            } else {
-                bail!("{k} = {v}: not finite")
-            }
-        };
+        Ok(())
+    }
+
+    /// The PI part: finite numbers, a positive input range, thresholds sorted in
+    /// `[0, input_max_v]`.
+    fn validate_pi(&self) -> Result<()> {
+        let p = &self.pi;
         finite("pi.w0_um_per_v", p.w0_um_per_v)?;
         finite("pi.input_max_v", p.input_max_v)?;
         if p.input_max_v <= 0.0 {
@@ -249,26 +294,131 @@ impl HostModel {
         for (i, (&r, &w)) in p.thresholds_v.iter().zip(&p.weights_um_per_v).enumerate() {
             finite(&format!("pi.thresholds_v[{i}]"), r)?;
             finite(&format!("pi.weights_um_per_v[{i}]"), w)?;
+            if r < 0.0 {
+                bail!("pi.thresholds_v[{i}] = {r}: thresholds are voltages ≥ 0 V");
+            }
             if r < prev {
                 bail!("pi.thresholds_v[{i}] = {r}: thresholds must be sorted");
             }
-            prev = r;
-        }
-        if let Some(l) = &self.ldpi {
-            if l.weights_per_n.len() != p.thresholds_v.len() {
+            if r > p.input_max_v {
                 bail!(
-                    "ldpi.weights_per_n has {} values for {} thresholds",
-                    l.weights_per_n.len(),
-                    p.thresholds_v.len()
+                    "pi.thresholds_v[{i}] = {r}: above pi.input_max_v = {} (the operator never moves)",
+                    p.input_max_v
                 );
             }
-        } else if self.kind == Kind::Ldpi {
-            bail!("kind = \"ldpi\" needs an [ldpi] section");
+            prev = r;
         }
-        for (j, c) in self.creep.iter().enumerate() {
-            if !(c.tau_s.is_finite() && c.tau_s > 0.0 && c.gain_um_per_v.is_finite()) {
-                bail!("creep[{j}]: tau_s must be > 0 and gain_um_per_v finite");
+        Ok(())
+    }
+
+    /// The model can produce motion and, but for ldpi (whose weights depend on the
+    /// force), has an inverse: `w0 > 0` and every partial sum
+    /// `S_j = w0 + w_1 + … + w_j > 0` (its output rises with the voltage).
+    fn validate_motion(&self) -> Result<()> {
+        let p = &self.pi;
+        let slopes = self.ldpi.as_ref();
+        let all_zero = p.w0_um_per_v == 0.0
+            && p.weights_um_per_v.iter().all(|&w| w == 0.0)
+            && slopes
+                .is_none_or(|l| l.w0_per_n == 0.0 && l.weights_per_n.iter().all(|&w| w == 0.0));
+        if all_zero {
+            bail!(
+                "pi.w0_um_per_v and pi.weights_um_per_v are all 0: the model cannot produce \
+                 motion (was it calibrated on data without motion, e.g. a few rows or a \
+                 constant voltage?)"
+            );
+        }
+        if self.kind == Kind::Ldpi {
+            return Ok(());
+        }
+        if p.w0_um_per_v <= 0.0 {
+            bail!(
+                "pi.w0_um_per_v = {}: must be > 0 µm/V (the model's slope at rest; without it \
+                 the model has no inverse)",
+                p.w0_um_per_v
+            );
+        }
+        let mut sum = p.w0_um_per_v;
+        for (j, &w) in p.weights_um_per_v.iter().enumerate() {
+            sum += w;
+            if sum <= 0.0 {
+                let terms = if j == 0 {
+                    "w0 + w_1".to_string()
+                } else {
+                    format!("w0 + w_1 + … + w_{}", j + 1)
+                };
+                bail!(
+                    "pi.weights_um_per_v[{j}] = {w}: the slope {terms} = {sum} µm/V is not \
+                     positive (the output would fall as the voltage rises; no inverse)"
+                );
             }
+        }
+        Ok(())
+    }
+
+    /// The coupling: finite, and a stack compliance that is not negative.
+    fn validate_coupling(&self) -> Result<()> {
+        let c = &self.coupling;
+        finite("coupling.offset_v", c.offset_v)?;
+        finite("coupling.k_f_v_per_n", c.k_f_v_per_n)?;
+        finite("coupling.k_q_v_per_n2", c.k_q_v_per_n2)?;
+        finite("coupling.force_q_n", c.force_q_n)?;
+        finite("coupling.compliance_um_per_n", c.compliance_um_per_n)?;
+        if let Some(f) = c.force_ref_n {
+            finite("coupling.force_ref_n", f)?;
+        }
+        if c.compliance_um_per_n < 0.0 {
+            bail!(
+                "coupling.compliance_um_per_n = {}: must be ≥ 0 µm/N (a stack yields under load)",
+                c.compliance_um_per_n
+            );
+        }
+        Ok(())
+    }
+
+    /// The dead zone's softness (≥ 0; 0 is hard), the output offset and map.
+    fn validate_maps(&self) -> Result<()> {
+        let s = self.dead_zone_softness_v;
+        finite("dead_zone_softness_v", s)?;
+        if s < 0.0 {
+            bail!("dead_zone_softness_v = {s}: must be ≥ 0 V (0: the hard dead zone)");
+        }
+        finite("offset_um", self.offset_um)?;
+        match self.output {
+            OutputMap::Identity => Ok(()),
+            OutputMap::Saturation { beta_per_um: b } => {
+                finite("output.beta_per_um", b)?;
+                let top = self.model().pi.output_max();
+                if 1.0 + 4.0 * b * top <= 0.0 {
+                    bail!(
+                        "output.beta_per_um = {b}: the saturation folds over below the model's \
+                         largest output {top} µm"
+                    );
+                }
+                Ok(())
+            }
+            OutputMap::Quadratic { gamma_per_um: g } => finite("output.gamma_per_um", g),
+        }
+    }
+
+    /// The ldpi section: one finite slope per threshold; present for an ldpi model.
+    fn validate_ldpi(&self) -> Result<()> {
+        let Some(l) = &self.ldpi else {
+            if self.kind == Kind::Ldpi {
+                bail!("kind = \"ldpi\" needs an [ldpi] section");
+            }
+            return Ok(());
+        };
+        if l.weights_per_n.len() != self.pi.thresholds_v.len() {
+            bail!(
+                "ldpi.weights_per_n has {} values for {} thresholds",
+                l.weights_per_n.len(),
+                self.pi.thresholds_v.len()
+            );
+        }
+        finite("ldpi.w0_per_n", l.w0_per_n)?;
+        for (i, &b) in l.weights_per_n.iter().enumerate() {
+            finite(&format!("ldpi.weights_per_n[{i}]"), b)?;
         }
         Ok(())
     }

@@ -8,6 +8,7 @@ use piezo_sim::solve::{coupled, WarmStart};
 use piezo_sim::stats::ErrorStats;
 
 use crate::data::fem::FemMaps;
+use crate::method::export::AMPLIFIER_MAX_V;
 use crate::method::model::HostModel;
 
 /// A predicted run.
@@ -27,10 +28,33 @@ pub struct Prediction {
     pub iterations: usize,
 }
 
+/// The drive voltages a model takes, V: its input range `0..=pi.input_max_v`, and
+/// no more than the board's amplifier span ([`AMPLIFIER_MAX_V`]).
+pub fn input_range(model: &HostModel) -> (f64, f64) {
+    (0.0, model.pi.input_max_v.min(AMPLIFIER_MAX_V))
+}
+
+/// The first drive sample outside [`input_range`]: its index and voltage, V.
+pub fn outside_range(model: &HostModel, u: &[f64]) -> Option<(usize, f64)> {
+    let (lo, hi) = input_range(model);
+    u.iter()
+        .position(|v| !(lo..=hi).contains(v))
+        .map(|k| (k, u[k]))
+}
+
 /// Predicts the stage for a drive `u(t)`: the coupled solve at every sample.
+/// Refuses a drive outside the model's [`input_range`] (the model would clamp it
+/// and predict another drive than the one given).
 pub fn predict(model: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Result<Prediction> {
     if t.len() != u.len() || t.len() < 2 {
         bail!("a drive needs at least two samples of time and voltage");
+    }
+    if let Some((k, v)) = outside_range(model, u) {
+        let (lo, hi) = input_range(model);
+        bail!(
+            "drive sample {}: {v} V is outside the model's input range {lo}..{hi} V",
+            k + 1
+        );
     }
     let dt = (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
     let m = model.model();

@@ -46,10 +46,10 @@ pub const STAGE_TARGET_PCT: f64 = 75.0;
 /// The micromanipulator RMSE to beat (the authors' discrete backlash operator), µm.
 pub const MM_TARGET_UM: f64 = 0.21;
 
-/// Runs the chain into `out`.
+/// Runs the chain into `out` (created if missing; checked to take files before
+/// anything is computed; every file written atomically).
 pub fn run(out: &Path) -> Result<Summary> {
-    std::fs::create_dir_all(out.join("models"))
-        .with_context(|| format!("creating {}", out.display()))?;
+    crate::output::prepare_folder(&out.join("models"))?;
     let mut c = Chain::new(out)?;
     let models = c.calibrate_rig()?;
     c.score_rig(&models)?;
@@ -513,7 +513,7 @@ impl<'o> Chain<'o> {
         };
         let ex = export::export(efpi, &model_path, &self.fem, &settings)?;
         let text = ex.model.to_toml().map_err(|e| anyhow::anyhow!(e))?;
-        std::fs::write(self.out.join("firmware-stage-a.toml"), &text)?;
+        crate::output::write_atomic(&self.out.join("firmware-stage-a.toml"), text.as_bytes())?;
         let mut embedded = FirmwareModel::parse(
             fpi_firmware::model::MODEL_TOML,
             fpi_firmware::model::MODEL_FILE,
@@ -565,8 +565,7 @@ impl<'o> Chain<'o> {
             let _ = writeln!(self.md, "* {l}");
         }
         let report = self.out.join("report.md");
-        std::fs::write(&report, &self.md)
-            .with_context(|| format!("writing {}", report.display()))?;
+        crate::output::write_atomic(&report, self.md.as_bytes())?;
         self.pb.finish_and_clear();
         self.summary.report = report;
         Ok(self.summary)

@@ -6,10 +6,11 @@
 pub mod demo;
 pub mod plots;
 
+use std::collections::HashSet;
 use std::fmt::Write as _;
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Result};
 
 use crate::data::fem::FemMaps;
 use crate::method::compare::Comparison;
@@ -101,15 +102,36 @@ pub fn table4(c: &Comparison) -> String {
     s
 }
 
-/// Writes the plots of a comparison into `out`; returns Markdown that shows them.
+/// Whether [`write`] writes a file of this name into its folder (`report.md` and
+/// the `.svg` plots), for [`crate::output::folder_spares_inputs`].
+pub fn writes(name: &str) -> bool {
+    name == "report.md" || name.ends_with(".svg")
+}
+
+/// Refuses a plot file name used before in this report (two inputs named alike
+/// would otherwise overwrite each other's plots).
+fn claim(written: &mut HashSet<String>, file: &str) -> Result<()> {
+    if !written.insert(file.to_string()) {
+        bail!(
+            "two plots of the report would be named {file}: give the runs or the models \
+             different file names"
+        );
+    }
+    Ok(())
+}
+
+/// Writes the plots of a comparison into `out` (created if missing; every file
+/// atomically); returns Markdown that shows them.
 pub fn figures(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<String> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    crate::output::prepare_folder(out)?;
     let mut md = String::new();
+    let mut written = HashSet::new();
     for r in 0..c.runs.len() {
-        run_figures(c, r, out, &mut md)?;
+        run_figures(c, r, out, &mut md, &mut written)?;
         for ((name, m), s) in c.models.iter().zip(&c.scores[r]) {
             if matches!(m.kind, Kind::Fpi | Kind::Efpi) {
-                stack_figures(c, r, (name, m), &s.prediction, fem, out, &mut md)?;
+                let to = (out, &mut md, &mut written);
+                stack_figures(c, r, (name, m), &s.prediction, fem, to)?;
             }
         }
     }
@@ -118,7 +140,13 @@ pub fn figures(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<String> {
 
 /// Fig. 16 and the error curves of run `r`: every model's prediction against the
 /// measured stage output.
-fn run_figures(c: &Comparison, r: usize, out: &Path, md: &mut String) -> Result<()> {
+fn run_figures(
+    c: &Comparison,
+    r: usize,
+    out: &Path,
+    md: &mut String,
+    written: &mut HashSet<String>,
+) -> Result<()> {
     let run = &c.runs[r];
     let name = c.run_name(r);
     let stem = name.trim_end_matches(".csv");
@@ -128,6 +156,7 @@ fn run_figures(c: &Comparison, r: usize, out: &Path, md: &mut String) -> Result<
         .map(|((_, m), s)| (m.kind.method(), s.prediction.x_fhps.as_slice()))
         .collect();
     let f = format!("loops_{stem}.svg");
+    claim(written, &f)?;
     plots::loops(
         &out.join(&f),
         &format!("Stage output vs voltage, {stem} (Fig. 16)"),
@@ -155,6 +184,7 @@ fn run_figures(c: &Comparison, r: usize, out: &Path, md: &mut String) -> Result<
         .map(|((n, _), e)| (*n, e.as_slice()))
         .collect();
     let f = format!("errors_{stem}.svg");
+    claim(written, &f)?;
     plots::curves(
         &out.join(&f),
         &format!("Prediction error, {stem}"),
@@ -174,8 +204,7 @@ fn stack_figures(
     (mname, m): (&str, &HostModel),
     p: &Prediction,
     fem: &FemMaps,
-    out: &Path,
-    md: &mut String,
+    (out, md, written): (&Path, &mut String, &mut HashSet<String>),
 ) -> Result<()> {
     let name = c.run_name(r);
     let stem = name.trim_end_matches(".csv");
@@ -193,6 +222,7 @@ fn stack_figures(
         .collect();
     let method = m.kind.method();
     let f = format!("surface_{stem}_{mname}.svg");
+    claim(written, &f)?;
     plots::surface(
         &out.join(&f),
         &format!("{method}, {stem}: stack loop on the preload surface (Fig. 12)"),
@@ -201,6 +231,7 @@ fn stack_figures(
     )?;
     let _ = writeln!(md, "![surface {name} {mname}]({f})\n");
     let f = format!("stack_{stem}_{mname}.svg");
+    claim(written, &f)?;
     plots::loops(
         &out.join(&f),
         &format!("{method}, {stem}: predicted stack loop (Fig. 13)"),
@@ -214,7 +245,8 @@ fn stack_figures(
     Ok(())
 }
 
-/// Writes `report.md` and its plots into `out` (`fpi compare`).
+/// Writes `report.md` and its plots into `out` (`fpi compare`), every file
+/// atomically ([`crate::output::write_atomic`]).
 pub fn write(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<()> {
     let mut md = String::from("# Stage prediction: measured vs predicted\n\n");
     let _ = writeln!(md, "FEM maps: `{}`.\n", fem.source);
@@ -226,7 +258,5 @@ pub fn write(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<()> {
     let _ = writeln!(md, "## All figures\n\n{}", table(c));
     md.push_str("\n## Figures\n\n");
     md.push_str(&figures(c, fem, out)?);
-    std::fs::write(out.join("report.md"), md)
-        .with_context(|| format!("writing {}", out.join("report.md").display()))?;
-    Ok(())
+    crate::output::write_atomic(&out.join("report.md"), md.as_bytes())
 }

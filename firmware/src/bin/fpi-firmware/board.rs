@@ -19,8 +19,13 @@ use fpi_firmware::control_loop::ControlLoop;
 use fpi_firmware::exchange::Exchange;
 use fpi_firmware::frontend::{AnalogIn, FORCE_ADC, SETPOINT_DAC};
 use fpi_firmware::link::protocol::BoardKind;
+use fpi_firmware::link::protocol::ResetReason;
 use fpi_firmware::slots::Running;
 use fpi_firmware::storage::{ModelFlash, BOARD_SLOTS};
+use fpi_firmware::watchdog::{Watchdog, PERIOD_MS};
+use stm32f4xx_hal::watchdog::IndependentWatchdog;
+
+use crate::supervisor::{was_reset_by_command, Supervisor};
 use panic_probe as _;
 use piezo_fpi::io::{ForceSensor, Hardware, Setpoint};
 use piezo_fpi::q::{Newtons, Volts};
@@ -124,9 +129,23 @@ impl embedded_storage::nor_flash::NorFlash for Flash {
     }
 }
 
-/// The control task's hardware: the loop on the board's converters.
+/// The independent watchdog (40 kHz LSI; it keeps running through a reset).
+pub struct Iwdg(IndependentWatchdog);
+
+impl Watchdog for Iwdg {
+    fn feed(&mut self) {
+        self.0.feed();
+    }
+    fn set_period(&mut self, ms: u32) {
+        self.0.start(ms.millis());
+    }
+}
+
+/// The control task's hardware: the loop on the board's converters, the
+/// supervisor with the independent watchdog.
 pub struct TickIo {
     control: ControlLoop<Sensor, Amplifier, Enable, Reference>,
+    supervisor: Supervisor<Iwdg>,
 }
 
 impl TickIo {
@@ -135,6 +154,7 @@ impl TickIo {
     pub fn tick(&mut self, x: &mut Exchange<'_>) {
         let t = self.control.tick(x);
         self.control.record(x, &t, None);
+        self.supervisor.after_tick(&mut self.control);
     }
 }
 
@@ -142,13 +162,17 @@ impl TickIo {
 pub struct Io {
     hw: Hardware<Sensor, Amplifier, Enable>,
     reference: Reference,
+    iwdg: IndependentWatchdog,
 }
 
 impl Io {
-    /// The control task's hardware, running `model`.
+    /// The control task's hardware, running `model`; starts the watchdog.
     pub fn tick(self, model: Running) -> TickIo {
+        let mut iwdg = Iwdg(self.iwdg);
+        iwdg.set_period(PERIOD_MS);
         TickIo {
             control: ControlLoop::new(model, self.hw, self.reference),
+            supervisor: Supervisor::new(iwdg),
         }
     }
 }
@@ -182,6 +206,8 @@ pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
     serial.listen(Event::RxNotEmpty);
 
     let flash = ModelFlash::new(Flash(LockedFlash::new(dp.FLASH)), BOARD_SLOTS);
+    let iwdg = IndependentWatchdog::new(dp.IWDG);
+    iwdg.stop_on_debug(&dp.DBGMCU, true);
     let io = Io {
         hw: Hardware {
             sensor: Sensor {
@@ -192,8 +218,31 @@ pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
             enable,
         },
         reference,
+        iwdg,
     };
     (flash, serial, io)
+}
+
+/// Why the board started, from the reset flags (then cleared) and the mark of a
+/// reset by command.
+pub fn reset_reason(dp: &pac::Peripherals) -> ResetReason {
+    let csr = dp.RCC.csr().read();
+    let by_command = was_reset_by_command();
+    let reason = if csr.wdgrstf().bit_is_set() || csr.wwdgrstf().bit_is_set() {
+        ResetReason::Watchdog
+    } else if csr.sftrstf().bit_is_set() && by_command {
+        ResetReason::Command
+    } else if csr.borrstf().bit_is_set() {
+        ResetReason::BrownOut
+    } else if csr.porrstf().bit_is_set() {
+        ResetReason::PowerOn
+    } else if csr.padrstf().bit_is_set() {
+        ResetReason::Pin
+    } else {
+        ResetReason::Unknown
+    };
+    dp.RCC.csr().modify(|_, w| w.rmvf().set_bit());
+    reason
 }
 
 /// Stops with the amplifier off, saying why over RTT.

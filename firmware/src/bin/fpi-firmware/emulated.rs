@@ -14,9 +14,13 @@ use fpi_firmware::emulated::{tick, Bench, EmulatedFlash, Loop, FLASH_SLOTS};
 use fpi_firmware::exchange::Exchange;
 use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
 use fpi_firmware::link::protocol::BoardKind;
+use fpi_firmware::link::protocol::ResetReason;
 use fpi_firmware::sim_io::SimLink;
 use fpi_firmware::slots::Running;
 use fpi_firmware::storage::ModelFlash;
+use fpi_firmware::watchdog::Watchdog;
+
+use crate::supervisor::{was_reset_by_command, Supervisor};
 use stm32f4xx_hal::pac::{self, USART1};
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
@@ -32,10 +36,24 @@ pub type Flash = &'static mut EmulatedFlash;
 
 static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
 
-/// The control task's hardware: the loop on the [`SimLink`] and the virtual stage.
+/// QEMU models no watchdog: this one counts the feeds the rule allows.
+pub struct NoWatchdog {
+    feeds: u32,
+}
+
+impl Watchdog for NoWatchdog {
+    fn feed(&mut self) {
+        self.feeds = self.feeds.wrapping_add(1);
+    }
+    fn set_period(&mut self, _ms: u32) {}
+}
+
+/// The control task's hardware: the loop on the [`SimLink`], the virtual stage,
+/// the supervisor.
 pub struct TickIo {
     control: Loop,
     bench: Bench,
+    supervisor: Supervisor<NoWatchdog>,
 }
 
 impl TickIo {
@@ -43,6 +61,7 @@ impl TickIo {
     #[inline]
     pub fn tick(&mut self, x: &mut Exchange<'_>) {
         tick(&mut self.control, &mut self.bench, &LINK, x);
+        self.supervisor.after_tick(&mut self.control);
     }
 }
 
@@ -57,6 +76,7 @@ impl Io {
         TickIo {
             control: Loop::new(model, LINK.hardware(), LINK.analog()),
             bench: self.bench,
+            supervisor: Supervisor::new(NoWatchdog { feeds: 0 }),
         }
     }
 }
@@ -78,7 +98,33 @@ pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
     let Some(ram) = cortex_m::singleton!(: EmulatedFlash = EmulatedFlash::new()) else {
         halt("flash taken twice")
     };
+    seed(ram);
     (ModelFlash::new(ram, FLASH_SLOTS), serial, Io { bench })
+}
+
+/// Where the host may put the emulated flash's content (`-device loader` at the
+/// board's stored-model sector): what a real board's flash kept while it was off.
+const SEED_ADDRESS: usize = 0x080C_0000;
+
+/// Takes the flash content QEMU loaded at [`SEED_ADDRESS`], if any (QEMU's
+/// unprogrammed flash reads as zeros).
+fn seed(ram: &mut EmulatedFlash) {
+    let len = ram.as_bytes().len();
+    // SAFETY: the address is inside the STM32F405's flash (sector 10), which
+    // memory.x keeps out of the program; it is read-only memory QEMU maps.
+    let rom = unsafe { core::slice::from_raw_parts(SEED_ADDRESS as *const u8, len) };
+    if rom.iter().any(|b| *b != 0) {
+        ram.load(rom);
+    }
+}
+
+/// Why the emulated board started: by command, or else (QEMU cannot tell) power-on.
+pub fn reset_reason(_dp: &pac::Peripherals) -> ResetReason {
+    if was_reset_by_command() {
+        ResetReason::Command
+    } else {
+        ResetReason::PowerOn
+    }
 }
 
 /// Stops with a message (semihosting exit status 1).

@@ -35,6 +35,9 @@
 #[macro_use]
 mod log;
 
+#[cfg(target_os = "none")]
+mod supervisor;
+
 #[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod board;
 #[cfg(all(target_os = "none", not(feature = "qemu")))]
@@ -48,6 +51,7 @@ use emulated as io;
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true)]
 mod app {
+    use core::sync::atomic::Ordering;
     use cortex_m::peripheral::syst::SystClkSource;
     use embedded_hal_nb::serial::Read as _;
     use embedded_io::Write as _;
@@ -94,10 +98,11 @@ mod app {
         rx_queue: Queue<u8, RX_QUEUE> = Queue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
+        let reset = io::reset_reason(&cx.device);
         let (flash, serial, board) = io::init(cx.device);
         let stores = [Spare::new(cx.local.store_a), Spare::new(cx.local.store_b)];
         let Some((handler, running)) =
-            Handler::boot(io::KIND, stores, cx.local.image, flash, MODEL_IMAGE)
+            Handler::boot(io::KIND, stores, cx.local.image, flash, MODEL_IMAGE, reset)
         else {
             io::halt("the factory model does not load")
         };
@@ -165,6 +170,7 @@ mod app {
         let l = cx.local;
         let mut board = Link(cx.shared.exchange);
         loop {
+            super::supervisor::LINK_PASSES.fetch_add(1, Ordering::Relaxed);
             let Some(b) = l.rx_out.dequeue() else {
                 cortex_m::asm::wfi();
                 continue;
@@ -178,6 +184,10 @@ mod app {
             };
             // A write error leaves the host without a reply; it times out and retries.
             let _ = l.tx.write_all(l.out.get(..n).unwrap_or(&[]));
+            if l.handler.reset_requested() {
+                let _ = l.tx.flush();
+                super::supervisor::reset_by_command();
+            }
         }
     }
 
@@ -193,6 +203,14 @@ mod app {
         }
         fn stack_high_water(&self) -> Option<u32> {
             Some(super::stack_used())
+        }
+        fn long_operation(&mut self, on: bool) {
+            use super::supervisor::{LONG, LONG_APPLIED};
+            LONG.store(on, Ordering::Release);
+            // The control task sets the watchdog's period at its next tick.
+            while LONG_APPLIED.load(Ordering::Acquire) != on {
+                cortex_m::asm::wfi();
+            }
         }
     }
 }

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
@@ -120,7 +120,9 @@ pub(super) fn draw_zero_line(chart: &mut Chart2d, xr: (f64, f64), style: ShapeSt
     Ok(())
 }
 
-/// Renders into a string, applies the measured-line dash, writes `path`.
+/// Renders into a string, applies the measured-line dash, writes `path` atomically
+/// ([`crate::output::write_atomic`]: its folder is created, a failure leaves no
+/// partial file).
 pub(super) fn write_svg(
     path: &Path,
     size: (u32, u32),
@@ -134,11 +136,7 @@ pub(super) fn write_svg(
         root.present()?;
     }
     let svg = buf.replace(DASH_SENTINEL_SVG, DASH_SVG);
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("creating directory {}", dir.display()))?;
-    }
-    std::fs::write(path, svg).with_context(|| format!("writing {}", path.display()))
+    crate::output::write_atomic(path, svg.as_bytes())
 }
 
 /// Draws a title at the top of `area` and returns the rest.

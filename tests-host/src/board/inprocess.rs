@@ -1,0 +1,156 @@
+//! The emulated board's firmware compiled for the host and run in this process:
+//! the control loop, the virtual stage and the link handler
+//! ([`fpi_firmware::emulated::Virtual`]) in a thread that keeps board time with
+//! wall-clock time (20 000 ticks per second), behind a [`Port`].
+//!
+//! It is what `cargo demo` drives where `qemu-system-arm` is not installed, and
+//! what `--port virtual` opens: the same firmware code and the same link, but
+//! built by the host's compiler, not run on the emulated Cortex-M4. It also boots
+//! the host twin ([`super::twin`]).
+
+use std::collections::VecDeque;
+use std::io;
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, Result};
+use fpi_firmware::emulated::{EmulatedFlash, Virtual, FLASH_SLOTS};
+use fpi_firmware::exchange::Exchange;
+use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
+use fpi_firmware::hardware::{Store, IMAGE_BYTES, RATE_HZ};
+use fpi_firmware::link::frame::{FrameReader, Push};
+use fpi_firmware::link::handler::Handler;
+use fpi_firmware::link::protocol::MAX_FRAME;
+use fpi_firmware::recorder::Recorder;
+use fpi_firmware::reference::stream::Points;
+use fpi_firmware::sim_io::SimLink;
+use fpi_firmware::storage::ModelFlash;
+
+use super::port::Port;
+
+/// The port name that opens an in-process board.
+pub const PORT_NAME: &str = "virtual";
+
+/// The handler of an in-process board (its flash is the emulated board's, in RAM).
+pub type VirtualHandler = Handler<&'static mut EmulatedFlash>;
+
+fn leak<T>(v: T) -> &'static mut T {
+    Box::leak(Box::new(v))
+}
+
+/// Boots a virtual board as the emulated board boots: the factory model, empty
+/// flash, parked. Its buffers live as long as the process (a few hundred KiB).
+pub fn boot() -> Result<(Virtual, VirtualHandler)> {
+    let link: &'static SimLink = leak(SimLink::new(FORCE_ADC, SETPOINT_DAC));
+    let exchange = Exchange::new(leak(Recorder::new()), leak(Points::new()));
+    Virtual::boot(
+        link,
+        [leak(Store::new()), leak(Store::new())],
+        leak([0; IMAGE_BYTES]),
+        exchange,
+        ModelFlash::new(leak(EmulatedFlash::new()), FLASH_SLOTS),
+    )
+    .ok_or_else(|| anyhow!("the virtual board does not boot"))
+}
+
+/// A board in a thread of this process, reached through its byte link.
+pub struct InProcess {
+    to_board: Option<Sender<Vec<u8>>>,
+    from_board: Receiver<Vec<u8>>,
+    pending: VecDeque<u8>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl InProcess {
+    /// Boots a board and starts its clock.
+    pub fn start() -> Result<Self> {
+        let (board, handler) = boot()?;
+        let (to_board, requests) = mpsc::channel();
+        let (replies, from_board) = mpsc::channel();
+        let thread = std::thread::Builder::new()
+            .name("virtual-board".into())
+            .spawn(move || serve(board, handler, &requests, &replies))?;
+        Ok(Self {
+            to_board: Some(to_board),
+            from_board,
+            pending: VecDeque::new(),
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for InProcess {
+    fn drop(&mut self) {
+        self.to_board = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn stopped() -> io::Error {
+    io::Error::new(io::ErrorKind::BrokenPipe, "the in-process board stopped")
+}
+
+impl Port for InProcess {
+    fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        let tx = self.to_board.as_ref().ok_or_else(stopped)?;
+        tx.send(bytes.to_vec()).map_err(|_| stopped())
+    }
+
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        if self.pending.is_empty() {
+            match self.from_board.recv_timeout(timeout) {
+                Ok(bytes) => self.pending.extend(bytes),
+                Err(RecvTimeoutError::Timeout) => return Ok(0),
+                Err(RecvTimeoutError::Disconnected) => return Err(stopped()),
+            }
+        }
+        let n = buf.len().min(self.pending.len());
+        for (b, p) in buf.iter_mut().zip(self.pending.drain(..n)) {
+            *b = p;
+        }
+        Ok(n)
+    }
+}
+
+/// The board's thread: ticks as wall-clock time passes, and answers each frame
+/// that arrives, as the firmware's link task does. Ends when the host hangs up.
+/// A `Reset` boots a fresh board (the in-process board keeps no flash across it).
+fn serve(
+    mut board: Virtual,
+    mut handler: VirtualHandler,
+    requests: &Receiver<Vec<u8>>,
+    replies: &Sender<Vec<u8>>,
+) {
+    let mut reader = FrameReader::<MAX_FRAME>::new();
+    let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
+    let mut clock = (Instant::now(), board.control.next_tick());
+    loop {
+        let due = clock.1 + (clock.0.elapsed().as_secs_f64() * f64::from(RATE_HZ)) as u32;
+        while board.control.next_tick() < due {
+            board.tick();
+        }
+        let bytes = match requests.recv_timeout(Duration::from_micros(500)) {
+            Ok(bytes) => bytes,
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => return,
+        };
+        for b in bytes {
+            let n = match reader.push(b) {
+                Push::Pending => continue,
+                Push::Frame => handler.handle(&mut board, reader.frame(), &mut scratch, &mut out),
+                Push::Overlong => handler.overlong(&mut scratch, &mut out),
+            };
+            if replies.send(out[..n].to_vec()).is_err() {
+                return;
+            }
+            if handler.reset_requested() {
+                let Ok(fresh) = boot() else { return };
+                (board, handler) = fresh;
+                clock = (Instant::now(), board.control.next_tick());
+            }
+        }
+    }
+}
