@@ -5,7 +5,7 @@
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 const FEM: &str = "data/stage-a/fem.csv.gz";
@@ -45,37 +45,8 @@ per_file = []
 method = "by hand"
 "#;
 
-fn fpi(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fpi"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("running fpi")
-}
-
-/// Runs `fpi` expecting success; stdout and stderr.
-fn ok(args: &[&str]) -> String {
-    let o = fpi(args);
-    let (out, err) = (
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr),
-    );
-    assert!(o.status.success(), "fpi {args:?} failed:\n{out}\n{err}");
-    format!("{out}{err}")
-}
-
-/// Runs `fpi` expecting a clean failure (non-zero exit, no panic); its stderr,
-/// which must contain every one of `wanted`.
-fn refused(args: &[&str], wanted: &[&str]) -> String {
-    let o = fpi(args);
-    let err = String::from_utf8_lossy(&o.stderr).to_string();
-    assert!(!o.status.success(), "fpi {args:?} should fail:\n{err}");
-    assert!(!err.contains("panicked"), "fpi {args:?} panicked:\n{err}");
-    for w in wanted {
-        assert!(err.contains(w), "fpi {args:?}: {w:?} not in:\n{err}");
-    }
-    err
-}
+mod common;
+use common::{fpi, ok, refused, s};
 
 /// A fresh folder for one test.
 fn dir(test: &str) -> PathBuf {
@@ -83,10 +54,6 @@ fn dir(test: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 fn write(p: &Path, text: &str) -> PathBuf {

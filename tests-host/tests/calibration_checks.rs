@@ -4,47 +4,17 @@
 //! number. The recordings are a pea-rig file with one thing changed.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use fpi_host::data;
 use fpi_host::method::model::{HostModel, Kind};
 
 const RIG: &str = "data/pea-rig/preload_050N_sine_05Hz.csv.gz";
 
-fn fpi(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fpi"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("running fpi")
-}
-
-/// Runs a command that must succeed; its stdout and stderr.
-fn ok(args: &[&str]) -> (String, String) {
-    let o = fpi(args);
-    let (out, err) = (
-        String::from_utf8_lossy(&o.stdout).to_string(),
-        String::from_utf8_lossy(&o.stderr).to_string(),
-    );
-    assert!(o.status.success(), "fpi {args:?} failed:\n{out}\n{err}");
-    (out, err)
-}
-
-/// Runs a command that must fail; its stderr.
-fn fails(args: &[&str]) -> String {
-    let o = fpi(args);
-    assert!(!o.status.success(), "fpi {args:?} should fail");
-    String::from_utf8_lossy(&o.stderr).to_string()
-}
+mod common;
+use common::{fails, ok_split as ok, s};
 
 fn tmp() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fpi-calibration-checks-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
+    common::scratch("calibration-checks")
 }
 
 /// The pea-rig recording with `change(row, [t, u, f, x])` applied to every row,

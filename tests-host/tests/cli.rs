@@ -2,40 +2,12 @@
 //! errors that name the file, the line and the column.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn fpi(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fpi"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("running fpi")
-}
-
-fn ok(args: &[&str]) -> String {
-    let o = fpi(args);
-    let (out, err) = (
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr),
-    );
-    assert!(o.status.success(), "fpi {args:?} failed:\n{out}\n{err}");
-    format!("{out}{err}")
-}
-
-fn fails(args: &[&str]) -> String {
-    let o = fpi(args);
-    assert!(!o.status.success(), "fpi {args:?} should fail");
-    String::from_utf8_lossy(&o.stderr).to_string()
-}
+mod common;
+use common::{fails, ok, s};
 
 fn tmp() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fpi-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
+    common::scratch("cli")
 }
 
 const FEM: &str = "data/stage-a/fem.csv.gz";
