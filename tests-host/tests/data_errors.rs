@@ -189,3 +189,142 @@ fn fem_values_beyond_the_signal_range_are_refused_by_line() {
         "{m}"
     );
 }
+
+/// Gzip-compresses `text` into `name` (two members when `split`), next to [`write`]'s files.
+fn write_gz(name: &str, text: &str, split: bool) -> PathBuf {
+    use std::io::Write;
+    let p = write(name, "");
+    let mut out = Vec::new();
+    let parts: Vec<&str> = if split {
+        let (a, b) = text.split_at(text.len() / 2);
+        vec![a, b]
+    } else {
+        vec![text]
+    };
+    for part in parts {
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        gz.write_all(part.as_bytes()).unwrap();
+        out.extend(gz.finish().unwrap());
+    }
+    std::fs::write(&p, out).unwrap();
+    p
+}
+
+#[test]
+fn a_gzip_file_reads_as_its_content_member_by_member() {
+    let mut text = String::from("t_s,voltage_V,force_N,displacement_um\n");
+    for k in 0..10_000 {
+        text.push_str(&format!(
+            "{},{},60,{}\n",
+            k as f64 * 1e-3,
+            k % 150,
+            k as f64 * 1e-4
+        ));
+    }
+    let plain = fpi_host::data::read_rig(&write("rows.csv", &text)).unwrap();
+    assert_eq!(plain.t.len(), 10_000);
+    for split in [false, true] {
+        let gz = fpi_host::data::read_rig(&write_gz("rows.csv.gz", &text, split)).unwrap();
+        assert_eq!(
+            (&gz.t, &gz.u, &gz.f, &gz.x),
+            (&plain.t, &plain.u, &plain.f, &plain.x)
+        );
+    }
+}
+
+#[test]
+fn parse_csv_on_bytes_reads_and_refuses_as_the_file_readers_do() {
+    use fpi_host::data::{parse_csv, RigRow};
+    let columns = ["t_s", "voltage_V", "force_N", "displacement_um"];
+    let text = "t_s,voltage_V,force_N,displacement_um\n0,0,60,0\n0.1,1.5,60.1,0.01\n";
+    let name = std::path::Path::new("mem.csv");
+    let rows: Vec<RigRow> = parse_csv(name, text.as_bytes(), &columns).unwrap();
+    let rig = read_rig(&write("mem.csv", text)).unwrap();
+    assert_eq!(rows.iter().map(|r| r.voltage_v).collect::<Vec<_>>(), rig.u);
+    let bad: [&[u8]; 7] = [
+        b"t_s,voltage_V,force_N,displacement_um\n0,0,60,0\n0.1,1.5,6O.1,0.01\n",
+        b"t_s,voltage_V,force_N,displacement_um\n0,0,60,0\n0.1,1\n",
+        b"t_s,voltage_V,force_N,displacement_um\n0,inf,60,0\n",
+        b"t_s,voltage_V,force_N,force_N,displacement_um\n",
+        b"t_s,voltage_V,displacement_um\n0,0,0\n",
+        b"t_s,voltage_V,force_N,displacement_um\n",
+        b"t_s,voltage_V,force_N,displacement_um\n0,0,60,0\n1,\xff,60,0\n",
+    ];
+    for bad in bad {
+        let from_bytes = parse_csv::<RigRow>(name, bad, &columns).unwrap_err();
+        let p = write("mem.csv", "");
+        std::fs::write(&p, bad).unwrap();
+        let mut from_file = read_rig(&p).unwrap_err();
+        from_file.file = name.to_path_buf();
+        assert_eq!(from_bytes, from_file, "{}", String::from_utf8_lossy(bad));
+    }
+    let m = message(parse_csv::<RigRow>(
+        name,
+        b"t_s,voltage_V,force_N,displacement_um\n",
+        &columns,
+    ));
+    assert_eq!(m, "mem.csv: no data rows");
+}
+
+#[test]
+fn limits_and_gzip_errors_surface_from_the_middle_of_a_csv() {
+    use fpi_host::data::{for_each_record, open_within, ReadLimits, RigRow};
+    let columns = ["t_s", "voltage_V", "force_N", "displacement_um"];
+    let mut text = String::from("t_s,voltage_V,force_N,displacement_um\n");
+    for k in 0..20_000 {
+        text.push_str(&format!("{},1,60,0\n", k as f64 * 1e-3));
+    }
+    let p = write("limited.csv", &text);
+    let small = ReadLimits {
+        max_bytes: 100_000,
+        ..ReadLimits::INPUT
+    };
+    let mut rows = 0;
+    let e = for_each_record(
+        &p,
+        open_within(&p, small).unwrap(),
+        &columns,
+        |_: RigRow| rows += 1,
+    )
+    .unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        format!(
+            "{}: more than 100000 bytes of content: refusing to read further (no dataset is that \
+             large; a gzip bomb?)",
+            p.display()
+        )
+    );
+    assert!(rows > 0 && rows < 20_000, "{rows}");
+
+    // Valid rows that expand 1000 times: refused as a bomb, not parsed to the end.
+    let mut bomb = String::from("t_s,voltage_V,force_N,displacement_um\n");
+    bomb.push_str(&"0,0,60,0\n".repeat(3 << 20));
+    let p = write_gz("rows_bomb.csv.gz", &bomb, false);
+    let e = read_rig(&p).unwrap_err();
+    assert_eq!((e.file.as_path(), e.line), (p.as_path(), None));
+    assert!(
+        e.message.contains("a ratio above 100:1") && e.message.contains("a gzip bomb?"),
+        "{e}"
+    );
+
+    // Not gzip, or cut short: named, as reading the whole file named them.
+    let p = write(
+        "not_gzip.csv.gz",
+        "t_s,voltage_V,force_N,displacement_um\n0,0,60,0\n",
+    );
+    let m = message(read_rig(&p));
+    assert!(
+        m.starts_with(&format!("{}: cannot read: ", p.display())),
+        "{m}"
+    );
+    let whole = std::fs::read(write_gz("cut.csv.gz", &text, false)).unwrap();
+    let p = write("cut.csv.gz", "");
+    std::fs::write(&p, &whole[..whole.len() / 2]).unwrap();
+    let m = message(read_rig(&p));
+    assert!(
+        m.starts_with(&format!("{}: cannot read: ", p.display())),
+        "{m}"
+    );
+    assert_eq!(m, message(fpi_host::data::read_bytes(&p)));
+}

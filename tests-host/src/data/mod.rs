@@ -1,5 +1,10 @@
 //! Reading the recorded datasets: CSV through `csv` + `serde`, gzip transparently.
 //!
+//! CSV files are read as a stream ([`open`]: gunzipped on the fly, within
+//! [`ReadLimits`]) and their records go one at a time ([`for_each_record`])
+//! into the columns: the CSV readers hold neither a file's whole content nor a
+//! list of its rows.
+//!
 //! Every error names the file, the line (1-based, header = line 1) and the column,
 //! e.g. `stage-a/fem.csv:17: column x_pea_um: "1,5" is not a number`.
 
@@ -121,7 +126,7 @@ pub const MAX_RATIO: u64 = 100;
 /// Decompressed size from which [`MAX_RATIO`] applies, bytes (16 MiB).
 pub const RATIO_FROM: u64 = 16 << 20;
 
-/// Limits on what [`read_bytes_within`] reads.
+/// Limits on what [`read_bytes_within`] and [`open_within`] read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ReadLimits {
     /// Most bytes of content (decompressed), bytes.
@@ -151,17 +156,140 @@ pub fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
 /// file, as soon as the content exceeds `limits` (a gzip bomb is never expanded
 /// in full).
 pub fn read_bytes_within(path: &Path, limits: ReadLimits) -> Result<Vec<u8>, DataError> {
+    let mut content = open_within(path, limits)?;
+    let mut out = Vec::new();
+    match content.read_to_end(&mut out) {
+        Ok(_) => Ok(out),
+        Err(e) => Err(data_error(path, e)),
+    }
+}
+
+/// The content of a file as a stream, gunzipped if its name ends in `.gz`, within
+/// [`ReadLimits::INPUT`]: what [`read_bytes`] returns, never held whole.
+pub fn open(path: &Path) -> Result<Content, DataError> {
+    open_within(path, ReadLimits::INPUT)
+}
+
+/// [`open`] within other limits: a read that takes the content beyond `limits`
+/// fails with the [`DataError`] [`read_bytes_within`] gives (inside the
+/// `io::Error`; [`data_error`] takes it out), and so does every later read.
+pub fn open_within(path: &Path, limits: ReadLimits) -> Result<Content, DataError> {
     let file = File::open(path).map_err(|e| DataError::file(path, format!("cannot open: {e}")))?;
     let counted = Counted {
         inner: BufReader::new(file),
         bytes: 0,
     };
-    if path.extension().is_some_and(|e| e == "gz") {
-        let mut gz = MultiGzDecoder::new(counted);
-        read_limited(path, &mut gz, limits, |gz| gz.get_ref().bytes)
+    let source = if path.extension().is_some_and(|e| e == "gz") {
+        Source::Gz(MultiGzDecoder::new(counted))
     } else {
-        let mut plain = counted;
-        read_limited(path, &mut plain, limits, |_| 0)
+        Source::Plain(counted)
+    };
+    Ok(Content {
+        path: path.to_path_buf(),
+        source,
+        limits,
+        size: 0,
+        failed: None,
+    })
+}
+
+/// A file's content, read through [`open`] or [`open_within`].
+pub struct Content {
+    path: PathBuf,
+    source: Source,
+    limits: ReadLimits,
+    /// Bytes of content returned so far.
+    size: u64,
+    /// The error that ended reading, returned again by every later read.
+    failed: Option<DataError>,
+}
+
+impl fmt::Debug for Content {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Content")
+            .field("path", &self.path)
+            .field("limits", &self.limits)
+            .field("size", &self.size)
+            .field("failed", &self.failed)
+            .finish_non_exhaustive()
+    }
+}
+
+enum Source {
+    Plain(Counted<BufReader<File>>),
+    Gz(MultiGzDecoder<Counted<BufReader<File>>>),
+}
+
+impl Content {
+    /// Compressed bytes read from the file so far (0: not compressed).
+    fn packed(&self) -> u64 {
+        match &self.source {
+            Source::Plain(_) => 0,
+            Source::Gz(gz) => gz.get_ref().bytes,
+        }
+    }
+
+    /// Records `e` as the end of reading and returns it as an `io::Error`.
+    fn fail(&mut self, e: DataError) -> std::io::Error {
+        self.failed = Some(e.clone());
+        std::io::Error::other(e)
+    }
+
+    /// The error a read past the limits gives, if the content's `size` is past them.
+    fn beyond_limits(&self) -> Option<DataError> {
+        let (size, limits) = (self.size, self.limits);
+        if size > limits.max_bytes {
+            return Some(DataError::file(
+                &self.path,
+                format!(
+                    "more than {} bytes of content: refusing to read further (no dataset is \
+                     that large; a gzip bomb?)",
+                    limits.max_bytes
+                ),
+            ));
+        }
+        let packed = self.packed();
+        if packed > 0 && size > limits.ratio_from && size > packed.saturating_mul(limits.max_ratio)
+        {
+            return Some(DataError::file(
+                &self.path,
+                format!(
+                    "{packed} compressed bytes expand to more than {size}: a ratio above \
+                     {}:1, which no CSV recording has (a gzip bomb?); refusing to read further",
+                    limits.max_ratio
+                ),
+            ));
+        }
+        None
+    }
+}
+
+impl Read for Content {
+    /// Reads on, checking the size (and for a gzip file the expansion ratio) after
+    /// each read; errors are [`DataError`]s naming the file.
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if let Some(e) = &self.failed {
+            return Err(std::io::Error::other(e.clone()));
+        }
+        let n = loop {
+            let r = match &mut self.source {
+                Source::Plain(p) => p.read(buf),
+                Source::Gz(gz) => gz.read(buf),
+            };
+            match r {
+                Ok(n) => break n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => {
+                    let e = DataError::file(&self.path, format!("cannot read: {e}"));
+                    return Err(self.fail(e));
+                }
+            }
+        };
+        self.size += n as u64;
+        match self.beyond_limits() {
+            Some(e) => Err(self.fail(e)),
+            None => Ok(n),
+        }
     }
 }
 
@@ -179,47 +307,20 @@ impl<R: Read> Read for Counted<R> {
     }
 }
 
-/// Reads `r` to its end in chunks, checking the size (and, where `compressed`
-/// reports the compressed bytes read so far, the expansion ratio) after each.
-fn read_limited<R: Read>(
-    path: &Path,
-    r: &mut R,
-    limits: ReadLimits,
-    compressed: impl Fn(&R) -> u64,
-) -> Result<Vec<u8>, DataError> {
-    let mut out = Vec::new();
-    let mut chunk = vec![0u8; 1 << 16];
-    loop {
-        let n = match r.read(&mut chunk) {
-            Ok(0) => return Ok(out),
-            Ok(n) => n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(e) => return Err(DataError::file(path, format!("cannot read: {e}"))),
-        };
-        out.extend_from_slice(&chunk[..n]);
-        let size = out.len() as u64;
-        if size > limits.max_bytes {
-            return Err(DataError::file(
-                path,
-                format!(
-                    "more than {} bytes of content: refusing to read further (no dataset is \
-                     that large; a gzip bomb?)",
-                    limits.max_bytes
-                ),
-            ));
-        }
-        let packed = compressed(r);
-        if packed > 0 && size > limits.ratio_from && size > packed.saturating_mul(limits.max_ratio)
-        {
-            return Err(DataError::file(
-                path,
-                format!(
-                    "{packed} compressed bytes expand to more than {size}: a ratio above \
-                     {}:1, which no CSV recording has (a gzip bomb?); refusing to read further",
-                    limits.max_ratio
-                ),
-            ));
-        }
+/// The [`DataError`] an `io::Error` of a [`Content`] carries, or one naming
+/// `path` ("cannot read: …").
+pub fn data_error(path: &Path, e: std::io::Error) -> DataError {
+    match e.get_ref().and_then(|i| i.downcast_ref::<DataError>()) {
+        Some(d) => d.clone(),
+        None => DataError::file(path, format!("cannot read: {e}")),
+    }
+}
+
+/// The [`DataError`] a CSV error carries: a [`Content`]'s read that failed.
+fn carried(e: &csv::Error) -> Option<DataError> {
+    match e.kind() {
+        csv::ErrorKind::Io(e) => e.get_ref()?.downcast_ref::<DataError>().cloned(),
+        _ => None,
     }
 }
 
@@ -236,22 +337,51 @@ pub fn read_csv<T: DeserializeOwned + Finite>(
     path: &Path,
     columns: &[&str],
 ) -> Result<Vec<T>, DataError> {
-    let bytes = read_bytes(path)?;
-    parse_csv(path, &bytes, columns)
+    collect_csv(path, open(path)?, columns)
 }
 
-/// [`read_csv`] on the bytes of a file (`path` names it in errors).
+/// [`read_csv`] on the bytes of a file (`path` names it in errors): the same
+/// reader, [`for_each_record`], on a byte slice.
 pub fn parse_csv<T: DeserializeOwned + Finite>(
     path: &Path,
     bytes: &[u8],
     columns: &[&str],
 ) -> Result<Vec<T>, DataError> {
+    collect_csv(path, bytes, columns)
+}
+
+fn collect_csv<T: DeserializeOwned + Finite>(
+    path: &Path,
+    content: impl Read,
+    columns: &[&str],
+) -> Result<Vec<T>, DataError> {
+    let mut out = Vec::new();
+    for_each_record(path, content, columns, |v: T| out.push(v))?;
+    Ok(out)
+}
+
+/// The CSV reader of every dataset: reads `content` (a [`Content`], a byte
+/// slice, …) record by record, checks the header (no column twice, every one of
+/// `columns` present), deserializes each record into a `T` (columns by name;
+/// extra columns ignored), checks that its numbers are finite and hands it to
+/// `each`. Returns the number of records; none is an error ("no data rows").
+/// Holds one record at a time.
+pub fn for_each_record<T: DeserializeOwned + Finite>(
+    path: &Path,
+    content: impl Read,
+    columns: &[&str],
+    mut each: impl FnMut(T),
+) -> Result<u64, DataError> {
     let mut rdr = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
-        .from_reader(bytes);
+        .buffer_capacity(1 << 16)
+        .from_reader(content);
     let headers = rdr
         .headers()
-        .map_err(|e| DataError::file(path, format!("cannot read the header: {e}")))?
+        .map_err(|e| {
+            carried(&e)
+                .unwrap_or_else(|| DataError::file(path, format!("cannot read the header: {e}")))
+        })?
         .clone();
     duplicate_column(path, &headers)?;
     let missing: Vec<&str> = columns
@@ -271,9 +401,9 @@ pub fn parse_csv<T: DeserializeOwned + Finite>(
             ),
         });
     }
-    let mut out = Vec::new();
-    for rec in rdr.records() {
-        let rec = rec.map_err(|e| csv_error(path, e))?;
+    let mut rows = 0u64;
+    let mut rec = csv::StringRecord::new();
+    while rdr.read_record(&mut rec).map_err(|e| csv_error(path, e))? {
         let line = rec.position().map_or(0, |p| p.line());
         let value: T = rec.deserialize(Some(&headers)).map_err(|e| {
             let field = match e.kind() {
@@ -301,12 +431,13 @@ pub fn parse_csv<T: DeserializeOwned + Finite>(
                 format!("{:?} is not a finite number", rec.get(i).unwrap_or("")),
             ));
         }
-        out.push(value);
+        each(value);
+        rows += 1;
     }
-    if out.is_empty() {
+    if rows == 0 {
         return Err(DataError::file(path, "no data rows"));
     }
-    Ok(out)
+    Ok(rows)
 }
 
 /// Refuses a header that names a column twice (by name, on line 1; unnamed
@@ -330,6 +461,9 @@ fn duplicate_column(path: &Path, headers: &csv::StringRecord) -> Result<(), Data
 }
 
 fn csv_error(path: &Path, e: csv::Error) -> DataError {
+    if let Some(d) = carried(&e) {
+        return d;
+    }
     let line = e.position().map(|p| p.line());
     let message = match e.kind() {
         csv::ErrorKind::UnequalLengths {
@@ -434,10 +568,13 @@ finite_record!(DriveRow {
 
 /// Reads a drive file: time (strictly increasing) and voltage.
 pub fn read_drive(path: &Path) -> Result<(Vec<f64>, Vec<f64>), DataError> {
-    let rows: Vec<DriveRow> = read_csv(path, &["t_s", "voltage_V"])?;
-    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
+    let (mut t, mut u) = (Vec::new(), Vec::new());
+    for_each_record(path, open(path)?, &["t_s", "voltage_V"], |r: DriveRow| {
+        t.push(r.t_s);
+        u.push(r.voltage_v);
+    })?;
     strictly_increasing(path, "t_s", &t)?;
-    Ok((t, rows.iter().map(|r| r.voltage_v).collect()))
+    Ok((t, u))
 }
 
 /// One sample of a target trajectory (`t_s,x_fhps_um`; extra columns ignored).
@@ -453,10 +590,13 @@ finite_record!(TargetRow {
 
 /// Reads a target trajectory: time (strictly increasing) and stage position.
 pub fn read_target(path: &Path) -> Result<(Vec<f64>, Vec<f64>), DataError> {
-    let rows: Vec<TargetRow> = read_csv(path, &["t_s", "x_fhps_um"])?;
-    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
+    let (mut t, mut x) = (Vec::new(), Vec::new());
+    for_each_record(path, open(path)?, &["t_s", "x_fhps_um"], |r: TargetRow| {
+        t.push(r.t_s);
+        x.push(r.x_fhps_um);
+    })?;
     strictly_increasing(path, "t_s", &t)?;
-    Ok((t, rows.iter().map(|r| r.x_fhps_um).collect()))
+    Ok((t, x))
 }
 
 /// One point of an FEM export (`fem.csv`).
@@ -491,18 +631,25 @@ pub struct Rig {
     pub x: Vec<f64>,
 }
 
-/// Reads a `t_s,voltage_V,force_N,displacement_um` file.
+/// Reads a `t_s,voltage_V,force_N,displacement_um` file, record by record
+/// straight into the columns (the content is never held whole).
 pub fn read_rig(path: &Path) -> Result<Rig, DataError> {
-    let rows: Vec<RigRow> = read_csv(path, &["t_s", "voltage_V", "force_N", "displacement_um"])?;
-    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
-    strictly_increasing(path, "t_s", &t)?;
-    Ok(Rig {
+    let mut r = Rig {
         path: path.to_path_buf(),
-        t,
-        u: rows.iter().map(|r| r.voltage_v).collect(),
-        f: rows.iter().map(|r| r.force_n).collect(),
-        x: rows.iter().map(|r| r.displacement_um).collect(),
-    })
+        t: Vec::new(),
+        u: Vec::new(),
+        f: Vec::new(),
+        x: Vec::new(),
+    };
+    let columns = ["t_s", "voltage_V", "force_N", "displacement_um"];
+    for_each_record(path, open(path)?, &columns, |row: RigRow| {
+        r.t.push(row.t_s);
+        r.u.push(row.voltage_v);
+        r.f.push(row.force_n);
+        r.x.push(row.displacement_um);
+    })?;
+    strictly_increasing(path, "t_s", &r.t)?;
+    Ok(r)
 }
 
 /// A stage recording, by column.
@@ -520,18 +667,25 @@ pub struct StageRun {
     pub x: Vec<f64>,
 }
 
-/// Reads a `t_s,voltage_V,force_N,x_fhps_um[,…]` file.
+/// Reads a `t_s,voltage_V,force_N,x_fhps_um[,…]` file, record by record straight
+/// into the columns (the content is never held whole).
 pub fn read_stage(path: &Path) -> Result<StageRun, DataError> {
-    let rows: Vec<StageRow> = read_csv(path, &["t_s", "voltage_V", "force_N", "x_fhps_um"])?;
-    let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
-    strictly_increasing(path, "t_s", &t)?;
-    Ok(StageRun {
+    let mut r = StageRun {
         path: path.to_path_buf(),
-        t,
-        u: rows.iter().map(|r| r.voltage_v).collect(),
-        f: rows.iter().map(|r| r.force_n).collect(),
-        x: rows.iter().map(|r| r.x_fhps_um).collect(),
-    })
+        t: Vec::new(),
+        u: Vec::new(),
+        f: Vec::new(),
+        x: Vec::new(),
+    };
+    let columns = ["t_s", "voltage_V", "force_N", "x_fhps_um"];
+    for_each_record(path, open(path)?, &columns, |row: StageRow| {
+        r.t.push(row.t_s);
+        r.u.push(row.voltage_v);
+        r.f.push(row.force_n);
+        r.x.push(row.x_fhps_um);
+    })?;
+    strictly_increasing(path, "t_s", &r.t)?;
+    Ok(r)
 }
 
 /// An FEM export, by column.
@@ -550,21 +704,26 @@ pub struct Fem {
 /// Reads and validates a `x_pea_um,preload_N,x_fhps_um` file: finite values,
 /// strictly increasing `x_pea_um`, at least two points.
 pub fn read_fem(path: &Path) -> Result<Fem, DataError> {
-    let rows: Vec<FemRow> = read_csv(path, &["x_pea_um", "preload_N", "x_fhps_um"])?;
-    if rows.len() < 2 {
+    let mut fem = Fem {
+        path: path.to_path_buf(),
+        x_pea: Vec::new(),
+        preload: Vec::new(),
+        x_fhps: Vec::new(),
+    };
+    let columns = ["x_pea_um", "preload_N", "x_fhps_um"];
+    let rows = for_each_record(path, open(path)?, &columns, |row: FemRow| {
+        fem.x_pea.push(row.x_pea_um);
+        fem.preload.push(row.preload_n);
+        fem.x_fhps.push(row.x_fhps_um);
+    })?;
+    if rows < 2 {
         return Err(DataError::file(
             path,
             "an FEM table needs at least two points",
         ));
     }
-    let x_pea: Vec<f64> = rows.iter().map(|r| r.x_pea_um).collect();
-    strictly_increasing(path, "x_pea_um", &x_pea)?;
-    Ok(Fem {
-        path: path.to_path_buf(),
-        x_pea,
-        preload: rows.iter().map(|r| r.preload_n).collect(),
-        x_fhps: rows.iter().map(|r| r.x_fhps_um).collect(),
-    })
+    strictly_increasing(path, "x_pea_um", &fem.x_pea)?;
+    Ok(fem)
 }
 
 /// The micromanipulator recording: command (V, column 1) and sensor (µm, column 5).

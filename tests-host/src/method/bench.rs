@@ -3,8 +3,13 @@
 //!
 //! The peak is the process's `VmHWM` (Linux, `/proc/self/status`), reset before
 //! each kind through `/proc/self/clear_refs`; elsewhere it is unknown.
+//!
+//! Last, how `fpi calibrate --rig ONE.csv` reads one file of as many samples
+//! ([`single_file`], in this process; calibrating it too is optional).
 
 use std::fmt;
+use std::io::{BufWriter, Write};
+use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Result};
@@ -50,6 +55,29 @@ pub struct Scaling {
     pub threads: usize,
     /// Per kind: the default kind (efpi), then fpi.
     pub runs: Vec<KindRun>,
+    /// The same samples as one CSV file, read as `fpi calibrate` reads it (not
+    /// calibrated: see [`single_file`]).
+    pub file: FileRun,
+}
+
+/// `fpi calibrate --rig ONE.csv` in this process, on one file: its reading, and
+/// optionally its calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FileRun {
+    /// Rows of the file.
+    pub samples: usize,
+    /// Size of the file, bytes.
+    pub file_bytes: u64,
+    /// Seconds to read it (`calibrate::load`, as `fpi calibrate` reads).
+    pub read_seconds: f64,
+    /// Resident memory before reading, bytes; `None`: unknown.
+    pub rss_before_bytes: Option<u64>,
+    /// Peak resident memory while reading, bytes; `None`: unknown.
+    pub read_peak_rss_bytes: Option<u64>,
+    /// The default kind (efpi) calibrated on it, if asked: its seconds and
+    /// processor time exclude the reading; its peak is the peak since before
+    /// reading (that of the whole `fpi calibrate`).
+    pub calibrated: Option<KindRun>,
 }
 
 /// Mebibytes, or "unknown".
@@ -79,6 +107,30 @@ impl fmt::Display for Scaling {
                 mib(r.rss_before_bytes),
                 r.rmse_um,
                 r.warnings.len()
+            )?;
+        }
+        let r = &self.file;
+        writeln!(
+            f,
+            "calibration_one_file_read: {} samples in one CSV of {:.0} MB read in {:.2} s, peak resident {} (before {})",
+            r.samples,
+            r.file_bytes as f64 / 1e6,
+            r.read_seconds,
+            mib(r.read_peak_rss_bytes),
+            mib(r.rss_before_bytes),
+        )?;
+        if let Some(c) = &r.calibrated {
+            writeln!(
+                f,
+                "calibration_one_file kind={}: {:.2} s after reading (processor {}), peak resident {} (data {}), RMSE {:.4} µm, {} warning(s)",
+                c.kind,
+                c.seconds,
+                c.cpu_seconds
+                    .map_or_else(|| "unknown".to_string(), |c| format!("{c:.2} s")),
+                mib(c.peak_rss_bytes),
+                mib(c.rss_before_bytes),
+                c.rmse_um,
+                c.warnings.len()
             )?;
         }
         Ok(())
@@ -118,7 +170,9 @@ fn repeat(d: &CalibData, times: usize) -> CalibData {
 }
 
 /// Calibrates the default kind (efpi) and fpi on about `samples` samples (see
-/// [`rig_data`]) and measures each: seconds and peak resident memory.
+/// [`rig_data`]) and measures each: seconds and peak resident memory; then
+/// writes the same number of samples as one file and measures reading it
+/// ([`single_file`], without calibrating).
 pub fn scaling(samples: usize) -> Result<Scaling> {
     let t0 = Instant::now();
     let (data, repeats) = rig_data(samples)?;
@@ -142,13 +196,87 @@ pub fn scaling(samples: usize) -> Result<Scaling> {
             warnings: m.calibration.warnings,
         });
     }
+    let samples = data.iter().map(|d| d.u.len()).sum();
+    let recordings = data.len();
+    // Not to count in the single file's peak.
+    drop(data);
+    let dir = std::env::temp_dir().join(format!("fpi-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    // Reading only: calibrating one long recording would take about as long again
+    // as everything above (tests/scaling.rs does it).
+    let file = single_file(samples, &dir, false);
+    let _ = std::fs::remove_dir_all(&dir);
     Ok(Scaling {
-        samples: data.iter().map(|d| d.u.len()).sum(),
-        recordings: data.len(),
+        samples,
+        recordings,
         repeats,
         build_seconds,
         threads: rayon::current_num_threads(),
         runs,
+        file: file?,
+    })
+}
+
+/// Writes `samples` rows of the pea-rig recordings, one after the other and
+/// repeated, as one `t_s,voltage_V,force_N,displacement_um` file in `dir` (time
+/// strictly increasing), then reads it as `fpi calibrate --rig FILE` does and,
+/// if `calibrate`, calibrates the default kind (efpi) on it, measuring each.
+/// The file is left in `dir`.
+pub fn single_file(samples: usize, dir: &Path, calibrate: bool) -> Result<FileRun> {
+    let path = dir.join(format!("rig-{samples}.csv"));
+    {
+        let rigs = data::datasets_in("pea-rig")
+            .iter()
+            .map(|p| data::read_rig(p))
+            .collect::<Result<Vec<_>, _>>()?;
+        if rigs.iter().all(|r| r.t.is_empty()) {
+            bail!("no pea-rig samples");
+        }
+        let mut w = BufWriter::with_capacity(1 << 20, std::fs::File::create(&path)?);
+        writeln!(w, "t_s,voltage_V,force_N,displacement_um")?;
+        let rows = rigs
+            .iter()
+            .cycle()
+            .flat_map(|r| (0..r.t.len()).map(move |k| (r.u[k], r.f[k], r.x[k])));
+        for (k, (u, f, x)) in rows.take(samples).enumerate() {
+            // 5 kHz, as the recordings.
+            writeln!(w, "{:.4},{u},{f},{x}", k as f64 * 2e-4)?;
+        }
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+    }
+    let file_bytes = std::fs::metadata(&path)?.len();
+    reset_peak();
+    let rss_before_bytes = status_bytes("VmRSS:");
+    let t = Instant::now();
+    let rig = calibrate::load(&[&path], None)?;
+    let read_seconds = t.elapsed().as_secs_f64();
+    let read_peak_rss_bytes = status_bytes("VmHWM:");
+    let calibrated = if calibrate {
+        let kind = Kind::Efpi;
+        let rss_before_bytes = status_bytes("VmRSS:");
+        let cpu = cpu_seconds();
+        let t = Instant::now();
+        let m = calibrate::calibrate(&rig, &Options::for_kind(kind))?;
+        let seconds = t.elapsed().as_secs_f64();
+        Some(KindRun {
+            kind,
+            seconds,
+            cpu_seconds: cpu.zip(cpu_seconds()).map(|(a, b)| b - a),
+            rss_before_bytes,
+            peak_rss_bytes: status_bytes("VmHWM:"),
+            rmse_um: m.calibration.rmse_um,
+            warnings: m.calibration.warnings,
+        })
+    } else {
+        None
+    };
+    Ok(FileRun {
+        samples: rig.iter().map(|d| d.u.len()).sum(),
+        file_bytes,
+        read_seconds,
+        rss_before_bytes,
+        read_peak_rss_bytes,
+        calibrated,
     })
 }
 
