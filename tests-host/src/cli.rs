@@ -74,6 +74,37 @@ pub fn read_fem(path: &Path) -> Result<FemMaps> {
     Ok(maps)
 }
 
+/// Warns when `model` (file `model_path`) was refined against another FEM file
+/// than `fem` (by file name: its correction is meant for the tables it was
+/// estimated on).
+fn warn_other_fem(model: &HostModel, model_path: &Path, fem: &Path) {
+    let Some(c) = &model.fem_correction else {
+        return;
+    };
+    let stored = Path::new(&c.fem);
+    if !c.fem.is_empty() && stored.file_name() != fem.file_name() {
+        eprintln!(
+            "warning: {}: its [fem_correction] was estimated against {}, and is applied to {}",
+            model_path.display(),
+            c.fem,
+            fem.display()
+        );
+    }
+}
+
+/// The stage maps a model runs with: the FEM file `fem` read ([`read_fem`]) and
+/// corrected by the model's `[fem_correction]` when it has one
+/// ([`HostModel::stage_maps`]). Every command that pairs a model with FEM tables
+/// (predict, invert, export, `board load`; compare through
+/// [`Comparison::run`](crate::method::compare::Comparison::run)) gets them here.
+pub fn stage_maps(model: &HostModel, model_path: &Path, fem: &Path) -> Result<FemMaps> {
+    let maps = read_fem(fem)?;
+    warn_other_fem(model, model_path, fem);
+    model
+        .stage_maps(&maps)
+        .with_context(|| model_path.display().to_string())
+}
+
 /// Refuses a drive (`voltage_V` of file `path`) outside the model's input range,
 /// naming the file, the line and the voltage.
 fn drive_in_range(path: &Path, model: &HostModel, u: &[f64]) -> Result<()> {
@@ -206,7 +237,7 @@ pub fn predict(model: &Path, fem: &Path, drive: &Path, out: &Path) -> Result<()>
     not_an_input("--out", out, &given)?;
     output::prepare(out)?;
     let m = HostModel::read(model)?;
-    let maps = read_fem(fem)?;
+    let maps = stage_maps(&m, model, fem)?;
     let (t, u) = read_drive(drive)?;
     drive_in_range(drive, &m, &u)?;
     let start = std::time::Instant::now();
@@ -258,7 +289,11 @@ pub fn compare(fem: &Path, runs: &[PathBuf], models: &[PathBuf], out: &Path) -> 
     output::folder_spares_inputs("--out", out, &given, crate::report::writes)?;
     output::prepare_folder(out)?;
     let maps = read_fem(fem)?;
+    let paths = models;
     let models = read_models(models)?;
+    for (p, (_, m)) in paths.iter().zip(&models) {
+        warn_other_fem(m, p, fem);
+    }
     let runs: Vec<data::StageRun> = runs
         .iter()
         .map(|p| data::read_stage(p))
@@ -282,7 +317,7 @@ pub fn invert(model: &Path, fem: &Path, target: &Path, out: &Path, u_max: f64) -
     not_an_input("--out", out, &given)?;
     output::prepare(out)?;
     let m = HostModel::read(model)?;
-    let maps = read_fem(fem)?;
+    let maps = stage_maps(&m, model, fem)?;
     let (t, x) = read_target(target)?;
     let inv = crate::method::invert::invert(&m, &maps, &t, &x, u_max)
         .with_context(|| target.display().to_string())?;
@@ -313,6 +348,110 @@ pub fn invert(model: &Path, fem: &Path, target: &Path, out: &Path, u_max: f64) -
     Ok(())
 }
 
+/// `fpi refine`: estimates the correction of the FEM tables `fem` from measured
+/// `runs` of the built stage ([`crate::method::refine`]) and writes `model` with
+/// it as its `[fem_correction]` to `out`.
+pub fn refine(model: &Path, fem: &Path, runs: &[PathBuf], out: &Path) -> Result<()> {
+    let mut given = vec![("--model", model), ("--fem", fem)];
+    given.extend(inputs("--run", runs));
+    not_an_input("--out", out, &given)?;
+    output::prepare(out)?;
+    let m = HostModel::read(model)?;
+    if m.fem_correction.is_some() {
+        eprintln!(
+            "note: {} already has a [fem_correction]: it is estimated anew against {} as it is",
+            model.display(),
+            fem.display()
+        );
+    }
+    let maps = read_fem(fem)?;
+    let data: Vec<data::StageRun> = runs
+        .iter()
+        .map(|p| data::read_stage(p))
+        .collect::<Result<_, _>>()?;
+    for r in &data {
+        drive_in_range(&r.path, &m, &r.u)?;
+    }
+    let start = std::time::Instant::now();
+    let r = crate::method::refine::estimate(
+        &m,
+        &maps,
+        &data,
+        &crate::method::refine::Options::default(),
+    )?;
+    let secs = start.elapsed().as_secs_f64();
+    let mut refined = m.clone();
+    let mut c = r.correction.clone();
+    c.fem = fem.display().to_string();
+    c.refined_on = runs.iter().map(|p| p.display().to_string()).collect();
+    refined.fem_correction = Some(c.clone());
+    println!(
+        "FEM tables {} refined for the {} model {} on {} run(s) ({} rounds, {:.2} s):",
+        fem.display(),
+        m.kind,
+        model.display(),
+        data.len(),
+        r.iterations,
+        secs
+    );
+    println!(
+        "  stage_gain      {:.5}  (stage output = stage_gain·f_K(x_pea) + stage_offset_um)",
+        c.stage_gain
+    );
+    println!("  stage_offset_um {:.4} µm", c.stage_offset_um);
+    println!(
+        "  preload_scale   {:.5}  (preload = preload_scale·f_F(x_pea); rest preload {:.2} N -> {:.2} N)",
+        c.preload_scale,
+        maps.rest_preload(),
+        c.preload_scale * maps.rest_preload()
+    );
+    let w = r
+        .runs
+        .iter()
+        .map(|f| f.file.chars().count())
+        .fold(34, usize::max);
+    println!(
+        "  {:<w$} {:>8} {:>12} {:>12} {:>12} {:>12} {:>18}",
+        "run", "samples", "RMSE before", "RMSE after", "MAE before", "MAE after", "force RMSE N"
+    );
+    for f in &r.runs {
+        println!(
+            "  {:<w$} {:>8} {:>12.4} {:>12.4} {:>12.4} {:>12.4} {:>8.3} -> {:.3}",
+            f.file,
+            f.samples,
+            f.before.rmse,
+            f.after.rmse,
+            f.before.mae,
+            f.after.mae,
+            f.force_rmse_before_n,
+            f.force_rmse_after_n
+        );
+    }
+    if data.len() > 1 {
+        println!(
+            "  {:<w$} {:>8} {:>12.4} {:>12.4} {:>12.4} {:>12.4}",
+            "all",
+            r.runs.iter().map(|f| f.samples).sum::<usize>(),
+            r.before.rmse,
+            r.after.rmse,
+            r.before.mae,
+            r.after.mae
+        );
+    }
+    println!(
+        "  (µm; these are the runs it was refined on: score it on other runs with \
+         fpi compare --model {} --model {})",
+        model.display(),
+        out.display()
+    );
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
+    refined.write(out)?;
+    println!("refined model written to {}", out.display());
+    Ok(())
+}
+
 /// `fpi export`.
 pub fn export(
     m: &HostModel,
@@ -323,7 +462,7 @@ pub fn export(
 ) -> Result<()> {
     not_an_input("--out", out, &[("--model", model), ("--fem", fem)])?;
     output::prepare(out)?;
-    let maps = read_fem(fem)?;
+    let maps = stage_maps(m, model, fem)?;
     let settings = crate::method::export::LoopSettings::for_model(m, o);
     let e = crate::method::export::export(m, model, &maps, &settings)?;
     let text = e.model.to_toml().map_err(|e| anyhow::anyhow!(e))?;

@@ -5,6 +5,7 @@
 //! fpi predict   --model MODEL.toml --fem FEM.csv --drive RUN.csv --out PRED.csv
 //! fpi compare   --fem FEM.csv --runs RUN.csv... --model A.toml --model B.toml ... --out DIR
 //! fpi invert    --model MODEL.toml --fem FEM.csv --target TARGET.csv --out DRIVE.csv
+//! fpi refine    --model MODEL.toml --fem FEM.csv --run RUN.csv... --out REFINED.toml
 //! fpi export    --model MODEL.toml --fem FEM.csv --out FIRMWARE.toml
 //! fpi demo      [--out DIR]
 //! fpi bench
@@ -28,7 +29,7 @@ use fpi_host::{cli, method::model::HostModel};
 #[command(
     name = "fpi",
     version,
-    about = "The FPI-FFEM method (calibrate, predict, compare, invert, export) and the board"
+    about = "The FPI-FFEM method (calibrate, predict, compare, invert, refine, export) and the board"
 )]
 struct Args {
     #[command(subcommand)]
@@ -110,6 +111,23 @@ enum Command {
         #[arg(long, default_value_t = 150.0, value_parser = parse_amplifier_volts,
               allow_negative_numbers = true)]
         u_max: f64,
+    },
+    /// Refine a stage's FEM tables from measured runs of the built stage: the gain
+    /// and offset of its output f_K and the scale of its preload f_F, stored in the
+    /// model file (the actuator's parameters are kept).
+    Refine {
+        /// A calibrated model.
+        #[arg(long)]
+        model: PathBuf,
+        /// FEM export of the stage `x_pea_um,preload_N,x_fhps_um`.
+        #[arg(long)]
+        fem: PathBuf,
+        /// Measured runs of the built stage `t_s,voltage_V,force_N,x_fhps_um`.
+        #[arg(long = "run", visible_alias = "runs", required = true, num_args = 1..)]
+        runs: Vec<PathBuf>,
+        /// Where to write the refined model (the model with a [fem_correction]).
+        #[arg(long)]
+        out: PathBuf,
     },
     /// The fixed-point parameters and tables the firmware embeds.
     Export {
@@ -442,6 +460,12 @@ fn run(args: Args) -> Result<()> {
             out,
             u_max,
         } => cli::invert(&model, &fem, &target, &out, u_max),
+        Command::Refine {
+            model,
+            fem,
+            runs,
+            out,
+        } => cli::refine(&model, &fem, &runs, &out),
         Command::Export {
             model,
             fem,

@@ -36,7 +36,7 @@ pub fn model_image(model: &Path, fem: Option<&Path>, o: &ExportOptions) -> Resul
             bail!("{shown} is a calibrated model: give the stage's FEM tables with --fem FEM.csv");
         };
         let m = HostModel::read(model)?;
-        let maps = crate::cli::read_fem(fem)?;
+        let maps = crate::cli::stage_maps(&m, model, fem)?;
         let settings = LoopSettings::for_model(&m, o);
         export::export(&m, model, &maps, &settings)?.model
     };

@@ -88,6 +88,46 @@ impl FemMaps {
         })
     }
 
+    /// The maps of a built stage that differs from this FEM: new points with stage
+    /// output `x_fhps·gain + offset_um` and preload `preload·preload_scale` (the
+    /// same stack extensions), checked as a file's points are (within
+    /// ±[`SIGNAL_ABS_MAX`], strictly monotone output; a `gain` that is not finite
+    /// or not > 0 is refused). The source and the file's warnings are kept.
+    pub fn corrected(
+        &self,
+        gain: f64,
+        offset_um: f64,
+        preload_scale: f64,
+    ) -> Result<Self, DataError> {
+        let path = Path::new(&self.source);
+        for (what, v) in [("stage gain", gain), ("preload scale", preload_scale)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(DataError::file(
+                    path,
+                    format!("a {what} of {} (it must be a finite number > 0)", Num(v)),
+                ));
+            }
+        }
+        if !offset_um.is_finite() {
+            return Err(DataError::file(
+                path,
+                format!("a stage offset of {} µm is not finite", Num(offset_um)),
+            ));
+        }
+        let fem = data::Fem {
+            path: path.to_path_buf(),
+            x_pea: self.x_pea.clone(),
+            preload: self.preload.iter().map(|f| f * preload_scale).collect(),
+            x_fhps: self.x_fhps.iter().map(|y| y * gain + offset_um).collect(),
+        };
+        in_range(&fem)?;
+        monotone_output(&fem)?;
+        let mut maps = Self::new(self.source.clone(), fem.x_pea, fem.preload, fem.x_fhps)
+            .ok_or_else(|| DataError::file(path, "an FEM table needs at least two points"))?;
+        maps.warnings = self.warnings.clone();
+        Ok(maps)
+    }
+
     /// The stack extensions of the FEM's points, µm.
     pub fn x_pea(&self) -> &[f64] {
         &self.x_pea
@@ -301,5 +341,26 @@ mod tests {
         assert_eq!(uneven.preload_with_slope(2.0), (12.5, 0.5));
         assert_eq!(uneven.stack_for(10.0), 2.0);
         assert_eq!(uneven.stage_at(uneven.stack_for(7.5)), 7.5);
+    }
+
+    #[test]
+    fn corrected_maps_scale_the_points() {
+        let fem = FemMaps::new(
+            "f".into(),
+            vec![0.0, 1.0, 3.0],
+            vec![10.0, 12.0, 13.0],
+            vec![0.0, 5.0, 15.0],
+        )
+        .unwrap();
+        let c = fem.corrected(0.98, 0.25, 0.97).unwrap();
+        assert_eq!(c.x_pea(), fem.x_pea());
+        assert!((c.preload_at(2.0) - 0.97 * fem.preload_at(2.0)).abs() < 1e-12);
+        assert!((c.stage_at(2.0) - (0.98 * fem.stage_at(2.0) + 0.25)).abs() < 1e-12);
+        assert!((c.rest_preload() - 9.7).abs() < 1e-12);
+        assert_eq!(fem.corrected(1.0, 0.0, 1.0).unwrap(), fem);
+        for (g, o, s) in [(0.0, 0.0, 1.0), (1.0, 0.0, f64::NAN), (1.0, 1e12, 1.0)] {
+            let e = fem.corrected(g, o, s).unwrap_err().to_string();
+            assert!(e.starts_with("f"), "{e}");
+        }
     }
 }

@@ -1,7 +1,7 @@
 //! Scoring models against measured stage runs (Actuators 2025, 14(8):411, Table 4 and
 //! Figs. 14–16).
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use rayon::prelude::*;
 
 use crate::data::fem::FemMaps;
@@ -84,14 +84,21 @@ pub fn run_file_name(path: &std::path::Path) -> String {
 }
 
 impl Comparison {
-    /// Predicts every run with every model (runs in parallel).
+    /// Predicts every run with every model (runs in parallel), each model with the
+    /// stage maps it runs with ([`HostModel::stage_maps`]: `fem`, corrected by the
+    /// model's `[fem_correction]` if it has one).
     pub fn run(fem: &FemMaps, runs: &[StageRun], models: &[(String, HostModel)]) -> Result<Self> {
+        let maps = models
+            .iter()
+            .map(|(name, m)| m.stage_maps(fem).with_context(|| format!("model {name}")))
+            .collect::<Result<Vec<_>>>()?;
         let scores = runs
             .par_iter()
             .map(|r| {
                 models
                     .iter()
-                    .map(|(_, m)| {
+                    .zip(&maps)
+                    .map(|((_, m), fem)| {
                         let prediction = predict::predict(m, fem, &r.t, &r.u)?;
                         let metrics = predict::metrics(&prediction.x_fhps, &r.x);
                         Ok(Scored {
@@ -120,6 +127,23 @@ impl Comparison {
         100.0 * (base - self.scores[r][m].metrics.mae) / base
     }
 
+    /// Whether model `m` was refined on run `r` (`fpi refine`): its score there is
+    /// in-sample.
+    pub fn refined_on(&self, r: usize, m: usize) -> bool {
+        self.models[m]
+            .1
+            .fem_correction
+            .as_ref()
+            .is_some_and(|c| crate::method::refine::was_refined_on(c, &self.runs[r].path))
+    }
+
+    /// The runs no model was refined on: where refined models are scored fairly.
+    pub fn held_out(&self) -> Vec<usize> {
+        (0..self.runs.len())
+            .filter(|&r| (0..self.models.len()).all(|m| !self.refined_on(r, m)))
+            .collect()
+    }
+
     /// The run's name (its file name, made unique among the runs).
     pub fn run_name(&self, r: usize) -> String {
         self.run_names
@@ -144,8 +168,13 @@ pub fn print_table(c: &Comparison) {
             } else {
                 format!("{:.1} %", c.reduction(r, m))
             };
+            let note = if c.refined_on(r, m) {
+                "  (refined on this run: in-sample)"
+            } else {
+                ""
+            };
             println!(
-                "  {:<28} {:<10} {:>9.3} {:>9.3} {:>9.3} {:>16}",
+                "  {:<28} {:<10} {:>9.3} {:>9.3} {:>9.3} {:>16}{note}",
                 name,
                 model.kind.method(),
                 s.mae,
@@ -154,5 +183,60 @@ pub fn print_table(c: &Comparison) {
                 red
             );
         }
+    }
+    print_held_out(c);
+}
+
+/// When a model carries a `[fem_correction]`: each model's mean MAE and RMSE over
+/// the runs no model was refined on (the fair comparison of refined models).
+fn print_held_out(c: &Comparison) {
+    if c.models.iter().all(|(_, m)| m.fem_correction.is_none()) {
+        return;
+    }
+    let held = c.held_out();
+    let refined: Vec<&str> = c
+        .models
+        .iter()
+        .filter(|(_, m)| m.fem_correction.is_some())
+        .map(|(n, _)| n.as_str())
+        .collect();
+    if held.is_empty() {
+        println!(
+            "held-out runs: none (every run was refined on by {}); give runs not refined on \
+             to score the refinement",
+            refined.join(", ")
+        );
+        return;
+    }
+    let names: Vec<String> = held.iter().map(|&r| c.run_name(r)).collect();
+    println!(
+        "held-out runs (no model was refined on them): {}",
+        names.join(", ")
+    );
+    println!(
+        "  {:<28} {:<10} {:>9} {:>9}",
+        "model", "method", "MAE µm", "RMSE µm"
+    );
+    for (m, (name, model)) in c.models.iter().enumerate() {
+        let mean = |f: fn(&Metrics) -> f64| {
+            held.iter()
+                .map(|&r| f(&c.scores[r][m].metrics))
+                .sum::<f64>()
+                / held.len() as f64
+        };
+        let tag = match &model.fem_correction {
+            Some(k) => format!(
+                "  FEM refined: gain {:.4}, offset {:.3} µm, preload ×{:.4}",
+                k.stage_gain, k.stage_offset_um, k.preload_scale
+            ),
+            None => "  FEM as it is".to_string(),
+        };
+        println!(
+            "  {:<28} {:<10} {:>9.3} {:>9.3}{tag}",
+            name,
+            model.kind.method(),
+            mean(|s| s.mae),
+            mean(|s| s.rmse)
+        );
     }
 }

@@ -411,12 +411,13 @@ pub fn export(
             created_by: format!("fpi export {}", env!("CARGO_PKG_VERSION")),
             notes: format!(
                 "{} model calibrated on {} recording(s), output RMSE {:.4} µm ({}); reference range \
-                 = the stroke the model reaches at {} V",
+                 = the stroke the model reaches at {} V{}",
                 model.kind,
                 model.calibration.files.len(),
                 model.calibration.rmse_um,
                 model.calibration.method,
-                s.stroke_voltage
+                s.stroke_voltage,
+                correction_note(model)
             ),
         },
         pi: PiSection {
@@ -444,6 +445,21 @@ pub fn export(
     Ok(Export {
         model: fm,
         tables: reports,
+    })
+}
+
+/// The provenance of a model's `[fem_correction]` (the tables `fem` holds are
+/// already corrected: [`HostModel::stage_maps`]), empty without one.
+fn correction_note(model: &HostModel) -> String {
+    model.fem_correction.as_ref().map_or_else(String::new, |c| {
+        format!(
+            "; FEM tables corrected (fpi refine on {} run(s)): stage gain {}, stage offset {} \
+                 µm, preload scale {}",
+            c.refined_on.len(),
+            c.stage_gain,
+            c.stage_offset_um,
+            c.preload_scale
+        )
     })
 }
 

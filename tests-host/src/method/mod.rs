@@ -5,7 +5,8 @@
 //!   Voltage–Force–Displacement recordings;
 //! * [`predict`] (Parts II–III) — the stage from its FEM maps, solving the coupled
 //!   equation at every sample; [`compare`] — scoring models against measured runs;
-//! * [`invert`] — offline feedforward; [`export`] — the firmware model file.
+//! * [`invert`] — offline feedforward; [`export`] — the firmware model file;
+//! * [`refine`] — correcting a stage's FEM tables from measured runs of it.
 
 pub mod bench;
 pub mod calibrate;
@@ -16,3 +17,4 @@ pub mod invert;
 pub mod lsq;
 pub mod model;
 pub mod predict;
+pub mod refine;

@@ -21,6 +21,8 @@ use piezo_sim::file::{CouplingSection, CreepSection, PiSection};
 use piezo_sim::model::{Coupling, Creep, DeadZone, Ldpi, Model, Output, MAX_CREEP};
 use piezo_sim::play::{Pi, Values, MAX_OPERATORS};
 
+use crate::data::fem::FemMaps;
+
 /// The model-file format string.
 pub const FORMAT: &str = "piezo-fpi-model/1";
 
@@ -183,6 +185,111 @@ pub struct HostModel {
     pub creep: Vec<CreepSection>,
     /// Provenance and fit metrics.
     pub calibration: Calibration,
+    /// A correction of the stage's FEM tables estimated from measured runs of the
+    /// built stage (`fpi refine`); every command that pairs this model with FEM
+    /// tables applies it ([`HostModel::stage_maps`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fem_correction: Option<FemCorrection>,
+}
+
+/// The range the gain of `f_K` and the scale of `f_F` may take in a
+/// [`FemCorrection`]: a built stage differs from its FEM by a few percent, not by
+/// a factor of two.
+pub const CORRECTION_RANGE: (f64, f64) = (0.5, 2.0);
+
+/// How the built stage differs from its FEM tables (`[fem_correction]` of a model
+/// file, written by `fpi refine`): stage output `stage_gain·f_K(x_pea) +
+/// stage_offset_um`, preload `preload_scale·f_F(x_pea)`. The actuator's
+/// parameters are not touched.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FemCorrection {
+    /// Gain of the stage output `f_K` (within [`CORRECTION_RANGE`]).
+    pub stage_gain: f64,
+    /// Offset added to the stage output, µm.
+    pub stage_offset_um: f64,
+    /// Scale of the preload `f_F` (within [`CORRECTION_RANGE`]).
+    pub preload_scale: f64,
+    /// The FEM file the correction was estimated against (provenance; a model is
+    /// meant to be used with the same FEM tables).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub fem: String,
+    /// The measured runs it was estimated from.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub refined_on: Vec<String>,
+    /// RMSE of the stage output on those runs with the FEM tables as they are, µm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rmse_before_um: Option<f64>,
+    /// The same with the correction, µm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rmse_after_um: Option<f64>,
+}
+
+impl FemCorrection {
+    /// No correction: the FEM tables as they are.
+    pub fn identity() -> Self {
+        Self {
+            stage_gain: 1.0,
+            stage_offset_um: 0.0,
+            preload_scale: 1.0,
+            fem: String::new(),
+            refined_on: Vec::new(),
+            rmse_before_um: None,
+            rmse_after_um: None,
+        }
+    }
+
+    /// The FEM maps corrected: new points `x_fhps·gain + offset` and
+    /// `preload·scale`, checked as an FEM file's are.
+    pub fn apply(&self, fem: &FemMaps) -> Result<FemMaps> {
+        fem.corrected(self.stage_gain, self.stage_offset_um, self.preload_scale)
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "[fem_correction] (stage_gain {}, stage_offset_um {}, preload_scale {}) \
+                     applied to {}: {e}",
+                    self.stage_gain,
+                    self.stage_offset_um,
+                    self.preload_scale,
+                    fem.source
+                )
+            })
+    }
+
+    /// Checks the section; names the key that is wrong.
+    pub fn validate(&self) -> Result<()> {
+        let (lo, hi) = CORRECTION_RANGE;
+        for (key, v) in [
+            ("fem_correction.stage_gain", self.stage_gain),
+            ("fem_correction.preload_scale", self.preload_scale),
+        ] {
+            finite(key, v)?;
+            if !(lo..=hi).contains(&v) {
+                bail!(
+                    "{key} = {v}: outside {lo}..{hi} (a built stage differs from its FEM by a \
+                     few percent; is this the right stage or FEM?)"
+                );
+            }
+        }
+        finite("fem_correction.stage_offset_um", self.stage_offset_um)?;
+        if self.stage_offset_um.abs() > piezo_fpi::q::SIGNAL_ABS_MAX {
+            bail!(
+                "fem_correction.stage_offset_um = {}: outside ±{} µm",
+                self.stage_offset_um,
+                piezo_fpi::q::SIGNAL_ABS_MAX
+            );
+        }
+        for (key, v) in [
+            ("fem_correction.rmse_before_um", self.rmse_before_um),
+            ("fem_correction.rmse_after_um", self.rmse_after_um),
+        ] {
+            if let Some(v) = v {
+                if !(v.is_finite() && v >= 0.0) {
+                    bail!("{key} = {v}: must be a finite number ≥ 0 µm");
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 impl HostModel {
@@ -199,6 +306,18 @@ impl HostModel {
             offset_um: 0.0,
             creep: Vec::new(),
             calibration: Calibration::default(),
+            fem_correction: None,
+        }
+    }
+
+    /// The stage maps this model runs with: the FEM tables `fem`, corrected by the
+    /// model's `[fem_correction]` when it has one. The one place a correction is
+    /// applied: every command that pairs a model with FEM tables (predict, compare,
+    /// invert, export, `board load`) goes through here.
+    pub fn stage_maps(&self, fem: &FemMaps) -> Result<FemMaps> {
+        match &self.fem_correction {
+            None => Ok(fem.clone()),
+            Some(c) => c.apply(fem),
         }
     }
 
@@ -231,8 +350,13 @@ impl HostModel {
             .with_context(|| format!("{}: not written", path.display()))?;
         let text = toml::to_string(self)
             .with_context(|| format!("{}: cannot format the model", path.display()))?;
+        let refined = if self.fem_correction.is_some() {
+            ", its stage's FEM tables refined on measured runs (`fpi refine`)"
+        } else {
+            ""
+        };
         let header = format!(
-            "# A calibrated {} model (`fpi calibrate`). Units are in the key names.\n\n",
+            "# A calibrated {} model (`fpi calibrate`){refined}. Units are in the key names.\n\n",
             self.kind
         );
         crate::output::write_atomic(path, (header + &text).as_bytes())
@@ -255,6 +379,9 @@ impl HostModel {
             if !(c.tau_s.is_finite() && c.tau_s > 0.0 && c.gain_um_per_v.is_finite()) {
                 bail!("creep[{j}]: tau_s must be > 0 and gain_um_per_v finite");
             }
+        }
+        if let Some(c) = &self.fem_correction {
+            c.validate()?;
         }
         Ok(())
     }
@@ -512,5 +639,56 @@ mod tests {
         let p = dir.join("m.toml");
         m.write(&p).unwrap();
         assert_eq!(HostModel::read(&p).unwrap(), m);
+    }
+
+    #[test]
+    fn fem_corrections_round_trip_and_name_their_key() {
+        let mut m = efpi();
+        m.fem_correction = Some(FemCorrection {
+            stage_gain: 0.98,
+            stage_offset_um: -0.02,
+            preload_scale: 0.97,
+            fem: "data/stage-a/fem.csv.gz".into(),
+            refined_on: vec!["data/stage-a/sine_05Hz.csv.gz".into()],
+            rmse_before_um: Some(0.158),
+            rmse_after_um: Some(0.024),
+        });
+        let text = toml::to_string(&m).unwrap();
+        assert!(text.contains("[fem_correction]"), "{text}");
+        assert_eq!(HostModel::parse(&text, "m.toml").unwrap(), m);
+        // Without the section: as before.
+        assert!(!toml::to_string(&efpi()).unwrap().contains("fem_correction"));
+        // The three numbers alone are a section.
+        let plain = toml::to_string(&efpi()).unwrap()
+            + "\n[fem_correction]\nstage_gain = 1.01\nstage_offset_um = 0.0\npreload_scale = 0.99\n";
+        let c = HostModel::parse(&plain, "m.toml")
+            .unwrap()
+            .fem_correction
+            .unwrap();
+        assert_eq!((c.stage_gain, c.preload_scale), (1.01, 0.99));
+        for (key, bad) in [
+            ("stage_gain", "stage_gain = 1.01", "stage_gain = 3.0"),
+            (
+                "preload_scale",
+                "preload_scale = 0.99",
+                "preload_scale = nan",
+            ),
+            (
+                "stage_offset_um",
+                "stage_offset_um = 0.0",
+                "stage_offset_um = inf",
+            ),
+        ]
+        .map(|(k, from, to)| (k, plain.replace(from, to)))
+        {
+            let e = format!("{:#}", HostModel::parse(&bad, "m.toml").unwrap_err());
+            assert!(
+                e.contains(&format!("fem_correction.{key}")) && e.contains("m.toml"),
+                "{e}"
+            );
+        }
+        let unknown = plain.clone() + "stage_slope = 1.0\n";
+        let e = format!("{:#}", HostModel::parse(&unknown, "m.toml").unwrap_err());
+        assert!(e.contains("stage_slope"), "{e}");
     }
 }
