@@ -76,6 +76,15 @@ impl Coupling {
     /// product's clamp). The one check, shared by [`Fpi::new`] and the model
     /// validator.
     pub const fn check(&self) -> Result<(), Invalid> {
+        // |k0| ≤ 4096 V keeps `k0 + k_f·F + k_q·(F − F_q)²` inside I16F16 (found by
+        // fuzzing: an image with k0 near 32 768 V overflowed the sum).
+        let k0 = self.offset.to_bits();
+        if k0 > SIGNAL_ABS_MAX_BITS || k0 < -SIGNAL_ABS_MAX_BITS {
+            return Err(Invalid::at(
+                Field::CouplingOffset,
+                ModelError::NotRepresentable,
+            ));
+        }
         let fr = self.force_ref.to_bits();
         if fr > SIGNAL_ABS_MAX_BITS || fr < -SIGNAL_ABS_MAX_BITS {
             return Err(Invalid::at(
@@ -680,6 +689,26 @@ mod tests {
             ..Coupling::paper(coupling(0.1).unwrap())
         };
         Fpi::new(pi, cp, Identity, Identity, []).unwrap()
+    }
+
+    #[test]
+    fn a_coupling_offset_beyond_the_signal_range_is_refused_by_key() {
+        let ok = Coupling {
+            offset: signal(4096.0).unwrap(),
+            ..Coupling::paper(coupling(0.1).unwrap())
+        };
+        assert!(ok.check().is_ok());
+        let bad = Coupling {
+            offset: I16F16::from_bits(i32::MAX),
+            ..ok
+        };
+        assert_eq!(
+            bad.check(),
+            Err(Invalid::at(
+                Field::CouplingOffset,
+                ModelError::NotRepresentable
+            ))
+        );
     }
 
     #[test]
