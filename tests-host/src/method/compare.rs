@@ -190,33 +190,42 @@ pub fn print_table(c: &Comparison) {
 /// When a model carries a `[fem_correction]`: each model's mean MAE and RMSE over
 /// the runs no model was refined on (the fair comparison of refined models).
 fn print_held_out(c: &Comparison) {
+    for line in held_out_summary(c) {
+        println!("{line}");
+    }
+}
+
+/// The lines of [`print_held_out`] (none when no model carries a correction): the
+/// terminal and the report show the same.
+pub fn held_out_summary(c: &Comparison) -> Vec<String> {
     if c.models.iter().all(|(_, m)| m.fem_correction.is_none()) {
-        return;
+        return Vec::new();
     }
     let held = c.held_out();
-    let refined: Vec<&str> = c
-        .models
-        .iter()
-        .filter(|(_, m)| m.fem_correction.is_some())
-        .map(|(n, _)| n.as_str())
-        .collect();
     if held.is_empty() {
-        println!(
+        let refined: Vec<&str> = c
+            .models
+            .iter()
+            .filter(|(_, m)| m.fem_correction.is_some())
+            .map(|(n, _)| n.as_str())
+            .collect();
+        return vec![format!(
             "held-out runs: none (every run was refined on by {}); give runs not refined on \
              to score the refinement",
             refined.join(", ")
-        );
-        return;
+        )];
     }
     let names: Vec<String> = held.iter().map(|&r| c.run_name(r)).collect();
-    println!(
-        "held-out runs (no model was refined on them): {}",
-        names.join(", ")
-    );
-    println!(
-        "  {:<28} {:<10} {:>9} {:>9}",
-        "model", "method", "MAE µm", "RMSE µm"
-    );
+    let mut lines = vec![
+        format!(
+            "held-out runs (no model was refined on them): {}",
+            names.join(", ")
+        ),
+        format!(
+            "  {:<28} {:<10} {:>9} {:>9}",
+            "model", "method", "MAE µm", "RMSE µm"
+        ),
+    ];
     for (m, (name, model)) in c.models.iter().enumerate() {
         let mean = |f: fn(&Metrics) -> f64| {
             held.iter()
@@ -231,12 +240,13 @@ fn print_held_out(c: &Comparison) {
             ),
             None => "  FEM as it is".to_string(),
         };
-        println!(
+        lines.push(format!(
             "  {:<28} {:<10} {:>9.3} {:>9.3}{tag}",
             name,
             model.kind.method(),
             mean(|s| s.mae),
             mean(|s| s.rmse)
-        );
+        ));
     }
+    lines
 }

@@ -65,9 +65,14 @@ pub fn table(c: &Comparison) -> String {
             } else {
                 format!("{:.1} %", c.reduction(r, m))
             };
+            let in_sample = if c.refined_on(r, m) {
+                " (refined on it: in-sample)"
+            } else {
+                ""
+            };
             let _ = writeln!(
                 s,
-                "| {} | `{}` | {} | {:.3} | {:.3} | {:.3} | {} |",
+                "| {} | `{}` | {}{in_sample} | {:.3} | {:.3} | {:.3} | {} |",
                 model.kind.method(),
                 name,
                 c.run_name(r),
@@ -256,6 +261,14 @@ pub fn write(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<()> {
         table4(c)
     );
     let _ = writeln!(md, "## All figures\n\n{}", table(c));
+    let held = crate::method::compare::held_out_summary(c);
+    if !held.is_empty() {
+        let _ = writeln!(
+            md,
+            "## Held-out runs (refined models scored where they were not refined)\n\n```\n{}\n```\n",
+            held.join("\n")
+        );
+    }
     md.push_str("\n## Figures\n\n");
     md.push_str(&figures(c, fem, out)?);
     crate::output::write_atomic(&out.join("report.md"), md.as_bytes())
