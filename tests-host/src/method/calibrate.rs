@@ -173,7 +173,7 @@ impl Options {
                 Vec::new()
             },
             offset: kind == Kind::Gpi,
-            input_max: checks::AMPLIFIER_MAX_V,
+            input_max: crate::method::export::AMPLIFIER_MAX_V,
         }
     }
 
@@ -420,14 +420,12 @@ pub const SEARCH_SAMPLES: usize = 200_000;
 /// same figures.
 const STORED_BYTES: usize = 64 << 20;
 
-/// One recording's stored rows in a fit: the columns (row-major), target,
-/// weight and sample of every taken sample. Kept between the trials of the
+/// One recording's stored rows in a fit: the columns (row-major) and sample of
+/// every taken sample (the output error needs no more). Kept between the trials of the
 /// nonlinear search, so its buffers are allocated once.
 #[derive(Debug, Default)]
 struct Workspace {
     cols: Vec<f64>,
-    target: Vec<f64>,
-    weight: Vec<f64>,
     sample: Vec<usize>,
     /// A long recording's effective voltages ([`Layout::effective_all`]).
     v: Vec<f64>,
@@ -530,27 +528,17 @@ impl<'a> Problem<'a> {
             .map(|((d, ws), &long)| {
                 let mut ne = Normal::new(nc);
                 let mut ws = lock(ws);
-                let Workspace {
-                    cols,
-                    target,
-                    weight,
-                    sample,
-                    v,
-                } = &mut *ws;
+                let Workspace { cols, sample, v } = &mut *ws;
                 let pre = long.then(|| {
                     layout.effective_all(d, p, v);
                     &v[..]
                 });
                 if stored {
                     cols.clear();
-                    target.clear();
-                    weight.clear();
                     sample.clear();
                     layout.scan(d, p, pick, pre, |k, row, z, wt| {
                         ne.add(row, z, wt);
                         cols.extend_from_slice(row);
-                        target.push(z);
-                        weight.push(wt);
                         sample.push(k);
                     });
                 } else {

@@ -28,11 +28,9 @@ use anyhow::{bail, Result};
 use piezo_fpi::q::SIGNAL_ABS_MAX;
 
 use crate::method::calibrate::CalibData;
+use crate::method::export::AMPLIFIER_MAX_V;
 use crate::method::model::Kind;
 
-/// The amplifier's output range, 0 to this, V (the project's amplifiers and the
-/// DAC scaling of the firmware: 150 V full scale).
-pub const AMPLIFIER_MAX_V: f64 = 150.0;
 /// Voltages below this, V, are not an amplifier's output (a sign or offset slip).
 pub const MIN_VOLTAGE_V: f64 = -5.0;
 /// A recording whose voltage spans less than this, V, barely moves the operators.
