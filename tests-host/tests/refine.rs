@@ -247,6 +247,18 @@ fn compare_shows_both_and_the_held_out_runs_are_not_worse() {
     assert!(summary.contains("sine_15Hz.csv") && summary.contains("FEM refined: gain"));
 }
 
+/// A stage run of 50 samples: a voltage ramp (2 V a sample), the output rising
+/// 0.6 µm a sample, the force reading `force_n` throughout.
+fn ramp_at_force(force_n: f64) -> String {
+    let rows: String = (0..50)
+        .map(|k| {
+            let k = k as f64;
+            format!("{},{},{force_n},{}\n", k * 1e-3, 2.0 * k, 0.6 * k)
+        })
+        .collect();
+    format!("t_s,voltage_V,force_N,x_fhps_um\n{rows}")
+}
+
 fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
@@ -293,39 +305,11 @@ fn bad_runs_are_refused_naming_the_file_and_nothing_is_written() {
     let e = refine(&run);
     assert!(e.contains("short.csv:3"), "{e}");
     // A force column of zeros (no sensor).
-    let zeros: String = (0..50)
-        .map(|k| {
-            format!(
-                "{},{},0,{}\n",
-                k as f64 * 1e-3,
-                2.0 * k as f64,
-                0.6 * k as f64
-            )
-        })
-        .collect();
-    let run = write(
-        &d,
-        "zeros.csv",
-        &format!("t_s,voltage_V,force_N,x_fhps_um\n{zeros}"),
-    );
+    let run = write(&d, "zeros.csv", &ramp_at_force(0.0));
     let e = refine(&run);
     assert!(e.contains("zeros.csv: column force_N is zero"), "{e}");
     // A force in kN: a preload scale no stage has.
-    let kn: String = (0..50)
-        .map(|k| {
-            format!(
-                "{},{},0.0618,{}\n",
-                k as f64 * 1e-3,
-                2.0 * k as f64,
-                0.6 * k as f64
-            )
-        })
-        .collect();
-    let run = write(
-        &d,
-        "kn.csv",
-        &format!("t_s,voltage_V,force_N,x_fhps_um\n{kn}"),
-    );
+    let run = write(&d, "kn.csv", &ramp_at_force(0.0618));
     let e = refine(&run);
     assert!(e.contains("kn.csv") && e.contains("preload scale"), "{e}");
     assert!(!out.exists());

@@ -99,8 +99,9 @@ pub struct Handler<F> {
 }
 
 impl<F: NorFlash> Handler<F> {
-    /// Starts the board's model: the newest valid model in flash, else the factory
-    /// default `factory`. Returns the handler (holding the other store as its spare)
+    /// Starts the board's model: the newest stored model that is intact and that
+    /// the validator takes, else the older one, else the factory default `factory`;
+    /// what each flash slot held is kept for `ModelInfo`. Returns the handler (holding the other store as its spare)
     /// and the running model for the control loop. `None` only if not even the
     /// factory image loads (a firmware built with a model that does not fit).
     pub fn boot(
