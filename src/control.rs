@@ -42,14 +42,14 @@ pub struct Interval {
 /// A validated interval (`lo <= hi`) as its lower end and its span, raw bits: `x`
 /// lies in it iff `(x - lo) mod 2^32 <= span`, one unsigned compare.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Window {
+pub(crate) struct Window {
     lo: i32,
     span: u32,
 }
 
 impl Window {
     /// `None` if the interval is inverted.
-    const fn new(i: Interval) -> Option<Self> {
+    pub(crate) const fn new(i: Interval) -> Option<Self> {
         let (lo, hi) = (i.lo.to_bits(), i.hi.to_bits());
         if lo > hi {
             return None;
@@ -61,12 +61,12 @@ impl Window {
     }
 
     #[inline(always)]
-    fn contains(&self, x: fixed::types::I16F16) -> bool {
+    pub(crate) fn contains(&self, x: fixed::types::I16F16) -> bool {
         self.contains_bits(x.to_bits())
     }
 
     #[inline(always)]
-    fn contains_bits(&self, x: i32) -> bool {
+    pub(crate) fn contains_bits(&self, x: i32) -> bool {
         (x.wrapping_sub(self.lo) as u32) <= self.span
     }
 }
@@ -210,11 +210,17 @@ pub enum Fault {
     /// Control ticks kept starting before the previous one had finished (the loop
     /// cannot keep its rate).
     Overrun = 7,
+    /// In closed loop, the position sensor's reading is outside its plausible range
+    /// (open or shorted wire, saturated ADC).
+    PositionOutOfRange = 8,
+    /// In closed loop, the position sensor disagrees with the model's estimate of
+    /// where the stage is by more than the tolerance (stuck or drifting sensor).
+    PositionImplausible = 9,
 }
 
 impl Fault {
     /// Every fault, by code.
-    pub const ALL: [Fault; 7] = [
+    pub const ALL: [Fault; 9] = [
         Self::ForceOutOfRange,
         Self::ForceImplausible,
         Self::ReferenceUnreachable,
@@ -222,6 +228,8 @@ impl Fault {
         Self::LinkLost,
         Self::ReferenceInput,
         Self::Overrun,
+        Self::PositionOutOfRange,
+        Self::PositionImplausible,
     ];
 
     /// A one-line description for logs.
@@ -234,6 +242,8 @@ impl Fault {
             Self::LinkLost => "host link lost: no heartbeat within the timeout",
             Self::ReferenceInput => "analog reference input out of range or implausible",
             Self::Overrun => "control ticks overran their period",
+            Self::PositionOutOfRange => "position sensor reading outside its range",
+            Self::PositionImplausible => "position sensor disagrees with the model's estimate",
         }
     }
 
@@ -692,6 +702,16 @@ impl LinearDrive {
         let acc = self.gain.wide_mul(x_ref).to_bits().max(-lim).min(lim);
         narrow_inv_gain(InvGainAcc::from_bits(acc)).saturating_add(self.offset)
     }
+
+    /// The reference whose voltage is `voltage`, `(u − offset) / gain`, µm,
+    /// saturated to the signal range; `None` for a zero gain. One division: for a
+    /// switch of control law (bumpless transfer), not for every tick.
+    pub fn reference_for(&self, voltage: Volts) -> Option<Micrometres> {
+        let num = ((voltage.to_bits() as i64) - (self.offset.to_bits() as i64)) << INV_GAIN_FRAC;
+        let x = num.checked_div(self.gain.to_bits() as i64)?;
+        let lim = SIGNAL_ABS_MAX_BITS as i64;
+        Some(Micrometres::from_bits(x.max(-lim).min(lim) as i32))
+    }
 }
 
 #[cfg(test)]
@@ -912,6 +932,17 @@ mod tests {
         let next = plausible(&c, &mut st, here);
         let jump = (next.voltage - want).to_num::<f64>().abs();
         assert!(jump < 0.01, "{jump} V");
+        // Its inverse gives the reference back.
+        let back = line.reference_for(want).unwrap().to_num::<f64>();
+        assert!((back - 20.0).abs() < 1e-4, "{back}");
+        assert_eq!(
+            LinearDrive {
+                gain: VoltsPerUm::ZERO,
+                ..line
+            }
+            .reference_for(want),
+            None
+        );
         // The baseline is supervised too.
         let bad = c.step_uncompensated(&mut st, &line, um(10.0), n(1.0));
         assert_eq!(bad.fault, Some(Fault::ForceOutOfRange));

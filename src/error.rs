@@ -107,6 +107,13 @@ pub enum ModelError {
     /// The model asks for a wider voltage range, a faster slew or a safe voltage
     /// outside the window the board's hardware allows (a model may only narrow them).
     WidensHardwareLimit,
+    /// A feedback gain is negative, beyond its range (kp 0–16, ki 0–1 per tick), or
+    /// both gains are zero.
+    GainOutOfRange,
+    /// A filter section's poles are not strictly inside the unit circle.
+    FilterUnstable,
+    /// A filter section's static gain is not exactly 1.
+    FilterStaticGain,
 }
 
 impl ModelError {
@@ -143,7 +150,7 @@ impl ModelError {
             Self::NonPositiveSlew => "the slew limit is not positive",
             Self::ReferenceOutsideTable => "the reference range reaches beyond the f_K⁻¹ table",
             Self::SafeVoltageOutsideLimits => "the safe voltage lies outside the voltage limits",
-            Self::NonPositiveTolerance => "the force tolerance is not positive",
+            Self::NonPositiveTolerance => "the tolerance is not positive",
             Self::RateOutOfRange => "the control rate is outside 100..=200000 Hz",
             Self::LengthMismatch => "arrays that go together have different lengths",
             Self::NotRepresentable => "a value is not finite or does not fit its Q format",
@@ -155,6 +162,13 @@ impl ModelError {
             Self::RateMismatch => "the model's control rate is not the board's",
             Self::WidensHardwareLimit => {
                 "widens a hardware limit of the board (a model may only narrow them)"
+            }
+            Self::FilterUnstable => "a filter section's poles are not inside the unit circle",
+            Self::FilterStaticGain => {
+                "a filter section's static gain is not exactly 1 (b0+b1+b2 = 1+a1+a2)"
+            }
+            Self::GainOutOfRange => {
+                "a feedback gain is negative or beyond its range (kp 0..=16, ki 0..=1 per tick), or both are zero"
             }
         }
     }
@@ -290,6 +304,20 @@ pub enum Field {
     SafeVoltage,
     /// Measured or predicted force.
     ForceSource,
+    /// Position feedback: proportional gain.
+    FeedbackKp,
+    /// Position feedback: integral gain.
+    FeedbackKi,
+    /// Position feedback: largest correction, µm.
+    FeedbackLimit,
+    /// Lowest plausible position reading, µm.
+    PositionMin,
+    /// Highest plausible position reading, µm.
+    PositionMax,
+    /// Position-plausibility tolerance, µm.
+    PositionTolerance,
+    /// A section of the reference-shaping filter.
+    Shaping,
     /// The model as a whole (format, version, length, checksum).
     Model,
 }
@@ -324,6 +352,13 @@ impl Field {
             Self::ForceTolerance => "controller.force_tolerance_n",
             Self::SafeVoltage => "controller.safe_voltage_v",
             Self::ForceSource => "controller.force_source",
+            Self::FeedbackKp => "feedback.kp",
+            Self::FeedbackKi => "feedback.ki_per_s",
+            Self::FeedbackLimit => "feedback.limit_um",
+            Self::PositionMin => "feedback.position_min_um",
+            Self::PositionMax => "feedback.position_max_um",
+            Self::PositionTolerance => "feedback.position_tolerance_um",
+            Self::Shaping => "shaping.sections",
             Self::Model => "model",
         }
     }

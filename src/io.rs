@@ -6,7 +6,7 @@
 
 use crate::control::{ControllerConfig, ControllerState, Mode, StepOutput};
 use crate::fpi::Shape;
-use crate::q::{gain_mul, within, Micrometres, Newtons, Volts};
+use crate::q::{within, Micrometres, Newtons, Volts, GAIN_FRAC, SIGNAL_FRAC};
 use embedded_hal::digital::OutputPin;
 use fixed::types::{I16F16, I4F28};
 
@@ -71,7 +71,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
     }
 }
 
-/// ADC counts to newtons: `F = offset + per_count · counts`.
+/// ADC counts to newtons (or, for a position channel, micrometres):
+/// `F = offset + per_count · counts`.
 ///
 /// * `offset` — N at zero counts, `I16F16`.
 /// * `per_count` — N per count, `I4F28` (12-bit ADC over 0–500 N: 0.122 N/count).
@@ -87,7 +88,18 @@ impl AdcScale {
     /// The force for a raw conversion result.
     #[inline]
     pub fn to_force(&self, counts: u16) -> Newtons {
-        gain_mul(self.per_count, I16F16::from_bits((counts as i32) << 16)) + self.offset
+        self.to_value(counts)
+    }
+
+    /// The value for a raw conversion result, in the channel's unit (`I16F16`: N
+    /// for the force sensor, µm for a position sensor). The product is exact in
+    /// 64 bits and rounded to nearest once (a 16-bit code does not fit `I16F16`).
+    #[inline]
+    pub fn to_value(&self, counts: u16) -> I16F16 {
+        let wide = self.per_count.to_bits() as i64 * counts as i64;
+        let shift = GAIN_FRAC - SIGNAL_FRAC;
+        let v = (wide + (1 << (shift - 1))) >> shift;
+        I16F16::from_bits(v as i32).saturating_add(self.offset)
     }
 
     /// The conversion result nearest to a force, saturated to `0..=max_code`
@@ -231,6 +243,18 @@ mod tests {
         assert_eq!(s.to_counts(60.0, 4095), 520);
         assert_eq!(s.to_counts(-50.0, 4095), 0);
         assert_eq!(s.to_counts(1e9, 4095), 4095);
+        // A 16-bit code over 80 µm: the whole code range, exactly.
+        let p = AdcScale {
+            offset: Micrometres::from_num(-10),
+            per_count: I4F28::from_bits(80 << 12),
+        };
+        assert_eq!(p.to_value(0), Micrometres::from_num(-10));
+        assert_eq!(p.to_value(32768), Micrometres::from_num(30));
+        assert_eq!(
+            p.to_value(65535),
+            Micrometres::from_num(70.0 - 80.0 / 65536.0)
+        );
+        assert_eq!(p.to_counts(30.0, u16::MAX), 32768);
     }
 
     #[test]

@@ -21,15 +21,17 @@
 //!
 //! Modules: [`play`] (the OSP operator), [`pi`] (forward PI), [`inverse`] (closed-form
 //! inverse PI), [`fpi`] (force coupling), [`table`] (lookup tables), [`limits`],
-//! [`control`] (the ISR step), [`io`] (sensor/amplifier traits), [`model`] (the
+//! [`control`] (the ISR step), [`feedback`] (position feedback), [`io`] (sensor/amplifier traits), [`model`] (the
 //! model format and its validator), [`error`] (the error vocabulary).
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
 #![deny(clippy::panic, clippy::unwrap_used, clippy::expect_used)]
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
+pub mod biquad;
 pub mod control;
 pub mod error;
+pub mod feedback;
 pub mod fpi;
 pub mod inverse;
 pub mod io;

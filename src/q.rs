@@ -12,6 +12,8 @@
 //! | [`CreepRate`] | 1/sample | `I0F32` | 2.3·10⁻¹⁰ | (0, 0.5) (`1 - a` of a creep lag) |
 //! | creep memory | V | `I16F48` (raw `i64`) | 3.6·10⁻¹⁵ | ±4096 |
 //! | [`VoltsPerUm`] | V/µm | `I10F22` | 2.4·10⁻⁷ | ±512 (inverse PI weights `w0'`, `w'_j`) |
+//! | [`LoopGain`] | 1 (µm/µm), 1/tick | `I8F24` | 6.0·10⁻⁸ | kp 0–16, ki 0–1 per tick (position feedback) |
+//! | feedback integrator | µm | `I24F40` (raw `i64`) | 9.1·10⁻¹³ | ±4096 |
 //!
 //! Sums of products are accumulated exactly in 64 bits ([`GainAcc`] = `I20F44` for
 //! gain × signal, [`InvGainAcc`] = `I26F38` for inverse gain × signal) and rounded
@@ -23,9 +25,13 @@
 //! One 16-bit DAC LSB over 0–150 V is 2.29 mV = 150 LSB of [`Volts`]; one nm is
 //! 65.5 LSB of [`Micrometres`].
 
-use fixed::types::{I0F32, I10F22, I16F16, I20F44, I26F38, I4F28};
+use fixed::types::{I0F32, I10F22, I16F16, I20F44, I26F38, I4F28, I8F24};
 
 include!("qformat.rs");
+
+/// A position-feedback gain: proportional (µm/µm) or integral (per tick), `I8F24`.
+pub type LoopGain = I8F24;
+const _: () = assert!(LoopGain::FRAC_NBITS == LOOP_GAIN_FRAC);
 
 /// Electric potential in volts, `I16F16`.
 pub type Volts = I16F16;
@@ -97,12 +103,6 @@ pub(crate) const fn narrow_inv_gain_biased(acc: i64) -> I16F16 {
 pub(crate) const GAIN_ROUND: i64 = 1 << (GAIN_FRAC - 1);
 /// The bias that makes [`narrow_inv_gain_biased`] round: half a signal LSB.
 pub(crate) const INV_GAIN_ROUND: i64 = 1 << (INV_GAIN_FRAC - 1);
-
-/// Product of a forward gain and a signal, rounded to a signal.
-#[inline(always)]
-pub(crate) const fn gain_mul(g: I4F28, x: I16F16) -> I16F16 {
-    narrow_gain(g.wide_mul(x))
-}
 
 /// Product of a force coupling (`I0F32`) and a signal, rounded to a signal: the
 /// rounded high word of a 32 × 32-bit product.
@@ -233,7 +233,7 @@ mod tests {
     #[test]
     fn products_are_exact_then_rounded() {
         let f = signal(100.0).unwrap();
-        let v = gain_mul(gain(0.1).unwrap(), f).to_num::<f64>();
+        let v = narrow_gain(gain(0.1).unwrap().wide_mul(f)).to_num::<f64>();
         assert!((v - 10.0).abs() < 1.0 / 65536.0);
         let v = coupling_mul(coupling(0.1).unwrap(), f).to_num::<f64>();
         assert!((v - 10.0).abs() < 1.0 / 65536.0);

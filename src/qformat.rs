@@ -21,6 +21,10 @@ pub const SIGNAL_ABS_MAX: f64 = 4096.0;
 pub const GAIN_ABS_MAX: f64 = 7.999;
 /// Largest magnitude of an inverse-PI weight (V/um).
 pub const INV_GAIN_ABS_MAX: f64 = 511.999;
+/// Fractional bits of the feedback gains (dimensionless: µm/µm, per tick) (`I8F24`).
+pub const LOOP_GAIN_FRAC: u32 = 24;
+/// Fractional bits of the feedback integrator (µm, raw `i64`: `I24F40`).
+pub const INTEGRAL_FRAC: u32 = 40;
 /// Most play operators in one bank.
 pub const MAX_OPERATORS: usize = 32;
 /// Most knots in one lookup table.

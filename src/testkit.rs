@@ -104,5 +104,7 @@ pub fn spec<'a>(p: &'a ControllerParts<'static, 3>, creep: &'a [CreepSpec]) -> M
         u_max: p.limits.max(),
         max_step: p.limits.max_step(),
         supervision: p.supervision,
+        feedback: None,
+        shaping: None,
     }
 }

@@ -15,12 +15,13 @@
 //! cleared before the stage moves again.
 
 use embedded_hal::digital::OutputPin;
-use piezo_fpi::control::{ControllerState, Fault, Mode};
+use piezo_fpi::control::{ControllerState, Fault};
 use piezo_fpi::io::{ForceSensor, Hardware, Setpoint, Tick};
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
+use crate::closed_loop::{Command, Inputs, Loop, LoopMode};
 use crate::exchange::{Applied, Exchange, Order, Refused, Snapshot};
-use crate::frontend::AnalogIn;
+use crate::frontend::{AnalogIn, POSITION_ADC};
 use crate::hardware::{Controller, APPROACH_STEP, CREEP_TERMS, OPERATORS, RATE_HZ};
 
 /// Heartbeat timeout a stream gets when the host has configured none: 0.5 s.
@@ -46,6 +47,8 @@ pub struct Telemetry {
     pub force: Newtons,
     /// Estimated stage position, µm.
     pub x_est: Micrometres,
+    /// Position sensor reading, µm.
+    pub x_sensor: Micrometres,
     /// [`status`] bits.
     pub status: u8,
 }
@@ -67,6 +70,7 @@ impl Telemetry {
             force: self.force.to_bits(),
             x_est: self.x_est.to_bits(),
             x_true: x_true.map_or(NO_TRUE_POSITION, |v| v.to_bits()),
+            x_sensor: self.x_sensor.to_bits(),
             status: self.status,
         }
     }
@@ -81,6 +85,9 @@ pub struct ControlLoop<S, A, E, R> {
     analog_in: R,
     reference: Reference,
     compensated: bool,
+    feedback: Loop,
+    x_est: Micrometres,
+    x_sensor: Micrometres,
     timeout: u32,
     silent: u32,
     last_heartbeat: u32,
@@ -109,13 +116,17 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
     pub fn new(model: Running, mut hw: Hardware<S, A, E>, analog_in: R) -> Self {
         let force = hw.sensor.read_force();
         let (state, reference) = Self::parked(&model, force);
+        let x_est = rest_position(model.get(), &state);
         Self {
             model,
             state,
             hw,
             analog_in,
+            x_est,
             reference,
             compensated: true,
+            feedback: Loop::new(),
+            x_sensor: Micrometres::ZERO,
             timeout: 0,
             silent: 0,
             last_heartbeat: 0,
@@ -162,19 +173,19 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 self.reference.position()
             }
         };
+        let cmd = self.command(x_ref);
         let cfg = self.model.get();
-        let mode = if self.compensated {
-            Mode::Compensated
-        } else {
-            Mode::Uncompensated(self.model.summary().baseline)
-        };
-        let Tick { out, force } = self.hw.tick(cfg, &mut self.state, &mode, x_ref);
+        let before = self.state.voltage();
+        let Tick { out, force } = self.hw.tick(cfg, &mut self.state, &cmd.mode, cmd.x_cmd);
+        self.feedback.after(&out, before, cfg);
+        self.x_est = cfg.stage_position(out.x_pea_est);
         let t = Telemetry {
             tick: self.tick,
             x_ref,
             voltage: out.voltage,
             force,
-            x_est: cfg.stage_position(out.x_pea_est),
+            x_est: self.x_est,
+            x_sensor: self.x_sensor,
             status: self.status(out.limited, out.fault, out.voltage == cfg.safe_voltage()),
         };
         if let Some(f) = out.fault {
@@ -193,6 +204,32 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         self.snapshot(&mut x.snapshot, &t);
         self.tick = self.tick.wrapping_add(1);
         t
+    }
+
+    /// Reads the position sensor, checks it in a closed mode (a bad reading trips
+    /// a fault), and turns the reference into this tick's command.
+    #[inline]
+    fn command(&mut self, x_ref: Micrometres) -> Command {
+        self.x_sensor = POSITION_ADC.to_value(self.analog_in.read_position());
+        if self.state.fault().is_none() {
+            let fb = self.model.summary().feedback.as_ref();
+            if let Some(f) = self.feedback.check(fb, self.x_sensor, self.x_est) {
+                self.trip(f);
+            }
+        }
+        let summary = self.model.summary();
+        let feedback = summary.feedback.as_ref();
+        self.feedback.command(&Inputs {
+            cfg: self.model.get(),
+            feedback,
+            shaping: summary.shaping.as_ref(),
+            drive: &summary.baseline,
+            compensated: self.compensated,
+            x_ref,
+            reading: self.x_sensor,
+            estimate: self.x_est,
+            voltage: self.state.voltage(),
+        })
     }
 
     /// Offers this tick to the recorder, with the stage's true position where the
@@ -261,6 +298,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         if self.reference.approaching() {
             s |= status::APPROACHING;
         }
+        if self.feedback.mode() != LoopMode::Open {
+            s |= status::FEEDBACK;
+        }
         s
     }
 
@@ -282,6 +322,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             underruns: self.underruns,
             limited_steps: self.state.limited_steps(),
             overruns: self.overruns,
+            x_sensor: t.x_sensor,
+            loop_mode: self.feedback.mode(),
         };
     }
 
@@ -342,6 +384,13 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             }
             Order::Drive { compensated } => {
                 self.compensated = compensated;
+                Ok(())
+            }
+            Order::Loop(mode) => {
+                if mode != LoopMode::Open && self.model.summary().feedback.is_none() {
+                    return Err(Refused::NoFeedback);
+                }
+                self.feedback.select(mode);
                 Ok(())
             }
             Order::Safe => {
@@ -416,6 +465,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             return Err(Refused::NotAtRest);
         }
         let (state, reference) = Self::parked(&new, self.force);
+        if new.summary().feedback.is_none() {
+            self.feedback.select(LoopMode::Open);
+        }
+        self.feedback.reset();
+        self.x_est = rest_position(new.get(), &state);
         x.returned = Some(core::mem::replace(&mut self.model, new));
         self.state = state;
         self.reference = reference;

@@ -30,6 +30,8 @@ use crate::storage::{ModelFlash, RamFlash, Slots};
 
 /// Sensor reading of a broken wire: the ADC's top rail through the board's scale (N).
 pub const BROKEN_WIRE_N: f32 = 500.0;
+/// Position reading of a broken wire: beyond the channel's top rail (µm).
+pub const BROKEN_POSITION_UM: f32 = 1000.0;
 /// Seed of the virtual sensor's noise.
 pub const SEED: u32 = 0x5EED;
 /// Bytes of one of the emulated board's flash slots (a model image and its header).
@@ -48,6 +50,9 @@ pub struct Bench {
     stage: Stage<'static>,
     sensor_open: bool,
     stuck: Option<f32>,
+    position_open: bool,
+    position_stuck: Option<f32>,
+    position: f32,
     offset: f32,
     stall: u16,
     force: f32,
@@ -62,6 +67,9 @@ impl Bench {
             stage,
             sensor_open: false,
             stuck: None,
+            position_open: false,
+            position_stuck: None,
+            position: 0.0,
             offset: 0.0,
             stall: 0,
             force,
@@ -72,6 +80,7 @@ impl Bench {
     pub fn prime(&mut self, link: &SimLink) {
         let f = self.stage.sense_force(self.force);
         link.set_force(f);
+        link.set_position(self.position);
     }
 
     /// Carries out a bench order.
@@ -86,6 +95,20 @@ impl Bench {
             BenchOrder::Stall(ticks) => self.stall = ticks,
             // The link handler damages the stored model itself.
             BenchOrder::DamageStored => {}
+            BenchOrder::PositionOpen(open) => self.position_open = open,
+            BenchOrder::PositionStuck(stuck) => {
+                self.position_stuck = stuck.then_some(self.position);
+            }
+            BenchOrder::Stage(built) => {
+                let p = if built {
+                    &stage_a::BUILT
+                } else {
+                    &stage_a::PARAMS
+                };
+                if let Some(s) = Stage::new(p, SEED) {
+                    self.stage = s;
+                }
+            }
         }
     }
 
@@ -117,6 +140,14 @@ impl Bench {
         };
         self.force = reading;
         link.set_force(reading);
+        let sensed = self.stage.sense_position(s.x_fhps_um);
+        let position = match (self.position_open, self.position_stuck) {
+            (true, _) => BROKEN_POSITION_UM,
+            (false, Some(x)) => x,
+            (false, None) => sensed,
+        };
+        self.position = position;
+        link.set_position(position);
         Micrometres::from_num(s.x_fhps_um)
     }
 }

@@ -10,6 +10,7 @@
 use piezo_fpi::control::Fault;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
+use crate::closed_loop::LoopMode;
 use crate::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
 use crate::link::protocol::BenchOrder;
 use crate::recorder::Recorder;
@@ -29,6 +30,9 @@ pub enum Order {
         /// Compensated.
         compensated: bool,
     },
+    /// Open the loop, or close it on the position sensor (with or without the
+    /// inverse FPI as feedforward); without a jump.
+    Loop(LoopMode),
     /// Park the stage: ramp to the safe voltage, amplifier off ([`Fault::Stopped`]).
     Safe,
     /// Clear a latched fault (once the output is at the safe voltage).
@@ -62,6 +66,8 @@ pub enum Refused {
     StillRamping,
     /// A new model needs the stage parked at the safe voltage.
     NotAtRest,
+    /// The running model has no feedback settings: the loop cannot be closed.
+    NoFeedback,
 }
 
 /// The outcome of the last order: which, when, and whether it was carried out.
@@ -110,6 +116,10 @@ pub struct Snapshot {
     pub limited_steps: u32,
     /// Ticks that started late.
     pub overruns: u32,
+    /// Position sensor reading, µm.
+    pub x_sensor: Micrometres,
+    /// Open or closed loop.
+    pub loop_mode: LoopMode,
 }
 
 impl Snapshot {
@@ -133,6 +143,8 @@ impl Snapshot {
             underruns: 0,
             limited_steps: 0,
             overruns: 0,
+            x_sensor: Micrometres::ZERO,
+            loop_mode: LoopMode::Open,
         }
     }
 }

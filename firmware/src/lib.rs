@@ -3,6 +3,7 @@
 //!
 //! * [`control_loop`] — what the control ISR does each tick: take an order,
 //!   generate the reference, supervise the host, run the control step, report;
+//!   [`closed_loop`] — open loop, or feedback on the position sensor;
 //! * [`reference`](mod@reference) — the reference sources: hold, move, waveform,
 //!   streamed trajectory, analog input;
 //! * [`recorder`] — the data recorder's ring;
@@ -29,6 +30,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
 pub mod baseline;
+pub mod closed_loop;
 pub mod control_loop;
 #[cfg(feature = "sim")]
 pub mod emulated;

@@ -25,6 +25,9 @@ pub mod status {
     pub const UNCOMPENSATED: u8 = 16;
     /// The reference is approaching a new source's entry point.
     pub const APPROACHING: u8 = 32;
+    /// The loop is closed on the position sensor (with [`UNCOMPENSATED`]: feedback
+    /// alone, else feedback plus the inverse FPI).
+    pub const FEEDBACK: u8 = 64;
 }
 
 /// Which signals a recording sends (bits of a mask, in this order on the wire).
@@ -41,8 +44,10 @@ pub mod signal {
     pub const STATUS: u8 = 16;
     /// The true stage position (the emulated board's virtual stage), µm.
     pub const X_TRUE: u8 = 32;
+    /// The position sensor's reading, µm.
+    pub const X_SENSOR: u8 = 64;
     /// Every signal.
-    pub const ALL: u8 = 63;
+    pub const ALL: u8 = 127;
 }
 
 /// One recorded tick. Lengths, voltage and force as raw `I16F16` bits.
@@ -60,6 +65,8 @@ pub struct Sample {
     pub x_est: i32,
     /// True stage position, µm ([`NO_TRUE_POSITION`] on a real board).
     pub x_true: i32,
+    /// Position sensor reading, µm.
+    pub x_sensor: i32,
     /// [`status`] bits.
     pub status: u8,
 }
@@ -77,6 +84,7 @@ impl Sample {
             (signal::X_EST, self.x_est),
             (signal::STATUS, self.status as i32),
             (signal::X_TRUE, self.x_true),
+            (signal::X_SENSOR, self.x_sensor),
         ];
         core::iter::once(self.tick as i32).chain(
             all.into_iter()
@@ -99,7 +107,7 @@ impl Sample {
             x_true: NO_TRUE_POSITION,
             ..Sample::default()
         };
-        for bit in [1u8, 2, 4, 8, 16, 32] {
+        for bit in [1u8, 2, 4, 8, 16, 32, 64] {
             if mask & bit == 0 {
                 continue;
             }
@@ -110,7 +118,8 @@ impl Sample {
                 signal::FORCE => s.force = v,
                 signal::X_EST => s.x_est = v,
                 signal::STATUS => s.status = v as u8,
-                _ => s.x_true = v,
+                signal::X_TRUE => s.x_true = v,
+                _ => s.x_sensor = v,
             }
         }
         Some(s)
@@ -152,6 +161,7 @@ impl<const N: usize> Recorder<N> {
                 force: 0,
                 x_est: 0,
                 x_true: 0,
+                x_sensor: 0,
                 status: 0,
             }; N],
             head: 0,
@@ -287,6 +297,7 @@ mod tests {
             force: 3,
             x_est: 4,
             x_true: 5,
+            x_sensor: 7,
             status: 6,
         };
         for mask in 0..=signal::ALL {

@@ -8,7 +8,7 @@ use embedded_hal::digital::{ErrorType, OutputPin};
 use piezo_fpi::io::{AdcScale, DacScale, ForceSensor, Hardware, Setpoint};
 use piezo_fpi::q::{Newtons, Volts};
 
-use crate::frontend::{AnalogIn, ADC_MAX};
+use crate::frontend::{AnalogIn, ADC_MAX, POSITION_ADC, POSITION_MAX};
 
 /// The emulated board's analog world: the ADC result the virtual stage leaves for
 /// the ISR, the DAC code and enable line the ISR leaves for the virtual stage.
@@ -16,6 +16,7 @@ use crate::frontend::{AnalogIn, ADC_MAX};
 pub struct SimLink {
     adc_counts: AtomicU32,
     analog_counts: AtomicU32,
+    position_code: AtomicU32,
     dac_code: AtomicU32,
     enabled: AtomicBool,
     /// Board scaling of the force ADC.
@@ -30,6 +31,7 @@ impl SimLink {
         Self {
             adc_counts: AtomicU32::new(0),
             analog_counts: AtomicU32::new(0),
+            position_code: AtomicU32::new(0),
             dac_code: AtomicU32::new(0),
             enabled: AtomicBool::new(false),
             adc,
@@ -40,6 +42,11 @@ impl SimLink {
     pub fn set_force(&self, force_n: f32) {
         let c = self.adc.to_counts(force_n, ADC_MAX);
         self.adc_counts.store(c as u32, Ordering::Release);
+    }
+    /// Thread mode: the position sensor's reading from now on, µm.
+    pub fn set_position(&self, x_um: f32) {
+        let c = POSITION_ADC.to_counts(x_um, POSITION_MAX);
+        self.position_code.store(c as u32, Ordering::Release);
     }
     /// Thread mode: the analog reference input's reading from now on, ADC counts.
     pub fn set_analog_counts(&self, counts: u16) {
@@ -79,6 +86,9 @@ pub struct SimAnalog<'a>(&'a SimLink);
 impl AnalogIn for SimAnalog<'_> {
     fn read_counts(&mut self) -> u16 {
         self.0.analog_counts.load(Ordering::Acquire) as u16
+    }
+    fn read_position(&mut self) -> u16 {
+        self.0.position_code.load(Ordering::Acquire) as u16
     }
 }
 

@@ -17,8 +17,10 @@
 
 use core::ptr::NonNull;
 
+use piezo_fpi::biquad::{Cascade, SHAPING_SECTIONS};
 use piezo_fpi::control::{Interval, LinearDrive};
 use piezo_fpi::error::{Field, Invalid, ModelError};
+use piezo_fpi::feedback::FeedbackConfig;
 use piezo_fpi::model::image::CRC32;
 use piezo_fpi::model::Shape;
 use piezo_fpi::q::Volts;
@@ -52,6 +54,10 @@ pub struct Summary {
     pub origin: Origin,
     /// The straight-line drive of the uncompensated mode.
     pub baseline: LinearDrive,
+    /// Position feedback, if the model has it (else the loop stays open).
+    pub feedback: Option<FeedbackConfig>,
+    /// Reference shaping (the inverse of the stage's modes), if the model has it.
+    pub shaping: Option<Cascade<SHAPING_SECTIONS>>,
 }
 
 /// A store the link task owns: free to load an image into.
@@ -105,10 +111,23 @@ impl Spare {
         let built = shared.controller().and_then(|cfg| {
             let shape = shape.ok_or(Invalid::at(Field::Model, ModelError::Truncated))?;
             let baseline = crate::baseline::drive(&cfg)?;
-            Ok((cfg, baseline, shape))
+            let spec = shared.spec();
+            let feedback = spec.feedback.map(FeedbackConfig::new).transpose()?;
+            let shaping = match spec.shaping.map(|s| s.cascade()) {
+                None => None,
+                Some(Ok(c)) => Some(c),
+                Some(Err((i, _))) => {
+                    return Err(Invalid::at_index(
+                        Field::Shaping,
+                        i,
+                        ModelError::FilterUnstable,
+                    ))
+                }
+            };
+            Ok((cfg, baseline, shape, (feedback, shaping)))
         });
         match built {
-            Ok((cfg, baseline, shape)) => Ok(Running {
+            Ok((cfg, baseline, shape, (feedback, shaping))) => Ok(Running {
                 store: ptr,
                 summary: Summary {
                     crc: CRC32.checksum(image),
@@ -117,6 +136,8 @@ impl Spare {
                     safe_voltage: cfg.safe_voltage(),
                     origin,
                     baseline,
+                    feedback,
+                    shaping,
                 },
                 cfg,
             }),

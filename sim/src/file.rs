@@ -20,12 +20,14 @@ use std::string::{String, ToString};
 use std::vec::Vec;
 
 use fixed::types::I16F16;
+use piezo_fpi::biquad::{ShapingSpec, COEFF_ABS_MAX, COEFF_FRAC, SHAPING_SECTIONS};
 use piezo_fpi::control::{ForceSource, Interval, Supervision};
 use piezo_fpi::error::{Field, Invalid, ModelError, TableId, TablePart};
+use piezo_fpi::feedback::FeedbackSpec;
 use piezo_fpi::fpi::Coupling as FixedCoupling;
 use piezo_fpi::model::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
 use piezo_fpi::play::Operator;
-use piezo_fpi::q::{self, CreepRate, UmPerVolt, VoltsPerNewton};
+use piezo_fpi::q::{self, CreepRate, LoopGain, UmPerVolt, VoltsPerNewton};
 use piezo_fpi::table::Segment;
 use serde::{Deserialize, Serialize};
 
@@ -63,6 +65,101 @@ pub struct FirmwareModel {
     pub controller: ControllerSection,
     /// FEM-derived lookup tables.
     pub tables: Tables,
+    /// Position feedback on a stage-position sensor (`fpi tune`); absent: the
+    /// board runs open loop only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub feedback: Option<FeedbackSection>,
+    /// Reference shaping: the stable inverse of the stage's lightly damped modes,
+    /// run on the reference before the inverse FPI (`fpi export --dynamics`);
+    /// absent: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shaping: Option<ShapingSection>,
+}
+
+/// The reference-shaping filter: up to two second-order sections at the control
+/// rate, `y = b0·x + b1·x₁ + b2·x₂ − a1·y₁ − a2·y₂`, each of static gain 1.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShapingSection {
+    /// `[b0, b1, b2, a1, a2]` of each section (at most two), dimensionless.
+    pub sections: Vec<[f64; 5]>,
+    /// What the filter cancels (the modes, the damping it leaves).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub notes: String,
+}
+
+impl ShapingSection {
+    /// The sections in the core's format (`I2F30`), the missing ones the identity.
+    fn quantize(&self) -> Result<ShapingSpec, String> {
+        if self.sections.len() > SHAPING_SECTIONS {
+            return Err(format!(
+                "shaping.sections has {} sections: the board runs at most {SHAPING_SECTIONS}",
+                self.sections.len()
+            ));
+        }
+        let mut out = ShapingSpec::IDENTITY;
+        for (i, (s, o)) in self
+            .sections
+            .iter()
+            .zip(out.sections.iter_mut())
+            .enumerate()
+        {
+            for (j, (&v, o)) in s.iter().zip(o.iter_mut()).enumerate() {
+                *o = q::quantize(v, COEFF_FRAC, COEFF_ABS_MAX).ok_or_else(|| {
+                    format!(
+                        "shaping.sections[{i}][{j}] = {v}: not a finite value within ±2 (I2F30)"
+                    )
+                })?;
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// Position-feedback settings: the PI law's gains and the sensor's supervision.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeedbackSection {
+    /// Proportional gain, µm per µm of error (0–16).
+    pub kp: f64,
+    /// Integral gain, per second (`ki_per_s / rate_hz` per tick, 0–1 per tick).
+    pub ki_per_s: f64,
+    /// Largest correction the feedback adds to the reference, µm.
+    pub limit_um: f64,
+    /// Lowest plausible position reading, µm.
+    pub position_min_um: f64,
+    /// Highest plausible position reading, µm.
+    pub position_max_um: f64,
+    /// Largest tolerated `|x_sensor − f_K(x̂_pea)|`, µm.
+    pub position_tolerance_um: f64,
+    /// How the gains were chosen (what `fpi tune` assumed and the margins it got).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub notes: String,
+}
+
+impl FeedbackSection {
+    /// The settings in the core's formats at `rate_hz` (ranges only; the core's
+    /// validator checks the rest).
+    fn quantize(&self, rate_hz: u32) -> Result<FeedbackSpec, String> {
+        let loop_gain = |key: &str, v: f64| {
+            q::quantize(v, q::LOOP_GAIN_FRAC, 127.9)
+                .map(LoopGain::from_bits)
+                .ok_or_else(|| format!("{key} = {v}: not a finite value within ±128 (I8F24)"))
+        };
+        Ok(FeedbackSpec {
+            kp: loop_gain("feedback.kp", self.kp)?,
+            ki: loop_gain(
+                "feedback.ki_per_s (per control step)",
+                self.ki_per_s / rate_hz.max(1) as f64,
+            )?,
+            limit: signal("feedback.limit_um", self.limit_um)?,
+            sensor: Interval {
+                lo: signal("feedback.position_min_um", self.position_min_um)?,
+                hi: signal("feedback.position_max_um", self.position_max_um)?,
+            },
+            tolerance: signal("feedback.position_tolerance_um", self.position_tolerance_um)?,
+        })
+    }
 }
 
 /// Provenance of a model file.
@@ -165,6 +262,43 @@ pub struct ControllerSection {
     pub safe_voltage_v: f64,
     /// `"measured"` (force sensor) or `"predicted"` (`f_F` of the reference).
     pub force_source: String,
+    /// The amplifier's output current limit, mA: with `capacitance_uf` it bounds
+    /// the slew to `I_max / C` (second paper, eq. 14).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub current_limit_ma: Option<f64>,
+    /// The stack's capacitance, µF (`fpi identify`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capacitance_uf: Option<f64>,
+}
+
+impl ControllerSection {
+    /// The slew the loop enforces, V/ms: `slew_v_per_ms`, or `I_max / C` (mA/µF =
+    /// V/ms) where the amplifier's current limit and the stack's capacitance are
+    /// given and it is lower. An `I_max` or `C` that is not positive and finite is
+    /// refused, naming its key.
+    pub fn slew_limit_v_per_ms(&self) -> Result<f64, String> {
+        match (self.current_limit_ma, self.capacitance_uf) {
+            (None, None) => Ok(self.slew_v_per_ms),
+            (Some(i), Some(c)) => {
+                if !(i > 0.0 && i.is_finite()) {
+                    return Err(format!(
+                        "controller.current_limit_ma = {i}: not a positive current"
+                    ));
+                }
+                if !(c > 0.0 && c.is_finite()) {
+                    return Err(format!(
+                        "controller.capacitance_uf = {c}: not a positive capacitance"
+                    ));
+                }
+                Ok(self.slew_v_per_ms.min(i / c))
+            }
+            _ => Err(
+                "controller.current_limit_ma and controller.capacitance_uf go together \
+                 (the slew limit I_max / C needs both)"
+                    .to_string(),
+            ),
+        }
+    }
 }
 
 /// The three FEM-derived maps.
@@ -484,9 +618,19 @@ impl FirmwareModel {
                 u_max: signal("controller.u_max_v", k.u_max_v)?,
                 max_step: signal(
                     "controller.slew_v_per_ms (per control step)",
-                    k.slew_v_per_ms * 1e3 / k.rate_hz as f64,
+                    k.slew_limit_v_per_ms()? * 1e3 / k.rate_hz as f64,
                 )?,
                 supervision: k.supervision()?,
+                feedback: self
+                    .feedback
+                    .as_ref()
+                    .map(|f| f.quantize(k.rate_hz))
+                    .transpose()?,
+                shaping: self
+                    .shaping
+                    .as_ref()
+                    .map(ShapingSection::quantize)
+                    .transpose()?,
             },
             operators: self.pi.operators()?,
             creep: self.creep_terms()?,
@@ -574,6 +718,13 @@ impl FirmwareModel {
             Field::ForceMax => Some(k.force_max_n),
             Field::ForceTolerance => Some(k.force_tolerance_n),
             Field::SafeVoltage => Some(k.safe_voltage_v),
+            Field::FeedbackKp => self.feedback.as_ref().map(|f| f.kp),
+            Field::FeedbackKi => self.feedback.as_ref().map(|f| f.ki_per_s),
+            Field::FeedbackLimit => self.feedback.as_ref().map(|f| f.limit_um),
+            Field::PositionMin => self.feedback.as_ref().map(|f| f.position_min_um),
+            Field::PositionMax => self.feedback.as_ref().map(|f| f.position_max_um),
+            Field::PositionTolerance => self.feedback.as_ref().map(|f| f.position_tolerance_um),
+            Field::Shaping => None,
             Field::Operators | Field::Creep | Field::ForceSource | Field::Model => None,
         }
     }
@@ -665,7 +816,7 @@ impl FirmwareModel {
             f_k_inv: t.f_k_inv.curve()?,
             u_min: k.u_min_v,
             u_max: k.u_max_v,
-            max_step: k.slew_v_per_ms * 1e3 / k.rate_hz as f64,
+            max_step: k.slew_limit_v_per_ms().ok()? * 1e3 / k.rate_hz as f64,
             reference: (k.reference_min_um, k.reference_max_um),
             force: (k.force_min_n, k.force_max_n),
             force_tolerance: k.force_tolerance_n,

@@ -21,9 +21,11 @@ extern crate std;
 
 pub mod control;
 pub mod curve;
+pub mod electromech;
 pub mod fem;
 #[cfg(feature = "file")]
 pub mod file;
+pub mod filter;
 pub mod maps;
 pub mod model;
 pub mod play;

@@ -5,7 +5,8 @@
 //!
 //! ```text
 //! header (16 bytes)  magic "PFPM", u16 version, u16 flags, u32 body length, u32 CRC-32 of the body
-//!                    flags: bit 0 soft dead zone, bit 1 output saturation, bit 2 predicted force
+//!                    flags: bit 0 soft dead zone, bit 1 output saturation, bit 2 predicted force,
+//!                    bit 3 position feedback, bit 4 reference shaping
 //! body               u32 rate_hz; i32 w0 (I4F28); i32 input_max (I16F16); u8 operators; u8 creep terms; u16 0
 //!                    operators × (i32 threshold I16F16, i32 weight I4F28)
 //!                    coupling: i32 k0, k_f (I0F32), k_q (I0F32), F_q, compliance (I0F32), F_ref
@@ -14,6 +15,8 @@
 //!                    supervision: i32 reference lo, hi, force lo, hi, force tolerance, safe voltage (I16F16)
 //!                    tables f_F, f_K, f_K⁻¹, then the dead zone's map and inverse, then the saturation's
 //!                    (when flagged): i32 x0, u32 shift, u32 knots, knots × i32 value (I16F16)
+//!                    feedback (when flagged): i32 kp, ki (I8F24), limit, position lo, hi, tolerance (I16F16)
+//!                    shaping (when flagged): 2 sections × i32 b0, b1, b2, a1, a2 (I2F30)
 //! ```
 //!
 //! [`encode`] writes a [`ModelSpec`]; [`Reader`] walks an image for
@@ -25,6 +28,7 @@
 use crc::{Crc, CRC_32_ISO_HDLC};
 
 use super::{MapSpec, ModelSpec, TableSpec};
+use crate::biquad::SHAPING_SECTIONS;
 use crate::control::ForceSource;
 use crate::error::{Field, Invalid, ModelError};
 
@@ -41,6 +45,14 @@ pub const FLAG_DEAD_ZONE: u16 = 1;
 pub const FLAG_SATURATION: u16 = 2;
 /// Flag: the force comes from `f_F` of the reference, not the sensor.
 pub const FLAG_PREDICTED: u16 = 4;
+/// Flag: the model carries position-feedback settings (a block after the tables).
+pub const FLAG_FEEDBACK: u16 = 8;
+/// Flag: the model carries a reference-shaping filter (a block after the feedback's).
+pub const FLAG_SHAPING: u16 = 16;
+/// Bytes of the shaping block.
+const SHAPING_LEN: usize = 4 * 5 * SHAPING_SECTIONS;
+/// Bytes of the feedback block.
+const FEEDBACK_LEN: usize = 24;
 
 /// The checksum of images and of the link's frames: CRC-32 (ISO-HDLC, as zlib's).
 pub const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
@@ -107,12 +119,18 @@ pub fn encoded_len(m: &ModelSpec<'_>) -> usize {
         + table(&m.f_k_inv)
         + map(&m.dead_zone)
         + map(&m.saturation)
+        + if m.feedback.is_some() {
+            FEEDBACK_LEN
+        } else {
+            0
+        }
+        + if m.shaping.is_some() { SHAPING_LEN } else { 0 }
 }
 
 /// Bytes of the largest image a board with room for `operators`, `creep` terms and
 /// `intervals` table intervals (all seven tables together) can hold.
 pub const fn max_len(operators: usize, creep: usize, intervals: usize) -> usize {
-    fixed_len(operators, creep) + 7 * TABLE_HEAD + 4 * (intervals + 7)
+    fixed_len(operators, creep) + 7 * TABLE_HEAD + 4 * (intervals + 7) + FEEDBACK_LEN + SHAPING_LEN
 }
 
 /// Writes the image of a model into `out`; its length. The model should be valid
@@ -164,6 +182,18 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
         w.table(&map.forward)?;
         w.table(&map.inverse)?;
     }
+    if let Some(f) = &m.feedback {
+        w.i32(f.kp.to_bits())?;
+        w.i32(f.ki.to_bits())?;
+        for v in [f.limit, f.sensor.lo, f.sensor.hi, f.tolerance] {
+            w.i32(v.to_bits())?;
+        }
+    }
+    if let Some(s) = &m.shaping {
+        for c in s.sections.iter().flatten() {
+            w.i32(*c)?;
+        }
+    }
     let len = w.at;
     let mut flags = 0;
     if m.dead_zone.is_some() {
@@ -174,6 +204,12 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
     }
     if matches!(s.force_source, ForceSource::Predicted) {
         flags |= FLAG_PREDICTED;
+    }
+    if m.feedback.is_some() {
+        flags |= FLAG_FEEDBACK;
+    }
+    if m.shaping.is_some() {
+        flags |= FLAG_SHAPING;
     }
     let out = w.out;
     let body = out.get(HEADER_LEN..len).ok_or_else(truncated)?;

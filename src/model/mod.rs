@@ -20,8 +20,10 @@ pub mod store;
 
 use fixed::types::I16F16;
 
+use crate::biquad::{ShapingError, ShapingSpec};
 use crate::control::{check_settings, Supervision};
 use crate::error::{Field, Invalid, ModelError, TableId, TablePart};
+use crate::feedback::{FeedbackConfig, FeedbackSpec};
 use crate::fpi::{creep_slope, Coupling, Creep};
 use crate::limits::OutputLimits;
 use crate::play::Operator;
@@ -108,6 +110,11 @@ pub struct ModelSpec<'a> {
     pub max_step: Volts,
     /// Supervision and safe state.
     pub supervision: Supervision,
+    /// Position feedback (gains, sensor range); `None`: the model has none (the
+    /// board then runs open loop only).
+    pub feedback: Option<FeedbackSpec>,
+    /// Reference shaping (the inverse of the stage's modes); `None`: none.
+    pub shaping: Option<ShapingSpec>,
 }
 
 /// The shape of a valid model: what the firmware's types are built from.
@@ -182,6 +189,18 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
         e => Invalid::at(Field::UMin, e),
     })?;
     check_settings(&limits, &f_k_inv, &m.supervision)?;
+    if let Some(f) = m.feedback {
+        FeedbackConfig::new(f)?;
+    }
+    if let Some(s) = m.shaping {
+        s.cascade().map_err(|(i, e)| {
+            let e = match e {
+                ShapingError::Unstable => ModelError::FilterUnstable,
+                ShapingError::StaticGain => ModelError::FilterStaticGain,
+            };
+            Invalid::at_index(Field::Shaping, i, e)
+        })?;
+    }
     Ok(Shape {
         operators: n,
         creep_terms: m.creep.len(),
@@ -296,6 +315,8 @@ mod tests {
         };
         let sup = |s: Supervision| ModelSpec {
             supervision: s,
+            feedback: None,
+            shaping: None,
             ..base
         };
         check(

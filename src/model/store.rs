@@ -12,15 +12,19 @@
 
 use fixed::types::I16F16;
 
-use super::image::{Reader, FLAG_DEAD_ZONE, FLAG_PREDICTED, FLAG_SATURATION};
+use super::image::{
+    Reader, FLAG_DEAD_ZONE, FLAG_FEEDBACK, FLAG_PREDICTED, FLAG_SATURATION, FLAG_SHAPING,
+};
 use super::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
+use crate::biquad::{ShapingSpec, SHAPING_SECTIONS};
 use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Supervision};
 use crate::error::{Field, Invalid, ModelError, TableId, TablePart};
+use crate::feedback::FeedbackSpec;
 use crate::fpi::{Coupling, Creep, Fpi, Map};
 use crate::limits::OutputLimits;
 use crate::pi::PiModel;
 use crate::play::Operator;
-use crate::q::{CreepRate, UmPerVolt, Volts};
+use crate::q::{CreepRate, LoopGain, UmPerVolt, Volts};
 use crate::table::{Segment, Table};
 
 /// The control step's configuration for a model received at run time: `N`
@@ -141,6 +145,10 @@ struct Scalars {
     supervision: Supervision,
     dead_zone: bool,
     saturation: bool,
+    feedback: FeedbackSpec,
+    has_feedback: bool,
+    shaping: ShapingSpec,
+    has_shaping: bool,
 }
 
 const NO_SCALARS: Scalars = Scalars {
@@ -166,6 +174,21 @@ const NO_SCALARS: Scalars = Scalars {
     },
     dead_zone: false,
     saturation: false,
+    feedback: FeedbackSpec {
+        kp: LoopGain::ZERO,
+        ki: LoopGain::ZERO,
+        limit: I16F16::ZERO,
+        sensor: Interval {
+            lo: I16F16::ZERO,
+            hi: I16F16::ZERO,
+        },
+        tolerance: I16F16::ZERO,
+    },
+    has_feedback: false,
+    shaping: ShapingSpec {
+        sections: [[0; 5]; SHAPING_SECTIONS],
+    },
+    has_shaping: false,
 };
 
 impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
@@ -228,6 +251,8 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             u_max: b.u_max,
             max_step: b.max_step,
             supervision: b.supervision,
+            feedback: b.has_feedback.then_some(b.feedback),
+            shaping: b.has_shaping.then_some(b.shaping),
         }
     }
 
@@ -308,6 +333,25 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             } else {
                 NO_SPAN
             };
+        }
+        b.has_feedback = r.flags & FLAG_FEEDBACK != 0;
+        if b.has_feedback {
+            let f = &mut b.feedback;
+            f.kp = LoopGain::from_bits(r.i32()?);
+            f.ki = LoopGain::from_bits(r.i32()?);
+            let mut signal = || r.i32().map(I16F16::from_bits);
+            f.limit = signal()?;
+            f.sensor = Interval {
+                lo: signal()?,
+                hi: signal()?,
+            };
+            f.tolerance = signal()?;
+        }
+        b.has_shaping = r.flags & FLAG_SHAPING != 0;
+        if b.has_shaping {
+            for c in b.shaping.sections.iter_mut().flatten() {
+                *c = r.i32()?;
+            }
         }
         if !r.finished() {
             return Err(Invalid::at(Field::Model, ModelError::Truncated));
@@ -452,6 +496,88 @@ mod tests {
         assert_eq!(store.spec(), spec);
         // And back to the same bytes.
         assert_eq!(image(&store.spec()), img);
+    }
+
+    #[test]
+    fn a_shaping_filter_travels_with_the_image_and_is_validated() {
+        let p = parts();
+        let one = 1 << 30;
+        // A stable unit-gain section: y = 0.5·x + 0.5·y[n-1]... as b0 = 0.5, a1 = -0.5.
+        let section = [one / 2, 0, 0, -one / 2, 0];
+        let shaping = ShapingSpec {
+            sections: [section, ShapingSpec::IDENTITY.sections[0]],
+        };
+        let spec = ModelSpec {
+            shaping: Some(shaping),
+            ..testkit::spec(&p, &[])
+        };
+        let img = image(&spec);
+        let mut store = Store::new();
+        store.load(&img, &BOARD).unwrap();
+        assert_eq!(store.spec().shaping, Some(shaping));
+        assert_eq!(image(&store.spec()), img);
+        let refuse = |s: [i32; 5]| {
+            let bad = ModelSpec {
+                shaping: Some(ShapingSpec {
+                    sections: [ShapingSpec::IDENTITY.sections[0], s],
+                }),
+                ..spec
+            };
+            let e = Store::new().load(&image(&bad), &BOARD).unwrap_err();
+            (e.field, e.index, e.error)
+        };
+        // A static gain of 1.01 would move a held position: refused.
+        assert_eq!(
+            refuse([one / 2 + one / 200, 0, 0, -one / 2, 0]),
+            (Field::Shaping, Some(1), ModelError::FilterStaticGain)
+        );
+        // A pole on the unit circle: refused.
+        assert_eq!(
+            refuse([0, 0, 0, -one, 0]),
+            (Field::Shaping, Some(1), ModelError::FilterUnstable)
+        );
+    }
+
+    #[test]
+    fn feedback_settings_travel_with_the_image_and_are_validated() {
+        let p = parts();
+        let fb = crate::feedback::FeedbackSpec {
+            kp: LoopGain::from_num(0.25),
+            ki: LoopGain::from_num(0.015),
+            limit: signal(3.0).unwrap(),
+            sensor: Interval {
+                lo: signal(-5.0).unwrap(),
+                hi: signal(50.0).unwrap(),
+            },
+            tolerance: signal(4.0).unwrap(),
+        };
+        let spec = ModelSpec {
+            feedback: Some(fb),
+            ..testkit::spec(&p, &[])
+        };
+        let img = image(&spec);
+        let mut store = Store::new();
+        store.load(&img, &BOARD).unwrap();
+        assert_eq!(store.spec().feedback, Some(fb));
+        assert_eq!(image(&store.spec()), img);
+        // Without the block the image is four words shorter and has none.
+        let plain = image(&testkit::spec(&p, &[]));
+        assert_eq!(plain.len() + 24, img.len());
+        store.load(&plain, &BOARD).unwrap();
+        assert_eq!(store.spec().feedback, None);
+        // The one validator names the key.
+        let bad = ModelSpec {
+            feedback: Some(crate::feedback::FeedbackSpec {
+                ki: LoopGain::from_num(2.0),
+                ..fb
+            }),
+            ..spec
+        };
+        let e = Store::new().load(&image(&bad), &BOARD).unwrap_err();
+        assert_eq!(
+            (e.field, e.error),
+            (Field::FeedbackKi, ModelError::GainOutOfRange)
+        );
     }
 
     /// The padded runtime controller steps bit for bit as the typed one.

@@ -233,21 +233,60 @@ pub fn print_fit(m: &HostModel) {
 
 /// `fpi predict`.
 pub fn predict(model: &Path, fem: &Path, drive: &Path, out: &Path) -> Result<()> {
-    let given = [("--model", model), ("--fem", fem), ("--drive", drive)];
+    predict_with(model, fem, drive, out, None)
+}
+
+/// `fpi predict [--dynamics DYN.toml]`: with dynamics, the rate-independent
+/// prediction runs through the identified linear dynamics
+/// ([`crate::method::dynamics`], Hammerstein): `x_fhps_um` is then the
+/// rate-dependent output and a last column `x_fhps_static_um` the
+/// rate-independent one.
+pub fn predict_with(
+    model: &Path,
+    fem: &Path,
+    drive: &Path,
+    out: &Path,
+    dynamics: Option<&Path>,
+) -> Result<()> {
+    let mut given = vec![("--model", model), ("--fem", fem), ("--drive", drive)];
+    given.extend(dynamics.map(|d| ("--dynamics", d)));
     not_an_input("--out", out, &given)?;
     output::prepare(out)?;
     let m = HostModel::read(model)?;
+    let dynamics = dynamics
+        .map(crate::method::dynamics::Dynamics::read)
+        .transpose()?;
     let maps = stage_maps(&m, model, fem)?;
     let (t, u) = read_drive(drive)?;
     drive_in_range(drive, &m, &u)?;
     let start = std::time::Instant::now();
     let p = predict::predict(&m, &maps, &t, &u).with_context(|| drive.display().to_string())?;
     let secs = start.elapsed().as_secs_f64();
-    write_columns(
-        out,
-        &["t_s", "voltage_V", "x_pea_um", "preload_N", "x_fhps_um"],
-        &[&p.t, &p.u, &p.x_pea, &p.preload, &p.x_fhps],
-    )?;
+    if let Some(d) = &dynamics {
+        let rated = rate_dependent(d, drive, &t, &p.x_fhps)?;
+        write_columns(
+            out,
+            &[
+                "t_s",
+                "voltage_V",
+                "x_pea_um",
+                "preload_N",
+                "x_fhps_um",
+                "x_fhps_static_um",
+            ],
+            &[&p.t, &p.u, &p.x_pea, &p.preload, &rated, &p.x_fhps],
+        )?;
+        println!(
+            "rate-dependent: the prediction run through the identified dynamics (modes {:?} Hz)",
+            d.natural_frequency_hz
+        );
+    } else {
+        write_columns(
+            out,
+            &["t_s", "voltage_V", "x_pea_um", "preload_N", "x_fhps_um"],
+            &[&p.t, &p.u, &p.x_pea, &p.preload, &p.x_fhps],
+        )?;
+    }
     println!(
         "{} ({}): {} samples predicted in {:.1} ms ({:.2} solver iterations per sample); written to {}",
         m.kind.method(),
@@ -283,9 +322,23 @@ fn read_models(paths: &[PathBuf]) -> Result<Vec<(String, HostModel)>> {
 
 /// `fpi compare`.
 pub fn compare(fem: &Path, runs: &[PathBuf], models: &[PathBuf], out: &Path) -> Result<()> {
+    compare_with(fem, runs, models, out, None)
+}
+
+/// `fpi compare [--dynamics DYN.toml]`: with dynamics, every model is scored
+/// twice, as it is (rate-independent) and followed by the identified dynamics
+/// (named `MODEL+dyn`).
+pub fn compare_with(
+    fem: &Path,
+    runs: &[PathBuf],
+    models: &[PathBuf],
+    out: &Path,
+    dynamics: Option<&Path>,
+) -> Result<()> {
     let mut given = vec![("--fem", fem)];
     given.extend(inputs("--runs", runs));
     given.extend(inputs("--model", models));
+    given.extend(dynamics.map(|d| ("--dynamics", d)));
     output::folder_spares_inputs("--out", out, &given, crate::report::writes)?;
     output::prepare_folder(out)?;
     let maps = read_fem(fem)?;
@@ -303,7 +356,11 @@ pub fn compare(fem: &Path, runs: &[PathBuf], models: &[PathBuf], out: &Path) -> 
             drive_in_range(&r.path, m, &r.u)?;
         }
     }
-    let cmp = crate::method::compare::Comparison::run(&maps, &runs, &models)?;
+    let mut cmp = crate::method::compare::Comparison::run(&maps, &runs, &models)?;
+    if let Some(d) = dynamics {
+        let dynamics = crate::method::dynamics::Dynamics::read(d)?;
+        cmp.add_dynamics(&dynamics)?;
+    }
     crate::method::compare::print_table(&cmp);
     crate::report::write(&cmp, &maps, out)?;
     println!("report written to {}", out.join("report.md").display());
@@ -459,12 +516,22 @@ pub fn export(
     fem: &Path,
     out: &Path,
     o: &crate::method::export::ExportOptions,
+    dynamics: Option<(&Path, crate::method::shaping::ShapingOptions)>,
 ) -> Result<()> {
-    not_an_input("--out", out, &[("--model", model), ("--fem", fem)])?;
+    let mut inputs = vec![("--model", model), ("--fem", fem)];
+    if let Some((d, _)) = dynamics {
+        inputs.push(("--dynamics", d));
+    }
+    not_an_input("--out", out, &inputs)?;
     output::prepare(out)?;
     let maps = stage_maps(m, model, fem)?;
     let settings = crate::method::export::LoopSettings::for_model(m, o);
-    let e = crate::method::export::export(m, model, &maps, &settings)?;
+    let mut e = crate::method::export::export(m, model, &maps, &settings)?;
+    if let Some((d, so)) = dynamics {
+        let d = crate::method::dynamics::Dynamics::read(d)?;
+        e.model = crate::method::shaping::with_dynamics(&e.model, &d, &so)?;
+        println!("{}", crate::method::shaping::describe(&e.model));
+    }
     let text = e.model.to_toml().map_err(|e| anyhow::anyhow!(e))?;
     output::write_atomic(out, text.as_bytes())?;
     println!(
@@ -473,6 +540,44 @@ pub fn export(
         out.display()
     );
     print_export(&e);
+    Ok(())
+}
+
+/// `fpi tune`: the position loop's gains, written into the firmware model.
+pub fn tune(
+    firmware: &Path,
+    dynamics: Option<&Path>,
+    out: &Path,
+    o: &crate::method::tune::TuneOptions,
+) -> Result<()> {
+    use crate::method::tune;
+    let mut inputs = vec![("--firmware", firmware)];
+    if let Some(d) = dynamics {
+        inputs.push(("--dynamics", d));
+    }
+    not_an_input("--out", out, &inputs)?;
+    output::prepare(out)?;
+    let shown = firmware.display().to_string();
+    let text = std::fs::read_to_string(firmware).with_context(|| format!("reading {shown}"))?;
+    let fw = piezo_sim::file::FirmwareModel::parse(&text, &shown).map_err(anyhow::Error::msg)?;
+    let dyn_model = dynamics
+        .map(crate::method::dynamics::Dynamics::read)
+        .transpose()?;
+    let t = tune::tune(&fw, dyn_model.as_ref(), o)?;
+    let tuned = tune::with_feedback(&fw, &t, o)?;
+    let text = tuned.to_toml().map_err(anyhow::Error::msg)?;
+    output::write_atomic(out, text.as_bytes())?;
+    let f = tuned
+        .feedback
+        .as_ref()
+        .map_or(String::new(), |f| f.notes.clone());
+    println!(
+        "feedback for {shown} written to {}: kp {:.3}, ki {:.1}/s",
+        out.display(),
+        t.kp,
+        t.ki_per_s
+    );
+    println!("  {f}");
     Ok(())
 }
 
@@ -582,6 +687,64 @@ pub fn bench() -> Result<()> {
         "{}",
         crate::method::bench::scaling(crate::method::bench::SAMPLES)?
     );
+    Ok(())
+}
+
+/// The rate-independent stage output `x` (µm) of drive file `drive` (time `t`,
+/// s) through the identified dynamics `d`; refuses a drive not sampled
+/// uniformly, naming the file and the line.
+fn rate_dependent(
+    d: &crate::method::dynamics::Dynamics,
+    drive: &Path,
+    t: &[f64],
+    x: &[f64],
+) -> Result<Vec<f64>> {
+    let dt = crate::method::dynamics::uniform_step(t).map_err(|(k, step, dt)| {
+        anyhow::anyhow!(
+            "{}:{}: column t_s: step {} s differs from the mean {} s by more than 1 %: \
+             the dynamics need a uniformly sampled drive",
+            drive.display(),
+            k + 3,
+            Num(step),
+            Num(dt)
+        )
+    })?;
+    d.apply(x, dt).with_context(|| drive.display().to_string())
+}
+
+/// `fpi identify`: the stage's dynamics from chirps
+/// ([`crate::method::identify`]), written to `out` (`DYN.toml`), with the Bode
+/// figure in `plots` when given.
+pub fn identify(chirps: &[PathBuf], out: &Path, plots: Option<&Path>, min_hz: f64) -> Result<()> {
+    use crate::method::identify as id;
+    let given = inputs("--chirp", chirps);
+    not_an_input("--out", out, &given)?;
+    output::prepare(out)?;
+    if let Some(dir) = plots {
+        output::folder_spares_inputs("--plots", dir, &given, |n| n == "bode.svg")?;
+        output::prepare_folder(dir)?;
+    }
+    let data: Vec<id::Chirp> = chirps
+        .iter()
+        .map(|p| id::read_chirp(p))
+        .collect::<Result<_, _>>()?;
+    let start = std::time::Instant::now();
+    let result = id::identify(&data, min_hz)?;
+    println!(
+        "dynamics identified from {} chirp(s) in {:.2} s:",
+        data.len(),
+        start.elapsed().as_secs_f64()
+    );
+    for line in id::summary(&result) {
+        println!("{line}");
+    }
+    result.dynamics.write(out)?;
+    println!("dynamics written to {}", out.display());
+    if let Some(dir) = plots {
+        for p in id::plots(&result, dir)? {
+            println!("plot written to {}", p.display());
+        }
+    }
     Ok(())
 }
 

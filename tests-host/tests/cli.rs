@@ -410,7 +410,9 @@ fn board_commands_drive_the_emulated_board() {
         "{out}"
     );
     let csv = std::fs::read_to_string(&rec).unwrap();
-    assert!(csv.starts_with("t_s,voltage_V,force_N,x_ref_um,x_est_um,status,x_fhps_um\n"));
+    assert!(
+        csv.starts_with("t_s,voltage_V,force_N,x_ref_um,x_est_um,status,x_fhps_um,x_sensor_um\n")
+    );
     let a = board(&["move", "45"]);
     let err = fails(&a.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(err.contains("outside the stroke"), "{err}");

@@ -272,6 +272,8 @@ mod bench {
             u_max: C10.limits().max(),
             max_step: C10.limits().max_step(),
             supervision: sup,
+            feedback: None,
+            shaping: None,
         }
     }
 
@@ -389,6 +391,86 @@ mod bench {
         sp - p
     }
 
+    /// The dynamic compensator of issue 12 (`piezo_fpi::biquad`): one section and a
+    /// two-section cascade, instructions per sample along the 5 Hz full-stroke
+    /// reference in volts. Self-contained: printed as
+    /// `biquad_section_instructions` and `biquad_cascade2_instructions`.
+    mod biquad_bench {
+        use super::{full_stroke, instructions, ticks, Counts, STEPS};
+        use core::hint::black_box;
+        use cortex_m_semihosting::hprintln;
+        use fpi_firmware::reference::wave::WavePhase;
+        use piezo_fpi::biquad::{Biquad, BiquadState, Cascade, CascadeState};
+        use piezo_fpi::q::Volts;
+
+        /// `piezo_sim::filter::mode_inverse(850.0, 0.02, 0.7, 20_000.0)`: the stable
+        /// inverse of an 850 Hz mode with ζ = 0.02, placed at ζ_d = 0.7.
+        const INVERSE: Biquad = match Biquad::from_f64(
+            [
+                0.848_542_257_535_104,
+                -1.628_341_947_638_625,
+                0.839_632_978_566_580_6,
+            ],
+            [-1.628_341_947_638_625, 0.688_175_236_101_684_6],
+        ) {
+            Ok(b) => b,
+            Err(e) => panic!("{}", e.message()),
+        };
+        /// `piezo_sim::filter::notch(2_600.0, 0.1, 0.05, 20_000.0)`.
+        const NOTCH: Biquad = match Biquad::from_f64(
+            [
+                0.935_453_236_923_409_6,
+                -1.276_072_527_939_178_2,
+                0.928_658_840_810_084_3,
+            ],
+            [-1.276_072_527_939_178_2, 0.864_112_077_733_494],
+        ) {
+            Ok(b) => b,
+            Err(e) => panic!("{}", e.message()),
+        };
+        static SECTION: Biquad = INVERSE;
+        static CASCADE2: Cascade<2> = Cascade::new([INVERSE, NOTCH]);
+
+        #[inline(never)]
+        fn section_of(f: &Biquad, st: &mut BiquadState, x: Volts) -> Volts {
+            f.update(st, x)
+        }
+
+        #[inline(never)]
+        fn cascade_of(f: &Cascade<2>, st: &mut CascadeState<2>, x: Volts) -> Volts {
+            f.update(st, x)
+        }
+
+        fn line(name: &str, c: &Counts) {
+            hprintln!(
+                "{}: {} (min {} mean {}.{} max {}, {} samples, the call included)",
+                name,
+                c.max,
+                c.min,
+                c.mean_x10() / 10,
+                c.mean_x10() % 10,
+                c.max,
+                c.n
+            );
+        }
+
+        pub(super) fn report(baseline: u32) {
+            let wave = full_stroke(5.0);
+            let (f1, f2) = (black_box(&SECTION), black_box(&CASCADE2));
+            let (mut s1, mut s2) = (BiquadState::new(), CascadeState::new());
+            let (mut c1, mut c2) = (Counts::new(), Counts::new());
+            let mut w = WavePhase::default();
+            for _ in 0..STEPS {
+                // The reference in µm, read as volts (4× to span 8–152 V).
+                let x = black_box(Volts::from_bits(wave.next(&mut w).to_bits() << 2));
+                c1.add(instructions(ticks(|| section_of(f1, &mut s1, x)), baseline));
+                c2.add(instructions(ticks(|| cascade_of(f2, &mut s2, x)), baseline));
+            }
+            line("biquad_section_instructions", &c1);
+            line("biquad_cascade2_instructions", &c2);
+        }
+    }
+
     #[entry]
     fn main() -> ! {
         let Some(mut cp) = cortex_m::Peripherals::take() else {
@@ -412,6 +494,7 @@ mod bench {
             nops,
             baseline
         );
+        biquad_bench::report(baseline);
 
         report(&C4, baseline);
         report(&C10, baseline);

@@ -309,7 +309,10 @@ mod tests {
         .unwrap();
         assert!(read(&out[..n])[0].is_ok());
         let mut raw = [0u8; 8];
-        let used = postcard::to_slice(&Command::Reset, &mut raw).unwrap();
+        let last = Command::Loop {
+            mode: crate::closed_loop::LoopMode::Open,
+        };
+        let used = postcard::to_slice(&last, &mut raw).unwrap();
         assert_eq!(
             used[0] as u32,
             COMMAND_KINDS - 1,

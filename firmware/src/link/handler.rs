@@ -356,6 +356,7 @@ impl<F: NorFlash> Handler<F> {
             Command::Safe => self.order(board, seq, Order::Safe),
             Command::ClearFault => self.order(board, seq, Order::ClearFault),
             Command::Drive { compensated } => self.order(board, seq, Order::Drive { compensated }),
+            Command::Loop { mode } => self.order(board, seq, Order::Loop(mode)),
             Command::Supervise { timeout_ms } => {
                 self.timeout_ms = timeout_ms;
                 self.supervise(board, seq, timeout_ms)
@@ -610,6 +611,10 @@ pub(super) fn refused(r: Refused) -> Refuse {
             Refusal::NotAtRest,
             format_args!("a new model needs the stage parked: send `safe` first"),
         ),
+        Refused::NoFeedback => refuse(
+            Refusal::BadArgument,
+            format_args!("the running model has no [feedback] section: load one from `fpi tune`"),
+        ),
     }
 }
 
@@ -624,6 +629,7 @@ fn status(x: &Exchange<'_>, summary: &Summary) -> Status {
             s.x_est.to_bits(),
             s.voltage.to_bits(),
             s.force.to_bits(),
+            s.x_sensor.to_bits(),
         ],
         fault: s.fault.map(|(f, at)| FaultReport {
             code: f as u8,
@@ -634,6 +640,7 @@ fn status(x: &Exchange<'_>, summary: &Summary) -> Status {
         source: s.source,
         approaching: s.approaching,
         compensated: s.compensated,
+        loop_mode: s.loop_mode,
         supervision: [s.timeout_ticks, s.silent_ticks],
         stream: [q.len() as u32, q.free() as u32, q.received(), s.underruns],
         recorder: [r.active() as u32, r.kept(), r.dropped(), r.len() as u32],

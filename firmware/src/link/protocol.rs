@@ -10,12 +10,13 @@
 use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
 
+use crate::closed_loop::LoopMode;
 use crate::reference::wave::Shape;
 use crate::reference::SourceKind;
 use crate::slots::Origin;
 
 /// The protocol version this firmware speaks.
-pub const VERSION: u8 = 2;
+pub const VERSION: u8 = 3;
 /// Largest encoded frame, delimiter included, bytes.
 pub const MAX_FRAME: usize = 1280;
 /// Model bytes per [`Command::ModelChunk`].
@@ -27,10 +28,10 @@ pub const MAX_VALUES: usize = 200;
 /// The sequence number of a reply to a frame that could not be read.
 pub const NO_SEQ: u16 = u16::MAX;
 
-/// Variants of [`Command`] (the last one, [`Command::Reset`], is number
+/// Variants of [`Command`] (the last one, [`Command::Loop`], is number
 /// `COMMAND_KINDS - 1`): a request whose variant number is beyond is refused as
 /// [`Refusal::Unknown`] rather than as garbage.
-pub const COMMAND_KINDS: u32 = 26;
+pub const COMMAND_KINDS: u32 = 27;
 
 /// A short text (a refusal's reason, a firmware version).
 pub type Text = String<96>;
@@ -76,6 +77,15 @@ pub enum BenchOrder {
     /// Damage the newest model stored in flash (one byte cleared), to see the
     /// board refuse it at its next start.
     DamageStored,
+    /// The position sensor's wire is open (the reading sits on a rail), or intact.
+    PositionOpen(bool),
+    /// The position sensor freezes at its present reading, or follows the stage again.
+    PositionStuck(bool),
+    /// Replace the virtual stage by a fresh one at rest: the nominal twin of
+    /// stage A (`false`) or the stage as built (`true`: kinematics, preload and
+    /// creep a few percent off the model, a lightly damped first mode, position
+    /// sensor noise). Send it with the stage parked.
+    Stage(bool),
 }
 
 /// Why the board last started.
@@ -222,6 +232,12 @@ pub enum Command<'a> {
     Bench(BenchOrder),
     /// Reset the board (after this reply); it starts parked with its stored model.
     Reset,
+    /// Open the loop or close it on the position sensor, without a jump (the
+    /// running model must have feedback settings to close it).
+    Loop {
+        /// Open, closed (feedback plus the inverse FPI) or feedback only.
+        mode: LoopMode,
+    },
 }
 
 /// Why a request was not carried out.
@@ -302,8 +318,9 @@ pub struct FaultReport {
 pub struct Status {
     /// Ticks since start-up.
     pub tick: u32,
-    /// Reference, estimated position (µm), setpoint (V), force (N): `I16F16` bits.
-    pub signals: [i32; 4],
+    /// Reference, estimated position (µm), setpoint (V), force (N), position
+    /// sensor (µm): `I16F16` bits.
+    pub signals: [i32; 5],
     /// The latched fault (code 4, *parked*, is the resting state).
     pub fault: Option<FaultReport>,
     /// Amplifier enabled.
@@ -314,6 +331,8 @@ pub struct Status {
     pub approaching: bool,
     /// Inverse FPI drive (else the straight-line baseline).
     pub compensated: bool,
+    /// Open or closed loop.
+    pub loop_mode: LoopMode,
     /// Heartbeat timeout, ticks (0: off), and ticks since the last request.
     pub supervision: [u32; 2],
     /// Stream: points queued, free, received since `Stream`/`StreamClear`; underrun ticks.
@@ -345,6 +364,9 @@ pub struct ModelReport {
     pub stored: Option<(u32, u32)>,
     /// What the two flash slots held when the board started.
     pub slots: [SlotReport; 2],
+    /// Its feedback settings: kp, ki per tick (`I8F24` bits), correction limit,
+    /// sensor range low and high, tolerance (µm, `I16F16` bits); `None`: open loop only.
+    pub feedback: Option<[i32; 6]>,
 }
 
 /// The link's counters since start-up.

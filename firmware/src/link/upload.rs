@@ -34,6 +34,17 @@ impl<F: NorFlash> Handler<F> {
             ],
             stored: self.stored.map(|st| (st.generation, st.crc)),
             slots: self.slots,
+            feedback: s.feedback.map(|f| {
+                let f = f.spec();
+                [
+                    f.kp.to_bits(),
+                    f.ki.to_bits(),
+                    f.limit.to_bits(),
+                    f.sensor.lo.to_bits(),
+                    f.sensor.hi.to_bits(),
+                    f.tolerance.to_bits(),
+                ]
+            }),
         }
     }
 

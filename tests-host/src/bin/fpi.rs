@@ -6,9 +6,12 @@
 //! fpi compare   --fem FEM.csv --runs RUN.csv... --model A.toml --model B.toml ... --out DIR
 //! fpi invert    --model MODEL.toml --fem FEM.csv --target TARGET.csv --out DRIVE.csv
 //! fpi refine    --model MODEL.toml --fem FEM.csv --run RUN.csv... --out REFINED.toml
-//! fpi export    --model MODEL.toml --fem FEM.csv --out FIRMWARE.toml
+//! fpi export    --model MODEL.toml --fem FEM.csv [--dynamics DYN.toml] --out FIRMWARE.toml
+//! fpi tune      --firmware FIRMWARE.toml [--dynamics DYN.toml] --out TUNED.toml
 //! fpi demo      [--out DIR]
 //! fpi bench
+//! fpi identify  --chirp FILE.csv... --out DYN.toml [--plots DIR] [--min-hz F]
+//! fpi lever     [--params LEVER.toml] --out FEM.csv [--points N] [--stroke-um S] [--output arc|deg]
 //! fpi board emulate [--listen 127.0.0.1:PORT]
 //! fpi board --port PORT status | move UM | wave … | stream FILE.csv | record --seconds S --out FILE.csv
 //!                       load MODEL.toml [--fem FEM.csv] | safe | clear-fault | hold | analog | drive … | supervise MS
@@ -41,7 +44,15 @@ enum Command {
     /// Part I: identify a model from Voltage–Force–Displacement recordings.
     Calibrate {
         /// Model kind: fpi (the paper's), pi, ldpi, efpi (extended FPI), gpi (PI with an
-        /// output map, no force). Default: efpi, or gpi for recordings without force.
+        /// output map, no force), branch (the second paper's branch polynomials, eqs. 6–7).
+        /// Default: efpi, or gpi for recordings without force.
+        ///
+        /// When to use which: efpi for a stage you will run (the most accurate, and the
+        /// firmware runs it); gpi for recordings without force; fpi, pi and ldpi to
+        /// reproduce the first paper's comparison; branch to compare with the second
+        /// paper's hysteresis model (host only: `fpi export` and `fpi invert` do not
+        /// take it; it fits the rig better than fpi with 7 coefficients, but predicts
+        /// a stage no better, its force coupling being the FPI's).
         #[arg(long)]
         kind: Option<String>,
         /// Recordings `t_s,voltage_V,force_N,displacement_um` (CSV, .gz allowed), or
@@ -76,6 +87,10 @@ enum Command {
         /// Where to write `t_s,voltage_V,x_pea_um,preload_N,x_fhps_um`.
         #[arg(long)]
         out: PathBuf,
+        /// Identified dynamics (`fpi identify`): the prediction then runs through
+        /// them (x_fhps_um rate-dependent; x_fhps_static_um added).
+        #[arg(long)]
+        dynamics: Option<PathBuf>,
     },
     /// Score models against measured stage runs; report with tables and plots.
     Compare {
@@ -91,6 +106,10 @@ enum Command {
         /// Output folder for report.md and the plots.
         #[arg(long)]
         out: PathBuf,
+        /// Identified dynamics (`fpi identify`): every model is also scored
+        /// followed by them (as MODEL+dyn).
+        #[arg(long)]
+        dynamics: Option<PathBuf>,
     },
     /// Offline feedforward: the voltage that makes the stage follow a target.
     Invert {
@@ -111,6 +130,35 @@ enum Command {
         #[arg(long, default_value_t = 150.0, value_parser = parse_amplifier_volts,
               allow_negative_numbers = true)]
         u_max: f64,
+    },
+    /// The gains of the board's position loop, for a stated stability margin, from
+    /// the identified dynamics (if given) or the model's small-signal gain; written
+    /// into the firmware model (its [feedback] section), which `fpi board load` sends.
+    Tune {
+        /// A firmware model file (from `fpi export`).
+        #[arg(long)]
+        firmware: PathBuf,
+        /// Identified dynamics (`fpi identify`).
+        #[arg(long)]
+        dynamics: Option<PathBuf>,
+        /// Largest sensitivity peak |1/(1+L)| over the model's gain spread (1.6:
+        /// gain margin ≥ 8.5 dB, phase margin ≥ 36°).
+        #[arg(long, default_value_t = 1.6)]
+        max_sensitivity: f64,
+        /// Without --dynamics: the highest crossover, Hz.
+        #[arg(long, default_value_t = 20.0)]
+        bandwidth_hz: f64,
+        /// Largest correction the feedback adds to the reference, µm (default 10 %
+        /// of the stroke).
+        #[arg(long)]
+        limit_um: Option<f64>,
+        /// Largest disagreement of the position sensor with the model's estimate,
+        /// µm (default 15 % of the stroke).
+        #[arg(long)]
+        tolerance_um: Option<f64>,
+        /// Where to write the tuned firmware model.
+        #[arg(long)]
+        out: PathBuf,
     },
     /// Refine a stage's FEM tables from measured runs of the built stage: the gain
     /// and offset of its output f_K and the scale of its preload f_F, stored in the
@@ -142,6 +190,20 @@ enum Command {
         out: PathBuf,
         #[command(flatten)]
         settings: LoopArgs,
+        /// Identified dynamics (`fpi identify`): the firmware shapes the reference
+        /// with the inverse of the stage's lightly damped modes.
+        #[arg(long)]
+        dynamics: Option<PathBuf>,
+        /// With --dynamics: the damping ratio the compensated modes get.
+        #[arg(long, default_value_t = fpi_host::method::shaping::DAMPING)]
+        damping: f64,
+        /// With --dynamics: how much faster than each mode the compensated pair is.
+        #[arg(long, default_value_t = fpi_host::method::shaping::SPEED_UP)]
+        speed_up: f64,
+        /// With --dynamics: the amplifier's output current limit, mA; the slew is
+        /// then held to I_max / C (C from the dynamics).
+        #[arg(long)]
+        current_limit_ma: Option<f64>,
     },
     /// The whole chain on the datasets the project carries, into a folder.
     Demo {
@@ -151,6 +213,44 @@ enum Command {
     },
     /// Throughput of the host model and the calibration (figures, not a test).
     Bench,
+    /// The stage's linear dynamics from chirps (voltage → x_fhps_um): frequency
+    /// response, rational transfer function, voltage-dependent gain, capacitance.
+    Identify {
+        /// Chirp recordings `t_s,voltage_V,x_fhps_um[,current_mA]` (CSV, .gz allowed).
+        #[arg(long = "chirp", required = true, num_args = 1..)]
+        chirps: Vec<PathBuf>,
+        /// Where to write the dynamics (DYN.toml).
+        #[arg(long)]
+        out: PathBuf,
+        /// Folder for the Bode figure (bode.svg).
+        #[arg(long)]
+        plots: Option<PathBuf>,
+        /// Lowest frequency of the transfer-function fit, Hz (> 0): below it the
+        /// response is hysteresis and creep, which the FPI model holds.
+        #[arg(long, default_value_t = fpi_host::method::identify::MIN_DYNAMICS_HZ,
+              value_parser = parse_positive, allow_negative_numbers = true)]
+        min_hz: f64,
+    },
+    /// An analytic stage: the second paper's three-stage lever (eqs. 8–12, Table 5)
+    /// as an FEM table `x_pea_um,preload_N,x_fhps_um`.
+    Lever {
+        /// Lever parameters (TOML: [geometry], [output], [load]; default Table 5).
+        #[arg(long)]
+        params: Option<PathBuf>,
+        /// Where to write the table.
+        #[arg(long)]
+        out: PathBuf,
+        /// Table points (2..=10001).
+        #[arg(long, default_value_t = fpi_host::method::lever::DEFAULT_POINTS)]
+        points: usize,
+        /// Stack stroke the table covers, µm (> 0).
+        #[arg(long, default_value_t = fpi_host::method::lever::PAPER_STACK_UM,
+              value_parser = parse_positive, allow_negative_numbers = true)]
+        stroke_um: f64,
+        /// The x_fhps_um column: arc (µm of arc at [output] radius_mm) or deg.
+        #[arg(long, value_enum, default_value = "arc")]
+        output: fpi_host::method::lever::OutputUnit,
+    },
     /// A driver board (or the emulated board) over its command link.
     Board {
         /// The board's port: a serial device (/dev/ttyUSB0, COM3) or tcp:HOST:PORT
@@ -309,6 +409,21 @@ enum BoardCommand {
         /// Damage the newest model stored in flash (the next start refuses it).
         #[arg(long)]
         damage_stored: bool,
+        /// The position sensor: ok, open (a broken wire) or stuck (frozen reading).
+        #[arg(long)]
+        position_sensor: Option<String>,
+        /// The virtual stage, replaced by a fresh one at rest (send it parked):
+        /// nominal (the model's twin) or built (kinematics, preload and creep a few
+        /// percent off the model, an 850 Hz mode, position-sensor noise).
+        #[arg(long)]
+        stage: Option<String>,
+    },
+    /// Open the loop, or close it on the position sensor (the model needs a
+    /// [feedback] section, from `fpi tune`); without a jump.
+    Loop {
+        /// open, closed (feedback plus the inverse FPI feedforward) or feedback
+        /// (feedback alone, through the straight-line drive).
+        mode: String,
     },
 }
 
@@ -446,13 +561,15 @@ fn run(args: Args) -> Result<()> {
             fem,
             drive,
             out,
-        } => cli::predict(&model, &fem, &drive, &out),
+            dynamics,
+        } => cli::predict_with(&model, &fem, &drive, &out, dynamics.as_deref()),
         Command::Compare {
             fem,
             runs,
             model,
             out,
-        } => cli::compare(&fem, &runs, &model, &out),
+            dynamics,
+        } => cli::compare_with(&fem, &runs, &model, &out, dynamics.as_deref()),
         Command::Invert {
             model,
             fem,
@@ -466,17 +583,59 @@ fn run(args: Args) -> Result<()> {
             runs,
             out,
         } => cli::refine(&model, &fem, &runs, &out),
+        Command::Tune {
+            firmware,
+            dynamics,
+            max_sensitivity,
+            bandwidth_hz,
+            limit_um,
+            tolerance_um,
+            out,
+        } => cli::tune(
+            &firmware,
+            dynamics.as_deref(),
+            &out,
+            &fpi_host::method::tune::TuneOptions {
+                max_sensitivity,
+                bandwidth_hz,
+                limit_um,
+                tolerance_um,
+            },
+        ),
         Command::Export {
             model,
             fem,
             out,
             settings,
+            dynamics,
+            damping,
+            speed_up,
+            current_limit_ma,
         } => {
             let m = HostModel::read(&model)?;
-            cli::export(&m, &model, &fem, &out, &settings.options())
+            let shaping = fpi_host::method::shaping::ShapingOptions {
+                damping,
+                speed_up,
+                current_limit_ma,
+            };
+            let dynamics = dynamics.as_deref().map(|d| (d, shaping));
+            cli::export(&m, &model, &fem, &out, &settings.options(), dynamics)
         }
         Command::Demo { out } => cli::demo(&out).context("demo"),
         Command::Bench => cli::bench(),
+        Command::Identify {
+            chirps,
+            out,
+            plots,
+            min_hz,
+        } => cli::identify(&chirps, &out, plots.as_deref(), min_hz),
+        Command::Lever {
+            params,
+            out,
+            points,
+            stroke_um,
+            output,
+        } => fpi_host::method::lever::command(params.as_deref(), &out, points, stroke_um, output),
         Command::Board { port, command } => board(port, command),
     }
 }
@@ -568,6 +727,8 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             force_offset_n,
             stall_ticks,
             damage_stored,
+            position_sensor,
+            stage,
         } => b::bench(
             &mut c,
             &b::BenchSettings {
@@ -576,8 +737,11 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
                 force_offset_n,
                 stall_ticks,
                 damage_stored,
+                position_sensor,
+                stage,
             },
         ),
+        BoardCommand::Loop { mode } => b::set_loop(&mut c, b::loop_mode(&mode)?),
         BoardCommand::Supervise { ms } => c.ack(&C::Supervise { timeout_ms: ms }).map(|_| {
             if ms == 0 {
                 println!("host supervision off");

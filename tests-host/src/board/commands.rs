@@ -5,6 +5,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use fpi_firmware::closed_loop::LoopMode;
 use fpi_firmware::link::protocol::{BoardKind, Command, ResetReason, SlotReport, Status};
 use fpi_firmware::recorder::signal;
 use fpi_firmware::reference::wave::Shape;
@@ -135,6 +136,19 @@ pub fn status(c: &mut Client) -> Result<()> {
         real(m.window[1]),
         real(m.window[2]),
     );
+    match m.feedback {
+        None => println!("feedback: none in this model (open loop only; `fpi tune` adds it)"),
+        Some(f) => println!(
+            "feedback: kp {:.4}, ki {:.1}/s, correction within ±{:.3} µm; position sensor \
+             {:.2}–{:.2} µm, tolerance {:.3} µm",
+            f[0] as f64 / (1u64 << 24) as f64,
+            f[1] as f64 / (1u64 << 24) as f64 * rate,
+            real(f[2]),
+            real(f[3]),
+            real(f[4]),
+            real(f[5]),
+        ),
+    }
     print_state(&s, rate);
     println!(
         "link: {} requests, {} refused; {} malformed ({} CRC errors, {} too long), {} of another \
@@ -144,28 +158,53 @@ pub fn status(c: &mut Client) -> Result<()> {
     Ok(())
 }
 
+/// The loop's mode and drive, for people.
+pub fn loop_text(mode: LoopMode, compensated: bool) -> &'static str {
+    match (mode, compensated) {
+        (LoopMode::Open, true) => "open loop, compensated drive (inverse FPI)",
+        (LoopMode::Open, false) => "open loop, uncompensated drive (straight line)",
+        (LoopMode::Closed, _) => "closed loop on the position sensor, inverse FPI feedforward",
+        (LoopMode::FeedbackOnly, _) => "closed loop on the position sensor, feedback only",
+    }
+}
+
+/// A loop mode by name: `open`, `closed` or `feedback`.
+pub fn loop_mode(name: &str) -> Result<LoopMode> {
+    Ok(match name {
+        "open" => LoopMode::Open,
+        "closed" => LoopMode::Closed,
+        "feedback" | "feedback-only" => LoopMode::FeedbackOnly,
+        _ => bail!("loop {name:?}: open, closed or feedback"),
+    })
+}
+
+/// `fpi board loop`: opens or closes the loop, without a jump.
+pub fn set_loop(c: &mut Client, mode: LoopMode) -> Result<()> {
+    let tick = c.ack(&Command::Loop { mode })?;
+    let s = c.status()?;
+    println!("from tick {tick}: {}", loop_text(mode, s.compensated));
+    Ok(())
+}
+
 /// The loop's state, for people.
 pub fn print_state(s: &Status, rate: f64) {
     println!(
-        "tick {} ({:.3} s): reference {:.4} µm, estimate {:.4} µm, setpoint {:.3} V, force {:.2} N; \
-         amplifier {}",
+        "tick {} ({:.3} s): reference {:.4} µm, estimate {:.4} µm, position sensor {:.4} µm, \
+         setpoint {:.3} V, force {:.2} N; amplifier {}",
         s.tick,
         s.tick as f64 / rate,
         real(s.signals[0]),
         real(s.signals[1]),
+        real(s.signals[4]),
         real(s.signals[2]),
         real(s.signals[3]),
         if s.amplifier_on { "on" } else { "off" }
     );
     println!(
-        "source: {:?}{}, {} drive; host supervision {}",
+        "source: {:?}{}, {}; host supervision {}",
         s.source,
         if s.approaching { " (approaching)" } else { "" },
-        if s.compensated {
-            "compensated (inverse FPI)"
-        } else {
-            "uncompensated (straight line)"
-        },
+        loop_text(s.loop_mode, s.compensated),
         if s.supervision[0] == 0 {
             "off".to_string()
         } else {
@@ -341,6 +380,11 @@ pub struct BenchSettings {
     pub stall_ticks: Option<u16>,
     /// Damage the newest stored model (seen at the next start).
     pub damage_stored: bool,
+    /// The position sensor: `ok`, `open` or `stuck`.
+    pub position_sensor: Option<String>,
+    /// The virtual stage: `nominal` (the model's twin) or `built` (differs from
+    /// the model as a built stage does).
+    pub stage: Option<String>,
 }
 
 /// `fpi board bench`: the emulated board's virtual bench (a real board refuses).
@@ -349,7 +393,8 @@ pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<()> {
     if *b == BenchSettings::default() {
         bail!(
             "nothing to set: --analog-v V, --sensor ok|open|stuck, --force-offset-n N, \
-             --stall-ticks T or --damage-stored"
+             --stall-ticks T, --damage-stored, --position-sensor ok|open|stuck or \
+             --stage nominal|built"
         );
     }
     let (analog_v, sensor) = (b.analog_v, b.sensor.as_deref());
@@ -397,6 +442,36 @@ fn bench_faults(c: &mut Client, b: &BenchSettings) -> Result<()> {
     if b.damage_stored {
         c.bench(BenchOrder::DamageStored)?;
         println!("the newest stored model is damaged: `fpi board reset` shows the start-up check");
+    }
+    bench_position(c, b)
+}
+
+/// The position sensor's faults and the choice of virtual stage of [`bench`].
+fn bench_position(c: &mut Client, b: &BenchSettings) -> Result<()> {
+    use fpi_firmware::link::protocol::BenchOrder;
+    if let Some(s) = b.position_sensor.as_deref() {
+        let orders: &[BenchOrder] = match s {
+            "ok" => &[
+                BenchOrder::PositionOpen(false),
+                BenchOrder::PositionStuck(false),
+            ],
+            "open" => &[BenchOrder::PositionOpen(true)],
+            "stuck" => &[BenchOrder::PositionStuck(true)],
+            _ => bail!("--position-sensor {s:?}: ok, open or stuck"),
+        };
+        for o in orders {
+            c.bench(*o)?;
+        }
+        println!("position sensor {s}");
+    }
+    if let Some(s) = b.stage.as_deref() {
+        let built = match s {
+            "nominal" => false,
+            "built" => true,
+            _ => bail!("--stage {s:?}: nominal or built"),
+        };
+        let tick = c.bench(BenchOrder::Stage(built))?;
+        println!("virtual stage: stage A {s}, at rest from tick {tick}");
     }
     Ok(())
 }

@@ -6,6 +6,7 @@
 
 pub mod accuracy;
 pub mod client;
+pub mod closed_loop;
 pub mod commands;
 pub mod emulator;
 pub mod inprocess;

@@ -3,8 +3,9 @@
 //! as they take a recorded dataset.
 //!
 //! CSV columns: `t_s,voltage_V,force_N,x_ref_um,x_est_um,status` and, where the
-//! board knows the stage's true position (the emulated board), `x_fhps_um`. Only
-//! the signals recorded are written (`t_s` always).
+//! board knows the stage's true position (the emulated board), `x_fhps_um`, and the
+//! position sensor's reading `x_sensor_um`. Only the signals recorded are written
+//! (`t_s` always).
 
 use std::io::Write;
 use std::path::Path;
@@ -84,6 +85,7 @@ impl Recording {
             (signal::X_EST, "x_est_um"),
             (signal::STATUS, "status"),
             (signal::X_TRUE, "x_fhps_um"),
+            (signal::X_SENSOR, "x_sensor_um"),
         ];
         let mut head = String::from("t_s");
         for (bit, name) in cols {
@@ -105,7 +107,8 @@ impl Recording {
                     signal::X_REF => format!("{:.5}", real(s.x_ref)),
                     signal::X_EST => format!("{:.5}", real(s.x_est)),
                     signal::STATUS => s.status.to_string(),
-                    _ => format!("{:.5}", real(s.x_true)),
+                    signal::X_TRUE => format!("{:.5}", real(s.x_true)),
+                    _ => format!("{:.5}", real(s.x_sensor)),
                 };
                 line.push(',');
                 line.push_str(&v);

@@ -158,6 +158,10 @@ pub struct Options {
     pub offset: bool,
     /// Input domain of the model, V.
     pub input_max: f64,
+    /// Branch model: degrees of the ascending and descending polynomials.
+    pub branch_degrees: (usize, usize),
+    /// Branch model: how turning points are remembered.
+    pub branch_memory: crate::method::branch::Memory,
 }
 
 impl Options {
@@ -174,6 +178,8 @@ impl Options {
             },
             offset: kind == Kind::Gpi,
             input_max: crate::method::export::AMPLIFIER_MAX_V,
+            branch_degrees: crate::method::branch::PAPER_DEGREES,
+            branch_memory: crate::method::branch::Memory::Stack,
         }
     }
 
@@ -453,7 +459,7 @@ struct Fit {
 }
 
 /// The output-error figures of a recording's window.
-fn file_fit(d: &CalibData, e: &ErrorStats<f64>) -> FileFit {
+pub(crate) fn file_fit(d: &CalibData, e: &ErrorStats<f64>) -> FileFit {
     FileFit {
         file: d.name.clone(),
         samples: e.count() as usize,
@@ -463,7 +469,7 @@ fn file_fit(d: &CalibData, e: &ErrorStats<f64>) -> FileFit {
 }
 
 /// RMSE over several files' fits, weighted by their samples.
-fn pooled_rmse(per_file: &[FileFit]) -> f64 {
+pub(crate) fn pooled_rmse(per_file: &[FileFit]) -> f64 {
     let total: usize = per_file.iter().map(|f| f.samples).sum();
     let s2: f64 = per_file
         .iter()
@@ -605,7 +611,7 @@ impl<'a> Problem<'a> {
 }
 
 /// Golden-section minimisation of `f` on `[a, b]`.
-fn golden(mut a: f64, mut b: f64, tol: f64, mut f: impl FnMut(f64) -> f64) -> f64 {
+pub(crate) fn golden(mut a: f64, mut b: f64, tol: f64, mut f: impl FnMut(f64) -> f64) -> f64 {
     let g = (5f64.sqrt() - 1.0) / 2.0;
     let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
     let (mut fc, mut fd) = (f(c), f(d));
@@ -653,7 +659,7 @@ impl CostFunction for EfpiCost<'_, '_> {
 }
 
 /// The data's top voltage rounded up to a tenth of its decade (100 V stays 100 V).
-fn voltage_span(data: &[CalibData]) -> f64 {
+pub(crate) fn voltage_span(data: &[CalibData]) -> f64 {
     let u_top = data
         .iter()
         .flat_map(|d| d.u.iter())
@@ -808,6 +814,7 @@ pub fn calibrate(data: &[CalibData], opt: &Options) -> Result<HostModel> {
         Kind::Fpi => fit_fpi(&pr)?,
         Kind::Gpi => fit_gpi(&pr)?,
         Kind::Efpi => fit_efpi(&pr, opt)?,
+        Kind::Branch => return crate::method::branch::calibrate(data, opt, warnings),
     };
     let mut model = unpack(&pr.layout, &params, &best.w, opt.input_max.max(span));
     model.calibration = Calibration {

@@ -153,6 +153,37 @@ impl Comparison {
     }
 }
 
+impl Comparison {
+    /// Adds, for every model, its prediction followed by the identified dynamics
+    /// `d` (the Hammerstein structure of [`crate::method::dynamics`]) as another
+    /// model named `NAME+dyn`, scored on every run. Each run must be sampled
+    /// uniformly.
+    pub fn add_dynamics(&mut self, d: &crate::method::dynamics::Dynamics) -> Result<()> {
+        let base = self.models.len();
+        for m in 0..base {
+            let (name, model) = self.models[m].clone();
+            for (r, run) in self.runs.iter().enumerate() {
+                let dt = crate::method::dynamics::uniform_step(&run.t).map_err(|(k, ..)| {
+                    anyhow::anyhow!(
+                        "{}:{}: column t_s: not uniformly sampled (the dynamics need it)",
+                        run.path.display(),
+                        k + 3
+                    )
+                })?;
+                let mut prediction = self.scores[r][m].prediction.clone();
+                prediction.x_fhps = d.apply(&prediction.x_fhps, dt)?;
+                let metrics = predict::metrics(&prediction.x_fhps, &run.x);
+                self.scores[r].push(Scored {
+                    prediction,
+                    metrics,
+                });
+            }
+            self.models.push((format!("{name}+dyn"), model));
+        }
+        Ok(())
+    }
+}
+
 /// Prints the comparison table (MAE, RMSE, MTE, MAE reduction vs the first model).
 pub fn print_table(c: &Comparison) {
     for (r, _) in c.runs.iter().enumerate() {

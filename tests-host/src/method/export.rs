@@ -366,6 +366,8 @@ fn controller_section(s: &LoopSettings, fem: &FemMaps, stroke: f64) -> Controlle
         force_tolerance_n: s.force_tolerance,
         safe_voltage_v: 0.0,
         force_source: "measured".into(),
+        current_limit_ma: None,
+        capacitance_uf: None,
     }
 }
 
@@ -439,6 +441,8 @@ pub fn export(
             .collect(),
         controller: controller_section(s, fem, stroke),
         tables,
+        feedback: None,
+        shaping: None,
     };
     fm.check()
         .map_err(|e| anyhow::anyhow!("the export does not meet the firmware's formats: {e}"))?;

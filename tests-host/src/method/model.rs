@@ -10,6 +10,7 @@
 //! | `fpi` | `û = max(u − k_f·F, 0)` | the paper's FPI (eqs. 5–7) |
 //! | `efpi` | `û = g(u − U_p(F))` | extended FPI: `U_p = k0 + k_f·F + k_q·(F − F_q)²`, soft dead zone `g`, creep lags, output saturation, stack compliance |
 //! | `gpi` | `u` | PI followed by a monotone quadratic output map and an offset (for recordings without force) |
+//! | `branch` | `û = clamp(u − k_f·F, 0, input_max)` | no PI: the second paper's branch polynomials (eqs. 6–7) from the last turning point, with a memory of turning points ([`crate::method::branch`]) |
 
 use std::fmt;
 use std::path::Path;
@@ -22,6 +23,7 @@ use piezo_sim::model::{Coupling, Creep, DeadZone, Ldpi, Model, Output, MAX_CREEP
 use piezo_sim::play::{Pi, Values, MAX_OPERATORS};
 
 use crate::data::fem::FemMaps;
+use crate::method::branch::{self, BranchSection};
 
 /// The model-file format string.
 pub const FORMAT: &str = "piezo-fpi-model/1";
@@ -43,11 +45,20 @@ pub enum Kind {
     Efpi,
     /// PI with a monotone quadratic output map and an offset (no force).
     Gpi,
+    /// Branch-polynomial hysteresis (the second paper, eqs. 6–7).
+    Branch,
 }
 
 impl Kind {
     /// Every kind, in the order reports list them.
-    pub const ALL: [Kind; 5] = [Kind::Pi, Kind::Ldpi, Kind::Fpi, Kind::Efpi, Kind::Gpi];
+    pub const ALL: [Kind; 6] = [
+        Kind::Pi,
+        Kind::Ldpi,
+        Kind::Fpi,
+        Kind::Efpi,
+        Kind::Gpi,
+        Kind::Branch,
+    ];
 
     /// The name used on the command line and in files.
     pub fn name(self) -> &'static str {
@@ -57,6 +68,7 @@ impl Kind {
             Kind::Fpi => "fpi",
             Kind::Efpi => "efpi",
             Kind::Gpi => "gpi",
+            Kind::Branch => "branch",
         }
     }
 
@@ -66,13 +78,13 @@ impl Kind {
             .into_iter()
             .find(|k| k.name() == s)
             .with_context(|| {
-                format!("unknown model kind {s:?}: expected pi, ldpi, fpi, efpi or gpi")
+                format!("unknown model kind {s:?}: expected pi, ldpi, fpi, efpi, gpi or branch")
             })
     }
 
     /// Whether the model needs the preload.
     pub fn uses_force(self) -> bool {
-        matches!(self, Kind::Ldpi | Kind::Fpi | Kind::Efpi)
+        matches!(self, Kind::Ldpi | Kind::Fpi | Kind::Efpi | Kind::Branch)
     }
 
     /// The name the paper's method gets with this model (PI-FEM, FPI-FFEM, …).
@@ -83,6 +95,7 @@ impl Kind {
             Kind::Fpi => "FPI-FFEM",
             Kind::Efpi => "EFPI-FFEM",
             Kind::Gpi => "GPI-FEM",
+            Kind::Branch => "BPH-FFEM",
         }
     }
 }
@@ -162,8 +175,12 @@ pub struct HostModel {
     pub format: String,
     /// Which model.
     pub kind: Kind,
-    /// The PI part.
+    /// The PI part (none in a branch model, whose file leaves it out).
+    #[serde(default = "branch::no_pi", skip_serializing_if = "branch::is_no_pi")]
     pub pi: PiSection,
+    /// The branch polynomials (branch models only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub branch: Option<BranchSection>,
     /// LDPI weight slopes.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ldpi: Option<LdpiParams>,
@@ -299,6 +316,7 @@ impl HostModel {
             format: FORMAT.into(),
             kind,
             pi,
+            branch: None,
             ldpi: None,
             coupling: CouplingSection::default(),
             dead_zone_softness_v: 0.0,
@@ -369,6 +387,22 @@ impl HostModel {
         if self.format != FORMAT {
             bail!("format = {:?}: expected {FORMAT:?}", self.format);
         }
+        if self.kind == Kind::Branch {
+            self.validate_branch()?;
+            return match &self.fem_correction {
+                Some(c) => c.validate(),
+                None => Ok(()),
+            };
+        }
+        if self.branch.is_some() {
+            bail!(
+                "branch: a {} model has no [branch] section (only kind = \"branch\")",
+                self.kind
+            );
+        }
+        if branch::is_no_pi(&self.pi) {
+            bail!("pi: missing: a {} model needs its [pi] section", self.kind);
+        }
         self.validate_sizes()?;
         self.validate_pi()?;
         self.validate_motion()?;
@@ -384,6 +418,51 @@ impl HostModel {
             c.validate()?;
         }
         Ok(())
+    }
+
+    /// A branch model: its `[branch]` section, `k_f` ≥ 0 and the rest offset, and
+    /// none of the other kinds' parts.
+    fn validate_branch(&self) -> Result<()> {
+        let Some(b) = &self.branch else {
+            bail!("kind = \"branch\" needs a [branch] section");
+        };
+        b.validate()?;
+        if !branch::is_no_pi(&self.pi) {
+            bail!("pi: a branch model has no PI part (leave the [pi] section out)");
+        }
+        let c = &self.coupling;
+        let k_f = c.k_f_v_per_n;
+        if !(k_f.is_finite() && k_f >= 0.0) {
+            bail!("coupling.k_f_v_per_n = {k_f}: must be a finite value ≥ 0 V/N");
+        }
+        for (key, v) in [
+            ("coupling.offset_v", c.offset_v),
+            ("coupling.k_q_v_per_n2", c.k_q_v_per_n2),
+            ("coupling.force_q_n", c.force_q_n),
+            ("coupling.compliance_um_per_n", c.compliance_um_per_n),
+            ("dead_zone_softness_v", self.dead_zone_softness_v),
+        ] {
+            if v != 0.0 {
+                bail!("{key} = {v}: a branch model uses only coupling.k_f_v_per_n (must be 0)");
+            }
+        }
+        finite("offset_um", self.offset_um)?;
+        if self.output != OutputMap::Identity {
+            bail!("output: a branch model has no output map");
+        }
+        if self.ldpi.is_some() || !self.creep.is_empty() {
+            bail!("ldpi, creep: a branch model has neither section");
+        }
+        Ok(())
+    }
+
+    /// The top of the model's input range, V (`pi.input_max_v`, or
+    /// `branch.input_max_v` for a branch model).
+    pub fn input_max_v(&self) -> f64 {
+        match &self.branch {
+            Some(b) if self.kind == Kind::Branch => b.input_max_v,
+            _ => self.pi.input_max_v,
+        }
     }
 
     /// Counts: one weight per threshold, at most [`MAX_OPERATORS`] and [`MAX_CREEP`].

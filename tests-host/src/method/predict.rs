@@ -28,10 +28,11 @@ pub struct Prediction {
     pub iterations: usize,
 }
 
-/// The drive voltages a model takes, V: its input range `0..=pi.input_max_v`, and
-/// no more than the board's amplifier span ([`AMPLIFIER_MAX_V`]).
+/// The drive voltages a model takes, V: its input range `0..=pi.input_max_v`
+/// ([`HostModel::input_max_v`]), and no more than the board's amplifier span
+/// ([`AMPLIFIER_MAX_V`]).
 pub fn input_range(model: &HostModel) -> (f64, f64) {
-    (0.0, model.pi.input_max_v.min(AMPLIFIER_MAX_V))
+    (0.0, model.input_max_v().min(AMPLIFIER_MAX_V))
 }
 
 /// The first drive sample outside [`input_range`]: its index and voltage, V.
@@ -55,6 +56,9 @@ pub fn predict(model: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Result
             "drive sample {}: {v} V is outside the model's input range {lo}..{hi} V",
             k + 1
         );
+    }
+    if model.kind == crate::method::model::Kind::Branch {
+        return crate::method::branch::predict(model, fem, t, u);
     }
     let dt = (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
     let m = model.model();

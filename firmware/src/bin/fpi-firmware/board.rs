@@ -4,6 +4,7 @@
 //! |---|---|---|
 //! | force sensor (0–3.3 V = −5…507 N) | PA0 | ADC1 channel 0 |
 //! | analog reference (0–3.3 V = the model's stroke) | PA1 | ADC2 channel 1 |
+//! | stage-position sensor (0–3.3 V = −10…+70 µm) | PC0 | ADC3 channel 10 |
 //! | amplifier setpoint (0–3.3 V = 0–150 V) | PA4 | DAC channel 1 |
 //! | amplifier enable (high = on) | PB0 | GPIO |
 //! | host link (115 200 Bd, 8N1) | PA9 TX, PA10 RX | USART1 |
@@ -33,8 +34,8 @@ use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime, Sequence};
 use stm32f4xx_hal::adc::Adc;
 use stm32f4xx_hal::dac::{DacOut, DacPin, C1};
 use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
-use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA0, PA1, PB0};
-use stm32f4xx_hal::pac::{self, ADC1, ADC2, USART1};
+use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA0, PA1, PB0, PC0};
+use stm32f4xx_hal::pac::{self, ADC1, ADC2, ADC3, USART1};
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
 use stm32f4xx_hal::serial::{Event, Serial};
@@ -58,33 +59,63 @@ impl ForceSensor for Sensor {
     }
 }
 
-/// The analog reference input on ADC2/PA1, driven through its registers: the
-/// HAL's `Adc::new` only takes ADC1 (its calibration needs ADC1's VREF channel).
+/// The analog reference input on ADC2/PA1 and the stage-position sensor on
+/// ADC3/PC0, driven through their registers: the HAL's `Adc::new` only takes ADC1
+/// (its calibration needs ADC1's VREF channel).
 pub struct Reference {
     adc: ADC2,
     _pin: PA1<Analog>,
+    position: ADC3,
+    _position_pin: PC0<Analog>,
+}
+
+/// Starts an ADC converting one channel (56-cycle sample time) on software start,
+/// its first conversion started.
+fn start_single(adc: &pac::adc1::RegisterBlock, channel: u8) {
+    adc.smpr2().modify(|_, w| w.smp1().cycles56());
+    adc.smpr1().modify(|_, w| w.smp10().cycles56());
+    // SAFETY: the channels used (1, 10) are channels of ADC2/ADC3 (0–18).
+    adc.sqr3().write(|w| unsafe { w.sq1().bits(channel) });
+    adc.cr2().modify(|_, w| w.adon().set_bit());
+    adc.cr2().modify(|_, w| w.swstart().set_bit());
+}
+
+/// The finished conversion, the next one started.
+fn take_single(adc: &pac::adc1::RegisterBlock) -> u16 {
+    let counts = adc.dr().read().data().bits();
+    adc.cr2().modify(|_, w| w.swstart().set_bit());
+    counts
 }
 
 impl Reference {
-    /// ADC2 converting channel 1 (56-cycle sample time) on software start, the
-    /// first conversion started.
-    fn new(adc: ADC2, pin: PA1<Analog>, rcc: &mut stm32f4xx_hal::rcc::Rcc) -> Self {
+    /// ADC2 on channel 1 and ADC3 on channel 10, first conversions started.
+    fn new(
+        (adc, pin): (ADC2, PA1<Analog>),
+        (position, position_pin): (ADC3, PC0<Analog>),
+        rcc: &mut stm32f4xx_hal::rcc::Rcc,
+    ) -> Self {
         <ADC2 as stm32f4xx_hal::rcc::Enable>::enable(rcc);
         <ADC2 as stm32f4xx_hal::rcc::Reset>::reset(rcc);
-        adc.smpr2().modify(|_, w| w.smp1().cycles56());
-        // SAFETY: channel 1 is one of ADC2's channels (0–18).
-        adc.sqr3().write(|w| unsafe { w.sq1().bits(1) });
-        adc.cr2().modify(|_, w| w.adon().set_bit());
-        adc.cr2().modify(|_, w| w.swstart().set_bit());
-        Self { adc, _pin: pin }
+        <ADC3 as stm32f4xx_hal::rcc::Enable>::enable(rcc);
+        <ADC3 as stm32f4xx_hal::rcc::Reset>::reset(rcc);
+        start_single(&adc, 1);
+        start_single(&position, 10);
+        Self {
+            adc,
+            _pin: pin,
+            position,
+            _position_pin: position_pin,
+        }
     }
 }
 
 impl AnalogIn for Reference {
     fn read_counts(&mut self) -> u16 {
-        let counts = self.adc.dr().read().data().bits();
-        self.adc.cr2().modify(|_, w| w.swstart().set_bit());
-        counts
+        take_single(&self.adc)
+    }
+    fn read_position(&mut self) -> u16 {
+        // 12 bits, left-aligned to the channel's 16-bit code.
+        take_single(&self.position) << 4
     }
 }
 
@@ -197,7 +228,12 @@ pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
     let _ = adc1.convert(&pa0, SampleTime::Cycles_56);
     adc1.start_conversion();
 
-    let reference = Reference::new(dp.ADC2, gpioa.pa1.into_analog(), &mut rcc);
+    let gpioc = dp.GPIOC.split(&mut rcc);
+    let reference = Reference::new(
+        (dp.ADC2, gpioa.pa1.into_analog()),
+        (dp.ADC3, gpioc.pc0.into_analog()),
+        &mut rcc,
+    );
 
     let Ok(mut serial) = Serial::new(dp.USART1, (gpioa.pa9, gpioa.pa10), 115_200.bps(), &mut rcc)
     else {

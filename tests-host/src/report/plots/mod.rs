@@ -17,6 +17,7 @@
 #![deny(missing_docs)]
 
 mod bars;
+mod bode;
 mod canvas;
 mod frame;
 mod legend;
@@ -28,6 +29,7 @@ mod xy;
 use plotters::prelude::*;
 
 pub use bars::bars;
+pub use bode::{bode, BodeSeries};
 pub use surface::surface;
 pub use xy::{curves, loop_panels, loops};
 

@@ -1,0 +1,288 @@
+//! Open and closed loop: the command the control step gets, from the reference
+//! and the stage-position sensor.
+//!
+//! | mode | command `x_cmd` (µm) | law |
+//! |---|---|---|
+//! | [`LoopMode::Open`] | `S(x_ref)` (+ a transfer offset bleeding to 0) | inverse FPI, or the straight line (`drive`) |
+//! | [`LoopMode::Closed`] | `S(x_ref) + δ`, `δ = PI(x_ref − x_sensor)` in `±limit` | inverse FPI: feedback + feedforward |
+//! | [`LoopMode::FeedbackOnly`] | `PI(x_ref − x_sensor)` in the stroke | the straight line: feedback alone |
+//!
+//! `S` is the model's reference shaping, where it has one: the inverse of the
+//! stage's lightly damped modes (`piezo_fpi::biquad`), so that a fast reference
+//! does not ring the stage; otherwise `S(x) = x`.
+//!
+//! The PI law, its anti-windup and the sensor checks are the core's
+//! ([`piezo_fpi::feedback`]). **Bumpless transfer**: when the mode or the law
+//! changes, the new law starts from the command that reproduces the present
+//! output under it — the last command if the law is the same, else the model's
+//! estimate of the stage position (inverse FPI, whose memory follows the applied
+//! voltage) or the straight line's inverse of the present voltage — and the PI's
+//! integrator is preset to it ([`Pi::preset`]). Back in open loop, the
+//! difference to the reference bleeds off at [`APPROACH_STEP`] per tick.
+//!
+//! In the closed modes a position reading outside the sensor's range, or one that
+//! disagrees with the model's estimate by more than the tolerance for
+//! [`IMPLAUSIBLE_RUN`] ticks in a row, trips a fault: the output ramps to the safe
+//! voltage like for any other fault.
+
+use piezo_fpi::biquad::{Cascade, CascadeState, SHAPING_SECTIONS};
+use piezo_fpi::control::{Fault, Interval, LinearDrive, Mode, StepOutput};
+use piezo_fpi::feedback::{FeedbackConfig, Pi, Saturation};
+use piezo_fpi::q::{Micrometres, Volts};
+use serde::{Deserialize, Serialize};
+
+use crate::hardware::{Controller, APPROACH_STEP, RATE_HZ};
+
+/// How the loop is closed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum LoopMode {
+    /// Feedforward only: the reference through the inverse FPI (or the straight line).
+    Open,
+    /// PI feedback on the position sensor plus the inverse FPI as feedforward.
+    Closed,
+    /// PI feedback alone, its output through the straight-line drive (no model).
+    FeedbackOnly,
+}
+
+/// Which law turns the command into a voltage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Law {
+    Fpi,
+    Linear,
+}
+
+/// What the control step is given this tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Command {
+    /// The command, µm.
+    pub x_cmd: Micrometres,
+    /// The law.
+    pub mode: Mode,
+}
+
+/// The loop's mode and the feedback's memory (state).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Loop {
+    mode: LoopMode,
+    law: Law,
+    pi: Pi,
+    held: Micrometres,
+    last_cmd: Micrometres,
+    clamp: Saturation,
+    sat: Saturation,
+    transfer: bool,
+    fresh: bool,
+    implausible: u32,
+    shaped: CascadeState<SHAPING_SECTIONS>,
+}
+
+/// Ticks in a row a position reading must disagree with the model's estimate to
+/// trip [`Fault::PositionImplausible`]: 2 ms, longer than the swings of a stage
+/// mode above 500 Hz (which the quasi-static model does not follow), short
+/// against a stuck sensor's drift.
+pub const IMPLAUSIBLE_RUN: u32 = RATE_HZ / 500;
+
+impl Default for Loop {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Loop {
+    /// Open loop, compensated, nothing held.
+    pub const fn new() -> Self {
+        Self {
+            mode: LoopMode::Open,
+            law: Law::Fpi,
+            pi: Pi::new(),
+            held: Micrometres::ZERO,
+            last_cmd: Micrometres::ZERO,
+            clamp: Saturation::Free,
+            sat: Saturation::Free,
+            transfer: true,
+            fresh: true,
+            implausible: 0,
+            shaped: CascadeState::new(),
+        }
+    }
+
+    /// The mode in use.
+    pub const fn mode(&self) -> LoopMode {
+        self.mode
+    }
+
+    /// Runs `mode` from the next tick on, without a jump.
+    pub fn select(&mut self, mode: LoopMode) {
+        if mode != self.mode {
+            self.mode = mode;
+            self.transfer = true;
+        }
+    }
+
+    /// Forgets the feedback's memory (after a fault, a park or a new model): the
+    /// next tick starts afresh from the present output.
+    pub fn reset(&mut self) {
+        self.pi = Pi::new();
+        self.held = Micrometres::ZERO;
+        self.sat = Saturation::Free;
+        self.transfer = true;
+        self.fresh = true;
+    }
+
+    /// The position sensor's verdict in a closed mode (none in open loop):
+    /// `reading` against the sensor's range (at once) and the model's last
+    /// estimate (for [`IMPLAUSIBLE_RUN`] ticks in a row).
+    #[inline]
+    pub fn check(
+        &mut self,
+        fb: Option<&FeedbackConfig>,
+        reading: Micrometres,
+        estimate: Micrometres,
+    ) -> Option<Fault> {
+        let verdict = match (self.mode, fb) {
+            (LoopMode::Open, _) | (_, None) => None,
+            (_, Some(f)) => f.check(reading, estimate),
+        };
+        match verdict {
+            Some(Fault::PositionImplausible) => {
+                self.implausible = self.implausible.saturating_add(1);
+                (self.implausible >= IMPLAUSIBLE_RUN).then_some(Fault::PositionImplausible)
+            }
+            other => {
+                self.implausible = 0;
+                other
+            }
+        }
+    }
+
+    /// The command for this tick (see the module docs).
+    #[inline]
+    pub fn command(&mut self, io: &Inputs<'_, '_>) -> Command {
+        let law = match (self.mode, io.compensated) {
+            (LoopMode::Open, true) | (LoopMode::Closed, _) => Law::Fpi,
+            (LoopMode::Open, false) | (LoopMode::FeedbackOnly, _) => Law::Linear,
+        };
+        if self.transfer || law != self.law {
+            self.take_over(law, io);
+        }
+        // The feedforward's reference: shaped by the inverse of the stage's modes.
+        let ff = match io.shaping {
+            Some(c) => c.update(&mut self.shaped, io.x_ref),
+            None => io.x_ref,
+        };
+        let window = io.cfg.reference();
+        let error = io.x_ref.saturating_sub(io.reading);
+        let wanted = match (self.mode, io.feedback) {
+            (LoopMode::Closed, Some(f)) => {
+                let d = self.pi.update(f, error, self.sat, f.correction());
+                ff.saturating_add(d)
+            }
+            (LoopMode::FeedbackOnly, Some(f)) => self.pi.update(f, error, self.sat, window),
+            _ => {
+                self.held = toward_zero(self.held);
+                ff.saturating_add(self.held)
+            }
+        };
+        let reachable = io.x_ref >= window.lo && io.x_ref <= window.hi;
+        // An unreachable reference goes to the step as it is: the step trips.
+        let x_cmd = if reachable {
+            clamp_to(wanted, window)
+        } else {
+            io.x_ref
+        };
+        self.clamp = Saturation::Free.or_clamp(wanted, window.lo, window.hi);
+        self.last_cmd = x_cmd;
+        let mode = match law {
+            Law::Fpi => Mode::Compensated,
+            Law::Linear => Mode::Uncompensated(*io.drive),
+        };
+        Command { x_cmd, mode }
+    }
+
+    /// Takes the step's result: the direction it was limited in, for the
+    /// integrator's anti-windup; a fault forgets the memory.
+    #[inline]
+    pub fn after(&mut self, out: &StepOutput, before: Volts, cfg: &Controller<'_>) {
+        if out.fault.is_some() {
+            self.reset();
+            return;
+        }
+        let l = cfg.limits();
+        let mid = l.min() + ((l.max() - l.min()) >> 1);
+        self.sat = match self.clamp {
+            Saturation::Free => Saturation::of_step(out.limited, before, out.voltage, mid),
+            clamped => clamped,
+        };
+    }
+
+    /// Starts `law` from the command that reproduces the present output under it.
+    #[inline(never)]
+    #[cold]
+    fn take_over(&mut self, law: Law, io: &Inputs<'_, '_>) {
+        let c = if law == self.law && !self.fresh {
+            self.last_cmd
+        } else {
+            match law {
+                Law::Fpi => io.estimate,
+                Law::Linear => io.drive.reference_for(io.voltage).unwrap_or(io.estimate),
+            }
+        };
+        let error = io.x_ref.saturating_sub(io.reading);
+        if self.fresh {
+            // After a fault or a new model the shaping starts at rest.
+            self.shaped = CascadeState::settled(io.x_ref);
+        }
+        match (self.mode, io.feedback) {
+            (LoopMode::Closed, Some(f)) => {
+                let d = clamp_to(c.saturating_sub(io.x_ref), f.correction());
+                self.pi.preset(f, d, error);
+            }
+            (LoopMode::FeedbackOnly, Some(f)) => {
+                self.pi.preset(f, clamp_to(c, io.cfg.reference()), error);
+            }
+            _ => self.held = c.saturating_sub(io.x_ref),
+        }
+        self.law = law;
+        self.transfer = false;
+        self.fresh = false;
+        self.sat = Saturation::Free;
+    }
+}
+
+/// What [`Loop::command`] reads.
+pub struct Inputs<'c, 'm> {
+    /// The running model's controller.
+    pub cfg: &'c Controller<'m>,
+    /// Its feedback settings, if it has them.
+    pub feedback: Option<&'c FeedbackConfig>,
+    /// Its reference shaping, if it has it.
+    pub shaping: Option<&'c Cascade<SHAPING_SECTIONS>>,
+    /// Its straight-line drive.
+    pub drive: &'c LinearDrive,
+    /// Inverse FPI (else the straight line) in open loop.
+    pub compensated: bool,
+    /// Reference, µm.
+    pub x_ref: Micrometres,
+    /// Position sensor, µm.
+    pub reading: Micrometres,
+    /// The model's stage position after the last tick, µm.
+    pub estimate: Micrometres,
+    /// The output after the last tick, V.
+    pub voltage: Volts,
+}
+
+/// `x` within `i` (`max`/`min`, not `clamp`: no panic path for an inverted `i`).
+fn clamp_to(x: Micrometres, i: Interval) -> Micrometres {
+    x.max(i.lo).min(i.hi)
+}
+
+/// One [`APPROACH_STEP`] closer to zero.
+fn toward_zero(x: Micrometres) -> Micrometres {
+    if x > APPROACH_STEP {
+        x - APPROACH_STEP
+    } else if x < -APPROACH_STEP {
+        x + APPROACH_STEP
+    } else {
+        Micrometres::ZERO
+    }
+}

@@ -1,0 +1,737 @@
+//! Branch-polynomial hysteresis (`--kind branch`): the hysteresis model of the
+//! second paper (seed 001, eqs. 6–7 and Table 3), made continuous at reversals,
+//! with a memory of reversal points, its least-squares fit on the rig recordings
+//! and its coupled prediction of a stage.
+//!
+//! # The paper's equations and our reading
+//!
+//! The paper describes the voltage–displacement curve by two polynomials, one per
+//! direction of the voltage, in the distance from the last turning voltage:
+//!
+//! ```text
+//! (6) Hist_up(v, v_min) = P_up1·Δ³ + P_up2·Δ² + P_up3·Δ + P_up4 + B_up1·v_min² + B_up2·v_min + B_up3,   Δ = v − v_min ≥ 0
+//! (7) Hist_dn(v, v_max) = P_dn1·Δ⁴ + P_dn2·Δ³ + P_dn3·Δ² + P_dn4·Δ + P_dn5 − B_dn1·v_max² + B_dn2·v_max + B_dn3,   Δ = v − v_max ≤ 0
+//! ```
+//!
+//! The constant of each branch, `P_up4 + B_up(v_min)` and `P_dn5 + B_dn(v_max)`, is
+//! where the branch starts: a fitted quadratic of the turning *voltage*. With
+//! Table 3's values as transcribed, eq. 7 is continuous with eq. 6 nowhere: at a
+//! reversal at 100 V after an ascent from 0 V, eq. 6 ends at 75.4 and eq. 7 starts
+//! at 512.2. Reading the printed `− B_dn1·v_max²` as `+ B_dn1·v_max²` (a lost
+//! sign; `B_dn1` is itself negative), the two meet at the paper's major loop only:
+//! at `v_max` = 120 V eq. 6 ends at 121.3 and eq. 7 starts at 123.0, and eq. 7
+//! ends at −0.1 at 0 V where eq. 6 started at 1.9; at `v_max` = 100 V the jump
+//! is 83 (of a 75 span), and an ascent from `v_min` = 60 V on the 0–120 V loop
+//! starts 49 below the point it turns at (`tests/branch.rs` holds these
+//! figures). So the `B` terms are a fit of the major loop's turning points, not a
+//! rule that keeps the output continuous at any reversal.
+//!
+//! **Our reading** keeps the paper's structure (one polynomial per direction, of
+//! degree 3 up and 4 down, in the distance from the last turning voltage) and
+//! replaces the fitted constant by the output the model had at the turning point:
+//!
+//! ```text
+//! ascending  from the last minimum (v_m, y_m):  y = y_m + Σ a_k·(v − v_m)^k  (+ closure)
+//! descending from the last maximum (v_M, y_M):  y = y_M + Σ d_k·(v − v_M)^k  (+ closure)
+//! ```
+//!
+//! so each branch starts exactly at its turning point's output: the curve is
+//! continuous at every reversal by construction (`tests/branch.rs` checks it on
+//! random drives). The paper's constant `P_up4` and `P_dn5` vanish (a branch
+//! starts where the last one ended), and so do the `B` polynomials.
+//!
+//! # Memory of reversal points
+//!
+//! `branch.memory` selects how minor loops are handled:
+//!
+//! * `"stack"` (the default): a stack of turning points with **wiping-out**, as
+//!   in a Preisach model. A branch starting at the last turning point aims at the
+//!   one before it (of the other direction), and a linear term in `Δ` makes it
+//!   arrive there exactly (**closure**: a minor loop closes on its starting
+//!   point): `y = y_o + P(Δ) + (Δ/Δ_t)·(y_t − y_o − P(Δ_t))`. When the voltage
+//!   passes that earlier turning point, both points are removed and the model
+//!   continues on the outer branch it left (**wiping-out**), continuously, since
+//!   that outer branch passed through the removed point. The bottom of the stack
+//!   is the rest state `(0 V, offset_um)`, never removed (the effective voltage is
+//!   clamped at 0), so every descent to 0 V closes the major loop. Costs: memory
+//!   grows with the depth of nested loops (at most [`MAX_TURNS`] points, the
+//!   outermost pair dropped beyond that), each sample is amortised O(1) (a point
+//!   is pushed once and removed once), and the model stays linear in its
+//!   coefficients, so the fit is exact least squares. Noise near an extremum only
+//!   makes tiny loops that are closed and wiped out again.
+//! * `"last"`: the paper's memory, the last turning point only. O(1) memory and
+//!   time, but minor loops do not close: a decaying or nested drive drifts, and
+//!   every jitter of the input (force-sensor noise in the effective voltage)
+//!   restarts a branch.
+//!
+//! # How the force enters
+//!
+//! Through the same effective voltage as the paper's FPI, `û = clamp(u − k_f·F,
+//! 0, input_max_v)` with `k_f` in `coupling.k_f_v_per_n`, and the branches drive
+//! on `û`. On the rig, where the preload runs from 25 to 150 N, a force-free model
+//! cannot fit every preload at once; with `û`, `fpi predict` and `fpi compare`
+//! solve the same coupled equation `x_pea = Y[u − k_f·f_F(x_pea)]` as for the FPI
+//! (bracketed Newton, here on a model that is polynomial between turning points).
+//!
+//! # Fit
+//!
+//! Given `k_f`, the turning voltages depend on the input only, and every output is
+//! a linear function of the coefficients and of the rest offset (a turning
+//! point's output is itself such a function): the model's output is `Xθ` exactly,
+//! where each row of `X` is run through the same memory with vectors in place of
+//! numbers. So the coefficients are an output-error least-squares fit (normal
+//! equations on columns scaled to the voltage span, solved by SVD with
+//! `nalgebra`), and `k_f` is found by golden section on that fit's RMSE, as for
+//! the FPI.
+//!
+//! The firmware does not run this model: `fpi export` refuses it.
+
+use std::ops::{Add, Mul, Sub};
+
+use anyhow::{bail, Context, Result};
+use nalgebra::{DMatrix, DVector, SVector};
+use piezo_sim::fem::Fem;
+use piezo_sim::stats::ErrorStats;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::data::fem::FemMaps;
+use crate::method::calibrate::{self, CalibData, Options};
+use crate::method::model::{Calibration, FileFit, HostModel, Kind};
+use crate::method::predict::Prediction;
+use crate::model_file::PiSection;
+
+/// Highest degree of a branch polynomial.
+pub const MAX_DEGREE: usize = 6;
+
+/// The paper's degrees: ascending cubic (eq. 6), descending quartic (eq. 7).
+pub const PAPER_DEGREES: (usize, usize) = (3, 4);
+
+/// Most turning points the stack memory keeps, the rest state included.
+pub const MAX_TURNS: usize = 1024;
+
+/// Model evaluations of one coupled solve, at most.
+const MAX_SOLVE_EVALUATIONS: usize = 200;
+
+/// How turning points are remembered (`branch.memory`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Memory {
+    /// A stack of turning points with closure and wiping-out.
+    #[default]
+    Stack,
+    /// The last turning point only (the paper).
+    Last,
+}
+
+/// The `[branch]` section of a model file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BranchSection {
+    /// Input domain `[0, input_max_v]` of the effective voltage, V.
+    pub input_max_v: f64,
+    /// How turning points are remembered.
+    #[serde(default)]
+    pub memory: Memory,
+    /// Ascending branch: `a_k` of `(v − v_min)^k`, `k = 1, 2, …`, µm/V^k.
+    pub ascending_um_per_vk: Vec<f64>,
+    /// Descending branch: `d_k` of `(v − v_max)^k`, `k = 1, 2, …`, µm/V^k.
+    pub descending_um_per_vk: Vec<f64>,
+}
+
+impl BranchSection {
+    /// Checks the section; names the key that is wrong.
+    pub fn validate(&self) -> Result<()> {
+        let top = self.input_max_v;
+        if !(top.is_finite() && top > 0.0) {
+            bail!("branch.input_max_v = {top}: must be a finite voltage > 0 V");
+        }
+        for (key, c) in [
+            ("branch.ascending_um_per_vk", &self.ascending_um_per_vk),
+            ("branch.descending_um_per_vk", &self.descending_um_per_vk),
+        ] {
+            if c.is_empty() || c.len() > MAX_DEGREE {
+                bail!(
+                    "{key} has {} coefficients: a branch is a polynomial of degree 1..={MAX_DEGREE}",
+                    c.len()
+                );
+            }
+            for (i, &v) in c.iter().enumerate() {
+                if !v.is_finite() {
+                    bail!("{key}[{i}] = {v}: not finite");
+                }
+            }
+            if c.iter().all(|&v| v == 0.0) {
+                bail!("{key} is all 0: the model cannot produce motion on that branch");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The PI section of a branch model: none (no weights, no range), which the model
+/// file leaves out.
+pub fn no_pi() -> PiSection {
+    PiSection {
+        w0_um_per_v: 0.0,
+        thresholds_v: Vec::new(),
+        weights_um_per_v: Vec::new(),
+        input_max_v: 0.0,
+    }
+}
+
+/// Whether `p` is [`no_pi`].
+pub fn is_no_pi(p: &PiSection) -> bool {
+    *p == no_pi()
+}
+
+/// `Σ c_k·d^(k+1)` (Horner).
+fn poly(c: &[f64], d: f64) -> f64 {
+    c.iter().rev().fold(0.0, |acc, &ck| (acc + ck) * d)
+}
+
+/// `d/dd Σ c_k·d^(k+1)`.
+fn dpoly(c: &[f64], d: f64) -> f64 {
+    c.iter()
+        .enumerate()
+        .rev()
+        .fold(0.0, |acc, (k, &ck)| acc * d + (k + 1) as f64 * ck)
+}
+
+/// What a turning point's output can be: a number (the model) or a row of the
+/// least squares (the output as a linear function of the coefficients).
+pub trait Linear: Copy + Add<Output = Self> + Sub<Output = Self> + Mul<f64, Output = Self> {}
+impl<T: Copy + Add<Output = T> + Sub<Output = T> + Mul<f64, Output = T>> Linear for T {}
+
+/// A turning point: effective voltage (V) and output (µm, or its row).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Turn<T> {
+    v: f64,
+    y: T,
+}
+
+/// The model's memory: the turning points (the rest state first), the direction
+/// of the current branch and the last sample.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BranchState<T> {
+    turns: Vec<Turn<T>>,
+    rising: bool,
+    last: Turn<T>,
+}
+
+impl<T: Linear> BranchState<T> {
+    /// At rest: `(0 V, rest)`, about to rise.
+    pub fn at_rest(rest: T) -> Self {
+        let p = Turn { v: 0.0, y: rest };
+        Self {
+            turns: vec![p],
+            rising: true,
+            last: p,
+        }
+    }
+
+    /// Turning points remembered, the rest state included.
+    pub fn depth(&self) -> usize {
+        self.turns.len()
+    }
+
+    /// Advances to effective voltage `v` (≥ 0 V) and returns the output. `shape`
+    /// gives the branch polynomial `P(rising, Δ)`.
+    pub fn advance(&mut self, v: f64, memory: Memory, shape: &impl Fn(bool, f64) -> T) -> T {
+        if v == self.last.v {
+            return self.last.y;
+        }
+        let rising = v > self.last.v;
+        if rising != self.rising {
+            self.turn(memory);
+            self.rising = rising;
+        }
+        if memory == Memory::Stack {
+            self.wipe(v);
+        }
+        let (o, t) = self.ends();
+        let y = value(o, t, self.rising, v, shape);
+        self.last = Turn { v, y };
+        y
+    }
+
+    /// The last sample becomes a turning point.
+    fn turn(&mut self, memory: Memory) {
+        match memory {
+            Memory::Stack => {
+                self.turns.push(self.last);
+                if self.turns.len() > MAX_TURNS {
+                    // Forget the outermost loop (the rest state stays).
+                    self.turns.drain(1..3);
+                }
+            }
+            Memory::Last => {
+                self.turns.clear();
+                self.turns.push(self.last);
+            }
+        }
+    }
+
+    /// Removes the inner loops `v` has passed (the rest state stays).
+    fn wipe(&mut self, v: f64) {
+        while self.turns.len() >= 3 {
+            let t = self.turns[self.turns.len() - 2];
+            let passed = if self.rising { v > t.v } else { v < t.v };
+            if !passed {
+                break;
+            }
+            self.turns.truncate(self.turns.len() - 2);
+        }
+    }
+
+    /// The current branch's origin, and the turning point it closes on (stack
+    /// memory; none for the first ascent and for the last-point memory).
+    fn ends(&self) -> (Turn<T>, Option<Turn<T>>) {
+        let n = self.turns.len();
+        let o = self.turns[n - 1];
+        let t = (n >= 2)
+            .then(|| self.turns[n - 2])
+            .filter(|t| t.v != o.v && (t.v > o.v) == self.rising);
+        (o, t)
+    }
+}
+
+/// The output on the branch from `o` closing on `t` at effective voltage `v`.
+fn value<T: Linear>(
+    o: Turn<T>,
+    t: Option<Turn<T>>,
+    rising: bool,
+    v: f64,
+    shape: &impl Fn(bool, f64) -> T,
+) -> T {
+    let d = v - o.v;
+    let y = o.y + shape(rising, d);
+    match t {
+        Some(t) => {
+            let dm = t.v - o.v;
+            y + (t.y - o.y - shape(rising, dm)) * (d / dm)
+        }
+        None => y,
+    }
+}
+
+/// A branch model ready to evaluate (from a [`HostModel`] of kind branch).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BranchModel {
+    /// Force coupling `k_f`, V/N.
+    pub k_f: f64,
+    /// Output at rest, µm.
+    pub rest_um: f64,
+    /// The section.
+    pub section: BranchSection,
+}
+
+impl BranchModel {
+    /// The branch model of `m`; an error if `m` is not one.
+    pub fn of(m: &HostModel) -> Result<Self> {
+        let Some(section) = m.branch.clone().filter(|_| m.kind == Kind::Branch) else {
+            bail!(
+                "a {} model is not a branch model (kind = \"branch\" with a [branch] section)",
+                m.kind
+            );
+        };
+        Ok(Self {
+            k_f: m.coupling.k_f_v_per_n,
+            rest_um: m.offset_um,
+            section,
+        })
+    }
+
+    /// The effective voltage `clamp(u − k_f·F, 0, input_max_v)`, V.
+    pub fn effective(&self, u: f64, force: f64) -> f64 {
+        (u - self.k_f * force).clamp(0.0, self.section.input_max_v)
+    }
+
+    /// `P(rising, Δ)`, µm.
+    fn shape(&self) -> impl Fn(bool, f64) -> f64 + '_ {
+        let s = &self.section;
+        move |rising, d| {
+            let c = if rising {
+                &s.ascending_um_per_vk
+            } else {
+                &s.descending_um_per_vk
+            };
+            poly(c, d)
+        }
+    }
+
+    /// A state at rest.
+    pub fn state(&self) -> BranchState<f64> {
+        BranchState::at_rest(self.rest_um)
+    }
+
+    /// Advances by one sample of voltage `u` (V) under force `force` (N); the
+    /// stack extension, µm.
+    pub fn step(&self, st: &mut BranchState<f64>, u: f64, force: f64) -> f64 {
+        self.advance(st, self.effective(u, force))
+    }
+
+    /// Advances to effective voltage `v`, V; the extension, µm.
+    pub fn advance(&self, st: &mut BranchState<f64>, v: f64) -> f64 {
+        st.advance(v, self.section.memory, &self.shape())
+    }
+
+    /// The extension at effective voltage `v` (µm) and its slope (µm/V) on the
+    /// branch `v` lies on, without committing.
+    pub fn peek(&self, st: &BranchState<f64>, v: f64) -> (f64, f64) {
+        let mut s = st.clone();
+        let y = self.advance(&mut s, v);
+        let (o, t) = s.ends();
+        let c = if s.rising {
+            &self.section.ascending_um_per_vk
+        } else {
+            &self.section.descending_um_per_vk
+        };
+        let mut slope = dpoly(c, v - o.v);
+        if let Some(t) = t {
+            let dm = t.v - o.v;
+            slope += (t.y - o.y - poly(c, dm)) / dm;
+        }
+        (y, slope)
+    }
+
+    /// The extension over a recording driven by its voltage and measured force, µm.
+    pub fn simulate(&self, d: &CalibData) -> Vec<f64> {
+        let mut st = self.state();
+        (0..d.u.len())
+            .map(|k| self.step(&mut st, d.u[k], d.f[k]))
+            .collect()
+    }
+}
+
+/// Solves `x = Y[clamp(u − k_f·f_F(x))]` for one sample from `guess` (µm):
+/// Newton's method kept inside the bracket the sign of `φ(x) = Y − x` gives
+/// (bisection where a step leaves it). `φ` is continuous (the branches are), so
+/// the bracket always holds a root. Returns the extension and the evaluations.
+fn solve(
+    b: &BranchModel,
+    st: &BranchState<f64>,
+    u: f64,
+    fem: &Fem<'_, f64>,
+    guess: f64,
+) -> (f64, usize) {
+    let phi = |x: f64| {
+        let (f, df) = fem.preload_with_slope(x);
+        let e = u - b.k_f * f;
+        let v = e.clamp(0.0, b.section.input_max_v);
+        let (y, dy) = b.peek(st, v);
+        let dv = if v == e { -b.k_f * df } else { 0.0 };
+        (y - x, dy * dv - 1.0)
+    };
+    let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+    let mut x = guess;
+    for it in 1..=MAX_SOLVE_EVALUATIONS {
+        let (p, dp) = phi(x);
+        if p == 0.0 || hi - lo < 1e-13 * (1.0 + x.abs()) {
+            return (x, it);
+        }
+        if p > 0.0 {
+            lo = x;
+        } else {
+            hi = x;
+        }
+        let mut next = x - p / dp;
+        if !(next > lo && next < hi && next.is_finite()) {
+            next = match (lo.is_finite(), hi.is_finite()) {
+                (true, true) => 0.5 * (lo + hi),
+                (true, false) => x + 2.0 * p.abs().max(1.0),
+                (false, true) => x - 2.0 * p.abs().max(1.0),
+                (false, false) => x,
+            };
+        }
+        if (next - x).abs() <= 1e-13 * (1.0 + x.abs()) {
+            return (next, it);
+        }
+        x = next;
+    }
+    (x, MAX_SOLVE_EVALUATIONS)
+}
+
+/// Predicts the stage for a drive: the coupled solve at every sample, the memory
+/// advanced at the solution, `x_fhps = f_K(x_pea)` (see [`crate::method::predict`]).
+pub fn predict(model: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Result<Prediction> {
+    let b = BranchModel::of(model)?;
+    let maps = fem.maps();
+    let mut st = b.state();
+    let n = u.len();
+    let mut p = Prediction {
+        t: t.to_vec(),
+        u: u.to_vec(),
+        x_pea: Vec::with_capacity(n),
+        preload: Vec::with_capacity(n),
+        x_fhps: Vec::with_capacity(n),
+        iterations: 0,
+    };
+    let mut guess = b.rest_um;
+    for &uk in u {
+        let (x, evals) = solve(&b, &st, uk, &maps, guess);
+        let f = maps.preload_at(x);
+        b.advance(&mut st, b.effective(uk, f));
+        guess = x;
+        p.iterations += evals;
+        p.x_pea.push(x);
+        p.preload.push(f);
+        p.x_fhps.push(maps.stage_at(x));
+    }
+    Ok(p)
+}
+
+// ---------------------------------------------------------------------------
+// Calibration.
+
+/// Columns of a least-squares row: the rest offset, then up to [`MAX_DEGREE`]
+/// ascending and as many descending coefficients (scaled to the voltage span).
+const COLUMNS: usize = 1 + 2 * MAX_DEGREE;
+
+/// A least-squares row.
+type Row = SVector<f64, COLUMNS>;
+
+/// What is fitted: degrees, whether the rest offset is, and the voltage scale.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Layout {
+    up: usize,
+    down: usize,
+    offset: bool,
+    /// Voltage scale of the columns, V (the data's span).
+    scale: f64,
+    memory: Memory,
+}
+
+impl Layout {
+    /// The columns in use, in [`Row`]'s order.
+    fn active(&self) -> Vec<usize> {
+        let mut c = Vec::new();
+        if self.offset {
+            c.push(0);
+        }
+        c.extend(1..=self.up);
+        c.extend(1 + MAX_DEGREE..1 + MAX_DEGREE + self.down);
+        c
+    }
+
+    /// The row of `P(rising, Δ)`: `(Δ/scale)^k` in the branch's columns.
+    fn shape(&self) -> impl Fn(bool, f64) -> Row + '_ {
+        move |rising, d| {
+            let (first, n) = if rising {
+                (1, self.up)
+            } else {
+                (1 + MAX_DEGREE, self.down)
+            };
+            let mut r = Row::zeros();
+            let z = d / self.scale;
+            let mut p = 1.0;
+            for k in 0..n {
+                p *= z;
+                r[first + k] = p;
+            }
+            r
+        }
+    }
+
+    /// The rest state's row.
+    fn rest(&self) -> Row {
+        let mut r = Row::zeros();
+        if self.offset {
+            r[0] = 1.0;
+        }
+        r
+    }
+}
+
+/// Normal equations of one trial (full [`Row`] size; unused columns stay 0).
+#[derive(Debug, Clone)]
+struct Normal {
+    ata: nalgebra::SMatrix<f64, COLUMNS, COLUMNS>,
+    atb: Row,
+    btb: f64,
+    n: usize,
+}
+
+impl Normal {
+    fn new() -> Self {
+        Self {
+            ata: nalgebra::SMatrix::zeros(),
+            atb: Row::zeros(),
+            btb: 0.0,
+            n: 0,
+        }
+    }
+    fn merge(mut self, o: Normal) -> Self {
+        self.ata += o.ata;
+        self.atb += o.atb;
+        self.btb += o.btb;
+        self.n += o.n;
+        self
+    }
+}
+
+/// One recording's normal equations for coupling `k_f`: its rows run through the
+/// memory (every sample up to the window's end; the window's samples added).
+fn normal_of(d: &CalibData, k_f: f64, input_max: f64, lay: &Layout) -> Normal {
+    let shape = lay.shape();
+    let mut st = BranchState::at_rest(lay.rest());
+    let mut ne = Normal::new();
+    let end = d.fit.1.min(d.u.len());
+    for k in 0..end {
+        let v = (d.u[k] - k_f * d.f[k]).clamp(0.0, input_max);
+        let r = st.advance(v, lay.memory, &shape);
+        if k >= d.fit.0 {
+            ne.ata += r * r.transpose();
+            ne.atb += r * d.x[k];
+            ne.btb += d.x[k] * d.x[k];
+            ne.n += 1;
+        }
+    }
+    ne
+}
+
+/// Least squares on the active columns: the coefficients (in [`Row`]'s order,
+/// scaled) and the output RMSE, µm.
+fn solve_normal(ne: &Normal, lay: &Layout) -> Result<(Row, f64)> {
+    let cols = lay.active();
+    let m = cols.len();
+    let a = DMatrix::from_fn(m, m, |i, j| ne.ata[(cols[i], cols[j])]);
+    let b = DVector::from_fn(m, |i, _| ne.atb[cols[i]]);
+    let svd = a.clone().svd(true, true);
+    let tol = 1e-13 * svd.singular_values.max();
+    let x = svd
+        .solve(&b, tol)
+        .map_err(|e| anyhow::anyhow!("branch least squares: {e}"))?;
+    let mut theta = Row::zeros();
+    for (i, &c) in cols.iter().enumerate() {
+        theta[c] = x[i];
+    }
+    let sse = ne.btb - 2.0 * x.dot(&b) + x.dot(&(&a * &x));
+    let rmse = (sse.max(0.0) / ne.n.max(1) as f64).sqrt();
+    Ok((theta, rmse))
+}
+
+/// Fits the coefficients for coupling `k_f` over every recording.
+fn fit_at(data: &[CalibData], k_f: f64, input_max: f64, lay: &Layout) -> Result<(Row, f64)> {
+    let ne = data
+        .par_iter()
+        .map(|d| normal_of(d, k_f, input_max, lay))
+        .reduce(Normal::new, Normal::merge);
+    solve_normal(&ne, lay)
+}
+
+/// The section a fit's scaled coefficients `theta` describe.
+fn section(theta: &Row, lay: &Layout, input_max: f64) -> BranchSection {
+    let unscale = |first: usize, n: usize| -> Vec<f64> {
+        (0..n)
+            .map(|k| theta[first + k] / lay.scale.powi(k as i32 + 1))
+            .collect()
+    };
+    BranchSection {
+        input_max_v: input_max,
+        memory: lay.memory,
+        ascending_um_per_vk: unscale(1, lay.up),
+        descending_um_per_vk: unscale(1 + MAX_DEGREE, lay.down),
+    }
+}
+
+/// Where a major branch falls while the voltage moves its way (a branch should
+/// rise with the voltage): a warning naming the key, or none.
+fn monotony_warning(s: &BranchSection, span: f64) -> Option<String> {
+    let steps = 400;
+    for (key, c, sign) in [
+        ("branch.ascending_um_per_vk", &s.ascending_um_per_vk, 1.0),
+        ("branch.descending_um_per_vk", &s.descending_um_per_vk, -1.0),
+    ] {
+        let worst = (0..=steps)
+            .map(|i| {
+                let d = sign * span * i as f64 / steps as f64;
+                (dpoly(c, d), d)
+            })
+            .fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a });
+        if worst.0 < 0.0 {
+            return Some(format!(
+                "{key}: the major branch falls with the voltage ({:.4} µm/V at {:.1} V from the \
+                 turning point): the coupled solve may have several roots there",
+                worst.0, worst.1
+            ));
+        }
+    }
+    None
+}
+
+/// Calibrates a branch model: `k_f` by golden section on the output RMSE (0 for
+/// recordings without force), the coefficients by least squares.
+pub fn calibrate(
+    data: &[CalibData],
+    opt: &Options,
+    mut warnings: Vec<String>,
+) -> Result<HostModel> {
+    let (up, down) = opt.branch_degrees;
+    for (what, n) in [("ascending", up), ("descending", down)] {
+        if !(1..=MAX_DEGREE).contains(&n) {
+            bail!("the {what} branch's degree {n}: must be 1..={MAX_DEGREE}");
+        }
+    }
+    let span = calibrate::voltage_span(data);
+    let input_max = opt.input_max.max(span);
+    let lay = Layout {
+        up,
+        down,
+        offset: opt.offset,
+        scale: span,
+        memory: opt.branch_memory,
+    };
+    let has_force = data.iter().all(|d| d.has_force);
+    let k_f = if has_force {
+        calibrate::golden(0.0, 0.4, 1e-5, |k_f| {
+            fit_at(data, k_f, input_max, &lay).map_or(f64::MAX, |f| f.1)
+        })
+    } else {
+        0.0
+    };
+    let (theta, _) = fit_at(data, k_f, input_max, &lay).context("fitting the branch model")?;
+    let mut model = HostModel::new(Kind::Branch, no_pi());
+    model.branch = Some(section(&theta, &lay, input_max));
+    model.coupling.k_f_v_per_n = k_f;
+    model.offset_um = theta[0];
+    warnings.extend(
+        model
+            .branch
+            .as_ref()
+            .and_then(|s| monotony_warning(s, span)),
+    );
+    let per_file = score(&model, data)?;
+    model.calibration = Calibration {
+        created_by: format!("fpi calibrate {}", env!("CARGO_PKG_VERSION")),
+        files: data.iter().map(|d| d.name.clone()).collect(),
+        rows: None,
+        rmse_um: calibrate::pooled_rmse(&per_file),
+        mte_um: per_file.iter().map(|f| f.mte_um).fold(0.0, f64::max),
+        per_file,
+        method: format!(
+            "k_f by golden section on the output RMSE; branch coefficients (degrees {up} up, \
+             {down} down, {} memory) by output-error least squares",
+            match lay.memory {
+                Memory::Stack => "stack",
+                Memory::Last => "last-point",
+            }
+        ),
+        warnings,
+    };
+    Ok(model)
+}
+
+/// The output error of a branch model on recordings (driven by their voltage and
+/// measured force), per recording, over the fitted windows.
+pub fn score(model: &HostModel, data: &[CalibData]) -> Result<Vec<FileFit>> {
+    let b = BranchModel::of(model)?;
+    Ok(data
+        .par_iter()
+        .map(|d| {
+            let w = d.fit.0..d.fit.1;
+            let e = ErrorStats::of_difference(&b.simulate(d)[w.clone()], &d.x[w]);
+            calibrate::file_fit(d, &e)
+        })
+        .collect())
+}

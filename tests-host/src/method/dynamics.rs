@@ -1,0 +1,608 @@
+//! The stage's identified linear dynamics (`DYN.toml`, written by `fpi identify`):
+//! the one home of the dynamics model. It reads, validates and writes the file,
+//! evaluates the transfer function, and runs it, normalised to unit DC gain and
+//! discretised at a drive's sample rate, after the rate-independent FPI
+//! prediction (the Hammerstein structure of `fpi predict --dynamics`).
+//!
+//! The file's contract (other tools rely on these keys):
+//!
+//! ```toml
+//! natural_frequency_hz = [851.3]     # one per identified mode, lowest first, Hz
+//! damping_ratio = [0.021]            # one per mode, > 0
+//! capacitance_uf = 2.1               # eq. 14, i = C·du/dt, µF
+//! dc_gain_um_per_v = 0.33            # the transfer function's DC gain, µm/V
+//! [transfer_function]                # voltage → x_fhps_um, µm/V, s in rad/s
+//! numerator = [1.0e7]                # highest power of s first
+//! denominator = [1.0, 112.0, 2.9e7]  # highest power first, stable
+//! ```
+//!
+//! Optional tables: `[voltage_gain]` (eq. 13, the static gain against the drive's
+//! span) and `[fit]` (provenance and fit quality).
+//!
+//! **Why Hammerstein (hysteresis, then dynamics), not Wiener.** The hysteresis is
+//! the stack's (its polarisation against the field it is given); the mode is the
+//! stage's mass on its hinges, moved by what the stack does. So the linear
+//! dynamics act on the stack's output. Put before the hysteresis, the mode would
+//! amplify the *voltage* near resonance and the play operators would see reversals
+//! the stack never sees. The amplifier's lag, which does act on the voltage, is a
+//! pole well above the drives' band, and a linear lag commutes with the
+//! nearly-linear small-signal hysteresis; it is kept in the same linear block.
+
+use std::path::Path;
+
+use anyhow::{anyhow, bail, Context, Result};
+use nalgebra::{Complex, DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+/// Format tag of the file.
+pub const FORMAT: &str = "fpi-dynamics/1";
+
+/// Largest file [`Dynamics::read`] takes, bytes.
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+
+/// Most poles a transfer function may have (the identification fits at most 7).
+pub const MAX_ORDER: usize = 12;
+
+/// A mode listed in the file matches a pole pair of the denominator when both its
+/// natural frequency and its damping ratio agree within this relative tolerance.
+pub const MODE_TOLERANCE: f64 = 1e-3;
+
+/// The identified dynamics of one stage (`DYN.toml`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Dynamics {
+    /// Format tag, [`FORMAT`].
+    #[serde(default = "format_tag")]
+    pub format: String,
+    /// Natural frequencies of the modes (complex pole pairs), lowest first, Hz.
+    pub natural_frequency_hz: Vec<f64>,
+    /// Damping ratios of the modes, in the order of `natural_frequency_hz`.
+    pub damping_ratio: Vec<f64>,
+    /// Stack capacitance of the capacitive current model (eq. 14), µF.
+    pub capacitance_uf: f64,
+    /// DC gain of `transfer_function`, µm/V.
+    pub dc_gain_um_per_v: f64,
+    /// Real poles (e.g. the amplifier's lag) as corner frequencies, Hz (provenance:
+    /// the denominator holds them).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub real_pole_hz: Vec<f64>,
+    /// Voltage → stage output, µm/V.
+    pub transfer_function: TransferFunction,
+    /// Static gain against the drive's span (eq. 13).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub voltage_gain: Option<VoltageGain>,
+    /// How the file was made and how well it fits.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fit: Option<FitInfo>,
+}
+
+fn format_tag() -> String {
+    FORMAT.to_string()
+}
+
+/// A continuous-time rational transfer function in `s` (rad/s).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TransferFunction {
+    /// Numerator coefficients, highest power of `s` first.
+    pub numerator: Vec<f64>,
+    /// Denominator coefficients, highest power of `s` first.
+    pub denominator: Vec<f64>,
+}
+
+/// Eq. 13: the static gain of the stage against the drive's span.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VoltageGain {
+    /// Drive span (peak to peak) of each chirp, V.
+    pub span_v: Vec<f64>,
+    /// Static gain measured on each chirp, µm/V.
+    pub gain_um_per_v: Vec<f64>,
+    /// `gain(V) = c0 + c1·V + c2·V²` (lowest power first; as many terms as the
+    /// chirps allow, at most three), µm/V with V the span in volts.
+    pub coefficients: Vec<f64>,
+}
+
+impl VoltageGain {
+    /// The fitted gain at drive span `span_v` (V), µm/V.
+    pub fn at(&self, span_v: f64) -> f64 {
+        self.coefficients
+            .iter()
+            .rev()
+            .fold(0.0, |acc, c| acc * span_v + c)
+    }
+}
+
+/// Provenance and fit quality of an identification.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FitInfo {
+    /// The chirps identified from.
+    pub files: Vec<String>,
+    /// Frequency band of the fitted points, Hz.
+    pub band_hz: [f64; 2],
+    /// Frequency points fitted.
+    pub points: usize,
+    /// The order criterion, in words.
+    pub criterion: String,
+    /// Modes and real poles of the chosen structure.
+    pub modes: usize,
+    /// Real poles of the chosen structure (the amplifier lag).
+    pub real_poles: usize,
+    /// Weighted RMS relative output error of the chosen model (the criterion's
+    /// value).
+    pub rms_relative_error: f64,
+    /// Akaike's criterion of the chosen model (for comparison only).
+    pub aic: f64,
+    /// Weighted RMS relative error of the capacitive current model.
+    pub current_rms_relative_error: f64,
+}
+
+impl Dynamics {
+    /// Reads and validates a dynamics file; errors name the file and the key.
+    pub fn read(path: &Path) -> Result<Self> {
+        let limits = crate::data::ReadLimits {
+            max_bytes: MAX_FILE_BYTES,
+            ..crate::data::ReadLimits::INPUT
+        };
+        let bytes = crate::data::read_bytes_within(path, limits)?;
+        let text = String::from_utf8(bytes)
+            .map_err(|e| anyhow!("{}: not a text file: {e}", path.display()))?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// A dynamics file from its text; `name` names it in errors.
+    pub fn parse(text: &str, name: &str) -> Result<Self> {
+        let d: Dynamics =
+            toml::from_str(text).with_context(|| format!("{name}: not a dynamics file"))?;
+        d.validate().with_context(|| name.to_string())?;
+        Ok(d)
+    }
+
+    /// Writes the file atomically after [`validate`](Self::validate).
+    pub fn write(&self, path: &Path) -> Result<()> {
+        self.validate()
+            .with_context(|| format!("{}: not written", path.display()))?;
+        let text = toml::to_string(self)
+            .with_context(|| format!("{}: cannot format the dynamics", path.display()))?;
+        let header = "# Stage dynamics identified by `fpi identify` (voltage -> x_fhps_um).\n\
+                      # transfer_function: s in rad/s, highest power first, µm/V.\n";
+        crate::output::write_atomic(path, (header.to_string() + &text).as_bytes())
+    }
+
+    /// Checks every key; the error names the key and its value.
+    pub fn validate(&self) -> Result<()> {
+        if self.format != FORMAT {
+            bail!("format = {:?}: expected {FORMAT:?}", self.format);
+        }
+        let tf = &self.transfer_function;
+        check_poly("transfer_function.denominator", &tf.denominator)?;
+        check_poly("transfer_function.numerator", &tf.numerator)?;
+        if tf.numerator.len() > tf.denominator.len() {
+            bail!(
+                "transfer_function.numerator: degree {} above the denominator's {} (not proper)",
+                tf.numerator.len() - 1,
+                tf.denominator.len() - 1
+            );
+        }
+        let poles = tf.poles();
+        if let Some(p) = poles.iter().find(|p| p.re >= 0.0 || p.re.is_nan()) {
+            bail!(
+                "transfer_function.denominator: unstable, pole {:.6e}{:+.6e}j rad/s",
+                p.re,
+                p.im
+            );
+        }
+        positive("capacitance_uf", self.capacitance_uf)?;
+        self.check_gain()?;
+        self.check_modes(&poles)?;
+        for (i, &f) in self.real_pole_hz.iter().enumerate() {
+            positive(&format!("real_pole_hz[{i}]"), f)?;
+        }
+        if let Some(g) = &self.voltage_gain {
+            g.validate()?;
+        }
+        Ok(())
+    }
+
+    /// `dc_gain_um_per_v`: finite, non-zero, and the transfer function's.
+    fn check_gain(&self) -> Result<()> {
+        let g = self.dc_gain_um_per_v;
+        if !g.is_finite() || g == 0.0 {
+            bail!("dc_gain_um_per_v = {g}: must be finite and non-zero");
+        }
+        let tf = self.transfer_function.dc_gain();
+        if (tf - g).abs() > 1e-6 * g.abs() {
+            bail!("dc_gain_um_per_v = {g}: the transfer function's DC gain is {tf}");
+        }
+        Ok(())
+    }
+
+    /// The listed modes: as many frequencies as damping ratios, each positive,
+    /// lowest first, and each a pole pair of the denominator.
+    fn check_modes(&self, poles: &[Complex<f64>]) -> Result<()> {
+        let (f, z) = (&self.natural_frequency_hz, &self.damping_ratio);
+        if f.len() != z.len() {
+            bail!(
+                "damping_ratio: {} values for {} natural_frequency_hz",
+                z.len(),
+                f.len()
+            );
+        }
+        for (i, (&fi, &zi)) in f.iter().zip(z).enumerate() {
+            positive(&format!("natural_frequency_hz[{i}]"), fi)?;
+            positive(&format!("damping_ratio[{i}]"), zi)?;
+            if i > 0 && fi < f[i - 1] {
+                bail!(
+                    "natural_frequency_hz[{i}] = {fi}: below the previous mode's {} Hz \
+                     (lowest first)",
+                    f[i - 1]
+                );
+            }
+            let found = modes_of(poles).iter().any(|&(fm, zm)| {
+                (fm - fi).abs() <= MODE_TOLERANCE * fi && (zm - zi).abs() <= MODE_TOLERANCE * zi
+            });
+            if !found {
+                bail!(
+                    "natural_frequency_hz[{i}] = {fi}, damping_ratio[{i}] = {zi}: no pole pair \
+                     of transfer_function.denominator has them (its modes: {})",
+                    describe_modes(&modes_of(poles))
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// The transfer function's response at `f_hz`, µm/V.
+    pub fn response(&self, f_hz: f64) -> Complex<f64> {
+        self.transfer_function
+            .at(Complex::new(0.0, 2.0 * std::f64::consts::PI * f_hz))
+    }
+
+    /// The dynamics with unit DC gain, discretised for sample interval `dt_s`
+    /// ([`Discrete::tustin`]).
+    pub fn discretise(&self, dt_s: f64) -> Result<Discrete> {
+        let prewarp = self.natural_frequency_hz.first().copied();
+        Discrete::tustin(&self.transfer_function.unit_dc(), dt_s, prewarp)
+    }
+
+    /// The Hammerstein step: the rate-independent stage output `x` (µm, sampled
+    /// every `dt_s`) through the unit-DC-gain dynamics, starting at rest at `x[0]`.
+    ///
+    /// The dynamics keep their low-frequency delay (about 80 µs on stage A, the
+    /// amplifier's lag). The rate-independent model was calibrated on rig
+    /// recordings made through the same amplifier, and its hysteresis absorbed
+    /// part of that delay as a phase: on slow drives the two together lag the
+    /// stage slightly (see the README's figures), on fast ones the delay is what
+    /// the stage does.
+    pub fn apply(&self, x: &[f64], dt_s: f64) -> Result<Vec<f64>> {
+        Ok(self.discretise(dt_s)?.filter(x))
+    }
+}
+
+impl VoltageGain {
+    fn validate(&self) -> Result<()> {
+        if self.span_v.len() != self.gain_um_per_v.len() {
+            bail!(
+                "voltage_gain.gain_um_per_v: {} values for {} span_v",
+                self.gain_um_per_v.len(),
+                self.span_v.len()
+            );
+        }
+        if self.coefficients.is_empty() || self.coefficients.len() > 3 {
+            bail!(
+                "voltage_gain.coefficients: {} values (1 to 3)",
+                self.coefficients.len()
+            );
+        }
+        let all = [
+            ("span_v", &self.span_v),
+            ("gain_um_per_v", &self.gain_um_per_v),
+            ("coefficients", &self.coefficients),
+        ];
+        for (key, v) in all {
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                bail!("voltage_gain.{key}[{i}] = {}: not a finite number", v[i]);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `key = v` must be finite and > 0.
+fn positive(key: &str, v: f64) -> Result<()> {
+    if !(v.is_finite() && v > 0.0) {
+        bail!("{key} = {v}: must be a finite number > 0");
+    }
+    Ok(())
+}
+
+/// A polynomial key: 1..=[`MAX_ORDER`]+1 finite coefficients, the first non-zero.
+fn check_poly(key: &str, c: &[f64]) -> Result<()> {
+    if c.is_empty() || c.len() > MAX_ORDER + 1 {
+        bail!(
+            "{key}: {} coefficients (1 to {} expected)",
+            c.len(),
+            MAX_ORDER + 1
+        );
+    }
+    if let Some(i) = c.iter().position(|x| !x.is_finite()) {
+        bail!("{key}[{i}] = {}: not a finite number", c[i]);
+    }
+    if c[0] == 0.0 {
+        bail!("{key}[0] = 0: the leading coefficient must be non-zero");
+    }
+    Ok(())
+}
+
+/// `(natural frequency Hz, damping ratio)` of the complex pole pairs among
+/// `poles` (those with positive imaginary part), lowest frequency first.
+pub fn modes_of(poles: &[Complex<f64>]) -> Vec<(f64, f64)> {
+    let mut m: Vec<(f64, f64)> = poles
+        .iter()
+        .filter(|p| p.im > 1e-9 * p.norm())
+        .map(|p| (p.norm() / (2.0 * std::f64::consts::PI), -p.re / p.norm()))
+        .collect();
+    m.sort_by(|a, b| a.0.total_cmp(&b.0));
+    m
+}
+
+/// Corner frequencies of the real poles among `poles`, Hz, lowest first.
+pub fn real_poles_of(poles: &[Complex<f64>]) -> Vec<f64> {
+    let mut r: Vec<f64> = poles
+        .iter()
+        .filter(|p| p.im.abs() <= 1e-9 * p.norm())
+        .map(|p| p.norm() / (2.0 * std::f64::consts::PI))
+        .collect();
+    r.sort_by(f64::total_cmp);
+    r
+}
+
+/// `"851.3 Hz ζ 0.0210, …"`, or `"none"`.
+fn describe_modes(m: &[(f64, f64)]) -> String {
+    if m.is_empty() {
+        return "none".into();
+    }
+    m.iter()
+        .map(|(f, z)| format!("{f:.4} Hz ζ {z:.5}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+impl TransferFunction {
+    /// `N(s)/D(s)` at complex `s` (rad/s).
+    pub fn at(&self, s: Complex<f64>) -> Complex<f64> {
+        horner(&self.numerator, s) / horner(&self.denominator, s)
+    }
+
+    /// `N(0)/D(0)`.
+    pub fn dc_gain(&self) -> f64 {
+        self.numerator.last().copied().unwrap_or(0.0)
+            / self.denominator.last().copied().unwrap_or(f64::NAN)
+    }
+
+    /// The same transfer function scaled to unit DC gain.
+    pub fn unit_dc(&self) -> TransferFunction {
+        let g = self.dc_gain();
+        TransferFunction {
+            numerator: self.numerator.iter().map(|c| c / g).collect(),
+            denominator: self.denominator.clone(),
+        }
+    }
+
+    /// The poles, rad/s (roots of the denominator).
+    pub fn poles(&self) -> Vec<Complex<f64>> {
+        roots(&self.denominator)
+    }
+}
+
+/// A polynomial (highest power first) at complex `s`.
+pub fn horner(c: &[f64], s: Complex<f64>) -> Complex<f64> {
+    c.iter().fold(Complex::new(0.0, 0.0), |acc, &k| acc * s + k)
+}
+
+/// Roots of a polynomial (highest power first): the eigenvalues of its companion
+/// matrix, computed on the polynomial in `s/ω` with `ω = |c_n/c_0|^(1/n)` so that
+/// the coefficients of high-frequency modes stay well scaled.
+pub fn roots(c: &[f64]) -> Vec<Complex<f64>> {
+    let c: Vec<f64> = c.iter().copied().skip_while(|&x| x == 0.0).collect();
+    let n = c.len().saturating_sub(1);
+    if n == 0 {
+        return Vec::new();
+    }
+    let zeros_at_origin = c.iter().rev().take_while(|&&x| x == 0.0).count();
+    let c = &c[..c.len() - zeros_at_origin];
+    let m = c.len() - 1;
+    let mut out = vec![Complex::new(0.0, 0.0); zeros_at_origin];
+    if m == 0 {
+        return out;
+    }
+    let w = (c[m] / c[0]).abs().powf(1.0 / m as f64);
+    // Monic in s' = s/w: coefficient of s'^k over the leading one.
+    let monic: Vec<f64> = (0..=m).map(|i| c[i] / c[0] / w.powi(i as i32)).collect();
+    let mut comp = DMatrix::<f64>::zeros(m, m);
+    for j in 0..m {
+        comp[(0, j)] = -monic[j + 1];
+    }
+    for i in 1..m {
+        comp[(i, i - 1)] = 1.0;
+    }
+    out.extend(comp.complex_eigenvalues().iter().map(|z| z * w));
+    out
+}
+
+/// A discrete linear system in state space, run sample by sample: the
+/// trapezoidal (Tustin) form `(kI − A)·x[n+1] = (kI + A)·x[n] + B·(u[n+1] + u[n])`,
+/// `y[n] = C·x[n] + D·u[n]`, of a continuous system in time scaled by `ω0`.
+#[derive(Debug, Clone)]
+pub struct Discrete {
+    /// `(kI − A)⁻¹(kI + A)`.
+    p: DMatrix<f64>,
+    /// `(kI − A)⁻¹B`.
+    q: DVector<f64>,
+    c: DVector<f64>,
+    d: f64,
+    /// Equilibrium state per unit of a constant input, `−A⁻¹B`.
+    rest: DVector<f64>,
+}
+
+impl Discrete {
+    /// Discretises `tf` (which must be stable) for sample interval `dt_s` with the
+    /// bilinear transform, pre-warped at `prewarp_hz` when that lies below 0.45 of
+    /// the sample rate (the discrete model then has the mode exactly there).
+    pub fn tustin(tf: &TransferFunction, dt_s: f64, prewarp_hz: Option<f64>) -> Result<Self> {
+        if !(dt_s.is_finite() && dt_s > 0.0) {
+            bail!("sample interval {dt_s} s: must be > 0");
+        }
+        let two_pi = 2.0 * std::f64::consts::PI;
+        let nyquist = 0.5 / dt_s;
+        let k_rad = match prewarp_hz {
+            Some(f) if f > 0.0 && f < 0.9 * nyquist => {
+                let w = two_pi * f;
+                w / (0.5 * w * dt_s).tan()
+            }
+            _ => 2.0 / dt_s,
+        };
+        let (a, b, c, d, w0) = canonical(tf)?;
+        let n = a.nrows();
+        let k = k_rad / w0;
+        let eye = DMatrix::<f64>::identity(n, n);
+        let m = (&eye * k - &a)
+            .try_inverse()
+            .ok_or_else(|| anyhow!("the dynamics cannot be discretised at {dt_s} s"))?;
+        let rest = if n == 0 {
+            DVector::zeros(0)
+        } else {
+            -a.clone()
+                .try_inverse()
+                .ok_or_else(|| anyhow!("the dynamics have a pole at 0"))?
+                * &b
+        };
+        Ok(Self {
+            p: &m * (&eye * k + &a),
+            q: &m * &b,
+            c,
+            d,
+            rest,
+        })
+    }
+
+    /// Runs the system over `u`, starting at rest at `u[0]` (the state of a
+    /// constant `u[0]` held for ever).
+    pub fn filter(&self, u: &[f64]) -> Vec<f64> {
+        let Some(&u0) = u.first() else {
+            return Vec::new();
+        };
+        let mut x = &self.rest * u0;
+        let mut prev = u0;
+        let mut next = DVector::zeros(x.len());
+        u.iter()
+            .map(|&uk| {
+                self.p.mul_to(&x, &mut next);
+                next.axpy(prev + uk, &self.q, 1.0);
+                std::mem::swap(&mut x, &mut next);
+                prev = uk;
+                self.c.dot(&x) + self.d * uk
+            })
+            .collect()
+    }
+}
+
+/// A continuous state-space model `(A, B, C, D)` in the scaled variable
+/// `s' = s/ω0`, and `ω0` (rad/s).
+type Scaled = (DMatrix<f64>, DVector<f64>, DVector<f64>, f64, f64);
+
+/// Controllable canonical form `(A, B, C, D)` of `tf` in the scaled variable
+/// `s' = s/ω0`, and `ω0` (rad/s; the geometric mean of the poles' magnitudes).
+fn canonical(tf: &TransferFunction) -> Result<Scaled> {
+    let den = &tf.denominator;
+    let n = den.len().saturating_sub(1);
+    if den.is_empty() || den[0] == 0.0 || tf.numerator.len() > den.len() {
+        bail!("the transfer function is not proper");
+    }
+    let w0 = if n == 0 {
+        1.0
+    } else {
+        (den[n] / den[0]).abs().powf(1.0 / n as f64).max(1e-300)
+    };
+    // Ascending coefficients in s', the denominator monic.
+    let scale = |c: &[f64]| -> Vec<f64> {
+        let deg = c.len() - 1;
+        (0..=deg)
+            .map(|i| c[deg - i] * w0.powi(i as i32) / (den[0] * w0.powi(n as i32)))
+            .collect()
+    };
+    let a_asc = scale(den);
+    let mut b_asc = scale(&tf.numerator);
+    b_asc.resize(n + 1, 0.0);
+    let d = b_asc[n];
+    let mut a = DMatrix::<f64>::zeros(n, n);
+    for i in 0..n.saturating_sub(1) {
+        a[(i, i + 1)] = 1.0;
+    }
+    for j in 0..n {
+        a[(n - 1, j)] = -a_asc[j];
+    }
+    let mut b = DVector::<f64>::zeros(n);
+    if n > 0 {
+        b[n - 1] = 1.0;
+    }
+    let c = DVector::from_iterator(n, (0..n).map(|i| b_asc[i] - d * a_asc[i]));
+    Ok((a, b, c, d, w0))
+}
+
+/// The sample interval of a uniformly sampled time column `t` (s): the mean step;
+/// refuses a column whose steps differ from it by more than 1 %, naming the
+/// 0-based index of the first such step.
+pub fn uniform_step(t: &[f64]) -> std::result::Result<f64, (usize, f64, f64)> {
+    if t.len() < 2 {
+        return Err((0, f64::NAN, f64::NAN));
+    }
+    let dt = (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
+    match t
+        .windows(2)
+        .position(|w| ((w[1] - w[0]) - dt).abs() > 0.01 * dt)
+    {
+        Some(k) => Err((k, t[k + 1] - t[k], dt)),
+        None => Ok(dt),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn second_order(f: f64, z: f64, k: f64) -> TransferFunction {
+        let w = 2.0 * std::f64::consts::PI * f;
+        TransferFunction {
+            numerator: vec![k * w * w],
+            denominator: vec![1.0, 2.0 * z * w, w * w],
+        }
+    }
+
+    #[test]
+    fn roots_of_a_lightly_damped_mode() {
+        let tf = second_order(850.0, 0.02, 0.3);
+        let m = modes_of(&tf.poles());
+        assert_eq!(m.len(), 1);
+        assert!((m[0].0 - 850.0).abs() < 1e-6 && (m[0].1 - 0.02).abs() < 1e-9);
+    }
+
+    #[test]
+    fn tustin_keeps_the_dc_gain_and_the_mode() {
+        let tf = second_order(850.0, 0.02, 0.3).unit_dc();
+        let d = Discrete::tustin(&tf, 5e-5, Some(850.0)).unwrap();
+        let y = d.filter(&vec![2.0; 100]);
+        assert!(y.iter().all(|v| (v - 2.0).abs() < 1e-12), "{y:?}");
+        // A step rings at the mode: the first peak after about half a period.
+        let mut u = vec![0.0; 4000];
+        u[1..].iter_mut().for_each(|v| *v = 1.0);
+        let y = d.filter(&u);
+        let peak = (1..200).max_by(|&a, &b| y[a].total_cmp(&y[b])).unwrap();
+        let t_peak = peak as f64 * 5e-5;
+        assert!((t_peak - 0.5 / 850.0).abs() < 1e-4, "{t_peak}");
+        assert!((y[3999] - 1.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn uniform_steps() {
+        assert_eq!(uniform_step(&[0.0, 0.5, 1.0]), Ok(0.5));
+        assert!(uniform_step(&[0.0, 0.5, 1.5, 2.0]).is_err());
+    }
+}
