@@ -25,6 +25,7 @@ mod bench {
     use cortex_m_rt::entry;
     use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
     use cortex_m_semihosting::hprintln;
+    use fpi_firmware::closed_loop::LoopMode;
     use fpi_firmware::control_loop::ControlLoop;
     use fpi_firmware::exchange::{Exchange, Order};
     use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
@@ -36,7 +37,7 @@ mod bench {
     use fpi_firmware::reference::wave::{Shape as WaveShape, Wave, WavePhase};
     use fpi_firmware::reference::SourceOrder;
     use fpi_firmware::sim_io::SimLink;
-    use fpi_firmware::slots::{Origin, Spare};
+    use fpi_firmware::slots::{Origin, Running, Spare};
     use piezo_fpi::control::{
         ControllerConfig, ControllerParts, ForceSource, Interval, Supervision,
     };
@@ -310,11 +311,54 @@ mod bench {
         true
     }
 
-    /// The board's control task on the embedded model received at run time: its
-    /// instruction counts per tick.
-    fn report_tick(store: &'static mut Store, mut x: Exchange<'static>, baseline: u32) -> bool {
+    /// The embedded model with position feedback and a two-section reference
+    /// shaping (the inverse of an 850 Hz mode and a notch), as an image in `buf`.
+    fn closed_image<'b>(store: &mut Store, buf: &'b mut [u8]) -> Option<&'b [u8]> {
+        store.load(MODEL_IMAGE, &BOARD).ok()?;
+        let spec = store.spec();
+        let um = |x: f64| piezo_fpi::q::signal(x).unwrap_or(Micrometres::ZERO);
+        let r = spec.supervision.reference;
+        let feedback = piezo_fpi::feedback::FeedbackSpec {
+            kp: piezo_fpi::q::LoopGain::from_bits(0),
+            ki: piezo_fpi::q::LoopGain::from_bits(100_000), // 119 /s at 20 kHz
+            limit: um(4.0),
+            sensor: piezo_fpi::control::Interval {
+                lo: r.lo - um(10.0),
+                hi: r.hi + um(10.0),
+            },
+            tolerance: um(6.0),
+        };
+        // Each section's b1 absorbs the rounding: unit static gain exactly.
+        let bits = |b: &piezo_fpi::biquad::Biquad| {
+            let ([b0, _, b2], [a1, a2]) = (b.b(), b.a());
+            let [b0, b2, a1, a2] = [b0, b2, a1, a2].map(|c| c.to_bits());
+            let b1 = (1i64 << 30) + a1 as i64 + a2 as i64 - b0 as i64 - b2 as i64;
+            [b0, b1 as i32, b2, a1, a2]
+        };
+        let shaping = piezo_fpi::biquad::ShapingSpec {
+            sections: [bits(&biquad_bench::INVERSE), bits(&biquad_bench::NOTCH)],
+        };
+        let closed = ModelSpec {
+            feedback: Some(feedback),
+            shaping: Some(shaping),
+            ..spec
+        };
+        let len = image::encode(&closed, buf).ok()?;
+        buf.get(..len)
+    }
+
+    /// The board's control task on the embedded model received at run time, its
+    /// instruction counts per tick; then, with `closed` (the same model with
+    /// feedback and shaping, swapped in parked), the same in closed loop.
+    fn report_tick(
+        store: &'static mut Store,
+        mut x: Exchange<'static>,
+        baseline: u32,
+        closed: Option<Running>,
+    ) -> bool {
         let mut spare = Spare::new(store);
-        if spare.load(MODEL_IMAGE).is_err() {
+        if let Err(e) = spare.load(MODEL_IMAGE) {
+            hprintln!("the benchmark's model was refused: {}", e);
             return false;
         }
         let Ok(running) = spare.activate(MODEL_IMAGE, Origin::Factory) else {
@@ -322,30 +366,68 @@ mod bench {
         };
         let rest = CONTROLLER.f_f().eval(Micrometres::ZERO).to_num::<f32>();
         LINK.set_force(rest);
+        LINK.set_position(0.0);
         let mut lp = ControlLoop::new(running, LINK.hardware(), LINK.analog());
         x.order = Some((1, Order::Record { decimation: 1 }));
         lp.tick(&mut x);
-        x.order = Some((2, Order::Source(SourceOrder::Wave(full_stroke(5.0)))));
+        let open_ok = tick_phase(&mut lp, &mut x, baseline, false);
+        let Some(closed) = closed else {
+            hprintln!("the closed-loop benchmark could not be set up");
+            return false;
+        };
+        // Park, swap the model in, close the loop, run the stroke again.
+        x.order = Some((4, Order::Safe));
+        for _ in 0..200 {
+            lp.tick(&mut x);
+        }
+        x.order = Some((5, Order::Swap(closed)));
         lp.tick(&mut x);
+        let swapped = matches!(x.applied, Some(a) if a.result.is_ok());
+        x.order = Some((6, Order::Loop(LoopMode::Closed)));
+        lp.tick(&mut x);
+        let closed_ok = swapped && tick_phase(&mut lp, &mut x, baseline, true);
+        open_ok && closed_ok
+    }
+
+    /// The benchmark's control loop (its I/O is the simulated link).
+    type Loop = ControlLoop<
+        fpi_firmware::sim_io::SimSensor<'static>,
+        fpi_firmware::sim_io::SimAmplifier<'static>,
+        fpi_firmware::sim_io::SimEnable<'static>,
+        fpi_firmware::sim_io::SimAnalog<'static>,
+    >;
+
+    /// Runs a 5 Hz full stroke from where the loop is and prints its counts.
+    fn tick_phase(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32, closed: bool) -> bool {
+        x.order = Some((2, Order::Source(SourceOrder::Wave(full_stroke(5.0)))));
+        lp.tick(x);
+        let kept = x.recorder.kept();
         let mut c = Counts::new();
         const PAINT: usize = 8192;
         let sp = paint_below(PAINT);
         for _ in 0..STEPS {
             let t = ticks(|| {
-                let t = lp.tick(&mut x);
-                lp.record(&mut x, &t, None)
+                let t = lp.tick(x);
+                lp.record(x, &t, None)
             });
             c.add(instructions(t, baseline));
-            // The link task reads the recorder; the sensor follows the stage.
+            // The link task reads the recorder; the sensors follow the stage.
             while x.recorder.take().is_some() {}
             let f = CONTROLLER.f_f().eval(lp.state().x_pea_est());
             LINK.set_force(f.to_num::<f32>());
+            LINK.set_position(x.snapshot.x_est.to_num::<f32>());
         }
-        let ok = x.snapshot.fault.is_none() && x.recorder.kept() >= STEPS;
+        let ok = x.snapshot.fault.is_none() && x.recorder.kept() >= kept + STEPS;
         hprintln!(
-            "isr_tick_instructions n={}: {} (the board's control task on the runtime embedded model: order check, reference, supervision, sensor, step, DAC, enable, snapshot, recorder; min {} mean {}.{}){}",
+            "{} n={}: {} (the board's control task on the runtime embedded model{}: order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder; min {} mean {}.{}){}",
+            if closed { "isr_tick_closed_loop_instructions" } else { "isr_tick_instructions" },
             model::OPERATORS,
             c.max,
+            if closed {
+                " in closed loop (PI on the position sensor, two-section reference shaping)"
+            } else {
+                ""
+            },
             c.min,
             c.mean_x10() / 10,
             c.mean_x10() % 10,
@@ -356,7 +438,15 @@ mod bench {
         }
         // The tick's own stack, without the benchmark's frames above it (the
         // measurement closure included, a few words).
-        hprintln!("isr_tick_stack_bytes: {}", depth_below(sp, PAINT));
+        hprintln!(
+            "{}: {}",
+            if closed {
+                "isr_tick_closed_loop_stack_bytes"
+            } else {
+                "isr_tick_stack_bytes"
+            },
+            depth_below(sp, PAINT)
+        );
         ok
     }
 
@@ -405,7 +495,7 @@ mod bench {
 
         /// `piezo_sim::filter::mode_inverse(850.0, 0.02, 0.7, 20_000.0)`: the stable
         /// inverse of an 850 Hz mode with ζ = 0.02, placed at ζ_d = 0.7.
-        const INVERSE: Biquad = match Biquad::from_f64(
+        pub(super) const INVERSE: Biquad = match Biquad::from_f64(
             [
                 0.848_542_257_535_104,
                 -1.628_341_947_638_625,
@@ -417,7 +507,7 @@ mod bench {
             Err(e) => panic!("{}", e.message()),
         };
         /// `piezo_sim::filter::notch(2_600.0, 0.1, 0.05, 20_000.0)`.
-        const NOTCH: Biquad = match Biquad::from_f64(
+        pub(super) const NOTCH: Biquad = match Biquad::from_f64(
             [
                 0.935_453_236_923_409_6,
                 -1.276_072_527_939_178_2,
@@ -525,8 +615,9 @@ mod bench {
         // Models received at run time (the board's RAM store).
         let mut runtime_ok = false;
         let mut store = cortex_m::singleton!(: Store = Store::new());
-        let buf = cortex_m::singleton!(: [u8; hardware::IMAGE_BYTES] = [0; hardware::IMAGE_BYTES]);
-        if let (Some(store), Some(buf)) = (store.as_deref_mut(), buf) {
+        let mut buf =
+            cortex_m::singleton!(: [u8; hardware::IMAGE_BYTES] = [0; hardware::IMAGE_BYTES]);
+        if let (Some(store), Some(buf)) = (store.as_deref_mut(), buf.as_deref_mut()) {
             runtime_ok =
                 match image::encode(&spec_of_c10(), buf) {
                     Ok(len) => report_runtime(store, &buf[..len], "runtime paper FPI", baseline),
@@ -540,13 +631,27 @@ mod bench {
         // The board's whole control task, on the embedded model loaded at run time:
         // order check, reference, supervision, sensor, step, DAC, enable, status
         // snapshot, recorder (recording every tick).
+        // The closed-loop model: built in the first store (free again), its image in
+        // the benchmark's buffer, loaded into a second store and made runnable.
+        let closed = match (
+            store.as_deref_mut(),
+            buf.as_deref_mut(),
+            cortex_m::singleton!(: Store = Store::new()),
+        ) {
+            (Some(s), Some(b), Some(s2)) => closed_image(s, b).and_then(|image| {
+                let mut spare = Spare::new(s2);
+                spare.load(image).ok()?;
+                spare.activate(image, Origin::Received).ok()
+            }),
+            _ => None,
+        };
         let tick_ok = match (
             store,
             cortex_m::singleton!(: Recorder<RECORDER_SAMPLES> = Recorder::new()),
             cortex_m::singleton!(: Points<STREAM_POINTS> = Points::new()),
         ) {
             (Some(store), Some(recorder), Some(points)) => {
-                report_tick(store, Exchange::new(recorder, points), baseline)
+                report_tick(store, Exchange::new(recorder, points), baseline, closed)
             }
             _ => false,
         };
