@@ -15,8 +15,14 @@
 //!    (written to `tests-host/out/demo/board-session.csv`), and the session is
 //!    replayed on the host twin, which must reproduce every recorded sample.
 //!
-//! Exits non-zero if a target of the method, the accuracy bounds, a phase's check
-//! or the twin fail.
+//! 4. On a fresh board with the virtual stage *as built* (a few percent off the
+//!    model, an 850 Hz mode, a position sensor): identifies the dynamics from stage
+//!    A's chirp, tunes and shapes the exported model, and scores open loop,
+//!    feedback alone and feedback plus FPI feedforward on 15 and 100 Hz sines and
+//!    a step, then the reference shaping ([`fpi_host::report::closed_loop`]).
+//!
+//! Exits non-zero if a target of the method, the accuracy bounds, a phase's check,
+//! the twin or the closed-loop checks fail.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -62,11 +68,12 @@ fn run() -> Result<()> {
 
     let emulated = qemu.is_ok();
     let report = board_session(&out, emulated)?;
+    let looped = closed_loop(&out, emulated)?;
     println!(
         "\nreport with tables and plots: {}",
         fpi_host::method::export::project_relative(&chain.report)
     );
-    let ok = chain.ok && acc_ok && report.pass();
+    let ok = chain.ok && acc_ok && report.pass() && looped;
     if !emulated {
         println!(
             "\nSKIPPED: the firmware on the emulated Cortex-M4 (qemu-system-arm is not installed); \
@@ -87,6 +94,36 @@ fn run() -> Result<()> {
         bail!("see the report above");
     }
     Ok(())
+}
+
+/// Step 4: closed loop and dynamic compensation on the stage as built, on a fresh
+/// board; whether its checks passed.
+fn closed_loop(out: &Path, emulated: bool) -> Result<bool> {
+    println!("\n== 4. Closed loop and dynamic compensation on the stage as built ==");
+    let (emulator, port) = if emulated {
+        let e = Emulator::start_elf(&Emulator::firmware()?, None)?;
+        let port = e.port().to_string();
+        (Some(e), port)
+    } else {
+        (None, inprocess::PORT_NAME.to_string())
+    };
+    let root = board::project_root();
+    let d = fpi_host::report::closed_loop::run(
+        out,
+        &out.join("firmware-stage-a.toml"),
+        &root.join("tests-host/data/stage-a/chirp_small_1Hz-3kHz.csv.gz"),
+        &port,
+    )?;
+    drop(emulator);
+    for l in &d.lines {
+        println!("  {l}");
+    }
+    println!(
+        "  check (feedback + feedforward beats either alone; shaping cuts the step's \
+         overshoot fourfold): {}",
+        if d.ok { "ok" } else { "FAILED" }
+    );
+    Ok(d.ok)
 }
 
 /// Step 3: the session over the link, on the emulated board (QEMU) or, without

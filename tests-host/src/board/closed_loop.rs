@@ -331,6 +331,15 @@ pub struct ShapingRun {
     pub step: StepRun,
 }
 
+/// The shaping session: its runs and its recording.
+#[derive(Debug, Clone)]
+pub struct ShapingReport {
+    /// Without and with shaping, open and closed loop.
+    pub runs: Vec<ShapingRun>,
+    /// The recording.
+    pub recording: Recording,
+}
+
 /// The triangle's frequency, Hz.
 pub const TRIANGLE_HZ: f64 = 100.0;
 
@@ -342,7 +351,7 @@ pub fn shaping_run(
     c: &mut Client,
     plain: &[u8],
     (shaped, delay_ms): (&[u8], f64),
-) -> Result<Vec<ShapingRun>> {
+) -> Result<ShapingReport> {
     let rate = c.rate_hz();
     let mut s = Session {
         c,
@@ -393,7 +402,10 @@ pub fn shaping_run(
         st.fault.is_some_and(|f| f.safe_at.is_some())
     })?;
     s.c.bench(BenchOrder::Stage(false))?;
-    Ok(out)
+    Ok(ShapingReport {
+        runs: out,
+        recording: s.rec,
+    })
 }
 
 /// True position − the reference `delay_ms` earlier (linearly interpolated

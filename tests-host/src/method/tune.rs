@@ -246,8 +246,9 @@ pub fn tune(fw: &FirmwareModel, dynamics: Option<&Dynamics>, o: &TuneOptions) ->
         .fold(0.0, f64::max);
     let plant = match dynamics {
         Some(d) => format!(
-            "identified dynamics (modes {:?} Hz, damping {:?}) at unit gain, 1.5-tick delay",
-            d.natural_frequency_hz, d.damping_ratio
+            "identified dynamics (modes {} Hz, damping {}) at unit gain, 1.5-tick delay",
+            list(&d.natural_frequency_hz, 1),
+            list(&d.damping_ratio, 4)
         ),
         None => format!(
             "no dynamics: unit gain with a 1.5-tick delay, crossover held at ≤ {} Hz",
@@ -263,6 +264,12 @@ pub fn tune(fw: &FirmwareModel, dynamics: Option<&Dynamics>, o: &TuneOptions) ->
         margins: lp.margins(kp, ki_tick, 1.0),
         plant,
     })
+}
+
+/// `[a, b]` with `digits` decimals.
+fn list(v: &[f64], digits: usize) -> String {
+    let items: Vec<String> = v.iter().map(|x| format!("{x:.digits$}")).collect();
+    format!("[{}]", items.join(", "))
 }
 
 /// `fw` with the `[feedback]` section `t` gives: the gains, the correction's

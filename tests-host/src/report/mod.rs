@@ -3,6 +3,7 @@
 //! (measured and predicted loops of the stage), the error curves, and Figs. 12–13
 //! (the predicted stack loop on the preload–voltage surface, and its projection).
 
+pub mod closed_loop;
 pub mod demo;
 pub mod plots;
 
