@@ -278,7 +278,9 @@ fn shaped() -> (Vec<u8>, f64) {
 fn shaping_the_reference_stops_the_mode_ringing() {
     let (_e, mut c) = board("shaping_the_reference_stops_the_mode_ringing");
     let (plain, (shaped, delay)) = (tuned().1.clone(), shaped());
-    let runs = closed_loop::shaping_run(&mut c, &plain, (&shaped, delay)).unwrap();
+    let runs = closed_loop::shaping_run(&mut c, &plain, (&shaped, delay))
+        .unwrap()
+        .runs;
     println!("{}", closed_loop::shaping_table(&runs));
     for mode in [LoopMode::Open, LoopMode::Closed] {
         let r = |s: bool| {

@@ -101,6 +101,9 @@ fn passes(r: &LoopReport, s: &[ShapingRun]) -> bool {
     sines && over(true) < 0.25 * over(false)
 }
 
+/// A named series: times (ms) and positions (µm).
+type Trace<'a> = (&'a str, (Vec<f64>, Vec<f64>));
+
 /// A step's true position against time from its start, ms and µm.
 fn step_trace(rec: &Recording, s: &StepRun) -> (Vec<f64>, Vec<f64>) {
     rec.between(s.ticks.0, s.ticks.1)
@@ -116,7 +119,7 @@ fn step_trace(rec: &Recording, s: &StepRun) -> (Vec<f64>, Vec<f64>) {
 /// The step responses of the three modes, and the steps without and with
 /// shaping.
 fn plot(out: &Path, r: &LoopReport, s: &ShapingReport) -> Result<[PathBuf; 2]> {
-    let traces: Vec<(&str, (Vec<f64>, Vec<f64>))> = closed_loop::MODES
+    let traces: Vec<Trace<'_>> = closed_loop::MODES
         .iter()
         .filter_map(|&m| {
             r.step(m)
@@ -135,7 +138,7 @@ fn plot(out: &Path, r: &LoopReport, s: &ShapingReport) -> Result<[PathBuf; 2]> {
         "feedback + FPI feedforward, no shaping",
         "feedback + FPI feedforward, mode inverse",
     ];
-    let traces: Vec<(&str, (Vec<f64>, Vec<f64>))> = [
+    let traces: Vec<Trace<'_>> = [
         (LoopMode::Open, false),
         (LoopMode::Open, true),
         (LoopMode::Closed, false),
@@ -160,7 +163,7 @@ fn plot(out: &Path, r: &LoopReport, s: &ShapingReport) -> Result<[PathBuf; 2]> {
 }
 
 /// Curves of `(t ms, x µm)` series sharing the first series' time axis.
-fn curves_ms(path: &Path, title: &str, traces: &[(&str, (Vec<f64>, Vec<f64>))]) -> Result<()> {
+fn curves_ms(path: &Path, title: &str, traces: &[Trace<'_>]) -> Result<()> {
     let n = traces.iter().map(|(_, (t, _))| t.len()).min().unwrap_or(0);
     let t: Vec<f64> = traces.first().map_or(Vec::new(), |(_, (t, _))| {
         t[..n].iter().map(|v| v / 1e3).collect()
