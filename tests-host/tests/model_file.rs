@@ -231,3 +231,92 @@ fn a_host_model_without_motion_is_not_written() {
     );
     assert!(!p.exists());
 }
+
+/// The amplifier's current limit and the stack's capacitance bound the slew the
+/// model enforces per tick to `I_max / C` (eq. 14) when that is below its setting.
+#[test]
+fn the_current_limit_bounds_the_slew_per_tick() {
+    let m = FirmwareModel::parse(&embedded(), "m.toml").unwrap();
+    let step = |m: &FirmwareModel| {
+        let (q, _) = m.check().unwrap();
+        q.spec().max_step.to_num::<f64>()
+    };
+    let rate = m.controller.rate_hz as f64;
+    let setting = step(&m);
+    assert!((setting - m.controller.slew_v_per_ms * 1e3 / rate).abs() < 1e-4);
+    let mut limited = m.clone();
+    limited.controller.current_limit_ma = Some(100.0);
+    limited.controller.capacitance_uf = Some(2.0);
+    // 100 mA / 2 µF = 50 V/ms = 2.5 V per 50 µs tick.
+    assert!((step(&limited) - 2.5).abs() < 1e-4, "{}", step(&limited));
+    let again = FirmwareModel::parse(&limited.to_toml().unwrap(), "again").unwrap();
+    assert_eq!(again, limited, "the keys round-trip");
+    // A generous amplifier leaves the setting.
+    limited.controller.current_limit_ma = Some(10_000.0);
+    assert!((step(&limited) - setting).abs() < 1e-9);
+    // Bad or half-given values are refused by key.
+    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| {
+        let mut bad = m.clone();
+        edit(&mut bad);
+        let e = error_of(&bad.to_toml().unwrap());
+        assert!(e.contains(want), "{e}");
+    };
+    check(
+        &|b| b.controller.current_limit_ma = Some(100.0),
+        "controller.current_limit_ma and controller.capacitance_uf go together",
+    );
+    check(
+        &|b| {
+            b.controller.current_limit_ma = Some(-1.0);
+            b.controller.capacitance_uf = Some(2.0);
+        },
+        "controller.current_limit_ma = -1: not a positive current",
+    );
+}
+
+/// The feedback and shaping sections are checked by the core's validator,
+/// naming their keys.
+#[test]
+fn feedback_and_shaping_sections_name_their_keys() {
+    use piezo_sim::file::{FeedbackSection, ShapingSection};
+    let m = FirmwareModel::parse(&embedded(), "m.toml").unwrap();
+    let fb = FeedbackSection {
+        kp: 0.1,
+        ki_per_s: 120.0,
+        limit_um: 4.0,
+        position_min_um: -9.0,
+        position_max_um: 49.0,
+        position_tolerance_um: 6.0,
+        notes: String::new(),
+    };
+    let mut good = m.clone();
+    good.feedback = Some(fb.clone());
+    good.shaping = Some(ShapingSection {
+        sections: vec![[0.5, 0.0, 0.0, -0.5, 0.0]],
+        notes: String::new(),
+    });
+    let again = FirmwareModel::parse(&good.to_toml().unwrap(), "again").unwrap();
+    assert_eq!(again, good);
+    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| {
+        let mut bad = good.clone();
+        edit(&mut bad);
+        let e = error_of(&bad.to_toml().unwrap());
+        assert!(e.contains(want), "{e}");
+    };
+    check(
+        &|b| b.feedback.as_mut().unwrap().ki_per_s = 40_000.0,
+        "feedback.ki_per_s = 40000: a feedback gain is negative or beyond its range",
+    );
+    check(
+        &|b| b.feedback.as_mut().unwrap().position_tolerance_um = 0.0,
+        "feedback.position_tolerance_um = 0: the tolerance is not positive",
+    );
+    check(
+        &|b| b.shaping.as_mut().unwrap().sections[0] = [0.6, 0.0, 0.0, -0.5, 0.0],
+        "shaping.sections[0]: a filter section's static gain is not exactly 1",
+    );
+    check(
+        &|b| b.shaping.as_mut().unwrap().sections[0] = [3.0, 0.0, 0.0, -0.5, 0.0],
+        "shaping.sections[0][0] = 3: not a finite value within ±2",
+    );
+}

@@ -628,14 +628,11 @@ mod bench {
                 } && report_runtime(store, MODEL_IMAGE, "runtime embedded model", baseline);
         }
 
-        // The board's whole control task, on the embedded model loaded at run time:
-        // order check, reference, supervision, sensor, step, DAC, enable, status
-        // snapshot, recorder (recording every tick).
         // The closed-loop model: built in the first store (free again), its image in
         // the benchmark's buffer, loaded into a second store and made runnable.
         let closed = match (
             store.as_deref_mut(),
-            buf.as_deref_mut(),
+            buf,
             cortex_m::singleton!(: Store = Store::new()),
         ) {
             (Some(s), Some(b), Some(s2)) => closed_image(s, b).and_then(|image| {
@@ -645,6 +642,9 @@ mod bench {
             }),
             _ => None,
         };
+        // The board's whole control task, on the embedded model loaded at run time
+        // (order check, reference, supervision, sensors, step, DAC, enable, status
+        // snapshot, recorder, recording every tick), then in closed loop.
         let tick_ok = match (
             store,
             cortex_m::singleton!(: Recorder<RECORDER_SAMPLES> = Recorder::new()),

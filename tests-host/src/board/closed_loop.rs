@@ -109,7 +109,22 @@ struct Session<'c> {
     dropped_before: u32,
 }
 
-impl Session<'_> {
+impl<'c> Session<'c> {
+    /// A session on `c`, its recording empty.
+    fn new(c: &'c mut Client) -> Self {
+        let rate = c.rate_hz();
+        Self {
+            c,
+            rec: Recording {
+                rate_hz: rate,
+                signals: SIGNALS,
+                ..Recording::default()
+            },
+            rate,
+            dropped_before: 0,
+        }
+    }
+
     fn ticks(&self, seconds: f64) -> u32 {
         (seconds * self.rate).round() as u32
     }
@@ -263,17 +278,7 @@ pub fn run(c: &mut Client, image: &[u8]) -> Result<LoopReport> {
     c.upload(image, false, |_| {})
         .context("uploading the tuned model")?;
     c.bench(BenchOrder::Stage(true))?;
-    let rate = c.rate_hz();
-    let mut s = Session {
-        c,
-        rec: Recording {
-            rate_hz: rate,
-            signals: SIGNALS,
-            ..Recording::default()
-        },
-        rate,
-        dropped_before: 0,
-    };
+    let mut s = Session::new(c);
     s.record(DECIMATION)?;
     s.c.move_to(SINE_UM.0, 1000.0)?;
     s.until_hold()?;
@@ -352,17 +357,7 @@ pub fn shaping_run(
     plain: &[u8],
     (shaped, delay_ms): (&[u8], f64),
 ) -> Result<ShapingReport> {
-    let rate = c.rate_hz();
-    let mut s = Session {
-        c,
-        rec: Recording {
-            rate_hz: rate,
-            signals: SIGNALS,
-            ..Recording::default()
-        },
-        rate,
-        dropped_before: 0,
-    };
+    let mut s = Session::new(c);
     let mut out = Vec::new();
     for (shaped_model, image, delay) in [(false, plain, 0.0), (true, shaped, delay_ms)] {
         s.c.ack(&Command::Loop {
@@ -379,6 +374,8 @@ pub fn shaping_run(
         s.c.move_to(SINE_UM.0, 1000.0)?;
         s.until_hold()?;
         for mode in [LoopMode::Open, LoopMode::Closed] {
+            // Recorded at 10 kHz: the corners and the ringing are seen.
+            s.record(STEP_DECIMATION)?;
             let triangle = s.wave(Shape::Triangle, mode, TRIANGLE_HZ, 20)?;
             let triangle_delayed = delayed_tracking(&s.rec, triangle.ticks, delay);
             let step = s.step(mode)?;

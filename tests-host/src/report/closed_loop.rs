@@ -118,7 +118,7 @@ fn step_trace(rec: &Recording, s: &StepRun) -> (Vec<f64>, Vec<f64>) {
 
 /// The step responses of the three modes, and the steps without and with
 /// shaping.
-fn plot(out: &Path, r: &LoopReport, s: &ShapingReport) -> Result<[PathBuf; 2]> {
+fn plot(out: &Path, r: &LoopReport, s: &ShapingReport) -> Result<[PathBuf; 3]> {
     let traces: Vec<Trace<'_>> = closed_loop::MODES
         .iter()
         .filter_map(|&m| {
@@ -131,6 +131,7 @@ fn plot(out: &Path, r: &LoopReport, s: &ShapingReport) -> Result<[PathBuf; 2]> {
         &steps,
         "A 20 µm step on the stage as built (true position)",
         &traces,
+        "stage position (µm)",
     )?;
     let names = [
         "open loop, no shaping",
@@ -158,12 +159,51 @@ fn plot(out: &Path, r: &LoopReport, s: &ShapingReport) -> Result<[PathBuf; 2]> {
         &shaped,
         "The step without and with the inverse of the 850 Hz mode (true position)",
         &traces,
+        "stage position (µm)",
     )?;
-    Ok([steps, shaped])
+    let traces: Vec<Trace<'_>> = [(LoopMode::Closed, false), (LoopMode::Closed, true)]
+        .iter()
+        .zip([
+            "feedback + FPI feedforward, no shaping",
+            "feedback + FPI feedforward, mode inverse",
+        ])
+        .filter_map(|(&(m, sh), name)| {
+            s.runs
+                .iter()
+                .find(|r| r.mode == m && r.shaped == sh)
+                .map(|r| (name, triangle_error(&s.recording, r)))
+        })
+        .collect();
+    let triangle = out.join("shaping-triangle.svg");
+    curves_ms(
+        &triangle,
+        &format!(
+            "Tracking error on a {} Hz triangle over 4–36 µm, last two periods",
+            closed_loop::TRIANGLE_HZ
+        ),
+        &traces,
+        "true position − reference (µm)",
+    )?;
+    Ok([steps, shaped, triangle])
+}
+
+/// The last two periods of a triangle run: true position − reference against
+/// time, ms and µm.
+fn triangle_error(rec: &Recording, r: &ShapingRun) -> (Vec<f64>, Vec<f64>) {
+    let (_, to) = r.triangle.ticks;
+    let from = to.saturating_sub((2.0 * rec.rate_hz / closed_loop::TRIANGLE_HZ) as u32);
+    rec.between(from, to)
+        .map(|x| {
+            (
+                (x.tick - from) as f64 / rec.rate_hz * 1e3,
+                real(x.x_true) - real(x.x_ref),
+            )
+        })
+        .unzip()
 }
 
 /// Curves of `(t ms, x µm)` series sharing the first series' time axis.
-fn curves_ms(path: &Path, title: &str, traces: &[Trace<'_>]) -> Result<()> {
+fn curves_ms(path: &Path, title: &str, traces: &[Trace<'_>], y_label: &str) -> Result<()> {
     let n = traces.iter().map(|(_, (t, _))| t.len()).min().unwrap_or(0);
     let t: Vec<f64> = traces.first().map_or(Vec::new(), |(_, (t, _))| {
         t[..n].iter().map(|v| v / 1e3).collect()
@@ -172,14 +212,14 @@ fn curves_ms(path: &Path, title: &str, traces: &[Trace<'_>]) -> Result<()> {
         .iter()
         .map(|(name, (_, x))| (*name, &x[..n]))
         .collect();
-    crate::report::plots::curves(path, title, "stage position (µm)", &t, &series)
+    crate::report::plots::curves(path, title, y_label, &t, &series)
 }
 
 fn append(
     path: &Path,
     tables: &[String; 2],
     notes: &str,
-    plots: &[PathBuf; 2],
+    plots: &[PathBuf; 3],
     ok: bool,
 ) -> Result<()> {
     let mut md = std::fs::read_to_string(path).unwrap_or_default();
