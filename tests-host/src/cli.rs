@@ -183,12 +183,17 @@ pub fn calibrate(
     model.calibration.rows = rows.map(|(a, b)| [a, b]);
     model.calibration.files = rig.iter().map(|p| p.display().to_string()).collect();
     let secs = start.elapsed().as_secs_f64();
+    let structure = match &model.branch {
+        Some(b) => format!(
+            "branch polynomials of degree {} (ascending) and {} (descending)",
+            b.ascending_um_per_vk.len(),
+            b.descending_um_per_vk.len()
+        ),
+        None => format!("{} operators", model.operators() + 1),
+    };
     println!(
-        "{} model, {} operators, calibrated on {} recording(s) in {:.2} s",
-        kind,
-        model.operators() + 1,
-        data.len(),
-        secs
+        "{kind} model, {structure}, calibrated on {} recording(s) in {secs:.2} s",
+        data.len()
     );
     print_fit(&model);
     model.write(out)?;
@@ -199,7 +204,9 @@ pub fn calibrate(
 /// Prints a model's parameters and its per-file fit.
 pub fn print_fit(m: &HostModel) {
     let c = &m.coupling;
-    if m.kind.uses_force() && m.kind != Kind::Ldpi {
+    if m.kind == Kind::Branch {
+        println!("  k_f {:.5} V/N (û = u − k_f·F)", c.k_f_v_per_n);
+    } else if m.kind.uses_force() && m.kind != Kind::Ldpi {
         println!(
             "  k_f {:.5} V/N, k_q {:.3e} V/N² about {} N, k0 {:.3} V, dead-zone softness {:.3} V, compliance {} µm/N",
             c.k_f_v_per_n, c.k_q_v_per_n2, c.force_q_n, c.offset_v, m.dead_zone_softness_v, c.compliance_um_per_n

@@ -52,6 +52,12 @@ pub fn invert(
     if t.len() != target.len() || t.len() < 2 {
         bail!("a target needs at least two samples of time and position");
     }
+    if model.kind == Kind::Branch {
+        bail!(
+            "a branch model has no closed-form inverse: invert with a pi, fpi or efpi model \
+             (the inverse PI is what the firmware runs)"
+        );
+    }
     let (_, top) = predict::input_range(model);
     within(
         "--u-max",
