@@ -9,8 +9,6 @@
 //! virtual stage's true position − the reference, after the first period (the
 //! sine) or over the whole response (the step).
 
-use std::time::{Duration, Instant};
-
 use anyhow::{bail, Context, Result};
 use fpi_firmware::closed_loop::LoopMode;
 use fpi_firmware::link::protocol::{BenchOrder, Command};
@@ -20,6 +18,7 @@ use fpi_firmware::reference::SourceKind;
 use piezo_sim::stats::ErrorStats;
 
 use super::client::{real, Client};
+use super::follow::Follow;
 use super::recording::Recording;
 
 /// Ticks per recorded sample during the sines (1 kHz at 20 kHz).
@@ -102,61 +101,31 @@ impl LoopReport {
     }
 }
 
+/// The loop session: a followed board whose waits fail on any fault.
 struct Session<'c> {
-    c: &'c mut Client,
-    rec: Recording,
-    rate: f64,
-    dropped_before: u32,
+    f: Follow<'c>,
 }
 
 impl<'c> Session<'c> {
     /// A session on `c`, its recording empty.
     fn new(c: &'c mut Client) -> Self {
-        let rate = c.rate_hz();
         Self {
-            c,
-            rec: Recording {
-                rate_hz: rate,
-                signals: SIGNALS,
-                ..Recording::default()
-            },
-            rate,
-            dropped_before: 0,
+            f: Follow::new(c, SIGNALS),
         }
     }
 
     fn ticks(&self, seconds: f64) -> u32 {
-        (seconds * self.rate).round() as u32
+        self.f.ticks(seconds)
     }
 
-    fn drain(&mut self) -> Result<()> {
-        let (s, dropped) = self.c.drain()?;
-        self.rec.samples.extend(s);
-        self.rec.dropped = self.dropped_before + dropped;
-        Ok(())
-    }
-
-    /// Restarts the recorder at another decimation (what it held is read first).
-    fn record(&mut self, decimation: u16) -> Result<()> {
-        self.drain()?;
-        self.dropped_before = self.rec.dropped;
-        self.c.ack(&Command::Record {
-            decimation,
-            signals: SIGNALS,
-        })?;
-        Ok(())
-    }
-
-    /// Waits (reading the recorder) until `done` holds for the status.
+    /// Waits (reading the recorder) until `done` holds for the status; a fault
+    /// other than *parked* is an error that says where the loop was.
     fn until(
         &mut self,
         what: &str,
         done: impl Fn(&fpi_firmware::link::protocol::Status) -> bool,
     ) -> Result<u32> {
-        let start = Instant::now();
-        loop {
-            self.drain()?;
-            let s = self.c.status()?;
+        self.f.until(what, |s| {
             if let Some(f) = s
                 .fault
                 .filter(|f| f.code != piezo_fpi::control::Fault::Stopped as u8)
@@ -173,14 +142,8 @@ impl<'c> Session<'c> {
                     real(s.signals[1])
                 );
             }
-            if done(&s) {
-                return Ok(s.tick);
-            }
-            if start.elapsed() > Duration::from_secs(180) {
-                bail!("the board did not reach {what} within 3 minutes");
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
+            Ok(done(s))
+        })
     }
 
     fn until_hold(&mut self) -> Result<u32> {
@@ -198,9 +161,9 @@ impl<'c> Session<'c> {
 
     /// A waveform over [`SINE_UM`] at `hz` for `cycles` periods in `mode`.
     fn wave(&mut self, shape: Shape, mode: LoopMode, hz: f64, cycles: u32) -> Result<SineRun> {
-        self.c.ack(&Command::Loop { mode })?;
+        self.f.c.ack(&Command::Loop { mode })?;
         let (mid, half) = SINE_UM;
-        self.c.wave(shape, half, mid, hz, cycles)?;
+        self.f.c.wave(shape, half, mid, hz, cycles)?;
         // The wave starts after its approach: skip that and the first period.
         let started = self.until("the sine", |s| {
             !s.approaching && s.source == SourceKind::Wave
@@ -210,7 +173,7 @@ impl<'c> Session<'c> {
         Ok(SineRun {
             mode,
             hz,
-            tracking: self.rec.tracking(from, to),
+            tracking: self.f.rec.tracking(from, to),
             ticks: (from, to),
         })
     }
@@ -218,16 +181,16 @@ impl<'c> Session<'c> {
     /// A step from [`STEP_UM`]'s first to its second position in `mode`.
     fn step(&mut self, mode: LoopMode) -> Result<StepRun> {
         let (a, b) = STEP_UM;
-        self.c.ack(&Command::Loop { mode })?;
-        self.c.move_to(a, 2000.0)?;
+        self.f.c.ack(&Command::Loop { mode })?;
+        self.f.c.move_to(a, 2000.0)?;
         let rest = self.until_hold()?;
         self.until_tick(rest + self.ticks(0.1))?;
-        self.record(STEP_DECIMATION)?;
-        let from = self.c.move_to(b, STEP_SPEED_UM_S)?;
+        self.f.record(STEP_DECIMATION)?;
+        let from = self.f.c.move_to(b, STEP_SPEED_UM_S)?;
         let to = from + self.ticks(0.08);
         self.until_tick(to)?;
-        self.drain()?;
-        Ok(step_response(&self.rec, mode, (from, to), (a, b)))
+        self.f.drain()?;
+        Ok(step_response(&self.f.rec, mode, (from, to), (a, b)))
     }
 }
 
@@ -279,8 +242,8 @@ pub fn run(c: &mut Client, image: &[u8]) -> Result<LoopReport> {
         .context("uploading the tuned model")?;
     c.bench(BenchOrder::Stage(true))?;
     let mut s = Session::new(c);
-    s.record(DECIMATION)?;
-    s.c.move_to(SINE_UM.0, 1000.0)?;
+    s.f.record(DECIMATION)?;
+    s.f.c.move_to(SINE_UM.0, 1000.0)?;
     s.until_hold()?;
     let mut sines = Vec::new();
     for (hz, cycles) in [(15.0, 5), (100.0, 20)] {
@@ -288,8 +251,10 @@ pub fn run(c: &mut Client, image: &[u8]) -> Result<LoopReport> {
             match s.sine(mode, hz, cycles) {
                 Ok(r) => sines.push(r),
                 Err(e) => {
-                    let _ = s.drain();
-                    let _ = s.rec.write_csv(std::path::Path::new("/tmp/loop-debug.csv"));
+                    let _ = s.f.drain();
+                    let _ =
+                        s.f.rec
+                            .write_csv(std::path::Path::new("/tmp/loop-debug.csv"));
                     return Err(e);
                 }
             }
@@ -298,22 +263,22 @@ pub fn run(c: &mut Client, image: &[u8]) -> Result<LoopReport> {
     let mut steps = Vec::new();
     for mode in MODES {
         steps.push(s.step(mode)?);
-        s.record(DECIMATION)?;
+        s.f.record(DECIMATION)?;
     }
-    s.c.ack(&Command::RecordStop)?;
-    s.drain()?;
-    s.c.ack(&Command::Loop {
+    s.f.c.ack(&Command::RecordStop)?;
+    s.f.drain()?;
+    s.f.c.ack(&Command::Loop {
         mode: LoopMode::Open,
     })?;
-    s.c.ack(&Command::Safe)?;
+    s.f.c.ack(&Command::Safe)?;
     s.until("the safe voltage", |st| {
         st.fault.is_some_and(|f| f.safe_at.is_some())
     })?;
-    s.c.bench(BenchOrder::Stage(false))?;
+    s.f.c.bench(BenchOrder::Stage(false))?;
     Ok(LoopReport {
         sines,
         steps,
-        recording: s.rec,
+        recording: s.f.rec,
     })
 }
 
@@ -360,26 +325,27 @@ pub fn shaping_run(
     let mut s = Session::new(c);
     let mut out = Vec::new();
     for (shaped_model, image, delay) in [(false, plain, 0.0), (true, shaped, delay_ms)] {
-        s.c.ack(&Command::Loop {
+        s.f.c.ack(&Command::Loop {
             mode: LoopMode::Open,
         })?;
-        s.c.ack(&Command::Safe)?;
+        s.f.c.ack(&Command::Safe)?;
         s.until("the safe voltage", |st| {
             st.fault.is_some_and(|f| f.safe_at.is_some())
         })?;
-        s.c.upload(image, false, |_| {})
+        s.f.c
+            .upload(image, false, |_| {})
             .context("uploading a model")?;
-        s.c.bench(BenchOrder::Stage(true))?;
-        s.record(DECIMATION)?;
-        s.c.move_to(SINE_UM.0, 1000.0)?;
+        s.f.c.bench(BenchOrder::Stage(true))?;
+        s.f.record(DECIMATION)?;
+        s.f.c.move_to(SINE_UM.0, 1000.0)?;
         s.until_hold()?;
         for mode in [LoopMode::Open, LoopMode::Closed] {
             // Recorded at 10 kHz: the corners and the ringing are seen.
-            s.record(STEP_DECIMATION)?;
+            s.f.record(STEP_DECIMATION)?;
             let triangle = s.wave(Shape::Triangle, mode, TRIANGLE_HZ, 20)?;
-            let triangle_delayed = delayed_tracking(&s.rec, triangle.ticks, delay);
+            let triangle_delayed = delayed_tracking(&s.f.rec, triangle.ticks, delay);
             let step = s.step(mode)?;
-            s.record(DECIMATION)?;
+            s.f.record(DECIMATION)?;
             out.push(ShapingRun {
                 shaped: shaped_model,
                 mode,
@@ -390,18 +356,18 @@ pub fn shaping_run(
             });
         }
     }
-    s.c.ack(&Command::RecordStop)?;
-    s.c.ack(&Command::Loop {
+    s.f.c.ack(&Command::RecordStop)?;
+    s.f.c.ack(&Command::Loop {
         mode: LoopMode::Open,
     })?;
-    s.c.ack(&Command::Safe)?;
+    s.f.c.ack(&Command::Safe)?;
     s.until("the safe voltage", |st| {
         st.fault.is_some_and(|f| f.safe_at.is_some())
     })?;
-    s.c.bench(BenchOrder::Stage(false))?;
+    s.f.c.bench(BenchOrder::Stage(false))?;
     Ok(ShapingReport {
         runs: out,
-        recording: s.rec,
+        recording: s.f.rec,
     })
 }
 

@@ -9,6 +9,7 @@ pub mod client;
 pub mod closed_loop;
 pub mod commands;
 pub mod emulator;
+pub mod follow;
 pub mod inprocess;
 pub mod port;
 pub mod recording;

@@ -15,11 +15,11 @@ use anyhow::{bail, Context, Result};
 use fpi_firmware::link::protocol::{BenchOrder, Command, Counters, FaultReport, Refusal, Reply};
 use fpi_firmware::recorder::{signal, status};
 use fpi_firmware::reference::wave::Shape;
-use fpi_firmware::reference::SourceKind;
 use piezo_fpi::control::Fault;
 use piezo_sim::stats::ErrorStats;
 
 use super::client::{refusal, Client};
+use super::follow::Follow;
 use super::recording::Recording;
 use super::twin::{self, Agreement};
 
@@ -83,62 +83,17 @@ impl SessionReport {
 
 /// The client and the recording gathered while the session runs.
 struct Session<'c> {
-    c: &'c mut Client,
-    rec: Recording,
-    rate: f64,
+    f: Follow<'c>,
 }
 
 impl Session<'_> {
-    fn ticks(&self, seconds: f64) -> u32 {
-        (seconds * self.rate).round() as u32
-    }
-
-    /// Reads the recorder.
-    fn drain(&mut self) -> Result<()> {
-        let (s, dropped) = self.c.drain()?;
-        self.rec.samples.extend(s);
-        self.rec.dropped = dropped;
-        Ok(())
-    }
-
-    /// Waits (reading the recorder) until tick `t` has passed.
-    fn until_tick(&mut self, t: u32) -> Result<()> {
-        let start = Instant::now();
-        loop {
-            self.drain()?;
-            if self.c.status()?.tick >= t {
-                return Ok(());
-            }
-            if start.elapsed() > Duration::from_secs(120) {
-                bail!("the board did not reach tick {t} within 2 minutes");
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    /// Waits (reading the recorder) until the source is `hold` again; its tick.
-    fn until_hold(&mut self) -> Result<u32> {
-        let start = Instant::now();
-        loop {
-            self.drain()?;
-            let s = self.c.status()?;
-            if s.source == SourceKind::Hold && !s.approaching {
-                return Ok(s.tick);
-            }
-            if start.elapsed() > Duration::from_secs(120) {
-                bail!("the board's reference did not come to rest within 2 minutes");
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
     fn phase(&self, name: &'static str, from: u32, to: u32, settle: u32) -> PhaseResult {
         PhaseResult {
             name,
             from,
             to,
-            tracking: self.rec.tracking(from + settle, to),
-            estimate: self.rec.estimate(from + settle, to),
+            tracking: self.f.rec.tracking(from + settle, to),
+            estimate: self.f.rec.estimate(from + settle, to),
             note: String::new(),
             pass: false,
         }
@@ -153,10 +108,10 @@ impl Session<'_> {
         hz: f64,
         cycles: u32,
     ) -> Result<PhaseResult> {
-        self.c.ack(&Command::Drive { compensated })?;
-        let from = self.c.wave(Shape::RaisedCosine, 18.0, 20.0, hz, cycles)?;
-        let to = self.until_hold()?;
-        let settle = self.ticks(0.2);
+        self.f.c.ack(&Command::Drive { compensated })?;
+        let from = self.f.c.wave(Shape::RaisedCosine, 18.0, 20.0, hz, cycles)?;
+        let to = self.f.until_hold()?;
+        let settle = self.f.ticks(0.2);
         Ok(self.phase(name, from, to, settle))
     }
 
@@ -164,16 +119,16 @@ impl Session<'_> {
     /// 1 µm, streamed at 1 kHz (the board interpolates).
     fn minor_loops(&mut self) -> Result<PhaseResult> {
         let (hz, seconds, interval) = (15.0, 0.8, 20u16);
-        let n = (seconds * self.rate / interval as f64) as usize;
+        let n = (seconds * self.f.rate() / interval as f64) as usize;
         let points: Vec<f64> = (0..n)
             .map(|k| {
-                let t = k as f64 * interval as f64 / self.rate;
+                let t = k as f64 * interval as f64 / self.f.rate();
                 let a = 18.0 + (1.0 - 18.0) * t / seconds;
                 2.0 + a - a * (std::f64::consts::TAU * hz * t).cos()
             })
             .collect();
-        let rec = &mut self.rec;
-        let r = self.c.stream(
+        let rec = &mut self.f.rec;
+        let r = self.f.c.stream(
             &points,
             interval,
             |_| {},
@@ -184,8 +139,8 @@ impl Session<'_> {
                 Ok(())
             },
         )?;
-        let to = self.until_hold()?;
-        self.drain()?;
+        let to = self.f.until_hold()?;
+        self.f.drain()?;
         let mut p = self.phase("compensated 15 Hz minor loops (streamed)", r.started, to, 0);
         p.note = format!(
             "{} points at 1 kHz, {} underrun ticks",
@@ -199,18 +154,19 @@ impl Session<'_> {
     /// once and the output ramps to the safe voltage at the slew limit, then the
     /// amplifier goes off.
     fn sensor_fault(&mut self) -> Result<PhaseResult> {
-        let from = self.c.wave(Shape::RaisedCosine, 18.0, 20.0, 5.0, 0)?;
-        self.until_tick(from + self.ticks(0.15))?;
-        let broken = self.c.bench(BenchOrder::SensorOpen(true))?;
+        let from = self.f.c.wave(Shape::RaisedCosine, 18.0, 20.0, 5.0, 0)?;
+        self.f.until_tick(from + self.f.ticks(0.15))?;
+        let broken = self.f.c.bench(BenchOrder::SensorOpen(true))?;
         let f = self.wait_fault()?;
-        let to = f.safe_at.unwrap_or(f.at) + self.ticks(0.01);
-        self.until_tick(to)?;
-        self.drain()?;
-        self.c.bench(BenchOrder::SensorOpen(false))?;
-        self.c.ack(&Command::ClearFault)?;
-        let mut p = self.phase("force sensor wire breaks", from, broken, self.ticks(0.05));
+        let to = f.safe_at.unwrap_or(f.at) + self.f.ticks(0.01);
+        self.f.until_tick(to)?;
+        self.f.drain()?;
+        self.f.c.bench(BenchOrder::SensorOpen(false))?;
+        self.f.c.ack(&Command::ClearFault)?;
+        let mut p = self.phase("force sensor wire breaks", from, broken, self.f.ticks(0.05));
         let ramp = f.safe_at.map(|s| s - f.at);
         let off = self
+            .f
             .rec
             .between(f.safe_at.unwrap_or(u32::MAX), to)
             .all(|s| s.status & status::AMPLIFIER_ON == 0);
@@ -232,8 +188,8 @@ impl Session<'_> {
     fn wait_fault(&mut self) -> Result<FaultReport> {
         let start = Instant::now();
         loop {
-            self.drain()?;
-            let s = self.c.status()?;
+            self.f.drain()?;
+            let s = self.f.c.status()?;
             if let Some(f) = s.fault.filter(|f| f.safe_at.is_some()) {
                 return Ok(f);
             }
@@ -246,9 +202,9 @@ impl Session<'_> {
 
     /// 50 µm lies beyond the stroke: the board refuses to go there.
     fn unreachable(&mut self) -> Result<PhaseResult> {
-        let from = self.c.status()?.tick;
+        let from = self.f.c.status()?.tick;
         let mut p = self.phase("unreachable reference (50 µm)", from, from, 0);
-        match self.c.move_to(50.0, 1000.0) {
+        match self.f.c.move_to(50.0, 1000.0) {
             Ok(_) => p.note = "ACCEPTED a move beyond the stroke".into(),
             Err(e) => match refusal(&e) {
                 Some(r) => {
@@ -264,8 +220,8 @@ impl Session<'_> {
     /// Bad frames while a 15 Hz sine runs: each is refused and counted; the loop
     /// carries on (the twin, which never saw them, checks it).
     fn bad_frames(&mut self) -> Result<PhaseResult> {
-        let from = self.c.wave(Shape::Sine, 17.0, 20.0, 15.0, 6)?;
-        let before = self.c.counters()?;
+        let from = self.f.c.wave(Shape::Sine, 17.0, 20.0, 15.0, 6)?;
+        let before = self.f.c.counters()?;
         let mut good = Vec::new();
         {
             use fpi_firmware::link::frame;
@@ -295,18 +251,18 @@ impl Session<'_> {
                     code: Refusal::Malformed,
                     ..
                 },
-            ) = self.c.send_raw(f)?
+            ) = self.f.c.send_raw(f)?
             {
                 refused += 1;
             }
         }
-        let after = self.c.counters()?;
-        let to = self.until_hold()?;
+        let after = self.f.c.counters()?;
+        let to = self.f.until_hold()?;
         let mut p = self.phase(
             "15 Hz sine while bad frames arrive",
             from,
             to,
-            self.ticks(0.05),
+            self.f.ticks(0.05),
         );
         let counted = after.malformed - before.malformed;
         p.pass = refused == 3 && counted == 3 && p.tracking.max_abs() < MAX_ERROR_UM;
@@ -328,18 +284,11 @@ pub fn run(c: &mut Client, image: &[u8]) -> Result<SessionReport> {
         decimation: DECIMATION,
         signals: signal::ALL,
     })?;
-    let rate = c.rate_hz();
     let mut s = Session {
-        c,
-        rec: Recording {
-            rate_hz: rate,
-            signals: signal::ALL,
-            ..Recording::default()
-        },
-        rate,
+        f: Follow::new(c, signal::ALL),
     };
-    s.c.move_to(2.0, 1000.0)?;
-    s.until_hold()?;
+    s.f.c.move_to(2.0, 1000.0)?;
+    s.f.until_hold()?;
     let mut phases = Vec::new();
     let mut off = s.stroke("uncompensated 5 Hz", false, 5.0, 3)?;
     off.pass = off.tracking.count() > 0;
@@ -352,12 +301,12 @@ pub fn run(c: &mut Client, image: &[u8]) -> Result<SessionReport> {
     phases.push(s.sensor_fault()?);
     phases.push(s.unreachable()?);
     phases.push(s.bad_frames()?);
-    s.c.ack(&Command::RecordStop)?;
-    s.drain()?;
-    let end = s.c.status()?.tick;
-    let counters = s.c.counters()?;
+    s.f.c.ack(&Command::RecordStop)?;
+    s.f.drain()?;
+    let end = s.f.c.status()?.tick;
+    let counters = s.f.c.counters()?;
     let elapsed = started.elapsed();
-    let rec = s.rec;
+    let rec = s.f.rec;
     let last = rec.samples.last().map_or(end, |x| x.tick);
     let trace = twin::replay(&c.log, last)?;
     let agreement = twin::compare(&rec.samples, rec.signals, &trace);
