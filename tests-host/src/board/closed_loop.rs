@@ -146,6 +146,22 @@ impl<'c> Session<'c> {
         })
     }
 
+    /// Stops recording (what it held is read), opens the loop, parks the stage
+    /// and gives the bench its nominal stage back.
+    fn finish(&mut self) -> Result<()> {
+        self.f.c.ack(&Command::RecordStop)?;
+        self.f.drain()?;
+        self.f.c.ack(&Command::Loop {
+            mode: LoopMode::Open,
+        })?;
+        self.f.c.ack(&Command::Safe)?;
+        self.until("the safe voltage", |st| {
+            st.fault.is_some_and(|f| f.safe_at.is_some())
+        })?;
+        self.f.c.bench(BenchOrder::Stage(false))?;
+        Ok(())
+    }
+
     fn until_hold(&mut self) -> Result<u32> {
         self.until("rest", |s| s.source == SourceKind::Hold && !s.approaching)
     }
@@ -265,16 +281,7 @@ pub fn run(c: &mut Client, image: &[u8]) -> Result<LoopReport> {
         steps.push(s.step(mode)?);
         s.f.record(DECIMATION)?;
     }
-    s.f.c.ack(&Command::RecordStop)?;
-    s.f.drain()?;
-    s.f.c.ack(&Command::Loop {
-        mode: LoopMode::Open,
-    })?;
-    s.f.c.ack(&Command::Safe)?;
-    s.until("the safe voltage", |st| {
-        st.fault.is_some_and(|f| f.safe_at.is_some())
-    })?;
-    s.f.c.bench(BenchOrder::Stage(false))?;
+    s.finish()?;
     Ok(LoopReport {
         sines,
         steps,
@@ -356,15 +363,7 @@ pub fn shaping_run(
             });
         }
     }
-    s.f.c.ack(&Command::RecordStop)?;
-    s.f.c.ack(&Command::Loop {
-        mode: LoopMode::Open,
-    })?;
-    s.f.c.ack(&Command::Safe)?;
-    s.until("the safe voltage", |st| {
-        st.fault.is_some_and(|f| f.safe_at.is_some())
-    })?;
-    s.f.c.bench(BenchOrder::Stage(false))?;
+    s.finish()?;
     Ok(ShapingReport {
         runs: out,
         recording: s.f.rec,
