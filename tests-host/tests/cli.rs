@@ -17,25 +17,7 @@ const RUN: &str = "data/stage-a/sine_15Hz.csv.gz";
 /// tests (which run in parallel).
 fn fpi_model(dir: &Path) -> PathBuf {
     static MODEL: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
-    MODEL.get_or_init(|| calibrate_fpi(dir)).clone()
-}
-
-fn calibrate_fpi(dir: &Path) -> PathBuf {
-    let m = dir.join("fpi.toml");
-    {
-        ok(&[
-            "calibrate",
-            "--kind",
-            "fpi",
-            "--rig",
-            "data/pea-rig/preload_050N_sine_05Hz.csv.gz",
-            "data/pea-rig/preload_100N_sine_05Hz.csv.gz",
-            "data/pea-rig/preload_150N_sine_05Hz.csv.gz",
-            "--out",
-            s(&m),
-        ]);
-    }
-    m
+    MODEL.get_or_init(|| common::quick_fpi(dir).0).clone()
 }
 
 #[test]

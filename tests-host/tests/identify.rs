@@ -251,21 +251,7 @@ fn stage_a_has_its_mode_where_a_flexure_stage_has_it() {
 /// A quick fpi model on three rig recordings, made once for the tests.
 fn model() -> &'static PathBuf {
     static M: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
-    M.get_or_init(|| {
-        let m = tmp().join("fpi.toml");
-        ok(&[
-            "calibrate",
-            "--kind",
-            "fpi",
-            "--rig",
-            "data/pea-rig/preload_050N_sine_05Hz.csv.gz",
-            "data/pea-rig/preload_100N_sine_05Hz.csv.gz",
-            "data/pea-rig/preload_150N_sine_05Hz.csv.gz",
-            "--out",
-            s(&m),
-        ]);
-        m
-    })
+    M.get_or_init(|| common::quick_fpi(&tmp()).0)
 }
 
 /// The RMSE column of model `name`'s line under run `run` in `fpi compare`'s

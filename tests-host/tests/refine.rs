@@ -26,18 +26,7 @@ fn models() -> &'static (PathBuf, PathBuf, String) {
     static M: std::sync::OnceLock<(PathBuf, PathBuf, String)> = std::sync::OnceLock::new();
     M.get_or_init(|| {
         let d = tmp();
-        let m = d.join("fpi.toml");
-        ok(&[
-            "calibrate",
-            "--kind",
-            "fpi",
-            "--rig",
-            "data/pea-rig/preload_050N_sine_05Hz.csv.gz",
-            "data/pea-rig/preload_100N_sine_05Hz.csv.gz",
-            "data/pea-rig/preload_150N_sine_05Hz.csv.gz",
-            "--out",
-            s(&m),
-        ]);
+        let (m, _) = common::quick_fpi(&d);
         let r = d.join("fpi-refined.toml");
         let text = ok(&[
             "refine",

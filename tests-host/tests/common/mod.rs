@@ -61,3 +61,21 @@ pub fn scratch(name: &str) -> PathBuf {
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
+
+/// The rig recordings of the tests' quick fpi model (three preloads, 5 Hz).
+pub const QUICK_RIG: [&str; 3] = [
+    "data/pea-rig/preload_050N_sine_05Hz.csv.gz",
+    "data/pea-rig/preload_100N_sine_05Hz.csv.gz",
+    "data/pea-rig/preload_150N_sine_05Hz.csv.gz",
+];
+
+/// Calibrates the tests' quick fpi model on [`QUICK_RIG`] into `dir/fpi.toml`;
+/// the model's path and what `fpi calibrate` printed.
+pub fn quick_fpi(dir: &Path) -> (PathBuf, String) {
+    let m = dir.join("fpi.toml");
+    let mut args = vec!["calibrate", "--kind", "fpi", "--rig"];
+    args.extend(QUICK_RIG);
+    args.extend(["--out", s(&m)]);
+    let printed = ok(&args);
+    (m, printed)
+}
