@@ -9,6 +9,7 @@
 //! e.g. `stage-a/fem.csv:17: column x_pea_um: "1,5" is not a number`.
 
 pub mod fem;
+pub mod toml_file;
 
 use std::fmt;
 use std::fs::File;

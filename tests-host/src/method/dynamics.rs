@@ -30,9 +30,11 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, Result};
 use nalgebra::{Complex, DMatrix, DVector};
 use serde::{Deserialize, Serialize};
+
+use crate::data::toml_file::{self, TomlFile};
 
 /// Format tag of the file.
 pub const FORMAT: &str = "fpi-dynamics/1";
@@ -137,33 +139,17 @@ pub struct FitInfo {
 impl Dynamics {
     /// Reads and validates a dynamics file; errors name the file and the key.
     pub fn read(path: &Path) -> Result<Self> {
-        let limits = crate::data::ReadLimits {
-            max_bytes: MAX_FILE_BYTES,
-            ..crate::data::ReadLimits::INPUT
-        };
-        let bytes = crate::data::read_bytes_within(path, limits)?;
-        let text = String::from_utf8(bytes)
-            .map_err(|e| anyhow!("{}: not a text file: {e}", path.display()))?;
-        Self::parse(&text, &path.display().to_string())
+        toml_file::read(path)
     }
 
     /// A dynamics file from its text; `name` names it in errors.
     pub fn parse(text: &str, name: &str) -> Result<Self> {
-        let d: Dynamics =
-            toml::from_str(text).with_context(|| format!("{name}: not a dynamics file"))?;
-        d.validate().with_context(|| name.to_string())?;
-        Ok(d)
+        toml_file::parse(text, name)
     }
 
     /// Writes the file atomically after [`validate`](Self::validate).
     pub fn write(&self, path: &Path) -> Result<()> {
-        self.validate()
-            .with_context(|| format!("{}: not written", path.display()))?;
-        let text = toml::to_string(self)
-            .with_context(|| format!("{}: cannot format the dynamics", path.display()))?;
-        let header = "# Stage dynamics identified by `fpi identify` (voltage -> x_fhps_um).\n\
-                      # transfer_function: s in rad/s, highest power first, µm/V.\n";
-        crate::output::write_atomic(path, (header.to_string() + &text).as_bytes())
+        toml_file::write(self, path)
     }
 
     /// Checks every key; the error names the key and its value.
@@ -561,6 +547,19 @@ pub fn uniform_step(t: &[f64]) -> std::result::Result<f64, (usize, f64, f64)> {
     {
         Some(k) => Err((k, t[k + 1] - t[k], dt)),
         None => Ok(dt),
+    }
+}
+
+impl TomlFile for Dynamics {
+    const WHAT: &'static str = "dynamics file";
+    const MAX_BYTES: u64 = MAX_FILE_BYTES;
+    fn check(&self) -> Result<()> {
+        self.validate()
+    }
+    fn header(&self) -> String {
+        "# Stage dynamics identified by `fpi identify` (voltage -> x_fhps_um).\n\
+         # transfer_function: s in rad/s, highest power first, µm/V.\n"
+            .to_string()
     }
 }
 

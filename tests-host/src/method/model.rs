@@ -23,6 +23,7 @@ use piezo_sim::model::{Coupling, Creep, DeadZone, Ldpi, Model, Output, MAX_CREEP
 use piezo_sim::play::{Pi, Values, MAX_OPERATORS};
 
 use crate::data::fem::FemMaps;
+use crate::data::toml_file::{self, TomlFile};
 use crate::method::branch::{self, BranchSection};
 
 /// The model-file format string.
@@ -342,42 +343,19 @@ impl HostModel {
     /// Reads a model file (at most [`MAX_FILE_BYTES`]); errors name the file and
     /// the key.
     pub fn read(path: &Path) -> Result<Self> {
-        let limits = crate::data::ReadLimits {
-            max_bytes: MAX_FILE_BYTES,
-            ..crate::data::ReadLimits::INPUT
-        };
-        let bytes = crate::data::read_bytes_within(path, limits)?;
-        let text = String::from_utf8(bytes)
-            .map_err(|e| anyhow::anyhow!("{}: not a text file: {e}", path.display()))?;
-        Self::parse(&text, &path.display().to_string())
+        toml_file::read(path)
     }
 
     /// A model from the text of a model file named `name` (for messages).
     pub fn parse(text: &str, name: &str) -> Result<Self> {
-        let m: HostModel =
-            toml::from_str(text).with_context(|| format!("{name}: not a model file"))?;
-        m.validate().with_context(|| name.to_string())?;
-        Ok(m)
+        toml_file::parse(text, name)
     }
 
     /// Writes the model file atomically ([`crate::output::write_atomic`]), after
     /// [`validate`](Self::validate): a model that reading would refuse is never
     /// written.
     pub fn write(&self, path: &Path) -> Result<()> {
-        self.validate()
-            .with_context(|| format!("{}: not written", path.display()))?;
-        let text = toml::to_string(self)
-            .with_context(|| format!("{}: cannot format the model", path.display()))?;
-        let refined = if self.fem_correction.is_some() {
-            ", its stage's FEM tables refined on measured runs (`fpi refine`)"
-        } else {
-            ""
-        };
-        let header = format!(
-            "# A calibrated {} model (`fpi calibrate`){refined}. Units are in the key names.\n\n",
-            self.kind
-        );
-        crate::output::write_atomic(path, (header + &text).as_bytes())
+        toml_file::write(self, path)
     }
 
     /// Checks the parameters; names the key that is wrong. This is the one
@@ -674,6 +652,25 @@ impl HostModel {
             offset: self.offset_um,
             creep,
         }
+    }
+}
+
+impl TomlFile for HostModel {
+    const WHAT: &'static str = "model file";
+    const MAX_BYTES: u64 = MAX_FILE_BYTES;
+    fn check(&self) -> Result<()> {
+        self.validate()
+    }
+    fn header(&self) -> String {
+        let refined = if self.fem_correction.is_some() {
+            ", its stage's FEM tables refined on measured runs (`fpi refine`)"
+        } else {
+            ""
+        };
+        format!(
+            "# A calibrated {} model (`fpi calibrate`){refined}. Units are in the key names.\n\n",
+            self.kind
+        )
     }
 }
 
