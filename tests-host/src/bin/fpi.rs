@@ -392,31 +392,10 @@ enum BoardCommand {
     /// Reset the board (it starts parked, with its stored model).
     Reset,
     /// The emulated board's virtual bench: what its analog input reads, what its
-    /// force sensor does.
+    /// force and position sensors do, which virtual stage it drives.
     Bench {
-        /// Voltage on the analog reference input, 0–3.3 V.
-        #[arg(long)]
-        analog_v: Option<f64>,
-        /// The force sensor: ok, open (a broken wire) or stuck (frozen reading).
-        #[arg(long)]
-        sensor: Option<String>,
-        /// A step added to the force reading, N (a loose connector; 0 removes it).
-        #[arg(long)]
-        force_offset_n: Option<f64>,
-        /// Make this many control ticks overrun their period.
-        #[arg(long)]
-        stall_ticks: Option<u16>,
-        /// Damage the newest model stored in flash (the next start refuses it).
-        #[arg(long)]
-        damage_stored: bool,
-        /// The position sensor: ok, open (a broken wire) or stuck (frozen reading).
-        #[arg(long)]
-        position_sensor: Option<String>,
-        /// The virtual stage, replaced by a fresh one at rest (send it parked):
-        /// nominal (the model's twin) or built (kinematics, preload and creep a few
-        /// percent off the model, an 850 Hz mode, position-sensor noise).
-        #[arg(long)]
-        stage: Option<String>,
+        #[command(flatten)]
+        settings: fpi_host::board::commands::BenchSettings,
     },
     /// Open the loop, or close it on the position sensor (the model needs a
     /// [feedback] section, from `fpi tune`); without a jump.
@@ -721,26 +700,7 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             println!("reset; the board answers again ({:?})", h.reset);
             Ok(())
         }
-        BoardCommand::Bench {
-            analog_v,
-            sensor,
-            force_offset_n,
-            stall_ticks,
-            damage_stored,
-            position_sensor,
-            stage,
-        } => b::bench(
-            &mut c,
-            &b::BenchSettings {
-                analog_v,
-                sensor,
-                force_offset_n,
-                stall_ticks,
-                damage_stored,
-                position_sensor,
-                stage,
-            },
-        ),
+        BoardCommand::Bench { settings } => b::bench(&mut c, &settings),
         BoardCommand::Loop { mode } => b::set_loop(&mut c, b::loop_mode(&mode)?),
         BoardCommand::Supervise { ms } => c.ack(&C::Supervise { timeout_ms: ms }).map(|_| {
             if ms == 0 {

@@ -366,24 +366,32 @@ pub fn shape(name: &str) -> Result<Shape> {
     })
 }
 
-/// `fpi board bench`: the emulated board's analog input (V) and force sensor.
-/// What `fpi board bench` sets on the emulated board's virtual bench.
-#[derive(Debug, Clone, Default, PartialEq)]
+/// What `fpi board bench` sets on the emulated board's virtual bench (also its
+/// command-line options).
+#[derive(Debug, Clone, Default, PartialEq, clap::Args)]
 pub struct BenchSettings {
-    /// Voltage on the analog reference input, V (0–3.3).
+    /// Voltage on the analog reference input, 0–3.3 V.
+    #[arg(long)]
     pub analog_v: Option<f64>,
-    /// The force sensor: `ok`, `open` or `stuck`.
+    /// The force sensor: ok, open (a broken wire) or stuck (frozen reading).
+    #[arg(long)]
     pub sensor: Option<String>,
-    /// A step added to the force reading, N.
+    /// A step added to the force reading, N (a loose connector; 0 removes it).
+    #[arg(long)]
     pub force_offset_n: Option<f64>,
-    /// Control ticks made to overrun their period.
+    /// Make this many control ticks overrun their period.
+    #[arg(long)]
     pub stall_ticks: Option<u16>,
-    /// Damage the newest stored model (seen at the next start).
+    /// Damage the newest model stored in flash (the next start refuses it).
+    #[arg(long)]
     pub damage_stored: bool,
-    /// The position sensor: `ok`, `open` or `stuck`.
+    /// The position sensor: ok, open (a broken wire) or stuck (frozen reading).
+    #[arg(long)]
     pub position_sensor: Option<String>,
-    /// The virtual stage: `nominal` (the model's twin) or `built` (differs from
-    /// the model as a built stage does).
+    /// The virtual stage, replaced by a fresh one at rest (send it parked):
+    /// nominal (the model's twin) or built (kinematics, preload and creep a few
+    /// percent off the model, an 850 Hz mode, position-sensor noise).
+    #[arg(long)]
     pub stage: Option<String>,
 }
 

@@ -458,25 +458,14 @@ pub fn predict(model: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Result
     let b = BranchModel::of(model)?;
     let maps = fem.maps();
     let mut st = b.state();
-    let n = u.len();
-    let mut p = Prediction {
-        t: t.to_vec(),
-        u: u.to_vec(),
-        x_pea: Vec::with_capacity(n),
-        preload: Vec::with_capacity(n),
-        x_fhps: Vec::with_capacity(n),
-        iterations: 0,
-    };
+    let mut p = Prediction::of_drive(t, u);
     let mut guess = b.rest_um;
     for &uk in u {
         let (x, evals) = solve(&b, &st, uk, &maps, guess);
         let f = maps.preload_at(x);
         b.advance(&mut st, b.effective(uk, f));
         guess = x;
-        p.iterations += evals;
-        p.x_pea.push(x);
-        p.preload.push(f);
-        p.x_fhps.push(maps.stage_at(x));
+        p.push(&maps, x, evals);
     }
     Ok(p)
 }

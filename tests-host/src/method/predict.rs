@@ -4,6 +4,7 @@
 //! the model's memory committed only for the solution, then `x_fhps = f_K(x_pea)`.
 
 use anyhow::{bail, Result};
+use piezo_sim::fem::Fem;
 use piezo_sim::solve::{coupled, WarmStart};
 use piezo_sim::stats::ErrorStats;
 
@@ -26,6 +27,30 @@ pub struct Prediction {
     pub x_fhps: Vec<f64>,
     /// Model evaluations of the solver, total.
     pub iterations: usize,
+}
+
+impl Prediction {
+    /// An empty prediction of the drive `u` (V) at times `t` (s).
+    pub fn of_drive(t: &[f64], u: &[f64]) -> Self {
+        let n = u.len();
+        Self {
+            t: t.to_vec(),
+            u: u.to_vec(),
+            x_pea: Vec::with_capacity(n),
+            preload: Vec::with_capacity(n),
+            x_fhps: Vec::with_capacity(n),
+            iterations: 0,
+        }
+    }
+
+    /// Appends a sample's solution `x_pea` (µm), found in `evaluations` model
+    /// evaluations: its preload and stage output from the stage's `maps`.
+    pub fn push(&mut self, maps: &Fem<'_, f64>, x_pea: f64, evaluations: usize) {
+        self.iterations += evaluations;
+        self.x_pea.push(x_pea);
+        self.preload.push(maps.preload_at(x_pea));
+        self.x_fhps.push(maps.stage_at(x_pea));
+    }
 }
 
 /// The drive voltages a model takes, V: its input range `0..=pi.input_max_v`
@@ -65,24 +90,13 @@ pub fn predict(model: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Result
     let maps = fem.maps();
     let mut st = m.state(dt);
     let f_ref = maps.rest_preload();
-    let n = u.len();
-    let mut p = Prediction {
-        t: t.to_vec(),
-        u: u.to_vec(),
-        x_pea: Vec::with_capacity(n),
-        preload: Vec::with_capacity(n),
-        x_fhps: Vec::with_capacity(n),
-        iterations: 0,
-    };
+    let mut p = Prediction::of_drive(t, u);
     let mut warm = WarmStart::default();
     for &uk in u {
         let s = coupled(&m, &st, uk, &maps, f_ref, warm.guess());
         m.commit(&mut st, s.uh);
         warm.push(s.x);
-        p.iterations += s.evaluations;
-        p.x_pea.push(s.x);
-        p.preload.push(maps.preload_at(s.x));
-        p.x_fhps.push(maps.stage_at(s.x));
+        p.push(&maps, s.x, s.evaluations);
     }
     Ok(p)
 }
