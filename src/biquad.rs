@@ -53,6 +53,7 @@ use core::fmt;
 
 use fixed::types::{I16F16, I2F30};
 
+use crate::error::{Field, Invalid, ModelError};
 use crate::q::{SIGNAL_ABS_MAX, SIGNAL_ABS_MAX_BITS};
 
 /// A biquad coefficient, dimensionless, `I2F30`: range ±2, resolution 2⁻³⁰.
@@ -190,6 +191,22 @@ impl Biquad {
             i += 1;
         }
         Self::new([raw[0], raw[1], raw[2]], [raw[3], raw[4]])
+    }
+
+    /// The same section with `b1` set so that its static gain is exactly 1
+    /// (`b0 + b1 + b2 = 1 + a1 + a2` in raw bits): what rounding each coefficient
+    /// to `I2F30` on its own leaves off, for a design of unit gain. Refused if that
+    /// `b1` leaves the format.
+    pub const fn with_unit_static_gain(self) -> Result<Self, BiquadError> {
+        let [b0, _, b2, a1, a2] = self.ba;
+        let b1 = (1i64 << COEFF_FRAC) + a1 as i64 + a2 as i64 - b0 as i64 - b2 as i64;
+        if b1 < i32::MIN as i64 || b1 > i32::MAX as i64 {
+            return Err(BiquadError::CoefficientOutOfRange { index: 1 });
+        }
+        Ok(Self {
+            ba: [b0, b1 as i32, b2, a1, a2],
+            ..self
+        })
     }
 
     /// The same section with its output saturated to `[min, max]` (`I16F16`);
@@ -512,8 +529,9 @@ impl ShapingSpec {
 
     /// The cascade, each section checked: stable, and of unit static gain exactly
     /// (`b0 + b1 + b2 = 1 + a1 + a2` in raw bits), so that the filter never moves
-    /// a held position. The index of the first refused section and why.
-    pub const fn cascade(&self) -> Result<Cascade<SHAPING_SECTIONS>, (usize, ShapingError)> {
+    /// a held position. The one check, shared by the model validator and the
+    /// firmware; the error names the first refused section.
+    pub const fn cascade(&self) -> Result<Cascade<SHAPING_SECTIONS>, Invalid> {
         let mut out = [Biquad::IDENTITY; SHAPING_SECTIONS];
         let mut i = 0;
         while i < SHAPING_SECTIONS {
@@ -521,24 +539,25 @@ impl ShapingSpec {
             let b_sum = c[0] as i64 + c[1] as i64 + c[2] as i64;
             let a_sum = (1i64 << COEFF_FRAC) + c[3] as i64 + c[4] as i64;
             if b_sum != a_sum {
-                return Err((i, ShapingError::StaticGain));
+                return Err(Invalid::at_index(
+                    Field::Shaping,
+                    i,
+                    ModelError::FilterStaticGain,
+                ));
             }
             let q = Coefficient::from_bits;
             match Biquad::new([q(c[0]), q(c[1]), q(c[2])], [q(c[3]), q(c[4])]) {
                 Ok(b) => out[i] = b,
-                Err(_) => return Err((i, ShapingError::Unstable)),
+                Err(_) => {
+                    return Err(Invalid::at_index(
+                        Field::Shaping,
+                        i,
+                        ModelError::FilterUnstable,
+                    ))
+                }
             }
             i += 1;
         }
         Ok(Cascade::new(out))
     }
-}
-
-/// Why a shaping section was refused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ShapingError {
-    /// Its poles are not strictly inside the unit circle.
-    Unstable,
-    /// Its static gain is not exactly 1.
-    StaticGain,
 }

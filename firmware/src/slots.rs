@@ -113,17 +113,7 @@ impl Spare {
             let baseline = crate::baseline::drive(&cfg)?;
             let spec = shared.spec();
             let feedback = spec.feedback.map(FeedbackConfig::new).transpose()?;
-            let shaping = match spec.shaping.map(|s| s.cascade()) {
-                None => None,
-                Some(Ok(c)) => Some(c),
-                Some(Err((i, _))) => {
-                    return Err(Invalid::at_index(
-                        Field::Shaping,
-                        i,
-                        ModelError::FilterUnstable,
-                    ))
-                }
-            };
+            let shaping = spec.shaping.map(|s| s.cascade()).transpose()?;
             Ok((cfg, baseline, shape, (feedback, shaping)))
         });
         match built {

@@ -23,7 +23,7 @@
 //! exactly 1. `f64` only (`libm` for `tan`, `sin`, `cos`: the same on the host and
 //! without `std`).
 
-use piezo_fpi::biquad::{Biquad, BiquadError, Cascade, Coefficient, COEFF_FRAC};
+use piezo_fpi::biquad::{Biquad, BiquadError, Cascade, Coefficient};
 
 /// One second-order section in `f64`, `a0 = 1`:
 /// `H(z) = (b0 + b1 z⁻¹ + b2 z⁻²) / (1 + a1 z⁻¹ + a2 z⁻²)`.
@@ -107,13 +107,7 @@ impl Section {
         if (dc - 1.0).abs().partial_cmp(&1e-9) != Some(core::cmp::Ordering::Less) {
             return Ok(q);
         }
-        let raw = |c: Coefficient| c.to_bits() as i64;
-        let [b0, _, b2] = q.b();
-        let [a1, a2] = q.a();
-        let b1 = (1i64 << COEFF_FRAC) + raw(a1) + raw(a2) - raw(b0) - raw(b2);
-        let b1 = i32::try_from(b1).map_err(|_| BiquadError::CoefficientOutOfRange { index: 1 })?;
-        let (lo, hi) = q.limits();
-        Biquad::new([b0, Coefficient::from_bits(b1), b2], [a1, a2])?.with_limits(lo, hi)
+        q.with_unit_static_gain()
     }
 
     /// The coefficients of a quantised section, back in `f64` (exact).

@@ -20,7 +20,7 @@ pub mod store;
 
 use fixed::types::I16F16;
 
-use crate::biquad::{ShapingError, ShapingSpec};
+use crate::biquad::ShapingSpec;
 use crate::control::{check_settings, Supervision};
 use crate::error::{Field, Invalid, ModelError, TableId, TablePart};
 use crate::feedback::{FeedbackConfig, FeedbackSpec};
@@ -193,13 +193,7 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
         FeedbackConfig::new(f)?;
     }
     if let Some(s) = m.shaping {
-        s.cascade().map_err(|(i, e)| {
-            let e = match e {
-                ShapingError::Unstable => ModelError::FilterUnstable,
-                ShapingError::StaticGain => ModelError::FilterStaticGain,
-            };
-            Invalid::at_index(Field::Shaping, i, e)
-        })?;
+        s.cascade()?;
     }
     Ok(Shape {
         operators: n,
