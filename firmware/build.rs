@@ -269,7 +269,8 @@ fn controller(w: &mut String, q: &ModelSpec<'_>, slew_v_per_ms: f64) {
          force: Interval {{ lo: Newtons::from_bits({}), hi: Newtons::from_bits({}) }},\n            \
          force_tolerance: Newtons::from_bits({}),\n            \
          safe_voltage: Volts::from_bits({}),\n            \
-         force_source: ForceSource::{:?},\n        }},\n    }}) {{\n        \
+         force_source: ForceSource::{:?},\n            \
+         channel: ForceChannel {{ split: CreepRate::from_bits({}), dynamic_limit: Newtons::from_bits({}) }},\n        }},\n    }}) {{\n        \
          Ok(c) => c,\n        Err(e) => panic!(\"{{}}\", e.message()),\n    }};",
         q.supervision.reference.lo.to_bits(),
         q.supervision.reference.hi.to_bits(),
@@ -278,6 +279,8 @@ fn controller(w: &mut String, q: &ModelSpec<'_>, slew_v_per_ms: f64) {
         q.supervision.force_tolerance.to_bits(),
         q.supervision.safe_voltage.to_bits(),
         q.supervision.force_source,
+        q.supervision.channel.split.to_bits(),
+        q.supervision.channel.dynamic_limit.to_bits(),
     );
 }
 

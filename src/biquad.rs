@@ -15,27 +15,32 @@
 //!
 //! | quantity | `fixed` type | resolution (1 LSB) | range |
 //! |---|---|---|---|
-//! | coefficients `b0 b1 b2 a1 a2` ([`Coefficient`]) | `I2F30` | 9.3·10⁻¹⁰ | ±(2 − 2⁻³⁰); [`Biquad::from_f64`] accepts \|c\| ≤ [`COEFF_ABS_MAX`] |
+//! | coefficients `b0 b1 b2 a1 a2` ([`Coefficient`]) | `I8F24` | 6.0·10⁻⁸ | ±(128 − 2⁻²⁴); [`Biquad::from_f64`] accepts \|c\| ≤ [`COEFF_ABS_MAX`] |
 //! | input, output and state `x`, `y` | `I16F16` ([`crate::q::Volts`] or [`crate::q::Micrometres`]) | 15.3 µV / 15.3 pm | input clamped to ±4096 ([`crate::q::SIGNAL_ABS_MAX`]); output saturated to the section's `[min, max]` ⊆ ±4096 |
-//! | accumulator | raw `i64`, `I18F46` | 1.4·10⁻¹⁴ | \|acc\| < 5·2⁵⁹ + 2³² < 2⁶² (no overflow, see below) |
-//! | rounding residuals `e1`, `e2` of the last two outputs | raw `i32`, units of 2⁻⁴⁶ | — | `[−2²⁹, 2²⁹)`, i.e. within ±½ output LSB |
+//! | accumulator | raw `i64`, `I24F40` | 9.1·10⁻¹³ | \|acc\| < 5·2⁵⁹ + 2³² < 2⁶² (no overflow, see below) |
+//! | rounding residuals `e1`, `e2` of the last two outputs | raw `i32`, units of 2⁻⁴⁰ | — | `[−2²³, 2²³)`, i.e. within ±½ output LSB |
 //!
-//! Each product of a coefficient (`I2F30`) and a signal (`I16F16`) is exact in 64
+//! The coefficients have eight integer bits so that a feedforward section can
+//! invert the damped stage and the loop's lag (a numerator gain of tens at high
+//! frequency); 24 fractional bits place a lightly damped zero pair to 10⁻⁶ of its
+//! frequency.
+//!
+//! Each product of a coefficient (`I8F24`) and a signal (`I16F16`) is exact in 64
 //! bits. The output is rounded to nearest `I16F16` and the part rounding dropped
-//! (the residual `e`, 30 bits) is kept with it, so the state holds each past output
-//! to 2⁻⁴⁶: the recursion adds `−(a1·e1 + a2·e2) >> 30` (two more products), which
-//! makes it the full-precision recursion up to 2⁻⁴⁶ instead of a recursion on
+//! (the residual `e`, 24 bits) is kept with it, so the state holds each past output
+//! to 2⁻⁴⁰: the recursion adds `−(a1·e1 + a2·e2) >> 24` (two more products), which
+//! makes it the full-precision recursion up to 2⁻⁴⁰ instead of a recursion on
 //! rounded outputs. Quantising the outputs therefore neither shifts the DC gain
 //! (a section whose quantised coefficients have `Σb = 1 + a1 + a2` settles on a
 //! constant input *exactly*) nor starts granular limit cycles behind lightly
 //! damped poles; each output is the exact one rounded (±½ LSB), plus the small
-//! 2⁻⁴⁶ truncation of the correction. The sum is narrowed once and saturated once,
+//! 2⁻⁴⁰ truncation of the correction. The sum is narrowed once and saturated once,
 //! to the section's limits.
 //!
 //! **No overflow.** The input is clamped to ±4096 (raw ±2²⁸) and every output is
 //! saturated to limits inside ±4096, so every state value has |raw| ≤ 2²⁸ and
 //! every coefficient |raw| ≤ 2³¹: five products stay below 5·2⁵⁹; the residual
-//! correction is below 2·2³¹·2²⁹ >> 30 = 2³¹, the rounding half 2²⁹ — in all less
+//! correction is below 2·2³¹·2²³ >> 24 = 2³¹, the rounding half 2²³ — in all less
 //! than 2⁶², inside `i64`. The hot path therefore has no division, no panic branch
 //! (overflow checks on or off give the same result) and no allocation.
 //!
@@ -51,20 +56,20 @@
 
 use core::fmt;
 
-use fixed::types::{I16F16, I2F30};
+use fixed::types::{I16F16, I8F24};
 
 use crate::error::{Field, Invalid, ModelError};
 use crate::q::{SIGNAL_ABS_MAX, SIGNAL_ABS_MAX_BITS};
 
-/// A biquad coefficient, dimensionless, `I2F30`: range ±2, resolution 2⁻³⁰.
-pub type Coefficient = I2F30;
+/// A biquad coefficient, dimensionless, `I8F24`: range ±128, resolution 2⁻²⁴.
+pub type Coefficient = I8F24;
 
 /// Fractional bits of a [`Coefficient`].
-pub const COEFF_FRAC: u32 = 30;
+pub const COEFF_FRAC: u32 = 24;
 
-/// Largest coefficient magnitude [`Biquad::from_f64`] accepts (`I2F30` holds
-/// `[-2, 2 - 2⁻³⁰]`).
-pub const COEFF_ABS_MAX: f64 = 1.999_999_999;
+/// Largest coefficient magnitude [`Biquad::from_f64`] accepts (`I8F24` holds
+/// `[-128, 128 - 2⁻²⁴]`).
+pub const COEFF_ABS_MAX: f64 = 127.999_99;
 
 /// Mask of the bits the output narrowing drops (the residual).
 const RESIDUAL_MASK: i64 = (1 << COEFF_FRAC) - 1;
@@ -75,7 +80,7 @@ const RESIDUAL_HALF: i64 = 1 << (COEFF_FRAC - 1);
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum BiquadError {
-    /// A coefficient is not finite or outside ±[`COEFF_ABS_MAX`] (`I2F30`).
+    /// A coefficient is not finite or outside ±[`COEFF_ABS_MAX`] (`I8F24`).
     /// `index`: 0–2 are `b0 b1 b2`, 3–4 are `a1 a2`.
     CoefficientOutOfRange {
         /// Position in `[b0, b1, b2, a1, a2]`.
@@ -93,7 +98,7 @@ impl BiquadError {
     pub const fn message(&self) -> &'static str {
         match self {
             Self::CoefficientOutOfRange { .. } => {
-                "biquad coefficient not finite or outside the I2F30 range ±2"
+                "biquad coefficient not finite or outside the I8F24 range ±128"
             }
             Self::Unstable => "biquad poles not strictly inside the unit circle",
             Self::LimitsOutOfRange => "biquad output limits empty or beyond ±4096",
@@ -127,11 +132,11 @@ const fn clamp_bits(x: i64, lo: i32, hi: i32) -> i32 {
     }
 }
 
-/// One second-order section (configuration): coefficients in `I2F30`, `a0 = 1`,
+/// One second-order section (configuration): coefficients in `I8F24`, `a0 = 1`,
 /// and output limits in `I16F16`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Biquad {
-    /// Raw `I2F30` bits of `b0, b1, b2, a1, a2`.
+    /// Raw `I8F24` bits of `b0, b1, b2, a1, a2`.
     ba: [i32; 5],
     /// Raw `I16F16` bits of the lower output limit (≥ −4096).
     min: i32,
@@ -176,7 +181,7 @@ impl Biquad {
     }
 
     /// A section from engineering coefficients (`a0 = 1`), each rounded to the
-    /// nearest `I2F30`; refused if one is not finite or beyond ±[`COEFF_ABS_MAX`]
+    /// nearest `I8F24`; refused if one is not finite or beyond ±[`COEFF_ABS_MAX`]
     /// ([`BiquadError::CoefficientOutOfRange`]) or the quantised poles are not
     /// stable. Host tools and `const` model building; never in the ISR.
     pub const fn from_f64(b: [f64; 3], a: [f64; 2]) -> Result<Self, BiquadError> {
@@ -195,7 +200,7 @@ impl Biquad {
 
     /// The same section with `b1` set so that its static gain is exactly 1
     /// (`b0 + b1 + b2 = 1 + a1 + a2` in raw bits): what rounding each coefficient
-    /// to `I2F30` on its own leaves off, for a design of unit gain. Refused if that
+    /// to `I8F24` on its own leaves off, for a design of unit gain. Refused if that
     /// `b1` leaves the format.
     pub const fn with_unit_static_gain(self) -> Result<Self, BiquadError> {
         let [b0, _, b2, a1, a2] = self.ba;
@@ -289,8 +294,8 @@ impl Default for Biquad {
 }
 
 /// The memory of one [`Biquad`]: the last two inputs and outputs (`I16F16` raw
-/// bits, |·| ≤ 4096) and the outputs' rounding residuals (`[−2²⁹, 2²⁹)`, units of
-/// 2⁻⁴⁶).
+/// bits, |·| ≤ 4096) and the outputs' rounding residuals (`[−2²³, 2²³)`, units of
+/// 2⁻⁴⁰).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct BiquadState {
     x: [i32; 2],
@@ -459,7 +464,7 @@ mod tests {
     #[test]
     fn out_of_format_and_unstable_are_refused() {
         assert_eq!(
-            Biquad::from_f64([1.0, 2.5, 0.0], [0.0, 0.0]),
+            Biquad::from_f64([1.0, 140.0, 0.0], [0.0, 0.0]),
             Err(BiquadError::CoefficientOutOfRange { index: 1 })
         );
         assert_eq!(
@@ -467,8 +472,12 @@ mod tests {
             Err(BiquadError::CoefficientOutOfRange { index: 4 })
         );
         assert_eq!(
-            Biquad::from_f64([1.0, 0.0, 0.0], [-2.0, 1.0]),
+            Biquad::from_f64([1.0, 0.0, 0.0], [-130.0, 1.0]),
             Err(BiquadError::CoefficientOutOfRange { index: 3 })
+        );
+        assert_eq!(
+            Biquad::from_f64([1.0, 0.0, 0.0], [-2.0, 1.0]),
+            Err(BiquadError::Unstable)
         );
         // A pole on the unit circle.
         assert_eq!(
@@ -509,7 +518,7 @@ mod tests {
 /// Sections of a model's reference-shaping filter ([`ShapingSpec`]).
 pub const SHAPING_SECTIONS: usize = 2;
 
-/// A model's reference-shaping filter as stored: the raw `I2F30` coefficients
+/// A model's reference-shaping filter as stored: the raw `I8F24` coefficients
 /// `[b0, b1, b2, a1, a2]` of [`SHAPING_SECTIONS`] sections (unused ones are the
 /// identity). It runs on the reference, in µm, before the inverse FPI: the stable
 /// inverse of the stage's lightly damped modes, so that a fast reference is

@@ -114,6 +114,18 @@ pub enum ModelError {
     FilterUnstable,
     /// A filter section's static gain is not exactly 1.
     FilterStaticGain,
+    /// The force channel's dynamic limit is below the force tolerance or beyond
+    /// the signal range.
+    DynamicLimitBelowTolerance,
+    /// A damping or stage-dynamics setting is not finite, not positive or beyond
+    /// its range.
+    DampingOutOfRange,
+    /// The loops this model closes (position feedback, damping) are unstable on the
+    /// stage dynamics it declares, or on the edge (their poles do not decay a
+    /// thousandfold within 2²⁰ control ticks).
+    LoopUnstable,
+    /// Active damping needs the stage's dynamics (a `[dynamics]` section).
+    DampingWithoutDynamics,
 }
 
 impl ModelError {
@@ -168,7 +180,19 @@ impl ModelError {
                 "a filter section's static gain is not exactly 1 (b0+b1+b2 = 1+a1+a2)"
             }
             Self::GainOutOfRange => {
-                "a feedback gain is negative or beyond its range (kp 0..=16, ki 0..=1 per tick), or both are zero"
+                "a feedback gain is negative or beyond its range (kp 0..=2, ki 0..=0.25 per tick), or both are zero"
+            }
+            Self::DynamicLimitBelowTolerance => {
+                "the dynamic force limit is below the force tolerance or beyond ±4096 N"
+            }
+            Self::DampingOutOfRange => {
+                "a damping or stage-dynamics setting is not positive or beyond its range"
+            }
+            Self::LoopUnstable => {
+                "the loops are unstable on the stage dynamics the model declares (their poles do not decay a thousandfold within 2^20 ticks)"
+            }
+            Self::DampingWithoutDynamics => {
+                "active damping needs the stage's dynamics with its force gain ([dynamics] force_gain_n_per_um)"
             }
         }
     }
@@ -318,6 +342,26 @@ pub enum Field {
     PositionTolerance,
     /// A section of the reference-shaping filter.
     Shaping,
+    /// Stage dynamics: the first mode, Hz.
+    DynamicsModeHz,
+    /// Stage dynamics: its damping ratio.
+    DynamicsDamping,
+    /// Stage dynamics: the lag's corner, Hz.
+    DynamicsLagHz,
+    /// Stage dynamics: the dynamic force per µm of command, N/µm.
+    DynamicsForceGain,
+    /// Damping: the IFF gain.
+    DampingGain,
+    /// Damping: the integrator's leak.
+    DampingLeak,
+    /// Damping: the high-pass's corner.
+    DampingHighpass,
+    /// Damping: the largest correction, µm.
+    DampingLimit,
+    /// The force channel's split corner.
+    ForceSplit,
+    /// The force channel's dynamic limit, N.
+    ForceDynamicLimit,
     /// The model as a whole (format, version, length, checksum).
     Model,
 }
@@ -359,6 +403,16 @@ impl Field {
             Self::PositionMax => "feedback.position_max_um",
             Self::PositionTolerance => "feedback.position_tolerance_um",
             Self::Shaping => "shaping.sections",
+            Self::DynamicsModeHz => "dynamics.mode_hz",
+            Self::DynamicsDamping => "dynamics.damping_ratio",
+            Self::DynamicsLagHz => "dynamics.lag_hz",
+            Self::DynamicsForceGain => "dynamics.force_gain_n_per_um",
+            Self::DampingGain => "damping.gain_um_per_n_s",
+            Self::DampingLeak => "damping.leak_hz",
+            Self::DampingHighpass => "damping.highpass_hz",
+            Self::DampingLimit => "damping.limit_um",
+            Self::ForceSplit => "controller.force_split_hz",
+            Self::ForceDynamicLimit => "controller.force_dynamic_limit_n",
             Self::Model => "model",
         }
     }

@@ -4,7 +4,7 @@
 //! or the emulator's simulated stage); the core never sees a peripheral.
 //! embedded-hal 1.0 has no ADC or DAC trait, so these two small traits are ours.
 
-use crate::control::{ControllerConfig, ControllerState, Mode, StepOutput};
+use crate::control::{ControllerConfig, ControllerState, Forces, Mode, StepOutput};
 use crate::fpi::Shape;
 use crate::q::{within, Micrometres, Newtons, Volts, GAIN_FRAC, SIGNAL_FRAC};
 use embedded_hal::digital::OutputPin;
@@ -45,8 +45,7 @@ pub struct Tick {
 
 impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
     /// One control period, the body of the ISR: read the force, run the step, write
-    /// the setpoint. Once a fault's ramp has reached the safe voltage the amplifier
-    /// is switched off; otherwise it is on.
+    /// the setpoint ([`sense`](Self::sense), then [`drive`](Self::drive)).
     #[inline]
     pub fn tick<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>(
         &mut self,
@@ -55,10 +54,39 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
         mode: &Mode,
         x_ref: Micrometres,
     ) -> Tick {
+        let forces = self.sense(cfg, st);
+        self.drive(cfg, st, mode, x_ref, &forces)
+    }
+
+    /// The first half of a period: read the force sensor and its channel
+    /// ([`ControllerConfig::sense`]: the feedforward force, the dynamic force, the
+    /// force faults), before the application computes its command.
+    #[inline]
+    pub fn sense<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>(
+        &mut self,
+        cfg: &ControllerConfig<'a, N, C, G, H>,
+        st: &mut ControllerState<N, C>,
+    ) -> Forces {
         let force = self.sensor.read_force();
+        cfg.sense(st, force)
+    }
+
+    /// The second half: run the step on the forces read, write the setpoint. Once
+    /// a fault's ramp has reached the safe voltage the amplifier is switched off;
+    /// otherwise it is on.
+    #[inline]
+    pub fn drive<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>(
+        &mut self,
+        cfg: &ControllerConfig<'a, N, C, G, H>,
+        st: &mut ControllerState<N, C>,
+        mode: &Mode,
+        x_ref: Micrometres,
+        forces: &Forces,
+    ) -> Tick {
+        let force = forces.reading;
         let out = match mode {
-            Mode::Compensated => cfg.step(st, x_ref, force),
-            Mode::Uncompensated(drive) => cfg.step_uncompensated(st, drive, x_ref, force),
+            Mode::Compensated => cfg.step_sensed(st, x_ref, forces),
+            Mode::Uncompensated(drive) => cfg.step_uncompensated_sensed(st, drive, x_ref, forces),
         };
         self.amplifier.write_voltage(out.voltage);
         // A pin error cannot be handled in the ISR; the next tick writes it again.

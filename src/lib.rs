@@ -21,7 +21,9 @@
 //!
 //! Modules: [`play`] (the OSP operator), [`pi`] (forward PI), [`inverse`] (closed-form
 //! inverse PI), [`fpi`] (force coupling), [`table`] (lookup tables), [`limits`],
-//! [`control`] (the ISR step), [`feedback`] (position feedback), [`io`] (sensor/amplifier traits), [`model`] (the
+//! [`control`] (the ISR step and its force channel), [`damping`] (active damping from the
+//! force sensor, the stage dynamics a model declares), [`stability`] (the loops as a
+//! discrete-time system, and their stability check), [`feedback`] (position feedback), [`io`] (sensor/amplifier traits), [`model`] (the
 //! model format and its validator), [`error`] (the error vocabulary).
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
@@ -30,6 +32,7 @@
 
 pub mod biquad;
 pub mod control;
+pub mod damping;
 pub mod error;
 pub mod feedback;
 pub mod fpi;
@@ -40,6 +43,7 @@ pub mod model;
 pub mod pi;
 pub mod play;
 pub mod q;
+pub mod stability;
 pub mod table;
 #[cfg(test)]
 pub mod testkit;

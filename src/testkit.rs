@@ -8,7 +8,10 @@
 //! * Limits 0–150 V, 2 V per step; references 0–25 µm; forces 20–200 N, tolerance
 //!   15 N; safe voltage 0 V.
 
-use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Supervision};
+use crate::control::{
+    split_rate, ControllerConfig, ControllerParts, ForceChannel, ForceSource, Interval,
+    Supervision, DEFAULT_SPLIT_HZ,
+};
 use crate::fpi::{Coupling, Fpi, Identity};
 use crate::limits::OutputLimits;
 use crate::model::{CreepSpec, ModelSpec, TableSpec};
@@ -65,6 +68,10 @@ pub fn parts(source: ForceSource) -> ControllerParts<'static, 3> {
             force_tolerance: v(15.0),
             safe_voltage: Volts::ZERO,
             force_source: source,
+            channel: ForceChannel {
+                split: split_rate(DEFAULT_SPLIT_HZ, 20_000),
+                dynamic_limit: v(15.0),
+            },
         },
     }
 }
@@ -106,5 +113,7 @@ pub fn spec<'a>(p: &'a ControllerParts<'static, 3>, creep: &'a [CreepSpec]) -> M
         supervision: p.supervision,
         feedback: None,
         shaping: None,
+        dynamics: None,
+        damping: None,
     }
 }

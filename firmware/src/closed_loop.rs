@@ -8,8 +8,14 @@
 //! | [`LoopMode::FeedbackOnly`] | `PI(x_ref − x_sensor)` in the stroke | the straight line: feedback alone |
 //!
 //! `S` is the model's reference shaping, where it has one: the inverse of the
-//! stage's lightly damped modes (`piezo_fpi::biquad`), so that a fast reference
-//! does not ring the stage; otherwise `S(x) = x`.
+//! stage's lightly damped modes, or of the damped stage (`piezo_fpi::biquad`), so
+//! that a fast reference is followed without lag or ringing; otherwise `S(x) = x`.
+//!
+//! **Active damping** (`piezo_fpi::damping`), where the model has it and it is
+//! switched on (the default): in every mode the command also gets `δ_d`, the
+//! integral force feedback on the force channel's dynamic part, which damps the
+//! stage's first mode. The position loop is then designed around the damped
+//! stage (`fpi tune`, `fpi board autotune`).
 //!
 //! The PI law, its anti-windup and the sensor checks are the core's
 //! ([`piezo_fpi::feedback`]). **Bumpless transfer**: when the mode or the law
@@ -27,8 +33,9 @@
 
 use piezo_fpi::biquad::{Cascade, CascadeState, SHAPING_SECTIONS};
 use piezo_fpi::control::{Fault, Interval, LinearDrive, Mode, StepOutput};
+use piezo_fpi::damping::{Damping, DampingConfig};
 use piezo_fpi::feedback::{FeedbackConfig, Pi, Saturation};
-use piezo_fpi::q::{Micrometres, Volts};
+use piezo_fpi::q::{Micrometres, Newtons, Volts};
 use serde::{Deserialize, Serialize};
 
 use crate::hardware::{Controller, APPROACH_STEP, RATE_HZ};
@@ -74,6 +81,9 @@ pub struct Loop {
     fresh: bool,
     implausible: u32,
     shaped: CascadeState<SHAPING_SECTIONS>,
+    damping: Damping,
+    damping_on: bool,
+    damped: Micrometres,
 }
 
 /// Ticks in a row a position reading must disagree with the model's estimate to
@@ -103,6 +113,9 @@ impl Loop {
             fresh: true,
             implausible: 0,
             shaped: CascadeState::new(),
+            damping: Damping::new(),
+            damping_on: true,
+            damped: Micrometres::ZERO,
         }
     }
 
@@ -119,9 +132,40 @@ impl Loop {
         }
     }
 
+    /// Switches active damping on or off (where the model has it), from the next
+    /// tick on, without a jump.
+    pub fn set_damping(&mut self, on: bool) {
+        if on != self.damping_on {
+            self.damping_on = on;
+            self.transfer = true;
+        }
+    }
+
+    /// Whether active damping is switched on (it runs where the model has it).
+    pub const fn damping_on(&self) -> bool {
+        self.damping_on
+    }
+
+    /// The damping's correction of the last command, µm.
+    pub const fn damping_correction(&self) -> Micrometres {
+        self.damped
+    }
+
+    /// The PI's integrator, µm (for diagnostics).
+    pub const fn integral(&self) -> Micrometres {
+        self.pi.integral()
+    }
+
+    /// The last command, µm (for diagnostics).
+    pub const fn last_command(&self) -> Micrometres {
+        self.last_cmd
+    }
+
     /// Forgets the feedback's memory (after a fault, a park or a new model): the
     /// next tick starts afresh from the present output.
     pub fn reset(&mut self) {
+        self.damping.reset();
+        self.damped = Micrometres::ZERO;
         self.pi = Pi::new();
         self.held = Micrometres::ZERO;
         self.sat = Saturation::Free;
@@ -129,9 +173,11 @@ impl Loop {
         self.fresh = true;
     }
 
-    /// The position sensor's verdict in a closed mode (none in open loop):
-    /// `reading` against the sensor's range (at once) and the model's last
-    /// estimate (for [`IMPLAUSIBLE_RUN`] ticks in a row).
+    /// The position sensor's verdict in every mode, where the model declares the
+    /// sensor (its `[feedback]` section): `reading` against the sensor's range (at
+    /// once) and the model's last estimate (for [`IMPLAUSIBLE_RUN`] ticks in a
+    /// row). In open loop too: a stage driven into a resonance, or a sensor that
+    /// broke, is seen before the loop is closed on it.
     #[inline]
     pub fn check(
         &mut self,
@@ -139,10 +185,7 @@ impl Loop {
         reading: Micrometres,
         estimate: Micrometres,
     ) -> Option<Fault> {
-        let verdict = match (self.mode, fb) {
-            (LoopMode::Open, _) | (_, None) => None,
-            (_, Some(f)) => f.check(reading, estimate),
-        };
+        let verdict = fb.and_then(|f| f.check(reading, estimate));
         match verdict {
             Some(Fault::PositionImplausible) => {
                 self.implausible = self.implausible.saturating_add(1);
@@ -161,6 +204,13 @@ impl Loop {
         let law = match (self.mode, io.compensated) {
             (LoopMode::Open, true) | (LoopMode::Closed, _) => Law::Fpi,
             (LoopMode::Open, false) | (LoopMode::FeedbackOnly, _) => Law::Linear,
+        };
+        self.damped = match (self.damping_on, io.damping) {
+            (true, Some(c)) => self.damping.update(c, io.dynamic),
+            _ => {
+                self.damping.reset();
+                Micrometres::ZERO
+            }
         };
         if self.transfer || law != self.law {
             self.take_over(law, io);
@@ -182,7 +232,8 @@ impl Loop {
                 self.held = toward_zero(self.held);
                 ff.saturating_add(self.held)
             }
-        };
+        }
+        .saturating_add(self.damped);
         let reachable = io.x_ref >= window.lo && io.x_ref <= window.hi;
         // An unreachable reference goes to the step as it is: the step trips.
         let x_cmd = if reachable {
@@ -232,6 +283,8 @@ impl Loop {
             // After a fault or a new model the shaping starts at rest.
             self.shaped = CascadeState::settled(io.x_ref);
         }
+        // The damping's correction of this tick is part of the new law's command.
+        let c = c.saturating_sub(self.damped);
         match (self.mode, io.feedback) {
             (LoopMode::Closed, Some(f)) => {
                 let d = clamp_to(c.saturating_sub(io.x_ref), f.correction());
@@ -257,6 +310,10 @@ pub struct Inputs<'c, 'm> {
     pub feedback: Option<&'c FeedbackConfig>,
     /// Its reference shaping, if it has it.
     pub shaping: Option<&'c Cascade<SHAPING_SECTIONS>>,
+    /// Its active damping, if it has it.
+    pub damping: Option<&'c DampingConfig>,
+    /// The force channel's dynamic part this tick, N.
+    pub dynamic: Newtons,
     /// Its straight-line drive.
     pub drive: &'c LinearDrive,
     /// Inverse FPI (else the straight line) in open loop.

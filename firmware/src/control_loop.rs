@@ -173,10 +173,14 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 self.reference.position()
             }
         };
-        let cmd = self.command(x_ref);
+        let cfg = self.model.get();
+        let forces = self.hw.sense(cfg, &mut self.state);
+        let cmd = self.command(x_ref, forces.dynamic);
         let cfg = self.model.get();
         let before = self.state.voltage();
-        let Tick { out, force } = self.hw.tick(cfg, &mut self.state, &cmd.mode, cmd.x_cmd);
+        let Tick { out, force } =
+            self.hw
+                .drive(cfg, &mut self.state, &cmd.mode, cmd.x_cmd, &forces);
         self.feedback.after(&out, before, cfg);
         self.x_est = cfg.stage_position(out.x_pea_est);
         let t = Telemetry {
@@ -206,10 +210,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         t
     }
 
-    /// Reads the position sensor, checks it in a closed mode (a bad reading trips
-    /// a fault), and turns the reference into this tick's command.
+    /// Reads the position sensor, checks it (a bad reading trips a fault), and
+    /// turns the reference into this tick's command, with the force channel's
+    /// dynamic part (N) for the damping.
     #[inline]
-    fn command(&mut self, x_ref: Micrometres) -> Command {
+    fn command(&mut self, x_ref: Micrometres, dynamic: Newtons) -> Command {
         self.x_sensor = POSITION_ADC.to_value(self.analog_in.read_position());
         if self.state.fault().is_none() {
             let fb = self.model.summary().feedback.as_ref();
@@ -223,6 +228,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             cfg: self.model.get(),
             feedback,
             shaping: summary.shaping.as_ref(),
+            damping: summary.damping.as_ref(),
+            dynamic,
             drive: &summary.baseline,
             compensated: self.compensated,
             x_ref,
@@ -278,6 +285,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         &self.state
     }
 
+    /// The loop's mode and memories: feedback, damping, shaping (for diagnostics).
+    pub const fn feedback(&self) -> &Loop {
+        &self.feedback
+    }
+
     fn status(&self, limited: bool, fault: Option<Fault>, at_safe: bool) -> u8 {
         let mut s = 0;
         if fault.is_some() {
@@ -324,6 +336,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             overruns: self.overruns,
             x_sensor: t.x_sensor,
             loop_mode: self.feedback.mode(),
+            damping_on: self.feedback.damping_on(),
         };
     }
 
@@ -391,6 +404,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                     return Err(Refused::NoFeedback);
                 }
                 self.feedback.select(mode);
+                Ok(())
+            }
+            Order::Damping(on) => {
+                self.feedback.set_damping(on);
                 Ok(())
             }
             Order::Safe => {

@@ -53,6 +53,7 @@ pub struct Bench {
     position_open: bool,
     position_stuck: Option<f32>,
     position: f32,
+    x_true: Micrometres,
     offset: f32,
     stall: u16,
     force: f32,
@@ -70,6 +71,7 @@ impl Bench {
             position_open: false,
             position_stuck: None,
             position: 0.0,
+            x_true: Micrometres::ZERO,
             offset: 0.0,
             stall: 0,
             force,
@@ -107,6 +109,7 @@ impl Bench {
                 };
                 if let Some(s) = Stage::new(p, SEED) {
                     self.stage = s;
+                    self.x_true = Micrometres::ZERO;
                 }
             }
         }
@@ -127,8 +130,15 @@ impl Bench {
         true
     }
 
+    /// The stage's true position now, µm: where it was when this tick's sensors
+    /// were read (the position the last step left it at).
+    pub fn true_position(&self) -> Micrometres {
+        self.x_true
+    }
+
     /// Steps the stage with the amplifier's output (0 V while it is disabled) and
-    /// leaves the next force reading on the link; the stage's true position, µm.
+    /// leaves the next force and position readings on the link; the stage's true
+    /// position after the step (the next tick's), µm.
     pub fn after_tick(&mut self, link: &SimLink) -> Micrometres {
         let (voltage, on) = link.output();
         let s = self.stage.step(if on { voltage } else { 0.0 });
@@ -148,7 +158,8 @@ impl Bench {
         };
         self.position = position;
         link.set_position(position);
-        Micrometres::from_num(s.x_fhps_um)
+        self.x_true = Micrometres::from_num(s.x_fhps_um);
+        self.x_true
     }
 }
 
@@ -169,8 +180,10 @@ pub fn tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
             result: Ok(()),
         });
     }
+    // The true position at the instant this tick's sensors are read, like them.
+    let x_true = bench.true_position();
     let t = lp.tick(x);
-    let x_true = bench.after_tick(link);
+    bench.after_tick(link);
     bench.stall();
     lp.record(x, &t, Some(x_true))
 }

@@ -33,6 +33,8 @@ pub enum Order {
     /// Open the loop, or close it on the position sensor (with or without the
     /// inverse FPI as feedforward); without a jump.
     Loop(LoopMode),
+    /// Switch active damping on or off (where the model has it); without a jump.
+    Damping(bool),
     /// Park the stage: ramp to the safe voltage, amplifier off ([`Fault::Stopped`]).
     Safe,
     /// Clear a latched fault (once the output is at the safe voltage).
@@ -120,6 +122,8 @@ pub struct Snapshot {
     pub x_sensor: Micrometres,
     /// Open or closed loop.
     pub loop_mode: LoopMode,
+    /// Active damping switched on (it runs where the model has it).
+    pub damping_on: bool,
 }
 
 impl Snapshot {
@@ -145,6 +149,7 @@ impl Snapshot {
             overruns: 0,
             x_sensor: Micrometres::ZERO,
             loop_mode: LoopMode::Open,
+            damping_on: false,
         }
     }
 }

@@ -9,7 +9,9 @@
 //! onto power-of-two grids.
 
 use fixed::types::I16F16;
-use piezo_fpi::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Supervision};
+use piezo_fpi::control::{
+    ControllerConfig, ControllerParts, ForceChannel, ForceSource, Interval, Supervision,
+};
 #[allow(unused_imports)]
 use piezo_fpi::fpi::{Coupling, Creep, Fpi, Identity, Map};
 use piezo_fpi::limits::OutputLimits;

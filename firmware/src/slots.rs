@@ -18,7 +18,8 @@
 use core::ptr::NonNull;
 
 use piezo_fpi::biquad::{Cascade, SHAPING_SECTIONS};
-use piezo_fpi::control::{Interval, LinearDrive};
+use piezo_fpi::control::{ForceChannel, Interval, LinearDrive};
+use piezo_fpi::damping::{DampingConfig, DynamicsSpec};
 use piezo_fpi::error::{Field, Invalid, ModelError};
 use piezo_fpi::feedback::FeedbackConfig;
 use piezo_fpi::model::image::CRC32;
@@ -58,6 +59,12 @@ pub struct Summary {
     pub feedback: Option<FeedbackConfig>,
     /// Reference shaping (the inverse of the stage's modes), if the model has it.
     pub shaping: Option<Cascade<SHAPING_SECTIONS>>,
+    /// The stage's dynamics, if the model declares them.
+    pub dynamics: Option<DynamicsSpec>,
+    /// Active damping, if the model has it.
+    pub damping: Option<DampingConfig>,
+    /// The force channel (split and dynamic limit).
+    pub channel: ForceChannel,
 }
 
 /// A store the link task owns: free to load an image into.
@@ -114,23 +121,38 @@ impl Spare {
             let spec = shared.spec();
             let feedback = spec.feedback.map(FeedbackConfig::new).transpose()?;
             let shaping = spec.shaping.map(|s| s.cascade()).transpose()?;
-            Ok((cfg, baseline, shape, (feedback, shaping)))
+            let channel = spec.supervision.channel;
+            let damping = spec
+                .damping
+                .map(|d| DampingConfig::new(d, &channel))
+                .transpose()?;
+            Ok((
+                cfg,
+                baseline,
+                shape,
+                (feedback, shaping, damping, spec.dynamics, channel),
+            ))
         });
         match built {
-            Ok((cfg, baseline, shape, (feedback, shaping))) => Ok(Running {
-                store: ptr,
-                summary: Summary {
-                    crc: CRC32.checksum(image),
-                    shape,
-                    reference: cfg.reference(),
-                    safe_voltage: cfg.safe_voltage(),
-                    origin,
-                    baseline,
-                    feedback,
-                    shaping,
-                },
-                cfg,
-            }),
+            Ok((cfg, baseline, shape, (feedback, shaping, damping, dynamics, channel))) => {
+                Ok(Running {
+                    store: ptr,
+                    summary: Summary {
+                        crc: CRC32.checksum(image),
+                        shape,
+                        reference: cfg.reference(),
+                        safe_voltage: cfg.safe_voltage(),
+                        origin,
+                        baseline,
+                        feedback,
+                        shaping,
+                        dynamics,
+                        damping,
+                        channel,
+                    },
+                    cfg,
+                })
+            }
             // SAFETY: `shared` and `built` are gone; the store is exclusive again.
             Err(e) => Err((
                 Spare {

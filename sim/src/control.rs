@@ -3,7 +3,10 @@
 //! plainly.
 //!
 //! ```text
-//! supervise: force in range, force plausible against f_F(x_pea_est), reference reachable
+//! force channel: r = F − f_F(x_pea_est), p = r_0 + b·Δ (Δ = f_F(x_pea_est) − f_F(x_0)),
+//!                r_s ← r_s + a·(r − p − r_s), r_0 ← r_0 + 2⁻¹¹·r_s, b ← b + 2⁻¹⁸·r_s·Δ,
+//!                F_ff = f_F(x_pea_est) + p + r_s
+//! supervise: force in range, r_s within the tolerance, r within the dynamic limit, reference reachable
 //! x_pea_ref = f_K⁻¹(x_ref)
 //! u         = inverse model at x_pea_ref under the force          (closed form)
 //! u_out     = limits(u)                                            (range and slew)
@@ -47,6 +50,10 @@ pub struct Controller<'a, F> {
     pub safe_voltage: F,
     /// Force from the sensor (`true`) or from `f_F` of the reference.
     pub measured: bool,
+    /// The force channel's split rate per step (0: the reading as it is).
+    pub split: F,
+    /// Tolerated `|F - f_F(x_pea_est)|` at once, N.
+    pub dynamic_limit: F,
     /// The compliance term's reference force `F_ref`, N.
     pub force_ref: F,
     /// Control period, s.
@@ -66,6 +73,14 @@ pub struct ControlState<F> {
     pub voltage: F,
     /// Last estimated stack extension, µm.
     pub x_pea_est: F,
+    /// The slow part of the force residual beyond the learned map, N.
+    pub force_slow: F,
+    /// The preload map's learned offset, N.
+    pub force_offset: F,
+    /// The residual at the tare, N.
+    pub force_tare_offset: F,
+    /// The learned scale error of the preload map.
+    pub force_scale: F,
     /// Latched fault.
     pub fault: Option<Fault>,
 }
@@ -83,6 +98,10 @@ pub struct StepOut<F> {
     pub limited: bool,
     /// Latched fault.
     pub fault: Option<Fault>,
+    /// The force the model used (the force channel's feedforward), N.
+    pub force: F,
+    /// The force channel's dynamic part, N.
+    pub dynamic: F,
 }
 
 impl<F: Real> Controller<'_, F> {
@@ -96,8 +115,63 @@ impl<F: Real> Controller<'_, F> {
             inverse_pi,
             voltage: self.safe_voltage,
             x_pea_est: F::ZERO,
+            force_slow: F::ZERO,
+            force_offset: F::ZERO,
+            force_tare_offset: F::ZERO,
+            force_scale: F::ZERO,
             fault: None,
         }
+    }
+
+    /// Takes `force` (N) as the compliance reference and settles the force
+    /// channel on the residual at rest (the fixed-point `tare`).
+    pub fn tare(&mut self, st: &mut ControlState<F>, force: F) {
+        self.force_ref = force;
+        st.force_tare_offset = force - self.f_f.held(st.x_pea_est);
+        st.force_offset = st.force_tare_offset;
+        st.force_slow = F::ZERO;
+        st.force_scale = F::ZERO;
+    }
+
+    /// The force channel: the feedforward force and the dynamic part from the
+    /// reading, the slow part advanced (for a reading in range).
+    fn sense(&self, st: &mut ControlState<F>, force: F) -> (F, F, bool) {
+        let model = self.f_f.held(st.x_pea_est);
+        if !self.measured {
+            return (model, F::ZERO, true);
+        }
+        let in_range = force >= self.force.0 && force <= self.force.1;
+        let r = force - model;
+        let slow = if self.split == F::ZERO {
+            r
+        } else {
+            // The learned map: the offset at the tare and the scale error (used
+            // to 2⁻³⁰, as the fixed-point channel does).
+            let delta = model - (self.force_ref - st.force_tare_offset);
+            let q = F::of(1073741824.0); // 2³⁰
+            let b = (st.force_scale * q).floor() / q;
+            let learned = st.force_offset + b * delta;
+            if in_range {
+                st.force_slow += self.split * (r - learned - st.force_slow);
+                if st.fault.is_none() {
+                    st.force_offset += F::of(1.0 / 2048.0) * st.force_slow; // 2⁻¹¹
+                    let mu = F::of(1.0 / 262144.0); // 2⁻¹⁸
+                    let lim = F::of(0.25);
+                    st.force_scale =
+                        (st.force_scale + mu * st.force_slow * delta).clamp_to(-lim, lim);
+                }
+            }
+            learned + st.force_slow
+        };
+        if st.fault.is_none() {
+            if !in_range {
+                st.fault = Some(Fault::ForceOutOfRange);
+            } else if slow.abs() > self.force_tolerance || r.abs() > self.dynamic_limit {
+                st.fault = Some(Fault::ForceImplausible);
+            }
+        }
+        let dynamic = if in_range { r - slow } else { F::ZERO };
+        (model + slow, dynamic, in_range)
     }
 
     fn limit(&self, prev: F, want: F) -> (F, bool) {
@@ -107,30 +181,16 @@ impl<F: Real> Controller<'_, F> {
         (u, u != want)
     }
 
-    fn supervise(&self, st: &ControlState<F>, x_ref: F, force: F) -> Option<Fault> {
-        let inside = |v: F, r: (F, F)| v >= r.0 && v <= r.1;
-        if self.measured && !inside(force, self.force) {
-            Some(Fault::ForceOutOfRange)
-        } else if self.measured
-            && (force - self.f_f.held(st.x_pea_est)).abs() > self.force_tolerance
-        {
-            Some(Fault::ForceImplausible)
-        } else if !inside(x_ref, self.reference) {
-            Some(Fault::ReferenceUnreachable)
-        } else {
-            None
-        }
-    }
-
     /// One control step: reference stage position (µm) and force reading (N) in.
     pub fn step(&self, st: &mut ControlState<F>, x_ref: F, force: F) -> StepOut<F> {
-        if st.fault.is_none() {
-            st.fault = self.supervise(st, x_ref, force);
+        let (ff, dynamic, in_range) = self.sense(st, force);
+        if st.fault.is_none() && !(x_ref >= self.reference.0 && x_ref <= self.reference.1) {
+            st.fault = Some(Fault::ReferenceUnreachable);
         }
         if let Some(fault) = st.fault {
             let (voltage, _) = self.limit(st.voltage, self.safe_voltage);
-            let f = if self.measured && force >= self.force.0 && force <= self.force.1 {
-                force
+            let f = if self.measured && in_range {
+                ff
             } else {
                 self.f_f.held(st.x_pea_est)
             };
@@ -143,11 +203,13 @@ impl<F: Real> Controller<'_, F> {
                 x_pea_est: x,
                 limited: true,
                 fault: Some(fault),
+                force: f,
+                dynamic,
             };
         }
         let x_pea_ref = self.f_k_inv.held(x_ref);
         let f = if self.measured {
-            force
+            ff
         } else {
             self.f_f.held(x_pea_ref)
         };
@@ -174,6 +236,8 @@ impl<F: Real> Controller<'_, F> {
             x_pea_est,
             limited,
             fault: None,
+            force: f,
+            dynamic,
         }
     }
 }

@@ -55,6 +55,28 @@
 //! back-coupling keeps the paper's linear `T = C_m·d33`, with `d33` a parameter
 //! (the stack's nominal stroke per volt).
 //!
+//! # The stage's mechanics and its force sensor
+//!
+//! The same equations carry a flexure-hinge stage (the emulated board's stage as
+//! built, [`crate::stage`]): the stack, of stiffness `k_p` and free stroke `y`,
+//! pushes the stage's effective mass `m` (referred to the stack) against the
+//! hinge, whose force on the stack is the preload `F_0` plus the load `L(x)`
+//! (the FEM's `f_F(x) − f_F(0)`, or a linear spring `k_h·x`):
+//!
+//! ```text
+//! m·ẍ + K_d·ẋ = F_s − F_0 − L(x) − F_ext,      F_s = F_0 + k_p·(y − x)
+//! ```
+//!
+//! `F_s` is the force through the stack: a force sensor in series with it reads
+//! it, the preload *plus* the dynamic force `m·ẍ + K_d·ẋ`, so it sees the stage's
+//! modes. The hysteresis model sees the same force, so its preload-dependent
+//! reverse voltage (the FPI coupling, `k_f`) acts on the free stroke: `y` solves
+//! `y = Y(V_act, F_0 + k_p·(y − x))` ([`crate::solve::coupled`] with the stack's
+//! [`Spring`]). The coupling softens the stack: small-signal, its stiffness is
+//! `k_p/(1 + s·k_f·k_p)` with `s` the local stroke per volt
+//! ([`ElectromechParams::effective_stack_stiffness`]). The paper's eq. (4) is
+//! the case `L = 0`, `F_0 = 0`, `k_p = C_m`.
+//!
 //! # Integration
 //!
 //! Each sample (`1/f_s`) is split into [`ElectromechParams::substeps`] equal
@@ -63,19 +85,26 @@
 //! 1. the electrical part exactly (an exponential integrator, stable for any
 //!    `h/(R·C)`, also for `R = 0`): `V_act ← V_e + (V_act − V_e)·e^{−h/(R·C)}`,
 //!    `V_e = V_in − R·T·v`, with `v` the velocity at the start of the substep;
-//! 2. the hysteresis model, committed once, at the new `V_act`;
-//! 3. the mechanics exactly (the zero-order-hold transition matrix of the
-//!    mass–spring–damper, from the matrix exponential) with the force held.
+//! 2. the free stroke: the coupled equation solved with the stack's end at the
+//!    substep's midpoint (predicted with the last substep's force), so the
+//!    coupling's share of the stiffness is integrated like the trapezoidal rule,
+//!    without the energy an explicit force would add to a lightly damped mode;
+//!    the model is committed once, there;
+//! 3. the mechanics exactly (the zero-order-hold transition matrix of
+//!    `m·ẍ + K_d·ẋ + (k_p + k_h)·x`, from the matrix exponential) with the rest of
+//!    the force held.
 //!
-//! Every part is unconditionally stable; the only approximation is the coupling
-//! held over a substep, which [`Electromech::new`] bounds by requiring
-//! `h·ω_n ≤ 0.5` (at 20 kHz and 850 Hz, one substep already gives `h·ω_n = 0.27`;
-//! the example uses 4). `f64` only.
+//! Every part is stable; [`Electromech::new`] requires `h·ω_n ≤ 0.5`. The model is
+//! generic over the number type: `f64` on the host, `f32` on the emulated board
+//! (through `libm`, bit-identical on both).
 
+use crate::fem::Fem;
 use crate::model::{Model, State};
+use crate::real::Real;
+use crate::solve::{coupled, Spring};
 
-/// The parameters of the electromechanical stack (configuration). Units in the
-/// names; the symbols are the paper's (Table 2).
+/// The parameters of the electromechanical stack (configuration, SI units as the
+/// paper's Table 2; the symbols are the paper's).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ElectromechParams {
     /// Sample rate of [`Electromech::step`], Hz (the board's control rate).
@@ -89,20 +118,23 @@ pub struct ElectromechParams {
     /// `d33`: the stack's nominal stroke per volt in the back-coupling `T =
     /// C_m·d33`, m/V (0: no back-coupling).
     pub d33_m_per_v: f64,
-    /// `m`: effective mass, kg.
+    /// `m`: effective mass (referred to the stack), kg.
     pub mass_kg: f64,
-    /// `C_m`: stiffness of the stack and its load, N/m.
+    /// `C_m` (`k_p`): stiffness of the stack, N/m.
     pub stiffness_n_per_m: f64,
+    /// `k_h`: the load's stiffness (the hinge's, the slope of `f_F`), N/m (0: the
+    /// paper's free stack).
+    pub load_stiffness_n_per_m: f64,
     /// `K_d`: viscous damping, N·s/m.
     pub damping_n_s_per_m: f64,
-    /// Static preload on the stack, N: the hysteresis model's force reference.
+    /// `F_0`: static preload on the stack, N: the hysteresis model's force at rest.
     pub preload_n: f64,
 }
 
 impl ElectromechParams {
     /// An 850 Hz, lightly damped (ζ = 0.02) stack at 20 kHz, 4 substeps: 50 N/µm,
     /// 3.4 µF (the paper's datasheet value), a 1 Ω source, `d33` = 0.27 µm/V
-    /// (40 µm over 150 V), no preload.
+    /// (40 µm over 150 V), no preload, no load.
     pub fn stack_850hz() -> Self {
         Self {
             sample_rate_hz: 20_000.0,
@@ -112,17 +144,25 @@ impl ElectromechParams {
             d33_m_per_v: 40e-6 / 150.0,
             mass_kg: 1.0,
             stiffness_n_per_m: 50e6,
+            load_stiffness_n_per_m: 0.0,
             damping_n_s_per_m: 0.0,
             preload_n: 0.0,
         }
         .with_mode(850.0, 0.02)
     }
 
-    /// The same stiffness, with the mass and damping that put the mechanical mode
-    /// at `f_hz` with damping ratio `zeta`.
+    /// The same stiffnesses, with the mass and damping that put the mechanical
+    /// mode of `m·ẍ + K_d·ẋ + (C_m + k_h)·x` at `f_hz` with damping ratio `zeta`.
     pub fn with_mode(self, f_hz: f64, zeta: f64) -> Self {
+        self.with_mode_at_stiffness(f_hz, zeta, self.stiffness_n_per_m)
+    }
+
+    /// The mass and damping that put the mode at `f_hz`, `zeta` for a stack of
+    /// effective stiffness `stack_n_per_m` (e.g. softened by the force coupling,
+    /// [`effective_stack_stiffness`](Self::effective_stack_stiffness)).
+    pub fn with_mode_at_stiffness(self, f_hz: f64, zeta: f64, stack_n_per_m: f64) -> Self {
         let w = 2.0 * core::f64::consts::PI * f_hz;
-        let mass_kg = self.stiffness_n_per_m / (w * w);
+        let mass_kg = (stack_n_per_m + self.load_stiffness_n_per_m) / (w * w);
         Self {
             mass_kg,
             damping_n_s_per_m: 2.0 * zeta * w * mass_kg,
@@ -130,14 +170,26 @@ impl ElectromechParams {
         }
     }
 
-    /// `f_n = √(C_m/m) / 2π` of the mechanical part, Hz.
-    pub fn natural_frequency_hz(&self) -> f64 {
-        libm::sqrt(self.stiffness_n_per_m / self.mass_kg) / (2.0 * core::f64::consts::PI)
+    /// The stack's small-signal stiffness under the force coupling, N/m:
+    /// `k_p/(1 + s·k_f·k_p)` for a stroke per volt `s` (µm/V) and a coupling
+    /// `k_f` (V/N).
+    pub fn effective_stack_stiffness(&self, s_um_per_v: f64, k_f_v_per_n: f64) -> f64 {
+        let kp = self.stiffness_n_per_m;
+        kp / (1.0 + s_um_per_v * k_f_v_per_n * kp * 1e-6)
     }
 
-    /// `ζ = K_d / (2·√(C_m·m))` of the mechanical part.
+    /// `f_n = √((C_m + k_h)/m) / 2π` of the mechanical part, Hz.
+    pub fn natural_frequency_hz(&self) -> f64 {
+        libm::sqrt(self.total_stiffness() / self.mass_kg) / (2.0 * core::f64::consts::PI)
+    }
+
+    /// `ζ = K_d / (2·√((C_m + k_h)·m))` of the mechanical part.
     pub fn damping_ratio(&self) -> f64 {
-        self.damping_n_s_per_m / (2.0 * libm::sqrt(self.stiffness_n_per_m * self.mass_kg))
+        self.damping_n_s_per_m / (2.0 * libm::sqrt(self.total_stiffness() * self.mass_kg))
+    }
+
+    fn total_stiffness(&self) -> f64 {
+        self.stiffness_n_per_m + self.load_stiffness_n_per_m
     }
 
     /// `T = C_m·d33`, N/V (= C/m): the electromechanical transformer ratio.
@@ -157,8 +209,8 @@ impl ElectromechParams {
     }
 
     /// Finite and in range: positive rate, mass, stiffness and capacitance,
-    /// non-negative resistance, damping and `d33`, at least one substep, and
-    /// `h·ω_n ≤ 0.5`.
+    /// non-negative resistance, load stiffness, damping and `d33`, at least one
+    /// substep, and `h·ω_n ≤ 0.5`.
     pub fn is_valid(&self) -> bool {
         let pos = |x: f64| x.is_finite() && x > 0.0;
         let nonneg = |x: f64| x.is_finite() && x >= 0.0;
@@ -167,6 +219,7 @@ impl ElectromechParams {
             && pos(self.stiffness_n_per_m)
             && pos(self.capacitance_f)
             && nonneg(self.resistance_ohm)
+            && nonneg(self.load_stiffness_n_per_m)
             && nonneg(self.damping_n_s_per_m)
             && nonneg(self.d33_m_per_v)
             && self.preload_n.is_finite()
@@ -177,76 +230,108 @@ impl ElectromechParams {
 
 /// One sample of the stack.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ElectromechSample {
+pub struct ElectromechSample<F> {
     /// `V_act`, the voltage across the stack at the end of the sample, V.
-    pub stack_voltage_v: f64,
+    pub stack_voltage_v: F,
     /// The amplifier's current, mean over the sample (charge moved / period), A.
-    pub current_a: f64,
-    /// `x`, the stack's displacement, µm.
-    pub displacement_um: f64,
+    pub current_a: F,
+    /// `x`, the stack's displacement (its end), µm.
+    pub displacement_um: F,
     /// `v`, its velocity, µm/s.
-    pub velocity_um_per_s: f64,
+    pub velocity_um_per_s: F,
     /// `y(V_act)`, the hysteresis model's free stroke, µm.
-    pub free_stroke_um: f64,
-    /// `F_act = C_m·y − F_ext`, the force driving the mass, N.
-    pub actuator_force_n: f64,
+    pub free_stroke_um: F,
+    /// `F_s = F_0 + k_p·(y − x)`, the force through the stack at the end of the
+    /// sample (what a force sensor in series with it reads), N.
+    pub stack_force_n: F,
 }
 
-/// The simulator (configuration and state).
+/// The simulator (configuration and state), in `f32` or `f64`.
 #[derive(Debug, Clone)]
-pub struct Electromech<'a> {
+pub struct Electromech<'a, F> {
     p: ElectromechParams,
-    model: Model<'a, f64>,
-    state: State<f64>,
-    /// Zero-order-hold transition of `[x, v]` over a substep, and the response to
-    /// a held force.
-    phi: [[f64; 2]; 2],
-    gamma: [f64; 2],
+    model: Model<'a, F>,
+    state: State<F>,
+    /// The load `L(x) = f_F(x) − f_F(0)` (`None`: the linear `k_h·x`).
+    load: Option<Fem<'a, F>>,
+    /// Zero-order-hold transition of `[x, v]` (µm, µm/s) over a substep, and the
+    /// response to a held force (N).
+    phi: [[F; 2]; 2],
+    gamma: [F; 2],
     /// `e^{−h/(R·C)}` (0 for `R = 0`).
-    decay: f64,
-    t: f64,
-    v_act: f64,
-    x_m: f64,
-    v_m_per_s: f64,
-    y_um: f64,
-    force_n: f64,
-    f_ext_n: f64,
+    decay: F,
+    /// `R·T`, V per µm/s; `T`, C/µm; `C`, F.
+    rt: F,
+    t: F,
+    c: F,
+    /// `k_p`, `k_h`, N/µm; `F_0`, `F_ext`, N.
+    kp: F,
+    kh: F,
+    f0: F,
+    f_ext: F,
+    v_act: F,
+    x: F,
+    v: F,
+    y: F,
+    /// The force the mechanics was last driven with besides `(k_p + k_h)·x`, N.
+    drive: F,
+    rate: F,
 }
 
-impl<'a> Electromech<'a> {
+impl<'a, F: Real> Electromech<'a, F> {
     /// A stack at rest (0 V, no motion, the model's state at rest) with hysteresis
-    /// `model`; `None` if the parameters are not valid
-    /// ([`ElectromechParams::is_valid`]) or the model has a compliance of its own.
-    pub fn new(p: ElectromechParams, model: Model<'a, f64>) -> Option<Self> {
-        if !p.is_valid() || model.compliance() != 0.0 {
+    /// `model`, loaded by the preload map `load` (its `f_F(x) − f_F(0)`; `None`:
+    /// the linear `k_h·x`); `None` if the parameters are not valid
+    /// ([`ElectromechParams::is_valid`]) or the model has a compliance of its own
+    /// (the stack's stiffness carries it).
+    pub fn new(
+        p: ElectromechParams,
+        model: Model<'a, F>,
+        load: Option<Fem<'a, F>>,
+    ) -> Option<Self> {
+        if !p.is_valid() || model.compliance() != F::ZERO {
             return None;
         }
         let h = p.substep_s();
-        let (phi, gamma) = zoh(p.mass_kg, p.stiffness_n_per_m, p.damping_n_s_per_m, h);
+        // µm-based units: N/µm, N·s/µm, N·s²/µm.
+        let (m, k, d) = (
+            p.mass_kg * 1e-6,
+            p.total_stiffness() * 1e-6,
+            p.damping_n_s_per_m * 1e-6,
+        );
+        let (phi, gamma) = zoh(m, k, d, h);
         let rc = p.resistance_ohm * p.capacitance_f;
         let decay = if rc > 0.0 { libm::exp(-h / rc) } else { 0.0 };
-        let state = model.state(h);
+        let t = p.coupling_n_per_v() * 1e-6;
+        let state = model.state(F::of(h));
         let mut s = Self {
             p,
             model,
             state,
-            phi,
-            gamma,
-            decay,
-            t: p.coupling_n_per_v(),
-            v_act: 0.0,
-            x_m: 0.0,
-            v_m_per_s: 0.0,
-            y_um: 0.0,
-            force_n: 0.0,
-            f_ext_n: 0.0,
+            load,
+            phi: phi.map(|r| r.map(F::of)),
+            gamma: gamma.map(F::of),
+            decay: F::of(decay),
+            rt: F::of(p.resistance_ohm * t),
+            t: F::of(t),
+            c: F::of(p.capacitance_f),
+            kp: F::of(p.stiffness_n_per_m * 1e-6),
+            kh: F::of(p.load_stiffness_n_per_m * 1e-6),
+            f0: F::of(p.preload_n),
+            f_ext: F::ZERO,
+            v_act: F::ZERO,
+            x: F::ZERO,
+            v: F::ZERO,
+            y: F::ZERO,
+            drive: F::ZERO,
+            rate: F::of(p.sample_rate_hz),
         };
-        // At rest: the model's extension at 0 V (not necessarily 0) is the
-        // equilibrium, without a start-up transient.
-        let mut st = s.state.clone();
-        s.y_um = s.model.step(&mut st, 0.0, p.preload_n, p.preload_n);
-        s.x_m = s.y_um * 1e-6;
-        s.force_n = p.stiffness_n_per_m * s.x_m;
+        // At rest: the equilibrium at 0 V (the free stroke there need not be 0),
+        // without a start-up transient.
+        let (x, y, _) = s.equilibrium(F::ZERO);
+        s.x = x;
+        s.y = y;
+        s.drive = s.kp * y - s.nonlinear_load(x);
         Some(s)
     }
 
@@ -255,45 +340,104 @@ impl<'a> Electromech<'a> {
         &self.p
     }
 
+    /// The position `x` (µm), free stroke `y` (µm) and stack force (N) at rest
+    /// under `volts`, found by a few fixed-point passes on the quasi-static balance
+    /// `k_p·(y − x) = L(x) + F_ext` (the model not committed).
+    fn equilibrium(&self, volts: F) -> (F, F, F) {
+        let mut x = self.x;
+        let mut y = self.y;
+        for _ in 0..60 {
+            let spring = Spring {
+                force: self.f0,
+                stiffness: self.kp,
+                at: x,
+            };
+            y = coupled(&self.model, &self.state, volts, &spring, self.f0, y).x;
+            let load = self.load_at(x) + self.f_ext;
+            // k_p·(y − x) = L(x): one Newton step in x with L' ≈ k_h.
+            let next = x + (self.kp * (y - x) - load) / (self.kp + self.kh);
+            if (next - x).abs() <= F::EPSILON * (F::ONE + x.abs()) {
+                x = next;
+                break;
+            }
+            x = next;
+        }
+        (x, y, self.f0 + self.kp * (y - x))
+    }
+
+    /// `L(x)`, N.
+    fn load_at(&self, x: F) -> F {
+        match &self.load {
+            Some(fem) => fem.preload_at(x) - fem.rest_preload(),
+            None => self.kh * x,
+        }
+    }
+
+    /// `L(x) − k_h·x`: what the transition matrix does not carry, N.
+    fn nonlinear_load(&self, x: F) -> F {
+        self.load_at(x) - self.kh * x
+    }
+
     /// Sets the external force `F_ext` (N, pushing the stack back) held from the
     /// next sample on.
-    pub fn set_external_force_n(&mut self, f_ext_n: f64) {
-        self.f_ext_n = f_ext_n;
+    pub fn set_external_force_n(&mut self, f_ext_n: F) {
+        self.f_ext = f_ext_n;
+    }
+
+    /// `[x, v]` after a substep from `(x, v)` with the force `drive` held.
+    #[inline]
+    fn advance(&self, x: F, v: F, drive: F) -> (F, F) {
+        let f = drive - self.f_ext;
+        (
+            self.phi[0][0] * x + self.phi[0][1] * v + self.gamma[0] * f,
+            self.phi[1][0] * x + self.phi[1][1] * v + self.gamma[1] * f,
+        )
     }
 
     /// One sample with the amplifier's source voltage `u_volts` held over it.
-    pub fn step(&mut self, u_volts: f64) -> ElectromechSample {
-        let p = self.p;
-        let q0 = p.capacitance_f * self.v_act + self.t * self.x_m;
-        let rt = p.resistance_ohm * self.t;
-        for _ in 0..p.substeps {
+    pub fn step(&mut self, u_volts: F) -> ElectromechSample<F> {
+        let q0 = self.c * self.v_act + self.t * self.x;
+        let half = F::of(0.5);
+        for _ in 0..self.p.substeps {
             // 1. Electrical part, exact for the held source and velocity.
-            let v_e = u_volts - rt * self.v_m_per_s;
+            let v_e = u_volts - self.rt * self.v;
             self.v_act = v_e + (self.v_act - v_e) * self.decay;
-            // 2. Hysteresis at the new stack voltage.
-            let force = p.preload_n + self.f_ext_n;
-            self.y_um = self
-                .model
-                .step(&mut self.state, self.v_act, force, p.preload_n);
+            // 2. The free stroke at the substep's midpoint (predicted with the
+            //    last drive), committed there.
+            let (x_end, _) = self.advance(self.x, self.v, self.drive);
+            let mid = half * (self.x + x_end);
+            let spring = Spring {
+                force: self.f0,
+                stiffness: self.kp,
+                at: mid,
+            };
+            let s = coupled(
+                &self.model,
+                &self.state,
+                self.v_act,
+                &spring,
+                self.f0,
+                self.y,
+            );
+            self.model.commit(&mut self.state, s.uh);
+            self.y = s.x;
             // 3. Mechanics, exact for the held force.
-            self.force_n = p.stiffness_n_per_m * self.y_um * 1e-6 - self.f_ext_n;
-            let (x, v) = (self.x_m, self.v_m_per_s);
-            self.x_m = self.phi[0][0] * x + self.phi[0][1] * v + self.gamma[0] * self.force_n;
-            self.v_m_per_s = self.phi[1][0] * x + self.phi[1][1] * v + self.gamma[1] * self.force_n;
+            self.drive = self.kp * self.y - self.nonlinear_load(mid);
+            (self.x, self.v) = self.advance(self.x, self.v, self.drive);
         }
-        let q1 = p.capacitance_f * self.v_act + self.t * self.x_m;
+        let q1 = self.c * self.v_act + self.t * self.x;
         ElectromechSample {
             stack_voltage_v: self.v_act,
-            current_a: (q1 - q0) * p.sample_rate_hz,
-            displacement_um: self.x_m * 1e6,
-            velocity_um_per_s: self.v_m_per_s * 1e6,
-            free_stroke_um: self.y_um,
-            actuator_force_n: self.force_n,
+            current_a: (q1 - q0) * self.rate,
+            displacement_um: self.x,
+            velocity_um_per_s: self.v,
+            free_stroke_um: self.y,
+            stack_force_n: self.f0 + self.kp * (self.y - self.x),
         }
     }
 
     /// One sample with the external force `f_ext_n` (N) set first.
-    pub fn step_with_force(&mut self, u_volts: f64, f_ext_n: f64) -> ElectromechSample {
+    pub fn step_with_force(&mut self, u_volts: F, f_ext_n: F) -> ElectromechSample<F> {
         self.set_external_force_n(f_ext_n);
         self.step(u_volts)
     }
@@ -403,7 +547,7 @@ mod tests {
     }
 
     fn step_response(p: ElectromechParams, w0: f64, u: f64, n: usize) -> Vec<f64> {
-        let mut s = Electromech::new(p, linear(w0)).unwrap();
+        let mut s = Electromech::new(p, linear(w0), None).unwrap();
         let x: Vec<f64> = (0..n).map(|_| s.step(u).displacement_um).collect();
         let end = w0 * u;
         x.iter().map(|x| x - end).collect()
@@ -459,7 +603,7 @@ mod tests {
             };
             let w0 = 0.27;
             let c_eff = p.capacitance_f + p.coupling_n_per_v() * w0 * 1e-6;
-            let mut s = Electromech::new(p, linear(w0)).unwrap();
+            let mut s = Electromech::new(p, linear(w0), None).unwrap();
             let fs = p.sample_rate_hz;
             let u =
                 |i: usize| 50.0 - 50.0 * (2.0 * core::f64::consts::PI * 5.0 * i as f64 / fs).cos();
@@ -487,7 +631,7 @@ mod tests {
             ..ElectromechParams::stack_850hz()
         };
         let f_ext = 5.0;
-        let mut s = Electromech::new(p, hysteretic()).unwrap();
+        let mut s = Electromech::new(p, hysteretic(), None).unwrap();
         s.set_external_force_n(f_ext);
         let model = hysteretic();
         let mut st = model.state(1.0 / p.sample_rate_hz);
@@ -521,15 +665,20 @@ mod tests {
     #[test]
     fn invalid_parameters_and_compliant_models_are_refused() {
         let p = ElectromechParams::stack_850hz();
-        assert!(Electromech::new(ElectromechParams { mass_kg: 0.0, ..p }, linear(0.27)).is_none());
+        assert!(
+            Electromech::new(ElectromechParams { mass_kg: 0.0, ..p }, linear(0.27), None).is_none()
+        );
         // 20 kHz with one substep is fine for 850 Hz, not for a 5 kHz mode.
-        assert!(Electromech::new(ElectromechParams { substeps: 1, ..p }, linear(0.27)).is_some());
+        assert!(
+            Electromech::new(ElectromechParams { substeps: 1, ..p }, linear(0.27), None).is_some()
+        );
         assert!(Electromech::new(
             ElectromechParams {
                 substeps: 1,
                 ..p.with_mode(5_000.0, 0.02)
             },
-            linear(0.27)
+            linear(0.27),
+            None
         )
         .is_none());
         let mut compliant = linear(0.27);
@@ -540,6 +689,6 @@ mod tests {
             force_q: 0.0,
             compliance: 0.02,
         });
-        assert!(Electromech::new(p, compliant).is_none());
+        assert!(Electromech::new(p, compliant, None).is_none());
     }
 }

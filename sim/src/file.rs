@@ -21,7 +21,8 @@ use std::vec::Vec;
 
 use fixed::types::I16F16;
 use piezo_fpi::biquad::{ShapingSpec, COEFF_ABS_MAX, COEFF_FRAC, SHAPING_SECTIONS};
-use piezo_fpi::control::{ForceSource, Interval, Supervision};
+use piezo_fpi::control::{ForceChannel, ForceSource, Interval, Supervision, DEFAULT_SPLIT_HZ};
+use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
 use piezo_fpi::error::{Field, Invalid, ModelError, TableId, TablePart};
 use piezo_fpi::feedback::FeedbackSpec;
 use piezo_fpi::fpi::Coupling as FixedCoupling;
@@ -36,6 +37,10 @@ use crate::curve::Curve;
 use crate::maps::TableMap;
 use crate::model::{lag_rate, Coupling, Creep, DeadZone, Model, Output};
 use crate::play::Pi;
+
+/// The default dynamic force limit, in force tolerances
+/// (`controller.force_dynamic_limit_n`).
+pub const DYNAMIC_LIMIT_FACTOR: f64 = 4.0;
 
 /// The `format` string this schema reads and writes.
 pub const FORMAT: &str = "piezo-fpi-firmware/1";
@@ -74,6 +79,120 @@ pub struct FirmwareModel {
     /// absent: none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shaping: Option<ShapingSection>,
+    /// The stage's dynamics as the loops see them (`fpi tune`, `fpi board
+    /// autotune`): what the board checks its loops and waveforms against; absent:
+    /// not declared.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dynamics: Option<DynamicsSection>,
+    /// Active damping of the first mode from the force sensor (`fpi tune`, `fpi
+    /// board autotune`); absent: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub damping: Option<DampingSection>,
+}
+
+/// The stage's first mode as the loops see it from the command (µm in, the
+/// position sensor and the force channel's dynamic part out).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DynamicsSection {
+    /// Natural frequency of the first mode, small-signal, undamped, Hz.
+    pub mode_hz: f64,
+    /// Its damping ratio (0–0.5).
+    pub damping_ratio: f64,
+    /// The amplifier's and sensors' lag as a real pole, Hz (absent: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lag_hz: Option<f64>,
+    /// κ: the dynamic force per µm of command well above the mode, N/µm (absent:
+    /// not measured; active damping needs it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_gain_n_per_um: Option<f64>,
+    /// Where the numbers came from.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub notes: String,
+}
+
+impl DynamicsSection {
+    fn quantize(&self) -> Result<DynamicsSpec, String> {
+        let mhz = |key: &str, v: f64| -> Result<u32, String> {
+            if v.is_finite() && v > 0.0 && v < 4.0e6 {
+                Ok((v * 1000.0).round() as u32)
+            } else {
+                Err(format!("{key} = {v}: not a positive frequency below 4 MHz"))
+            }
+        };
+        let ratio = |key: &str, v: f64| {
+            q::quantize(v, q::COUPLING_FRAC, q::COUPLING_ABS_MAX)
+                .map(CreepRate::from_bits)
+                .ok_or_else(|| format!("{key} = {v}: not a finite value within ±0.5 (I0F32)"))
+        };
+        Ok(DynamicsSpec {
+            mode_mhz: mhz("dynamics.mode_hz", self.mode_hz)?,
+            damping: ratio("dynamics.damping_ratio", self.damping_ratio)?,
+            lag_mhz: self
+                .lag_hz
+                .map(|v| mhz("dynamics.lag_hz", v))
+                .transpose()?
+                .unwrap_or(0),
+            force_gain: signal(
+                "dynamics.force_gain_n_per_um",
+                self.force_gain_n_per_um.unwrap_or(0.0),
+            )?,
+        })
+    }
+}
+
+/// Active damping: integral force feedback on the force channel's dynamic part,
+/// in a band (`C(s) ≈ g·s/((s + ω_h)(s + ω_l))`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DampingSection {
+    /// IFF gain: µm of command per N·s of dynamic force.
+    pub gain_um_per_n_s: f64,
+    /// Corner of the high-pass below which the law stops integrating, Hz (> 0).
+    pub highpass_hz: f64,
+    /// Corner of the integrator's leak, Hz (> 0).
+    pub leak_hz: f64,
+    /// Largest correction the damping adds to the command, µm.
+    pub limit_um: f64,
+    /// How the gains were chosen (what the tuning assumed and the margins it got).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub notes: String,
+}
+
+impl DampingSection {
+    fn quantize(&self, rate_hz: u32) -> Result<DampingSpec, String> {
+        let fs = rate_hz.max(1) as f64;
+        let g = self.gain_um_per_n_s / fs;
+        let gain = q::quantize(g, q::LOOP_GAIN_FRAC, 127.9)
+            .map(LoopGain::from_bits)
+            .ok_or_else(|| {
+                format!(
+                    "damping.gain_um_per_n_s = {}: not a finite value within ±128 µm/N per tick (I8F24)",
+                    self.gain_um_per_n_s
+                )
+            })?;
+        Ok(DampingSpec {
+            gain,
+            highpass: rate_per_tick("damping.highpass_hz", self.highpass_hz, fs)?,
+            leak: rate_per_tick("damping.leak_hz", self.leak_hz, fs)?,
+            limit: signal("damping.limit_um", self.limit_um)?,
+        })
+    }
+}
+
+/// `1 − e^{−2π·f/f_s}` in `I0F32` for a corner `f` (Hz, ≥ 0) at `f_s`; errors
+/// name `key`.
+fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, String> {
+    if !(f_hz.is_finite() && f_hz >= 0.0 && f_hz * 64.0 <= fs) {
+        return Err(format!(
+            "{key} = {f_hz}: not a corner between 0 and f_s/64 = {} Hz",
+            fs / 64.0
+        ));
+    }
+    let a = -(-2.0 * std::f64::consts::PI * f_hz / fs).exp_m1();
+    q::quantize(a, q::COUPLING_FRAC, q::COUPLING_ABS_MAX)
+        .map(CreepRate::from_bits)
+        .ok_or_else(|| format!("{key} = {f_hz}: does not fit its Q format"))
 }
 
 /// The reference-shaping filter: up to two second-order sections at the control
@@ -89,7 +208,7 @@ pub struct ShapingSection {
 }
 
 impl ShapingSection {
-    /// The sections in the core's format (`I2F30`), the missing ones the identity.
+    /// The sections in the core's format (`I8F24`), the missing ones the identity.
     fn quantize(&self) -> Result<ShapingSpec, String> {
         if self.sections.len() > SHAPING_SECTIONS {
             return Err(format!(
@@ -107,7 +226,7 @@ impl ShapingSection {
             for (j, (&v, o)) in s.iter().zip(o.iter_mut()).enumerate() {
                 *o = q::quantize(v, COEFF_FRAC, COEFF_ABS_MAX).ok_or_else(|| {
                     format!(
-                        "shaping.sections[{i}][{j}] = {v}: not a finite value within ±2 (I2F30)"
+                        "shaping.sections[{i}][{j}] = {v}: not a finite value within ±128 (I8F24)"
                     )
                 })?;
             }
@@ -269,6 +388,17 @@ pub struct ControllerSection {
     /// The stack's capacitance, µF (`fpi identify`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub capacitance_uf: Option<f64>,
+    /// Corner of the force channel's split, Hz: below it the FPI uses the measured
+    /// force, above it the FEM's preload (the dynamic part goes to the damping).
+    /// Absent: 10 Hz; 0: no split (the reading as it is).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_split_hz: Option<f64>,
+    /// Largest tolerated `|F − f_F(x_pea_est)|` at once (the dynamic force
+    /// included), N; the slow part is held to `force_tolerance_n`. Absent:
+    /// [`DYNAMIC_LIMIT_FACTOR`] times the tolerance (a stage's first mode, rung by a
+    /// fast move, swings the force by tens of newtons).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_dynamic_limit_n: Option<f64>,
 }
 
 impl ControllerSection {
@@ -469,7 +599,23 @@ impl ControllerSection {
                 hi: signal(hi_key, hi)?,
             })
         };
+        // The default corner, or f_s/64 at a rate too low for it (the validator
+        // then names the rate).
+        let split_hz = self
+            .force_split_hz
+            .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(self.rate_hz as f64 / 64.0));
+        let channel = ForceChannel {
+            split: rate_per_tick("controller.force_split_hz", split_hz, self.rate_hz as f64)?,
+            dynamic_limit: match self.force_dynamic_limit_n {
+                Some(v) => signal("controller.force_dynamic_limit_n", v)?,
+                None => signal(
+                    "controller.force_tolerance_n (times the default dynamic-limit factor)",
+                    DYNAMIC_LIMIT_FACTOR * self.force_tolerance_n,
+                )?,
+            },
+        };
         Ok(Supervision {
+            channel,
             reference: interval(
                 "controller.reference_min_um",
                 self.reference_min_um,
@@ -631,6 +777,16 @@ impl FirmwareModel {
                     .as_ref()
                     .map(ShapingSection::quantize)
                     .transpose()?,
+                dynamics: self
+                    .dynamics
+                    .as_ref()
+                    .map(DynamicsSection::quantize)
+                    .transpose()?,
+                damping: self
+                    .damping
+                    .as_ref()
+                    .map(|d| d.quantize(k.rate_hz))
+                    .transpose()?,
             },
             operators: self.pi.operators()?,
             creep: self.creep_terms()?,
@@ -725,6 +881,22 @@ impl FirmwareModel {
             Field::PositionMax => self.feedback.as_ref().map(|f| f.position_max_um),
             Field::PositionTolerance => self.feedback.as_ref().map(|f| f.position_tolerance_um),
             Field::Shaping => None,
+            Field::ForceSplit => Some(
+                k.force_split_hz
+                    .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(k.rate_hz as f64 / 64.0)),
+            ),
+            Field::ForceDynamicLimit => Some(
+                k.force_dynamic_limit_n
+                    .unwrap_or(DYNAMIC_LIMIT_FACTOR * k.force_tolerance_n),
+            ),
+            Field::DynamicsModeHz => self.dynamics.as_ref().map(|d| d.mode_hz),
+            Field::DynamicsDamping => self.dynamics.as_ref().map(|d| d.damping_ratio),
+            Field::DynamicsLagHz => self.dynamics.as_ref().and_then(|d| d.lag_hz),
+            Field::DynamicsForceGain => self.dynamics.as_ref().and_then(|d| d.force_gain_n_per_um),
+            Field::DampingGain => self.damping.as_ref().map(|d| d.gain_um_per_n_s),
+            Field::DampingLeak => self.damping.as_ref().map(|d| d.leak_hz),
+            Field::DampingHighpass => self.damping.as_ref().map(|d| d.highpass_hz),
+            Field::DampingLimit => self.damping.as_ref().map(|d| d.limit_um),
             Field::Operators | Field::Creep | Field::ForceSource | Field::Model => None,
         }
     }
@@ -805,6 +977,21 @@ impl FirmwareModel {
         })
     }
 
+    /// The force channel's split rate (the quantised one, so both sides filter
+    /// alike) and dynamic limit, N.
+    fn supervision_f64(&self) -> (f64, f64) {
+        match self.controller.supervision() {
+            Ok(s) => (
+                s.channel.split.to_num::<f64>(),
+                s.channel.dynamic_limit.to_num::<f64>(),
+            ),
+            Err(_) => (
+                0.0,
+                DYNAMIC_LIMIT_FACTOR * self.controller.force_tolerance_n,
+            ),
+        }
+    }
+
     /// The control step in floating point with this model's settings.
     pub fn controller(&self) -> Option<Controller<'_, f64>> {
         let k = &self.controller;
@@ -822,6 +1009,8 @@ impl FirmwareModel {
             force_tolerance: k.force_tolerance_n,
             safe_voltage: k.safe_voltage_v,
             measured: k.force_source == "measured",
+            split: self.supervision_f64().0,
+            dynamic_limit: self.supervision_f64().1,
             force_ref: self.coupling.force_ref_n?,
             dt: 1.0 / k.rate_hz as f64,
         })

@@ -95,7 +95,7 @@ impl Section {
         (self.b[0] + self.b[1] + self.b[2]) / (1.0 + self.a[0] + self.a[1])
     }
 
-    /// The section in the core's format ([`Biquad`]: `I2F30` coefficients, limits
+    /// The section in the core's format ([`Biquad`]: `I8F24` coefficients, limits
     /// ±4096), each coefficient rounded to nearest. If the design has unity DC gain
     /// (within 10⁻⁹, as both designs here), `b1` absorbs the rounding so that the
     /// quantised section's DC gain is exactly 1 (`Σb = 1 + a1 + a2` in the raw
@@ -264,9 +264,11 @@ mod tests {
 
     #[test]
     fn out_of_format_designs_are_refused() {
-        // b0 ≈ 2.8: a resonance ratio with large numerator damping near Nyquist.
-        let s = resonance_ratio(7_000.0, 3.0, 0.3, FS).unwrap();
-        assert!(s.b[0] > 2.0, "{s:?}");
+        // A resonance ratio with large numerator damping near Nyquist, scaled
+        // beyond the I8F24 range (±128).
+        let mut s = resonance_ratio(7_000.0, 3.0, 0.3, FS).unwrap();
+        s.b = s.b.map(|b| b * 64.0);
+        assert!(s.b[0] > 128.0, "{s:?}");
         assert_eq!(
             s.quantise(),
             Err(BiquadError::CoefficientOutOfRange { index: 0 })

@@ -26,6 +26,52 @@ use crate::fem::Fem;
 use crate::model::{Model, State};
 use crate::real::Real;
 
+/// What loads the stack in the coupled equation: the force on the stack at an
+/// extension guess, its slope, and whether two guesses fall in the same linear
+/// piece (so that a Newton step inside it is exact for piecewise-linear models).
+pub trait PreloadMap<F> {
+    /// The force (N) at extension `x` (µm) and its slope (N/µm).
+    fn preload_with_slope(&self, x: F) -> (F, F);
+    /// `a` and `b` lie in one linear piece of the map.
+    fn same_segment(&self, a: F, b: F) -> bool;
+}
+
+impl<F: Real> PreloadMap<F> for Fem<'_, F> {
+    #[inline]
+    fn preload_with_slope(&self, x: F) -> (F, F) {
+        Fem::preload_with_slope(self, x)
+    }
+    #[inline]
+    fn same_segment(&self, a: F, b: F) -> bool {
+        Fem::same_segment(self, a, b)
+    }
+}
+
+/// A linear spring in series with the stack's free stroke: the force
+/// `force + stiffness·(x − at)` (N) on a stack whose free stroke is `x` (µm)
+/// while its end sits at `at` (µm) — the stack's own stiffness in the
+/// electromechanical model ([`crate::electromech`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spring<F> {
+    /// Force when the free stroke equals `at`, N.
+    pub force: F,
+    /// Stiffness, N/µm.
+    pub stiffness: F,
+    /// Where the stack's end is, µm.
+    pub at: F,
+}
+
+impl<F: Real> PreloadMap<F> for Spring<F> {
+    #[inline]
+    fn preload_with_slope(&self, x: F) -> (F, F) {
+        (self.force + self.stiffness * (x - self.at), self.stiffness)
+    }
+    #[inline]
+    fn same_segment(&self, _: F, _: F) -> bool {
+        true
+    }
+}
+
 /// Most model evaluations of one solve.
 pub const MAX_EVALUATIONS: usize = 100;
 
@@ -55,13 +101,14 @@ pub struct Solution<F> {
     pub evaluations: usize,
 }
 
-/// Solves one sample's coupled equation for voltage `u` from `guess`; `f_ref` is
-/// the compliance reference force (the FEM's rest preload). Commits nothing.
-pub fn coupled<F: Real>(
+/// Solves one sample's coupled equation for voltage `u` from `guess`, the stack
+/// loaded by `fem` (the FEM's preload map, or the stack's own [`Spring`]); `f_ref`
+/// is the compliance reference force (the FEM's rest preload). Commits nothing.
+pub fn coupled<F: Real, M: PreloadMap<F>>(
     model: &Model<'_, F>,
     st: &State<F>,
     u: F,
-    fem: &Fem<'_, F>,
+    fem: &M,
     f_ref: F,
     guess: F,
 ) -> Solution<F> {

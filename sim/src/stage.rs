@@ -18,9 +18,21 @@
 //!
 //! The *as built* variant ([`stage_a::BUILT`]) differs from the model the
 //! firmware holds by what feedback is for: kinematics 3 % above the FEM's, preload
-//! 5 % below the nominal twin's, creep half again as strong, a lightly damped first mode (850 Hz,
-//! ζ = 0.03) in the output, and a position sensor with 3 nm of noise. The mode acts
-//! on the stage output only (the force sensor sees the quasi-static preload).
+//! 5 % below the nominal twin's, creep half again as strong, a lightly damped first
+//! mode (850 Hz, ζ = 0.03), and a position sensor with 3 nm of noise. A stage with
+//! a mode (`mode_hz > 0`) has real mechanics: it is the electromechanical model
+//! ([`crate::electromech`], the one plant model, here in `f32`): the stack's
+//! hysteretic free stroke (this model, its compliance as the stack's stiffness
+//! `1/c`) pushes the stage's effective mass against the hinge (the FEM's `f_F`),
+//! and the force sensor, in series with the stack, reads the preload *plus* the
+//! dynamic force, so it sees the mode as the position sensor does. The mass is
+//! chosen so that the small-signal first mode (a few volts around a working point,
+//! where only `w0` of the PI moves the stack, softened by the force coupling) lies
+//! at `mode_hz`; a large swing, which engages the play operators, softens the
+//! stack more and lowers the mode by a few percent. The amplifier
+//! lag is the electrical part's `R·C` (no back-coupling). A stage without a mode
+//! (the nominal twin) stays quasi-static: the coupled equation solved at every
+//! sample, the force sensor on `f_F`.
 //!
 //! `f32` math goes through `libm` (plain Rust), so the host and the Cortex-M4F run
 //! the same instructions and get the same trajectories: the host's twin predicts
@@ -28,6 +40,7 @@
 
 use heapless::Vec;
 
+use crate::electromech::{Electromech, ElectromechParams};
 use crate::fem::Fem;
 use crate::maps::OutputMap;
 use crate::model::{lag_rate, Coupling, Creep, DeadZone, Model, Output, State};
@@ -122,6 +135,41 @@ impl<'a> StageParams<'a> {
         })
     }
 
+    /// Substeps per sample of a stage with a mode (see [`crate::electromech`]).
+    pub const SUBSTEPS: u32 = 2;
+    /// The stack's capacitance in the electromechanical model, F (the datasheet's
+    /// 2 µF; with [`Self::amplifier_tau_s`] it sets the source resistance).
+    pub const CAPACITANCE_F: f64 = 2e-6;
+
+    /// The electromechanical parameters of a stage with a mode: the stack's
+    /// stiffness `1/c`, the hinge's slope at rest as the load's stiffness, the
+    /// mass and damping that put the small-signal mode at `mode_hz` with
+    /// `mode_damping`, the amplifier lag as `R·C`; `None` without a mode or a
+    /// compliance.
+    pub fn electromech(&self) -> Option<ElectromechParams> {
+        if !(self.mode_hz > 0.0 && self.compliance_um_per_n > 0.0) {
+            return None;
+        }
+        let fem = self.fem()?;
+        let (_, hinge) = fem.preload_with_slope(0.0);
+        let c = Self::CAPACITANCE_F;
+        let p = ElectromechParams {
+            sample_rate_hz: self.sample_rate_hz as f64,
+            substeps: Self::SUBSTEPS,
+            resistance_ohm: self.amplifier_tau_s as f64 / c,
+            capacitance_f: c,
+            d33_m_per_v: 0.0,
+            mass_kg: 1.0,
+            stiffness_n_per_m: 1e6 / self.compliance_um_per_n as f64,
+            load_stiffness_n_per_m: hinge as f64 * 1e6,
+            damping_n_s_per_m: 0.0,
+            preload_n: fem.rest_preload() as f64,
+        };
+        // Small-signal, just after a reversal, only `w0` moves the stack.
+        let stack = p.effective_stack_stiffness(self.w0_um_per_v as f64, self.k_f_v_per_n as f64);
+        Some(p.with_mode_at_stiffness(self.mode_hz as f64, self.mode_damping as f64, stack))
+    }
+
     /// The built prototype's maps: the FEM's, with its preload scaled.
     pub fn fem(&self) -> Option<Fem<'a, f32>> {
         let mut fem = Fem::new(self.fem_x_pea_um, self.fem_force_n, self.fem_output_um)?;
@@ -133,39 +181,29 @@ impl<'a> StageParams<'a> {
 /// A virtual stage (configuration and state).
 #[derive(Debug, Clone)]
 pub struct Stage<'a> {
-    model: Model<'a, f32>,
+    plant: Plant<'a>,
     fem: Fem<'a, f32>,
-    state: State<f32>,
-    warm: WarmStart<f32>,
-    amplifier_alpha: f32,
     force_noise_n: f32,
     force_ref: f32,
-    voltage: f32,
     rng: u32,
     output_gain: f32,
-    mode: Option<Mode>,
     position_noise_um: f32,
     position_rng: u32,
 }
 
-/// A second-order mode with unit static gain, `ẍ + 2ζω ẋ + ω² x = ω² u`,
-/// stepped by semi-implicit Euler (stable, no numerical damping for `ω·T < 2`).
-#[derive(Debug, Clone, Copy)]
-struct Mode {
-    omega: f32,
-    zeta: f32,
-    dt: f32,
-    x: f32,
-    v: f32,
-}
-
-impl Mode {
-    fn step(&mut self, u: f32) -> f32 {
-        let a = self.omega * self.omega * (u - self.x) - 2.0 * self.zeta * self.omega * self.v;
-        self.v += self.dt * a;
-        self.x += self.dt * self.v;
-        self.x
-    }
+/// How the stage moves: quasi-static (the coupled equation at every sample) or
+/// with its mechanics (the electromechanical model).
+#[derive(Debug, Clone)]
+#[allow(clippy::large_enum_variant)]
+enum Plant<'a> {
+    QuasiStatic {
+        model: Model<'a, f32>,
+        state: State<f32>,
+        warm: WarmStart<f32>,
+        amplifier_alpha: f32,
+        voltage: f32,
+    },
+    Dynamic(Electromech<'a, f32>),
 }
 
 /// One step of the virtual stage.
@@ -175,7 +213,8 @@ pub struct StageSample {
     pub voltage_v: f32,
     /// Stack extension, µm.
     pub x_pea_um: f32,
-    /// Preload on the stack, N (noise-free).
+    /// Force through the stack, N (noise-free): the preload at the extension, and
+    /// on a stage with mechanics the dynamic force too.
     pub force_n: f32,
     /// Stage output, µm (what a capacitive sensor would read, noise-free).
     pub x_fhps_um: f32,
@@ -185,30 +224,39 @@ impl<'a> Stage<'a> {
     /// A stage at rest (0 V, operators and lags at rest), with a noise seed;
     /// `None` if the parameters do not describe a model.
     pub fn new(p: &StageParams<'a>, seed: u32) -> Option<Self> {
-        let model = p.model()?;
+        let mut model = p.model()?;
         let fem = p.fem()?;
-        let state = model.state(1.0 / p.sample_rate_hz);
+        let plant = match p.electromech() {
+            Some(e) => {
+                // The stack's stiffness carries the compliance.
+                if let Some(c) = model.coupling.as_mut() {
+                    c.compliance = 0.0;
+                }
+                Plant::Dynamic(Electromech::new(e, model, Some(fem))?)
+            }
+            None => Plant::QuasiStatic {
+                state: model.state(1.0 / p.sample_rate_hz),
+                model,
+                warm: WarmStart::default(),
+                amplifier_alpha: lag_rate(1.0 / p.sample_rate_hz, p.amplifier_tau_s),
+                voltage: 0.0,
+            },
+        };
         Some(Self {
             force_ref: fem.rest_preload(),
-            model,
+            plant,
             fem,
-            state,
-            warm: WarmStart::default(),
-            amplifier_alpha: lag_rate(1.0 / p.sample_rate_hz, p.amplifier_tau_s),
             force_noise_n: p.force_noise_n,
-            voltage: 0.0,
             rng: if seed == 0 { 0x9E37_79B9 } else { seed },
             output_gain: p.output_gain,
-            mode: (p.mode_hz > 0.0).then(|| Mode {
-                omega: 2.0 * core::f32::consts::PI * p.mode_hz,
-                zeta: p.mode_damping,
-                dt: 1.0 / p.sample_rate_hz,
-                x: 0.0,
-                v: 0.0,
-            }),
             position_noise_um: p.position_noise_um,
             position_rng: 0x2545_F491 ^ seed,
         })
+    }
+
+    /// Whether the stage has mechanics (a mode) rather than being quasi-static.
+    pub fn is_dynamic(&self) -> bool {
+        matches!(self.plant, Plant::Dynamic(_))
     }
 
     /// The preload at rest (the prototype's, not the FEM's), N.
@@ -216,31 +264,41 @@ impl<'a> Stage<'a> {
         self.force_ref
     }
 
-    /// Advances one sample with amplifier command `u` (V): the amplifier lag, then
-    /// the coupled equation solved for the voltage at the stack.
+    /// Advances one sample with amplifier command `u` (V): quasi-static, the
+    /// amplifier lag, then the coupled equation solved for the voltage at the
+    /// stack; with mechanics, one sample of the electromechanical model.
     pub fn step(&mut self, u: f32) -> StageSample {
-        self.voltage += self.amplifier_alpha * (u - self.voltage);
-        let v = self.voltage;
-        let s = coupled(
-            &self.model,
-            &self.state,
-            v,
-            &self.fem,
-            self.force_ref,
-            self.warm.guess(),
-        );
-        self.model.commit(&mut self.state, s.uh);
-        self.warm.push(s.x);
-        let x_static = self.output_gain * self.fem.stage_at(s.x);
-        let x_fhps_um = match &mut self.mode {
-            Some(m) => m.step(x_static),
-            None => x_static,
+        let (voltage_v, x_pea_um, force_n) = match &mut self.plant {
+            Plant::QuasiStatic {
+                model,
+                state,
+                warm,
+                amplifier_alpha,
+                voltage,
+            } => {
+                *voltage += *amplifier_alpha * (u - *voltage);
+                let s = coupled(
+                    model,
+                    state,
+                    *voltage,
+                    &self.fem,
+                    self.force_ref,
+                    warm.guess(),
+                );
+                model.commit(state, s.uh);
+                warm.push(s.x);
+                (*voltage, s.x, self.fem.preload_at(s.x))
+            }
+            Plant::Dynamic(e) => {
+                let s = e.step(u);
+                (s.stack_voltage_v, s.displacement_um, s.stack_force_n)
+            }
         };
         StageSample {
-            voltage_v: v,
-            x_pea_um: s.x,
-            force_n: self.fem.preload_at(s.x),
-            x_fhps_um,
+            voltage_v,
+            x_pea_um,
+            force_n,
+            x_fhps_um: self.output_gain * self.fem.stage_at(x_pea_um),
         }
     }
 
@@ -396,8 +454,17 @@ mod tests {
         let mut s = stage();
         for k in 0..3000 {
             let u = 50.0 + 45.0 * (k as f32 * 0.003).sin();
-            let before = s.state.clone();
-            let v = s.voltage + s.amplifier_alpha * (u - s.voltage);
+            let Plant::QuasiStatic {
+                state,
+                voltage,
+                amplifier_alpha,
+                ..
+            } = &s.plant
+            else {
+                panic!("the nominal stage is quasi-static")
+            };
+            let before = state.clone();
+            let v = *voltage + *amplifier_alpha * (u - *voltage);
             let r = s.step(u);
             let f = fem.preload_at(r.x_pea_um);
             let x = m.peek(&before, v, f, 0.0, fem.rest_preload()).x;

@@ -6,17 +6,22 @@
 //! ```text
 //! header (16 bytes)  magic "PFPM", u16 version, u16 flags, u32 body length, u32 CRC-32 of the body
 //!                    flags: bit 0 soft dead zone, bit 1 output saturation, bit 2 predicted force,
-//!                    bit 3 position feedback, bit 4 reference shaping
+//!                    bit 3 position feedback, bit 4 reference shaping, bit 5 stage dynamics,
+//!                    bit 6 active damping
 //! body               u32 rate_hz; i32 w0 (I4F28); i32 input_max (I16F16); u8 operators; u8 creep terms; u16 0
 //!                    operators × (i32 threshold I16F16, i32 weight I4F28)
 //!                    coupling: i32 k0, k_f (I0F32), k_q (I0F32), F_q, compliance (I0F32), F_ref
 //!                    creep terms × (i32 rate I0F32, i32 gain I4F28)
 //!                    limits: i32 u_min, u_max, max_step (I16F16)
-//!                    supervision: i32 reference lo, hi, force lo, hi, force tolerance, safe voltage (I16F16)
+//!                    supervision: i32 reference lo, hi, force lo, hi, force tolerance, safe voltage (I16F16),
+//!                    force split rate (I0F32), dynamic force limit (I16F16)
 //!                    tables f_F, f_K, f_K⁻¹, then the dead zone's map and inverse, then the saturation's
 //!                    (when flagged): i32 x0, u32 shift, u32 knots, knots × i32 value (I16F16)
 //!                    feedback (when flagged): i32 kp, ki (I8F24), limit, position lo, hi, tolerance (I16F16)
-//!                    shaping (when flagged): 2 sections × i32 b0, b1, b2, a1, a2 (I2F30)
+//!                    shaping (when flagged): 2 sections × i32 b0, b1, b2, a1, a2 (I8F24)
+//!                    dynamics (when flagged): u32 mode mHz, i32 damping ratio (I0F32), u32 lag mHz,
+//!                    i32 force gain (I16F16, N/µm)
+//!                    damping (when flagged): i32 gain (I8F24), high-pass and leak rates (I0F32), limit (I16F16)
 //! ```
 //!
 //! [`encode`] writes a [`ModelSpec`]; [`Reader`] walks an image for
@@ -34,8 +39,9 @@ use crate::error::{Field, Invalid, ModelError};
 
 /// The first four bytes of every model image.
 pub const MAGIC: [u8; 4] = *b"PFPM";
-/// The image format this build reads and writes.
-pub const VERSION: u16 = 1;
+/// The image format this build reads and writes (2: the force channel, the stage
+/// dynamics and damping blocks, `I8F24` shaping coefficients).
+pub const VERSION: u16 = 2;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 16;
 
@@ -49,6 +55,14 @@ pub const FLAG_PREDICTED: u16 = 4;
 pub const FLAG_FEEDBACK: u16 = 8;
 /// Flag: the model carries a reference-shaping filter (a block after the feedback's).
 pub const FLAG_SHAPING: u16 = 16;
+/// Flag: the model declares the stage's dynamics (a block after the shaping's).
+pub const FLAG_DYNAMICS: u16 = 32;
+/// Flag: the model carries active-damping settings (a block after the dynamics').
+pub const FLAG_DAMPING: u16 = 64;
+/// Bytes of the dynamics block.
+const DYNAMICS_LEN: usize = 16;
+/// Bytes of the damping block.
+const DAMPING_LEN: usize = 16;
 /// Bytes of the shaping block.
 const SHAPING_LEN: usize = 4 * 5 * SHAPING_SECTIONS;
 /// Bytes of the feedback block.
@@ -100,7 +114,7 @@ impl Writer<'_> {
 /// Bytes of an image without its tables' values: header, scalars, operators,
 /// coupling, creep terms, limits, supervision.
 const fn fixed_len(operators: usize, creep: usize) -> usize {
-    HEADER_LEN + 16 + 8 * operators + 24 + 8 * creep + 12 + 24
+    HEADER_LEN + 16 + 8 * operators + 24 + 8 * creep + 12 + 32
 }
 
 /// Bytes per table besides its values (x0, shift, knot count).
@@ -125,12 +139,24 @@ pub fn encoded_len(m: &ModelSpec<'_>) -> usize {
             0
         }
         + if m.shaping.is_some() { SHAPING_LEN } else { 0 }
+        + if m.dynamics.is_some() {
+            DYNAMICS_LEN
+        } else {
+            0
+        }
+        + if m.damping.is_some() { DAMPING_LEN } else { 0 }
 }
 
 /// Bytes of the largest image a board with room for `operators`, `creep` terms and
 /// `intervals` table intervals (all seven tables together) can hold.
 pub const fn max_len(operators: usize, creep: usize, intervals: usize) -> usize {
-    fixed_len(operators, creep) + 7 * TABLE_HEAD + 4 * (intervals + 7) + FEEDBACK_LEN + SHAPING_LEN
+    fixed_len(operators, creep)
+        + 7 * TABLE_HEAD
+        + 4 * (intervals + 7)
+        + FEEDBACK_LEN
+        + SHAPING_LEN
+        + DYNAMICS_LEN
+        + DAMPING_LEN
 }
 
 /// Writes the image of a model into `out`; its length. The model should be valid
@@ -175,6 +201,8 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
     }
     w.i32(s.force_tolerance.to_bits())?;
     w.i32(s.safe_voltage.to_bits())?;
+    w.i32(s.channel.split.to_bits())?;
+    w.i32(s.channel.dynamic_limit.to_bits())?;
     for t in [&m.f_f, &m.f_k, &m.f_k_inv] {
         w.table(t)?;
     }
@@ -194,6 +222,18 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
             w.i32(*c)?;
         }
     }
+    if let Some(d) = &m.dynamics {
+        w.u32(d.mode_mhz)?;
+        w.i32(d.damping.to_bits())?;
+        w.u32(d.lag_mhz)?;
+        w.i32(d.force_gain.to_bits())?;
+    }
+    if let Some(d) = &m.damping {
+        w.i32(d.gain.to_bits())?;
+        w.i32(d.highpass.to_bits())?;
+        w.i32(d.leak.to_bits())?;
+        w.i32(d.limit.to_bits())?;
+    }
     let len = w.at;
     let mut flags = 0;
     if m.dead_zone.is_some() {
@@ -210,6 +250,12 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
     }
     if m.shaping.is_some() {
         flags |= FLAG_SHAPING;
+    }
+    if m.dynamics.is_some() {
+        flags |= FLAG_DYNAMICS;
+    }
+    if m.damping.is_some() {
+        flags |= FLAG_DAMPING;
     }
     let out = w.out;
     let body = out.get(HEADER_LEN..len).ok_or_else(truncated)?;

@@ -22,6 +22,7 @@ use fixed::types::I16F16;
 
 use crate::biquad::ShapingSpec;
 use crate::control::{check_settings, Supervision};
+use crate::damping::{DampingConfig, DampingSpec, DynamicsSpec};
 use crate::error::{Field, Invalid, ModelError, TableId, TablePart};
 use crate::feedback::{FeedbackConfig, FeedbackSpec};
 use crate::fpi::{creep_slope, Coupling, Creep};
@@ -113,8 +114,15 @@ pub struct ModelSpec<'a> {
     /// Position feedback (gains, sensor range); `None`: the model has none (the
     /// board then runs open loop only).
     pub feedback: Option<FeedbackSpec>,
-    /// Reference shaping (the inverse of the stage's modes); `None`: none.
+    /// Reference shaping (the inverse of the stage's modes, or the feedforward of
+    /// the damped stage); `None`: none.
     pub shaping: Option<ShapingSpec>,
+    /// The stage's dynamics (its first mode as the loops see it); `None`: not
+    /// declared (the board then cannot check its loops or the waveforms against
+    /// it).
+    pub dynamics: Option<DynamicsSpec>,
+    /// Active damping from the force sensor; `None`: none.
+    pub damping: Option<DampingSpec>,
 }
 
 /// The shape of a valid model: what the firmware's types are built from.
@@ -142,7 +150,10 @@ pub const MAX_RATE_HZ: u32 = 200_000;
 /// The checks, in order: rate; PI (operator count, thresholds, partial sums,
 /// ranges); creep terms; the PI with this sample's creep and its closed-form
 /// inverse; coupling; dead zone and saturation tables; FEM tables; limits;
-/// supervision settings. Each is the check the corresponding constructor runs.
+/// supervision settings and the force channel; feedback, shaping, stage dynamics
+/// and damping; the loops' stability on the declared dynamics
+/// ([`crate::stability::check`]). Each is the check the corresponding
+/// constructor runs.
 pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
     if m.rate_hz < MIN_RATE_HZ || m.rate_hz > MAX_RATE_HZ {
         return Err(Invalid::at(Field::Rate, ModelError::RateOutOfRange));
@@ -195,6 +206,28 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
     if let Some(s) = m.shaping {
         s.cascade()?;
     }
+    if let Some(d) = m.dynamics {
+        d.check(m.rate_hz)?;
+    }
+    if let Some(d) = m.damping {
+        DampingConfig::new(d, &m.supervision.channel)?;
+        match m.dynamics {
+            Some(dy) if dy.force_gain.to_bits() > 0 => {}
+            _ => {
+                return Err(Invalid::at(
+                    Field::DampingGain,
+                    ModelError::DampingWithoutDynamics,
+                ))
+            }
+        }
+    }
+    crate::stability::check(
+        m.rate_hz,
+        m.dynamics.as_ref(),
+        m.supervision.channel.split.to_bits(),
+        m.damping.as_ref(),
+        m.feedback.as_ref(),
+    )?;
     Ok(Shape {
         operators: n,
         creep_terms: m.creep.len(),
@@ -311,6 +344,8 @@ mod tests {
             supervision: s,
             feedback: None,
             shaping: None,
+            dynamics: None,
+            damping: None,
             ..base
         };
         check(

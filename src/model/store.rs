@@ -13,11 +13,15 @@
 use fixed::types::I16F16;
 
 use super::image::{
-    Reader, FLAG_DEAD_ZONE, FLAG_FEEDBACK, FLAG_PREDICTED, FLAG_SATURATION, FLAG_SHAPING,
+    Reader, FLAG_DAMPING, FLAG_DEAD_ZONE, FLAG_DYNAMICS, FLAG_FEEDBACK, FLAG_PREDICTED,
+    FLAG_SATURATION, FLAG_SHAPING,
 };
 use super::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
 use crate::biquad::{ShapingSpec, SHAPING_SECTIONS};
-use crate::control::{ControllerConfig, ControllerParts, ForceSource, Interval, Supervision};
+use crate::control::{
+    ControllerConfig, ControllerParts, ForceChannel, ForceSource, Interval, Supervision,
+};
+use crate::damping::{DampingSpec, DynamicsSpec};
 use crate::error::{Field, Invalid, ModelError, TableId, TablePart};
 use crate::feedback::FeedbackSpec;
 use crate::fpi::{Coupling, Creep, Fpi, Map};
@@ -149,6 +153,10 @@ struct Scalars {
     has_feedback: bool,
     shaping: ShapingSpec,
     has_shaping: bool,
+    dynamics: DynamicsSpec,
+    has_dynamics: bool,
+    damping: DampingSpec,
+    has_damping: bool,
 }
 
 const NO_SCALARS: Scalars = Scalars {
@@ -171,6 +179,10 @@ const NO_SCALARS: Scalars = Scalars {
         force_tolerance: I16F16::ZERO,
         safe_voltage: I16F16::ZERO,
         force_source: ForceSource::Measured,
+        channel: ForceChannel {
+            split: CreepRate::ZERO,
+            dynamic_limit: I16F16::ZERO,
+        },
     },
     dead_zone: false,
     saturation: false,
@@ -189,6 +201,20 @@ const NO_SCALARS: Scalars = Scalars {
         sections: [[0; 5]; SHAPING_SECTIONS],
     },
     has_shaping: false,
+    dynamics: DynamicsSpec {
+        mode_mhz: 0,
+        damping: CreepRate::ZERO,
+        lag_mhz: 0,
+        force_gain: I16F16::ZERO,
+    },
+    has_dynamics: false,
+    damping: DampingSpec {
+        gain: LoopGain::ZERO,
+        highpass: CreepRate::ZERO,
+        leak: CreepRate::ZERO,
+        limit: I16F16::ZERO,
+    },
+    has_damping: false,
 };
 
 impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
@@ -253,6 +279,8 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             supervision: b.supervision,
             feedback: b.has_feedback.then_some(b.feedback),
             shaping: b.has_shaping.then_some(b.shaping),
+            dynamics: b.has_dynamics.then_some(b.dynamics),
+            damping: b.has_damping.then_some(b.damping),
         }
     }
 
@@ -317,6 +345,10 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
         };
         sup.force_tolerance = signal()?;
         sup.safe_voltage = signal()?;
+        sup.channel = ForceChannel {
+            split: CreepRate::from_bits(r.i32()?),
+            dynamic_limit: I16F16::from_bits(r.i32()?),
+        };
         sup.force_source = if r.flags & FLAG_PREDICTED != 0 {
             ForceSource::Predicted
         } else {
@@ -352,6 +384,22 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             for c in b.shaping.sections.iter_mut().flatten() {
                 *c = r.i32()?;
             }
+        }
+        b.has_dynamics = r.flags & FLAG_DYNAMICS != 0;
+        if b.has_dynamics {
+            let d = &mut b.dynamics;
+            d.mode_mhz = r.u32()?;
+            d.damping = CreepRate::from_bits(r.i32()?);
+            d.lag_mhz = r.u32()?;
+            d.force_gain = I16F16::from_bits(r.i32()?);
+        }
+        b.has_damping = r.flags & FLAG_DAMPING != 0;
+        if b.has_damping {
+            let d = &mut b.damping;
+            d.gain = LoopGain::from_bits(r.i32()?);
+            d.highpass = CreepRate::from_bits(r.i32()?);
+            d.leak = CreepRate::from_bits(r.i32()?);
+            d.limit = I16F16::from_bits(r.i32()?);
         }
         if !r.finished() {
             return Err(Invalid::at(Field::Model, ModelError::Truncated));
@@ -501,7 +549,7 @@ mod tests {
     #[test]
     fn a_shaping_filter_travels_with_the_image_and_is_validated() {
         let p = parts();
-        let one = 1 << 30;
+        let one = 1 << crate::biquad::COEFF_FRAC;
         // A stable unit-gain section: y = 0.5·x + 0.5·y[n-1]... as b0 = 0.5, a1 = -0.5.
         let section = [one / 2, 0, 0, -one / 2, 0];
         let shaping = ShapingSpec {

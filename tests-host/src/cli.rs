@@ -571,20 +571,23 @@ pub fn tune(
         .map(crate::method::dynamics::Dynamics::read)
         .transpose()?;
     let t = tune::tune(&fw, dyn_model.as_ref(), o)?;
-    let tuned = tune::with_feedback(&fw, &t, o)?;
+    let tuned = tune::with_tuning(&fw, &t, o)?;
     let text = tuned.to_toml().map_err(anyhow::Error::msg)?;
     output::write_atomic(out, text.as_bytes())?;
-    let f = tuned
-        .feedback
-        .as_ref()
-        .map_or(String::new(), |f| f.notes.clone());
     println!(
-        "feedback for {shown} written to {}: kp {:.3}, ki {:.1}/s",
+        "loops for {shown} written to {}: kp {:.3}, ki {:.1}/s{}",
         out.display(),
         t.kp,
-        t.ki_per_s
+        t.ki_per_s,
+        if t.damping_gain > 0.0 {
+            format!(", damping {:.0} µm/(N·s)", t.damping_gain)
+        } else {
+            String::new()
+        }
     );
-    println!("  {f}");
+    for line in t.summary(o).lines() {
+        println!("  {line}");
+    }
     Ok(())
 }
 

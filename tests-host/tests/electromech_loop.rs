@@ -26,11 +26,11 @@ const W0: f64 = 0.12;
 const SINE_UM: (f64, f64) = (16.0, 13.0);
 
 /// The stack, its hysteresis 3 % stronger than the controller's model.
-fn plant() -> Electromech<'static> {
+fn plant() -> Electromech<'static, f64> {
     let w: Vec<f64> = W.iter().map(|w| 1.03 * w).collect();
     let model = Model::pi(Pi::new(1.03 * W0, &R, &w, 150.0).unwrap());
     let p = ElectromechParams::stack_850hz().with_mode(850.0, 0.03);
-    Electromech::new(p, model).unwrap()
+    Electromech::new(p, model, None).unwrap()
 }
 
 #[derive(Clone, Copy, PartialEq, Debug)]

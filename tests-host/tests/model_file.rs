@@ -316,7 +316,7 @@ fn feedback_and_shaping_sections_name_their_keys() {
         "shaping.sections[0]: a filter section's static gain is not exactly 1",
     );
     check(
-        &|b| b.shaping.as_mut().unwrap().sections[0] = [3.0, 0.0, 0.0, -0.5, 0.0],
-        "shaping.sections[0][0] = 3: not a finite value within ±2",
+        &|b| b.shaping.as_mut().unwrap().sections[0] = [300.0, 0.0, 0.0, -0.5, 0.0],
+        "shaping.sections[0][0] = 300: not a finite value within ±128",
     );
 }

@@ -309,8 +309,9 @@ mod tests {
         .unwrap();
         assert!(read(&out[..n])[0].is_ok());
         let mut raw = [0u8; 8];
-        let last = Command::Loop {
-            mode: crate::closed_loop::LoopMode::Open,
+        let last = Command::Step {
+            target: 0,
+            duration_us: 1,
         };
         let used = postcard::to_slice(&last, &mut raw).unwrap();
         assert_eq!(

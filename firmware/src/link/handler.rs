@@ -331,6 +331,25 @@ impl<F: NorFlash> Handler<F> {
                     Order::Source(SourceOrder::Move { target, step }),
                 )
             }
+            Command::Step {
+                target,
+                duration_us,
+            } => {
+                let target = self.in_stroke("target", target)?;
+                if !(1..=1_000_000).contains(&duration_us) {
+                    return Err(refuse(
+                        Refusal::BadArgument,
+                        format_args!("step duration {duration_us} µs outside 1 µs – 1 s"),
+                    ));
+                }
+                let ticks = (duration_us as u64 * RATE_HZ as u64).div_ceil(1_000_000) as u32;
+                let phase_step = crate::reference::step_phase_for(ticks);
+                self.order(
+                    board,
+                    seq,
+                    Order::Source(SourceOrder::Step { target, phase_step }),
+                )
+            }
             Command::Wave {
                 shape,
                 offset,
@@ -357,6 +376,7 @@ impl<F: NorFlash> Handler<F> {
             Command::ClearFault => self.order(board, seq, Order::ClearFault),
             Command::Drive { compensated } => self.order(board, seq, Order::Drive { compensated }),
             Command::Loop { mode } => self.order(board, seq, Order::Loop(mode)),
+            Command::Damping { on } => self.order(board, seq, Order::Damping(on)),
             Command::Supervise { timeout_ms } => {
                 self.timeout_ms = timeout_ms;
                 self.supervise(board, seq, timeout_ms)
@@ -641,6 +661,7 @@ fn status(x: &Exchange<'_>, summary: &Summary) -> Status {
         approaching: s.approaching,
         compensated: s.compensated,
         loop_mode: s.loop_mode,
+        damping: summary.damping.map(|_| s.damping_on),
         supervision: [s.timeout_ticks, s.silent_ticks],
         stream: [q.len() as u32, q.free() as u32, q.received(), s.underruns],
         recorder: [r.active() as u32, r.kept(), r.dropped(), r.len() as u32],

@@ -16,7 +16,7 @@ use crate::reference::SourceKind;
 use crate::slots::Origin;
 
 /// The protocol version this firmware speaks.
-pub const VERSION: u8 = 3;
+pub const VERSION: u8 = 4;
 /// Largest encoded frame, delimiter included, bytes.
 pub const MAX_FRAME: usize = 1280;
 /// Model bytes per [`Command::ModelChunk`].
@@ -28,10 +28,10 @@ pub const MAX_VALUES: usize = 200;
 /// The sequence number of a reply to a frame that could not be read.
 pub const NO_SEQ: u16 = u16::MAX;
 
-/// Variants of [`Command`] (the last one, [`Command::Loop`], is number
+/// Variants of [`Command`] (the last one, [`Command::Step`], is number
 /// `COMMAND_KINDS - 1`): a request whose variant number is beyond is refused as
 /// [`Refusal::Unknown`] rather than as garbage.
-pub const COMMAND_KINDS: u32 = 27;
+pub const COMMAND_KINDS: u32 = 29;
 
 /// A short text (a refusal's reason, a firmware version).
 pub type Text = String<96>;
@@ -238,6 +238,20 @@ pub enum Command<'a> {
         /// Open, closed (feedback plus the inverse FPI) or feedback only.
         mode: LoopMode,
     },
+    /// Switch active damping on or off (it runs where the running model has it),
+    /// without a jump.
+    Damping {
+        /// On.
+        on: bool,
+    },
+    /// Step to `target` along a raised cosine lasting `duration_us` (zero speed at
+    /// both ends), then hold.
+    Step {
+        /// Position, µm (`I16F16` bits).
+        target: i32,
+        /// Duration, µs (one control period to one second).
+        duration_us: u32,
+    },
 }
 
 /// Why a request was not carried out.
@@ -333,6 +347,9 @@ pub struct Status {
     pub compensated: bool,
     /// Open or closed loop.
     pub loop_mode: LoopMode,
+    /// Active damping: `None` if the running model has none, else whether it is
+    /// switched on.
+    pub damping: Option<bool>,
     /// Heartbeat timeout, ticks (0: off), and ticks since the last request.
     pub supervision: [u32; 2],
     /// Stream: points queued, free, received since `Stream`/`StreamClear`; underrun ticks.
@@ -367,6 +384,14 @@ pub struct ModelReport {
     /// Its feedback settings: kp, ki per tick (`I8F24` bits), correction limit,
     /// sensor range low and high, tolerance (µm, `I16F16` bits); `None`: open loop only.
     pub feedback: Option<[i32; 6]>,
+    /// The stage dynamics it declares: mode (mHz), damping ratio (`I0F32` bits),
+    /// lag (mHz), force gain (N/µm, `I16F16` bits); `None`: none.
+    pub dynamics: Option<[i32; 4]>,
+    /// Its damping: gain (`I8F24` bits, µm/N per tick), leak (`I0F32` bits), limit
+    /// (µm, `I16F16` bits); `None`: none.
+    pub damping: Option<[i32; 3]>,
+    /// The force channel: split rate (`I0F32` bits), dynamic limit (N, `I16F16` bits).
+    pub force_channel: [i32; 2],
 }
 
 /// The link's counters since start-up.

@@ -45,6 +45,19 @@ impl<F: NorFlash> Handler<F> {
                     f.tolerance.to_bits(),
                 ]
             }),
+            dynamics: s.dynamics.map(|d| {
+                [
+                    d.mode_mhz as i32,
+                    d.damping.to_bits(),
+                    d.lag_mhz as i32,
+                    d.force_gain.to_bits(),
+                ]
+            }),
+            damping: s.damping.map(|d| {
+                let d = d.spec();
+                [d.gain.to_bits(), d.leak.to_bits(), d.limit.to_bits()]
+            }),
+            force_channel: [s.channel.split.to_bits(), s.channel.dynamic_limit.to_bits()],
         }
     }
 

@@ -1,6 +1,7 @@
 //! The reference the control loop follows, from one of five sources chosen at run
-//! time: hold, move (a slew-limited ramp to a position), a waveform
-//! ([`wave`]), a streamed trajectory ([`stream`]) or the analog input ([`analog`]).
+//! time: hold, move (a slew-limited ramp to a position, or a step: a raised
+//! cosine of a given duration), a waveform ([`wave`]), a streamed trajectory
+//! ([`stream`]) or the analog input ([`analog`]).
 //!
 //! Switching never makes the reference jump: a new waveform, stream or analog input
 //! starts with an *approach*, a ramp at the board's approach speed from where the
@@ -53,6 +54,16 @@ pub enum SourceOrder {
         /// Ramp speed, µm per tick.
         step: Micrometres,
     },
+    /// Step to `target` (µm) along a raised cosine, `x = from + (target −
+    /// from)·(1 − cos πτ)/2`, its phase advancing `phase_step` (2⁻³² turns) per
+    /// tick over half a turn: zero speed at both ends, so that a feedforward of
+    /// the stage's dynamics can follow it.
+    Step {
+        /// Where to, µm.
+        target: Micrometres,
+        /// Phase advance per tick, 2⁻³² turns (half a turn over the step).
+        phase_step: u32,
+    },
     /// Run a waveform.
     Wave(Wave),
     /// Play the streamed points, one every `interval` ticks.
@@ -71,6 +82,12 @@ enum Active {
     Move {
         target: Micrometres,
         step: Micrometres,
+    },
+    Step {
+        from: Micrometres,
+        target: Micrometres,
+        phase: u32,
+        phase_step: u32,
     },
     Wave {
         wave: Wave,
@@ -110,6 +127,26 @@ fn toward(x: &mut Micrometres, to: Micrometres, step: Micrometres) -> bool {
     }
 }
 
+/// Half a turn of phase, 2⁻³² turns.
+const HALF_TURN: u32 = 1 << 31;
+
+/// `from + (to − from)·(1 − cos 2πφ)/2` for a phase `φ` in 2⁻³² turns
+/// (`φ ≤ ½` turn), µm.
+#[inline]
+fn raised_cosine(from: Micrometres, to: Micrometres, phase: u32) -> Micrometres {
+    // (1 − cos)/2 in I2F30, from the shared cosine table.
+    let s = ((1i64 << 30) - wave::cos_turns(phase) as i64) >> 1;
+    let d = to.to_bits() as i64 - from.to_bits() as i64;
+    Micrometres::from_bits((from.to_bits() as i64 + ((d * s + (1 << 29)) >> 30)) as i32)
+}
+
+/// The phase step of a step of `ticks` ticks (half a turn over them), 2⁻³² turns
+/// per tick; at least one tick.
+pub const fn step_phase_for(ticks: u32) -> u32 {
+    let t = if ticks == 0 { 1 } else { ticks };
+    HALF_TURN / t
+}
+
 impl Reference {
     /// Holding at `x`, with transitions at `approach` µm per tick and the analog
     /// input scaled by `analog`.
@@ -125,10 +162,19 @@ impl Reference {
 
     /// Switches to a new source (at the start of the next tick, without a jump).
     pub fn select(&mut self, order: SourceOrder) {
-        self.approaching = !matches!(order, SourceOrder::Hold | SourceOrder::Move { .. });
+        self.approaching = !matches!(
+            order,
+            SourceOrder::Hold | SourceOrder::Move { .. } | SourceOrder::Step { .. }
+        );
         self.active = match order {
             SourceOrder::Hold => Active::Hold,
             SourceOrder::Move { target, step } => Active::Move { target, step },
+            SourceOrder::Step { target, phase_step } => Active::Step {
+                from: self.x,
+                target,
+                phase: 0,
+                phase_step,
+            },
             SourceOrder::Wave(wave) => Active::Wave {
                 wave,
                 phase: WavePhase::default(),
@@ -168,7 +214,7 @@ impl Reference {
                 Active::Wave { wave, .. } => wave.start_value(),
                 Active::Stream { .. } => points.peek().unwrap_or(self.x),
                 Active::Analog => self.analog.read(counts)?,
-                Active::Hold | Active::Move { .. } => self.x,
+                Active::Hold | Active::Move { .. } | Active::Step { .. } => self.x,
             };
             self.approaching = !toward(&mut self.x, entry, self.approach);
             if let (false, Active::Stream { interval, playback }) =
@@ -183,6 +229,21 @@ impl Reference {
             Active::Move { target, step } => {
                 if toward(&mut self.x, *target, *step) {
                     self.active = Active::Hold;
+                }
+            }
+            Active::Step {
+                from,
+                target,
+                phase,
+                phase_step,
+            } => {
+                let (next, over) = phase.overflowing_add(*phase_step);
+                if over || next >= HALF_TURN {
+                    self.x = *target;
+                    self.active = Active::Hold;
+                } else {
+                    *phase = next;
+                    self.x = raised_cosine(*from, *target, next);
                 }
             }
             Active::Wave { wave, phase } => {
@@ -219,7 +280,7 @@ impl Reference {
     pub const fn kind(&self) -> SourceKind {
         match self.active {
             Active::Hold => SourceKind::Hold,
-            Active::Move { .. } => SourceKind::Move,
+            Active::Move { .. } | Active::Step { .. } => SourceKind::Move,
             Active::Wave { .. } => SourceKind::Wave,
             Active::Stream { .. } => SourceKind::Stream,
             Active::Analog => SourceKind::Analog,
@@ -271,6 +332,31 @@ mod tests {
             last = x;
         }
         worst
+    }
+
+    #[test]
+    fn a_step_follows_a_raised_cosine_and_holds_its_target() {
+        let mut r = reference(10.0);
+        let mut pts = Points::<64>::new();
+        r.select(SourceOrder::Step {
+            target: um(20.0),
+            phase_step: step_phase_for(20),
+        });
+        let mut xs = Vec::new();
+        for _ in 0..25 {
+            xs.push(r.next(&mut pts, 0).unwrap().to_num::<f64>());
+        }
+        // Half-way at tick 10, there at tick 20, then held.
+        assert!((xs[9] - 15.0).abs() < 1e-3, "{xs:?}");
+        assert_eq!(xs[19], 20.0);
+        assert_eq!(r.kind(), SourceKind::Hold);
+        // Zero speed at both ends, the fastest in the middle: π/2·10/20 µm per tick.
+        assert!(xs[0] - 10.0 < 0.07 && xs[18] > 19.93, "{xs:?}");
+        let mid = xs[10] - xs[9];
+        assert!(
+            (mid - core::f64::consts::FRAC_PI_2 * 0.5).abs() < 0.01,
+            "{mid}"
+        );
     }
 
     #[test]

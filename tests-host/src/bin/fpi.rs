@@ -131,9 +131,11 @@ enum Command {
               allow_negative_numbers = true)]
         u_max: f64,
     },
-    /// The gains of the board's position loop, for a stated stability margin, from
-    /// the identified dynamics (if given) or the model's small-signal gain; written
-    /// into the firmware model (its [feedback] section), which `fpi board load` sends.
+    /// The board's loops for a stated robustness: active damping of the stage's
+    /// first mode from the force sensor, the position PI around the damped stage
+    /// and the feedforward that inverts it, from the identified dynamics (if given;
+    /// else the PI alone, slow); written into the firmware model (its [dynamics],
+    /// [damping], [feedback] and [shaping] sections), which `fpi board load` sends.
     Tune {
         /// A firmware model file (from `fpi export`).
         #[arg(long)]
@@ -141,13 +143,29 @@ enum Command {
         /// Identified dynamics (`fpi identify`).
         #[arg(long)]
         dynamics: Option<PathBuf>,
-        /// Largest sensitivity peak |1/(1+L)| over the model's gain spread (1.6:
-        /// gain margin ≥ 8.5 dB, phase margin ≥ 36°).
+        /// Largest sensitivity peak |1/(1+L)| of the position loop over the mode's
+        /// spread (±20 %, damping 0.01–0.06) and the model's gain spread (1.6: gain
+        /// margin ≥ 8.5 dB, phase margin ≥ 36°).
         #[arg(long, default_value_t = 1.6)]
         max_sensitivity: f64,
-        /// Without --dynamics: the highest crossover, Hz.
-        #[arg(long, default_value_t = 20.0)]
-        bandwidth_hz: f64,
+        /// The highest crossover of the position loop, Hz (default: as high as the
+        /// margins allow; without --dynamics, 20 Hz). One the margins do not allow
+        /// is refused.
+        #[arg(long)]
+        bandwidth_hz: Option<f64>,
+        /// No active damping (the PI and feedforward on the undamped stage).
+        #[arg(long)]
+        no_damping: bool,
+        /// The damping ratio the damping aims for on the least-damped plant.
+        #[arg(long, default_value_t = 0.5)]
+        target_damping: f64,
+        /// κ, the dynamic force per µm of command, N/µm (default: estimated from
+        /// the model's stiffness, coupling and lever; `fpi board autotune` measures it).
+        #[arg(long)]
+        force_gain: Option<f64>,
+        /// No feedforward (reference shaping) of the damped stage.
+        #[arg(long)]
+        no_feedforward: bool,
         /// Largest correction the feedback adds to the reference, µm (default 10 %
         /// of the stroke).
         #[arg(long)]
@@ -567,6 +585,10 @@ fn run(args: Args) -> Result<()> {
             dynamics,
             max_sensitivity,
             bandwidth_hz,
+            no_damping,
+            target_damping,
+            force_gain,
+            no_feedforward,
             limit_um,
             tolerance_um,
             out,
@@ -579,6 +601,21 @@ fn run(args: Args) -> Result<()> {
                 bandwidth_hz,
                 limit_um,
                 tolerance_um,
+                damping: !no_damping,
+                target_damping,
+                force_gain,
+                feedforward: (!no_feedforward)
+                    .then(|| fpi_host::method::tune::feedforward::CANDIDATES.to_vec()),
+                damping_band_hz: (
+                    std::env::var("FPI_DAMPING_HP")
+                        .ok()
+                        .and_then(|v| v.parse().ok())
+                        .unwrap_or(fpi_host::method::tune::DAMPING_HIGHPASS_HZ),
+                    std::env::var("FPI_DAMPING_LEAK")
+                        .ok()
+                        .and_then(|v| v.parse().ok())
+                        .unwrap_or(fpi_host::method::tune::DAMPING_LEAK_HZ),
+                ),
             },
         ),
         Command::Export {

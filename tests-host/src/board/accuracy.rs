@@ -19,7 +19,7 @@
 use std::path::{Path, PathBuf};
 
 use fpi_firmware::model::{self, CREEP_TERMS, OPERATORS};
-use piezo_fpi::control::{ControllerConfig, ControllerParts, Interval, Supervision};
+use piezo_fpi::control::{ControllerConfig, ControllerParts, ForceChannel, Interval, Supervision};
 use piezo_fpi::fpi::CreepMemory;
 use piezo_fpi::play::PlayBank;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
@@ -66,7 +66,7 @@ pub fn embedded_model() -> &'static FirmwareModel {
 }
 
 /// The embedded controller with its supervision widened — the reference range to
-/// the whole `f_K⁻¹` grid, the force tolerance to 1000 N — so the recordings
+/// the whole `f_K⁻¹` grid, the force tolerance and dynamic limit to 1000 N — so the recordings
 /// (which include a 3 kHz chirp where the stage's dynamics pull the force far
 /// from the static FEM map) exercise the arithmetic rather than the safe state;
 /// and its f64 twin with the same settings.
@@ -85,6 +85,10 @@ pub fn controllers() -> (model::Controller, Controller<'static, f64>) {
         supervision: Supervision {
             reference,
             force_tolerance: Newtons::from_num(1000),
+            channel: ForceChannel {
+                dynamic_limit: Newtons::from_num(1000),
+                ..c.supervision().channel
+            },
             ..c.supervision()
         },
     })
@@ -94,6 +98,7 @@ pub fn controllers() -> (model::Controller, Controller<'static, f64>) {
     };
     f64c.reference = (reference.lo.to_num(), reference.hi.to_num());
     f64c.force_tolerance = 1000.0;
+    f64c.dynamic_limit = 1000.0;
     (fixed, f64c)
 }
 
@@ -172,7 +177,8 @@ pub fn rig_file(path: &Path) -> Result<FileAccuracy, DataError> {
 }
 
 /// The whole control step on a stage file: reference = recorded stage position
-/// (held inside the reachable range), force = recorded force.
+/// (held inside the reachable range), force = recorded force, through the force
+/// channel's split on both sides.
 pub fn stage_file(path: &Path) -> Result<FileAccuracy, DataError> {
     let run = data::read_stage(path)?;
     let (fixed, f64c) = controllers();
@@ -195,7 +201,9 @@ pub fn stage_file(path: &Path) -> Result<FileAccuracy, DataError> {
                 ),
             ));
         }
-        err.add(&f64c, o.voltage.to_num::<f64>(), o64.voltage, f);
+        // The effective voltage under the force the models used (the force
+        // channel's feedforward).
+        err.add(&f64c, o.voltage.to_num::<f64>(), o64.voltage, o64.force);
         dx = dx.max((o.x_pea_est.to_num::<f64>() - o64.x_pea_est).abs());
         limited += o.limited as usize;
     }

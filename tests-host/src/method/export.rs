@@ -368,6 +368,8 @@ fn controller_section(s: &LoopSettings, fem: &FemMaps, stroke: f64) -> Controlle
         force_source: "measured".into(),
         current_limit_ma: None,
         capacitance_uf: None,
+        force_split_hz: None,
+        force_dynamic_limit_n: None,
     }
 }
 
@@ -443,6 +445,8 @@ pub fn export(
         tables,
         feedback: None,
         shaping: None,
+        dynamics: None,
+        damping: None,
     };
     fm.check()
         .map_err(|e| anyhow::anyhow!("the export does not meet the firmware's formats: {e}"))?;

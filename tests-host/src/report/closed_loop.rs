@@ -47,7 +47,7 @@ pub fn run(out: &Path, exported: &Path, chirp: &Path, port: &str) -> Result<Loop
         FirmwareModel::parse(&text, &exported.display().to_string()).map_err(anyhow::Error::msg)?;
     let o = tune::TuneOptions::default();
     let t = tune::tune(&fw, Some(&d), &o)?;
-    let tuned = tune::with_feedback(&fw, &t, &o)?;
+    let tuned = tune::with_tuning(&fw, &t, &o)?;
     let so = shaping::ShapingOptions::default();
     let shaped = shaping::with_dynamics(&tuned, &d, &so)?;
     for (name, m) in [("tuned", &tuned), ("shaped", &shaped)] {

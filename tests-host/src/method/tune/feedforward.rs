@@ -1,0 +1,411 @@
+//! The feedforward of the damped stage: the reference shaping `S` that makes the
+//! stage follow a fast reference without the lag of its damped mode and of the
+//! loop's delay.
+//!
+//! `S(z) = N(z)/D(z)` in biquad sections: the poles `D` are fixed (a well-damped
+//! pair per section at `pole_hz`), the numerator `N` (3 coefficients per
+//! section, 5 for two) is found by least squares, with the static gain held to
+//! exactly 1 (a heavily weighted row; the quantised sections are then made exact
+//! by the core's `with_unit_static_gain`). Two sections split a fourth-order
+//! numerator into two quadratics by its roots.
+//!
+//! [`design_time`] (what `fpi tune` uses) fits in the time domain: the position
+//! is linear in `N`, so the closed loop (damping, PI and plant, the PI acting on
+//! the reference too) is simulated once per numerator coefficient
+//! ([`super::simulate`]) on the references the board is judged on — a
+//! raised-cosine step of the board's step duration and a 100 Hz triangle — and
+//! `N` minimises the squared tracking error over them. [`design`] fits the
+//! frequency response `N ≈ D/P_d` over a band instead.
+
+use anyhow::{anyhow, bail, Result};
+use nalgebra::{Complex, DMatrix, DVector};
+use piezo_fpi::biquad::COEFF_ABS_MAX;
+use piezo_sim::filter::Section;
+
+/// How the feedforward is designed (one candidate; [`design_best`] tries
+/// [`CANDIDATES`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FeedforwardOptions {
+    /// The band it inverts the damped plant over, Hz.
+    pub band_hz: f64,
+    /// The frequency of its poles, Hz.
+    pub pole_hz: f64,
+    /// Their damping ratio.
+    pub pole_damping: f64,
+    /// Sections (1 or 2).
+    pub sections: usize,
+    /// Weight of the pull toward `S = 1` above the band (limits the gain a
+    /// reference's corner is amplified by).
+    pub above_band_weight: f64,
+}
+
+impl Default for FeedforwardOptions {
+    fn default() -> Self {
+        CANDIDATES[0]
+    }
+}
+
+/// The designs [`design_best`] tries: two or one section, poles at 2.5–3 kHz,
+/// over a 400 Hz band.
+pub const CANDIDATES: [FeedforwardOptions; 4] = [
+    FeedforwardOptions {
+        band_hz: 400.0,
+        pole_hz: 2500.0,
+        pole_damping: 0.8,
+        sections: 2,
+        above_band_weight: 0.05,
+    },
+    FeedforwardOptions {
+        band_hz: 400.0,
+        pole_hz: 3000.0,
+        pole_damping: 0.8,
+        sections: 2,
+        above_band_weight: 0.05,
+    },
+    FeedforwardOptions {
+        band_hz: 400.0,
+        pole_hz: 3000.0,
+        pole_damping: 0.8,
+        sections: 1,
+        above_band_weight: 0.05,
+    },
+    FeedforwardOptions {
+        band_hz: 300.0,
+        pole_hz: 2500.0,
+        pole_damping: 0.8,
+        sections: 1,
+        above_band_weight: 0.05,
+    },
+];
+
+/// Of the candidates that fit the board's coefficient range, the one whose
+/// product with the damped plant stays closest to 1 over its band (quantised);
+/// the design and that worst deviation.
+pub fn design_best(
+    f_hz: &[f64],
+    z1: &[Complex<f64>],
+    pd: &[Complex<f64>],
+    rate_hz: f64,
+    candidates: &[FeedforwardOptions],
+) -> Result<(Vec<[f64; 5]>, f64, FeedforwardOptions)> {
+    let mut best: Option<(Vec<[f64; 5]>, f64, FeedforwardOptions)> = None;
+    let mut last_err = None;
+    for o in candidates {
+        match design(f_hz, z1, pd, rate_hz, o).and_then(|s| quantise(&s)) {
+            Ok(s) => {
+                let dev = (0..f_hz.len())
+                    .filter(|&i| f_hz[i] <= o.band_hz)
+                    .map(|i| (response(&s, z1[i]) * pd[i] - Complex::new(1.0, 0.0)).norm())
+                    .fold(0.0, f64::max);
+                if best.as_ref().is_none_or(|b| dev < b.1) {
+                    best = Some((s, dev, *o));
+                }
+            }
+            Err(e) => last_err = Some(e),
+        }
+    }
+    best.ok_or_else(|| last_err.unwrap_or_else(|| anyhow!("no feedforward candidate to try")))
+}
+
+/// The sections (`[b0, b1, b2, a1, a2]`, unit static gain, within the core's
+/// coefficient range) of the feedforward for the damped plant `pd` on the grid
+/// `f_hz` (with `z1` = `z⁻¹` there) at `rate_hz`.
+pub fn design(
+    f_hz: &[f64],
+    z1: &[Complex<f64>],
+    pd: &[Complex<f64>],
+    rate_hz: f64,
+    o: &FeedforwardOptions,
+) -> Result<Vec<[f64; 5]>> {
+    if !(1..=2).contains(&o.sections) {
+        bail!("a feedforward of {} sections: 1 or 2", o.sections);
+    }
+    if !(o.pole_hz > o.band_hz && o.pole_hz < 0.45 * rate_hz) {
+        bail!(
+            "feedforward poles at {} Hz: above its band ({} Hz) and below 0.45·f_s",
+            o.pole_hz,
+            o.band_hz
+        );
+    }
+    let t = 1.0 / rate_hz;
+    let w = std::f64::consts::TAU * o.pole_hz;
+    let zeta = o.pole_damping;
+    let p = Complex::new(-zeta * w, w * (1.0 - zeta * zeta).max(0.0).sqrt()) * t;
+    let zp = p.exp();
+    // One section's denominator in z⁻¹: 1 − 2Re(zp)·z⁻¹ + |zp|²·z⁻².
+    let d1 = [1.0, -2.0 * zp.re, zp.norm_sqr()];
+    let den = if o.sections == 1 {
+        d1.to_vec()
+    } else {
+        convolve(&d1, &d1)
+    };
+    let nb = 2 * o.sections + 1;
+    let band = (0..f_hz.len()).filter(|&i| f_hz[i] <= o.band_hz).count();
+    if band < 2 * nb {
+        bail!("the feedforward band {} Hz holds too few points", o.band_hz);
+    }
+    let rows: Vec<usize> = (0..f_hz.len()).collect();
+    let m = 2 * rows.len() + 1;
+    let mut a = DMatrix::<f64>::zeros(m, nb);
+    let mut b = DVector::<f64>::zeros(m);
+    for (r, &i) in rows.iter().enumerate() {
+        let zi = z1[i];
+        let dz = poly(&den, zi);
+        // In the band: N ≈ D/P_d (the inverse), weighted toward its low end where
+        // a scan's energy is; above it: N ≈ D, lightly (S near 1, not large).
+        let (target, wgt) = if f_hz[i] <= o.band_hz {
+            (dz / pd[i], 1.0 / (1.0 + f_hz[i] / o.band_hz))
+        } else {
+            (dz, o.above_band_weight)
+        };
+        let mut zk = Complex::new(1.0, 0.0);
+        for k in 0..nb {
+            a[(2 * r, k)] = zk.re * wgt;
+            a[(2 * r + 1, k)] = zk.im * wgt;
+            zk *= zi;
+        }
+        b[2 * r] = target.re * wgt;
+        b[2 * r + 1] = target.im * wgt;
+    }
+    // N(1) = D(1): unit static gain.
+    let big = 1e4;
+    for k in 0..nb {
+        a[(m - 1, k)] = big;
+    }
+    b[m - 1] = big * den.iter().sum::<f64>();
+    let n = a
+        .svd(true, true)
+        .solve(&b, 1e-12)
+        .map_err(|e| anyhow!("the feedforward's least squares failed: {e}"))?;
+    let num: Vec<f64> = n.iter().copied().collect();
+    let sections = if o.sections == 1 {
+        vec![[num[0], num[1], num[2], d1[1], d1[2]]]
+    } else {
+        split_quartic(&num, d1)?
+    };
+    for (k, s) in sections.iter().enumerate() {
+        if let Some(c) = s.iter().find(|c| c.abs() > COEFF_ABS_MAX) {
+            bail!(
+                "feedforward section {k}: coefficient {c:.2} beyond the board's range ±{COEFF_ABS_MAX:.0} \
+                 (lower its poles or its band)"
+            );
+        }
+    }
+    Ok(sections)
+}
+
+/// `Σ c_k·z^{−k}`.
+fn poly(c: &[f64], z1: Complex<f64>) -> Complex<f64> {
+    let mut acc = Complex::new(0.0, 0.0);
+    let mut zk = Complex::new(1.0, 0.0);
+    for &ck in c {
+        acc += zk * ck;
+        zk *= z1;
+    }
+    acc
+}
+
+fn convolve(a: &[f64], b: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0; a.len() + b.len() - 1];
+    for (i, x) in a.iter().enumerate() {
+        for (j, y) in b.iter().enumerate() {
+            out[i + j] += x * y;
+        }
+    }
+    out
+}
+
+/// Two sections from a fourth-order numerator (in `z⁻¹`) and each section's
+/// denominator: the numerator's roots paired (complex pairs together, real ones
+/// by size), each pair's quadratic scaled to unit static gain with its section.
+fn split_quartic(num: &[f64], d1: [f64; 3]) -> Result<Vec<[f64; 5]>> {
+    // Roots in z of num[0]·z⁴ + num[1]·z³ + … + num[4].
+    let lead = num[0];
+    if lead.abs() < 1e-12 {
+        bail!("the feedforward's numerator is degenerate");
+    }
+    let mut comp = DMatrix::<f64>::zeros(4, 4);
+    for k in 0..4 {
+        comp[(0, k)] = -num[k + 1] / lead;
+    }
+    for k in 1..4 {
+        comp[(k, k - 1)] = 1.0;
+    }
+    let mut roots: Vec<Complex<f64>> = comp.complex_eigenvalues().iter().copied().collect();
+    roots.sort_by(|a, b| a.norm().total_cmp(&b.norm()));
+    let mut pairs: Vec<[Complex<f64>; 2]> = roots
+        .iter()
+        .filter(|r| r.im > 1e-9)
+        .map(|r| [*r, r.conj()])
+        .collect();
+    let real: Vec<Complex<f64>> = roots
+        .iter()
+        .copied()
+        .filter(|r| r.im.abs() <= 1e-9)
+        .collect();
+    for ch in real.chunks(2) {
+        if ch.len() == 2 {
+            pairs.push([ch[0], ch[1]]);
+        }
+    }
+    if pairs.len() != 2 {
+        bail!("the feedforward's numerator does not split into two real sections");
+    }
+    let dsum: f64 = d1.iter().sum();
+    let out = pairs
+        .iter()
+        .map(|[r1, r2]| {
+            // (1 − r1 z⁻¹)(1 − r2 z⁻¹), scaled so that N(1) = D(1).
+            let q = [1.0, -(r1 + r2).re, (r1 * r2).re];
+            let s = dsum / q.iter().sum::<f64>();
+            [q[0] * s, q[1] * s, q[2] * s, d1[1], d1[2]]
+        })
+        .collect();
+    Ok(out)
+}
+
+/// The sections as the firmware will run them (quantised), for a check of what
+/// the design gives: `S(z)` at each `z⁻¹`.
+pub fn response(sections: &[[f64; 5]], z1: Complex<f64>) -> Complex<f64> {
+    sections
+        .iter()
+        .map(|s| poly(&s[..3], z1) / poly(&[1.0, s[3], s[4]], z1))
+        .product()
+}
+
+/// Quantises the sections to the core's format, exact unit static gain.
+pub fn quantise(sections: &[[f64; 5]]) -> Result<Vec<[f64; 5]>> {
+    sections
+        .iter()
+        .map(|s| {
+            let sec = Section {
+                b: [s[0], s[1], s[2]],
+                a: [s[3], s[4]],
+            };
+            let q = sec
+                .quantise()
+                .and_then(|q| q.with_unit_static_gain())
+                .map_err(|e| anyhow!("a feedforward section: {}", e.message()))?;
+            let back = Section::of_quantised(&q);
+            Ok([back.b[0], back.b[1], back.b[2], back.a[0], back.a[1]])
+        })
+        .collect()
+}
+
+/// How [`design_time`] designs the feedforward.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TimeOptions {
+    /// The frequency of its poles, Hz.
+    pub pole_hz: f64,
+    /// Their damping ratio.
+    pub pole_damping: f64,
+    /// Sections (1 or 2).
+    pub sections: usize,
+    /// The step it is trained on: its duration, ticks.
+    pub step_ticks: usize,
+    /// The triangle it is trained on: its frequency, Hz.
+    pub triangle_hz: f64,
+    /// Weight of the coefficients' size (keeps a reference's corner from being
+    /// amplified into a saturating drive), relative to the data.
+    pub ridge: f64,
+}
+
+impl Default for TimeOptions {
+    fn default() -> Self {
+        Self {
+            pole_hz: 2500.0,
+            pole_damping: 0.8,
+            sections: 2,
+            step_ticks: 30,
+            triangle_hz: 100.0,
+            ridge: 1e-4,
+        }
+    }
+}
+
+/// The feedforward sections for the loops `l` on the plant `p` at `rate_hz`,
+/// fitted in the time domain (see the module docs); quantised, unit static gain.
+pub fn design_time(
+    p: &piezo_fpi::stability::Plant,
+    l: &piezo_fpi::stability::Laws,
+    rate_hz: f64,
+    o: &TimeOptions,
+) -> Result<Vec<[f64; 5]>> {
+    use super::simulate::{filter, respond, step, triangle};
+    if !(1..=2).contains(&o.sections) {
+        bail!("a feedforward of {} sections: 1 or 2", o.sections);
+    }
+    let t = 1.0 / rate_hz;
+    let w = std::f64::consts::TAU * o.pole_hz;
+    let zeta = o.pole_damping;
+    let zp = (Complex::new(-zeta * w, w * (1.0 - zeta * zeta).max(0.0).sqrt()) * t).exp();
+    let d1 = [1.0, -2.0 * zp.re, zp.norm_sqr()];
+    let den = if o.sections == 1 {
+        d1.to_vec()
+    } else {
+        convolve(&d1, &d1)
+    };
+    let nb = 2 * o.sections + 1;
+    // The training references and their weights.
+    let period = (rate_hz / o.triangle_hz).round() as usize;
+    let refs = [
+        (step(1.0, o.step_ticks, 10, 8 * o.step_ticks), 1.0),
+        (triangle(1.0, period, 3), 1.0),
+    ];
+    let mut rows: Vec<Vec<f64>> = Vec::new();
+    let mut rhs: Vec<f64> = Vec::new();
+    for (r, wgt) in &refs {
+        let zeros = vec![0.0; r.len()];
+        let y0 = respond(p, l, r, &zeros, true);
+        let basis: Vec<Vec<f64>> = (0..nb)
+            .map(|k| {
+                let mut b = vec![0.0; k + 1];
+                b[k] = 1.0;
+                let u = filter(&b, &den, r);
+                respond(p, l, &zeros, &u, true)
+            })
+            .collect();
+        for n in 0..r.len() {
+            rows.push(basis.iter().map(|b| b[n] * wgt).collect());
+            rhs.push((r[n] - y0[n]) * wgt);
+        }
+    }
+    let m = rows.len() + nb + 1;
+    let mut a = DMatrix::<f64>::zeros(m, nb);
+    let mut b = DVector::<f64>::zeros(m);
+    let scale: f64 = rows.iter().flatten().map(|v| v * v).sum::<f64>() / nb as f64;
+    for (i, row) in rows.iter().enumerate() {
+        for (k, v) in row.iter().enumerate() {
+            a[(i, k)] = *v;
+        }
+        b[i] = rhs[i];
+    }
+    let lam = (o.ridge * scale).sqrt();
+    for k in 0..nb {
+        a[(rows.len() + k, k)] = lam;
+    }
+    // N(1) = D(1): unit static gain.
+    let big = 1e3 * scale.sqrt();
+    for k in 0..nb {
+        a[(m - 1, k)] = big;
+    }
+    b[m - 1] = big * den.iter().sum::<f64>();
+    let n = a
+        .svd(true, true)
+        .solve(&b, 1e-14)
+        .map_err(|e| anyhow!("the feedforward's least squares failed: {e}"))?;
+    let num: Vec<f64> = n.iter().copied().collect();
+    let sections = if o.sections == 1 {
+        vec![[num[0], num[1], num[2], d1[1], d1[2]]]
+    } else {
+        split_quartic(&num, d1)?
+    };
+    for (k, s) in sections.iter().enumerate() {
+        if let Some(c) = s.iter().find(|c| c.abs() > COEFF_ABS_MAX) {
+            bail!(
+                "feedforward section {k}: coefficient {c:.2} beyond the board's range ±{COEFF_ABS_MAX:.0}"
+            );
+        }
+    }
+    quantise(&sections)
+}

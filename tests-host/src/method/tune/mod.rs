@@ -1,0 +1,607 @@
+//! `fpi tune` (and the design step of `fpi board autotune`): the board's loops
+//! designed around the stage's first mode, for a stated robustness, and stored
+//! with the firmware model — its `[dynamics]`, `[damping]`, `[feedback]` and
+//! `[shaping]` sections.
+//!
+//! **Plant.** What the loops see from the command `x_cmd` (µm, through the
+//! inverse FPI, which linearises the stack): the first mode and the amplifier's
+//! lag, one tick of delay, the position sensor on the mode's output, and the
+//! force channel's dynamic part `κ·(v − x)` ([`piezo_fpi::stability`], the model
+//! the board's validator checks). From `fpi identify`'s dynamics (the mode, its
+//! damping, the real pole) or from the board's own measurement (`fpi board
+//! autotune`), with κ measured there or estimated from the model's stack
+//! stiffness, force coupling and lever ([`force_gain_estimate`]).
+//!
+//! **Robustness.** Every design holds on a family of plants: the mode at 0.8, 0.9,
+//! 1.0, 1.1 and 1.2 times the identified one, each with damping 0.01, the
+//! identified and 0.06, each at the smallest, unit and largest gain of the
+//! model's spread ([`gain_spread`]: the PI's slopes relative to its mean, for
+//! feedback alone; at least 0.8–1.25).
+//!
+//! 1. **Damping** (integral force feedback, [`piezo_fpi::damping`]): the gain that
+//!    gives the family's least-damped mode the most damping (up to
+//!    [`TuneOptions::target_damping`]), with a 6 dB gain margin (the family stays
+//!    stable at twice the gain).
+//! 2. **Position PI** around the damped stage: the largest integral gain, over a
+//!    grid of proportional gains, whose sensitivity peak `max|1/(1 + L)|` over the
+//!    family stays at or below `max_sensitivity` (1.6: gain margin ≥ 8.5 dB, phase
+//!    margin ≥ 36°), and whose crossover stays at or below `--bandwidth-hz` where
+//!    one is asked (a crossover the margin does not allow is refused).
+//! 3. **Feedforward**: the reference shaping that inverts the nominal damped
+//!    stage over the tracking band ([`feedforward`]).
+//!
+//! Without dynamics there is no mode to design around: only the PI, with its
+//! crossover held at `--bandwidth-hz` (20 Hz by default), as a plain integrator
+//! on a unit plant with the loop's delay.
+
+pub mod feedforward;
+pub mod loops;
+pub mod simulate;
+
+use anyhow::{bail, Result};
+use piezo_fpi::control::{split_rate, DEFAULT_SPLIT_HZ};
+use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
+use piezo_fpi::q::{CreepRate, LoopGain, Micrometres, Newtons};
+use piezo_fpi::stability::{section_f64, Laws};
+use piezo_sim::file::{
+    DampingSection, DynamicsSection, FeedbackSection, FirmwareModel, ShapingSection,
+};
+
+pub use feedforward::FeedforwardOptions;
+use loops::{Family, Variant};
+
+use super::dynamics::Dynamics;
+
+/// What `fpi tune` is asked for.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TuneOptions {
+    /// Largest allowed sensitivity peak `max |1/(1 + L)|` of the position loop.
+    pub max_sensitivity: f64,
+    /// The highest crossover of the position loop, Hz (`None`: as high as the
+    /// margin allows; without dynamics, 20 Hz).
+    pub bandwidth_hz: Option<f64>,
+    /// Largest correction the feedback may add, µm (`None`: a quarter of the stroke).
+    pub limit_um: Option<f64>,
+    /// Position-plausibility tolerance, µm (`None`: 15 % of the stroke).
+    pub tolerance_um: Option<f64>,
+    /// Design active damping (where the dynamics allow it).
+    pub damping: bool,
+    /// The damping ratio the damping aims for on the least-damped plant.
+    pub target_damping: f64,
+    /// κ, the dynamic force per µm of command, N/µm (`None`: estimated from the
+    /// model).
+    pub force_gain: Option<f64>,
+    /// Design the feedforward (reference shaping) of the damped stage: the
+    /// candidates to choose from (`None`: none).
+    pub feedforward: Option<Vec<FeedforwardOptions>>,
+    /// The damping law's band: its high-pass and its leak, Hz.
+    pub damping_band_hz: (f64, f64),
+}
+
+impl Default for TuneOptions {
+    fn default() -> Self {
+        Self {
+            max_sensitivity: 1.6,
+            bandwidth_hz: None,
+            limit_um: None,
+            tolerance_um: None,
+            damping: true,
+            target_damping: 0.5,
+            force_gain: None,
+            feedforward: Some(feedforward::CANDIDATES.to_vec()),
+            damping_band_hz: (DAMPING_HIGHPASS_HZ, DAMPING_LEAK_HZ),
+        }
+    }
+}
+
+/// Crossover without identified dynamics, Hz.
+pub const BLIND_BANDWIDTH_HZ: f64 = 20.0;
+/// The damping integrator's leak, Hz.
+pub const DAMPING_LEAK_HZ: f64 = 100.0;
+/// The damping's high-pass, Hz.
+pub const DAMPING_HIGHPASS_HZ: f64 = 100.0;
+/// The least phase margin of the damping loop at the nominal plant, degrees.
+pub const DAMPING_PHASE_MARGIN_DEG: f64 = 45.0;
+
+/// What the design chose and what it gives.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tuning {
+    /// The stage dynamics designed for (absent: none known).
+    pub dynamics: Option<DynamicsSpec>,
+    /// IFF gain, µm of command per N·s (0: no damping).
+    pub damping_gain: f64,
+    /// The least damping ratio of the family's mode, without and with damping.
+    pub mode_damping: (f64, f64),
+    /// Margins of the damping loop at the nominal plant, dB and degrees.
+    pub damping_margins: (f64, f64),
+    /// Proportional gain, µm/µm.
+    pub kp: f64,
+    /// Integral gain, 1/s.
+    pub ki_per_s: f64,
+    /// Gain spread the margin holds for.
+    pub gains: [f64; 2],
+    /// Sensitivity peak of the position loop over the family.
+    pub sensitivity_peak: f64,
+    /// Gain crossover at the nominal plant, Hz.
+    pub crossover_hz: f64,
+    /// The feedback loop's −3 dB bandwidth (`L/(1 + L)`), Hz.
+    pub bandwidth_hz: f64,
+    /// Gain and phase margins of the position loop at the nominal plant, dB and degrees.
+    pub margins: (f64, f64),
+    /// The feedforward's sections (quantised), if designed.
+    pub feedforward: Option<Vec<[f64; 5]>>,
+    /// What the plant was taken to be.
+    pub plant: String,
+}
+
+/// The gain spread the loop must tolerate: the PI's slopes relative to its mean.
+pub fn gain_spread(fw: &FirmwareModel) -> [f64; 2] {
+    let p = &fw.pi;
+    let umax = p.input_max_v;
+    let top: f64 = p.weights_um_per_v.iter().sum::<f64>() + p.w0_um_per_v;
+    let mean = (p.w0_um_per_v * umax
+        + p.thresholds_v
+            .iter()
+            .zip(&p.weights_um_per_v)
+            .map(|(r, w)| w * (umax - r).max(0.0))
+            .sum::<f64>())
+        / umax;
+    if mean.is_nan() || mean <= 0.0 {
+        return [0.8, 1.25];
+    }
+    [
+        (p.w0_um_per_v / mean).clamp(0.05, 0.8),
+        (top / mean).clamp(1.25, 20.0),
+    ]
+}
+
+/// κ estimated from the model, N per µm of command: the stack's stiffness `1/c`,
+/// softened by the force coupling at the small-signal slope `w0`
+/// (`k_p/(1 + w0·k_f·k_p)`), over the lever `df_K/dx_pea` at mid-stroke; `None`
+/// for a model without compliance.
+pub fn force_gain_estimate(fw: &FirmwareModel) -> Option<f64> {
+    let c = fw.coupling.compliance_um_per_n;
+    if !(c > 0.0) {
+        return None;
+    }
+    let kp = 1.0 / c;
+    let soft = kp / (1.0 + fw.pi.w0_um_per_v * fw.coupling.k_f_v_per_n * kp);
+    let t = &fw.tables.f_k;
+    let n = t.values.len();
+    if n < 3 {
+        return None;
+    }
+    let (a, b) = (n / 4, 3 * n / 4);
+    let lever = (t.values[b] - t.values[a]) / ((b - a) as f64 * t.step());
+    (lever > 0.0).then_some(soft / lever)
+}
+
+/// The core's dynamics for `d` (its first mode and real pole) with κ.
+pub fn dynamics_spec(d: &Dynamics, force_gain: f64) -> Result<DynamicsSpec> {
+    let (Some(&f), Some(&z)) = (d.natural_frequency_hz.first(), d.damping_ratio.first()) else {
+        bail!("the dynamics name no mode: nothing to design the loops around");
+    };
+    let lag = d
+        .real_pole_hz
+        .iter()
+        .copied()
+        .filter(|&p| p > f)
+        .fold(f64::NAN, f64::min);
+    Ok(DynamicsSpec {
+        mode_mhz: (f * 1000.0).round() as u32,
+        damping: CreepRate::from_num(z.clamp(1e-4, 0.49)),
+        lag_mhz: if lag.is_finite() {
+            (lag * 1000.0).round() as u32
+        } else {
+            0
+        },
+        force_gain: Newtons::from_num(force_gain.clamp(0.0, 4000.0)),
+    })
+}
+
+/// The plant family of the module docs.
+fn family(d: &DynamicsSpec, rate_hz: u32, gains: [f64; 2]) -> Family {
+    let mut v = Vec::new();
+    for &m in &[0.8, 0.9, 1.0, 1.1, 1.2] {
+        for &z in &[Some(0.01), None, Some(0.06)] {
+            for &g in &[gains[0], 1.0, gains[1]] {
+                v.push(Variant {
+                    mode_scale: m,
+                    zeta: z,
+                    gain: g,
+                });
+            }
+        }
+    }
+    Family::new(d, rate_hz, &v)
+}
+
+/// Designs the loops of `fw` (see the module docs).
+pub fn tune(fw: &FirmwareModel, dynamics: Option<&Dynamics>, o: &TuneOptions) -> Result<Tuning> {
+    if !(o.max_sensitivity > 1.05 && o.max_sensitivity <= 3.0) {
+        bail!(
+            "--max-sensitivity {}: between 1.05 and 3 (1.6 gives ≥ 8.5 dB and ≥ 36°)",
+            o.max_sensitivity
+        );
+    }
+    let rate = fw.controller.rate_hz;
+    let nyquist = rate as f64 / 2.0;
+    if let Some(b) = o.bandwidth_hz {
+        if !(b > 0.0 && b.is_finite() && b < nyquist) {
+            bail!(
+                "--bandwidth-hz {b}: a crossover between 0 and the Nyquist frequency ({nyquist} Hz)"
+            );
+        }
+    }
+    if !(o.target_damping > 0.0 && o.target_damping <= 1.0) {
+        bail!("--target-damping {}: between 0 and 1", o.target_damping);
+    }
+    let gains = gain_spread(fw);
+    let split = split_hz(fw);
+    let kappa = o
+        .force_gain
+        .or_else(|| force_gain_estimate(fw))
+        .unwrap_or(0.0);
+    let (spec, plant) = match dynamics {
+        Some(d) => {
+            let spec = dynamics_spec(d, kappa)?;
+            let text = format!(
+                "mode {:.1} Hz (ζ {:.4}), lag {}, κ {:.2} N/µm{}; one tick of delay",
+                spec.mode_hz(),
+                spec.damping_ratio(),
+                if spec.lag_mhz == 0 {
+                    "none".to_string()
+                } else {
+                    format!("{:.0} Hz", spec.lag_mhz as f64 / 1000.0)
+                },
+                kappa,
+                if o.force_gain.is_some() {
+                    " (measured)"
+                } else {
+                    " (estimated from the model)"
+                }
+            );
+            (spec, text)
+        }
+        None => (
+            blind_dynamics(rate),
+            "no dynamics: a unit plant with one tick of delay".into(),
+        ),
+    };
+    let fam = family(&spec, rate, gains);
+    let base = Laws {
+        split: split_rate_f64(split, rate),
+        ..Laws::default()
+    };
+    let open = fam.mode_damping(&spec, rate, &base);
+    let with_damping = o.damping && dynamics.is_some() && kappa > 0.0;
+    let laws = if with_damping {
+        design_damping(
+            &fam,
+            &spec,
+            rate,
+            base,
+            (o.target_damping, o.damping_band_hz),
+        )?
+    } else {
+        base
+    };
+    let damped = fam.mode_damping(&spec, rate, &laws);
+    let cap = match (dynamics, o.bandwidth_hz) {
+        (_, Some(b)) => Some(b),
+        (None, None) => Some(BLIND_BANDWIDTH_HZ),
+        (Some(_), None) => None,
+    };
+    let laws = design_pi(
+        &fam,
+        laws,
+        o.max_sensitivity,
+        (cap, o.bandwidth_hz.is_some()),
+        rate,
+    )?;
+    let feedforward = match (&o.feedforward, dynamics) {
+        (Some(ff), Some(_)) => {
+            let p = fam.nominal();
+            let pd: Vec<_> = (0..fam.f_hz.len())
+                .map(|i| fam.damped(p, i, &laws))
+                .collect();
+            let (s, _, _) = feedforward::design_best(&fam.f_hz, fam.z1(), &pd, rate as f64, ff)?;
+            Some(s)
+        }
+        _ => None,
+    };
+    Ok(Tuning {
+        dynamics: dynamics.map(|_| spec),
+        damping_gain: if with_damping {
+            damping_gain_of(&laws, rate)
+        } else {
+            0.0
+        },
+        mode_damping: (open, damped),
+        damping_margins: if with_damping {
+            fam.damping_margins(&laws)
+        } else {
+            (f64::INFINITY, f64::INFINITY)
+        },
+        kp: laws.kp,
+        ki_per_s: laws.ki * rate as f64,
+        gains,
+        sensitivity_peak: fam.sensitivity_peak(&laws),
+        crossover_hz: fam.crossover_hz(&laws),
+        bandwidth_hz: fam.feedback_bandwidth_hz(&laws),
+        margins: fam.margins(&laws),
+        feedforward,
+        plant,
+    })
+}
+
+/// The damping section's gain `b0`, per second.
+fn damping_gain_of(l: &Laws, rate: u32) -> f64 {
+    l.damping[0] * rate as f64
+}
+
+/// A stand-in for unknown dynamics: a mode far above the loop (at a quarter of
+/// the rate, well damped), so that only the delay matters.
+fn blind_dynamics(rate_hz: u32) -> DynamicsSpec {
+    DynamicsSpec {
+        mode_mhz: rate_hz * 250,
+        damping: CreepRate::from_num(0.7),
+        lag_mhz: 0,
+        force_gain: Newtons::ZERO,
+    }
+}
+
+/// The model's force-channel corner, Hz.
+fn split_hz(fw: &FirmwareModel) -> f64 {
+    fw.controller
+        .force_split_hz
+        .unwrap_or(DEFAULT_SPLIT_HZ as f64)
+}
+
+/// `1 − e^{−2π·f/f_s}` as the board quantises it.
+fn split_rate_f64(f_hz: f64, rate_hz: u32) -> f64 {
+    if f_hz.fract() == 0.0 && f_hz >= 0.0 && f_hz < 1e6 {
+        return split_rate(f_hz as u32, rate_hz).to_num::<f64>();
+    }
+    -(-std::f64::consts::TAU * f_hz / rate_hz as f64).exp_m1()
+}
+
+/// The damping gain: the least one that gives the family's least-damped mode the
+/// target damping, or else the most damping, with the family stable at twice the
+/// gain and the nominal damping loop's phase margin at least
+/// [`DAMPING_PHASE_MARGIN_DEG`].
+fn design_damping(
+    fam: &Family,
+    d: &DynamicsSpec,
+    rate: u32,
+    base: Laws,
+    (target, band): (f64, (f64, f64)),
+) -> Result<Laws> {
+    let mut best: Option<(f64, Laws)> = None;
+    for k in 0..60 {
+        let g = 20.0 * (1e5_f64 / 20.0).powf(k as f64 / 59.0);
+        let Some(laws) = damping_laws(base, g, rate, band) else {
+            break;
+        };
+        let Some(doubled) = damping_laws(base, 2.0 * g, rate, band) else {
+            break;
+        };
+        if !(fam.all_stable(&laws) && fam.all_stable(&doubled)) {
+            break;
+        }
+        if fam.damping_margins(&laws).1 < DAMPING_PHASE_MARGIN_DEG {
+            break;
+        }
+        let z = fam.mode_damping(d, rate, &laws);
+        if best.as_ref().is_none_or(|(bz, _)| z > *bz + 1e-6) {
+            best = Some((z, laws));
+        }
+        if z >= target {
+            break;
+        }
+    }
+    match best {
+        Some((_, l)) => Ok(l),
+        None => bail!(
+            "no damping gain keeps the stage stable with a 6 dB margin over the mode's spread \
+             (mode {:.0} Hz ±20 %, κ {:.2} N/µm): check the dynamics",
+            d.mode_hz(),
+            d.force_gain.to_num::<f64>()
+        ),
+    }
+}
+
+/// The damping law of gain `g` (µm/(N·s)) with the default corners, as the
+/// board quantises it; `None` where the core cannot build it.
+pub fn damping_spec(g: f64, rate: u32, limit_um: f64, band_hz: (f64, f64)) -> Option<DampingSpec> {
+    let fs = rate as f64;
+    let rate_of = |f: f64| CreepRate::checked_from_num(split_rate_f64(f, rate));
+    Some(DampingSpec {
+        gain: LoopGain::checked_from_num(g / fs)?,
+        highpass: rate_of(band_hz.0)?,
+        leak: rate_of(band_hz.1)?,
+        limit: Micrometres::checked_from_num(limit_um)?,
+    })
+}
+
+fn damping_laws(base: Laws, g: f64, rate: u32, band_hz: (f64, f64)) -> Option<Laws> {
+    let s = damping_spec(g, rate, 4.0, band_hz)?.section().ok()?;
+    Some(Laws {
+        damping: section_f64(&s),
+        ..base
+    })
+}
+
+/// The PI: the largest integral gain, over a grid of proportional gains, that
+/// holds the sensitivity peak and the stability margin on the family and the
+/// crossover at or below `cap`; a cap the user `asked` for that the margins do
+/// not reach is refused.
+fn design_pi(
+    fam: &Family,
+    base: Laws,
+    ms: f64,
+    (cap, asked): (Option<f64>, bool),
+    rate: u32,
+) -> Result<Laws> {
+    let fs = rate as f64;
+    let holds = |l: &Laws| {
+        fam.sensitivity_peak(l) <= ms
+            && fam.all_stable(l)
+            && cap.is_none_or(|c| fam.crossover_hz(l) <= c)
+    };
+    let mut best: Option<Laws> = None;
+    for j in 0..=24 {
+        let kp = j as f64 * 0.05;
+        let mut ki = 1.0 / fs;
+        let at = |ki: f64| Laws { kp, ki, ..base };
+        if !holds(&at(ki)) {
+            continue;
+        }
+        // Grow, then bisect the last step.
+        let mut hi = ki;
+        while hi < 0.25 && holds(&at(hi * 1.25)) {
+            hi *= 1.25;
+        }
+        ki = hi;
+        let mut top = hi * 1.25;
+        for _ in 0..8 {
+            let mid = (ki + top) / 2.0;
+            if holds(&at(mid)) {
+                ki = mid;
+            } else {
+                top = mid;
+            }
+        }
+        if best.is_none_or(|b| ki > b.ki) {
+            best = Some(at(ki));
+        }
+    }
+    let Some(l) = best else {
+        bail!(
+            "no gains hold a sensitivity peak of {ms} over the plant family: the plant's \
+             delay or mode leaves no room (try a larger --max-sensitivity)"
+        );
+    };
+    if let (Some(c), true) = (cap, asked) {
+        let got = fam.crossover_hz(&l);
+        if got < 0.9 * c {
+            bail!(
+                "--bandwidth-hz {c}: the margins allow a crossover of {got:.0} Hz at most \
+                 (sensitivity peak ≤ {ms} over the mode's spread and the gain spread); ask for \
+                 less, or accept a larger --max-sensitivity"
+            );
+        }
+    }
+    Ok(l)
+}
+
+impl Tuning {
+    /// One line per loop, for people.
+    pub fn summary(&self, o: &TuneOptions) -> String {
+        let mut s = format!("plant: {}\n", self.plant);
+        if self.damping_gain > 0.0 {
+            s += &format!(
+                "damping: IFF gain {:.0} µm/(N·s) between {} Hz and {} Hz; least damping of \
+                 the family's poles {:.3} → {:.3}; damping loop GM {:.1} dB, PM {:.0}°\n",
+                self.damping_gain,
+                o.damping_band_hz.0,
+                o.damping_band_hz.1,
+                self.mode_damping.0,
+                self.mode_damping.1,
+                self.damping_margins.0,
+                self.damping_margins.1
+            );
+        }
+        s += &format!(
+            "position PI: kp {:.3}, ki {:.1}/s; gain spread {:.2}–{:.2}; sensitivity peak {:.2} \
+             (limit {}); crossover {:.1} Hz, −3 dB bandwidth {:.0} Hz, GM {:.1} dB, PM {:.0}°",
+            self.kp,
+            self.ki_per_s,
+            self.gains[0],
+            self.gains[1],
+            self.sensitivity_peak,
+            o.max_sensitivity,
+            self.crossover_hz,
+            self.bandwidth_hz,
+            self.margins.0,
+            self.margins.1
+        );
+        if let Some(ff) = &self.feedforward {
+            s += &format!(
+                "\nfeedforward: {} section(s) inverting the damped stage",
+                ff.len()
+            );
+        }
+        s
+    }
+}
+
+/// `fw` with the sections `t` gives: `[dynamics]`, `[damping]` (where designed),
+/// `[feedback]` (the gains, the correction's limit and the position sensor's
+/// range and tolerance from the model's stroke), `[shaping]` (the feedforward,
+/// where designed) and a dynamic force limit wide enough for the stage's mode.
+pub fn with_tuning(fw: &FirmwareModel, t: &Tuning, o: &TuneOptions) -> Result<FirmwareModel> {
+    let k = &fw.controller;
+    let span = k.reference_max_um - k.reference_min_um;
+    if span.is_nan() || span <= 0.0 {
+        bail!("the model's stroke is empty: controller.reference_min_um ≥ reference_max_um");
+    }
+    let channel = fpi_firmware::frontend::POSITION_ADC;
+    let (chan_lo, lsb) = (
+        channel.offset.to_num::<f64>(),
+        channel.per_count.to_num::<f64>(),
+    );
+    let chan_hi = chan_lo + lsb * fpi_firmware::frontend::POSITION_MAX as f64;
+    // Inside the rails, so that a broken wire (a rail) is out of range.
+    let lo = (k.reference_min_um - 0.25 * span).max(chan_lo + 16.0 * lsb);
+    let hi = (k.reference_max_um + 0.25 * span).min(chan_hi - 16.0 * lsb);
+    let mut out = fw.clone();
+    let summary = t.summary(o).replace('\n', "; ");
+    out.feedback = Some(FeedbackSection {
+        kp: t.kp,
+        ki_per_s: t.ki_per_s,
+        limit_um: o.limit_um.unwrap_or(0.25 * span),
+        position_min_um: lo,
+        position_max_um: hi,
+        position_tolerance_um: o.tolerance_um.unwrap_or(0.15 * span),
+        notes: format!("fpi tune: {summary}"),
+    });
+    if let Some(d) = &t.dynamics {
+        out.dynamics = Some(DynamicsSection {
+            mode_hz: d.mode_hz(),
+            damping_ratio: d.damping_ratio(),
+            lag_hz: (d.lag_mhz > 0).then(|| d.lag_mhz as f64 / 1000.0),
+            force_gain_n_per_um: (d.force_gain > Newtons::ZERO)
+                .then(|| d.force_gain.to_num::<f64>()),
+            notes: format!("fpi tune: {}", t.plant),
+        });
+        // The mode rings the force by tens of newtons on a fast move: the dynamic
+        // limit is the preload's range, the slow part keeps the tolerance.
+        let preload_span = k.force_max_n - k.force_min_n;
+        out.controller.force_dynamic_limit_n = Some(
+            (0.5 * preload_span)
+                .max(k.force_tolerance_n)
+                .min(piezo_fpi::q::SIGNAL_ABS_MAX),
+        );
+    }
+    out.damping = (t.damping_gain > 0.0).then(|| DampingSection {
+        gain_um_per_n_s: t.damping_gain,
+        highpass_hz: o.damping_band_hz.0,
+        leak_hz: o.damping_band_hz.1,
+        // A fast step asks the damping for a correction of its own size.
+        limit_um: span,
+        notes: format!("fpi tune: {summary}"),
+    });
+    if let Some(ff) = &t.feedforward {
+        out.shaping = Some(ShapingSection {
+            sections: ff.clone(),
+            notes: format!(
+                "fpi tune: the feedforward of the damped stage ({} section(s), least squares \
+                 over the tracking band)",
+                ff.len()
+            ),
+        });
+    }
+    out.check().map_err(anyhow::Error::msg)?;
+    Ok(out)
+}
