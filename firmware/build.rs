@@ -33,7 +33,7 @@ fn main() {
 
     // The linker finds memory.x (cortex-m-rt's link.x includes it) in OUT_DIR.
     let memory = fs::read_to_string(root.join("memory.x")).expect("read memory.x");
-    fs::write(out.join("memory.x"), memory_for_build(&memory)).expect("write memory.x");
+    fs::write(out.join("memory.x"), memory).expect("write memory.x");
     println!("cargo:rustc-link-search={}", out.display());
 
     let model_path = match env::var("PIEZO_FPI_MODEL") {
@@ -53,21 +53,6 @@ fn main() {
     fs::write(out.join("model.rs"), code.0).expect("write model.rs");
     fs::write(out.join("model.image"), code.1).expect("write model.image");
     fs::write(out.join("cosine.rs"), cosine_table()).expect("write cosine.rs");
-}
-
-/// The board's memory map; for the emulated board (feature `qemu`) with the SRAM
-/// QEMU's netduinoplus2 has beyond the chip's 128 KiB (192 KiB in all): the
-/// emulated board keeps its model "flash" in RAM, which the real board does not
-/// need. The board build's figures stay those of the real chip.
-fn memory_for_build(memory: &str) -> String {
-    println!("cargo:rerun-if-env-changed=CARGO_FEATURE_QEMU");
-    if env::var_os("CARGO_FEATURE_QEMU").is_some() {
-        let emulated = memory.replace("LENGTH = 128K", "LENGTH = 192K");
-        assert_ne!(emulated, memory, "memory.x: RAM LENGTH = 128K expected");
-        format!("/* Emulated board: 192 KiB SRAM (QEMU netduinoplus2). */\n{emulated}")
-    } else {
-        memory.to_string()
-    }
 }
 
 /// Reads, quantises and validates the model file; the Rust code of its model and

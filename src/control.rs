@@ -316,11 +316,17 @@ pub enum Fault {
     /// In closed loop, the position sensor disagrees with the model's estimate of
     /// where the stage is by more than the tolerance (stuck or drifting sensor).
     PositionImplausible = 9,
+    /// The loops' correction oscillates (a stage that changed, a wrong model:
+    /// the loop is no longer stable on the stage it runs on).
+    Oscillation = 10,
+    /// The command stayed at a limit (voltage, slew or stroke) for longer than a
+    /// loop may: the stage cannot follow what the loop asks.
+    Saturated = 11,
 }
 
 impl Fault {
     /// Every fault, by code.
-    pub const ALL: [Fault; 9] = [
+    pub const ALL: [Fault; 11] = [
         Self::ForceOutOfRange,
         Self::ForceImplausible,
         Self::ReferenceUnreachable,
@@ -330,6 +336,8 @@ impl Fault {
         Self::Overrun,
         Self::PositionOutOfRange,
         Self::PositionImplausible,
+        Self::Oscillation,
+        Self::Saturated,
     ];
 
     /// A one-line description for logs.
@@ -344,6 +352,8 @@ impl Fault {
             Self::Overrun => "control ticks overran their period",
             Self::PositionOutOfRange => "position sensor reading outside its range",
             Self::PositionImplausible => "position sensor disagrees with the model's estimate",
+            Self::Oscillation => "the loop oscillates (the stage or its model changed)",
+            Self::Saturated => "the loop stayed saturated: the stage cannot follow",
         }
     }
 
@@ -442,9 +452,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             st.force_ref = force;
             // The channel starts settled: the residual at rest is the offset.
             st.force_tare_offset = residual(force, self.f_f.eval(st.x_pea_est));
-            st.force_offset = (st.force_tare_offset.to_bits() as i64) << 32;
-            st.force_slow = 0;
-            st.force_scale = 0;
+            st.forget_force_learning();
             true
         } else {
             false
@@ -517,9 +525,12 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
                     let rs = st.force_slow >> 32; // I16F16 bits of r_s
                     st.force_offset += (rs << 32) >> OFFSET_ADAPT_SHIFT;
                     let step = (rs * delta) >> SCALE_ADAPT_SHIFT;
-                    st.force_scale = (st.force_scale + step)
+                    // max/min, not `clamp`: no panic branch on the ISR path.
+                    #[allow(clippy::manual_clamp)]
+                    let scale = (st.force_scale + step)
                         .max(-SCALE_MAX_BITS)
                         .min(SCALE_MAX_BITS);
+                    st.force_scale = scale;
                 }
             }
             learned.wrapping_add(Newtons::from_bits(
@@ -867,6 +878,16 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
         }
         self.fault = Some(fault);
         true
+    }
+
+    /// Forgets what the force channel learned since the tare (its offset and
+    /// scale back to the tare's, its slow part to zero): after a fault, what it
+    /// learned may be the fault's. The slow part settles again within a few of
+    /// its time constants (16 ms at the default 10 Hz split) while parked.
+    pub fn forget_force_learning(&mut self) {
+        self.force_offset = (self.force_tare_offset.to_bits() as i64) << 32;
+        self.force_slow = 0;
+        self.force_scale = 0;
     }
 
     /// Leaves the safe state once the output has reached the safe voltage; the

@@ -26,7 +26,6 @@
 //! discrete-time system, and their stability check), [`feedback`] (position feedback), [`io`] (sensor/amplifier traits), [`model`] (the
 //! model format and its validator), [`error`] (the error vocabulary).
 #![cfg_attr(not(test), no_std)]
-#![deny(missing_docs)]
 #![deny(clippy::panic, clippy::unwrap_used, clippy::expect_used)]
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 

@@ -229,10 +229,10 @@ impl Plant {
         for i in 0..STATES {
             u[i] = dp[i] - y[i];
         }
-        for i in 0..3 {
-            for j in 0..STATES {
-                let plant = if j < 3 { self.phi[i][j] } else { 0.0 };
-                a[i][j] = plant + self.gamma[i] * u[j];
+        for ((row, phi), gamma) in a.iter_mut().zip(&self.phi).zip(&self.gamma) {
+            for (j, (aij, uj)) in row.iter_mut().zip(&u).enumerate() {
+                let plant = if j < 3 { phi[j] } else { 0.0 };
+                *aij = plant + gamma * uj;
             }
         }
         a[3] = rs;
@@ -456,11 +456,9 @@ mod tests {
         let p = Plant::new(&dynamics(), 20_000, 1.0, None, 1.0);
         let mut y = [0.0; 3];
         for _ in 0..40_000 {
-            let mut n = [0.0; 3];
-            for i in 0..3 {
-                n[i] = (0..3).map(|j| p.phi[i][j] * y[j]).sum::<f64>() + p.gamma[i];
-            }
-            y = n;
+            y = core::array::from_fn(|i| {
+                (0..3).map(|j| p.phi[i][j] * y[j]).sum::<f64>() + p.gamma[i]
+            });
         }
         assert!(
             (y[1] - 1.0).abs() < 1e-9 && (y[0] - 1.0).abs() < 1e-9,

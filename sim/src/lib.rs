@@ -12,7 +12,6 @@
 //!
 //! `no_std`; the `file` feature (host) adds the firmware model file ([`file`]).
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
-#![deny(missing_docs)]
 #![deny(clippy::unwrap_used, clippy::expect_used)]
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 

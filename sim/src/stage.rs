@@ -74,6 +74,8 @@ pub struct StageParams<'a> {
     pub creep_tau_s: &'a [f32],
     /// Creep gains, µm/V (same length).
     pub creep_gain_um_per_v: &'a [f32],
+    /// The built stage's creep relative to those gains (1: as given).
+    pub creep_scale: f32,
     /// Stack compliance, µm/N.
     pub compliance_um_per_n: f32,
     /// Amplifier lag, s (0: none).
@@ -109,7 +111,12 @@ impl<'a> StageParams<'a> {
         }
         let mut creep = Vec::new();
         for (&tau_s, &gain) in self.creep_tau_s.iter().zip(self.creep_gain_um_per_v) {
-            creep.push(Creep { tau_s, gain }).ok()?;
+            creep
+                .push(Creep {
+                    tau_s,
+                    gain: gain * self.creep_scale,
+                })
+                .ok()?;
         }
         Some(Model {
             pi: Pi::new(
@@ -175,6 +182,42 @@ impl<'a> StageParams<'a> {
         let mut fem = Fem::new(self.fem_x_pea_um, self.fem_force_n, self.fem_output_um)?;
         fem.preload_scale = self.force_scale;
         Some(fem)
+    }
+}
+
+/// The values a stage variant may replace (the bench's stage files); `None`:
+/// the base's.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Overrides {
+    /// First mode, Hz.
+    pub mode_hz: Option<f32>,
+    /// Its damping ratio.
+    pub mode_damping: Option<f32>,
+    /// Kinematics relative to the FEM's.
+    pub output_gain: Option<f32>,
+    /// Preload relative to the FEM's.
+    pub force_scale: Option<f32>,
+    /// Creep relative to the model's.
+    pub creep_scale: Option<f32>,
+    /// Position sensor noise, µm.
+    pub position_noise_um: Option<f32>,
+    /// Force sensor noise, N.
+    pub force_noise_n: Option<f32>,
+}
+
+impl<'a> StageParams<'a> {
+    /// These parameters with `o`'s values in place of theirs.
+    pub fn with(&self, o: &Overrides) -> Self {
+        Self {
+            mode_hz: o.mode_hz.unwrap_or(self.mode_hz),
+            mode_damping: o.mode_damping.unwrap_or(self.mode_damping),
+            output_gain: o.output_gain.unwrap_or(self.output_gain),
+            force_scale: o.force_scale.unwrap_or(self.force_scale),
+            creep_scale: o.creep_scale.unwrap_or(self.creep_scale),
+            position_noise_um: o.position_noise_um.unwrap_or(self.position_noise_um),
+            force_noise_n: o.force_noise_n.unwrap_or(self.force_noise_n),
+            ..*self
+        }
     }
 }
 
@@ -373,6 +416,7 @@ pub mod stage_a {
         saturation_per_um: 0.003_725_144,
         creep_tau_s: &CREEP_TAU,
         creep_gain_um_per_v: &CREEP_GAIN,
+        creep_scale: 1.0,
         compliance_um_per_n: 0.02,
         amplifier_tau_s: 0.000_09,
         sample_rate_hz: 20_000.0,
@@ -387,17 +431,10 @@ pub mod stage_a {
         position_noise_um: 0.0,
     };
 
-    const CREEP_GAIN_BUILT: [f32; 4] = [
-        CREEP_GAIN[0] * 1.5,
-        CREEP_GAIN[1] * 1.5,
-        CREEP_GAIN[2] * 1.5,
-        CREEP_GAIN[3] * 1.5,
-    ];
-
     /// Stage A as built: differs from the model the firmware holds by the
     /// amounts a built stage does (see the module docs).
     pub const BUILT: StageParams<'static> = StageParams {
-        creep_gain_um_per_v: &CREEP_GAIN_BUILT,
+        creep_scale: 1.5,
         force_scale: 0.95 * 60.0 / 61.8,
         output_gain: 1.03,
         mode_hz: 850.0,

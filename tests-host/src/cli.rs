@@ -13,8 +13,9 @@ use anyhow::{bail, Context, Result};
 use crate::data::fem::FemMaps;
 use crate::data::{self, read_drive, read_target, Num};
 use crate::method::calibrate::{self, Options};
-use crate::method::checks;
 use crate::method::compare::{note_renamed, unique_names};
+use crate::method::kinds;
+use crate::method::limits::AMPLIFIER_MAX_V;
 use crate::method::model::{HostModel, Kind};
 use crate::method::predict;
 use crate::output::{self, not_an_input};
@@ -112,11 +113,10 @@ fn drive_in_range(path: &Path, model: &HostModel, u: &[f64]) -> Result<()> {
         let (lo, hi) = predict::input_range(model);
         bail!(
             "{}:{}: column voltage_V: {} V is outside the model's input range {lo}..{hi} V \
-             (the amplifier spans 0..{} V); the model would clamp it",
+             (the amplifier spans 0..{AMPLIFIER_MAX_V} V); the model would clamp it",
             path.display(),
             k + 2,
             Num(v),
-            crate::method::export::AMPLIFIER_MAX_V
         );
     }
     Ok(())
@@ -140,26 +140,25 @@ pub fn calibrate(
     output::prepare(out)?;
     let data = calibrate::load(rig, rows)?;
     let has_force = data.iter().all(|d| d.has_force);
-    // The default: efpi, or gpi where the force cannot identify k_f.
-    let kind = kind.unwrap_or_else(|| match checks::force_unusable(&data) {
-        None => Kind::Efpi,
-        Some(why) => {
-            if has_force {
-                eprintln!(
-                    "note: {why}, so k_f cannot be identified: calibrating gpi instead of the \
-                     default efpi"
-                );
-            }
-            Kind::Gpi
+    let kind = kind.unwrap_or_else(|| {
+        let (kind, note) = kinds::default_for(&data);
+        if let Some(note) = note {
+            eprintln!("note: {note}");
         }
+        kind
     });
     let mut opt = Options::for_kind(kind);
     if let Some(n) = operators {
         opt.operators = n;
     }
     if let Some(c) = compliance {
-        if kind != Kind::Efpi {
-            bail!("--compliance applies to efpi models only");
+        if !kind.takes_compliance() {
+            let takers: Vec<&str> = kinds::ALL
+                .iter()
+                .filter(|k| k.takes_compliance())
+                .map(|k| k.name())
+                .collect();
+            bail!("--compliance applies to {} models only", takers.join(", "));
         }
         opt.compliance = c;
     }
@@ -183,34 +182,53 @@ pub fn calibrate(
     model.calibration.rows = rows.map(|(a, b)| [a, b]);
     model.calibration.files = rig.iter().map(|p| p.display().to_string()).collect();
     let secs = start.elapsed().as_secs_f64();
-    let structure = match &model.branch {
-        Some(b) => format!(
-            "branch polynomials of degree {} (ascending) and {} (descending)",
-            b.ascending_um_per_vk.len(),
-            b.descending_um_per_vk.len()
-        ),
-        None => format!("{} operators", model.operators() + 1),
-    };
+    let structure = kind.structure(&model);
     println!(
         "{kind} model, {structure}, calibrated on {} recording(s) in {secs:.2} s",
         data.len()
     );
     print_fit(&model);
+    if rows.is_some() {
+        print_held_out(&model, &data[0]);
+    }
     model.write(out)?;
     println!("model written to {}", out.display());
     Ok(())
 }
 
+/// Samples in each window of the rows beyond a fitted window that `fpi calibrate
+/// --rows` scores.
+pub const HELD_OUT_WINDOW: usize = 1000;
+
+/// The model's prediction of the rest of a recording fitted on a window of it, in
+/// windows of [`HELD_OUT_WINDOW`] samples ([`calibrate::held_out`]).
+fn print_held_out(m: &HostModel, d: &calibrate::CalibData) {
+    let windows = calibrate::held_out(m, d, HELD_OUT_WINDOW);
+    if windows.is_empty() {
+        return;
+    }
+    println!(
+        "  beyond the fitted rows, each window with its mean error removed (the recording's drift):"
+    );
+    println!(
+        "  {:<34} {:>8} {:>10} {:>10}",
+        "rows", "samples", "RMSE µm", "offset µm"
+    );
+    for w in &windows {
+        println!(
+            "  {:<34} {:>8} {:>10.4} {:>10.4}",
+            format!("{}-{}", w.rows.0, w.rows.1),
+            w.rows.1 + 1 - w.rows.0,
+            w.rmse_um,
+            w.offset_um
+        );
+    }
+}
+
 /// Prints a model's parameters and its per-file fit.
 pub fn print_fit(m: &HostModel) {
-    let c = &m.coupling;
-    if m.kind == Kind::Branch {
-        println!("  k_f {:.5} V/N (û = u − k_f·F)", c.k_f_v_per_n);
-    } else if m.kind.uses_force() && m.kind != Kind::Ldpi {
-        println!(
-            "  k_f {:.5} V/N, k_q {:.3e} V/N² about {} N, k0 {:.3} V, dead-zone softness {:.3} V, compliance {} µm/N",
-            c.k_f_v_per_n, c.k_q_v_per_n2, c.force_q_n, c.offset_v, m.dead_zone_softness_v, c.compliance_um_per_n
-        );
+    if let Some(p) = m.kind.parameters(m) {
+        println!("  {p}");
     }
     println!(
         "  {:<34} {:>8} {:>10} {:>10}",
@@ -554,6 +572,7 @@ pub fn export(
 pub fn tune(
     firmware: &Path,
     dynamics: Option<&Path>,
+    frf: Option<&Path>,
     out: &Path,
     o: &crate::method::tune::TuneOptions,
 ) -> Result<()> {
@@ -561,6 +580,9 @@ pub fn tune(
     let mut inputs = vec![("--firmware", firmware)];
     if let Some(d) = dynamics {
         inputs.push(("--dynamics", d));
+    }
+    if let Some(f) = frf {
+        inputs.push(("--frf", f));
     }
     not_an_input("--out", out, &inputs)?;
     output::prepare(out)?;
@@ -570,7 +592,20 @@ pub fn tune(
     let dyn_model = dynamics
         .map(crate::method::dynamics::Dynamics::read)
         .transpose()?;
-    let t = tune::tune(&fw, dyn_model.as_ref(), o)?;
+    let t = match frf {
+        Some(path) => {
+            let points = tune::frf::read_csv(path)?;
+            let rate = fw.controller.rate_hz;
+            let split = fw
+                .controller
+                .force_split_hz
+                .unwrap_or(piezo_fpi::control::DEFAULT_SPLIT_HZ as f64);
+            let fit = tune::frf::fit(&points, rate, tune::split_rate_f64(split, rate))?;
+            println!("{}", tune::frf::describe(&fit));
+            tune::tune_measured(&fw, fit.spec, o)?
+        }
+        None => tune::tune(&fw, dyn_model.as_ref(), o)?,
+    };
     let tuned = tune::with_tuning(&fw, &t, o)?;
     let text = tuned.to_toml().map_err(anyhow::Error::msg)?;
     output::write_atomic(out, text.as_bytes())?;
@@ -751,7 +786,7 @@ pub fn identify(chirps: &[PathBuf], out: &Path, plots: Option<&Path>, min_hz: f6
     result.dynamics.write(out)?;
     println!("dynamics written to {}", out.display());
     if let Some(dir) = plots {
-        for p in id::plots(&result, dir)? {
+        for p in crate::report::identify::plots(&result, dir)? {
             println!("plot written to {}", p.display());
         }
     }

@@ -845,6 +845,8 @@ fn rows_too_few_to_fit_are_refused() {
     // Enough for the option, too few for a gpi model of 21 operators.
     let args = [
         "calibrate",
+        "--kind",
+        "gpi",
         "--rig",
         MM,
         "--rows",

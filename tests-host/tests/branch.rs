@@ -7,10 +7,10 @@
 use std::path::PathBuf;
 
 use fpi_host::data::{self, fem::FemMaps};
-use fpi_host::method::branch::{BranchModel, BranchSection, BranchState, Memory};
 use fpi_host::method::calibrate::{self, CalibData, Options};
 use fpi_host::method::export::{self, LoopSettings};
-use fpi_host::method::model::{HostModel, Kind};
+use fpi_host::method::kinds::branch::{BranchModel, BranchState};
+use fpi_host::method::model::{BranchSection, HostModel, Kind, Memory};
 use fpi_host::method::predict;
 
 // ---------------------------------------------------------------------------
@@ -274,7 +274,7 @@ fn the_fit_on_the_rig_is_good_and_beats_the_last_point_memory() {
     assert!(c.rmse_um < 0.5 * last.calibration.rmse_um);
     assert!(c.rmse_um < fpi.calibration.rmse_um);
     // The figures the calibration stores are the model's own output error.
-    let again = fpi_host::method::branch::score(stack, &data).unwrap();
+    let again = calibrate::score(stack, &data);
     assert_eq!(again, c.per_file);
 }
 

@@ -57,7 +57,7 @@ fn a_huge_cell_is_an_error_naming_file_column_row_and_value() {
 }
 
 #[test]
-fn a_constant_force_cannot_identify_k_f_and_the_default_falls_back_to_gpi() {
+fn a_constant_force_cannot_identify_k_f_and_the_default_falls_back_to_epi() {
     let rig = recording("constant-force.csv", |_, v| v[2] = 50.0);
     let out = tmp().join("constant-force.toml");
     for kind in ["efpi", "fpi", "ldpi"] {
@@ -73,12 +73,12 @@ fn a_constant_force_cannot_identify_k_f_and_the_default_falls_back_to_gpi() {
     assert!(
         stderr.contains(
             "note: force_N is constant (50 N in every fitted row of constant-force.csv), so \
-             k_f cannot be identified: calibrating gpi instead of the default efpi"
+             k_f cannot be identified: calibrating epi instead of the default efpi"
         ),
         "{stderr}"
     );
-    assert!(stdout.starts_with("gpi model"), "{stdout}");
-    assert_eq!(HostModel::read(&out).unwrap().kind, Kind::Gpi);
+    assert!(stdout.starts_with("epi model"), "{stdout}");
+    assert_eq!(HostModel::read(&out).unwrap().kind, Kind::Epi);
 }
 
 #[test]

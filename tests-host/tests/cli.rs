@@ -306,7 +306,7 @@ fn bad_inputs_name_file_line_and_column() {
 #[test]
 fn the_micromanipulator_window_is_selectable() {
     let d = tmp();
-    let m = d.join("gpi.toml");
+    let m = d.join("epi.toml");
     let text = ok(&[
         "calibrate",
         "--rig",
@@ -317,11 +317,14 @@ fn the_micromanipulator_window_is_selectable() {
         s(&m),
     ]);
     assert!(
-        text.starts_with("gpi model"),
-        "no force: gpi by default\n{text}"
+        text.starts_with("epi model"),
+        "no force: epi by default\n{text}"
     );
     let model = std::fs::read_to_string(&m).unwrap();
-    assert!(model.contains("rows = [3152, 3351]"), "{model}");
+    assert!(
+        model.contains("rows = [3152, 3351]") && model.contains("kind = \"epi\""),
+        "{model}"
+    );
     let err = fails(&[
         "calibrate",
         "--rig",

@@ -3,14 +3,11 @@
 //!
 //! * `fpi tune` on the factory model with the dynamics `fpi identify` finds in
 //!   stage A's small chirp; the tuned model carries its gains to the board;
-//! * the stage as built (a few percent off the model, an 850 Hz mode, a noisy
-//!   position sensor): 15 Hz and 100 Hz sines and a step in open loop, feedback
-//!   only and feedback plus FPI feedforward — the figures are printed, and the
-//!   literature's ordering is checked (feedforward plus feedback beats either);
 //! * bumpless switching, refusal without feedback settings, and the position
-//!   sensor's faults in closed loop (open wire, stuck reading) ending safe;
-//! * the reference shaping (`fpi export --dynamics`): the inverse of the stage's
-//!   850 Hz mode stops a step's ringing; a fast triangle's figures are printed.
+//!   sensor's faults in closed loop (open wire, stuck reading) ending safe.
+//!
+//! The loops on the stage as built (damping, autotune, the drives compared) are
+//! in `tests/autotune.rs`.
 
 mod common;
 
@@ -19,11 +16,10 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use fpi_firmware::closed_loop::LoopMode;
-use fpi_firmware::link::protocol::{BenchOrder, Command, FaultReport, Refusal};
+use fpi_firmware::link::protocol::{BenchOrder, Command, FaultReport, Refusal, StageVariant};
 use fpi_firmware::recorder::{signal, status};
 use fpi_firmware::reference::wave::Shape;
 use fpi_host::board::client::{real, refusal, Client};
-use fpi_host::board::closed_loop;
 use fpi_host::board::emulator::{self, Emulator};
 use piezo_fpi::control::Fault;
 use piezo_sim::file::FirmwareModel;
@@ -106,33 +102,6 @@ fn tune_writes_gains_with_a_stated_margin() {
     assert!(e.contains("refusing to overwrite an input"), "{e}");
 }
 
-#[test]
-fn feedback_plus_feedforward_beats_either_alone() {
-    let (_e, mut c) = board("feedback_plus_feedforward_beats_either_alone");
-    let r = closed_loop::run(&mut c, &tuned().1).unwrap();
-    println!("{}", closed_loop::table(&r));
-    assert_eq!(r.recording.dropped, 0, "no recorder samples dropped");
-    for hz in [15.0, 100.0] {
-        let rms = |m| r.sine(m, hz).unwrap().tracking.rms();
-        let (open, fb, both) = (
-            rms(LoopMode::Open),
-            rms(LoopMode::FeedbackOnly),
-            rms(LoopMode::Closed),
-        );
-        assert!(both < open && both < fb, "{hz} Hz: {both} vs {open}, {fb}");
-    }
-    // At 15 Hz the integral action removes most of the built stage's error.
-    let slow = |m| r.sine(m, 15.0).unwrap().tracking.rms();
-    assert!(slow(LoopMode::Closed) < 0.5 * slow(LoopMode::Open));
-    // The step settles on the target in closed loop, not in open loop.
-    let closed = r.step(LoopMode::Closed).unwrap();
-    let open = r.step(LoopMode::Open).unwrap();
-    assert!(
-        closed.final_error_um.abs() < 0.1 && open.final_error_um.abs() > 0.2,
-        "{closed:?} {open:?}"
-    );
-}
-
 /// Waits until a fault other than *parked* has latched and the output is safe.
 fn safe(c: &mut Client) -> FaultReport {
     let start = Instant::now();
@@ -169,7 +138,7 @@ fn switching_is_bumpless_and_sensor_faults_end_safe() {
     assert_eq!(r.code, Refusal::BadArgument, "{}", r.reason);
     assert!(r.reason.contains("fpi tune"), "{}", r.reason);
     c.upload(&tuned().1, false, |_| {}).unwrap();
-    c.bench(BenchOrder::Stage(true)).unwrap();
+    c.bench(BenchOrder::Stage(StageVariant::BUILT)).unwrap();
     c.move_to(20.0, 1000.0).unwrap();
     wait(&mut c, 4000);
     // Record every tick around the switches.
@@ -263,45 +232,5 @@ fn switching_is_bumpless_and_sensor_faults_end_safe() {
         c.bench(BenchOrder::PositionOpen(false)).unwrap();
         c.bench(BenchOrder::PositionStuck(false)).unwrap();
         c.ack(&Command::ClearFault).unwrap();
-    }
-}
-
-/// The factory model tuned and shaped: the inverse of stage A's identified mode
-/// runs on the reference.
-fn shaped() -> (Vec<u8>, f64) {
-    use fpi_host::method::shaping;
-    let dir = scratch("closed-loop");
-    let d = fpi_host::method::dynamics::Dynamics::read(&dir.join("dyn.toml")).unwrap();
-    let o = shaping::ShapingOptions::default();
-    let fw = shaping::with_dynamics(&tuned().0, &d, &o).unwrap();
-    println!("{}", shaping::describe(&fw));
-    (fw.image().unwrap(), shaping::delay_ms(&d, &o, 20_000.0))
-}
-
-#[test]
-fn shaping_the_reference_stops_the_mode_ringing() {
-    let (_e, mut c) = board("shaping_the_reference_stops_the_mode_ringing");
-    let (plain, (shaped, delay)) = (tuned().1.clone(), shaped());
-    let runs = closed_loop::shaping_run(&mut c, &plain, (&shaped, delay))
-        .unwrap()
-        .runs;
-    println!("{}", closed_loop::shaping_table(&runs));
-    for mode in [LoopMode::Open, LoopMode::Closed] {
-        let r = |s: bool| {
-            runs.iter()
-                .find(|r| r.mode == mode && r.shaped == s)
-                .unwrap()
-        };
-        let (off, on) = (r(false), r(true));
-        assert!(
-            on.step.overshoot_um < 0.25 * off.step.overshoot_um,
-            "{mode:?}: {} vs {}",
-            on.step.overshoot_um,
-            off.step.overshoot_um
-        );
-        // The price is lag: on the fast triangle the shaped drive trails the
-        // reference by the filter's group delay (printed above; measured, not
-        // bounded here beyond staying within the stroke's tenth).
-        assert!(on.triangle.tracking.max_abs() < 4.0, "{mode:?}");
     }
 }

@@ -231,7 +231,10 @@ fn compare_shows_both_and_the_held_out_runs_are_not_worse() {
     }
     // The report says the same: the in-sample cell marked, the held-out summary.
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    assert_eq!(report.matches("(refined on it: in-sample)").count(), 1);
+    assert_eq!(
+        report.matches("(refined on this run: in-sample)").count(),
+        1
+    );
     let summary = &report[report.find("## Held-out runs").expect("held-out section")..];
     assert!(summary.contains("sine_15Hz.csv") && summary.contains("FEM refined: gain"));
 }

@@ -39,7 +39,8 @@ mod bench {
     use fpi_firmware::sim_io::SimLink;
     use fpi_firmware::slots::{Origin, Running, Spare};
     use piezo_fpi::control::{
-        ControllerConfig, ControllerParts, ForceSource, Interval, Supervision,
+        split_rate, ControllerConfig, ControllerParts, ForceChannel, ForceSource, Interval,
+        Supervision, DEFAULT_SPLIT_HZ,
     };
     use piezo_fpi::fpi::{Coupling, Fpi, Identity, Shape};
     use piezo_fpi::model::{image, ModelSpec, TableSpec};
@@ -104,6 +105,11 @@ mod bench {
                 force_tolerance: Newtons::from_bits(1000 << 16),
                 safe_voltage: Volts::ZERO,
                 force_source: ForceSource::Measured,
+                // The channel every exported model has: the default split.
+                channel: ForceChannel {
+                    split: split_rate(DEFAULT_SPLIT_HZ, hardware::RATE_HZ),
+                    dynamic_limit: Newtons::from_bits(1000 << 16),
+                },
             },
         }) {
             Ok(c) => c,
@@ -275,6 +281,8 @@ mod bench {
             supervision: sup,
             feedback: None,
             shaping: None,
+            dynamics: None,
+            damping: None,
         }
     }
 
@@ -311,38 +319,71 @@ mod bench {
         true
     }
 
-    /// The embedded model with position feedback and a two-section reference
-    /// shaping (the inverse of an 850 Hz mode and a notch), as an image in `buf`.
+    /// The embedded model with every loop on, as `fpi tune --dynamics` tunes it for
+    /// stage A (its 850.9 Hz mode, ζ 0.0301, the 2027 Hz lag, κ 7.02 N/µm): active
+    /// damping (IFF, 1316 µm/(N·s) between 100 Hz corners), the position PI
+    /// (kp 0.75, ki 1762.6/s) and the two-section feedforward of the damped stage;
+    /// its image in `buf`. The validator's loop check runs on it as on any model.
     fn closed_image<'b>(store: &mut Store, buf: &'b mut [u8]) -> Option<&'b [u8]> {
+        use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
+        use piezo_fpi::q::{CreepRate, LoopGain};
         store.load(MODEL_IMAGE, &BOARD).ok()?;
         let spec = store.spec();
         let um = |x: f64| piezo_fpi::q::signal(x).unwrap_or(Micrometres::ZERO);
+        let gain = |x: f64| LoopGain::from_num(x);
         let r = spec.supervision.reference;
+        let rate = hardware::RATE_HZ as f64;
         let feedback = piezo_fpi::feedback::FeedbackSpec {
-            kp: piezo_fpi::q::LoopGain::from_bits(0),
-            ki: piezo_fpi::q::LoopGain::from_bits(100_000), // 119 /s at 20 kHz
-            limit: um(4.0),
+            kp: gain(0.75),
+            ki: gain(1762.611 / rate),
+            limit: um(9.98),
             sensor: piezo_fpi::control::Interval {
                 lo: r.lo - um(10.0),
                 hi: r.hi + um(10.0),
             },
             tolerance: um(6.0),
         };
+        // 1 − e^{−2π·100 Hz/20 kHz}
+        let corner = CreepRate::from_num(0.030_929_031_800_5);
+        let damping = DampingSpec {
+            gain: gain(1315.733 / rate),
+            highpass: corner,
+            leak: corner,
+            limit: um(39.921),
+        };
+        let dynamics = DynamicsSpec {
+            mode_mhz: 850_852,
+            damping: CreepRate::from_num(0.030_098),
+            lag_mhz: 2_026_966,
+            force_gain: Newtons::from_num(7.017),
+        };
         // Each section's b1 absorbs the rounding: unit static gain exactly.
-        let bits = |b: piezo_fpi::biquad::Biquad| {
+        let bits = |c: [f64; 5]| {
+            let b = piezo_fpi::biquad::Biquad::from_f64([c[0], c[1], c[2]], [c[3], c[4]]).ok()?;
             let b = b.with_unit_static_gain().ok()?;
             let ([b0, b1, b2], [a1, a2]) = (b.b(), b.a());
             Some([b0, b1, b2, a1, a2].map(|c| c.to_bits()))
         };
         let shaping = piezo_fpi::biquad::ShapingSpec {
-            sections: [bits(biquad_bench::INVERSE)?, bits(biquad_bench::NOTCH)?],
+            sections: [
+                bits([11.993_35, -21.262_266, 9.602_843, -0.950_683, 0.284_610])?,
+                bits([0.102_026, 0.142_970, 0.088_931, -0.950_683, 0.284_610])?,
+            ],
         };
         let closed = ModelSpec {
             feedback: Some(feedback),
             shaping: Some(shaping),
+            dynamics: Some(dynamics),
+            damping: Some(damping),
             ..spec
         };
-        let len = image::encode(&closed, buf).ok()?;
+        let len = match image::encode(&closed, buf) {
+            Ok(len) => len,
+            Err(e) => {
+                hprintln!("the closed-loop model was refused: {}", e);
+                return None;
+            }
+        };
         buf.get(..len)
     }
 
@@ -423,7 +464,7 @@ mod bench {
             model::OPERATORS,
             c.max,
             if closed {
-                " in closed loop (PI on the position sensor, two-section reference shaping)"
+                " in closed loop (damping from the force sensor, PI on the position sensor, two-section feedforward)"
             } else {
                 ""
             },

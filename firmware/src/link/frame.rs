@@ -309,10 +309,7 @@ mod tests {
         .unwrap();
         assert!(read(&out[..n])[0].is_ok());
         let mut raw = [0u8; 8];
-        let last = Command::Step {
-            target: 0,
-            duration_us: 1,
-        };
+        let last = Command::ModelRead { offset: 0 };
         let used = postcard::to_slice(&last, &mut raw).unwrap();
         assert_eq!(
             used[0] as u32,

@@ -18,11 +18,13 @@ use piezo_fpi::q::Micrometres;
 
 use super::frame::{self, FrameError};
 use super::protocol::{
-    Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, Header, Hello, Refusal, Reply,
-    ReplyHeader, ResetReason, SlotReport, Status, Text, COMMAND_KINDS, MAX_FRAME, MAX_VALUES,
-    NO_SEQ, VERSION,
+    Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, Header, Hello, Refusal,
+    Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, COMMAND_KINDS, MAX_FRAME,
+    MAX_MODEL_BYTES, MAX_VALUES, NO_SEQ, VERSION,
 };
 use super::upload::Upload;
+use crate::analyser::AnalyseOrder;
+use crate::closed_loop::LoopMode;
 use crate::exchange::{Exchange, Order, Refused};
 use crate::hardware::{
     BOARD, CREEP_TERMS, IMAGE_BYTES, OPERATORS, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS,
@@ -96,6 +98,9 @@ pub struct Handler<F> {
     pub(super) counters: Counters,
     /// The tick of the request being handled (see [`ReplyHeader::tick`]).
     pub(super) tick: Option<u32>,
+    /// The length of the running model's image where the upload buffer still
+    /// holds it (a model received, stored or restored since no upload began).
+    pub(super) image_len: Option<usize>,
 }
 
 impl<F: NorFlash> Handler<F> {
@@ -143,6 +148,7 @@ impl<F: NorFlash> Handler<F> {
                 }
             }
         }
+        let image_len = chosen.as_ref().map(|(_, s)| s.len as usize);
         let (running, stored) = match chosen {
             Some((r, s)) => (r, Some(s)),
             None => {
@@ -169,6 +175,7 @@ impl<F: NorFlash> Handler<F> {
             timeout_ms: 0,
             counters: Counters::default(),
             tick: None,
+            image_len,
         };
         Some((handler, running))
     }
@@ -358,6 +365,8 @@ impl<F: NorFlash> Handler<F> {
                 cycles,
             } => {
                 let wave = self.wave(shape, offset, amplitude, freq_mhz, cycles)?;
+                let damping_on = board.exchange(|x| x.snapshot.damping_on);
+                self.within_the_mode(&wave, freq_mhz, damping_on)?;
                 self.order(board, seq, Order::Source(SourceOrder::Wave(wave)))
             }
             Command::Points { first, points } => self.points(board, first, &points),
@@ -375,8 +384,40 @@ impl<F: NorFlash> Handler<F> {
             Command::Safe => self.order(board, seq, Order::Safe),
             Command::ClearFault => self.order(board, seq, Order::ClearFault),
             Command::Drive { compensated } => self.order(board, seq, Order::Drive { compensated }),
-            Command::Loop { mode } => self.order(board, seq, Order::Loop(mode)),
-            Command::Damping { on } => self.order(board, seq, Order::Damping(on)),
+            Command::Loop { mode } => {
+                let damping_on = board.exchange(|x| x.snapshot.damping_on);
+                if mode != LoopMode::Open {
+                    self.stable_with(damping_on, mode)?;
+                }
+                self.order(board, seq, Order::Loop(mode))
+            }
+            Command::Damping { on } => {
+                let mode = board.exchange(|x| x.snapshot.loop_mode);
+                if !on && mode != LoopMode::Open {
+                    self.stable_with(false, mode)?;
+                }
+                self.order(board, seq, Order::Damping(on))
+            }
+            Command::Shaping { on } => self.order(board, seq, Order::Shaping(on)),
+            Command::Analyse {
+                freq_mhz,
+                amplitude,
+                settle,
+                cycles,
+            } => {
+                let o = self.analyse_order(board, freq_mhz, amplitude, settle, cycles)?;
+                self.order(board, seq, Order::Analyse(o))
+            }
+            Command::AnalysisResult => {
+                let r = self.locked(board, |x| x.analysis);
+                Ok(Reply::Analysis(r.map(|a| Analysis {
+                    freq_mhz: a.freq_mhz,
+                    ticks: a.ticks,
+                    sums: a.sums,
+                    faulted: a.faulted,
+                })))
+            }
+            Command::ModelRead { offset } => self.model_bytes(board, offset),
             Command::Supervise { timeout_ms } => {
                 self.timeout_ms = timeout_ms;
                 self.supervise(board, seq, timeout_ms)
@@ -416,6 +457,23 @@ impl<F: NorFlash> Handler<F> {
             }
             Command::Bench(BenchOrder::DamageStored) if self.kind == BoardKind::Emulated => {
                 self.damage_stored(board)
+            }
+            Command::Bench(BenchOrder::Stage(v)) if self.kind == BoardKind::Emulated => {
+                if let Err((key, value, (lo, hi))) = v.check() {
+                    // Fixed-point text: no float formatting in the firmware.
+                    let q = |x: f32| Milli((x.clamp(-32_767.0, 32_767.0) * 65_536.0) as i32);
+                    let given = if value.is_finite() { "" } else { " (not a number)" };
+                    return Err(refuse(
+                        Refusal::BadArgument,
+                        format_args!(
+                            "stage {key} = {}{given}: outside {}–{}",
+                            q(value),
+                            q(lo),
+                            q(hi)
+                        ),
+                    ));
+                }
+                self.order(board, seq, Order::Bench(BenchOrder::Stage(v)))
             }
             Command::Bench(b) => match self.kind {
                 BoardKind::Emulated => self.order(board, seq, Order::Bench(b)),
@@ -494,6 +552,139 @@ impl<F: NorFlash> Handler<F> {
         Ok(Micrometres::from_bits(x))
     }
 
+    /// Refuses a closed loop that the model's dynamics make unstable with the
+    /// damping as given (the model was validated with its damping on).
+    fn stable_with(&self, damping_on: bool, mode: LoopMode) -> Result<(), Refuse> {
+        let s = &self.summary;
+        let damping = if damping_on {
+            s.damping.map(|d| *d.spec())
+        } else {
+            None
+        };
+        let feedback = s.feedback.map(|f| *f.spec());
+        let checked = match (mode, s.dynamics) {
+            (LoopMode::Open, _) | (_, None) => Ok(()),
+            (_, Some(d)) => piezo_fpi::stability::check(
+                RATE_HZ,
+                Some(&d),
+                s.channel.split.to_bits(),
+                damping.as_ref(),
+                feedback.as_ref(),
+            ),
+        };
+        checked.map_err(|_| {
+            refuse(
+                Refusal::BadArgument,
+                format_args!(
+                    "unstable on the {} Hz mode without damping: keep it on or load gains \
+                     tuned without",
+                    Milli(
+                        s.dynamics
+                            .map_or(0, |d| (((d.mode_mhz as u64) << 16) / 1000) as i32)
+                    )
+                ),
+            )
+        })
+    }
+
+    /// An analysis order, checked: a frequency below a quarter of the control
+    /// rate, an excitation of at most 5 µm that keeps the stage in its stroke, and
+    /// at most [`crate::analyser::MAX_TICKS`] correlated.
+    fn analyse_order(
+        &mut self,
+        board: &mut impl Board,
+        freq_mhz: u32,
+        amplitude: i32,
+        settle: u16,
+        cycles: u16,
+    ) -> Result<AnalyseOrder, Refuse> {
+        let top_mhz = RATE_HZ / 4 * 1000;
+        if freq_mhz == 0 || freq_mhz >= top_mhz {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!("analysis frequency {freq_mhz} mHz: between 0 and {top_mhz} mHz"),
+            ));
+        }
+        if amplitude <= 0 || amplitude > 5 << 16 {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!("excitation {} µm: above 0, at most 5 µm", Milli(amplitude)),
+            ));
+        }
+        if cycles == 0 {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!("an analysis correlates at least one period"),
+            ));
+        }
+        let at = board.exchange(|x| x.snapshot.x_ref);
+        self.in_stroke(
+            "excitation's low point",
+            at.to_bits().saturating_sub(amplitude),
+        )?;
+        self.in_stroke(
+            "excitation's high point",
+            at.to_bits().saturating_add(amplitude),
+        )?;
+        let phase_step = Wave::phase_step_for(freq_mhz, RATE_HZ);
+        let period = (1u64 << 32).div_ceil(phase_step.max(1) as u64);
+        let ticks = |n: u16| (n as u64 * period).min(u32::MAX as u64) as u32;
+        let measure_ticks = ticks(cycles);
+        if measure_ticks > crate::analyser::MAX_TICKS {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!(
+                    "{cycles} periods at {freq_mhz} mHz: more than {} ticks",
+                    crate::analyser::MAX_TICKS
+                ),
+            ));
+        }
+        Ok(AnalyseOrder {
+            freq_mhz,
+            phase_step,
+            amplitude: Micrometres::from_bits(amplitude),
+            settle_ticks: ticks(settle),
+            measure_ticks,
+        })
+    }
+
+    /// A piece of the running model's image: the factory image, or the upload
+    /// buffer while it still holds the running model's.
+    fn model_bytes(&mut self, board: &mut impl Board, offset: u32) -> Result<Reply, Refuse> {
+        let image: &[u8] = match (self.summary.origin, self.image_len) {
+            (Origin::Factory, _) => crate::model::MODEL_IMAGE,
+            (_, Some(n)) if self.upload.expected.is_none() => {
+                self.upload.image.get(..n).unwrap_or(&[])
+            }
+            _ => {
+                return Err(refuse(
+                    Refusal::Upload,
+                    format_args!(
+                        "an upload has begun since this model was loaded: its image is gone \
+                         from the link's buffer (load the model again to read it back)"
+                    ),
+                ))
+            }
+        };
+        if piezo_fpi::model::image::CRC32.checksum(image) != self.summary.crc {
+            return Err(refuse(
+                Refusal::Upload,
+                format_args!("the running model's image is not in the link's buffer"),
+            ));
+        }
+        let start = (offset as usize).min(image.len());
+        let end = (start + MAX_MODEL_BYTES).min(image.len());
+        let mut data = Vec::new();
+        let _ = data.extend_from_slice(image.get(start..end).unwrap_or(&[]));
+        let total = image.len() as u32;
+        self.ack(board)?;
+        Ok(Reply::ModelBytes {
+            total,
+            offset: start as u32,
+            data,
+        })
+    }
+
     fn wave(
         &self,
         shape: crate::reference::wave::Shape,
@@ -522,6 +713,48 @@ impl<F: NorFlash> Handler<F> {
             phase_step: Wave::phase_step_for(freq_mhz, RATE_HZ),
             cycles,
         })
+    }
+
+    /// Refuses a wave whose harmonics the model's first mode would amplify out
+    /// of the stroke ([`crate::reference::wave::mode_swing`]; with the model's
+    /// damping on, the mode is taken as damped to
+    /// [`crate::reference::wave::DAMPED_ZETA`]).
+    fn within_the_mode(&self, w: &Wave, freq_mhz: u32, damping_on: bool) -> Result<(), Refuse> {
+        use crate::reference::wave::{mode_swing, DAMPED_ZETA};
+        let s = &self.summary;
+        let Some(d) = s.dynamics else {
+            return Ok(());
+        };
+        let mode_hz = d.mode_mhz as f32 / 1000.0;
+        let mut zeta = d.damping.to_num::<f32>();
+        if damping_on && s.damping.is_some() && zeta < DAMPED_ZETA {
+            zeta = DAMPED_ZETA;
+        }
+        let swing = mode_swing(
+            w.shape,
+            w.amplitude.to_num::<f32>(),
+            freq_mhz as f32 / 1000.0,
+            (mode_hz, zeta),
+            RATE_HZ as f32 / 2.0,
+        );
+        let bits = (swing * 65536.0).min(i32::MAX as f32) as i32;
+        let (lo, hi) = (
+            w.offset.to_bits().saturating_sub(bits),
+            w.offset.to_bits().saturating_add(bits),
+        );
+        let r = s.reference;
+        if lo < r.lo.to_bits() || hi > r.hi.to_bits() {
+            return Err(refuse(
+                Refusal::OutOfRange,
+                format_args!(
+                    "the {} Hz mode would swing it {}–{} µm, beyond the stroke",
+                    Milli(((d.mode_mhz as i64) << 16).wrapping_div(1000) as i32),
+                    Milli(lo),
+                    Milli(hi)
+                ),
+            ));
+        }
+        Ok(())
     }
 
     fn points(
@@ -635,6 +868,14 @@ pub(super) fn refused(r: Refused) -> Refuse {
             Refusal::BadArgument,
             format_args!("the running model has no [feedback] section: load one from `fpi tune`"),
         ),
+        Refused::NotHolding => refuse(
+            Refusal::BadArgument,
+            format_args!("an analysis needs the stage armed and holding still (`move` first)"),
+        ),
+        Refused::Unstable => refuse(
+            Refusal::BadArgument,
+            format_args!("that would leave the loop unstable on the stage's mode"),
+        ),
     }
 }
 
@@ -662,6 +903,8 @@ fn status(x: &Exchange<'_>, summary: &Summary) -> Status {
         compensated: s.compensated,
         loop_mode: s.loop_mode,
         damping: summary.damping.map(|_| s.damping_on),
+        shaping: summary.shaping.map(|_| s.shaping_on),
+        analysing: s.analysing,
         supervision: [s.timeout_ticks, s.silent_ticks],
         stream: [q.len() as u32, q.free() as u32, q.received(), s.underruns],
         recorder: [r.active() as u32, r.kept(), r.dropped(), r.len() as u32],

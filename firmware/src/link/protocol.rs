@@ -28,10 +28,10 @@ pub const MAX_VALUES: usize = 200;
 /// The sequence number of a reply to a frame that could not be read.
 pub const NO_SEQ: u16 = u16::MAX;
 
-/// Variants of [`Command`] (the last one, [`Command::Step`], is number
+/// Variants of [`Command`] (the last one, [`Command::ModelRead`], is number
 /// `COMMAND_KINDS - 1`): a request whose variant number is beyond is refused as
 /// [`Refusal::Unknown`] rather than as garbage.
-pub const COMMAND_KINDS: u32 = 29;
+pub const COMMAND_KINDS: u32 = 33;
 
 /// A short text (a refusal's reason, a firmware version).
 pub type Text = String<96>;
@@ -59,7 +59,7 @@ pub struct ReplyHeader {
 }
 
 /// Orders for the emulated board's virtual bench (a real board refuses them).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum BenchOrder {
     /// The force sensor's wire is open (the reading sits on the ADC's top rail), or intact.
     SensorOpen(bool),
@@ -82,10 +82,73 @@ pub enum BenchOrder {
     /// The position sensor freezes at its present reading, or follows the stage again.
     PositionStuck(bool),
     /// Replace the virtual stage by a fresh one at rest: the nominal twin of
-    /// stage A (`false`) or the stage as built (`true`: kinematics, preload and
-    /// creep a few percent off the model, a lightly damped first mode, position
-    /// sensor noise). Send it with the stage parked.
-    Stage(bool),
+    /// stage A or the stage as built (kinematics, preload and creep a few percent
+    /// off the model, a lightly damped first mode, position sensor noise), with
+    /// any of their values replaced. Send it with the stage parked.
+    Stage(StageVariant),
+}
+
+/// A virtual stage: a base and the values that replace the base's (`None`: the
+/// base's).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+pub struct StageVariant {
+    /// The stage as built (`true`) or the nominal twin.
+    pub built: bool,
+    /// First mode, Hz (the nominal twin has none: quasi-static).
+    pub mode_hz: Option<f32>,
+    /// Its damping ratio.
+    pub mode_damping: Option<f32>,
+    /// Kinematics relative to the FEM's `f_K`.
+    pub output_gain: Option<f32>,
+    /// Preload relative to the FEM's `f_F`.
+    pub force_scale: Option<f32>,
+    /// Creep relative to the model's.
+    pub creep_scale: Option<f32>,
+    /// Position sensor noise (standard deviation), µm.
+    pub position_noise_um: Option<f32>,
+    /// Force sensor noise (standard deviation), N.
+    pub force_noise_n: Option<f32>,
+}
+
+impl StageVariant {
+    /// The nominal twin.
+    pub const NOMINAL: Self = Self {
+        built: false,
+        mode_hz: None,
+        mode_damping: None,
+        output_gain: None,
+        force_scale: None,
+        creep_scale: None,
+        position_noise_um: None,
+        force_noise_n: None,
+    };
+    /// The stage as built.
+    pub const BUILT: Self = Self {
+        built: true,
+        ..Self::NOMINAL
+    };
+
+    /// Each value that is given, by its key, with the range it must lie in: the
+    /// one check of a variant, for the host's file reader and the board.
+    pub fn check(&self) -> Result<(), (&'static str, f32, (f32, f32))> {
+        let ranges: [(&'static str, Option<f32>, (f32, f32)); 7] = [
+            ("mode_hz", self.mode_hz, (100.0, 5000.0)),
+            ("mode_damping", self.mode_damping, (0.001, 0.5)),
+            ("output_gain", self.output_gain, (0.5, 2.0)),
+            ("force_scale", self.force_scale, (0.5, 1.5)),
+            ("creep_scale", self.creep_scale, (0.0, 5.0)),
+            ("position_noise_um", self.position_noise_um, (0.0, 1.0)),
+            ("force_noise_n", self.force_noise_n, (0.0, 10.0)),
+        ];
+        for (key, v, (lo, hi)) in ranges {
+            if let Some(v) = v {
+                if !(v >= lo && v <= hi) {
+                    return Err((key, v, (lo, hi)));
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Why the board last started.
@@ -122,7 +185,7 @@ pub enum SlotReport {
 /// What the host asks.
 // Messages are built once per request and there is no heap to box the large ones.
 #[allow(clippy::large_enum_variant)]
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum Command<'a> {
     /// Who are you? → [`Reply::Hello`].
     Hello,
@@ -252,6 +315,35 @@ pub enum Command<'a> {
         /// Duration, µs (one control period to one second).
         duration_us: u32,
     },
+    /// Switch the model's reference shaping (the feedforward of the stage's
+    /// dynamics) on or off, without a jump.
+    Shaping {
+        /// On.
+        on: bool,
+    },
+    /// Measure the frequency response at one frequency: add
+    /// `amplitude·sin(2π·f·t)` to the command (µm) for `settle` then `cycles`
+    /// whole periods, correlating the position sensor, the force reading, the
+    /// force channel's dynamic part and the setpoint with the excitation over
+    /// the last `cycles` (the stage must be holding). → `Ack`; the result by
+    /// [`Command::AnalysisResult`].
+    Analyse {
+        /// Frequency, mHz (below a quarter of the control rate).
+        freq_mhz: u32,
+        /// Excitation, µm (`I16F16` bits, > 0).
+        amplitude: i32,
+        /// Periods before the correlation starts.
+        settle: u16,
+        /// Periods correlated (≥ 1).
+        cycles: u16,
+    },
+    /// The last analysis → [`Reply::Analysis`] (`None` while one runs or before any).
+    AnalysisResult,
+    /// A piece of the running model's image, from `offset` → [`Reply::ModelBytes`].
+    ModelRead {
+        /// Where in the image.
+        offset: u32,
+    },
 }
 
 /// Why a request was not carried out.
@@ -350,6 +442,11 @@ pub struct Status {
     /// Active damping: `None` if the running model has none, else whether it is
     /// switched on.
     pub damping: Option<bool>,
+    /// Reference shaping: `None` if the running model has none, else whether it
+    /// is switched on.
+    pub shaping: Option<bool>,
+    /// An analysis is running.
+    pub analysing: bool,
     /// Heartbeat timeout, ticks (0: off), and ticks since the last request.
     pub supervision: [u32; 2],
     /// Stream: points queued, free, received since `Stream`/`StreamClear`; underrun ticks.
@@ -432,6 +529,26 @@ pub struct Batch {
     pub values: Vec<i32, MAX_VALUES>,
 }
 
+/// One frequency of an analysis: the sums `Σ s·sin φ`, `Σ s·cos φ` of each
+/// signal over the correlated ticks (signals in `I16F16` bits times the
+/// excitation's `sin`/`cos` in `I2F30`, shifted right by 16: units of 2⁻³⁰ of the
+/// signal's unit), in the order position sensor (µm), force reading (N), dynamic
+/// force (N), setpoint (V), command excitation (µm).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Analysis {
+    /// The frequency, mHz.
+    pub freq_mhz: u32,
+    /// Ticks correlated.
+    pub ticks: u32,
+    /// `[Σ s·sin, Σ s·cos]` per signal.
+    pub sums: [[i64; 2]; 5],
+    /// A fault latched while it ran (the result is then void).
+    pub faulted: bool,
+}
+
+/// Bytes per [`Reply::ModelBytes`].
+pub const MAX_MODEL_BYTES: usize = 256;
+
 /// What the board answers.
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -448,6 +565,17 @@ pub enum Reply {
     Model(ModelReport),
     /// The link's counters.
     Counters(Counters),
+    /// An analysis (`None`: one is running, or none has run).
+    Analysis(Option<Analysis>),
+    /// A piece of the running model's image.
+    ModelBytes {
+        /// The image's length, bytes.
+        total: u32,
+        /// Where this piece starts.
+        offset: u32,
+        /// The bytes.
+        data: Vec<u8, MAX_MODEL_BYTES>,
+    },
     /// Not done, and why.
     Refused {
         /// The kind of refusal.

@@ -75,6 +75,8 @@ impl<F: NorFlash> Handler<F> {
         }
         self.upload.expected = Some((len as usize, crc));
         self.upload.received = 0;
+        // The buffer no longer holds the running model's image.
+        self.image_len = None;
         self.ack(board)
     }
 
@@ -165,7 +167,11 @@ impl<F: NorFlash> Handler<F> {
             }
         }
         self.upload.expected = None;
-        self.swap(board, seq, running)
+        let result = self.swap(board, seq, running);
+        if result.is_ok() {
+            self.image_len = Some(len);
+        }
+        result
     }
 
     /// Loads the first `len` bytes of the upload buffer into the spare store and
@@ -221,6 +227,10 @@ impl<F: NorFlash> Handler<F> {
         }
         self.upload.expected = None;
         let running = self.activate(Origin::Factory, n)?;
-        self.swap(board, seq, running)
+        let result = self.swap(board, seq, running);
+        if result.is_ok() {
+            self.image_len = Some(n);
+        }
+        result
     }
 }

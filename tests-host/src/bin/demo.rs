@@ -58,7 +58,7 @@ fn run() -> Result<()> {
         println!("NOTE: {e:#}\n  The board session will run on the firmware built for this host instead.\n");
     }
     println!("== 1. FPI-FFEM method on the host (fpi demo) ==");
-    let out = board::project_root().join("tests-host/out/demo");
+    let out = fpi_host::data::project_root().join("tests-host/out/demo");
     let chain = fpi_host::report::demo::run(&out)?;
     for l in &chain.lines {
         println!("  {l}");
@@ -71,7 +71,7 @@ fn run() -> Result<()> {
     let looped = closed_loop(&out, emulated)?;
     println!(
         "\nreport with tables and plots: {}",
-        fpi_host::method::export::project_relative(&chain.report)
+        fpi_host::data::project_relative(&chain.report)
     );
     let ok = chain.ok && acc_ok && report.pass() && looped;
     if !emulated {
@@ -99,7 +99,7 @@ fn run() -> Result<()> {
 /// Step 4: closed loop and dynamic compensation on the stage as built, on a fresh
 /// board; whether its checks passed.
 fn closed_loop(out: &Path, emulated: bool) -> Result<bool> {
-    println!("\n== 4. Closed loop and dynamic compensation on the stage as built ==");
+    println!("\n== 4. Damping, tracking and autotune on the stage as built ==");
     let (emulator, port) = if emulated {
         let e = Emulator::start_elf(&Emulator::firmware()?, None)?;
         let port = e.port().to_string();
@@ -107,20 +107,14 @@ fn closed_loop(out: &Path, emulated: bool) -> Result<bool> {
     } else {
         (None, inprocess::PORT_NAME.to_string())
     };
-    let root = board::project_root();
-    let d = fpi_host::report::closed_loop::run(
-        out,
-        &out.join("firmware-stage-a.toml"),
-        &root.join("tests-host/data/stage-a/chirp_small_1Hz-3kHz.csv.gz"),
-        &port,
-    )?;
+    let d = fpi_host::report::closed_loop::run(out, &out.join("firmware-stage-a.toml"), &port)?;
     drop(emulator);
     for l in &d.lines {
         println!("  {l}");
     }
     println!(
-        "  check (feedback + feedforward beats either alone; shaping cuts the step's \
-         overshoot fourfold): {}",
+        "  check (damping + PI + feedforward beats the PI alone on the triangle and settles \
+         the step sooner): {}",
         if d.ok { "ok" } else { "FAILED" }
     );
     Ok(d.ok)
@@ -160,7 +154,7 @@ fn board_session(out: &Path, emulated: bool) -> Result<SessionReport> {
     append_report(&out.join("report.md"), &report, emulated)?;
     println!(
         "  recording: {} ({} samples)",
-        fpi_host::method::export::project_relative(&csv),
+        fpi_host::data::project_relative(&csv),
         report.recording.samples.len()
     );
     Ok(report)

@@ -43,12 +43,13 @@ struct Args {
 enum Command {
     /// Part I: identify a model from Voltage–Force–Displacement recordings.
     Calibrate {
-        /// Model kind: fpi (the paper's), pi, ldpi, efpi (extended FPI), gpi (PI with an
-        /// output map, no force), branch (the second paper's branch polynomials, eqs. 6–7).
-        /// Default: efpi, or gpi for recordings without force.
+        /// Model kind: fpi (the paper's), pi, ldpi, efpi (extended FPI), epi (extended
+        /// model without force), gpi (PI with an output map, no force), branch (the second
+        /// paper's branch polynomials, eqs. 6–7). Default: efpi, or epi for recordings
+        /// without force.
         ///
         /// When to use which: efpi for a stage you will run (the most accurate, and the
-        /// firmware runs it); gpi for recordings without force; fpi, pi and ldpi to
+        /// firmware runs it); epi for recordings without force; fpi, pi and ldpi to
         /// reproduce the first paper's comparison; branch to compare with the second
         /// paper's hysteresis model (host only: `fpi export` and `fpi invert` do not
         /// take it; it fits the rig better than fpi with 7 coefficients, but predicts
@@ -143,37 +144,12 @@ enum Command {
         /// Identified dynamics (`fpi identify`).
         #[arg(long)]
         dynamics: Option<PathBuf>,
-        /// Largest sensitivity peak |1/(1+L)| of the position loop over the mode's
-        /// spread (±20 %, damping 0.01–0.06) and the model's gain spread (1.6: gain
-        /// margin ≥ 8.5 dB, phase margin ≥ 36°).
-        #[arg(long, default_value_t = 1.6)]
-        max_sensitivity: f64,
-        /// The highest crossover of the position loop, Hz (default: as high as the
-        /// margins allow; without --dynamics, 20 Hz). One the margins do not allow
-        /// is refused.
-        #[arg(long)]
-        bandwidth_hz: Option<f64>,
-        /// No active damping (the PI and feedforward on the undamped stage).
-        #[arg(long)]
-        no_damping: bool,
-        /// The damping ratio the damping aims for on the least-damped plant.
-        #[arg(long, default_value_t = 0.5)]
-        target_damping: f64,
-        /// κ, the dynamic force per µm of command, N/µm (default: estimated from
-        /// the model's stiffness, coupling and lever; `fpi board autotune` measures it).
-        #[arg(long)]
-        force_gain: Option<f64>,
-        /// No feedforward (reference shaping) of the damped stage.
-        #[arg(long)]
-        no_feedforward: bool,
-        /// Largest correction the feedback adds to the reference, µm (default 10 %
-        /// of the stroke).
-        #[arg(long)]
-        limit_um: Option<f64>,
-        /// Largest disagreement of the position sensor with the model's estimate,
-        /// µm (default 15 % of the stroke).
-        #[arg(long)]
-        tolerance_um: Option<f64>,
+        /// A frequency response measured through the board (`fpi board frf`),
+        /// instead of --dynamics: the dynamics and κ are fitted to it.
+        #[arg(long, conflicts_with = "dynamics")]
+        frf: Option<PathBuf>,
+        #[command(flatten)]
+        loops: TuneArgs,
         /// Where to write the tuned firmware model.
         #[arg(long)]
         out: PathBuf,
@@ -422,6 +398,172 @@ enum BoardCommand {
         /// (feedback alone, through the straight-line drive).
         mode: String,
     },
+    /// Switch the model's active damping (its [damping] section) on or off,
+    /// without a jump.
+    Damping {
+        /// on or off.
+        state: String,
+    },
+    /// Switch the model's reference shaping (its [shaping] section) on or off,
+    /// without a jump.
+    Shaping {
+        /// on or off.
+        state: String,
+    },
+    /// Step the reference along a raised cosine, record and score the response:
+    /// rise time, overshoot, settling to ±0.1 µm (and to --tol).
+    Step {
+        /// From, µm (the stage moves there first and rests 50 ms).
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
+        from: f64,
+        /// To, µm.
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
+        to: f64,
+        /// Board time recorded from the step's start, s.
+        #[arg(long, default_value_t = 0.05, value_parser = parse_positive, allow_negative_numbers = true)]
+        seconds: f64,
+        /// A second settling band, µm.
+        #[arg(long, value_parser = parse_positive, allow_negative_numbers = true)]
+        tol: Option<f64>,
+        /// The raised cosine's duration, ms.
+        #[arg(long, default_value_t = 1.5, value_parser = parse_positive, allow_negative_numbers = true)]
+        duration_ms: f64,
+        /// Keep one tick in this many.
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..))]
+        decimation: u16,
+        /// Where to write the recording (CSV).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Measure the frequency response through the board (its own lock-in
+    /// analyser) from the command to the position and force sensors; `fpi tune
+    /// --frf` designs loops on it.
+    Frf {
+        #[command(flatten)]
+        sweep: FrfArgs,
+        /// Where to write it (CSV).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Tune the loops of the model the board runs through the board: measure
+    /// the frequency response, fit the stage's dynamics, design damping, PI and
+    /// feedforward, load the tuned model and verify it with a step.
+    Autotune {
+        /// The model the board runs (as `fpi board load` took it).
+        model: PathBuf,
+        /// FEM export of the stage (for a calibrated model).
+        #[arg(long)]
+        fem: Option<PathBuf>,
+        #[command(flatten)]
+        settings: LoopArgs,
+        #[command(flatten)]
+        loops: TuneArgs,
+        #[command(flatten)]
+        sweep: FrfArgs,
+        /// Also keep the tuned model in the board's flash.
+        #[arg(long)]
+        store: bool,
+        /// Where to write the measured response (CSV).
+        #[arg(long)]
+        frf_out: Option<PathBuf>,
+        /// Where to write the tuned model (a firmware model file for `fpi board load`).
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+/// The sweep of `fpi board frf` and `fpi board autotune`.
+#[derive(Debug, Clone, clap::Args)]
+struct FrfArgs {
+    /// Lowest frequency, Hz.
+    #[arg(long, default_value_t = 20.0, value_parser = parse_positive, allow_negative_numbers = true)]
+    from_hz: f64,
+    /// Highest frequency, Hz (below a quarter of the control rate).
+    #[arg(long, default_value_t = 4000.0, value_parser = parse_positive, allow_negative_numbers = true)]
+    to_hz: f64,
+    /// Frequencies, log-spaced (8–400).
+    #[arg(long, default_value_t = 40)]
+    points: usize,
+    /// Excitation added to the command, µm (≤ 2).
+    #[arg(long, default_value_t = 0.1, value_parser = parse_positive, allow_negative_numbers = true)]
+    amplitude_um: f64,
+    /// Where the stage holds meanwhile, µm.
+    #[arg(long, default_value_t = 20.0, value_parser = parse_finite, allow_negative_numbers = true)]
+    at_um: f64,
+}
+
+impl FrfArgs {
+    fn settings(&self) -> fpi_host::board::frf::FrfSettings {
+        fpi_host::board::frf::FrfSettings {
+            from_hz: self.from_hz,
+            to_hz: self.to_hz,
+            points: self.points,
+            amplitude_um: self.amplitude_um,
+            at_um: self.at_um,
+            ..Default::default()
+        }
+    }
+}
+
+/// `on` or `off`.
+fn on_off(s: &str) -> Result<bool> {
+    match s {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => anyhow::bail!("{s:?}: on or off"),
+    }
+}
+
+/// How `fpi tune` and `fpi board autotune` design the loops.
+#[derive(Debug, Clone, clap::Args)]
+struct TuneArgs {
+    /// Largest sensitivity peak |1/(1+L)| of the position loop over the mode's
+    /// spread (±20 %, damping 0.01–0.06) and the model's gain spread (1.6: gain
+    /// margin ≥ 8.5 dB, phase margin ≥ 36°).
+    #[arg(long, default_value_t = 1.6)]
+    pub max_sensitivity: f64,
+    /// The highest crossover of the position loop, Hz (default: as high as the
+    /// margins allow; without --dynamics, 20 Hz). One the margins do not allow
+    /// is refused.
+    #[arg(long)]
+    pub bandwidth_hz: Option<f64>,
+    /// No active damping (the PI and feedforward on the undamped stage).
+    #[arg(long)]
+    pub no_damping: bool,
+    /// The damping ratio the damping aims for on the least-damped plant.
+    #[arg(long, default_value_t = 0.5)]
+    pub target_damping: f64,
+    /// κ, the dynamic force per µm of command, N/µm (default: estimated from
+    /// the model's stiffness, coupling and lever; `fpi board autotune` measures it).
+    #[arg(long)]
+    pub force_gain: Option<f64>,
+    /// No feedforward (reference shaping) of the damped stage.
+    #[arg(long)]
+    pub no_feedforward: bool,
+    /// Largest correction the feedback adds to the reference, µm (default a
+    /// quarter of the stroke).
+    #[arg(long)]
+    pub limit_um: Option<f64>,
+    /// Largest disagreement of the position sensor with the model's estimate,
+    /// µm (default 15 % of the stroke).
+    #[arg(long)]
+    pub tolerance_um: Option<f64>,
+}
+
+impl TuneArgs {
+    fn options(&self) -> fpi_host::method::tune::TuneOptions {
+        fpi_host::method::tune::TuneOptions {
+            max_sensitivity: self.max_sensitivity,
+            bandwidth_hz: self.bandwidth_hz,
+            limit_um: self.limit_um,
+            tolerance_um: self.tolerance_um,
+            damping: !self.no_damping,
+            target_damping: self.target_damping,
+            force_gain: self.force_gain,
+            feedforward: (!self.no_feedforward).then(fpi_host::method::tune::TimeOptions::default),
+            ..Default::default()
+        }
+    }
 }
 
 /// `A-B`: rows A to B (1-based, inclusive), at least [`cli::MIN_FIT_ROWS`] of them.
@@ -488,13 +630,13 @@ fn in_span(s: &str, unit: &str, max: f64, limit: &str) -> Result<f64, String> {
 
 /// A voltage within the board's amplifier span `(0, 150] V`.
 fn parse_amplifier_volts(s: &str) -> Result<f64, String> {
-    use fpi_host::method::export::AMPLIFIER_MAX_V;
+    use fpi_host::method::limits::AMPLIFIER_MAX_V;
     in_span(s, "V", AMPLIFIER_MAX_V, "the board's amplifier span")
 }
 
 /// A slew within the amplifier's `(0, 100] V/ms`.
 fn parse_slew(s: &str) -> Result<f64, String> {
-    use fpi_host::method::export::AMPLIFIER_MAX_SLEW_V_PER_MS;
+    use fpi_host::method::limits::AMPLIFIER_MAX_SLEW_V_PER_MS;
     in_span(
         s,
         "V/ms",
@@ -583,40 +725,15 @@ fn run(args: Args) -> Result<()> {
         Command::Tune {
             firmware,
             dynamics,
-            max_sensitivity,
-            bandwidth_hz,
-            no_damping,
-            target_damping,
-            force_gain,
-            no_feedforward,
-            limit_um,
-            tolerance_um,
+            frf,
+            loops,
             out,
         } => cli::tune(
             &firmware,
             dynamics.as_deref(),
+            frf.as_deref(),
             &out,
-            &fpi_host::method::tune::TuneOptions {
-                max_sensitivity,
-                bandwidth_hz,
-                limit_um,
-                tolerance_um,
-                damping: !no_damping,
-                target_damping,
-                force_gain,
-                feedforward: (!no_feedforward)
-                    .then(|| fpi_host::method::tune::feedforward::CANDIDATES.to_vec()),
-                damping_band_hz: (
-                    std::env::var("FPI_DAMPING_HP")
-                        .ok()
-                        .and_then(|v| v.parse().ok())
-                        .unwrap_or(fpi_host::method::tune::DAMPING_HIGHPASS_HZ),
-                    std::env::var("FPI_DAMPING_LEAK")
-                        .ok()
-                        .and_then(|v| v.parse().ok())
-                        .unwrap_or(fpi_host::method::tune::DAMPING_LEAK_HZ),
-                ),
-            },
+            &loops.options(),
         ),
         Command::Export {
             model,
@@ -739,6 +856,74 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
         }
         BoardCommand::Bench { settings } => b::bench(&mut c, &settings),
         BoardCommand::Loop { mode } => b::set_loop(&mut c, b::loop_mode(&mode)?),
+        BoardCommand::Damping { state } => {
+            let on = on_off(&state)?;
+            c.damping(on)
+                .map(|t| println!("active damping {state} from tick {t}"))
+        }
+        BoardCommand::Shaping { state } => {
+            let on = on_off(&state)?;
+            c.shaping(on)
+                .map(|t| println!("reference shaping {state} from tick {t}"))
+        }
+        BoardCommand::Step {
+            from,
+            to,
+            seconds,
+            tol,
+            duration_ms,
+            decimation,
+            out,
+        } => {
+            let s = fpi_host::board::step::StepSettings {
+                from_um: from,
+                to_um: to,
+                seconds,
+                tol_um: tol,
+                duration_ms,
+                decimation,
+            };
+            let (rec, fig) = fpi_host::board::step::run(&mut c, &s)?;
+            rec.write_csv(&out)?;
+            println!(
+                "step {from} → {to} µm over {duration_ms} ms, recorded to {}:",
+                out.display()
+            );
+            println!("  {}", fpi_host::board::step::describe(&fig, tol));
+            Ok(())
+        }
+        BoardCommand::Frf { sweep, out } => {
+            let points = fpi_host::board::frf::measure(&mut c, &sweep.settings(), |k, p| {
+                eprintln!("  {:>3}: {:8.1} Hz  |x/u| {:.4}", k + 1, p.f_hz, p.x.norm())
+            })?;
+            fpi_host::method::tune::frf::write_csv(&out, &points)?;
+            println!("{} frequencies written to {}", points.len(), out.display());
+            Ok(())
+        }
+        BoardCommand::Autotune {
+            model,
+            fem,
+            settings,
+            loops,
+            sweep,
+            store,
+            frf_out,
+            out,
+        } => {
+            let fw = b::firmware_model(&model, fem.as_deref(), &settings.options())?;
+            let o = loops.options();
+            let a =
+                fpi_host::board::autotune::run(&mut c, &fw, &o, &sweep.settings(), store, |m| {
+                    eprintln!("{m}")
+                })?;
+            fpi_host::board::autotune::write(&a, &out, frf_out.as_deref())?;
+            println!(
+                "tuned model written to {} and running on the board",
+                out.display()
+            );
+            print!("{}", fpi_host::board::autotune::table(&a));
+            Ok(())
+        }
         BoardCommand::Supervise { ms } => c.ack(&C::Supervise { timeout_ms: ms }).map(|_| {
             if ms == 0 {
                 println!("host supervision off");

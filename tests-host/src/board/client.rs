@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, bail, Context, Result};
 use fpi_firmware::link::frame::{self, FrameReader, Push};
 use fpi_firmware::link::protocol::{
-    Batch, BenchOrder, Command, Counters, Header, Hello, ModelReport, Refusal, Reply, ReplyHeader,
-    Status, MAX_CHUNK, MAX_FRAME, MAX_POINTS, NO_SEQ, VERSION,
+    Analysis, Batch, BenchOrder, Command, Counters, Header, Hello, ModelReport, Refusal, Reply,
+    ReplyHeader, Status, MAX_CHUNK, MAX_FRAME, MAX_POINTS, NO_SEQ, VERSION,
 };
 use fpi_firmware::recorder::Sample;
 use fpi_firmware::reference::wave::Shape;
@@ -355,6 +355,69 @@ impl Client {
             }
             if b.waiting == 0 {
                 return Ok((out, b.dropped));
+            }
+        }
+    }
+
+    /// Steps to `target_um` along a raised cosine lasting `duration_ms`, then
+    /// holds; the tick it started.
+    pub fn step(&mut self, target_um: f64, duration_ms: f64) -> Result<u32> {
+        self.ack(&Command::Step {
+            target: bits(target_um),
+            duration_us: (duration_ms * 1e3).round() as u32,
+        })
+    }
+
+    /// Switches the model's active damping on or off (bumpless).
+    pub fn damping(&mut self, on: bool) -> Result<u32> {
+        self.ack(&Command::Damping { on })
+    }
+
+    /// Switches the model's reference shaping on or off (bumpless).
+    pub fn shaping(&mut self, on: bool) -> Result<u32> {
+        self.ack(&Command::Shaping { on })
+    }
+
+    /// The last frequency-response analysis (`None` while one runs).
+    pub fn analysis(&mut self) -> Result<Option<Analysis>> {
+        match self.request(&Command::AnalysisResult)? {
+            (_, Reply::Analysis(a)) => Ok(a),
+            (_, r) => bail!("unexpected reply to analysis result: {r:?}"),
+        }
+    }
+
+    /// The running model's image, read back in pieces.
+    pub fn read_model(&mut self) -> Result<Vec<u8>> {
+        let mut out = Vec::new();
+        loop {
+            let offset = out.len() as u32;
+            match self.request(&Command::ModelRead { offset })? {
+                (
+                    _,
+                    Reply::ModelBytes {
+                        total,
+                        offset: o,
+                        data,
+                    },
+                ) => {
+                    if o != offset || data.is_empty() && (out.len() as u32) < total {
+                        bail!("model read: piece at {o} for a request at {offset}");
+                    }
+                    out.extend_from_slice(&data);
+                    if out.len() as u32 >= total {
+                        out.truncate(total as usize);
+                        return Ok(out);
+                    }
+                }
+                (_, Reply::Refused { code, reason }) => {
+                    return Err(Refused {
+                        what: "model read".into(),
+                        code,
+                        reason: reason.to_string(),
+                    }
+                    .into())
+                }
+                (_, r) => bail!("unexpected reply to model read: {r:?}"),
             }
         }
     }

@@ -24,6 +24,17 @@ use crate::method::model::HostModel;
 /// calibrated model (`fpi calibrate`) exported with the stage's FEM tables and the
 /// loop settings, as `fpi export` would.
 pub fn model_image(model: &Path, fem: Option<&Path>, o: &ExportOptions) -> Result<Vec<u8>> {
+    firmware_model(model, fem, o)?
+        .image()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))
+}
+
+/// The firmware model of a model file (see [`model_image`]).
+pub fn firmware_model(
+    model: &Path,
+    fem: Option<&Path>,
+    o: &ExportOptions,
+) -> Result<FirmwareModel> {
     let text =
         std::fs::read_to_string(model).with_context(|| format!("reading {}", model.display()))?;
     let shown = model.display().to_string();
@@ -41,9 +52,7 @@ pub fn model_image(model: &Path, fem: Option<&Path>, o: &ExportOptions) -> Resul
         let settings = LoopSettings::for_model(&m, o);
         export::export(&m, model, &maps, &settings)?.model
     };
-    firmware
-        .image()
-        .map_err(|e| anyhow::anyhow!("{shown}: {e}"))
+    Ok(firmware)
 }
 
 fn bar(len: u64, what: &str) -> ProgressBar {
@@ -389,8 +398,11 @@ pub struct BenchSettings {
     #[arg(long)]
     pub position_sensor: Option<String>,
     /// The virtual stage, replaced by a fresh one at rest (send it parked):
-    /// nominal (the model's twin) or built (kinematics, preload and creep a few
-    /// percent off the model, an 850 Hz mode, position-sensor noise).
+    /// nominal (the model's twin), built (kinematics, preload and creep a few
+    /// percent off the model, an 850 Hz mode, position-sensor noise) or a TOML
+    /// file naming one of them as `base` and the values it changes (mode_hz,
+    /// mode_damping, output_gain, force_scale, creep_scale, position_noise_um,
+    /// force_noise_n).
     #[arg(long)]
     pub stage: Option<String>,
 }
@@ -402,7 +414,7 @@ pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<()> {
         bail!(
             "nothing to set: --analog-v V, --sensor ok|open|stuck, --force-offset-n N, \
              --stall-ticks T, --damage-stored, --position-sensor ok|open|stuck or \
-             --stage nominal|built"
+             --stage nominal|built|VARIANT.toml"
         );
     }
     let (analog_v, sensor) = (b.analog_v, b.sensor.as_deref());
@@ -473,13 +485,12 @@ fn bench_position(c: &mut Client, b: &BenchSettings) -> Result<()> {
         println!("position sensor {s}");
     }
     if let Some(s) = b.stage.as_deref() {
-        let built = match s {
-            "nominal" => false,
-            "built" => true,
-            _ => bail!("--stage {s:?}: nominal or built"),
-        };
-        let tick = c.bench(BenchOrder::Stage(built))?;
-        println!("virtual stage: stage A {s}, at rest from tick {tick}");
+        let v = super::variant::parse(s)?;
+        let tick = c.bench(BenchOrder::Stage(v))?;
+        println!(
+            "virtual stage: stage A, {}, at rest from tick {tick}",
+            super::variant::describe(&v)
+        );
     }
     Ok(())
 }

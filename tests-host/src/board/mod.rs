@@ -5,16 +5,20 @@
 //! for `qemu-system-arm` if that is missing. QEMU always runs under a timeout.
 
 pub mod accuracy;
+pub mod autotune;
 pub mod client;
 pub mod closed_loop;
 pub mod commands;
 pub mod emulator;
 pub mod follow;
+pub mod frf;
 pub mod inprocess;
 pub mod port;
 pub mod recording;
 pub mod session;
+pub mod step;
 pub mod twin;
+pub mod variant;
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -34,13 +38,7 @@ pub const QEMU_MACHINE: &str = "netduinoplus2";
 /// are exact instruction counts.
 pub const ICOUNT_BENCH: &str = "shift=10,align=off,sleep=off";
 
-/// The project's root (the `piezo-fpi` package).
-pub fn project_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_else(|| PathBuf::from(".."))
-}
+pub use crate::data::project_root;
 
 fn cargo() -> String {
     std::env::var("CARGO").unwrap_or_else(|_| "cargo".into())

@@ -83,6 +83,31 @@ impl fmt::Display for Num {
     }
 }
 
+/// The project's root (the `piezo-fpi` package, above `tests-host/`).
+pub fn project_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from(".."))
+}
+
+/// A path relative to the project root when it lies inside it (provenance that
+/// means the same on every machine), else as given.
+pub fn project_relative(p: &Path) -> String {
+    let root = project_root();
+    let abs = if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        std::env::current_dir()
+            .map(|d| d.join(p))
+            .unwrap_or_else(|_| p.to_path_buf())
+    };
+    match abs.strip_prefix(&root) {
+        Ok(r) => r.display().to_string(),
+        Err(_) => p.display().to_string(),
+    }
+}
+
 /// Where the project's copies of the datasets live (`tests-host/data`).
 pub fn data_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data")
@@ -617,76 +642,79 @@ finite_record!(FemRow {
     x_fhps_um: "x_fhps_um"
 });
 
-/// A preload-rig recording, by column.
+/// A recording of a voltage drive, by column: a preload rig's ([`read_rig`]: `x`
+/// the stack extension) or a stage's ([`read_stage`]: `x` the stage output).
 #[derive(Debug, Clone, PartialEq)]
-pub struct Rig {
+pub struct Recording {
     /// Source file.
     pub path: PathBuf,
     /// Time, s.
     pub t: Vec<f64>,
     /// Commanded voltage, V.
     pub u: Vec<f64>,
-    /// Preload, N.
+    /// Force on the stack, N.
     pub f: Vec<f64>,
-    /// Stack extension, µm.
+    /// Stack extension (rig) or stage output (stage), µm.
     pub x: Vec<f64>,
 }
 
-/// Reads a `t_s,voltage_V,force_N,displacement_um` file, record by record
-/// straight into the columns (the content is never held whole).
+/// A preload-rig recording: `x` is the stack extension.
+pub type Rig = Recording;
+
+/// A stage recording: `x` is the stage output.
+pub type StageRun = Recording;
+
+/// A row of a recording: its four columns by name, the last naming what `x` is.
+trait RecordingRow: DeserializeOwned + Finite {
+    /// Time, voltage, force and `x`.
+    const COLUMNS: [&'static str; 4];
+    /// The row's values in the order of [`COLUMNS`](Self::COLUMNS).
+    fn values(&self) -> [f64; 4];
+}
+
+impl RecordingRow for RigRow {
+    const COLUMNS: [&'static str; 4] = ["t_s", "voltage_V", "force_N", "displacement_um"];
+    fn values(&self) -> [f64; 4] {
+        [self.t_s, self.voltage_v, self.force_n, self.displacement_um]
+    }
+}
+
+impl RecordingRow for StageRow {
+    const COLUMNS: [&'static str; 4] = ["t_s", "voltage_V", "force_N", "x_fhps_um"];
+    fn values(&self) -> [f64; 4] {
+        [self.t_s, self.voltage_v, self.force_n, self.x_fhps_um]
+    }
+}
+
+/// Reads a recording of rows `R`, record by record straight into the columns (the
+/// content is never held whole); time strictly increasing.
+fn read_recording<R: RecordingRow>(path: &Path) -> Result<Recording, DataError> {
+    let mut r = Recording {
+        path: path.to_path_buf(),
+        t: Vec::new(),
+        u: Vec::new(),
+        f: Vec::new(),
+        x: Vec::new(),
+    };
+    for_each_record(path, open(path)?, &R::COLUMNS, |row: R| {
+        let [t, u, f, x] = row.values();
+        r.t.push(t);
+        r.u.push(u);
+        r.f.push(f);
+        r.x.push(x);
+    })?;
+    strictly_increasing(path, "t_s", &r.t)?;
+    Ok(r)
+}
+
+/// Reads a `t_s,voltage_V,force_N,displacement_um` file (a preload rig's).
 pub fn read_rig(path: &Path) -> Result<Rig, DataError> {
-    let mut r = Rig {
-        path: path.to_path_buf(),
-        t: Vec::new(),
-        u: Vec::new(),
-        f: Vec::new(),
-        x: Vec::new(),
-    };
-    let columns = ["t_s", "voltage_V", "force_N", "displacement_um"];
-    for_each_record(path, open(path)?, &columns, |row: RigRow| {
-        r.t.push(row.t_s);
-        r.u.push(row.voltage_v);
-        r.f.push(row.force_n);
-        r.x.push(row.displacement_um);
-    })?;
-    strictly_increasing(path, "t_s", &r.t)?;
-    Ok(r)
+    read_recording::<RigRow>(path)
 }
 
-/// A stage recording, by column.
-#[derive(Debug, Clone, PartialEq)]
-pub struct StageRun {
-    /// Source file.
-    pub path: PathBuf,
-    /// Time, s.
-    pub t: Vec<f64>,
-    /// Commanded voltage, V.
-    pub u: Vec<f64>,
-    /// Force between stack and hinge, N.
-    pub f: Vec<f64>,
-    /// Stage output, µm.
-    pub x: Vec<f64>,
-}
-
-/// Reads a `t_s,voltage_V,force_N,x_fhps_um[,…]` file, record by record straight
-/// into the columns (the content is never held whole).
+/// Reads a `t_s,voltage_V,force_N,x_fhps_um[,…]` file (a stage's).
 pub fn read_stage(path: &Path) -> Result<StageRun, DataError> {
-    let mut r = StageRun {
-        path: path.to_path_buf(),
-        t: Vec::new(),
-        u: Vec::new(),
-        f: Vec::new(),
-        x: Vec::new(),
-    };
-    let columns = ["t_s", "voltage_V", "force_N", "x_fhps_um"];
-    for_each_record(path, open(path)?, &columns, |row: StageRow| {
-        r.t.push(row.t_s);
-        r.u.push(row.voltage_v);
-        r.f.push(row.force_n);
-        r.x.push(row.x_fhps_um);
-    })?;
-    strictly_increasing(path, "t_s", &r.t)?;
-    Ok(r)
+    read_recording::<StageRow>(path)
 }
 
 /// An FEM export, by column.

@@ -9,17 +9,17 @@
 //! * a value beyond ±[`SIGNAL_ABS_MAX`] (4096 V, N or µm), the largest signal the
 //!   fixed-point core handles: such a cell (1e308, or millivolts) overflows the fit;
 //! * no voltage variation, or no displacement variation, over the fitted rows;
-//! * a force-dependent kind (fpi, efpi, ldpi) on recordings without a force
-//!   channel, or whose force is constant: `k_f` (the force slopes, for ldpi)
+//! * a force-dependent kind (fpi, efpi, ldpi, branch) on recordings without a
+//!   force channel, or whose force is constant: `k_f` (the force slopes, for ldpi)
 //!   cannot be identified ([`force_unusable`]; `fpi calibrate` falls back from the
-//!   default efpi to gpi instead).
+//!   default efpi to epi instead).
 //!
 //! Warnings: a nearly constant voltage (span below [`MIN_VOLTAGE_SPAN_V`]) or
 //! force (below [`MIN_FORCE_SPAN_N`] or [`MIN_FORCE_SPAN_REL`] of its mean, for the
 //! force kinds), voltages beyond the amplifier's [`AMPLIFIER_MAX_V`] or below
 //! [`MIN_VOLTAGE_V`], forces below [`MIN_FORCE_N`], displacement spans beyond
 //! [`MAX_DISPLACEMENT_SPAN_UM`] or below [`MIN_DISPLACEMENT_SPAN_UM`], and a pi
-//! model over recordings at very different preloads.
+//! model (identified at one preload) over recordings at very different preloads.
 //!
 //! Rows are counted from 1 over a file's data rows (the header not counted), as
 //! `--rows` counts them.
@@ -27,9 +27,9 @@
 use anyhow::{bail, Result};
 use piezo_fpi::q::SIGNAL_ABS_MAX;
 
-use crate::method::calibrate::CalibData;
-use crate::method::export::AMPLIFIER_MAX_V;
+use crate::method::limits::AMPLIFIER_MAX_V;
 use crate::method::model::Kind;
+use crate::method::series::CalibData;
 
 /// Voltages below this, V, are not an amplifier's output (a sign or offset slip).
 pub const MIN_VOLTAGE_V: f64 = -5.0;
@@ -266,14 +266,10 @@ pub fn check(data: &[CalibData], kind: Kind) -> Result<Vec<String>> {
     }
     if kind.uses_force() {
         if let Some(why) = force_unusable(data) {
-            let what = if kind == Kind::Ldpi {
-                format!("the force slopes of the {kind} model's weights")
-            } else {
-                format!("k_f, the force coupling of the {kind} model,")
-            };
             bail!(
-                "{why}: {what} cannot be identified; calibrate gpi or pi, or record at several \
-                 preloads"
+                "{why}: {} cannot be identified; calibrate epi, gpi or pi, or record at several \
+                 preloads",
+                kind.force_part()
             );
         }
     }
@@ -298,7 +294,7 @@ pub fn check(data: &[CalibData], kind: Kind) -> Result<Vec<String>> {
             ));
         }
     }
-    if kind == Kind::Pi && data.iter().all(|d| d.has_force) {
+    if kind.one_preload() && data.iter().all(|d| d.has_force) {
         let means: Vec<f64> = data
             .iter()
             .map(|d| {
@@ -310,9 +306,9 @@ pub fn check(data: &[CalibData], kind: Kind) -> Result<Vec<String>> {
         let hi = means.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         if hi - lo > PI_PRELOAD_SPREAD_N {
             w.push(format!(
-                "force_N: a pi model ignores force, and these recordings span mean preloads \
-                 {lo:.0}–{hi:.0} N; the paper identifies PI at one preload (the rig preload \
-                 nearest the stage's f_F(0))"
+                "force_N: a {kind} model ignores force, and these recordings span mean \
+                 preloads {lo:.0}–{hi:.0} N; the paper identifies PI at one preload (the rig \
+                 preload nearest the stage's f_F(0))"
             ));
         }
     }

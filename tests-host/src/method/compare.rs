@@ -137,6 +137,22 @@ impl Comparison {
             .is_some_and(|c| crate::method::refine::was_refined_on(c, &self.runs[r].path))
     }
 
+    /// The cells of model `m`'s row on run `r` that compare it: its MAE reduction
+    /// against the first model (`(baseline)` for the first) and, where its score is
+    /// in-sample, the note saying so. The terminal table and the report show the
+    /// same.
+    pub fn row_cells(&self, r: usize, m: usize) -> (String, Option<&'static str>) {
+        let reduction = if m == 0 {
+            "(baseline)".to_string()
+        } else {
+            format!("{:.1} %", self.reduction(r, m))
+        };
+        let note = self
+            .refined_on(r, m)
+            .then_some("(refined on this run: in-sample)");
+        (reduction, note)
+    }
+
     /// The runs no model was refined on: where refined models are scored fairly.
     pub fn held_out(&self) -> Vec<usize> {
         (0..self.runs.len())
@@ -194,16 +210,8 @@ pub fn print_table(c: &Comparison) {
         );
         for (m, (name, model)) in c.models.iter().enumerate() {
             let s = &c.scores[r][m].metrics;
-            let red = if m == 0 {
-                "(baseline)".to_string()
-            } else {
-                format!("{:.1} %", c.reduction(r, m))
-            };
-            let note = if c.refined_on(r, m) {
-                "  (refined on this run: in-sample)"
-            } else {
-                ""
-            };
+            let (red, note) = c.row_cells(r, m);
+            let note = note.map_or(String::new(), |n| format!("  {n}"));
             println!(
                 "  {:<28} {:<10} {:>9.3} {:>9.3} {:>9.3} {:>16}{note}",
                 name,

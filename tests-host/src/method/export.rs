@@ -15,28 +15,16 @@ use anyhow::{bail, Result};
 
 use piezo_sim::maps::{dead_zone, dead_zone_inverse};
 
-use fpi_firmware::hardware::{BOARD, RATE_HZ};
-
 use crate::data::fem::FemMaps;
-use crate::data::Num;
-use crate::method::invert::reachable_top;
-use crate::method::model::{HostModel, Kind, OutputMap};
+use crate::method::limits::{within, AMPLIFIER_MAX_SLEW_V_PER_MS, AMPLIFIER_MAX_V, RATE_RANGE_HZ};
+use crate::method::model::{HostModel, OutputMap};
+use crate::method::predict::reachable_top;
+
+use crate::data::project_relative;
 use crate::model_file::{
     ControllerSection, CouplingSection, CreepSection, FirmwareModel, MapSection, PiSection,
     Provenance, TableSection, Tables, FORMAT,
 };
-
-/// The board's amplifier span, V: its DAC drives the stack over `0..=150 V`
-/// ([`fpi_firmware::hardware::BOARD`]); no drive, limit or stroke voltage may exceed it.
-pub const AMPLIFIER_MAX_V: f64 = BOARD.limits.u_max.to_bits() as f64 / 65536.0;
-
-/// The amplifier's largest slew, V/ms: its current limit into the stack's
-/// capacitance (5 V per control step at the board's 20 kHz: 100 V/ms).
-pub const AMPLIFIER_MAX_SLEW_V_PER_MS: f64 =
-    BOARD.limits.max_step.to_bits() as f64 / 65536.0 * RATE_HZ as f64 / 1000.0;
-
-/// Control rates the firmware model file accepts, Hz.
-pub const RATE_RANGE_HZ: std::ops::RangeInclusive<u32> = 100..=200_000;
 
 /// Most knots a resampled table may have (the firmware's tables hold at most 4096;
 /// grids finer than this are not tried, and never allocated).
@@ -132,22 +120,6 @@ impl LoopSettings {
             "any finite force",
         )
     }
-}
-
-/// Refuses a value of option `what` that is not finite or outside `(0, max]`
-/// (`limit` says what `max` is).
-pub fn within(what: &str, v: f64, unit: &str, max: f64, limit: &str) -> Result<()> {
-    if !v.is_finite() {
-        bail!("{what} {v}: not a finite number");
-    }
-    let n = Num(v);
-    if v <= 0.0 {
-        bail!("{what} {n} {unit}: must be > 0 {unit}");
-    }
-    if v > max {
-        bail!("{what} {n} {unit}: above {limit} ({max} {unit})");
-    }
-    Ok(())
 }
 
 /// One table's grid and how far it is from the map it samples.
@@ -333,11 +305,11 @@ fn saturation_tables(
     Ok(MapSection { forward, inverse })
 }
 
-/// The coupling section: the model's (none for a pi model), with the FEM's rest
-/// preload as the compliance reference.
+/// The coupling section: the model's (none for a kind without one), with the
+/// FEM's rest preload as the compliance reference.
 fn coupling_section(model: &HostModel, f_rest: f64) -> CouplingSection {
     let c = &model.coupling;
-    let none = model.kind == Kind::Pi;
+    let none = !model.kind.coupled();
     let pick = |v: f64| if none { 0.0 } else { v };
     CouplingSection {
         offset_v: pick(c.offset_v),
@@ -381,13 +353,10 @@ pub fn export(
     fem: &FemMaps,
     s: &LoopSettings,
 ) -> Result<Export> {
-    if !matches!(model.kind, Kind::Pi | Kind::Fpi | Kind::Efpi) {
-        bail!(
-            "a {} model cannot run in the firmware: export pi, fpi or efpi models (ldpi's weights \
-             depend on the force, gpi needs an offset the firmware does not have)",
-            model.kind
-        );
-    }
+    model
+        .kind
+        .export(model)
+        .map_err(|e| anyhow::anyhow!("a {} model cannot run in the firmware: {e:#}", model.kind))?;
     if model.offset_um != 0.0 {
         bail!(
             "the model has an output offset ({} µm) the firmware does not support",
@@ -398,7 +367,7 @@ pub fn export(
     let mut reports = Vec::new();
     let tables = fem_tables(fem, &mut reports)?;
     let softness = model.dead_zone_softness_v;
-    let dead_zone = (model.kind == Kind::Efpi && softness > 0.0)
+    let dead_zone = (model.kind.coupled() && softness > 0.0)
         .then(|| dead_zone_tables(softness, &mut reports))
         .transpose()?;
     let saturation = match model.output {
@@ -469,21 +438,4 @@ fn correction_note(model: &HostModel) -> String {
             c.preload_scale
         )
     })
-}
-
-/// A path relative to the project root when it lies inside it (provenance that
-/// means the same on every machine), else as given.
-pub fn project_relative(p: &Path) -> String {
-    let root = crate::board::project_root();
-    let abs = if p.is_absolute() {
-        p.to_path_buf()
-    } else {
-        std::env::current_dir()
-            .map(|d| d.join(p))
-            .unwrap_or_else(|_| p.to_path_buf())
-    };
-    match abs.strip_prefix(&root) {
-        Ok(r) => r.display().to_string(),
-        Err(_) => p.display().to_string(),
-    }
 }

@@ -3,45 +3,36 @@
 //!
 //! For every target sample: `x_pea = f_K⁻¹(x_fhps)`, the preload the FEM predicts
 //! there, `F = f_F(x_pea)`, and the model's inverse at that force — in closed form
-//! for pi, fpi, efpi and gpi (the closed-form inverse PI, the inverse output map,
-//! the inverse soft dead zone), numerically for ldpi (whose weights depend on the
-//! force). Targets outside the reachable stroke are clamped and counted.
+//! where the kind has one (the closed-form inverse PI, the inverse output map, the
+//! inverse soft dead zone), by search where its weights depend on the force
+//! (ldpi); [`invert`] asks the model's kind ([`ModelKind::invert`]), which may
+//! refuse. Targets outside the reachable stroke are clamped and counted.
+//!
+//! [`ModelKind::invert`]: crate::method::model::ModelKind::invert
 
 use anyhow::{bail, Result};
 
 use crate::data::fem::FemMaps;
-use crate::method::export::within;
-use crate::method::model::{HostModel, Kind};
-use crate::method::predict;
+use crate::method::limits::within;
+use crate::method::model::HostModel;
+use crate::method::predict::{input_range, reachable_top};
 
-/// An inverted trajectory.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Inversion {
-    /// Time, s.
-    pub t: Vec<f64>,
-    /// Voltage to apply, V.
-    pub u: Vec<f64>,
-    /// Target samples outside the reachable stroke (clamped to it).
-    pub clamped_targets: usize,
-    /// Samples whose voltage hit the amplifier's range.
-    pub clamped_voltage: usize,
-    /// The reachable stroke, µm of stage output.
-    pub reachable: (f64, f64),
-}
+pub use crate::method::series::Inversion;
 
-/// The stage output the model reaches at `u_top` on the loading curve (a slow
-/// ramp from rest), µm.
-pub fn reachable_top(model: &HostModel, fem: &FemMaps, u_top: f64, dt: f64) -> Result<f64> {
-    let n = 2000;
-    let t: Vec<f64> = (0..=n).map(|k| k as f64 * dt).collect();
-    let u: Vec<f64> = (0..=n).map(|k| u_top * k as f64 / n as f64).collect();
-    let p = predict::predict(model, fem, &t, &u)?;
-    Ok(p.x_fhps[p.x_fhps.len() - 1])
+/// How a model is inverted at each target sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Inverse {
+    /// The closed-form inverse of the float model (the firmware's).
+    ClosedForm,
+    /// Bisection on the voltage (the extension rises with it): for weights that
+    /// depend on the force.
+    Search,
 }
 
 /// Inverts a target trajectory `x_fhps(t)` (µm) into voltages within `[0, u_max]`
-/// (V; `u_max` finite, > 0 and within the model's [`predict::input_range`]). Every
-/// voltage is finite, or this is an error naming the target sample.
+/// (V; `u_max` finite, > 0 and within the model's [`input_range`]) as the model's
+/// kind does it. Every voltage is finite, or this is an error naming the target
+/// sample.
 pub fn invert(
     model: &HostModel,
     fem: &FemMaps,
@@ -52,13 +43,19 @@ pub fn invert(
     if t.len() != target.len() || t.len() < 2 {
         bail!("a target needs at least two samples of time and position");
     }
-    if model.kind == Kind::Branch {
-        bail!(
-            "a branch model has no closed-form inverse: invert with a pi, fpi or efpi model \
-             (the inverse PI is what the firmware runs)"
-        );
-    }
-    let (_, top) = predict::input_range(model);
+    model.kind.invert(model, fem, t, target, u_max)
+}
+
+/// [`invert`] on the float model ([`HostModel::model`]), each sample by `how`.
+pub fn by_model(
+    model: &HostModel,
+    fem: &FemMaps,
+    t: &[f64],
+    target: &[f64],
+    u_max: f64,
+    how: Inverse,
+) -> Result<Inversion> {
+    let (_, top) = input_range(model);
     within(
         "--u-max",
         u_max,
@@ -87,7 +84,7 @@ pub fn invert(
         clamped_voltage: 0,
         reachable: (lo, hi),
     };
-    let ldpi = model.kind == Kind::Ldpi;
+    let search = how == Inverse::Search;
     for &x in target {
         let xc = x.clamp(lo, hi);
         if (xc - x).abs() > 1e-9 {
@@ -95,7 +92,7 @@ pub fn invert(
         }
         let x_pea = maps.stack_for(xc);
         let force = maps.preload_at(x_pea);
-        let u = if ldpi {
+        let u = if search {
             // The weights depend on the force: x(u) is non-decreasing, bisect on u.
             let (mut a, mut b) = (0.0, u_max);
             for _ in 0..60 {
@@ -122,7 +119,7 @@ pub fn invert(
         // Advance the model with what is applied; realign the inverse memory if that
         // is not what the inverse asked for.
         m.step(&mut st, uc, force, f_ref);
-        if clamped && !ldpi {
+        if clamped && !search {
             prime.resync(&st.bank, &mut bank);
         }
         out.u.push(uc);

@@ -136,7 +136,7 @@ impl<'o> Chain<'o> {
         let mut timing = String::new();
         for kind in [Kind::Pi, Kind::Ldpi, Kind::Fpi, Kind::Efpi, Kind::Branch] {
             self.pb.set_message(format!("calibrating {kind}"));
-            let data = if kind == Kind::Pi {
+            let data = if kind.one_preload() {
                 &pi_data
             } else {
                 &self.rig
@@ -387,7 +387,7 @@ impl<'o> Chain<'o> {
             .collect::<Result<_, _>>()?;
         let picked: Vec<(String, HostModel)> = models
             .iter()
-            .filter(|(_, m)| matches!(m.kind, Kind::Fpi | Kind::Efpi | Kind::Branch))
+            .filter(|(_, m)| [Kind::Fpi, Kind::Efpi, Kind::Branch].contains(&m.kind))
             .cloned()
             .collect();
         let mut cmp = Comparison::run(&self.fem, &runs, &picked)?;
@@ -617,7 +617,7 @@ impl<'o> Chain<'o> {
         let _ = writeln!(
             md,
             "`firmware-stage-a.toml` from `{}`: {}.\n",
-            export::project_relative(&model_path),
+            crate::data::project_relative(&model_path),
             if same {
                 "identical to the embedded `firmware/model/stage-a.toml`"
             } else {
@@ -682,6 +682,6 @@ fn periods(m: &HostModel, d: &CalibData) -> (f64, f64, f64) {
 
 /// A dataset path relative to the project (for provenance).
 fn rel(p: &Path) -> String {
-    let root = crate::board::project_root();
+    let root = crate::data::project_root();
     p.strip_prefix(&root).unwrap_or(p).display().to_string()
 }

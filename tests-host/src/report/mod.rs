@@ -5,6 +5,7 @@
 
 pub mod closed_loop;
 pub mod demo;
+pub mod identify;
 pub mod plots;
 
 use std::collections::HashSet;
@@ -15,7 +16,7 @@ use anyhow::{bail, Result};
 
 use crate::data::fem::FemMaps;
 use crate::method::compare::Comparison;
-use crate::method::model::{HostModel, Kind};
+use crate::method::model::HostModel;
 use crate::method::predict::Prediction;
 
 /// The stack's hysteresis loops at constant preloads (the FPI surface of the
@@ -61,16 +62,8 @@ pub fn table(c: &Comparison) -> String {
     for (m, (name, model)) in c.models.iter().enumerate() {
         for r in 0..c.runs.len() {
             let x = &c.scores[r][m].metrics;
-            let red = if m == 0 {
-                "—".to_string()
-            } else {
-                format!("{:.1} %", c.reduction(r, m))
-            };
-            let in_sample = if c.refined_on(r, m) {
-                " (refined on it: in-sample)"
-            } else {
-                ""
-            };
+            let (red, note) = c.row_cells(r, m);
+            let in_sample = note.map_or(String::new(), |n| format!(" {n}"));
             let _ = writeln!(
                 s,
                 "| {} | `{}` | {}{in_sample} | {:.3} | {:.3} | {:.3} | {} |",
@@ -135,7 +128,8 @@ pub fn figures(c: &Comparison, fem: &FemMaps, out: &Path) -> Result<String> {
     for r in 0..c.runs.len() {
         run_figures(c, r, out, &mut md, &mut written)?;
         for ((name, m), s) in c.models.iter().zip(&c.scores[r]) {
-            if matches!(m.kind, Kind::Fpi | Kind::Efpi) {
+            // The models whose effective voltage the preload moves: the FPI surface.
+            if m.kind.uses_force() && m.kind.coupled() {
                 let to = (out, &mut md, &mut written);
                 stack_figures(c, r, (name, m), &s.prediction, fem, to)?;
             }

@@ -95,11 +95,21 @@ pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
         halt("the virtual stage's parameters")
     };
     bench.prime(&LINK);
-    let Some(ram) = cortex_m::singleton!(: EmulatedFlash = EmulatedFlash::new()) else {
-        halt("flash taken twice")
-    };
+    let ram = emulated_flash();
     seed(ram);
     (ModelFlash::new(ram, FLASH_SLOTS), serial, Io { bench })
+}
+
+/// The RAM standing in for the stored-model flash: outside the real board's
+/// 128 KiB (the `EMULATED` region of `memory.x`), so the program keeps the RAM
+/// and stack the real board gives it.
+#[link_section = ".emulated_flash"]
+static mut EMULATED_FLASH: core::mem::MaybeUninit<EmulatedFlash> = core::mem::MaybeUninit::uninit();
+
+/// The emulated flash, erased; called once, from `init`.
+fn emulated_flash() -> &'static mut EmulatedFlash {
+    // SAFETY: `init` runs once, before any task; nothing else names the static.
+    unsafe { (*core::ptr::addr_of_mut!(EMULATED_FLASH)).write(EmulatedFlash::new()) }
 }
 
 /// Where the host may put the emulated flash's content (`-device loader` at the
@@ -136,7 +146,12 @@ pub fn halt(what: &str) -> ! {
 }
 
 #[cortex_m_rt::exception]
-unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    cortex_m_semihosting::hprintln!(
+        "fpi-firmware: HardFault at pc {:#010x} (lr {:#010x})",
+        frame.pc(),
+        frame.lr()
+    );
     halt("HardFault")
 }
 

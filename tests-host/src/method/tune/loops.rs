@@ -242,8 +242,9 @@ pub fn margins(l: impl Iterator<Item = Complex<f64>>) -> (f64, f64) {
     (gm, pm)
 }
 
-/// `P_x` and `P_r` of `p` at each `z⁻¹`.
-fn responses(p: &Plant, z1: &[Complex<f64>]) -> (Vec<Complex<f64>>, Vec<Complex<f64>>) {
+/// The plant's responses at each `z⁻¹` of `z1`: command → position sensor and
+/// command → force residual.
+pub fn responses(p: &Plant, z1: &[Complex<f64>]) -> (Vec<Complex<f64>>, Vec<Complex<f64>>) {
     let phi = Matrix3::from_fn(|i, j| Complex::new(p.phi[i][j], 0.0));
     let gamma = Vector3::from_fn(|i, _| Complex::new(p.gamma[i], 0.0));
     let mut px = Vec::with_capacity(z1.len());

@@ -28,13 +28,14 @@
 //!    margin ≥ 36°), and whose crossover stays at or below `--bandwidth-hz` where
 //!    one is asked (a crossover the margin does not allow is refused).
 //! 3. **Feedforward**: the reference shaping that inverts the nominal damped
-//!    stage over the tracking band ([`feedforward`]).
+//!    closed loop on a step and a 100 Hz triangle ([`feedforward`]).
 //!
 //! Without dynamics there is no mode to design around: only the PI, with its
 //! crossover held at `--bandwidth-hz` (20 Hz by default), as a plain integrator
 //! on a unit plant with the loop's delay.
 
 pub mod feedforward;
+pub mod frf;
 pub mod loops;
 pub mod simulate;
 
@@ -47,7 +48,7 @@ use piezo_sim::file::{
     DampingSection, DynamicsSection, FeedbackSection, FirmwareModel, ShapingSection,
 };
 
-pub use feedforward::FeedforwardOptions;
+pub use feedforward::TimeOptions;
 use loops::{Family, Variant};
 
 use super::dynamics::Dynamics;
@@ -73,7 +74,7 @@ pub struct TuneOptions {
     pub force_gain: Option<f64>,
     /// Design the feedforward (reference shaping) of the damped stage: the
     /// candidates to choose from (`None`: none).
-    pub feedforward: Option<Vec<FeedforwardOptions>>,
+    pub feedforward: Option<TimeOptions>,
     /// The damping law's band: its high-pass and its leak, Hz.
     pub damping_band_hz: (f64, f64),
 }
@@ -88,7 +89,7 @@ impl Default for TuneOptions {
             damping: true,
             target_damping: 0.5,
             force_gain: None,
-            feedforward: Some(feedforward::CANDIDATES.to_vec()),
+            feedforward: Some(TimeOptions::default()),
             damping_band_hz: (DAMPING_HIGHPASS_HZ, DAMPING_LEAK_HZ),
         }
     }
@@ -161,7 +162,7 @@ pub fn gain_spread(fw: &FirmwareModel) -> [f64; 2] {
 /// for a model without compliance.
 pub fn force_gain_estimate(fw: &FirmwareModel) -> Option<f64> {
     let c = fw.coupling.compliance_um_per_n;
-    if !(c > 0.0) {
+    if c.is_nan() || c <= 0.0 {
         return None;
     }
     let kp = 1.0 / c;
@@ -218,14 +219,42 @@ fn family(d: &DynamicsSpec, rate_hz: u32, gains: [f64; 2]) -> Family {
 
 /// Designs the loops of `fw` (see the module docs).
 pub fn tune(fw: &FirmwareModel, dynamics: Option<&Dynamics>, o: &TuneOptions) -> Result<Tuning> {
+    check_options(fw, o)?;
+    let kappa = o
+        .force_gain
+        .or_else(|| force_gain_estimate(fw))
+        .unwrap_or(0.0);
+    let known = match dynamics {
+        Some(d) => {
+            let spec = dynamics_spec(d, kappa)?;
+            let source = if o.force_gain.is_some() {
+                "given"
+            } else {
+                "estimated from the model"
+            };
+            Some((spec, source))
+        }
+        None => None,
+    };
+    design(fw, known, o)
+}
+
+/// Designs the loops of `fw` on dynamics measured through the board (κ
+/// included).
+pub fn tune_measured(fw: &FirmwareModel, spec: DynamicsSpec, o: &TuneOptions) -> Result<Tuning> {
+    check_options(fw, o)?;
+    design(fw, Some((spec, "measured")), o)
+}
+
+/// The option checks [`tune`] and [`tune_measured`] share.
+fn check_options(fw: &FirmwareModel, o: &TuneOptions) -> Result<()> {
     if !(o.max_sensitivity > 1.05 && o.max_sensitivity <= 3.0) {
         bail!(
             "--max-sensitivity {}: between 1.05 and 3 (1.6 gives ≥ 8.5 dB and ≥ 36°)",
             o.max_sensitivity
         );
     }
-    let rate = fw.controller.rate_hz;
-    let nyquist = rate as f64 / 2.0;
+    let nyquist = fw.controller.rate_hz as f64 / 2.0;
     if let Some(b) = o.bandwidth_hz {
         if !(b > 0.0 && b.is_finite() && b < nyquist) {
             bail!(
@@ -236,17 +265,22 @@ pub fn tune(fw: &FirmwareModel, dynamics: Option<&Dynamics>, o: &TuneOptions) ->
     if !(o.target_damping > 0.0 && o.target_damping <= 1.0) {
         bail!("--target-damping {}: between 0 and 1", o.target_damping);
     }
+    Ok(())
+}
+
+/// The design on `known` dynamics (with where κ came from), or on none.
+fn design(
+    fw: &FirmwareModel,
+    known: Option<(DynamicsSpec, &str)>,
+    o: &TuneOptions,
+) -> Result<Tuning> {
+    let rate = fw.controller.rate_hz;
     let gains = gain_spread(fw);
     let split = split_hz(fw);
-    let kappa = o
-        .force_gain
-        .or_else(|| force_gain_estimate(fw))
-        .unwrap_or(0.0);
-    let (spec, plant) = match dynamics {
-        Some(d) => {
-            let spec = dynamics_spec(d, kappa)?;
+    let (spec, plant) = match known {
+        Some((spec, source)) => {
             let text = format!(
-                "mode {:.1} Hz (ζ {:.4}), lag {}, κ {:.2} N/µm{}; one tick of delay",
+                "mode {:.1} Hz (ζ {:.4}), lag {}, κ {:.2} N/µm ({source}); one tick of delay",
                 spec.mode_hz(),
                 spec.damping_ratio(),
                 if spec.lag_mhz == 0 {
@@ -254,12 +288,7 @@ pub fn tune(fw: &FirmwareModel, dynamics: Option<&Dynamics>, o: &TuneOptions) ->
                 } else {
                     format!("{:.0} Hz", spec.lag_mhz as f64 / 1000.0)
                 },
-                kappa,
-                if o.force_gain.is_some() {
-                    " (measured)"
-                } else {
-                    " (estimated from the model)"
-                }
+                spec.force_gain.to_num::<f64>(),
             );
             (spec, text)
         }
@@ -268,6 +297,8 @@ pub fn tune(fw: &FirmwareModel, dynamics: Option<&Dynamics>, o: &TuneOptions) ->
             "no dynamics: a unit plant with one tick of delay".into(),
         ),
     };
+    let dynamics = known.map(|k| k.0);
+    let kappa = spec.force_gain.to_num::<f64>();
     let fam = family(&spec, rate, gains);
     let base = Laws {
         split: split_rate_f64(split, rate),
@@ -301,12 +332,8 @@ pub fn tune(fw: &FirmwareModel, dynamics: Option<&Dynamics>, o: &TuneOptions) ->
     )?;
     let feedforward = match (&o.feedforward, dynamics) {
         (Some(ff), Some(_)) => {
-            let p = fam.nominal();
-            let pd: Vec<_> = (0..fam.f_hz.len())
-                .map(|i| fam.damped(p, i, &laws))
-                .collect();
-            let (s, _, _) = feedforward::design_best(&fam.f_hz, fam.z1(), &pd, rate as f64, ff)?;
-            Some(s)
+            let p = piezo_fpi::stability::Plant::new(&spec, rate, 1.0, None, 1.0);
+            Some(feedforward::design_time(&p, &laws, rate as f64, ff)?)
         }
         _ => None,
     };
@@ -359,8 +386,8 @@ fn split_hz(fw: &FirmwareModel) -> f64 {
 }
 
 /// `1 − e^{−2π·f/f_s}` as the board quantises it.
-fn split_rate_f64(f_hz: f64, rate_hz: u32) -> f64 {
-    if f_hz.fract() == 0.0 && f_hz >= 0.0 && f_hz < 1e6 {
+pub fn split_rate_f64(f_hz: f64, rate_hz: u32) -> f64 {
+    if f_hz.fract() == 0.0 && (0.0..1e6).contains(&f_hz) {
         return split_rate(f_hz as u32, rate_hz).to_num::<f64>();
     }
     -(-std::f64::consts::TAU * f_hz / rate_hz as f64).exp_m1()

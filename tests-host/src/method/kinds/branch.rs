@@ -93,97 +93,132 @@ use nalgebra::{DMatrix, DVector, SVector};
 use piezo_sim::fem::Fem;
 use piezo_sim::stats::ErrorStats;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
 use crate::data::fem::FemMaps;
-use crate::method::calibrate::{self, CalibData, Options};
-use crate::method::model::{Calibration, FileFit, HostModel, Kind};
-use crate::method::predict::Prediction;
-use crate::model_file::PiSection;
+use crate::method::fit::{golden, voltage_span};
+use crate::method::model::{
+    is_no_pi, no_pi, BranchSection, Calibration, HostModel, Kind, Memory, ModelKind, Options,
+    OutputMap,
+};
+use crate::method::sections::{finite, pooled_rmse, MAX_DEGREE};
+use crate::method::series::{file_fit, CalibData, Inversion, Prediction};
 
-/// Highest degree of a branch polynomial.
-pub const MAX_DEGREE: usize = 6;
+/// The `branch` kind.
+pub struct Branch;
 
-/// The paper's degrees: ascending cubic (eq. 6), descending quartic (eq. 7).
-pub const PAPER_DEGREES: (usize, usize) = (3, 4);
+#[allow(non_upper_case_globals)]
+impl Kind {
+    /// `branch`.
+    pub const Branch: Kind = Kind::of(&Branch);
+}
+
+impl ModelKind for Branch {
+    fn name(&self) -> &'static str {
+        "branch"
+    }
+    fn method(&self) -> &'static str {
+        "BPH-FFEM"
+    }
+    fn uses_force(&self) -> bool {
+        true
+    }
+    fn coupled(&self) -> bool {
+        false
+    }
+    fn options(&self) -> Options {
+        Options::common(Kind::Branch)
+    }
+    fn calibrate(
+        &self,
+        data: &[CalibData],
+        opt: &Options,
+        warnings: Vec<String>,
+    ) -> Result<HostModel> {
+        calibrate(data, opt, warnings)
+    }
+    /// Its `[branch]` section, `k_f` ≥ 0 and the rest offset, and none of the other
+    /// kinds' parts.
+    fn validate(&self, m: &HostModel) -> Result<()> {
+        let Some(b) = &m.branch else {
+            bail!("kind = \"branch\" needs a [branch] section");
+        };
+        b.validate()?;
+        if !is_no_pi(&m.pi) {
+            bail!("pi: a branch model has no PI part (leave the [pi] section out)");
+        }
+        let c = &m.coupling;
+        let k_f = c.k_f_v_per_n;
+        if !(k_f.is_finite() && k_f >= 0.0) {
+            bail!("coupling.k_f_v_per_n = {k_f}: must be a finite value ≥ 0 V/N");
+        }
+        for (key, v) in [
+            ("coupling.offset_v", c.offset_v),
+            ("coupling.k_q_v_per_n2", c.k_q_v_per_n2),
+            ("coupling.force_q_n", c.force_q_n),
+            ("coupling.compliance_um_per_n", c.compliance_um_per_n),
+            ("dead_zone_softness_v", m.dead_zone_softness_v),
+        ] {
+            if v != 0.0 {
+                bail!("{key} = {v}: a branch model uses only coupling.k_f_v_per_n (must be 0)");
+            }
+        }
+        finite("offset_um", m.offset_um)?;
+        if m.output != OutputMap::Identity {
+            bail!("output: a branch model has no output map");
+        }
+        if m.ldpi.is_some() || !m.creep.is_empty() {
+            bail!("ldpi, creep: a branch model has neither section");
+        }
+        Ok(())
+    }
+    fn simulate(&self, m: &HostModel, d: &CalibData) -> Vec<f64> {
+        match BranchModel::of(m) {
+            Ok(b) => b.simulate(d),
+            Err(_) => vec![f64::NAN; d.u.len()],
+        }
+    }
+    fn predict(&self, m: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Result<Prediction> {
+        predict(m, fem, t, u)
+    }
+    fn invert(
+        &self,
+        _: &HostModel,
+        _: &FemMaps,
+        _: &[f64],
+        _: &[f64],
+        _: f64,
+    ) -> Result<Inversion> {
+        bail!(
+            "a branch model has no closed-form inverse: invert with a pi, fpi or efpi model \
+             (the inverse PI is what the firmware runs)"
+        )
+    }
+    fn export(&self, _: &HostModel) -> Result<()> {
+        bail!("it has no play operators (the firmware runs the closed-form inverse PI)")
+    }
+    fn structure(&self, m: &HostModel) -> String {
+        match &m.branch {
+            Some(b) => format!(
+                "branch polynomials of degree {} (ascending) and {} (descending)",
+                b.ascending_um_per_vk.len(),
+                b.descending_um_per_vk.len()
+            ),
+            None => "no [branch] section".into(),
+        }
+    }
+    fn parameters(&self, m: &HostModel) -> Option<String> {
+        Some(format!(
+            "k_f {:.5} V/N (û = u − k_f·F)",
+            m.coupling.k_f_v_per_n
+        ))
+    }
+}
 
 /// Most turning points the stack memory keeps, the rest state included.
 pub const MAX_TURNS: usize = 1024;
 
 /// Model evaluations of one coupled solve, at most.
 const MAX_SOLVE_EVALUATIONS: usize = 200;
-
-/// How turning points are remembered (`branch.memory`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Memory {
-    /// A stack of turning points with closure and wiping-out.
-    #[default]
-    Stack,
-    /// The last turning point only (the paper).
-    Last,
-}
-
-/// The `[branch]` section of a model file.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BranchSection {
-    /// Input domain `[0, input_max_v]` of the effective voltage, V.
-    pub input_max_v: f64,
-    /// How turning points are remembered.
-    #[serde(default)]
-    pub memory: Memory,
-    /// Ascending branch: `a_k` of `(v − v_min)^k`, `k = 1, 2, …`, µm/V^k.
-    pub ascending_um_per_vk: Vec<f64>,
-    /// Descending branch: `d_k` of `(v − v_max)^k`, `k = 1, 2, …`, µm/V^k.
-    pub descending_um_per_vk: Vec<f64>,
-}
-
-impl BranchSection {
-    /// Checks the section; names the key that is wrong.
-    pub fn validate(&self) -> Result<()> {
-        let top = self.input_max_v;
-        if !(top.is_finite() && top > 0.0) {
-            bail!("branch.input_max_v = {top}: must be a finite voltage > 0 V");
-        }
-        for (key, c) in [
-            ("branch.ascending_um_per_vk", &self.ascending_um_per_vk),
-            ("branch.descending_um_per_vk", &self.descending_um_per_vk),
-        ] {
-            if c.is_empty() || c.len() > MAX_DEGREE {
-                bail!(
-                    "{key} has {} coefficients: a branch is a polynomial of degree 1..={MAX_DEGREE}",
-                    c.len()
-                );
-            }
-            for (i, &v) in c.iter().enumerate() {
-                if !v.is_finite() {
-                    bail!("{key}[{i}] = {v}: not finite");
-                }
-            }
-            if c.iter().all(|&v| v == 0.0) {
-                bail!("{key} is all 0: the model cannot produce motion on that branch");
-            }
-        }
-        Ok(())
-    }
-}
-
-/// The PI section of a branch model: none (no weights, no range), which the model
-/// file leaves out.
-pub fn no_pi() -> PiSection {
-    PiSection {
-        w0_um_per_v: 0.0,
-        thresholds_v: Vec::new(),
-        weights_um_per_v: Vec::new(),
-        input_max_v: 0.0,
-    }
-}
-
-/// Whether `p` is [`no_pi`].
-pub fn is_no_pi(p: &PiSection) -> bool {
-    *p == no_pi()
-}
 
 /// `Σ c_k·d^(k+1)` (Horner).
 fn poly(c: &[f64], d: f64) -> f64 {
@@ -454,7 +489,7 @@ fn solve(
 
 /// Predicts the stage for a drive: the coupled solve at every sample, the memory
 /// advanced at the solution, `x_fhps = f_K(x_pea)` (see [`crate::method::predict`]).
-pub fn predict(model: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Result<Prediction> {
+fn predict(model: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Result<Prediction> {
     let b = BranchModel::of(model)?;
     let maps = fem.maps();
     let mut st = b.state();
@@ -651,18 +686,14 @@ fn monotony_warning(s: &BranchSection, span: f64) -> Option<String> {
 
 /// Calibrates a branch model: `k_f` by golden section on the output RMSE (0 for
 /// recordings without force), the coefficients by least squares.
-pub fn calibrate(
-    data: &[CalibData],
-    opt: &Options,
-    mut warnings: Vec<String>,
-) -> Result<HostModel> {
+fn calibrate(data: &[CalibData], opt: &Options, mut warnings: Vec<String>) -> Result<HostModel> {
     let (up, down) = opt.branch_degrees;
     for (what, n) in [("ascending", up), ("descending", down)] {
         if !(1..=MAX_DEGREE).contains(&n) {
             bail!("the {what} branch's degree {n}: must be 1..={MAX_DEGREE}");
         }
     }
-    let span = calibrate::voltage_span(data);
+    let span = voltage_span(data);
     let input_max = opt.input_max.max(span);
     let lay = Layout {
         up,
@@ -673,7 +704,7 @@ pub fn calibrate(
     };
     let has_force = data.iter().all(|d| d.has_force);
     let k_f = if has_force {
-        calibrate::golden(0.0, 0.4, 1e-5, |k_f| {
+        golden(0.0, 0.4, 1e-5, |k_f| {
             fit_at(data, k_f, input_max, &lay).map_or(f64::MAX, |f| f.1)
         })
     } else {
@@ -690,15 +721,22 @@ pub fn calibrate(
             .as_ref()
             .and_then(|s| monotony_warning(s, span)),
     );
-    let per_file = score(&model, data)?;
-    model.calibration = Calibration {
-        created_by: format!("fpi calibrate {}", env!("CARGO_PKG_VERSION")),
-        files: data.iter().map(|d| d.name.clone()).collect(),
-        rows: None,
-        rmse_um: calibrate::pooled_rmse(&per_file),
-        mte_um: per_file.iter().map(|f| f.mte_um).fold(0.0, f64::max),
+    let b = BranchModel::of(&model)?;
+    let per_file = data
+        .par_iter()
+        .map(|d| {
+            let w = d.fit.0..d.fit.1;
+            file_fit(
+                d,
+                &ErrorStats::of_difference(&b.simulate(d)[w.clone()], &d.x[w]),
+            )
+        })
+        .collect::<Vec<_>>();
+    model.calibration = Calibration::new(
+        data.iter().map(|d| d.name.clone()).collect(),
+        pooled_rmse(&per_file),
         per_file,
-        method: format!(
+        format!(
             "k_f by golden section on the output RMSE; branch coefficients (degrees {up} up, \
              {down} down, {} memory) by output-error least squares",
             match lay.memory {
@@ -707,20 +745,6 @@ pub fn calibrate(
             }
         ),
         warnings,
-    };
+    );
     Ok(model)
-}
-
-/// The output error of a branch model on recordings (driven by their voltage and
-/// measured force), per recording, over the fitted windows.
-pub fn score(model: &HostModel, data: &[CalibData]) -> Result<Vec<FileFit>> {
-    let b = BranchModel::of(model)?;
-    Ok(data
-        .par_iter()
-        .map(|d| {
-            let w = d.fit.0..d.fit.1;
-            let e = ErrorStats::of_difference(&b.simulate(d)[w.clone()], &d.x[w]);
-            calibrate::file_fit(d, &e)
-        })
-        .collect())
 }

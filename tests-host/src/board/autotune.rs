@@ -1,0 +1,212 @@
+//! `fpi board autotune`: a stage's loops tuned through its board, in one
+//! command.
+//!
+//! 1. The board must run the model given (read back and compared byte for
+//!    byte: the tuning is written into that model's file).
+//! 2. Open loop, damping and shaping off, holding mid-stroke: the board's
+//!    analyser measures the response from the command to the position sensor
+//!    and to the force channel ([`super::frf`]).
+//! 3. The core's plant model is fitted to it ([`crate::method::tune::frf`]):
+//!    mode, damping, lag, κ.
+//! 4. The loops are designed on it ([`crate::method::tune`]: damping for the
+//!    mode's family ±20 % with ζ 0.01–0.06, the PI for a sensitivity peak, the
+//!    feedforward), written into the model and loaded.
+//! 5. After a warm-up (slow sines: the force channel learns the stage's preload
+//!    map), a 10 → 20 µm step verifies it; a table says what was achieved.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use fpi_firmware::closed_loop::LoopMode;
+use fpi_firmware::link::protocol::Command;
+use fpi_firmware::reference::wave::Shape;
+use piezo_sim::file::FirmwareModel;
+
+use super::client::{refusal, Client};
+use super::follow::Follow;
+use super::frf::{self, FrfSettings};
+use super::step::{self, StepFigures, StepSettings};
+use crate::method::tune::frf::{self as fit, FrfFit, FrfPoint};
+use crate::method::tune::{self, TuneOptions, Tuning};
+
+/// Slow sines before the verification: 5 Hz over most of the stroke, this many.
+pub const WARM_UP_CYCLES: u32 = 10;
+
+/// What autotune did.
+#[derive(Debug, Clone)]
+pub struct Autotune {
+    /// The measured response.
+    pub frf: Vec<FrfPoint>,
+    /// The plant fitted to it.
+    pub fit: FrfFit,
+    /// The loops designed.
+    pub tuning: Tuning,
+    /// The tuned model (loaded on the board).
+    pub model: FirmwareModel,
+    /// The verification step, 10 → 20 µm.
+    pub step: StepFigures,
+}
+
+/// Opens the loop and switches damping and shaping off (a model without them
+/// refuses the switch: nothing to switch).
+fn bare(c: &mut Client) -> Result<()> {
+    c.ack(&Command::Loop {
+        mode: LoopMode::Open,
+    })?;
+    for r in [c.damping(false), c.shaping(false)] {
+        if let Err(e) = r {
+            if refusal(&e).is_none() {
+                return Err(e);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Parks the stage and waits for the safe voltage.
+pub fn park(c: &mut Client) -> Result<()> {
+    c.ack(&Command::Safe)?;
+    Follow::new(c, 0).until("the safe voltage", |s| {
+        Ok(s.fault.is_some_and(|f| f.safe_at.is_some()))
+    })?;
+    Ok(())
+}
+
+/// Runs autotune on `c`, which must run `fw`; loads the tuned model (`store`:
+/// also into flash). `progress` hears what is happening.
+pub fn run(
+    c: &mut Client,
+    fw: &FirmwareModel,
+    o: &TuneOptions,
+    settings: &FrfSettings,
+    store: bool,
+    mut progress: impl FnMut(&str),
+) -> Result<Autotune> {
+    let image = fw.image().map_err(anyhow::Error::msg)?;
+    let running = c.read_model().context("reading the board's model back")?;
+    if running != image {
+        bail!(
+            "the board runs another model ({} bytes, not the {} of the one given): load it first \
+             (fpi board load MODEL)",
+            running.len(),
+            image.len()
+        );
+    }
+    let rate = fw.controller.rate_hz;
+    let split = fw
+        .controller
+        .force_split_hz
+        .unwrap_or(piezo_fpi::control::DEFAULT_SPLIT_HZ as f64);
+    let split_rate = tune::split_rate_f64(split, rate);
+    bare(c)?;
+    progress("measuring the frequency response through the board");
+    let points = frf::measure(c, settings, |k, p| {
+        progress(&format!(
+            "  {:>2}: {:7.1} Hz  |x/u| {:.3}",
+            k + 1,
+            p.f_hz,
+            p.x.norm()
+        ))
+    })?;
+    let fitted = fit::fit(&points, rate, split_rate)?;
+    progress(&fit::describe(&fitted));
+    let t = tune::tune_measured(fw, fitted.spec, o)?;
+    let tuned = tune::with_tuning(fw, &t, o)?;
+    let tuned_image = tuned.image().map_err(anyhow::Error::msg)?;
+    progress("loading the tuned model");
+    park(c)?;
+    c.upload(&tuned_image, store, |_| {})
+        .context("loading the tuned model")?;
+    let step = verify(c)?;
+    Ok(Autotune {
+        frf: points,
+        fit: fitted,
+        tuning: t,
+        model: tuned,
+        step,
+    })
+}
+
+/// Closes the loop, warms up and steps 10 → 20 µm; the step's figures.
+pub fn verify(c: &mut Client) -> Result<StepFigures> {
+    c.move_to(20.0, 1000.0)?;
+    Follow::new(c, 0).until_hold()?;
+    c.ack(&Command::Loop {
+        mode: LoopMode::Closed,
+    })?;
+    warm_up(c)?;
+    let (_, fig) = step::run(c, &StepSettings::default())?;
+    Ok(fig)
+}
+
+/// [`WARM_UP_CYCLES`] slow sines, 5–35 µm at 5 Hz: the force channel learns
+/// the preload map's offset and scale.
+pub fn warm_up(c: &mut Client) -> Result<()> {
+    c.wave(Shape::Sine, 15.0, 20.0, 5.0, WARM_UP_CYCLES)?;
+    let mut f = Follow::new(c, 0);
+    f.until("the warm-up's end", |s| {
+        step::no_fault(s, "the warm-up")?;
+        Ok(s.source == fpi_firmware::reference::SourceKind::Hold && !s.approaching)
+    })?;
+    Ok(())
+}
+
+/// The table autotune prints (markdown).
+pub fn table(a: &Autotune) -> String {
+    let t = &a.tuning;
+    let ms = |v: Option<f64>| v.map_or("—".into(), |v| format!("{v:.2} ms"));
+    let rows = [
+        (
+            "stage (measured)",
+            format!(
+                "mode {:.1} Hz, ζ {:.4}, lag {:.0} Hz, κ {:.2} N/µm",
+                a.fit.spec.mode_hz(),
+                a.fit.spec.damping_ratio(),
+                a.fit.spec.lag_mhz as f64 / 1000.0,
+                a.fit.spec.force_gain.to_num::<f64>()
+            ),
+        ),
+        (
+            "mode damping (family's least)",
+            format!("{:.3} → {:.3}", t.mode_damping.0, t.mode_damping.1),
+        ),
+        (
+            "damping loop margins",
+            format!("{:.1} dB, {:.0}°", t.damping_margins.0, t.damping_margins.1),
+        ),
+        (
+            "position PI",
+            format!("kp {:.3}, ki {:.0}/s", t.kp, t.ki_per_s),
+        ),
+        (
+            "crossover / −3 dB bandwidth (design)",
+            format!("{:.0} Hz / {:.0} Hz", t.crossover_hz, t.bandwidth_hz),
+        ),
+        (
+            "position loop margins",
+            format!("{:.1} dB, {:.0}°", t.margins.0, t.margins.1),
+        ),
+        (
+            "sensitivity peak (family)",
+            format!("{:.2}", t.sensitivity_peak),
+        ),
+        ("step 10 → 20 µm: rise", format!("{:.2} ms", a.step.rise_ms)),
+        ("overshoot", format!("{:.3} µm", a.step.overshoot_um)),
+        ("settles within ±0.1 µm", ms(a.step.settle_ms)),
+    ];
+    let mut s = String::from("| | |\n|---|---|\n");
+    for (k, v) in rows {
+        s.push_str(&format!("| {k} | {v} |\n"));
+    }
+    s
+}
+
+/// Writes the tuned model and the measured response next to it.
+pub fn write(a: &Autotune, out: &Path, frf_out: Option<&Path>) -> Result<()> {
+    let text = a.model.to_toml().map_err(anyhow::Error::msg)?;
+    crate::output::write_atomic(out, text.as_bytes())?;
+    if let Some(p) = frf_out {
+        fit::write_csv(p, &a.frf)?;
+    }
+    Ok(())
+}

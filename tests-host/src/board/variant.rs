@@ -1,0 +1,129 @@
+//! The virtual stage a bench order puts on the emulated board: `nominal`, `built`
+//! or a TOML file naming a base and the values that replace the base's.
+//!
+//! ```toml
+//! base = "built"          # or "nominal"
+//! mode_hz = 700.0         # first mode, Hz
+//! mode_damping = 0.015    # its damping ratio
+//! output_gain = 1.03      # kinematics relative to the FEM's f_K
+//! force_scale = 0.97      # preload relative to the FEM's f_F
+//! creep_scale = 1.5       # creep relative to the model's
+//! position_noise_um = 0.002
+//! force_noise_n = 0.05
+//! ```
+//!
+//! Unknown keys are refused, and a value out of range is named by its key with
+//! the range it must lie in (the range check is the protocol's
+//! [`StageVariant::check`], the same the board applies).
+
+use std::path::Path;
+
+use anyhow::{anyhow, bail, Context, Result};
+use fpi_firmware::link::protocol::StageVariant;
+use serde::Deserialize;
+
+/// The file's form.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct VariantFile {
+    base: String,
+    mode_hz: Option<f32>,
+    mode_damping: Option<f32>,
+    output_gain: Option<f32>,
+    force_scale: Option<f32>,
+    creep_scale: Option<f32>,
+    position_noise_um: Option<f32>,
+    force_noise_n: Option<f32>,
+}
+
+/// The base named `name` (`nominal` or `built`).
+fn base(name: &str) -> Option<StageVariant> {
+    match name {
+        "nominal" => Some(StageVariant::NOMINAL),
+        "built" => Some(StageVariant::BUILT),
+        _ => None,
+    }
+}
+
+/// `nominal`, `built`, or the variant in the TOML file `arg`.
+pub fn parse(arg: &str) -> Result<StageVariant> {
+    if let Some(v) = base(arg) {
+        return Ok(v);
+    }
+    let path = Path::new(arg);
+    if !path.exists() {
+        bail!("--stage {arg:?}: nominal, built or a TOML file naming a base and its changes");
+    }
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {arg}"))?;
+    from_toml(&text).with_context(|| arg.to_string())
+}
+
+/// The variant a TOML text describes.
+pub fn from_toml(text: &str) -> Result<StageVariant> {
+    let f: VariantFile = toml::from_str(text).map_err(|e| anyhow!("{e}"))?;
+    let b =
+        base(&f.base).ok_or_else(|| anyhow!("base = {:?}: \"nominal\" or \"built\"", f.base))?;
+    let v = StageVariant {
+        built: b.built,
+        mode_hz: f.mode_hz,
+        mode_damping: f.mode_damping,
+        output_gain: f.output_gain,
+        force_scale: f.force_scale,
+        creep_scale: f.creep_scale,
+        position_noise_um: f.position_noise_um,
+        force_noise_n: f.force_noise_n,
+    };
+    if let Err((key, value, (lo, hi))) = v.check() {
+        bail!("{key} = {value}: must lie in [{lo}, {hi}]");
+    }
+    Ok(v)
+}
+
+/// One line describing the variant.
+pub fn describe(v: &StageVariant) -> String {
+    let mut s = String::from(if v.built {
+        "stage as built"
+    } else {
+        "nominal twin"
+    });
+    let fields: [(&str, Option<f32>); 7] = [
+        ("mode_hz", v.mode_hz),
+        ("mode_damping", v.mode_damping),
+        ("output_gain", v.output_gain),
+        ("force_scale", v.force_scale),
+        ("creep_scale", v.creep_scale),
+        ("position_noise_um", v.position_noise_um),
+        ("force_noise_n", v.force_noise_n),
+    ];
+    for (k, x) in fields {
+        if let Some(x) = x {
+            s.push_str(&format!(", {k} = {x}"));
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_file_replaces_the_base_values_it_names() {
+        let v = from_toml("base = \"built\"\nmode_hz = 700.0\nmode_damping = 0.015\n").unwrap();
+        assert!(v.built);
+        assert_eq!(v.mode_hz, Some(700.0));
+        assert_eq!(v.mode_damping, Some(0.015));
+        assert_eq!(v.output_gain, None);
+    }
+
+    #[test]
+    fn unknown_keys_and_out_of_range_values_are_named() {
+        let e = from_toml("base = \"built\"\nmode_hertz = 700.0\n").unwrap_err();
+        assert!(format!("{e:#}").contains("mode_hertz"), "{e:#}");
+        let e = from_toml("base = \"built\"\nmode_damping = 0.9\n").unwrap_err();
+        let s = format!("{e:#}");
+        assert!(s.contains("mode_damping") && s.contains("0.5"), "{s}");
+        let e = from_toml("base = \"stage B\"\n").unwrap_err();
+        assert!(format!("{e:#}").contains("base"), "{e:#}");
+    }
+}

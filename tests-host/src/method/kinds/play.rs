@@ -1,0 +1,341 @@
+//! What the kinds built on play operators share (pi, ldpi, fpi, efpi, gpi, epi):
+//! a kind of this family is a [`Recipe`] — its columns and its search of the
+//! nonlinear parameters on the least squares of [`crate::method::fit`] — and
+//! gets the rest of [`ModelKind`] here: it is evaluated, predicted and inverted as
+//! the project's float model ([`HostModel::model`]), and its sections are checked
+//! alike.
+
+use anyhow::{bail, Result};
+use piezo_sim::model::MAX_CREEP;
+use piezo_sim::play::MAX_OPERATORS;
+
+use crate::data::fem::FemMaps;
+use crate::method::fit::{self, Fit, Layout, Nonlinear, Problem};
+use crate::method::invert::{self, Inverse};
+use crate::method::model::{is_no_pi, Calibration, HostModel, ModelKind, Options, OutputMap};
+use crate::method::predict;
+use crate::method::sections::finite;
+use crate::method::series::{CalibData, Inversion, Prediction};
+
+/// A kind built on play operators: what it is, its columns and its search. The
+/// rest of [`ModelKind`] comes with it.
+pub trait Recipe: Sync {
+    /// Its name on the command line and in model files.
+    const NAME: &'static str;
+    /// The name of the paper's method with it.
+    const METHOD: &'static str;
+    /// Whether calibration identifies a part of it from the preload.
+    const USES_FORCE: bool = false;
+    /// What the preload identifies, if not `k_f` ([`ModelKind::force_part`]).
+    const FORCE_PART: Option<&'static str> = None;
+    /// Whether its effective voltage runs through `[coupling]` and the dead zone.
+    const COUPLED: bool = false;
+    /// Whether the paper identifies it at one preload.
+    const ONE_PRELOAD: bool = false;
+    /// Whether it takes a stack compliance.
+    const TAKES_COMPLIANCE: bool = false;
+    /// How it is inverted.
+    const INVERSE: Inverse = Inverse::ClosedForm;
+
+    /// Its calibration defaults.
+    fn defaults(&self) -> Options;
+    /// The columns of its least squares for `opt` on `data`.
+    fn layout(&self, opt: &Options, data: &[CalibData]) -> Layout;
+    /// Its nonlinear parameters searched on `pr`, the fit at them, and how it was
+    /// fitted (the model file's `calibration.method`).
+    fn search(&self, pr: &Problem<'_>, opt: &Options) -> Result<(Nonlinear, Fit, String)>;
+    /// Whether the firmware can run it, or why not (the output offset and an
+    /// output map the firmware cannot tabulate are refused for every kind).
+    fn firmware(&self, m: &HostModel) -> Result<()>;
+    /// What its model file needs beyond the family's sections.
+    fn check(&self, _m: &HostModel) -> Result<()> {
+        Ok(())
+    }
+    /// Its identified nonlinear parameters on one line, if it has any.
+    fn identified(&self, _m: &HostModel) -> Option<String> {
+        None
+    }
+}
+
+impl<R: Recipe> ModelKind for R {
+    fn name(&self) -> &'static str {
+        R::NAME
+    }
+    fn method(&self) -> &'static str {
+        R::METHOD
+    }
+    fn uses_force(&self) -> bool {
+        R::USES_FORCE
+    }
+    fn force_part(&self) -> String {
+        match R::FORCE_PART {
+            Some(p) => p.to_string(),
+            None => format!("k_f, the force coupling of the {} model,", R::NAME),
+        }
+    }
+    fn coupled(&self) -> bool {
+        R::COUPLED
+    }
+    fn one_preload(&self) -> bool {
+        R::ONE_PRELOAD
+    }
+    fn takes_compliance(&self) -> bool {
+        R::TAKES_COMPLIANCE
+    }
+    fn options(&self) -> Options {
+        self.defaults()
+    }
+    fn calibrate(
+        &self,
+        data: &[CalibData],
+        opt: &Options,
+        warnings: Vec<String>,
+    ) -> Result<HostModel> {
+        let pr = Problem::new(self.layout(opt, data), data);
+        let (params, best, method) = self.search(&pr, opt)?;
+        let input_max = opt.input_max.max(fit::voltage_span(data));
+        let mut model = fit::unpack(opt.kind, &pr.layout, &params, &best.w, input_max);
+        let files = data.iter().map(|d| d.name.clone()).collect();
+        model.calibration = Calibration::new(files, best.rmse, best.per_file, method, warnings);
+        Ok(model)
+    }
+    fn validate(&self, m: &HostModel) -> Result<()> {
+        check(m, R::INVERSE)?;
+        self.check(m)
+    }
+    fn simulate(&self, m: &HostModel, d: &CalibData) -> Vec<f64> {
+        fit::simulate(m, d)
+    }
+    fn predict(&self, m: &HostModel, fem: &FemMaps, t: &[f64], u: &[f64]) -> Result<Prediction> {
+        predict::coupled(m, fem, t, u)
+    }
+    fn invert(
+        &self,
+        m: &HostModel,
+        fem: &FemMaps,
+        t: &[f64],
+        target: &[f64],
+        u_max: f64,
+    ) -> Result<Inversion> {
+        invert::by_model(m, fem, t, target, u_max, R::INVERSE)
+    }
+    fn export(&self, m: &HostModel) -> Result<()> {
+        self.firmware(m)
+    }
+    fn structure(&self, m: &HostModel) -> String {
+        format!("{} operators", m.operators() + 1)
+    }
+    fn parameters(&self, m: &HostModel) -> Option<String> {
+        self.identified(m)
+    }
+}
+
+/// The creep time constants of the extended models, s.
+pub const CREEP_TAUS_S: [f64; 4] = [0.01, 0.03, 0.3, 3.0];
+
+/// The weights alone, for no nonlinear parameters (pi, ldpi).
+pub fn weights_alone(pr: &Problem<'_>) -> Result<(Nonlinear, Fit, String)> {
+    let p = Nonlinear::default();
+    let f = pr.fit_all(&p)?;
+    Ok((
+        p,
+        f,
+        "weights by least squares (NNLS for pi; signed for ldpi)".into(),
+    ))
+}
+
+/// The coupling of a model whose effective voltage the preload moves, on one line.
+pub fn coupling_line(m: &HostModel) -> String {
+    let c = &m.coupling;
+    format!(
+        "k_f {:.5} V/N, k_q {:.3e} V/N² about {} N, k0 {:.3} V, dead-zone softness {:.3} V, compliance {} µm/N",
+        c.k_f_v_per_n, c.k_q_v_per_n2, c.force_q_n, c.offset_v, m.dead_zone_softness_v, c.compliance_um_per_n
+    )
+}
+
+/// The sections of a model of this family: its `[pi]` (and no `[branch]`), sizes,
+/// operators, motion (with an inverse where it is inverted in closed form), the
+/// coupling, the dead zone and output map, `[ldpi]` and the creep lags.
+pub fn check(m: &HostModel, inverse: Inverse) -> Result<()> {
+    if m.branch.is_some() {
+        bail!(
+            "branch: a {} model has no [branch] section (only kind = \"branch\")",
+            m.kind
+        );
+    }
+    if is_no_pi(&m.pi) {
+        bail!("pi: missing: a {} model needs its [pi] section", m.kind);
+    }
+    sizes(m)?;
+    pi(m)?;
+    motion(m, inverse)?;
+    coupling(m)?;
+    maps(m)?;
+    ldpi(m)?;
+    for (j, c) in m.creep.iter().enumerate() {
+        if !(c.tau_s.is_finite() && c.tau_s > 0.0 && c.gain_um_per_v.is_finite()) {
+            bail!("creep[{j}]: tau_s must be > 0 and gain_um_per_v finite");
+        }
+    }
+    Ok(())
+}
+
+/// Counts: one weight per threshold, at most [`MAX_OPERATORS`] and [`MAX_CREEP`].
+fn sizes(m: &HostModel) -> Result<()> {
+    let p = &m.pi;
+    if p.thresholds_v.len() != p.weights_um_per_v.len() {
+        bail!(
+            "pi.weights_um_per_v has {} values for {} thresholds",
+            p.weights_um_per_v.len(),
+            p.thresholds_v.len()
+        );
+    }
+    if p.thresholds_v.len() > MAX_OPERATORS {
+        bail!(
+            "pi.thresholds_v has {} values: at most {MAX_OPERATORS} operators",
+            p.thresholds_v.len()
+        );
+    }
+    if m.creep.len() > MAX_CREEP {
+        bail!("creep has {} terms: at most {MAX_CREEP}", m.creep.len());
+    }
+    Ok(())
+}
+
+/// The PI part: finite numbers, a positive input range, thresholds sorted in
+/// `[0, input_max_v]`.
+fn pi(m: &HostModel) -> Result<()> {
+    let p = &m.pi;
+    finite("pi.w0_um_per_v", p.w0_um_per_v)?;
+    finite("pi.input_max_v", p.input_max_v)?;
+    if p.input_max_v <= 0.0 {
+        bail!("pi.input_max_v = {}: must be > 0", p.input_max_v);
+    }
+    let mut prev = 0.0;
+    for (i, (&r, &w)) in p.thresholds_v.iter().zip(&p.weights_um_per_v).enumerate() {
+        finite(&format!("pi.thresholds_v[{i}]"), r)?;
+        finite(&format!("pi.weights_um_per_v[{i}]"), w)?;
+        if r < 0.0 {
+            bail!("pi.thresholds_v[{i}] = {r}: thresholds are voltages ≥ 0 V");
+        }
+        if r < prev {
+            bail!("pi.thresholds_v[{i}] = {r}: thresholds must be sorted");
+        }
+        if r > p.input_max_v {
+            bail!(
+                "pi.thresholds_v[{i}] = {r}: above pi.input_max_v = {} (the operator never moves)",
+                p.input_max_v
+            );
+        }
+        prev = r;
+    }
+    Ok(())
+}
+
+/// The model can produce motion and, where it is inverted in closed form, has an
+/// inverse: `w0 > 0` and every partial sum `S_j = w0 + w_1 + … + w_j > 0` (its
+/// output rises with the voltage).
+fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
+    let p = &m.pi;
+    let slopes = m.ldpi.as_ref();
+    let all_zero = p.w0_um_per_v == 0.0
+        && p.weights_um_per_v.iter().all(|&w| w == 0.0)
+        && slopes.is_none_or(|l| l.w0_per_n == 0.0 && l.weights_per_n.iter().all(|&w| w == 0.0));
+    if all_zero {
+        bail!(
+            "pi.w0_um_per_v and pi.weights_um_per_v are all 0: the model cannot produce \
+             motion (was it calibrated on data without motion, e.g. a few rows or a \
+             constant voltage?)"
+        );
+    }
+    if inverse == Inverse::Search {
+        return Ok(());
+    }
+    if p.w0_um_per_v <= 0.0 {
+        bail!(
+            "pi.w0_um_per_v = {}: must be > 0 µm/V (the model's slope at rest; without it \
+             the model has no inverse)",
+            p.w0_um_per_v
+        );
+    }
+    let mut sum = p.w0_um_per_v;
+    for (j, &w) in p.weights_um_per_v.iter().enumerate() {
+        sum += w;
+        if sum <= 0.0 {
+            let terms = if j == 0 {
+                "w0 + w_1".to_string()
+            } else {
+                format!("w0 + w_1 + … + w_{}", j + 1)
+            };
+            bail!(
+                "pi.weights_um_per_v[{j}] = {w}: the slope {terms} = {sum} µm/V is not \
+                 positive (the output would fall as the voltage rises; no inverse)"
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The coupling: finite, and a stack compliance that is not negative.
+fn coupling(m: &HostModel) -> Result<()> {
+    let c = &m.coupling;
+    finite("coupling.offset_v", c.offset_v)?;
+    finite("coupling.k_f_v_per_n", c.k_f_v_per_n)?;
+    finite("coupling.k_q_v_per_n2", c.k_q_v_per_n2)?;
+    finite("coupling.force_q_n", c.force_q_n)?;
+    finite("coupling.compliance_um_per_n", c.compliance_um_per_n)?;
+    if let Some(f) = c.force_ref_n {
+        finite("coupling.force_ref_n", f)?;
+    }
+    if c.compliance_um_per_n < 0.0 {
+        bail!(
+            "coupling.compliance_um_per_n = {}: must be ≥ 0 µm/N (a stack yields under load)",
+            c.compliance_um_per_n
+        );
+    }
+    Ok(())
+}
+
+/// The dead zone's softness (≥ 0; 0 is hard), the output offset and map.
+fn maps(m: &HostModel) -> Result<()> {
+    let s = m.dead_zone_softness_v;
+    finite("dead_zone_softness_v", s)?;
+    if s < 0.0 {
+        bail!("dead_zone_softness_v = {s}: must be ≥ 0 V (0: the hard dead zone)");
+    }
+    finite("offset_um", m.offset_um)?;
+    match m.output {
+        OutputMap::Identity => Ok(()),
+        OutputMap::Saturation { beta_per_um: b } => {
+            finite("output.beta_per_um", b)?;
+            let top = m.model().pi.output_max();
+            if 1.0 + 4.0 * b * top <= 0.0 {
+                bail!(
+                    "output.beta_per_um = {b}: the saturation folds over below the model's \
+                     largest output {top} µm"
+                );
+            }
+            Ok(())
+        }
+        OutputMap::Quadratic { gamma_per_um: g } => finite("output.gamma_per_um", g),
+    }
+}
+
+/// The ldpi section, if any: one finite slope per threshold.
+fn ldpi(m: &HostModel) -> Result<()> {
+    let Some(l) = &m.ldpi else {
+        return Ok(());
+    };
+    if l.weights_per_n.len() != m.pi.thresholds_v.len() {
+        bail!(
+            "ldpi.weights_per_n has {} values for {} thresholds",
+            l.weights_per_n.len(),
+            m.pi.thresholds_v.len()
+        );
+    }
+    finite("ldpi.w0_per_n", l.w0_per_n)?;
+    for (i, &b) in l.weights_per_n.iter().enumerate() {
+        finite(&format!("ldpi.weights_per_n[{i}]"), b)?;
+    }
+    Ok(())
+}

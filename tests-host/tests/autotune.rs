@@ -1,0 +1,340 @@
+//! Damping, autotune and the loops on the stage as built, on the emulated board
+//! (QEMU; without it, the same firmware built for the host, in-process), driven
+//! through the library a user's `fpi board …` runs:
+//!
+//! * `fpi board frf`'s measurement on the quasi-static nominal stage (a flat
+//!   unit response) and on the stage as built (its 850 Hz mode found);
+//! * `fpi board step`'s figures;
+//! * `fpi board autotune`: the fitted plant, the loops designed and loaded, the
+//!   verification step; then the four drives compared (open loop, PI,
+//!   damping and PI, damping, PI and feedforward) — the issue's targets are **printed**
+//!   (run with `--nocapture`), generous bounds are asserted;
+//! * robustness: the tuning loaded unchanged onto stage variants (mode
+//!   700–1000 Hz, damping 0.015–0.05, gains a few percent off).
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use fpi_firmware::link::protocol::{BenchOrder, StageVariant};
+use fpi_host::board::autotune::{self, park, Autotune};
+use fpi_host::board::client::Client;
+use fpi_host::board::closed_loop::{self, Drive};
+use fpi_host::board::emulator::{self, Emulator};
+use fpi_host::board::frf::{self, FrfSettings};
+use fpi_host::board::step::{self, StepSettings};
+use fpi_host::method::tune::TuneOptions;
+use piezo_sim::file::FirmwareModel;
+
+/// The factory model (stage A, no loops).
+fn factory() -> FirmwareModel {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/model/stage-a.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    FirmwareModel::parse(&text, "stage-a.toml").unwrap()
+}
+
+/// A board: the emulated one if QEMU is here, else the firmware in-process.
+fn board(test: &str) -> (Option<Emulator>, Client) {
+    if emulator::available_for(test) {
+        let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
+        let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
+        let c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
+        (Some(e), c)
+    } else {
+        println!("{test}: on the firmware built for the host (in-process)");
+        (None, Client::open("virtual").unwrap())
+    }
+}
+
+/// `fw` loaded onto a parked board with the stage `v`.
+fn load(c: &mut Client, fw: &FirmwareModel, v: StageVariant) {
+    park(c).unwrap();
+    c.upload(&fw.image().unwrap(), false, |_| {}).unwrap();
+    c.bench(BenchOrder::Stage(v)).unwrap();
+}
+
+/// Autotune on the stage as built (once), and the board it ran on.
+fn tuned() -> &'static Autotune {
+    static TUNED: OnceLock<Autotune> = OnceLock::new();
+    TUNED.get_or_init(|| {
+        let (_e, mut c) = board("autotune");
+        let fw = factory();
+        load(&mut c, &fw, StageVariant::BUILT);
+        let a = autotune::run(
+            &mut c,
+            &fw,
+            &TuneOptions::default(),
+            &FrfSettings::default(),
+            false,
+            |m| println!("{m}"),
+        )
+        .unwrap_or_else(|e| panic!("{e:#}"));
+        println!("{}", autotune::table(&a));
+        a
+    })
+}
+
+#[test]
+fn the_analyser_measures_a_flat_stage_flat_and_finds_the_built_stages_mode() {
+    let (_e, mut c) = board("frf");
+    let fw = factory();
+    let s = FrfSettings {
+        points: 12,
+        zoom_points: 0,
+        ..FrfSettings::default()
+    };
+    load(&mut c, &fw, StageVariant::NOMINAL);
+    let flat = frf::measure(&mut c, &s, |_, _| {}).unwrap();
+    for p in &flat {
+        // The quasi-static twin: the command reaches the stage through the
+        // inverse model (gain ≈ 1), the amplifier's lag and one tick: flat
+        // below 300 Hz, falling above, never a peak.
+        assert!(p.x.norm() < 1.1, "{p:?}");
+        if p.f_hz < 300.0 {
+            assert!((p.x.norm() - 1.0).abs() < 0.1, "{p:?}");
+        }
+    }
+    load(&mut c, &fw, StageVariant::BUILT);
+    let built = frf::measure(&mut c, &FrfSettings::default(), |_, _| {}).unwrap();
+    let peak = built
+        .iter()
+        .max_by(|a, b| a.x.norm().total_cmp(&b.x.norm()))
+        .unwrap();
+    println!(
+        "built stage's peak: {:.1} Hz, |x/u| {:.2}",
+        peak.f_hz,
+        peak.x.norm()
+    );
+    assert!(
+        (peak.f_hz - 850.0).abs() < 60.0 && peak.x.norm() > 5.0,
+        "{peak:?}"
+    );
+    // Faults void an analysis: a refusal is the board's, not a silent zero.
+    park(&mut c).unwrap();
+}
+
+#[test]
+fn autotune_fits_the_stage_and_its_loops_settle_a_step() {
+    let a = tuned();
+    let d = a.fit.spec;
+    // The stage as built: 850 Hz, ζ 0.03; the fit within a few percent (the
+    // mode) and within the family's spread (ζ).
+    assert!((d.mode_hz() - 850.0).abs() < 30.0, "{d:?}");
+    assert!(
+        d.damping_ratio() > 0.01 && d.damping_ratio() < 0.06,
+        "{d:?}"
+    );
+    assert!(d.force_gain.to_num::<f64>() > 3.0, "{d:?}");
+    assert!(a.fit.x_misfit < 0.15, "{:?}", a.fit);
+    // The loops: damped, with margin, fast.
+    let t = &a.tuning;
+    assert!(t.mode_damping.1 > 0.2, "{:?}", t.mode_damping);
+    assert!(
+        t.sensitivity_peak <= 1.6 + 1e-9 && t.bandwidth_hz > 200.0,
+        "{t:?}"
+    );
+    // The verification step: settled (generous; the figures are printed).
+    let settle = a.step.settle_ms.unwrap_or(f64::INFINITY);
+    assert!(settle < 10.0 && a.step.overshoot_um < 5.0, "{:?}", a.step);
+    // The tuned model is a model file any board loads.
+    let text = a.model.to_toml().unwrap();
+    let back = FirmwareModel::parse(&text, "tuned").unwrap();
+    assert_eq!(back.image().unwrap(), a.model.image().unwrap());
+}
+
+#[test]
+fn damping_and_feedforward_beat_the_pi_alone() {
+    let a = tuned();
+    let (_e, mut c) = board("drives");
+    let fw = factory();
+    let pi_only = TuneOptions {
+        damping: false,
+        feedforward: None,
+        ..TuneOptions::default()
+    };
+    let t = fpi_host::method::tune::tune_measured(&fw, a.fit.spec, &pi_only).unwrap();
+    let pi = fpi_host::method::tune::with_tuning(&fw, &t, &pi_only)
+        .unwrap()
+        .image()
+        .unwrap();
+    let r = closed_loop::run(&mut c, &pi, &a.model.image().unwrap())
+        .unwrap_or_else(|e| panic!("{e:#}"));
+    println!("{}", closed_loop::table(&r));
+    let run = |d| r.run(d).unwrap();
+    let (open, pi, ff) = (
+        run(Drive::Open),
+        run(Drive::Pi),
+        run(Drive::DampedFeedforward),
+    );
+    // 15 Hz: ≤ 0.3 % of the 30 µm span and ≤ 0.3× open loop (the issue's target).
+    assert!(ff.sine.rms() < 0.003 * 30.0, "{:?}", ff.sine.rms());
+    assert!(ff.sine.rms() < 0.3 * open.sine.rms());
+    // The triangle and the step: better than the PI alone.
+    assert!(ff.triangle.rms() < pi.triangle.rms());
+    let settle = |s: Option<f64>| s.unwrap_or(f64::INFINITY);
+    assert!(settle(ff.step.settle_ms) < settle(pi.step.settle_ms));
+}
+
+#[test]
+fn the_tuning_holds_on_stage_variants() {
+    let a = tuned();
+    let (_e, mut c) = board("variants");
+    println!("| variant | overshoot (µm) | settles ±0.1 µm (ms) |\n|---|---|---|");
+    for (mode_hz, zeta, gain) in [
+        (700.0, 0.015, 0.97),
+        (700.0, 0.05, 1.03),
+        (1000.0, 0.015, 1.03),
+        (1000.0, 0.05, 0.97),
+    ] {
+        let v = StageVariant {
+            mode_hz: Some(mode_hz),
+            mode_damping: Some(zeta),
+            output_gain: Some(gain),
+            ..StageVariant::BUILT
+        };
+        load(&mut c, &a.model, v);
+        let fig = autotune::verify(&mut c).unwrap_or_else(|e| panic!("{mode_hz} Hz: {e:#}"));
+        println!(
+            "| {mode_hz} Hz, ζ {zeta}, gain {gain} | {:.3} | {} |",
+            fig.overshoot_um,
+            fig.settle_ms.map_or("—".into(), |v| format!("{v:.2}"))
+        );
+        // Stable and settled within the record (the 6 ms target is printed).
+        assert!(fig.settle_ms.is_some(), "{mode_hz} Hz, ζ {zeta}: {fig:?}");
+    }
+    park(&mut c).unwrap();
+}
+
+#[test]
+fn a_step_through_the_board_is_scored_on_the_true_position() {
+    let (_e, mut c) = board("step");
+    load(&mut c, &factory(), StageVariant::NOMINAL);
+    let s = StepSettings {
+        from_um: 10.0,
+        to_um: 20.0,
+        tol_um: Some(0.5),
+        ..StepSettings::default()
+    };
+    let (rec, fig) = step::run(&mut c, &s).unwrap();
+    println!("{}", step::describe(&fig, s.tol_um));
+    assert!(fig.true_position && rec.dropped == 0);
+    // The quasi-static twin follows the 1.5 ms raised cosine: rise about 0.75 ms
+    // (10–90 % of a half cosine is 59 % of its duration: 0.89 ms, less the lag).
+    assert!(fig.rise_ms > 0.5 && fig.rise_ms < 1.2, "{fig:?}");
+    assert!(fig.settle_tol_ms.unwrap() <= fig.settle_ms.unwrap_or(f64::INFINITY));
+    park(&mut c).unwrap();
+}
+
+/// The tuned loops on a stage far outside the family they were designed for:
+/// what trips, how soon, and how far the stage went.
+fn unstable_run(c: &mut Client, a: &Autotune, v: StageVariant) -> Unstable {
+    use fpi_firmware::closed_loop::LoopMode;
+    use fpi_firmware::link::protocol::Command;
+    use fpi_firmware::recorder::signal;
+    use fpi_host::board::client::real;
+    use fpi_host::board::follow::Follow;
+    load(c, &a.model, v);
+    c.move_to(20.0, 1000.0).unwrap();
+    Follow::new(c, 0).until_hold().unwrap();
+    let mut f = Follow::new(c, signal::X_TRUE | signal::X_REF | signal::STATUS);
+    f.record(1).unwrap();
+    f.rec.samples.clear();
+    let closed =
+        f.c.ack(&Command::Loop {
+            mode: LoopMode::Closed,
+        })
+        .unwrap();
+    let end = closed + f.ticks(0.1);
+    f.until_tick(end).unwrap();
+    f.c.ack(&Command::RecordStop).unwrap();
+    f.drain().unwrap();
+    let st = f.c.status().unwrap();
+    let fault = st.fault.filter(|x| x.at >= closed);
+    let at = fault.map_or(end, |x| x.at);
+    let range = |before: bool| {
+        f.rec
+            .samples
+            .iter()
+            .filter(|s| (s.tick <= at) == before)
+            .map(|s| real(s.x_true))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x), hi.max(x))
+            })
+    };
+    Unstable {
+        fault: fault.and_then(|x| piezo_fpi::control::Fault::from_code(x.code)),
+        ms: (at - closed) as f64 / 20.0,
+        before: range(true),
+        after: range(false),
+    }
+}
+
+/// What [`unstable_run`] saw.
+#[derive(Debug)]
+struct Unstable {
+    fault: Option<piezo_fpi::control::Fault>,
+    /// From closing the loop to the fault, ms.
+    ms: f64,
+    /// The true position's range up to the fault and after it (the park), µm.
+    before: (f64, f64),
+    after: (f64, f64),
+}
+
+#[test]
+fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
+    let a = tuned();
+    let (_e, mut c) = board("unstable");
+    for (mode_hz, zeta) in [(300.0, 0.01), (400.0, 0.01), (2000.0, 0.01)] {
+        let v = StageVariant {
+            mode_hz: Some(mode_hz),
+            mode_damping: Some(zeta),
+            ..StageVariant::BUILT
+        };
+        let u = unstable_run(&mut c, a, v);
+        println!(
+            "{mode_hz} Hz, ζ {zeta}: {:?} after {:.2} ms; true position {:.2}–{:.2} µm until \
+             then, {:.2}–{:.2} µm while parking",
+            u.fault, u.ms, u.before.0, u.before.1, u.after.0, u.after.1
+        );
+        if mode_hz < 1000.0 {
+            // Caught, named, within 20 ms of its swing exceeding the watch's
+            // threshold (printed: from closing the loop) and inside the stroke.
+            assert_eq!(
+                u.fault,
+                Some(piezo_fpi::control::Fault::Oscillation),
+                "{u:?}"
+            );
+            assert!(
+                u.ms < 40.0 && u.before.0 > 0.0 && u.before.1 < 39.9,
+                "{u:?}"
+            );
+        }
+        park(&mut c).unwrap();
+        c.ack(&fpi_firmware::link::protocol::Command::ClearFault)
+            .ok();
+    }
+}
+
+#[test]
+fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_refused() {
+    use fpi_firmware::reference::wave::Shape;
+    use fpi_host::board::client::refusal;
+    let a = tuned();
+    let (_e, mut c) = board("wave at the mode");
+    load(&mut c, &a.model, StageVariant::BUILT);
+    c.move_to(20.0, 1000.0).unwrap();
+    fpi_host::board::follow::Follow::new(&mut c, 0)
+        .until_hold()
+        .unwrap();
+    c.damping(false).unwrap();
+    // The issue's case: 5 µm about 20 µm at the 850 Hz mode, undamped (±83 µm).
+    let e = c.wave(Shape::Sine, 5.0, 20.0, 850.0, 0).unwrap_err();
+    let r = refusal(&e).unwrap_or_else(|| panic!("{e:#}"));
+    println!("refused: {}", r.reason);
+    assert!(r.reason.contains("mode"), "{}", r.reason);
+    // A triangle whose third harmonic meets the mode.
+    assert!(c.wave(Shape::Triangle, 15.0, 20.0, 285.0, 0).is_err());
+    // With the damping on, the same small wave stays in the stroke: accepted.
+    c.damping(true).unwrap();
+    c.wave(Shape::Sine, 5.0, 20.0, 850.0, 10).unwrap();
+    park(&mut c).unwrap();
+}
