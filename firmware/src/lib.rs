@@ -18,6 +18,8 @@
 //!   file and validated when the firmware is compiled;
 //! * [`frontend`] — the board's ADC and DAC scaling; [`hardware`] — its limits,
 //!   capacity and buffers;
+//! * [`converters`] — precision converters on SPI (AD5781/AD5791 DAC, AD7606 ADC)
+//!   and the schedule that keeps the tick deterministic around them;
 //! * [`sim_io`] — the emulated board's virtual sensor, DAC, enable line and analog
 //!   input; with the `sim` feature, [`emulated`] — its virtual bench (the virtual
 //!   stage and its fault injection), which the host also runs as its twin.
@@ -33,6 +35,7 @@ pub mod analyser;
 pub mod baseline;
 pub mod closed_loop;
 pub mod control_loop;
+pub mod converters;
 #[cfg(feature = "sim")]
 pub mod emulated;
 pub mod exchange;
