@@ -74,6 +74,25 @@ pub enum ModelError {
         /// Knot.
         index: u16,
     },
+    /// The preload `f_F` falls as the stack extends (the model's coupled
+    /// equation needs more extension to bring at least as much preload);
+    /// `index` is the knot where it falls.
+    PreloadFalls {
+        /// Knot.
+        index: u16,
+    },
+    /// The stage output `f_K` does not rise as the stack extends, so it has no
+    /// inverse; `index` is the knot it does not rise to.
+    OutputNotInvertible {
+        /// Knot.
+        index: u16,
+    },
+    /// `f_K⁻¹` does not invert `f_K`: at its knot `index`, `f_K(f_K⁻¹(y))` is
+    /// more than [`crate::table::INVERSE_TOLERANCE`] from `y`.
+    InverseDisagrees {
+        /// Knot of `f_K⁻¹`.
+        index: u16,
+    },
     /// A lower limit is above its upper limit.
     LimitsInverted,
     /// The slew limit (largest change per step) is not positive.
@@ -158,6 +177,17 @@ impl ModelError {
             Self::TableTooSteep { .. } => {
                 "neighbouring table values differ by 0.5 or more: use a finer grid"
             }
+            Self::PreloadFalls { .. } => {
+                "the preload falls as the stack extends (f_f must not fall: more extension, \
+                 at least as much preload)"
+            }
+            Self::OutputNotInvertible { .. } => {
+                "the stage output does not rise as the stack extends, so f_k has no inverse \
+                 (f_k must rise between every two knots)"
+            }
+            Self::InverseDisagrees { .. } => {
+                "f_k_inv does not invert f_k here: f_k(f_k_inv(y)) is more than 1/64 µm from y"
+            }
             Self::LimitsInverted => "the lower limit exceeds the upper limit",
             Self::NonPositiveSlew => "the slew limit is not positive",
             Self::ReferenceOutsideTable => "the reference range reaches beyond the f_K⁻¹ table",
@@ -205,9 +235,11 @@ impl ModelError {
             | Self::ThresholdsNotSorted { index }
             | Self::ThresholdBeyondDomain { index }
             | Self::InverseWeightOutOfRange { index } => Some(index as usize),
-            Self::TableNotMonotone { index } | Self::TableTooSteep { index } => {
-                Some(index as usize)
-            }
+            Self::TableNotMonotone { index }
+            | Self::TableTooSteep { index }
+            | Self::PreloadFalls { index }
+            | Self::OutputNotInvertible { index }
+            | Self::InverseDisagrees { index } => Some(index as usize),
             _ => None,
         }
     }

@@ -211,7 +211,38 @@ impl<'a> Table<'a> {
     pub const fn last(&self) -> I16F16 {
         self.end
     }
+
+    /// The first knot the table rises to by less than `min_rise` raw LSB from
+    /// the knot before it (knots are numbered from 0), if any.
+    pub fn first_rise_below(&self, min_rise: i32) -> Option<usize> {
+        self.segments
+            .iter()
+            .position(|s| s.rise().to_bits() < min_rise)
+            .map(|k| k + 1)
+    }
+
+    /// The first knot `y_j` of `inverse`, within this table's range, at which
+    /// `self(inverse(y_j))` is more than `tolerance` from `y_j`, if any: where
+    /// `inverse` does not invert this table.
+    pub fn first_disagreement(&self, inverse: &Table<'_>, tolerance: I16F16) -> Option<usize> {
+        let (lo, hi) = (self.segments[0].start, self.end);
+        let step = 1i64 << inverse.shift;
+        (0..=inverse.segments.len()).find(|&j| {
+            let y = inverse.x0.to_bits() as i64 + j as i64 * step;
+            if y < lo.to_bits() as i64 || y > hi.to_bits() as i64 {
+                return false;
+            }
+            let back = self.eval(inverse.eval(I16F16::from_bits(y as i32)));
+            (back.to_bits() as i64 - y).abs() > tolerance.to_bits() as i64
+        })
+    }
 }
+
+/// How far `f_K(f_K⁻¹(y))` may be from `y` at the knots of `f_K⁻¹`
+/// ([`Table::first_disagreement`]): 1/64 µm. Tables sampled from one FEM map
+/// agree to a few LSB (stage A: exactly); an inverse from another map, or of a
+/// map that does not rise, does not.
+pub const INVERSE_TOLERANCE: I16F16 = I16F16::from_bits(1 << 10);
 
 #[cfg(test)]
 mod tests {

@@ -924,7 +924,9 @@ impl FirmwareModel {
                 let _ = write!(s, " (S_{index} = w0 + w_1 + … = {sum})");
             }
             (ModelError::TableNotMonotone { index }, Field::Table(id, _))
-            | (ModelError::TableTooSteep { index }, Field::Table(id, _)) => {
+            | (ModelError::TableTooSteep { index }, Field::Table(id, _))
+            | (ModelError::PreloadFalls { index }, Field::Table(id, _))
+            | (ModelError::OutputNotInvertible { index }, Field::Table(id, _)) => {
                 if let Some(prev) = self
                     .table(id)
                     .and_then(|t| t.values.get((index as usize).wrapping_sub(1)))

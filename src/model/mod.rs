@@ -31,7 +31,7 @@ use crate::play::Operator;
 use crate::q::{
     CreepRate, Micrometres, UmPerVolt, Volts, VoltsPerUm, MAX_CREEP_TERMS, MAX_OPERATORS,
 };
-use crate::table::{Segment, Table};
+use crate::table::{Segment, Table, INVERSE_TOLERANCE};
 
 /// A lookup table: first knot, spacing `2^shift` raw LSB of the input, intervals.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -192,9 +192,33 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
             table(&map.inverse, inverse)?;
         }
     }
-    table(&m.f_f, TableId::FF)?;
-    table(&m.f_k, TableId::FK)?;
+    let f_f = table(&m.f_f, TableId::FF)?;
+    if let Some(k) = f_f.first_rise_below(0) {
+        let e = ModelError::PreloadFalls { index: k as u16 };
+        return Err(Invalid::at_index(
+            Field::Table(TableId::FF, TablePart::Values),
+            k,
+            e,
+        ));
+    }
+    let f_k = table(&m.f_k, TableId::FK)?;
+    if let Some(k) = f_k.first_rise_below(1) {
+        let e = ModelError::OutputNotInvertible { index: k as u16 };
+        return Err(Invalid::at_index(
+            Field::Table(TableId::FK, TablePart::Values),
+            k,
+            e,
+        ));
+    }
     let f_k_inv = table(&m.f_k_inv, TableId::FKInv)?;
+    if let Some(j) = f_k.first_disagreement(&f_k_inv, INVERSE_TOLERANCE) {
+        let e = ModelError::InverseDisagrees { index: j as u16 };
+        return Err(Invalid::at_index(
+            Field::Table(TableId::FKInv, TablePart::Values),
+            j,
+            e,
+        ));
+    }
     let limits = OutputLimits::new(m.u_min, m.u_max, m.max_step).map_err(|e| match e {
         ModelError::NonPositiveSlew => Invalid::at(Field::Slew, e),
         e => Invalid::at(Field::UMin, e),
@@ -330,6 +354,76 @@ mod tests {
         let shape = validate(&spec(&o)).unwrap();
         assert_eq!((shape.operators, shape.creep_terms), (3, 1));
         assert!(!shape.dead_zone && !shape.saturation);
+    }
+
+    /// The tables the coupled equation and the inverse rest on: a preload that
+    /// falls as the stack extends, an output that stops rising (no inverse), and
+    /// an inverse of another map are refused by the table's key and knot.
+    #[test]
+    fn tables_that_break_the_models_assumptions_are_refused_by_key() {
+        let o = owned();
+        let base = spec(&o);
+        let e = |m: ModelSpec<'_>| {
+            let e = validate(&m).unwrap_err();
+            (key(e), e.error)
+        };
+        let falling = testkit::table(0.0, -4, 512, |x| 100.0 - 0.5 * x);
+        assert_eq!(
+            e(ModelSpec {
+                f_f: TableSpec::of(&falling),
+                ..base
+            }),
+            (
+                "tables.f_f.values[1]".to_string(),
+                ModelError::PreloadFalls { index: 1 }
+            )
+        );
+        let constant = testkit::table(0.0, -4, 512, |_| 20.0);
+        assert_eq!(
+            e(ModelSpec {
+                f_k: TableSpec::of(&constant),
+                ..base
+            }),
+            (
+                "tables.f_k.values[1]".to_string(),
+                ModelError::OutputNotInvertible { index: 1 }
+            )
+        );
+        let mut flat_end = base.f_k.segments.to_vec();
+        flat_end[300] = Segment::new(flat_end[300].start(), I16F16::ZERO);
+        for s in &mut flat_end[301..] {
+            *s = Segment::new(s.start() - base.f_k.segments[300].rise(), s.rise());
+        }
+        assert_eq!(
+            e(ModelSpec {
+                f_k: TableSpec {
+                    segments: &flat_end,
+                    ..base.f_k
+                },
+                ..base
+            }),
+            (
+                "tables.f_k.values[301]".to_string(),
+                ModelError::OutputNotInvertible { index: 301 }
+            )
+        );
+        let other = testkit::table(0.0, -2, 179, |y| y / 1.5);
+        let (k, err) = e(ModelSpec {
+            f_k_inv: TableSpec::of(&other),
+            ..base
+        });
+        assert!(k.starts_with("tables.f_k_inv.values["), "{k}");
+        assert!(
+            matches!(err, ModelError::InverseDisagrees { index } if index > 0),
+            "{err:?}"
+        );
+        // A preload that stays level over part of the stroke is allowed.
+        let level = testkit::table(0.0, -4, 512, |x| 60.0 + 4.0 * (x - 10.0).max(0.0));
+        assert!(validate(&ModelSpec {
+            f_f: TableSpec::of(&level),
+            ..base
+        })
+        .is_ok());
     }
 
     #[test]

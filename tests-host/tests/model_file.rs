@@ -108,6 +108,26 @@ fn malformed_models_name_their_key() {
         &|b| b.tables.f_k_inv.values.truncate(1),
         "tables.f_k_inv.values: a lookup table needs 2..=4096 knots",
     );
+    // Tables that break the model's assumptions (a new user's falling f_F and
+    // constant f_K were loaded, and the board faulted on the first move).
+    check(
+        &|b| {
+            let first = b.tables.f_f.values[0];
+            for (k, v) in b.tables.f_f.values.iter_mut().enumerate() {
+                *v = first - 0.125 * k as f64;
+            }
+        },
+        "tables.f_f.values[1] = 61.675: the preload falls as the stack extends",
+    );
+    check(
+        &|b| b.tables.f_k.values.iter_mut().for_each(|v| *v = 20.0),
+        "tables.f_k.values[1] = 20: the stage output does not rise as the stack extends, so \
+         f_k has no inverse",
+    );
+    check(
+        &|b| b.tables.f_k_inv.values.iter_mut().for_each(|v| *v *= 1.1),
+        "f_k_inv does not invert f_k here",
+    );
     check(
         &|b| {
             if let Some(d) = b.dead_zone.as_mut() {
