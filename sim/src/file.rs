@@ -37,6 +37,7 @@ use crate::curve::Curve;
 use crate::maps::TableMap;
 use crate::model::{lag_rate, Coupling, Creep, DeadZone, Model, Output};
 use crate::play::Pi;
+use crate::quote::toml_error;
 
 /// The default dynamic force limit, in force tolerances
 /// (`controller.force_dynamic_limit_n`).
@@ -595,7 +596,8 @@ impl ControllerSection {
             "predicted" => ForceSource::Predicted,
             other => {
                 return Err(format!(
-                    "controller.force_source = {other:?}: expected \"measured\" or \"predicted\""
+                    "controller.force_source = {}: expected \"measured\" or \"predicted\"",
+                    crate::quote::Quoted(other)
                 ))
             }
         };
@@ -703,7 +705,7 @@ impl FirmwareModel {
     /// and the key.
     pub fn parse(text: &str, file: &str) -> Result<Self, String> {
         let model: FirmwareModel =
-            toml::from_str(text).map_err(|e| format!("{file}: not a firmware model file: {e}"))?;
+            toml::from_str(text).map_err(|e| toml_error(file, "firmware model file", text, &e))?;
         model.check().map_err(|e| format!("{file}: {e}"))?;
         Ok(model)
     }
@@ -745,7 +747,10 @@ impl FirmwareModel {
     /// validates the model).
     pub fn quantize(&self) -> Result<Quantized, String> {
         if self.format != FORMAT {
-            return Err(format!("format = {:?}: expected {FORMAT:?}", self.format));
+            return Err(format!(
+                "format = {}: expected {FORMAT:?}",
+                crate::quote::Quoted(&self.format)
+            ));
         }
         let empty = TableSpec {
             x0: I16F16::ZERO,

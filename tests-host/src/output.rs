@@ -34,7 +34,7 @@ pub fn write_atomic_with(
 ) -> Result<()> {
     let dest = destination(path);
     let folder = prepare(&dest)?;
-    let tmp = temp_path(&folder, &dest);
+    let tmp = temp_path(&folder);
     let written = write_then_rename(&tmp, &dest, fill);
     if let Err(e) = written {
         let _ = fs::remove_file(&tmp);
@@ -72,16 +72,13 @@ fn write_then_rename(
     fs::rename(tmp, path)
 }
 
-/// A fresh temporary name next to `path` in `folder` (hidden, unique per process
-/// and call).
-fn temp_path(folder: &Path, path: &Path) -> PathBuf {
+/// A fresh temporary name in `folder` (hidden, unique per process and call). It
+/// does not carry the destination's name: a name that is valid as it is must not
+/// become too long (255 bytes on most file systems) by the temporary's additions.
+fn temp_path(folder: &Path) -> PathBuf {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let name = path
-        .file_name()
-        .map(|s| s.to_string_lossy().to_string())
-        .unwrap_or_default();
-    folder.join(format!(".{name}.{}-{n}.tmp", std::process::id()))
+    folder.join(format!(".fpi-{}-{n}.tmp", std::process::id()))
 }
 
 /// The folder a path's file goes in (`.` for a bare file name).
@@ -159,7 +156,7 @@ pub fn prepare_folder(dir: &Path) -> Result<()> {
 
 /// Creates and removes a temporary file in `folder`.
 fn probe(folder: &Path) -> io::Result<()> {
-    let tmp = temp_path(folder, Path::new("probe"));
+    let tmp = temp_path(folder);
     OpenOptions::new().write(true).create_new(true).open(&tmp)?;
     fs::remove_file(&tmp)
 }
@@ -298,6 +295,15 @@ mod tests {
                 .is_symlink());
             assert_eq!(fs::read_to_string(&target).unwrap(), "new");
         }
+    }
+
+    #[test]
+    fn the_longest_valid_name_is_written() {
+        let d = dir("long-name");
+        let name = format!("{}.csv", "n".repeat(251)); // 255 bytes, most systems' limit
+        write_atomic(&d.join(&name), b"x").unwrap();
+        assert_eq!(fs::read_to_string(d.join(&name)).unwrap(), "x");
+        assert_eq!(fs::read_dir(&d).unwrap().count(), 1, "no temporary left");
     }
 
     #[test]

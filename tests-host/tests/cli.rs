@@ -287,7 +287,7 @@ fn bad_inputs_name_file_line_and_column() {
         s(&d.join("p.csv")),
     ]);
     assert!(
-        err.contains("bad_model.toml: not a model file") && err.contains("k_f_volts"),
+        err.contains("bad_model.toml:16:1: not a model file") && err.contains("k_f_volts"),
         "{err}"
     );
     // An unknown kind.
@@ -428,4 +428,77 @@ fn board_commands_drive_the_emulated_board() {
         s(&cmp),
     ]);
     assert!(out.contains("board-record.csv"), "{out}");
+}
+
+/// A valid output name of 244 bytes failed with "File name too long": the
+/// temporary file written beside it carried the name and more.
+#[test]
+fn the_longest_valid_output_name_is_written() {
+    let d = tmp();
+    let m = fpi_model(&d);
+    let out = d.join(format!("{}.csv", "p".repeat(251))); // 255 bytes
+    ok(&[
+        "predict",
+        "--model",
+        s(&m),
+        "--fem",
+        FEM,
+        "--drive",
+        RUN,
+        "--out",
+        s(&out),
+    ]);
+    assert!(out.exists());
+}
+
+/// A 10 MB CSV cell and a TOML line of 200 000 `[` came back whole in the error
+/// message: an error quotes at most 80 characters of what it read.
+#[test]
+fn errors_quote_at_most_eighty_characters() {
+    let d = tmp();
+    let cell = d.join("big-cell.csv");
+    let text = format!(
+        "t_s,voltage_V,force_N,displacement_um\n0,1,2,3\n0.1,{},2,3\n",
+        "x".repeat(10_000_000)
+    );
+    std::fs::write(&cell, text).unwrap();
+    let err = fails(&[
+        "calibrate",
+        "--rig",
+        s(&cell),
+        "--out",
+        s(&d.join("o.toml")),
+    ]);
+    assert!(
+        err.contains(&format!(
+            "big-cell.csv:3: column voltage_V: \"{}…\" is not a number",
+            "x".repeat(80)
+        )),
+        "{}",
+        &err[..err.len().min(400)]
+    );
+    assert!(err.len() < 1000, "{} bytes", err.len());
+    let brackets = d.join("brackets.toml");
+    let text = format!(
+        "format = \"piezo-fpi-model/1\"\nkind = {}\n",
+        "[".repeat(200_000)
+    );
+    std::fs::write(&brackets, text).unwrap();
+    let err = fails(&[
+        "predict",
+        "--model",
+        s(&brackets),
+        "--fem",
+        FEM,
+        "--drive",
+        RUN,
+        "--out",
+        s(&d.join("p.csv")),
+    ]);
+    assert!(
+        err.contains("brackets.toml:2:"),
+        "{}",
+        &err[..err.len().min(400)]
+    );
+    assert!(err.len() < 1000, "{} bytes", err.len());
 }

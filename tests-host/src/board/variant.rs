@@ -18,8 +18,9 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, Result};
 use fpi_firmware::link::protocol::StageVariant;
+use piezo_sim::quote::{toml_error, Quoted};
 use serde::Deserialize;
 
 /// The file's form.
@@ -52,17 +53,26 @@ pub fn parse(arg: &str) -> Result<StageVariant> {
     }
     let path = Path::new(arg);
     if !path.exists() {
-        bail!("--stage {arg:?}: nominal, built or a TOML file naming a base and its changes");
+        bail!(
+            "--stage {}: nominal, built or a TOML file naming a base and its changes",
+            Quoted(arg)
+        );
     }
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {arg}"))?;
-    from_toml(&text).with_context(|| arg.to_string())
+    let text = String::from_utf8(crate::data::read_bytes(path)?)
+        .map_err(|e| anyhow!("{arg}: not a text file: {e}"))?;
+    from_toml(&text, arg)
 }
 
-/// The variant a TOML text describes.
-pub fn from_toml(text: &str) -> Result<StageVariant> {
-    let f: VariantFile = toml::from_str(text).map_err(|e| anyhow!("{e}"))?;
-    let b =
-        base(&f.base).ok_or_else(|| anyhow!("base = {:?}: \"nominal\" or \"built\"", f.base))?;
+/// The variant the TOML text of the file `name` (for messages) describes.
+pub fn from_toml(text: &str, name: &str) -> Result<StageVariant> {
+    let f: VariantFile = toml::from_str(text)
+        .map_err(|e| anyhow!(toml_error(name, "stage variant file", text, &e)))?;
+    let b = base(&f.base).ok_or_else(|| {
+        anyhow!(
+            "{name}: base = {}: \"nominal\" or \"built\"",
+            Quoted(&f.base)
+        )
+    })?;
     let v = StageVariant {
         built: b.built,
         mode_hz: f.mode_hz,
@@ -74,7 +84,7 @@ pub fn from_toml(text: &str) -> Result<StageVariant> {
         force_noise_n: f.force_noise_n,
     };
     if let Err((key, value, (lo, hi))) = v.check() {
-        bail!("{key} = {value}: must lie in [{lo}, {hi}]");
+        bail!("{name}: {key} = {value}: must lie in [{lo}, {hi}]");
     }
     Ok(v)
 }
@@ -109,7 +119,11 @@ mod tests {
 
     #[test]
     fn a_file_replaces_the_base_values_it_names() {
-        let v = from_toml("base = \"built\"\nmode_hz = 700.0\nmode_damping = 0.015\n").unwrap();
+        let v = from_toml(
+            "base = \"built\"\nmode_hz = 700.0\nmode_damping = 0.015\n",
+            "v.toml",
+        )
+        .unwrap();
         assert!(v.built);
         assert_eq!(v.mode_hz, Some(700.0));
         assert_eq!(v.mode_damping, Some(0.015));
@@ -118,12 +132,12 @@ mod tests {
 
     #[test]
     fn unknown_keys_and_out_of_range_values_are_named() {
-        let e = from_toml("base = \"built\"\nmode_hertz = 700.0\n").unwrap_err();
+        let e = from_toml("base = \"built\"\nmode_hertz = 700.0\n", "v.toml").unwrap_err();
         assert!(format!("{e:#}").contains("mode_hertz"), "{e:#}");
-        let e = from_toml("base = \"built\"\nmode_damping = 0.9\n").unwrap_err();
+        let e = from_toml("base = \"built\"\nmode_damping = 0.9\n", "v.toml").unwrap_err();
         let s = format!("{e:#}");
         assert!(s.contains("mode_damping") && s.contains("0.5"), "{s}");
-        let e = from_toml("base = \"stage B\"\n").unwrap_err();
+        let e = from_toml("base = \"stage B\"\n", "v.toml").unwrap_err();
         assert!(format!("{e:#}").contains("base"), "{e:#}");
     }
 }

@@ -20,6 +20,8 @@ use flate2::read::MultiGzDecoder;
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
 
+pub use piezo_sim::quote::{clip, Quoted};
+
 /// A problem with an input file, located as precisely as possible.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DataError {
@@ -423,7 +425,7 @@ pub fn for_each_record<T: DeserializeOwned + Finite>(
             message: format!(
                 "missing in the header (expected {}; found {})",
                 columns.join(","),
-                headers.iter().collect::<Vec<_>>().join(",")
+                clip(&headers.iter().collect::<Vec<_>>().join(","))
             ),
         });
     }
@@ -445,7 +447,7 @@ pub fn for_each_record<T: DeserializeOwned + Finite>(
                 file: path.to_path_buf(),
                 line: Some(line),
                 column: Some(column),
-                message: format!("{raw:?} is not a number"),
+                message: format!("{} is not a number", Quoted(raw)),
             }
         })?;
         if let Some(c) = value.non_finite() {
@@ -454,7 +456,10 @@ pub fn for_each_record<T: DeserializeOwned + Finite>(
                 path,
                 line,
                 c,
-                format!("{:?} is not a finite number", rec.get(i).unwrap_or("")),
+                format!(
+                    "{} is not a finite number",
+                    Quoted(rec.get(i).unwrap_or(""))
+                ),
             ));
         }
         each(value);
@@ -474,7 +479,7 @@ fn duplicate_column(path: &Path, headers: &csv::StringRecord) -> Result<(), Data
             return Err(DataError::at(
                 path,
                 1,
-                h,
+                &clip(h),
                 format!(
                     "appears twice in the header (fields {} and {}): which one holds the data?",
                     i + 1,
@@ -601,6 +606,28 @@ pub fn read_drive(path: &Path) -> Result<(Vec<f64>, Vec<f64>), DataError> {
     })?;
     strictly_increasing(path, "t_s", &t)?;
     Ok((t, u))
+}
+
+/// One point of a trajectory to stream (`x_ref_um`; extra columns ignored).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+struct PointRow {
+    x_ref_um: f64,
+}
+finite_record!(PointRow {
+    x_ref_um: "x_ref_um"
+});
+
+/// Reads column `x_ref_um` of a CSV (a trajectory for `fpi board stream`), µm;
+/// at least one point.
+pub fn read_points(path: &Path) -> Result<Vec<f64>, DataError> {
+    let mut x = Vec::new();
+    for_each_record(path, open(path)?, &["x_ref_um"], |r: PointRow| {
+        x.push(r.x_ref_um)
+    })?;
+    if x.is_empty() {
+        return Err(DataError::file(path, "no points"));
+    }
+    Ok(x)
 }
 
 /// One sample of a target trajectory (`t_s,x_fhps_um`; extra columns ignored).
@@ -782,10 +809,9 @@ pub fn read_micromanipulator(path: &Path) -> Result<Micromanipulator, DataError>
             let raw = fields
                 .get(k)
                 .ok_or_else(|| DataError::at(path, ln, &col, "missing field"))?;
-            let v: f64 = raw
-                .trim()
-                .parse()
-                .map_err(|_| DataError::at(path, ln, &col, format!("{raw:?} is not a number")))?;
+            let v: f64 = raw.trim().parse().map_err(|_| {
+                DataError::at(path, ln, &col, format!("{} is not a number", Quoted(raw)))
+            })?;
             if v.is_finite() {
                 Ok(v)
             } else {
@@ -793,7 +819,7 @@ pub fn read_micromanipulator(path: &Path) -> Result<Micromanipulator, DataError>
                     path,
                     ln,
                     &col,
-                    format!("{raw:?} is not finite"),
+                    format!("{} is not finite", Quoted(raw)),
                 ))
             }
         };

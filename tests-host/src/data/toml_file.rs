@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use anyhow::{anyhow, Context, Result};
+use piezo_sim::quote::toml_error;
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 
@@ -35,7 +36,7 @@ pub fn read<T: TomlFile>(path: &Path) -> Result<T> {
 
 /// A `T` from the text of a file named `name` (for messages), validated.
 pub fn parse<T: TomlFile>(text: &str, name: &str) -> Result<T> {
-    let t: T = toml::from_str(text).with_context(|| format!("{name}: not a {}", T::WHAT))?;
+    let t: T = toml::from_str(text).map_err(|e| anyhow!(toml_error(name, T::WHAT, text, &e)))?;
     t.check().with_context(|| name.to_string())?;
     Ok(t)
 }

@@ -155,7 +155,10 @@ impl Dynamics {
     /// Checks every key; the error names the key and its value.
     pub fn validate(&self) -> Result<()> {
         if self.format != FORMAT {
-            bail!("format = {:?}: expected {FORMAT:?}", self.format);
+            bail!(
+                "format = {}: expected {FORMAT:?}",
+                piezo_sim::quote::Quoted(&self.format)
+            );
         }
         let tf = &self.transfer_function;
         check_poly("transfer_function.denominator", &tf.denominator)?;

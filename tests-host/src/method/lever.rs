@@ -251,8 +251,14 @@ impl LeverParams {
 
     /// Parameters from the text of a file named `name` (for messages).
     pub fn parse(text: &str, name: &str) -> Result<Self> {
-        let p: Self =
-            toml::from_str(text).map_err(|e| anyhow!("{name}: not a lever parameter file: {e}"))?;
+        let p: Self = toml::from_str(text).map_err(|e| {
+            anyhow!(piezo_sim::quote::toml_error(
+                name,
+                "lever parameter file",
+                text,
+                &e
+            ))
+        })?;
         p.validate().map_err(|e| anyhow!("{name}: {e}"))?;
         Ok(p)
     }

@@ -23,6 +23,7 @@ use crate::data::toml_file::{self, TomlFile};
 use crate::method::limits::AMPLIFIER_MAX_V;
 use crate::method::series::{CalibData, Inversion, Prediction};
 use crate::model_file::{CouplingSection, CreepSection, PiSection};
+use piezo_sim::quote::Quoted;
 
 pub use crate::method::sections::{
     is_no_pi, no_pi, BranchSection, Calibration, FemCorrection, FileFit, LdpiParams, Memory,
@@ -299,7 +300,7 @@ impl HostModel {
     /// The kind checks its sections ([`ModelKind::validate`]).
     pub fn validate(&self) -> Result<()> {
         if self.format != FORMAT {
-            bail!("format = {:?}: expected {FORMAT:?}", self.format);
+            bail!("format = {}: expected {FORMAT:?}", Quoted(&self.format));
         }
         self.kind.validate(self)?;
         match &self.fem_correction {

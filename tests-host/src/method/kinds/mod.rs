@@ -51,7 +51,8 @@ impl Kind {
                 let names: Vec<&str> = ALL.iter().map(|k| k.name()).collect();
                 let (last, rest) = names.split_last().expect("kinds are listed");
                 format!(
-                    "unknown model kind {s:?}: expected {} or {last}",
+                    "unknown model kind {}: expected {} or {last}",
+                    piezo_sim::quote::Quoted(s),
                     rest.join(", ")
                 )
             })
