@@ -11,7 +11,7 @@
 
 use embedded_hal::digital::OutputPin;
 use piezo_fpi::io::{ForceSensor, Setpoint};
-use piezo_fpi::q::Micrometres;
+use piezo_fpi::q::{Micrometres, Newtons};
 use piezo_sim::stage::{stage_a, Overrides, Stage};
 
 use embedded_storage::nor_flash::NorFlash;
@@ -93,7 +93,9 @@ impl Bench {
                 self.stuck = stuck.then_some(self.force);
             }
             BenchOrder::Analog(counts) => link.set_analog_counts(counts),
-            BenchOrder::SensorOffset(bits) => self.offset = bits as f32 / 65536.0,
+            BenchOrder::SensorOffset(bits) => {
+                self.offset = Newtons::from_bits(bits).to_num::<f32>();
+            }
             BenchOrder::Stall(ticks) => self.stall = ticks,
             // The link handler damages the stored model itself.
             BenchOrder::DamageStored => {}
@@ -375,7 +377,7 @@ mod tests {
     }
 
     fn um(x: f64) -> i32 {
-        (x * 65536.0).round() as i32
+        piezo_fpi::q::signal(x).map_or(0, Micrometres::to_bits)
     }
 
     #[test]
@@ -656,7 +658,7 @@ mod tests {
         h.run(3000);
         let s = h.status();
         assert_eq!(s.fault, None);
-        let x = s.signals[0] as f64 / 65536.0;
+        let x = Micrometres::from_bits(s.signals[0]).to_num::<f64>();
         assert!(x > 15.0 && x < 25.0, "mid-scale: {x}");
         h.ack(Command::Bench(BenchOrder::SensorOpen(true)));
         h.run(200);
