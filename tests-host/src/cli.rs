@@ -5,6 +5,8 @@
 //! refuses numbers outside what the model and the board take, naming the option,
 //! file or line and the value, and writes every file atomically.
 
+pub mod board;
+
 use std::io::Write;
 use std::path::{Path, PathBuf};
 

@@ -662,7 +662,17 @@ fn export_options_beyond_the_board_are_refused_with_their_value() {
     ];
     let mut args = rig.to_vec();
     args.extend_from_slice(&["--compliance", "-0.5"]);
-    refused(&args, &["--compliance", "-0.5 µm/N: must be ≥ 0"]);
+    refused(
+        &args,
+        &["--compliance", "-0.5 µm/N: must be within 0–0.499999 µm/N"],
+    );
+    // A compliance far beyond any stack's (the fit it gave had an RMSE of 7·10⁷ µm).
+    let mut args = rig.to_vec();
+    args.extend_from_slice(&["--compliance", "1e9"]);
+    refused(
+        &args,
+        &["--compliance", "1e9 µm/N: must be within 0–0.499999 µm/N"],
+    );
     let mut args = rig.to_vec();
     args.extend_from_slice(&["--operators", "0"]);
     refused(

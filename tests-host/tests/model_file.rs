@@ -225,7 +225,11 @@ fn host_models_that_cannot_move_or_invert_name_their_key() {
         ),
         (
             ("compliance_um_per_n = 0.0", "compliance_um_per_n = -0.02"),
-            "coupling.compliance_um_per_n = -0.02: must be ≥ 0 µm/N",
+            "coupling.compliance_um_per_n = -0.02: must be within 0–0.499999 µm/N",
+        ),
+        (
+            ("compliance_um_per_n = 0.0", "compliance_um_per_n = 1e9"),
+            "coupling.compliance_um_per_n = 1000000000: must be within 0–0.499999 µm/N",
         ),
         (
             ("thresholds_v = [10.0,", "thresholds_v = [-10.0,"),

@@ -165,7 +165,7 @@ fn the_refined_model_is_taken_by_predict_invert_export_and_the_board() {
         stroke_voltage: None,
     };
     let fem = Path::new(env!("CARGO_MANIFEST_DIR")).join(FEM);
-    let image = |m: &Path| fpi_host::board::commands::model_image(m, Some(&fem), &o).unwrap();
+    let image = |m: &Path| fpi_host::cli::board::model_image(m, Some(&fem), &o).unwrap();
     assert_ne!(image(model), image(refined));
     // And a board takes it (the in-process board: the firmware built for the host).
     let text = ok(&[

@@ -462,7 +462,11 @@ impl<F: NorFlash> Handler<F> {
                 if let Err((key, value, (lo, hi))) = v.check() {
                     // Fixed-point text: no float formatting in the firmware.
                     let q = |x: f32| Milli((x.clamp(-32_767.0, 32_767.0) * 65_536.0) as i32);
-                    let given = if value.is_finite() { "" } else { " (not a number)" };
+                    let given = if value.is_finite() {
+                        ""
+                    } else {
+                        " (not a number)"
+                    };
                     return Err(refuse(
                         Refusal::BadArgument,
                         format_args!(
@@ -694,14 +698,16 @@ impl<F: NorFlash> Handler<F> {
         cycles: u32,
     ) -> Result<Wave, Refuse> {
         let nyquist_mhz = RATE_HZ / 2 * 1000;
-        if amplitude < 0 || freq_mhz == 0 || freq_mhz >= nyquist_mhz {
+        if amplitude < 0 {
             return Err(refuse(
                 Refusal::BadArgument,
-                format_args!(
-                    "amplitude {} µm (≥ 0) or frequency {} mHz (0 < f < {nyquist_mhz})",
-                    Milli(amplitude),
-                    freq_mhz
-                ),
+                format_args!("amplitude {} µm: must be ≥ 0", Milli(amplitude)),
+            ));
+        }
+        if freq_mhz == 0 || freq_mhz >= nyquist_mhz {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!("frequency {freq_mhz} mHz: must lie in 0 < f < {nyquist_mhz} mHz"),
             ));
         }
         self.in_stroke("lowest point", offset.saturating_sub(amplitude))?;

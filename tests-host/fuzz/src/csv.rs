@@ -13,7 +13,7 @@
 //! | 3 | `data::read_target` (`t_s,x_fhps_um`) |
 //! | 4 | `FemMaps::read` (`read_fem`, range, monotonicity, plausibility), then the maps |
 //! | 5 | `data::read_micromanipulator` (tab-separated, no header) |
-//! | 6 | `board::commands::read_points` (`x_ref_um`, `fpi board stream`) |
+//! | 6 | `data::read_points` (`x_ref_um`, `fpi board stream`) |
 //!
 //! `sel & 0x80`: the file is named `….csv.gz`, so the bytes go through the gzip
 //! reader (`read_bytes`) first.
@@ -25,7 +25,7 @@
 
 use std::path::{Path, PathBuf};
 
-use fpi_host::board::commands::read_points;
+use fpi_host::data::read_points;
 use fpi_host::data::fem::FemMaps;
 use fpi_host::data::{
     read_drive, read_micromanipulator, read_rig, read_stage, read_target, DataError,

@@ -66,7 +66,7 @@ enum Command {
         /// Play operators, including the `r = 0` one (default 10; gpi 21; 1..=32).
         #[arg(long, value_parser = parse_operators)]
         operators: Option<usize>,
-        /// Stack compliance for efpi, µm/N, ≥ 0 (default: the datasheet's 0.02).
+        /// Stack compliance for efpi, µm/N, 0–0.5 (default: the datasheet's 0.02).
         #[arg(long, value_parser = parse_compliance, allow_negative_numbers = true)]
         compliance: Option<f64>,
         /// Fit only rows A-B (1-based, inclusive) of a single recording (at least
@@ -189,14 +189,14 @@ enum Command {
         #[arg(long)]
         dynamics: Option<PathBuf>,
         /// With --dynamics: the damping ratio the compensated modes get.
-        #[arg(long, default_value_t = fpi_host::method::shaping::DAMPING)]
+        #[arg(long, default_value_t = fpi_host::method::shaping::DAMPING, allow_negative_numbers = true)]
         damping: f64,
         /// With --dynamics: how much faster than each mode the compensated pair is.
-        #[arg(long, default_value_t = fpi_host::method::shaping::SPEED_UP)]
+        #[arg(long, default_value_t = fpi_host::method::shaping::SPEED_UP, allow_negative_numbers = true)]
         speed_up: f64,
         /// With --dynamics: the amplifier's output current limit, mA; the slew is
         /// then held to I_max / C (C from the dynamics).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         current_limit_ma: Option<f64>,
     },
     /// The whole chain on the datasets the project carries, into a folder.
@@ -293,8 +293,8 @@ enum BoardCommand {
     /// Run the emulated board (QEMU with the firmware and its virtual stage) until
     /// stopped; its link listens on a TCP port.
     Emulate {
-        /// Where the link listens.
-        #[arg(long, default_value = "127.0.0.1:4545")]
+        /// Where the link listens: HOST:PORT.
+        #[arg(long, default_value = "127.0.0.1:4545", value_parser = parse_listen)]
         listen: String,
     },
     /// The board, its model and the loop's state.
@@ -389,7 +389,7 @@ enum BoardCommand {
     /// force and position sensors do, which virtual stage it drives.
     Bench {
         #[command(flatten)]
-        settings: fpi_host::board::commands::BenchSettings,
+        settings: fpi_host::cli::board::BenchSettings,
     },
     /// Open the loop, or close it on the position sensor (the model needs a
     /// [feedback] section, from `fpi tune`); without a jump.
@@ -505,48 +505,39 @@ impl FrfArgs {
     }
 }
 
-/// `on` or `off`.
-fn on_off(s: &str) -> Result<bool> {
-    match s {
-        "on" => Ok(true),
-        "off" => Ok(false),
-        _ => anyhow::bail!("{s:?}: on or off"),
-    }
-}
-
 /// How `fpi tune` and `fpi board autotune` design the loops.
 #[derive(Debug, Clone, clap::Args)]
 struct TuneArgs {
     /// Largest sensitivity peak |1/(1+L)| of the position loop over the mode's
     /// spread (±20 %, damping 0.01–0.06) and the model's gain spread (1.6: gain
     /// margin ≥ 8.5 dB, phase margin ≥ 36°).
-    #[arg(long, default_value_t = 1.6)]
+    #[arg(long, default_value_t = 1.6, allow_negative_numbers = true)]
     pub max_sensitivity: f64,
     /// The highest crossover of the position loop, Hz (default: as high as the
     /// margins allow; without --dynamics, 20 Hz). One the margins do not allow
     /// is refused.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub bandwidth_hz: Option<f64>,
     /// No active damping (the PI and feedforward on the undamped stage).
     #[arg(long)]
     pub no_damping: bool,
     /// The damping ratio the damping aims for on the least-damped plant.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
     pub target_damping: f64,
     /// κ, the dynamic force per µm of command, N/µm (default: estimated from
     /// the model's stiffness, coupling and lever; `fpi board autotune` measures it).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub force_gain: Option<f64>,
     /// No feedforward (reference shaping) of the damped stage.
     #[arg(long)]
     pub no_feedforward: bool,
-    /// Largest correction the feedback adds to the reference, µm (default a
+    /// Largest correction the feedback adds to the reference, µm (> 0; default a
     /// quarter of the stroke).
-    #[arg(long)]
+    #[arg(long, value_parser = parse_signal_um, allow_negative_numbers = true)]
     pub limit_um: Option<f64>,
     /// Largest disagreement of the position sensor with the model's estimate,
-    /// µm (default 15 % of the stroke).
-    #[arg(long)]
+    /// µm (> 0; default 15 % of the stroke).
+    #[arg(long, value_parser = parse_signal_um, allow_negative_numbers = true)]
     pub tolerance_um: Option<f64>,
 }
 
@@ -593,6 +584,13 @@ fn parse_rows(s: &str) -> Result<(usize, usize), String> {
     Ok((a, b))
 }
 
+/// `HOST:PORT` ([`fpi_host::board::port::tcp_address`]), as given.
+fn parse_listen(s: &str) -> Result<String, String> {
+    fpi_host::board::port::tcp_address(s)
+        .map(|_| s.to_string())
+        .map_err(|e| format!("{e:#}"))
+}
+
 /// A finite number.
 fn parse_finite(s: &str) -> Result<f64, String> {
     let v: f64 = s
@@ -628,6 +626,16 @@ fn in_span(s: &str, unit: &str, max: f64, limit: &str) -> Result<f64, String> {
     Ok(v)
 }
 
+/// A length the board holds as a signal, `(0, 4096] µm`.
+fn parse_signal_um(s: &str) -> Result<f64, String> {
+    in_span(
+        s,
+        "µm",
+        piezo_fpi::q::SIGNAL_ABS_MAX,
+        "the board's signal range",
+    )
+}
+
 /// A voltage within the board's amplifier span `(0, 150] V`.
 fn parse_amplifier_volts(s: &str) -> Result<f64, String> {
     use fpi_host::method::limits::AMPLIFIER_MAX_V;
@@ -650,14 +658,17 @@ fn parse_record_seconds(s: &str) -> Result<f64, String> {
     in_span(s, "s", 3600.0, "an hour of recording")
 }
 
-/// A stack compliance, finite and ≥ 0 µm/N.
+/// A stack compliance, within `[0, 0.5)` µm/N.
 fn parse_compliance(s: &str) -> Result<f64, String> {
     let v = parse_finite(s)?;
-    if v >= 0.0 {
+    let top = piezo_fpi::q::COUPLING_ABS_MAX;
+    if (0.0..=top).contains(&v) {
         Ok(v)
     } else {
         Err(format!(
-            "{v} µm/N: must be ≥ 0 µm/N (a stack yields under load)"
+            "{} µm/N: must be within 0–{top} µm/N (a stack yields under load, by 0.005–0.1 \
+             µm/N; the firmware holds less than 0.5)",
+            Num(v)
         ))
     }
 }
@@ -675,6 +686,13 @@ fn main() -> ExitCode {
     fpi_host::cli::exit_quietly_on_broken_pipe();
     match run(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e)
+            if e.downcast_ref::<fpi_host::cli::board::Interrupted>()
+                .is_some() =>
+        {
+            eprintln!("{e:#}");
+            ExitCode::from(130)
+        }
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
@@ -775,7 +793,8 @@ fn run(args: Args) -> Result<()> {
 
 fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
     use fpi_firmware::link::protocol::Command as C;
-    use fpi_host::board::{client::Client, commands as b, emulator::Emulator};
+    use fpi_host::board::emulator::Emulator;
+    use fpi_host::cli::board as b;
     if let BoardCommand::Emulate { listen } = &command {
         let e = Emulator::start(Some(listen))?;
         println!(
@@ -791,28 +810,20 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
         // The output must take a file before the board records anything.
         fpi_host::output::prepare(out)?;
     }
-    let mut c = Client::open(&port)?;
+    let mut c = b::open(&port)?;
     match command {
         BoardCommand::Emulate { .. } => Ok(()),
         BoardCommand::Status => b::status(&mut c),
-        BoardCommand::Move { um, speed } => {
-            let t = c.move_to(um, speed)?;
-            println!("moving to {um} µm at {speed} µm/s from tick {t}");
-            Ok(())
-        }
+        BoardCommand::Move { um, speed } => b::move_to(&mut c, um, speed),
         BoardCommand::Wave {
             shape,
             amplitude_um,
             offset_um,
             freq_hz,
             cycles,
-        } => {
-            let t = c.wave(b::shape(&shape)?, amplitude_um, offset_um, freq_hz, cycles)?;
-            println!("{shape} wave from tick {t} (after an approach to its start)");
-            Ok(())
-        }
+        } => b::wave(&mut c, &shape, amplitude_um, offset_um, freq_hz, cycles),
         BoardCommand::Stream { file, interval } => {
-            let points = b::read_points(&file)?;
+            let points = fpi_host::data::read_points(&file)?;
             b::stream(&mut c, &points, interval)
         }
         BoardCommand::Record {
@@ -829,43 +840,17 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             let image = b::model_image(&model, fem.as_deref(), &settings.options())?;
             b::load(&mut c, &image, store)
         }
-        BoardCommand::Factory => c
-            .ack(&C::ModelFactory)
-            .map(|t| println!("factory model from tick {t}")),
-        BoardCommand::Safe => c.ack(&C::Safe).map(|t| println!("parking from tick {t}")),
-        BoardCommand::ClearFault => c
-            .ack(&C::ClearFault)
-            .map(|t| println!("cleared at tick {t}; parked")),
-        BoardCommand::Hold => c.ack(&C::Hold).map(|t| println!("holding from tick {t}")),
-        BoardCommand::Analog => c
-            .ack(&C::Analog)
-            .map(|t| println!("following the analog input from tick {t}")),
-        BoardCommand::Drive { mode } => {
-            let compensated = match mode.as_str() {
-                "compensated" => true,
-                "uncompensated" => false,
-                m => anyhow::bail!("drive {m:?}: compensated or uncompensated"),
-            };
-            c.ack(&C::Drive { compensated })
-                .map(|t| println!("{mode} from tick {t}"))
-        }
-        BoardCommand::Reset => {
-            let h = c.reset()?;
-            println!("reset; the board answers again ({:?})", h.reset);
-            Ok(())
-        }
+        BoardCommand::Factory => b::simple(&mut c, &C::ModelFactory),
+        BoardCommand::Safe => b::simple(&mut c, &C::Safe),
+        BoardCommand::ClearFault => b::simple(&mut c, &C::ClearFault),
+        BoardCommand::Hold => b::simple(&mut c, &C::Hold),
+        BoardCommand::Analog => b::simple(&mut c, &C::Analog),
+        BoardCommand::Drive { mode } => b::drive(&mut c, &mode),
+        BoardCommand::Reset => b::reset(&mut c),
         BoardCommand::Bench { settings } => b::bench(&mut c, &settings),
-        BoardCommand::Loop { mode } => b::set_loop(&mut c, b::loop_mode(&mode)?),
-        BoardCommand::Damping { state } => {
-            let on = on_off(&state)?;
-            c.damping(on)
-                .map(|t| println!("active damping {state} from tick {t}"))
-        }
-        BoardCommand::Shaping { state } => {
-            let on = on_off(&state)?;
-            c.shaping(on)
-                .map(|t| println!("reference shaping {state} from tick {t}"))
-        }
+        BoardCommand::Loop { mode } => b::set_loop(&mut c, &mode),
+        BoardCommand::Damping { state } => b::damping(&mut c, &state),
+        BoardCommand::Shaping { state } => b::shaping(&mut c, &state),
         BoardCommand::Step {
             from,
             to,
@@ -883,23 +868,9 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
                 duration_ms,
                 decimation,
             };
-            let (rec, fig) = fpi_host::board::step::run(&mut c, &s)?;
-            rec.write_csv(&out)?;
-            println!(
-                "step {from} → {to} µm over {duration_ms} ms, recorded to {}:",
-                out.display()
-            );
-            println!("  {}", fpi_host::board::step::describe(&fig, tol));
-            Ok(())
+            b::step(&mut c, &s, &out)
         }
-        BoardCommand::Frf { sweep, out } => {
-            let points = fpi_host::board::frf::measure(&mut c, &sweep.settings(), |k, p| {
-                eprintln!("  {:>3}: {:8.1} Hz  |x/u| {:.4}", k + 1, p.f_hz, p.x.norm())
-            })?;
-            fpi_host::method::tune::frf::write_csv(&out, &points)?;
-            println!("{} frequencies written to {}", points.len(), out.display());
-            Ok(())
-        }
+        BoardCommand::Frf { sweep, out } => b::frf(&mut c, &sweep.settings(), &out),
         BoardCommand::Autotune {
             model,
             fem,
@@ -910,26 +881,16 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             frf_out,
             out,
         } => {
-            let fw = b::firmware_model(&model, fem.as_deref(), &settings.options())?;
-            let o = loops.options();
-            let a =
-                fpi_host::board::autotune::run(&mut c, &fw, &o, &sweep.settings(), store, |m| {
-                    eprintln!("{m}")
-                })?;
-            fpi_host::board::autotune::write(&a, &out, frf_out.as_deref())?;
-            println!(
-                "tuned model written to {} and running on the board",
-                out.display()
-            );
-            print!("{}", fpi_host::board::autotune::table(&a));
-            Ok(())
+            let a = b::AutotuneArgs {
+                model: (&model, fem.as_deref()),
+                export: settings.options(),
+                tune: loops.options(),
+                sweep: sweep.settings(),
+                store,
+                out: (&out, frf_out.as_deref()),
+            };
+            b::autotune(&mut c, &a)
         }
-        BoardCommand::Supervise { ms } => c.ack(&C::Supervise { timeout_ms: ms }).map(|_| {
-            if ms == 0 {
-                println!("host supervision off");
-            } else {
-                println!("the stage parks if the host is silent for {ms} ms while it drives it");
-            }
-        }),
+        BoardCommand::Supervise { ms } => b::supervise(&mut c, ms),
     }
 }

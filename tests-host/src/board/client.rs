@@ -9,6 +9,8 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
+use fixed::types::I16F16;
+use fpi_firmware::closed_loop::LoopMode;
 use fpi_firmware::link::frame::{self, FrameReader, Push};
 use fpi_firmware::link::protocol::{
     Analysis, Batch, BenchOrder, Command, Counters, Header, Hello, ModelReport, Refusal, Reply,
@@ -16,9 +18,12 @@ use fpi_firmware::link::protocol::{
 };
 use fpi_firmware::recorder::Sample;
 use fpi_firmware::reference::wave::Shape;
+use piezo_fpi::control::Fault;
 use piezo_fpi::model::image::CRC32;
+use piezo_fpi::q;
 
 use super::port::{self, Port};
+use crate::data::Num;
 
 /// How long a reply may take (a model commit with a flash write: much longer).
 pub const REPLY_TIMEOUT: Duration = Duration::from_secs(3);
@@ -58,6 +63,39 @@ impl std::fmt::Display for Refused {
 
 impl std::error::Error for Refused {}
 
+/// A command the board took, and faulted on: the fault it latched at or after
+/// the tick the command took effect.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Faulted {
+    /// The command, by name.
+    pub what: String,
+    /// The tick the fault latched.
+    pub tick: u32,
+    /// The fault, for people.
+    pub reason: &'static str,
+}
+
+impl std::fmt::Display for Faulted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the board took {} and faulted at tick {}: {}; the stage is parking \
+             (`status` shows it, `clear-fault` clears it)",
+            self.what, self.tick, self.reason
+        )
+    }
+}
+
+impl std::error::Error for Faulted {}
+
+/// How long [`Client::order`] watches the board after a command for a fault
+/// it caused, s of board time.
+pub const ORDER_WATCH_S: f64 = 0.05;
+
+/// How long a wait for the board's state ([`Client::park`], [`Client::order`])
+/// may take.
+const PATIENCE: Duration = Duration::from_secs(60);
+
 /// An open link to a board.
 pub struct Client {
     port: Box<dyn Port>,
@@ -69,16 +107,49 @@ pub struct Client {
     pub log: Vec<Logged>,
 }
 
-/// µm (or V, N) as the board's `I16F16` bits.
+/// The largest magnitude of a value the link carries as `I16F16` (µm, V, N,
+/// µm/s).
+pub const LINK_ABS_MAX: f64 = 32767.999;
+
+/// µm (or V, N, µm/s) as the board's `I16F16` bits, rounded to nearest by the
+/// core's conversion ([`q::quantize`]); beyond [`LINK_ABS_MAX`] it saturates
+/// (the board then refuses it with its range), NaN is 0. [`to_link`] refuses
+/// such values instead.
 pub fn bits(x: f64) -> i32 {
-    (x * 65536.0)
-        .round()
-        .clamp(i32::MIN as f64, i32::MAX as f64) as i32
+    match q::quantize(x, q::SIGNAL_FRAC, LINK_ABS_MAX) {
+        Some(b) => b,
+        None if x > 0.0 => i32::MAX,
+        None if x < 0.0 => i32::MIN,
+        None => 0,
+    }
 }
 
 /// The board's `I16F16` bits as µm (or V, N).
 pub fn real(bits: i32) -> f64 {
-    bits as f64 / 65536.0
+    I16F16::from_bits(bits).to_num()
+}
+
+/// The `I16F16` bits of the value `x` of `what` (for messages, e.g. `--speed`)
+/// in `unit`, or why the link cannot carry it: not finite, beyond
+/// [`LINK_ABS_MAX`], or not zero but below the format's resolution (it would
+/// reach the board as 0).
+pub fn to_link(what: &str, x: f64, unit: &str) -> Result<i32> {
+    let Some(b) = q::quantize(x, q::SIGNAL_FRAC, LINK_ABS_MAX) else {
+        bail!(
+            "{what} {} {unit}: not a finite value within ±{LINK_ABS_MAX} {unit} (what the link \
+             carries)",
+            Num(x)
+        );
+    };
+    if b == 0 && x != 0.0 {
+        bail!(
+            "{what} {} {unit}: below the link's resolution of {:.3e} {unit} (it would reach the \
+             board as 0)",
+            Num(x),
+            1.0 / f64::from(1u32 << q::SIGNAL_FRAC)
+        );
+    }
+    Ok(b)
 }
 
 /// A command's name for messages.
@@ -110,7 +181,11 @@ impl Client {
             },
             log: Vec::new(),
         };
-        match c.greet()? {
+        let greeted = c.greet().map_err(|e| match c.port.silence() {
+            Some(why) => e.context(why),
+            None => e,
+        })?;
+        match greeted {
             (_, Reply::Hello(h)) if h.protocol == VERSION => c.hello = h,
             (_, Reply::Hello(h)) => bail!(
                 "the board on {port} speaks protocol {}, these tools {VERSION}: update one of them",
@@ -242,6 +317,57 @@ impl Client {
             }
             .into()),
             (_, r) => bail!("unexpected reply to {}: {r:?}", name_of(cmd)),
+        }
+    }
+
+    /// Sends a command that must be acknowledged and checks its effect: a fault
+    /// the board latched from the tick it took the command on, within
+    /// [`ORDER_WATCH_S`] of board time, is an error ([`Faulted`]); else the tick.
+    pub fn order(&mut self, cmd: &Command<'_>) -> Result<u32> {
+        let tick = self.ack(cmd)?;
+        let settled = tick.saturating_add((self.rate_hz() * ORDER_WATCH_S) as u32);
+        let s = self.wait_for(&format!("tick {settled}"), |s| s.tick >= settled)?;
+        match s.fault {
+            Some(f) if f.at >= tick && f.code != Fault::Stopped as u8 => Err(Faulted {
+                what: name_of(cmd),
+                tick: f.at,
+                reason: Fault::from_code(f.code).map_or("an unknown fault", |f| f.message()),
+            }
+            .into()),
+            _ => Ok(tick),
+        }
+    }
+
+    /// Opens the loop, parks the stage (ramps to the safe voltage, amplifier
+    /// off) and waits until it is at the safe voltage; the tick it got there.
+    pub fn park(&mut self) -> Result<u32> {
+        self.ack(&Command::Loop {
+            mode: LoopMode::Open,
+        })?;
+        self.ack(&Command::Safe)?;
+        let s = self.wait_for("the safe voltage", |s| {
+            s.fault.is_some_and(|f| f.safe_at.is_some())
+        })?;
+        Ok(s.fault.and_then(|f| f.safe_at).unwrap_or(s.tick))
+    }
+
+    /// Polls the status until `done` says so (for up to a minute); that status.
+    fn wait_for(&mut self, what: &str, done: impl Fn(&Status) -> bool) -> Result<Status> {
+        let start = Instant::now();
+        loop {
+            let s = self.status()?;
+            if done(&s) {
+                return Ok(s);
+            }
+            if start.elapsed() > PATIENCE {
+                bail!(
+                    "the board on {} did not reach {what} within {} s (tick {})",
+                    self.name,
+                    PATIENCE.as_secs(),
+                    s.tick
+                );
+            }
+            std::thread::sleep(Duration::from_millis(2));
         }
     }
 
@@ -454,7 +580,9 @@ impl Client {
     /// buffer, starts the stream, keeps the buffer topped up, ends the stream and
     /// waits until the last point has been played. `progress` gets the number of
     /// points sent; `idle` runs while the host waits for room (e.g. to read the
-    /// recorder).
+    /// recorder). The board supervises the host while it streams (500 ms unless
+    /// `supervise` set a timeout); supervision the stream switched on is switched
+    /// off again when it ends.
     pub fn stream(
         &mut self,
         points_um: &[f64],
@@ -462,6 +590,7 @@ impl Client {
         mut progress: impl FnMut(usize),
         mut idle: impl FnMut(&mut Self) -> Result<()>,
     ) -> Result<StreamReport> {
+        let supervised = self.status()?.supervision[0] != 0;
         self.ack(&Command::StreamClear)?;
         let capacity = self.hello.buffers[1] as usize;
         let mut sent = 0;
@@ -494,6 +623,9 @@ impl Client {
             idle(self)?;
             std::thread::sleep(Duration::from_millis(10));
         };
+        if !supervised {
+            self.ack(&Command::Supervise { timeout_ms: 0 })?;
+        }
         Ok(StreamReport {
             points: sent,
             started,

@@ -26,7 +26,7 @@ use fpi_firmware::reference::wave::Shape;
 use fpi_firmware::reference::SourceKind;
 use piezo_sim::stats::ErrorStats;
 
-use super::autotune::{park, warm_up};
+use super::autotune::warm_up;
 use super::client::{real, refusal, Client};
 use super::follow::Follow;
 use super::recording::Recording;
@@ -117,7 +117,7 @@ fn switch(r: Result<u32>) -> Result<()> {
 
 /// Loads `image` onto a fresh stage as built and sets the drive up, warmed up.
 fn prepare(c: &mut Client, image: &[u8], d: Drive) -> Result<()> {
-    park(c)?;
+    c.park()?;
     c.upload(image, false, |_| {})
         .context("uploading a model")?;
     c.bench(BenchOrder::Stage(StageVariant::BUILT))?;
@@ -211,7 +211,7 @@ pub fn run(c: &mut Client, pi: &[u8], tuned: &[u8]) -> Result<Comparison> {
             triangle_trace,
         });
     }
-    park(c)?;
+    c.park()?;
     c.bench(BenchOrder::Stage(StageVariant::NOMINAL))?;
     Ok(Comparison { runs })
 }

@@ -9,7 +9,7 @@
 //! heartbeats arrive as often in board time as in real time. Runs are
 //! deterministic between two requests (the twin relies on it, see [`super::twin`]).
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write};
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
@@ -18,6 +18,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 
+use super::port::tcp_address;
 use super::{build, qemu, qemu_command};
 
 /// Where the emulated firmware takes its model flash's content from at start-up
@@ -83,11 +84,18 @@ impl Emulator {
         listen: Option<&str>,
         flash: Option<&Path>,
     ) -> Result<Self> {
-        let qemu = qemu()?;
         let addr = match listen {
-            Some(a) => a.to_string(),
+            Some(a) => {
+                let (host, port) = tcp_address(a).context("--listen")?;
+                if host.contains(':') {
+                    format!("[{host}]:{port}")
+                } else {
+                    format!("{host}:{port}")
+                }
+            }
             None => format!("127.0.0.1:{}", free_port()?),
         };
+        let qemu = qemu()?;
         let serial = format!("tcp:{addr},server=on,wait=off,nodelay=on");
         let mut cmd = qemu_command(&qemu, elf, ICOUNT_INSTRUMENT);
         cmd.args(["-display", "none", "-serial", &serial]);
@@ -185,6 +193,11 @@ impl Drop for Emulator {
 /// installed. Without it, under CI (`CI` set and not `false`/`0`) this panics with
 /// how to install it, since CI must run them; elsewhere it prints a loud notice
 /// naming `test` and returns `false`, and the test returns early (skipped).
+///
+/// The notice goes to the process's standard error itself, not through
+/// `eprintln!`, which the test harness captures (and shows only for a failed
+/// test or with `--nocapture`): plain `cargo test` shows it, so a run without
+/// QEMU is not taken for a tested board.
 pub fn available_for(test: &str) -> bool {
     let Err(e) = qemu() else {
         return true;
@@ -192,10 +205,13 @@ pub fn available_for(test: &str) -> bool {
     if under_ci() {
         panic!("{test}: CI must run the emulated board: {e:#}");
     }
-    eprintln!(
-        "\n!!!!! SKIPPED {test}: it needs the emulated board, and {e:#}\n\
-         !!!!! (under CI=true this is a failure)\n"
+    let first = format!("{e:#}");
+    let first = first.lines().next().unwrap_or("");
+    let notice = format!(
+        "\n!!!!! SKIPPED {test}: it needs the emulated board, and {first}\n\
+         !!!!! (install qemu-system-arm, or set QEMU_SYSTEM_ARM; under CI=true this is a failure)\n"
     );
+    let _ = std::io::stderr().lock().write_all(notice.as_bytes());
     false
 }
 

@@ -118,6 +118,9 @@ impl Port for InProcess {
 /// The board's thread: ticks as wall-clock time passes, and answers each frame
 /// that arrives, as the firmware's link task does. Ends when the host hangs up.
 /// A `Reset` boots a fresh board (the in-process board keeps no flash across it).
+/// The first control tick runs before the first frame is read, as on a board
+/// (its control task starts before its link answers): the status never shows
+/// the blank state of before that tick.
 fn serve(
     mut board: Virtual,
     mut handler: VirtualHandler,
@@ -126,6 +129,7 @@ fn serve(
 ) {
     let mut reader = FrameReader::<MAX_FRAME>::new();
     let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
+    board.tick();
     let mut clock = (Instant::now(), board.control.next_tick());
     loop {
         let due = clock.1 + (clock.0.elapsed().as_secs_f64() * f64::from(RATE_HZ)) as u32;
@@ -149,6 +153,7 @@ fn serve(
             if handler.reset_requested() {
                 let Ok(fresh) = boot() else { return };
                 (board, handler) = fresh;
+                board.tick();
                 clock = (Instant::now(), board.control.next_tick());
             }
         }

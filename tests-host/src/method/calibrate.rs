@@ -98,13 +98,63 @@ fn median_step(t: &[f64]) -> Option<f64> {
 }
 
 /// Calibrates a model on recordings: checks them for its kind
-/// ([`checks::check`]), then fits it as its kind does.
+/// ([`checks::check`]), fits it as its kind does, and refuses a fit that fails
+/// its own plausibility ([`plausible`]).
 pub fn calibrate(data: &[CalibData], opt: &Options) -> Result<HostModel> {
     let warnings = checks::check(data, opt.kind)?;
     if opt.operators < 1 || opt.operators > 32 {
         bail!("--operators {}: must be 1..=32", opt.operators);
     }
-    opt.kind.calibrate(data, opt, warnings)
+    let m = opt.kind.calibrate(data, opt, warnings)?;
+    m.validate()?;
+    plausible(&m, data)?;
+    Ok(m)
+}
+
+/// The largest share of the recordings' motion a fit's RMSE may reach: a fit
+/// that explains the motion leaves a few percent of it (the rig: 0.1–2 %).
+pub const PLAUSIBLE_RMSE_SHARE: f64 = 0.5;
+
+/// Refuses a fit whose RMSE reaches [`PLAUSIBLE_RMSE_SHARE`] of the motion the
+/// recordings span in their fitted rows: it explains none of it (e.g. a stack
+/// compliance far from any stack's), and a prediction from it would be as wrong.
+pub fn plausible(m: &HostModel, data: &[CalibData]) -> Result<()> {
+    let span = data
+        .iter()
+        .map(|d| {
+            let x = &d.x[d.fit.0..d.fit.1];
+            let (lo, hi) = x
+                .iter()
+                .fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+            hi - lo
+        })
+        .fold(0.0, f64::max);
+    let rmse = m.calibration.rmse_um;
+    if span > 0.0 && (rmse.is_nan() || rmse >= PLAUSIBLE_RMSE_SHARE * span) {
+        let share = rmse / span;
+        let share = if share >= 1.0 {
+            format!("{} times", crate::data::Num((share * 10.0).round() / 10.0))
+        } else {
+            format!("{:.0} % of", 100.0 * share)
+        };
+        bail!(
+            "the fitted {} model is implausible: its RMSE {} µm is {share} the {} µm the \
+             recordings span (a fit that explains the motion leaves a few percent); nothing is \
+             written{}",
+            m.kind,
+            crate::data::Num(rmse),
+            crate::data::Num(span),
+            if m.kind.takes_compliance() {
+                format!(
+                    " (its stack compliance is {} µm/N; stacks: 0.005–0.1 µm/N)",
+                    crate::data::Num(m.coupling.compliance_um_per_n)
+                )
+            } else {
+                String::new()
+            }
+        );
+    }
+    Ok(())
 }
 
 /// The model's stack extension over a recording, driven by its voltage with its
@@ -191,4 +241,61 @@ pub fn held_out_summary(d: &CalibData, windows: &[Window]) -> String {
         list(true),
         list(false)
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::method::model::Kind;
+    use crate::model_file::PiSection;
+
+    /// A recording whose fitted rows span `span_um`.
+    fn spanning(span_um: f64) -> CalibData {
+        let x: Vec<f64> = (0..100).map(|k| span_um * k as f64 / 99.0).collect();
+        CalibData {
+            name: "r.csv".into(),
+            dt: 1e-3,
+            u: x.iter().map(|v| 10.0 * v).collect(),
+            f: vec![50.0; 100],
+            x,
+            f0: 50.0,
+            fit: (0, 100),
+            has_force: true,
+        }
+    }
+
+    fn fitted(kind: Kind, rmse_um: f64, compliance: f64) -> HostModel {
+        let mut m = HostModel::new(
+            kind,
+            PiSection {
+                w0_um_per_v: 0.1,
+                thresholds_v: vec![10.0],
+                weights_um_per_v: vec![0.01],
+                input_max_v: 150.0,
+            },
+        );
+        m.calibration.rmse_um = rmse_um;
+        m.coupling.compliance_um_per_n = compliance;
+        m
+    }
+
+    /// The fit `--compliance 1e9` gave (RMSE 7·10⁷ µm on a 40 µm motion) is
+    /// refused with the share of the motion it misses; an ordinary fit passes.
+    #[test]
+    fn a_fit_that_misses_the_motion_is_refused() {
+        let d = [spanning(40.0)];
+        let e = plausible(&fitted(Kind::Efpi, 7.2e7, 0.45), &d).unwrap_err();
+        let e = format!("{e:#}");
+        assert!(
+            e.starts_with("the fitted efpi model is implausible: its RMSE 72000000 µm is")
+                && e.contains("1800000 times the 40 µm the recordings span")
+                && e.contains("its stack compliance is 0.45 µm/N"),
+            "{e}"
+        );
+        assert!(plausible(&fitted(Kind::Efpi, 0.2, 0.02), &d).is_ok());
+        assert!(plausible(&fitted(Kind::Pi, 25.0, 0.0), &d).is_err());
+        // No motion at all: nothing to compare with (the model's own checks
+        // refuse a model that cannot move).
+        assert!(plausible(&fitted(Kind::Pi, 1.0, 0.0), &[spanning(0.0)]).is_ok());
+    }
 }

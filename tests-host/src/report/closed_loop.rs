@@ -16,7 +16,7 @@ use nalgebra::Complex;
 use piezo_fpi::stability::Plant;
 use piezo_sim::file::FirmwareModel;
 
-use crate::board::autotune::{self, park, Autotune};
+use crate::board::autotune::{self, Autotune};
 use crate::board::client::Client;
 use crate::board::closed_loop::{self, Comparison, Drive};
 use crate::board::follow::Follow;
@@ -42,7 +42,7 @@ pub fn run(out: &Path, exported: &Path, port: &str) -> Result<LoopDemo> {
     let fw =
         FirmwareModel::parse(&text, &exported.display().to_string()).map_err(anyhow::Error::msg)?;
     let mut c = Client::open(port)?;
-    park(&mut c)?;
+    c.park()?;
     c.upload(&fw.image().map_err(anyhow::Error::msg)?, false, |_| {})?;
     c.bench(BenchOrder::Stage(StageVariant::BUILT))?;
     let o = TuneOptions::default();
@@ -79,7 +79,7 @@ pub fn run(out: &Path, exported: &Path, port: &str) -> Result<LoopDemo> {
 
 /// The stage's response with the tuned model's damping on, loop open.
 fn damped_frf(c: &mut Client, image: &[u8]) -> Result<Vec<FrfPoint>> {
-    park(c)?;
+    c.park()?;
     c.upload(image, false, |_| {})?;
     c.bench(BenchOrder::Stage(StageVariant::BUILT))?;
     c.move_to(20.0, 1000.0)?;
@@ -93,7 +93,7 @@ fn damped_frf(c: &mut Client, image: &[u8]) -> Result<Vec<FrfPoint>> {
         ..FrfSettings::default()
     };
     let points = frf::measure(c, &s, |_, _| {})?;
-    park(c)?;
+    c.park()?;
     Ok(points)
 }
 

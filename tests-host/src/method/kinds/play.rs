@@ -6,6 +6,7 @@
 //! alike.
 
 use anyhow::{bail, Result};
+use piezo_fpi::q::COUPLING_ABS_MAX;
 use piezo_sim::model::MAX_CREEP;
 use piezo_sim::play::MAX_OPERATORS;
 
@@ -276,7 +277,9 @@ fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
     Ok(())
 }
 
-/// The coupling: finite, and a stack compliance that is not negative.
+/// The coupling: finite, and a stack compliance within `[0, 0.5)` µm/N (a stack
+/// yields under load; stacks: 0.005–0.1 µm/N; the firmware's `I0F32` holds less
+/// than 0.5).
 fn coupling(m: &HostModel) -> Result<()> {
     let c = &m.coupling;
     finite("coupling.offset_v", c.offset_v)?;
@@ -287,9 +290,10 @@ fn coupling(m: &HostModel) -> Result<()> {
     if let Some(f) = c.force_ref_n {
         finite("coupling.force_ref_n", f)?;
     }
-    if c.compliance_um_per_n < 0.0 {
+    if !(0.0..=COUPLING_ABS_MAX).contains(&c.compliance_um_per_n) {
         bail!(
-            "coupling.compliance_um_per_n = {}: must be ≥ 0 µm/N (a stack yields under load)",
+            "coupling.compliance_um_per_n = {}: must be within 0–{COUPLING_ABS_MAX} µm/N (a \
+             stack yields under load, by 0.005–0.1 µm/N; the firmware holds less than 0.5)",
             c.compliance_um_per_n
         );
     }

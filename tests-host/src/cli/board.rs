@@ -1,10 +1,14 @@
-//! `fpi board …`: a board (or the emulated board) driven from the command line,
-//! through the same [`Client`] the tests and the demo use.
+//! `fpi board …`: the commands that drive a board (or the emulated board)
+//! through the same [`Client`] the tests and the demo use. The binary parses the
+//! arguments; every handler is here. Each command that sets the stage in motion
+//! checks its effect ([`Client::order`]): a command the board took and faulted
+//! on fails with the fault.
 
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use fpi_firmware::closed_loop::LoopMode;
 use fpi_firmware::link::protocol::{BoardKind, Command, ResetReason, SlotReport, Status};
 use fpi_firmware::recorder::signal;
@@ -14,8 +18,10 @@ use indicatif::{ProgressBar, ProgressStyle};
 use piezo_fpi::control::Fault;
 use piezo_sim::file::FirmwareModel;
 
-use super::client::{bits, real, Client};
-use super::recording::Recording;
+use crate::board::client::{real, to_link, Client};
+use crate::board::recording::Recording;
+use crate::board::{inprocess, variant};
+use crate::data::{Num, Quoted};
 use crate::method::export::{self, ExportOptions, LoopSettings};
 use crate::method::model::HostModel;
 
@@ -26,7 +32,62 @@ use crate::method::model::HostModel;
 pub fn model_image(model: &Path, fem: Option<&Path>, o: &ExportOptions) -> Result<Vec<u8>> {
     firmware_model(model, fem, o)?
         .image()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))
+        .map_err(|e| anyhow!("{}: {e}", model.display()))
+}
+
+/// What a file given as a model is, by its `format` key.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelFile {
+    /// A firmware model file (`fpi export`).
+    Firmware,
+    /// A calibrated model (`fpi calibrate`).
+    Calibrated,
+}
+
+/// What the file `shown` with text `text` is ([`ModelFile`]), or why it is no
+/// model file these tools read: not TOML (a CSV table, e.g. an FEM export), no
+/// `format` key, or a format of another version or of another file.
+pub fn model_file(text: &str, shown: &str) -> Result<ModelFile> {
+    let both = format!(
+        "a model file is a calibrated model (`fpi calibrate`, format = {:?}) or a firmware \
+         model (`fpi export`, format = {:?})",
+        crate::method::model::FORMAT,
+        piezo_sim::file::FORMAT
+    );
+    let table: toml::Table = toml::from_str(text).map_err(|e| {
+        let first = text.lines().next().unwrap_or("").trim();
+        if first.contains(',') && !first.contains('=') {
+            anyhow!(
+                "{shown}: a CSV table (header {}), not a model: {both}; an FEM table goes with \
+                 --fem",
+                Quoted(first)
+            )
+        } else {
+            anyhow!(
+                "{}; {both}",
+                piezo_sim::quote::toml_error(shown, "model file", text, &e)
+            )
+        }
+    })?;
+    let format = match table.get("format") {
+        None => bail!("{shown}: no `format` key, so not a model file: {both}"),
+        Some(f) => f.as_str().unwrap_or(""),
+    };
+    let family = |f: &str| f.split('/').next().unwrap_or("").to_string();
+    match format {
+        f if f == piezo_sim::file::FORMAT => Ok(ModelFile::Firmware),
+        f if f == crate::method::model::FORMAT => Ok(ModelFile::Calibrated),
+        f if [piezo_sim::file::FORMAT, crate::method::model::FORMAT]
+            .iter()
+            .any(|known| family(known) == family(f)) =>
+        {
+            bail!(
+                "{shown}: format = {}: a version these tools do not read ({both})",
+                Quoted(f)
+            )
+        }
+        f => bail!("{shown}: format = {}: not a model file: {both}", Quoted(f)),
+    }
 }
 
 /// The firmware model of a model file (see [`model_image`]).
@@ -35,24 +96,25 @@ pub fn firmware_model(
     fem: Option<&Path>,
     o: &ExportOptions,
 ) -> Result<FirmwareModel> {
-    let text =
-        std::fs::read_to_string(model).with_context(|| format!("reading {}", model.display()))?;
+    let bytes = crate::data::read_bytes(model)?;
     let shown = model.display().to_string();
-    let firmware = if text.contains(piezo_sim::file::FORMAT) {
-        if fem.is_some() {
-            bail!("{shown} is a firmware model (it carries its tables): drop --fem");
+    let text = String::from_utf8(bytes)
+        .map_err(|_| anyhow!("{shown}: not a text file, so not a model file"))?;
+    match (model_file(&text, &shown)?, fem) {
+        (ModelFile::Firmware, Some(_)) => {
+            bail!("{shown} is a firmware model (it carries its tables): drop --fem")
         }
-        FirmwareModel::parse(&text, &shown).map_err(anyhow::Error::msg)?
-    } else {
-        let Some(fem) = fem else {
-            bail!("{shown} is a calibrated model: give the stage's FEM tables with --fem FEM.csv");
-        };
-        let m = HostModel::read(model)?;
-        let maps = crate::cli::stage_maps(&m, model, fem)?;
-        let settings = LoopSettings::for_model(&m, o);
-        export::export(&m, model, &maps, &settings)?.model
-    };
-    Ok(firmware)
+        (ModelFile::Firmware, None) => FirmwareModel::parse(&text, &shown).map_err(|e| anyhow!(e)),
+        (ModelFile::Calibrated, None) => {
+            bail!("{shown} is a calibrated model: give the stage's FEM tables with --fem FEM.csv")
+        }
+        (ModelFile::Calibrated, Some(fem)) => {
+            let m = HostModel::read(model)?;
+            let maps = super::stage_maps(&m, model, fem)?;
+            let settings = LoopSettings::for_model(&m, o);
+            Ok(export::export(&m, model, &maps, &settings)?.model)
+        }
+    }
 }
 
 fn bar(len: u64, what: &str) -> ProgressBar {
@@ -96,7 +158,7 @@ pub fn status(c: &mut Client) -> Result<()> {
          terms, {} table intervals",
         match h.board {
             BoardKind::Driver => "STM32F405 driver board",
-            BoardKind::Emulated if c.port_name() == super::inprocess::PORT_NAME => {
+            BoardKind::Emulated if c.port_name() == inprocess::PORT_NAME => {
                 "emulated board's firmware built for this host (in-process, virtual stage)"
             }
             BoardKind::Emulated => "emulated board (QEMU netduinoplus2, virtual stage)",
@@ -183,13 +245,14 @@ pub fn loop_mode(name: &str) -> Result<LoopMode> {
         "open" => LoopMode::Open,
         "closed" => LoopMode::Closed,
         "feedback" | "feedback-only" => LoopMode::FeedbackOnly,
-        _ => bail!("loop {name:?}: open, closed or feedback"),
+        _ => bail!("loop {}: open, closed or feedback", Quoted(name)),
     })
 }
 
 /// `fpi board loop`: opens or closes the loop, without a jump.
-pub fn set_loop(c: &mut Client, mode: LoopMode) -> Result<()> {
-    let tick = c.ack(&Command::Loop { mode })?;
+pub fn set_loop(c: &mut Client, mode: &str) -> Result<()> {
+    let mode = loop_mode(mode)?;
+    let tick = c.order(&Command::Loop { mode })?;
     let s = c.status()?;
     println!("from tick {tick}: {}", loop_text(mode, s.compensated));
     Ok(())
@@ -262,9 +325,42 @@ pub fn print_state(s: &Status, rate: f64) {
     );
 }
 
+/// `fpi board record` was stopped by Ctrl-C: what was recorded is written, the
+/// board's recorder stopped, the stage left as it was. The binary exits with
+/// status 130, as a shell does for an interrupted command.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Interrupted {
+    /// What was kept, for people.
+    pub kept: String,
+}
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "interrupted: {}", self.kept)
+    }
+}
+
+impl std::error::Error for Interrupted {}
+
+/// Set by Ctrl-C (SIGINT) once [`catch_ctrl_c`] has run.
+static CTRL_C: AtomicBool = AtomicBool::new(false);
+
+/// From now on Ctrl-C sets [`CTRL_C`] instead of ending the process; a second
+/// Ctrl-C ends it (status 130).
+fn catch_ctrl_c() -> Result<()> {
+    ctrlc::set_handler(|| {
+        if CTRL_C.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+    })
+    .context("catching Ctrl-C")
+}
+
 /// `fpi board record`: records every `decimation`-th tick for `seconds` of board
-/// time into a CSV.
+/// time into a CSV. Ctrl-C stops it early: the recorder is stopped, what it
+/// recorded is written (a valid CSV) and the error is [`Interrupted`].
 pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Result<Recording> {
+    catch_ctrl_c()?;
     let rate = c.rate_hz();
     let ticks = (seconds * rate).round() as u32;
     let start = c.ack(&Command::Record {
@@ -284,7 +380,7 @@ pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Resu
         rec.dropped = dropped;
         let now = c.status()?.tick;
         pb.set_position(now.saturating_sub(start).min(ticks) as u64);
-        if now >= start + ticks {
+        if now >= start + ticks || CTRL_C.load(Ordering::SeqCst) {
             break;
         }
         if started.elapsed() > Duration::from_secs_f64(seconds * 20.0 + 30.0) {
@@ -299,6 +395,20 @@ pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Resu
     rec.samples.retain(|s| s.tick < start + ticks);
     pb.finish_and_clear();
     rec.write_csv(out)?;
+    let recorded = rec
+        .samples
+        .last()
+        .map_or(0.0, |s| (s.tick - start) as f64 / rate);
+    let kept = format!(
+        "{} samples ({recorded:.3} s of the {seconds} s asked for, at {:.0} Hz) written to {}; \
+         the recorder is stopped and the stage left as it was",
+        rec.samples.len(),
+        rate / decimation as f64,
+        out.display()
+    );
+    if CTRL_C.load(Ordering::SeqCst) {
+        return Err(Interrupted { kept }.into());
+    }
     println!(
         "{} samples ({} s at {:.0} Hz) written to {}; {} dropped",
         rec.samples.len(),
@@ -314,39 +424,6 @@ pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Resu
         );
     }
     Ok(rec)
-}
-
-/// Reads column `x_ref_um` of a CSV, µm.
-pub fn read_points(path: &Path) -> Result<Vec<f64>> {
-    let bytes = crate::data::read_bytes(path)?;
-    let mut r = csv::Reader::from_reader(bytes.as_slice());
-    let col = r
-        .headers()
-        .with_context(|| format!("{}: no header", path.display()))?
-        .iter()
-        .position(|h| h.trim() == "x_ref_um")
-        .with_context(|| format!("{}: no column x_ref_um", path.display()))?;
-    let mut out = Vec::new();
-    for (k, rec) in r.records().enumerate() {
-        let rec = rec.with_context(|| format!("{}:{}", path.display(), k + 2))?;
-        let v = rec.get(col).unwrap_or("").trim();
-        let x: f64 = v
-            .parse()
-            .ok()
-            .filter(|x: &f64| x.is_finite())
-            .with_context(|| {
-                format!(
-                    "{}:{}: column x_ref_um: {v:?} is not a number",
-                    path.display(),
-                    k + 2
-                )
-            })?;
-        out.push(x);
-    }
-    if out.is_empty() {
-        bail!("{}: no points", path.display());
-    }
-    Ok(out)
 }
 
 /// `fpi board stream`.
@@ -371,7 +448,7 @@ pub fn shape(name: &str) -> Result<Shape> {
         "sine" => Shape::Sine,
         "triangle" => Shape::Triangle,
         "cosine" | "raised-cosine" => Shape::RaisedCosine,
-        _ => bail!("--shape {name:?}: sine, triangle or cosine"),
+        _ => bail!("--shape {}: sine, triangle or cosine", Quoted(name)),
     })
 }
 
@@ -380,13 +457,13 @@ pub fn shape(name: &str) -> Result<Shape> {
 #[derive(Debug, Clone, Default, PartialEq, clap::Args)]
 pub struct BenchSettings {
     /// Voltage on the analog reference input, 0–3.3 V.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub analog_v: Option<f64>,
     /// The force sensor: ok, open (a broken wire) or stuck (frozen reading).
     #[arg(long)]
     pub sensor: Option<String>,
     /// A step added to the force reading, N (a loose connector; 0 removes it).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub force_offset_n: Option<f64>,
     /// Make this many control ticks overrun their period.
     #[arg(long)]
@@ -434,7 +511,7 @@ pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<()> {
             ],
             "open" => &[BenchOrder::SensorOpen(true)],
             "stuck" => &[BenchOrder::SensorStuck(true)],
-            _ => bail!("--sensor {s:?}: ok, open or stuck"),
+            _ => bail!("--sensor {}: ok, open or stuck", Quoted(s)),
         };
         for o in orders {
             c.bench(*o)?;
@@ -452,7 +529,11 @@ fn bench_faults(c: &mut Client, b: &BenchSettings) -> Result<()> {
         if !n.is_finite() || n.abs() > 4096.0 {
             bail!("--force-offset-n {n}: a finite step within ±4096 N");
         }
-        let tick = c.bench(BenchOrder::SensorOffset(bits(n)))?;
+        let tick = c.bench(BenchOrder::SensorOffset(to_link(
+            "--force-offset-n",
+            n,
+            "N",
+        )?))?;
         println!("force reading offset by {n} N from tick {tick}");
     }
     if let Some(t) = b.stall_ticks {
@@ -477,7 +558,7 @@ fn bench_position(c: &mut Client, b: &BenchSettings) -> Result<()> {
             ],
             "open" => &[BenchOrder::PositionOpen(true)],
             "stuck" => &[BenchOrder::PositionStuck(true)],
-            _ => bail!("--position-sensor {s:?}: ok, open or stuck"),
+            _ => bail!("--position-sensor {}: ok, open or stuck", Quoted(s)),
         };
         for o in orders {
             c.bench(*o)?;
@@ -485,12 +566,190 @@ fn bench_position(c: &mut Client, b: &BenchSettings) -> Result<()> {
         println!("position sensor {s}");
     }
     if let Some(s) = b.stage.as_deref() {
-        let v = super::variant::parse(s)?;
+        let v = variant::parse(s)?;
         let tick = c.bench(BenchOrder::Stage(v))?;
         println!(
             "virtual stage: stage A, {}, at rest from tick {tick}",
-            super::variant::describe(&v)
+            variant::describe(&v)
         );
     }
+    Ok(())
+}
+
+/// Opens the board on `port` (`--port`: a serial device, `tcp:HOST:PORT` or
+/// `virtual`).
+pub fn open(port: &str) -> Result<Client> {
+    Client::open(port).with_context(|| format!("--port {}", Quoted(port)))
+}
+
+/// `fpi board move`: ramps to `um` at `speed` µm/s and holds it.
+pub fn move_to(c: &mut Client, um: f64, speed: f64) -> Result<()> {
+    let t = c.order(&Command::Move {
+        target: to_link("the target", um, "µm")?,
+        speed: to_link("--speed", speed, "µm/s")?,
+    })?;
+    println!("moving to {um} µm at {speed} µm/s from tick {t}");
+    Ok(())
+}
+
+/// The waveform generator's frequency resolution, Hz (it takes mHz).
+pub const WAVE_STEP_HZ: f64 = 1e-3;
+
+/// `fpi board wave`: the waveform generator (`cycles` 0: until the next command).
+pub fn wave(
+    c: &mut Client,
+    shape_name: &str,
+    amplitude_um: f64,
+    offset_um: f64,
+    freq_hz: f64,
+    cycles: u32,
+) -> Result<()> {
+    let top = c.rate_hz() / 2.0;
+    if freq_hz >= top {
+        bail!(
+            "--freq-hz {}: at or above half the board's control rate ({top} Hz)",
+            Num(freq_hz)
+        );
+    }
+    let freq_mhz = (freq_hz / WAVE_STEP_HZ).round();
+    if freq_mhz < 1.0 {
+        bail!(
+            "--freq-hz {}: below the generator's resolution of {WAVE_STEP_HZ} Hz",
+            Num(freq_hz)
+        );
+    }
+    let t = c.order(&Command::Wave {
+        shape: shape(shape_name)?,
+        offset: to_link("--offset-um", offset_um, "µm")?,
+        amplitude: to_link("--amplitude-um", amplitude_um, "µm")?,
+        freq_mhz: freq_mhz as u32,
+        cycles,
+    })?;
+    println!("{shape_name} wave from tick {t} (after an approach to its start)");
+    Ok(())
+}
+
+/// `fpi board safe|clear-fault|hold|analog|factory`: the command, checked for its
+/// effect ([`Client::order`]), and what the board does from which tick.
+pub fn simple(c: &mut Client, cmd: &Command<'_>) -> Result<()> {
+    let t = c.order(cmd)?;
+    match cmd {
+        Command::Safe => println!("parking from tick {t}"),
+        Command::ClearFault => println!("cleared at tick {t}; parked"),
+        Command::Hold => println!("holding from tick {t}"),
+        Command::Analog => println!("following the analog input from tick {t}"),
+        Command::ModelFactory => println!("factory model from tick {t}"),
+        _ => println!("done at tick {t}"),
+    }
+    Ok(())
+}
+
+/// `fpi board drive compensated|uncompensated`.
+pub fn drive(c: &mut Client, mode: &str) -> Result<()> {
+    let compensated = match mode {
+        "compensated" => true,
+        "uncompensated" => false,
+        m => bail!("drive {}: compensated or uncompensated", Quoted(m)),
+    };
+    let t = c.order(&Command::Drive { compensated })?;
+    println!("{mode} from tick {t}");
+    Ok(())
+}
+
+/// `on` or `off`.
+fn on_off(s: &str) -> Result<bool> {
+    match s {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => bail!("{}: on or off", Quoted(s)),
+    }
+}
+
+/// `fpi board damping on|off`.
+pub fn damping(c: &mut Client, state: &str) -> Result<()> {
+    let t = c.order(&Command::Damping { on: on_off(state)? })?;
+    println!("active damping {state} from tick {t}");
+    Ok(())
+}
+
+/// `fpi board shaping on|off`.
+pub fn shaping(c: &mut Client, state: &str) -> Result<()> {
+    let t = c.order(&Command::Shaping { on: on_off(state)? })?;
+    println!("reference shaping {state} from tick {t}");
+    Ok(())
+}
+
+/// `fpi board supervise MS`.
+pub fn supervise(c: &mut Client, ms: u32) -> Result<()> {
+    c.ack(&Command::Supervise { timeout_ms: ms })?;
+    if ms == 0 {
+        println!("host supervision off");
+    } else {
+        println!("the stage parks if the host is silent for {ms} ms while it drives it");
+    }
+    Ok(())
+}
+
+/// `fpi board reset`.
+pub fn reset(c: &mut Client) -> Result<()> {
+    let h = c.reset()?;
+    println!("reset; the board answers again ({:?})", h.reset);
+    Ok(())
+}
+
+/// `fpi board step`: steps the reference, records and scores the response into
+/// `out`.
+pub fn step(c: &mut Client, s: &crate::board::step::StepSettings, out: &Path) -> Result<()> {
+    let (rec, fig) = crate::board::step::run(c, s)?;
+    rec.write_csv(out)?;
+    println!(
+        "step {} → {} µm over {} ms, recorded to {}:",
+        s.from_um,
+        s.to_um,
+        s.duration_ms,
+        out.display()
+    );
+    println!("  {}", crate::board::step::describe(&fig, s.tol_um));
+    Ok(())
+}
+
+/// `fpi board frf`: the frequency response measured through the board, to `out`.
+pub fn frf(c: &mut Client, s: &crate::board::frf::FrfSettings, out: &Path) -> Result<()> {
+    let points = crate::board::frf::measure(c, s, |k, p| {
+        eprintln!("  {:>3}: {:8.1} Hz  |x/u| {:.4}", k + 1, p.f_hz, p.x.norm())
+    })?;
+    crate::method::tune::frf::write_csv(out, &points)?;
+    println!("{} frequencies written to {}", points.len(), out.display());
+    Ok(())
+}
+
+/// What `fpi board autotune` takes besides the board.
+pub struct AutotuneArgs<'a> {
+    /// The model the board runs, and the FEM tables of a calibrated one.
+    pub model: (&'a Path, Option<&'a Path>),
+    /// The loop settings of its export.
+    pub export: ExportOptions,
+    /// How the loops are designed.
+    pub tune: crate::method::tune::TuneOptions,
+    /// The sweep.
+    pub sweep: crate::board::frf::FrfSettings,
+    /// Also keep the tuned model in flash.
+    pub store: bool,
+    /// Where the tuned model goes, and the measured response (if wanted).
+    pub out: (&'a Path, Option<&'a Path>),
+}
+
+/// `fpi board autotune`: measures, fits, tunes, loads and verifies
+/// ([`crate::board::autotune::run`]); writes the tuned model.
+pub fn autotune(c: &mut Client, a: &AutotuneArgs<'_>) -> Result<()> {
+    use crate::board::autotune;
+    let fw = firmware_model(a.model.0, a.model.1, &a.export)?;
+    let tuned = autotune::run(c, &fw, &a.tune, &a.sweep, a.store, |m| eprintln!("{m}"))?;
+    autotune::write(&tuned, a.out.0, a.out.1)?;
+    println!(
+        "tuned model written to {} and running on the board",
+        a.out.0.display()
+    );
+    print!("{}", autotune::table(&tuned));
     Ok(())
 }
