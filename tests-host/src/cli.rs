@@ -198,14 +198,10 @@ pub fn calibrate(
     Ok(())
 }
 
-/// Samples in each window of the rows beyond a fitted window that `fpi calibrate
-/// --rows` scores.
-pub const HELD_OUT_WINDOW: usize = 1000;
-
 /// The model's prediction of the rest of a recording fitted on a window of it, in
-/// windows of [`HELD_OUT_WINDOW`] samples ([`calibrate::held_out`]).
+/// windows of [`calibrate::HELD_OUT_WINDOW`] samples ([`calibrate::held_out`]).
 fn print_held_out(m: &HostModel, d: &calibrate::CalibData) {
-    let windows = calibrate::held_out(m, d, HELD_OUT_WINDOW);
+    let windows = calibrate::held_out(m, d, calibrate::HELD_OUT_WINDOW);
     if windows.is_empty() {
         return;
     }

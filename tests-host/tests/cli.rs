@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 mod common;
-use common::{fails, ok, s};
+use common::{fails, ok, predict_args, s};
 
 fn tmp() -> PathBuf {
     common::scratch("cli")
@@ -56,17 +56,7 @@ fn predict_writes_the_documented_columns() {
     let d = tmp();
     let m = fpi_model(&d);
     let out = d.join("pred.csv");
-    ok(&[
-        "predict",
-        "--model",
-        s(&m),
-        "--fem",
-        FEM,
-        "--drive",
-        RUN,
-        "--out",
-        s(&out),
-    ]);
+    ok(&predict_args(s(&m), FEM, RUN, s(&out)));
     let text = std::fs::read_to_string(&out).unwrap();
     let mut lines = text.lines();
     assert_eq!(
@@ -192,17 +182,7 @@ fn bad_inputs_name_file_line_and_column() {
     // A drive with a non-number.
     let drive = d.join("bad_drive.csv");
     std::fs::write(&drive, "t_s,voltage_V\n0,0\n0.001,1O\n").unwrap();
-    let err = fails(&[
-        "predict",
-        "--model",
-        s(&m),
-        "--fem",
-        FEM,
-        "--drive",
-        s(&drive),
-        "--out",
-        s(&d.join("p.csv")),
-    ]);
+    let err = fails(&predict_args(s(&m), FEM, s(&drive), s(&d.join("p.csv"))));
     assert!(
         err.contains("bad_drive.csv:3: column voltage_V: \"1O\" is not a number"),
         "{err}"
@@ -214,17 +194,7 @@ fn bad_inputs_name_file_line_and_column() {
         "x_pea_um,preload_N,x_fhps_um\n0,61.8,0\n0.5,63,2.8\n0.5,64,2.9\n",
     )
     .unwrap();
-    let err = fails(&[
-        "predict",
-        "--model",
-        s(&m),
-        "--fem",
-        s(&fem),
-        "--drive",
-        RUN,
-        "--out",
-        s(&d.join("p.csv")),
-    ]);
+    let err = fails(&predict_args(s(&m), s(&fem), RUN, s(&d.join("p.csv"))));
     assert!(
         err.contains("bad_fem.csv:4: column x_pea_um: 0.5 does not increase"),
         "{err}"
@@ -235,17 +205,7 @@ fn bad_inputs_name_file_line_and_column() {
         "x_pea_um,preload_N,x_fhps_um\n0,61.8,0\n0.5,nan,2.8\n",
     )
     .unwrap();
-    let err = fails(&[
-        "predict",
-        "--model",
-        s(&m),
-        "--fem",
-        s(&fem),
-        "--drive",
-        RUN,
-        "--out",
-        s(&d.join("p.csv")),
-    ]);
+    let err = fails(&predict_args(s(&m), s(&fem), RUN, s(&d.join("p.csv"))));
     assert!(
         err.contains("bad_fem.csv:3: column preload_N: \"nan\" is not a finite number"),
         "{err}"
@@ -275,17 +235,7 @@ fn bad_inputs_name_file_line_and_column() {
             .replace("k_f_v_per_n", "k_f_volts"),
     )
     .unwrap();
-    let err = fails(&[
-        "predict",
-        "--model",
-        s(&bad),
-        "--fem",
-        FEM,
-        "--drive",
-        RUN,
-        "--out",
-        s(&d.join("p.csv")),
-    ]);
+    let err = fails(&predict_args(s(&bad), FEM, RUN, s(&d.join("p.csv"))));
     assert!(
         err.contains("bad_model.toml:16:1: not a model file") && err.contains("k_f_volts"),
         "{err}"
@@ -437,17 +387,7 @@ fn the_longest_valid_output_name_is_written() {
     let d = tmp();
     let m = fpi_model(&d);
     let out = d.join(format!("{}.csv", "p".repeat(251))); // 255 bytes
-    ok(&[
-        "predict",
-        "--model",
-        s(&m),
-        "--fem",
-        FEM,
-        "--drive",
-        RUN,
-        "--out",
-        s(&out),
-    ]);
+    ok(&predict_args(s(&m), FEM, RUN, s(&out)));
     assert!(out.exists());
 }
 
@@ -484,17 +424,7 @@ fn errors_quote_at_most_eighty_characters() {
         "[".repeat(200_000)
     );
     std::fs::write(&brackets, text).unwrap();
-    let err = fails(&[
-        "predict",
-        "--model",
-        s(&brackets),
-        "--fem",
-        FEM,
-        "--drive",
-        RUN,
-        "--out",
-        s(&d.join("p.csv")),
-    ]);
+    let err = fails(&predict_args(s(&brackets), FEM, RUN, s(&d.join("p.csv"))));
     assert!(
         err.contains("brackets.toml:2:"),
         "{}",

@@ -23,6 +23,14 @@ fn the_demo_chain_meets_every_target() {
         println!("{l}");
     }
     assert!(s.ok, "a target was missed");
+    // Step 1 names the default kind without force on the real recording, its
+    // prediction of the rest per 1000-sample window, and the published figure.
+    let lines = s.lines.join("\n");
+    assert!(
+        lines.contains("RMSE EPI 0.0") && lines.contains("EPI RMSE 0.0"),
+        "{lines}"
+    );
+    assert!(lines.contains("0.73–0.83 µm on its test run"), "{lines}");
     let report = std::fs::read_to_string(&s.report).unwrap();
     for figure in [
         "loops_sine_05Hz.svg",

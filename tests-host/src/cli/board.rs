@@ -16,6 +16,7 @@ use fpi_firmware::reference::wave::Shape;
 use fpi_firmware::slots::Origin;
 use indicatif::{ProgressBar, ProgressStyle};
 use piezo_fpi::control::Fault;
+use piezo_fpi::q::LoopGain;
 use piezo_sim::file::FirmwareModel;
 
 use crate::board::client::{real, to_link, Client};
@@ -212,8 +213,8 @@ pub fn status(c: &mut Client) -> Result<()> {
         Some(f) => println!(
             "feedback: kp {:.4}, ki {:.1}/s, correction within ±{:.3} µm; position sensor \
              {:.2}–{:.2} µm, tolerance {:.3} µm",
-            f[0] as f64 / (1u64 << 24) as f64,
-            f[1] as f64 / (1u64 << 24) as f64 * rate,
+            LoopGain::from_bits(f[0]).to_num::<f64>(),
+            LoopGain::from_bits(f[1]).to_num::<f64>() * rate,
             real(f[2]),
             real(f[3]),
             real(f[4]),
@@ -504,21 +505,31 @@ pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<()> {
         println!("analog input at {v} V ({counts} counts)");
     }
     if let Some(s) = sensor {
-        let orders: &[BenchOrder] = match s {
-            "ok" => &[
-                BenchOrder::SensorOpen(false),
-                BenchOrder::SensorStuck(false),
-            ],
-            "open" => &[BenchOrder::SensorOpen(true)],
-            "stuck" => &[BenchOrder::SensorStuck(true)],
-            _ => bail!("--sensor {}: ok, open or stuck", Quoted(s)),
-        };
-        for o in orders {
-            c.bench(*o)?;
-        }
+        let orders = [BenchOrder::SensorOpen, BenchOrder::SensorStuck];
+        sensor_state(c, "--sensor", s, orders)?;
         println!("force sensor {s}");
     }
     bench_faults(c, b)
+}
+
+/// Puts a sensor of the virtual bench in state `s` (`ok`, `open` or `stuck`,
+/// given as `option`), through its bench orders `[open, stuck]`.
+fn sensor_state(
+    c: &mut Client,
+    option: &str,
+    s: &str,
+    [open, stuck]: [fn(bool) -> fpi_firmware::link::protocol::BenchOrder; 2],
+) -> Result<()> {
+    let orders = match s {
+        "ok" => vec![open(false), stuck(false)],
+        "open" => vec![open(true)],
+        "stuck" => vec![stuck(true)],
+        _ => bail!("{option} {}: ok, open or stuck", Quoted(s)),
+    };
+    for o in orders {
+        c.bench(o)?;
+    }
+    Ok(())
 }
 
 /// The fault injections of [`bench`]: a force step, overrunning ticks, a damaged
@@ -551,18 +562,8 @@ fn bench_faults(c: &mut Client, b: &BenchSettings) -> Result<()> {
 fn bench_position(c: &mut Client, b: &BenchSettings) -> Result<()> {
     use fpi_firmware::link::protocol::BenchOrder;
     if let Some(s) = b.position_sensor.as_deref() {
-        let orders: &[BenchOrder] = match s {
-            "ok" => &[
-                BenchOrder::PositionOpen(false),
-                BenchOrder::PositionStuck(false),
-            ],
-            "open" => &[BenchOrder::PositionOpen(true)],
-            "stuck" => &[BenchOrder::PositionStuck(true)],
-            _ => bail!("--position-sensor {}: ok, open or stuck", Quoted(s)),
-        };
-        for o in orders {
-            c.bench(*o)?;
-        }
+        let orders = [BenchOrder::PositionOpen, BenchOrder::PositionStuck];
+        sensor_state(c, "--position-sensor", s, orders)?;
         println!("position sensor {s}");
     }
     if let Some(s) = b.stage.as_deref() {

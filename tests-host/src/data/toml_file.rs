@@ -16,6 +16,21 @@ pub trait TomlFile: Serialize + DeserializeOwned {
     const WHAT: &'static str;
     /// Most bytes a reader takes.
     const MAX_BYTES: u64;
+    /// The `format` string the file carries (`piezo-fpi-model/1`).
+    const FORMAT: &'static str;
+    /// The `format` string this one carries.
+    fn format(&self) -> &str;
+    /// Refuses a `format` other than [`FORMAT`](Self::FORMAT), quoting it.
+    fn check_format(&self) -> Result<()> {
+        if self.format() != Self::FORMAT {
+            anyhow::bail!(
+                "format = {}: expected {:?}",
+                piezo_sim::quote::Quoted(self.format()),
+                Self::FORMAT
+            );
+        }
+        Ok(())
+    }
     /// The file's one validator; the error names the key.
     fn check(&self) -> Result<()>;
     /// Comment lines written above the values.

@@ -175,6 +175,10 @@ pub fn score(model: &HostModel, data: &[CalibData]) -> Vec<FileFit> {
         .collect()
 }
 
+/// Samples in each window of the rows beyond a fitted window that `fpi calibrate
+/// --rows` and the demo score ([`held_out`]).
+pub const HELD_OUT_WINDOW: usize = 1000;
+
 /// How a model predicts a window of a recording beyond its fitted rows.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Window {

@@ -154,12 +154,7 @@ impl Dynamics {
 
     /// Checks every key; the error names the key and its value.
     pub fn validate(&self) -> Result<()> {
-        if self.format != FORMAT {
-            bail!(
-                "format = {}: expected {FORMAT:?}",
-                piezo_sim::quote::Quoted(&self.format)
-            );
-        }
+        self.check_format()?;
         let tf = &self.transfer_function;
         check_poly("transfer_function.denominator", &tf.denominator)?;
         check_poly("transfer_function.numerator", &tf.numerator)?;
@@ -556,6 +551,10 @@ pub fn uniform_step(t: &[f64]) -> std::result::Result<f64, (usize, f64, f64)> {
 impl TomlFile for Dynamics {
     const WHAT: &'static str = "dynamics file";
     const MAX_BYTES: u64 = MAX_FILE_BYTES;
+    const FORMAT: &'static str = FORMAT;
+    fn format(&self) -> &str {
+        &self.format
+    }
     fn check(&self) -> Result<()> {
         self.validate()
     }

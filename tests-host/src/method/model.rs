@@ -12,7 +12,7 @@
 use std::fmt;
 use std::path::Path;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use serde::{Deserialize, Serialize, Serializer};
 
 use piezo_sim::model::{Coupling, Creep, DeadZone, Ldpi, Model, Output};
@@ -23,7 +23,6 @@ use crate::data::toml_file::{self, TomlFile};
 use crate::method::limits::AMPLIFIER_MAX_V;
 use crate::method::series::{CalibData, Inversion, Prediction};
 use crate::model_file::{CouplingSection, CreepSection, PiSection};
-use piezo_sim::quote::Quoted;
 
 pub use crate::method::sections::{
     is_no_pi, no_pi, BranchSection, Calibration, FemCorrection, FileFit, LdpiParams, Memory,
@@ -299,9 +298,7 @@ impl HostModel {
     /// it, and the commands that use a model (predict, invert, export) run it again.
     /// The kind checks its sections ([`ModelKind::validate`]).
     pub fn validate(&self) -> Result<()> {
-        if self.format != FORMAT {
-            bail!("format = {}: expected {FORMAT:?}", Quoted(&self.format));
-        }
+        self.check_format()?;
         self.kind.validate(self)?;
         match &self.fem_correction {
             Some(c) => c.validate(),
@@ -369,6 +366,10 @@ impl HostModel {
 impl TomlFile for HostModel {
     const WHAT: &'static str = "model file";
     const MAX_BYTES: u64 = MAX_FILE_BYTES;
+    const FORMAT: &'static str = FORMAT;
+    fn format(&self) -> &str {
+        &self.format
+    }
     fn check(&self) -> Result<()> {
         self.validate()
     }

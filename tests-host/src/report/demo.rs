@@ -46,8 +46,13 @@ pub struct Summary {
 pub const MM_ROWS: (usize, usize) = (3152, 3351);
 /// The stage's MAE reduction FPI-FFEM must reach against PI-FEM (the paper: 76.7 and 75.0 %).
 pub const STAGE_TARGET_PCT: f64 = 75.0;
-/// The micromanipulator RMSE to beat (the authors' discrete backlash operator), µm.
-pub const MM_TARGET_UM: f64 = 0.21;
+/// The micromanipulator's identification RMSE the default kind must reach, and
+/// its prediction of the rest of the recording (each 1000-sample window's offset
+/// removed, the start from rest aside), µm. The authors' discrete backlash
+/// operator: 0.21 µm on the cycle.
+pub const MM_TARGET_UM: f64 = 0.12;
+/// The discrete backlash operator's published error on its test run, µm.
+pub const MM_PUBLISHED_TEST_UM: &str = "0.73–0.83";
 
 /// Runs the chain into `out` (created if missing; checked to take files before
 /// anything is computed; every file written atomically).
@@ -76,11 +81,11 @@ struct Chain<'o> {
     fem: FemMaps,
 }
 
-/// A calibrated model by kind.
+/// The demo's model of a kind (the models are named by their kind).
 fn pick(models: &[(String, HostModel)], kind: Kind) -> Result<&HostModel> {
     models
         .iter()
-        .find(|(_, m)| m.kind == kind)
+        .find(|(name, _)| name == kind.name())
         .map(|(_, m)| m)
         .with_context(|| format!("no {kind} model"))
 }
@@ -331,7 +336,12 @@ impl<'o> Chain<'o> {
             report::table4(&cmp),
             report::table(&cmp)
         );
-        let index = |k: Kind| models.iter().position(|(_, m)| m.kind == k).unwrap_or(0);
+        let index = |k: Kind| {
+            models
+                .iter()
+                .position(|(name, _)| name == k.name())
+                .unwrap_or(0)
+        };
         let (i_fpi, i_efpi) = (index(Kind::Fpi), index(Kind::Efpi));
         for r in 0..runs.len() {
             let (pf, pe) = (cmp.reduction(r, i_fpi), cmp.reduction(r, i_efpi));
@@ -387,7 +397,11 @@ impl<'o> Chain<'o> {
             .collect::<Result<_, _>>()?;
         let picked: Vec<(String, HostModel)> = models
             .iter()
-            .filter(|(_, m)| [Kind::Fpi, Kind::Efpi, Kind::Branch].contains(&m.kind))
+            .filter(|(name, _)| {
+                [Kind::Fpi, Kind::Efpi, Kind::Branch]
+                    .map(|k| k.name())
+                    .contains(&name.as_str())
+            })
             .cloned()
             .collect();
         let mut cmp = Comparison::run(&self.fem, &runs, &picked)?;
@@ -440,35 +454,87 @@ impl<'o> Chain<'o> {
         Ok(())
     }
 
-    /// The real micromanipulator: PI and GPI on the authors' identification cycle,
-    /// validated on every other period.
+    /// The real micromanipulator: the default kind without force (epi), GPI and
+    /// PI on the authors' identification cycle; validated on every other period
+    /// and, for the default, on the rest of the recording in 1000-sample windows.
     fn micromanipulator(&mut self) -> Result<()> {
         self.pb.set_message("micromanipulator");
         let mm_path = data::dataset("real/micromanipulator/Model_Vi_Do.dat");
         let mm = calibrate::load(std::slice::from_ref(&mm_path), Some(MM_ROWS))?;
-        let pi_options = Options {
-            offset: true,
-            ..Options::for_kind(Kind::Pi)
-        }
-        .with_operators(21);
-        let mut pi = calibrate::calibrate(&mm, &pi_options)?;
-        let mut gpi = calibrate::calibrate(&mm, &Options::for_kind(Kind::Gpi))?;
-        for (m, name) in [(&mut pi, "pi"), (&mut gpi, "gpi")] {
-            m.calibration.files = vec![rel(&mm_path)];
+        let [pi, gpi, epi] = self.micromanipulator_models(&mm, &rel(&mm_path))?;
+        let d = &mm[0];
+        let windows = calibrate::held_out(&epi, d, calibrate::HELD_OUT_WINDOW);
+        let (from_rest, rest) = windows
+            .split_first()
+            .map_or((None, &[][..]), |(a, b)| (Some(a), b));
+        let (lo, hi) = rest.iter().fold((f64::MAX, 0.0f64), |(lo, hi), w| {
+            (lo.min(w.rmse_um), hi.max(w.rmse_um))
+        });
+        self.summary.ok &= epi.calibration.rmse_um <= MM_TARGET_UM && hi <= MM_TARGET_UM;
+        self.summary.lines.push(format!(
+            "micromanipulator (real data), identification cycle rows {}-{}: RMSE EPI {:.3} µm \
+             (the default without force; target ≤ {MM_TARGET_UM} µm), GPI {:.3} µm, PI {:.3} µm",
+            MM_ROWS.0,
+            MM_ROWS.1,
+            epi.calibration.rmse_um,
+            gpi.calibration.rmse_um,
+            pi.calibration.rmse_um
+        ));
+        self.summary.lines.push(format!(
+            "  fitted there, the rest of Model_Vi_Do.dat in {}-sample windows, each offset removed: \
+             EPI RMSE {lo:.3}–{hi:.3} µm{} (the authors' discrete backlash operator: \
+             {MM_PUBLISHED_TEST_UM} µm on its test run, as published)",
+            calibrate::HELD_OUT_WINDOW,
+            from_rest.map_or(String::new(), |w| format!(
+                " (rows {}–{}, the start from rest: {:.3} µm)",
+                w.rows.0, w.rows.1, w.rmse_um
+            ))
+        ));
+        self.micromanipulator_section(d, [&pi, &gpi, &epi], &windows);
+        self.micromanipulator_plots(d, [&pi, &gpi, &epi])?;
+        self.pb.inc(1);
+        Ok(())
+    }
+
+    /// PI (21 operators and an offset), GPI and the default kind for a recording
+    /// without force (epi) fitted on the identification cycle of `mm` (file
+    /// `path`), each written to `models/`.
+    fn micromanipulator_models(&self, mm: &[CalibData], path: &str) -> Result<[HostModel; 3]> {
+        let (default, _) = crate::method::kinds::default_for(mm);
+        // A recording without force is not zeroed at rest: PI and the default
+        // fit an offset (as `fpi calibrate` does for it); GPI has its own.
+        let with_offset = |o: Options| Options { offset: true, ..o };
+        let options = [
+            with_offset(Options::for_kind(Kind::Pi).with_operators(21)),
+            Options::for_kind(Kind::Gpi),
+            with_offset(Options::for_kind(default)),
+        ];
+        let mut models = Vec::new();
+        for o in options {
+            let mut m = calibrate::calibrate(mm, &o)?;
+            m.calibration.files = vec![path.to_string()];
             m.calibration.rows = Some([MM_ROWS.0, MM_ROWS.1]);
             m.write(
                 &self
                     .out
-                    .join(format!("models/micromanipulator-{name}.toml")),
+                    .join(format!("models/micromanipulator-{}.toml", m.kind)),
             )?;
+            models.push(m);
         }
-        let d = &mm[0];
-        let (pv, gv) = (periods(&pi, d), periods(&gpi, d));
-        self.summary.ok &= gpi.calibration.rmse_um < MM_TARGET_UM;
-        self.summary.lines.push(format!(
-            "micromanipulator (real data), identification cycle rows {}-{}: PI RMSE {:.3} µm, GPI RMSE {:.3} µm (target < {MM_TARGET_UM} µm, the authors' discrete backlash operator)",
-            MM_ROWS.0, MM_ROWS.1, pi.calibration.rmse_um, gpi.calibration.rmse_um
-        ));
+        models
+            .try_into()
+            .map_err(|_| anyhow::anyhow!("three micromanipulator models"))
+    }
+
+    /// The report's section: the three fits, their validation on the other
+    /// periods and the default's 1000-sample windows.
+    fn micromanipulator_section(
+        &mut self,
+        d: &CalibData,
+        models: [&HostModel; 3],
+        windows: &[calibrate::Window],
+    ) {
+        let [pi, gpi, epi] = models;
         let gamma = match gpi.output {
             OutputMap::Quadratic { gamma_per_um } => gamma_per_um,
             _ => 0.0,
@@ -478,44 +544,57 @@ impl<'o> Chain<'o> {
             "## 3. The real micromanipulator (Aye & Ang, MIT licence)\n\n\
              Identification on one period (rows {}–{}, 1-based) of the 1 Hz recording, with the \
              operators' history run from the first row; the sensor is zeroed at the window's first \
-             row. PI: {} one-sided operators and an offset. GPI: the same PI followed by a monotone \
-             quadratic output map `x = Y + γY²` (γ = {gamma:.3e} /µm, closed-form inverse). \
-             Validation: every other full period of the recording.\n\n\
-             | model | parameters | identification RMSE (µm) | other periods: mean RMSE | worst | mean RMSE, each period's offset removed |\n\
-             |---|---:|---:|---:|---:|---:|\n\
-             | PI | {} | {:.4} | {:.4} | {:.4} | {:.4} |\n\
-             | GPI | {} | {:.4} | {:.4} | {:.4} | {:.4} |\n\
-             | discrete backlash operator (the authors) | | 0.21 | | | |\n\n\
-             The validation error is dominated by slow drift of the recording (its period means move \
-             by ±0.4 µm), not by the hysteresis shape.\n",
+             row. EPI, the default for a recording without force: the extended model without the \
+             force coupling ({}). GPI: {} one-sided operators and an offset followed by a monotone \
+             quadratic output map `x = Y + γY²` (γ = {gamma:.3e} /µm, closed-form inverse). PI: \
+             {} operators and an offset. Validation: every other full period of the recording.\n\n\
+             | model | identification RMSE (µm) | other periods: mean RMSE | worst | mean RMSE, each period's offset removed |\n\
+             |---|---:|---:|---:|---:|",
             MM_ROWS.0,
             MM_ROWS.1,
-            pi.operators() + 1,
-            pi.operators() + 2,
-            pi.calibration.rmse_um,
-            pv.0,
-            pv.1,
-            pv.2,
-            gpi.operators() + 3,
-            gpi.calibration.rmse_um,
-            gv.0,
-            gv.1,
-            gv.2
+            epi.kind.structure(epi),
+            gpi.operators(),
+            pi.operators()
         );
-        self.micromanipulator_plots(d, &pi, &gpi)?;
-        self.pb.inc(1);
-        Ok(())
+        for (name, m) in [("EPI", epi), ("GPI", gpi), ("PI", pi)] {
+            let p = periods(m, d);
+            let _ = writeln!(
+                self.md,
+                "| {name} | {:.4} | {:.4} | {:.4} | {:.4} |",
+                m.calibration.rmse_um, p.0, p.1, p.2
+            );
+        }
+        let _ = writeln!(
+            self.md,
+            "| discrete backlash operator (the authors) | 0.21 | | | |\n\n\
+             The validation error is dominated by slow drift of the recording (its period means move \
+             by ±0.4 µm), not by the hysteresis shape. With each {}-sample window's mean error \
+             removed, EPI fitted on the cycle predicts the rest of the recording as follows (the \
+             authors' discrete backlash operator: {MM_PUBLISHED_TEST_UM} µm on its own test run, \
+             as published; the first window holds the start from rest, which a model run from \
+             rest does not follow):\n\n| rows | RMSE (µm) | offset removed (µm) |\n|---|---:|---:|",
+            calibrate::HELD_OUT_WINDOW
+        );
+        for w in windows {
+            let _ = writeln!(
+                self.md,
+                "| {}–{} | {:.4} | {:.4} |",
+                w.rows.0, w.rows.1, w.rmse_um, w.offset_um
+            );
+        }
+        let _ = writeln!(self.md);
     }
 
-    /// The identification cycle: loops and errors of both models.
-    fn micromanipulator_plots(
-        &mut self,
-        d: &CalibData,
-        pi: &HostModel,
-        gpi: &HostModel,
-    ) -> Result<()> {
+    /// The identification cycle: loops and errors of the models.
+    fn micromanipulator_plots(&mut self, d: &CalibData, models: [&HostModel; 3]) -> Result<()> {
         let w = MM_ROWS.0 - 1..MM_ROWS.1;
-        let (sp, sg) = (calibrate::simulate(pi, d), calibrate::simulate(gpi, d));
+        let names = ["PI", "GPI", "EPI"];
+        let sims: Vec<Vec<f64>> = models.iter().map(|m| calibrate::simulate(m, d)).collect();
+        let loops: Vec<(&str, &[f64])> = names
+            .iter()
+            .zip(&sims)
+            .map(|(n, s)| (*n, &s[w.clone()]))
+            .collect();
         plots::loops(
             &self.out.join("micromanipulator.svg"),
             "Micromanipulator, identification cycle",
@@ -523,17 +602,24 @@ impl<'o> Chain<'o> {
             "displacement (µm)",
             &d.u[w.clone()],
             Some(&d.x[w.clone()]),
-            &[("PI", &sp[w.clone()]), ("GPI", &sg[w.clone()])],
+            &loops,
         )?;
         let tw: Vec<f64> = (0..w.len()).map(|k| k as f64 * d.dt).collect();
-        let ep: Vec<f64> = w.clone().map(|k| sp[k] - d.x[k]).collect();
-        let eg: Vec<f64> = w.clone().map(|k| sg[k] - d.x[k]).collect();
+        let errors: Vec<Vec<f64>> = sims
+            .iter()
+            .map(|s| w.clone().map(|k| s[k] - d.x[k]).collect())
+            .collect();
+        let curves: Vec<(&str, &[f64])> = names
+            .iter()
+            .zip(&errors)
+            .map(|(n, e)| (*n, e.as_slice()))
+            .collect();
         plots::curves(
             &self.out.join("micromanipulator_errors.svg"),
             "Micromanipulator, identification cycle: model error",
             "error (µm)",
             &tw,
-            &[("PI", &ep), ("GPI", &eg)],
+            &curves,
         )?;
         let _ = writeln!(self.md, "![micromanipulator](micromanipulator.svg)\n\n![micromanipulator errors](micromanipulator_errors.svg)\n");
         Ok(())

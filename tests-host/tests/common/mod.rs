@@ -79,3 +79,15 @@ pub fn quick_fpi(dir: &Path) -> (PathBuf, String) {
     let printed = ok(&args);
     (m, printed)
 }
+
+/// The arguments of `fpi predict --model MODEL --fem FEM --drive DRIVE --out OUT`.
+pub fn predict_args<'a>(
+    model: &'a str,
+    fem: &'a str,
+    drive: &'a str,
+    out: &'a str,
+) -> [&'a str; 9] {
+    [
+        "predict", "--model", model, "--fem", fem, "--drive", drive, "--out", out,
+    ]
+}
