@@ -22,6 +22,7 @@ use piezo_fpi::control::Fault;
 use piezo_fpi::model::image::CRC32;
 use piezo_fpi::q;
 
+use super::inprocess;
 use super::port::{self, Port};
 use crate::data::Num;
 
@@ -160,10 +161,14 @@ fn name_of(c: &Command<'_>) -> String {
 }
 
 impl Client {
-    /// Opens `port` (a serial device or `tcp:HOST:PORT`) and greets the board;
-    /// refuses a board that speaks another protocol version.
+    /// Opens `port` (a serial device, `tcp:HOST:PORT`, or `virtual`: the board in this
+    /// process) and greets the board; refuses a board that speaks another protocol version.
     pub fn open(port: &str) -> Result<Self> {
-        let p = port::open(port, Duration::from_secs(10))?;
+        let p: Box<dyn Port> = if port == inprocess::PORT_NAME {
+            Box::new(inprocess::InProcess::start()?)
+        } else {
+            port::open(port, Duration::from_secs(10))?
+        };
         let mut c = Self {
             port: p,
             name: port.to_string(),

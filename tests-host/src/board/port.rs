@@ -2,9 +2,10 @@
 //! USB-serial adapter, via the `serialport` crate) or a TCP socket (the emulated
 //! board, whose USART QEMU bridges to a TCP port).
 //!
-//! A port is named by a string: `tcp:HOST:PORT` for a socket, `virtual` for the
-//! firmware built for the host and run in this process
-//! ([`super::inprocess`]), anything else for a serial device (`/dev/ttyUSB0`, `COM3`).
+//! A port is named by a string: `tcp:HOST:PORT` for a socket, anything else for a
+//! serial device (`/dev/ttyUSB0`, `COM3`). (The client also opens `virtual`, the
+//! firmware built for the host and run in this process, [`super::inprocess`],
+//! which is a [`Port`] too.)
 
 use std::io::{self, Read, Write};
 use std::net::TcpStream;
@@ -196,9 +197,6 @@ pub fn open(name: &str, patience: Duration) -> Result<Box<dyn Port>> {
                 Err(e) => return Err(e).with_context(|| format!("connecting to {addr}")),
             }
         }
-    }
-    if name == super::inprocess::PORT_NAME {
-        return Ok(Box::new(super::inprocess::InProcess::start()?));
     }
     if name.is_empty() {
         bail!("no port given: a serial device (/dev/ttyUSB0, COM3) or tcp:HOST:PORT");
