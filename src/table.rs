@@ -225,7 +225,9 @@ impl<'a> Table<'a> {
     /// `self(inverse(y_j))` is more than `tolerance` from `y_j`, if any: where
     /// `inverse` does not invert this table.
     pub fn first_disagreement(&self, inverse: &Table<'_>, tolerance: I16F16) -> Option<usize> {
-        let (lo, hi) = (self.segments[0].start, self.end);
+        // No indexing: the model's loading must not reach a panic (`no-panic`).
+        let lo = self.segments.first()?.start;
+        let hi = self.end;
         let step = 1i64 << inverse.shift;
         (0..=inverse.segments.len()).find(|&j| {
             let y = inverse.x0.to_bits() as i64 + j as i64 * step;
