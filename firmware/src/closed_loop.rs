@@ -37,20 +37,10 @@ use piezo_fpi::control::{Fault, Interval, LinearDrive, Mode, StepOutput};
 use piezo_fpi::damping::{Damping, DampingConfig};
 use piezo_fpi::feedback::{FeedbackConfig, Pi, Saturation};
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
-use serde::{Deserialize, Serialize};
 
 use crate::hardware::{Controller, APPROACH_STEP, RATE_HZ};
 
-/// How the loop is closed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum LoopMode {
-    /// Feedforward only: the reference through the inverse FPI (or the straight line).
-    Open,
-    /// PI feedback on the position sensor plus the inverse FPI as feedforward.
-    Closed,
-    /// PI feedback alone, its output through the straight-line drive (no model).
-    FeedbackOnly,
-}
+pub use fpi_protocol::LoopMode;
 
 /// Which law turns the command into a voltage.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -328,7 +328,7 @@ mod tests {
                 .handle(&mut self.board, frame_bytes, &mut scratch, &mut out);
             assert!(n > 0 && out[n - 1] == 0);
             let (h, body) = frame::decode::<ReplyHeader>(&mut out[..n - 1]).unwrap();
-            (h, frame::body::<Reply>(body, 7).unwrap())
+            (h, frame::body::<Reply>(body).unwrap())
         }
 
         fn send(&mut self, cmd: Command<'_>) -> Reply {
@@ -363,7 +363,7 @@ mod tests {
         }
 
         fn status(&mut self) -> Status {
-            match self.send(Command::Status) {
+            match self.send(Command::Status { axis: 0 }) {
                 Reply::Status(s) => s,
                 r => panic!("{r:?}"),
             }
@@ -392,6 +392,7 @@ mod tests {
         );
         assert!(!s.amplifier_on);
         let t0 = h.ack(Command::Move {
+            axis: 0,
             target: um(20.0),
             speed: um(1000.0),
         });
@@ -409,6 +410,7 @@ mod tests {
         let mut h = host();
         assert_eq!(
             h.refused(Command::Move {
+                axis: 0,
                 target: um(500.0),
                 speed: um(100.0)
             }),
@@ -416,12 +418,14 @@ mod tests {
         );
         assert_eq!(
             h.refused(Command::Move {
+                axis: 0,
                 target: um(5.0),
                 speed: 0
             }),
             Refusal::BadArgument
         );
         let wave = |freq_mhz, amplitude| Command::Wave {
+            axis: 0,
             shape: Shape::Sine,
             offset: um(20.0),
             amplitude,
@@ -431,6 +435,30 @@ mod tests {
         assert_eq!(h.refused(wave(15_000, um(30.0))), Refusal::OutOfRange);
         assert_eq!(h.refused(wave(10_000_000, um(1.0))), Refusal::BadArgument);
         h.ack(Command::Bench(BenchOrder::Analog(1)));
+    }
+
+    #[test]
+    fn an_axis_the_board_does_not_have_is_refused() {
+        let mut h = host();
+        let commands = [
+            Command::Status { axis: 1 },
+            Command::Move {
+                axis: 1,
+                target: um(5.0),
+                speed: um(100.0),
+            },
+            Command::Hold { axis: 255 },
+            Command::Loop {
+                axis: 1,
+                mode: crate::closed_loop::LoopMode::Open,
+            },
+        ];
+        for c in commands {
+            assert_eq!(h.refused(c), Refusal::Axis);
+        }
+        // Nothing moved, and axis 0 still answers.
+        assert_eq!(h.status().source, crate::reference::SourceKind::Hold);
+        assert_eq!(h.status().axis, 0);
     }
 
     fn upload(h: &mut Host, image: &[u8], store: bool) -> Reply {
@@ -470,6 +498,7 @@ mod tests {
         assert_eq!(h.status().model_crc, before);
         // While the stage moves, a good model is refused too.
         h.ack(Command::Move {
+            axis: 0,
             target: um(10.0),
             speed: um(1000.0),
         });
@@ -581,6 +610,7 @@ mod tests {
             signals: signal::X_REF | signal::X_TRUE,
         });
         h.ack(Command::Move {
+            axis: 0,
             target: um(5.0),
             speed: um(2000.0),
         });
@@ -616,16 +646,24 @@ mod tests {
         let mut h = host();
         h.run(5);
         let points: heapless::Vec<i32, 64> = (0..64).map(|k| um(2.0 + 0.05 * k as f64)).collect();
-        h.ack(Command::Points { first: 0, points });
+        h.ack(Command::Points {
+            axis: 0,
+            first: 0,
+            points,
+        });
         assert_eq!(
             h.refused(Command::Points {
+                axis: 0,
                 first: 5,
                 points: heapless::Vec::new()
             }),
             Refusal::Stream
         );
         h.ack(Command::Supervise { timeout_ms: 50 });
-        h.ack(Command::Stream { interval: 10 });
+        h.ack(Command::Stream {
+            axis: 0,
+            interval: 10,
+        });
         // 64 points × 10 ticks, then underruns; no request for 50 ms = 1000 ticks.
         h.run(1200);
         let s = h.status();
@@ -637,6 +675,7 @@ mod tests {
         // A fault must be cleared before the stage moves again.
         assert_eq!(
             h.refused(Command::Move {
+                axis: 0,
                 target: um(5.0),
                 speed: um(100.0)
             }),
@@ -644,6 +683,7 @@ mod tests {
         );
         h.ack(Command::ClearFault);
         h.ack(Command::Move {
+            axis: 0,
             target: um(5.0),
             speed: um(100.0),
         });
@@ -654,7 +694,7 @@ mod tests {
         let mut h = host();
         h.run(5);
         h.ack(Command::Bench(BenchOrder::Analog(2048)));
-        h.ack(Command::Analog);
+        h.ack(Command::Analog { axis: 0 });
         h.run(3000);
         let s = h.status();
         assert_eq!(s.fault, None);
@@ -672,6 +712,7 @@ mod tests {
         use crate::control_loop::OVERRUN_RUN;
         let mut h = host();
         h.ack(Command::Move {
+            axis: 0,
             target: um(10.0),
             speed: um(1000.0),
         });

@@ -7,13 +7,13 @@
 //! take a batch of samples or append points. The link task never holds the lock
 //! while it parses or sends a frame.
 
+use fpi_protocol::BenchOrder;
 use piezo_fpi::control::Fault;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
 use crate::analyser::{AnalyseOrder, AnalysisSums};
 use crate::closed_loop::LoopMode;
 use crate::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
-use crate::link::protocol::BenchOrder;
 use crate::recorder::Recorder;
 use crate::reference::stream::Points;
 use crate::reference::{SourceKind, SourceOrder};

@@ -28,16 +28,7 @@ use piezo_fpi::q::Volts;
 
 use crate::hardware::{Controller, Store, BOARD};
 
-/// Where the running model came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum Origin {
-    /// The model compiled into the firmware (the factory default).
-    Factory,
-    /// A model read from the board's flash at start-up; its generation.
-    Stored(u32),
-    /// A model received over the link (and not stored).
-    Received,
-}
+pub use fpi_protocol::Origin;
 
 /// What the link task needs to know about a model, copied out of it: the link
 /// task checks commands against it while the ISR owns the model itself.

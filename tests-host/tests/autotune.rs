@@ -15,7 +15,6 @@
 use std::path::Path;
 use std::sync::OnceLock;
 
-use fpi_firmware::link::protocol::{BenchOrder, StageVariant};
 use fpi_host::board::autotune::{self, park, Autotune};
 use fpi_host::board::client::Client;
 use fpi_host::board::closed_loop::{self, Drive};
@@ -23,6 +22,7 @@ use fpi_host::board::emulator::{self, Emulator};
 use fpi_host::board::frf::{self, FrfSettings};
 use fpi_host::board::step::{self, StepSettings};
 use fpi_host::method::tune::TuneOptions;
+use fpi_protocol::{BenchOrder, StageVariant};
 use piezo_sim::file::FirmwareModel;
 
 /// The factory model (stage A, no loops).
@@ -227,11 +227,11 @@ fn a_step_through_the_board_is_scored_on_the_true_position() {
 /// The tuned loops on a stage far outside the family they were designed for:
 /// what trips, how soon, and how far the stage went.
 fn unstable_run(c: &mut Client, a: &Autotune, v: StageVariant) -> Unstable {
-    use fpi_firmware::closed_loop::LoopMode;
-    use fpi_firmware::link::protocol::Command;
     use fpi_firmware::recorder::signal;
     use fpi_host::board::client::real;
     use fpi_host::board::follow::Follow;
+    use fpi_protocol::Command;
+    use fpi_protocol::LoopMode;
     load(c, &a.model, v);
     c.move_to(20.0, 1000.0).unwrap();
     Follow::new(c, 0).until_hold().unwrap();
@@ -240,6 +240,7 @@ fn unstable_run(c: &mut Client, a: &Autotune, v: StageVariant) -> Unstable {
     f.rec.samples.clear();
     let closed =
         f.c.ack(&Command::Loop {
+            axis: 0,
             mode: LoopMode::Closed,
         })
         .unwrap();
@@ -309,15 +310,14 @@ fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
             );
         }
         park(&mut c).unwrap();
-        c.ack(&fpi_firmware::link::protocol::Command::ClearFault)
-            .ok();
+        c.ack(&fpi_protocol::Command::ClearFault).ok();
     }
 }
 
 #[test]
 fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_refused() {
-    use fpi_firmware::reference::wave::Shape;
     use fpi_host::board::client::refusal;
+    use fpi_protocol::Shape;
     let a = tuned();
     let (_e, mut c) = board("wave at the mode");
     load(&mut c, &a.model, StageVariant::BUILT);

@@ -15,12 +15,12 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use fpi_firmware::closed_loop::LoopMode;
-use fpi_firmware::link::protocol::{BenchOrder, Command, FaultReport, Refusal, StageVariant};
 use fpi_firmware::recorder::{signal, status};
-use fpi_firmware::reference::wave::Shape;
 use fpi_host::board::client::{real, refusal, Client};
 use fpi_host::board::emulator::{self, Emulator};
+use fpi_protocol::LoopMode;
+use fpi_protocol::Shape;
+use fpi_protocol::{BenchOrder, Command, FaultReport, Refusal, StageVariant};
 use piezo_fpi::control::Fault;
 use piezo_sim::file::FirmwareModel;
 
@@ -132,6 +132,7 @@ fn switching_is_bumpless_and_sensor_faults_end_safe() {
     let (_e, mut c) = board("switching_is_bumpless_and_sensor_faults_end_safe");
     // The factory model has no feedback settings: closing the loop is refused.
     let e = c.ack(&Command::Loop {
+        axis: 0,
         mode: LoopMode::Closed,
     });
     let r = e.as_ref().err().and_then(refusal).expect("refused");
@@ -152,7 +153,7 @@ fn switching_is_bumpless_and_sensor_faults_end_safe() {
     let mut samples = Vec::new();
     let mut switch = |c: &mut Client, mode| {
         samples.extend(c.drain().unwrap().0);
-        let at = c.ack(&Command::Loop { mode }).unwrap();
+        let at = c.ack(&Command::Loop { axis: 0, mode }).unwrap();
         wait(c, 200);
         let (batch, dropped) = c.drain().unwrap();
         assert_eq!(dropped, 0);
@@ -215,6 +216,7 @@ fn switching_is_bumpless_and_sensor_faults_end_safe() {
         ),
     ] {
         c.ack(&Command::Loop {
+            axis: 0,
             mode: LoopMode::Closed,
         })
         .unwrap();

@@ -23,11 +23,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use fpi_firmware::link::protocol::{Command, Refusal};
 use fpi_firmware::recorder::{signal, status};
-use fpi_firmware::reference::wave::Shape;
-use fpi_firmware::reference::SourceKind;
-use fpi_firmware::slots::Origin;
 use fpi_host::board::client::{self, refusal, Client};
 use fpi_host::board::emulator::Emulator;
 use fpi_host::board::recording::Recording;
@@ -36,6 +32,10 @@ use fpi_host::data::{self, fem::FemMaps};
 use fpi_host::method::calibrate::{self, Options};
 use fpi_host::method::export::{self, ExportOptions, LoopSettings};
 use fpi_host::method::model::Kind;
+use fpi_protocol::Origin;
+use fpi_protocol::Shape;
+use fpi_protocol::SourceKind;
+use fpi_protocol::{Command, Refusal};
 use piezo_fpi::control::Fault;
 use piezo_fpi::model::image::{CRC32, HEADER_LEN};
 
@@ -264,11 +264,15 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
     let points: Vec<f64> = (0..3000)
         .map(|k| 15.0 + 10.0 * (k as f64 * 0.004).sin())
         .collect();
-    c.ack(&Command::StreamClear).unwrap();
+    c.ack(&Command::StreamClear { axis: 0 }).unwrap();
     for k in (0..1024).step_by(64) {
         c.points(k as u32, &points[k..k + 64]).unwrap();
     }
-    c.ack(&Command::Stream { interval: 20 }).unwrap();
+    c.ack(&Command::Stream {
+        axis: 0,
+        interval: 20,
+    })
+    .unwrap();
     let mut last = c.status().unwrap().tick;
     // Stream for a while, then the host goes away mid-stream.
     let t = Instant::now();

@@ -18,13 +18,13 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use fpi_firmware::link::protocol::{BenchOrder, Command, FaultReport, ResetReason, SlotReport};
-use fpi_firmware::reference::wave::Shape;
-use fpi_firmware::slots::Origin;
 use fpi_host::board::client::{bits, Client};
 use fpi_host::board::emulator::{flash_file, Emulator};
 use fpi_host::data::{self, fem::FemMaps};
 use fpi_host::method::export::{self, ExportOptions, LoopSettings};
+use fpi_protocol::Origin;
+use fpi_protocol::Shape;
+use fpi_protocol::{BenchOrder, Command, FaultReport, ResetReason, SlotReport};
 use piezo_fpi::control::Fault;
 
 /// How the board dealt with one fault.
@@ -212,7 +212,7 @@ fn a_reference_beyond_the_stroke_reaches_the_safe_state() {
     let (_e, mut c) = start(None);
     // Points for the factory model's stroke (0–40 µm), up to 30 µm.
     c.move_to(5.0, 2000.0).unwrap();
-    c.ack(&Command::StreamClear).unwrap();
+    c.ack(&Command::StreamClear { axis: 0 }).unwrap();
     let points: Vec<f64> = (0..640).map(|k| 5.0 + 25.0 * k as f64 / 639.0).collect();
     for k in (0..640).step_by(64) {
         c.points(k as u32, &points[k..k + 64]).unwrap();
@@ -227,7 +227,11 @@ fn a_reference_beyond_the_stroke_reaches_the_safe_state() {
         fpi_host::board::client::real(top)
     );
     assert!(top < bits(30.0));
-    c.ack(&Command::Stream { interval: 20 }).unwrap();
+    c.ack(&Command::Stream {
+        axis: 0,
+        interval: 20,
+    })
+    .unwrap();
     let f = safe(&mut c);
     assert_eq!(f.code, Fault::ReferenceUnreachable as u8);
     // The stream crosses the stroke's top at point k: 20 ticks a point.

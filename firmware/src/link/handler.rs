@@ -19,8 +19,8 @@ use piezo_fpi::q::Micrometres;
 use super::frame::{self, FrameError};
 use super::protocol::{
     Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, Header, Hello, Refusal,
-    Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, COMMAND_KINDS, MAX_FRAME,
-    MAX_MODEL_BYTES, MAX_VALUES, NO_SEQ, VERSION,
+    Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES, MAX_FRAME, MAX_MODEL_BYTES,
+    MAX_VALUES, NO_SEQ, VERSION,
 };
 use super::upload::Upload;
 use crate::analyser::AnalyseOrder;
@@ -256,7 +256,7 @@ impl<F: NorFlash> Handler<F> {
                 );
                 (h.seq, Err(refuse(Refusal::Version, reason)))
             }
-            Ok((h, body)) => match frame::body::<Command<'_>>(body, COMMAND_KINDS) {
+            Ok((h, body)) => match frame::body::<Command<'_>>(body) {
                 Ok(cmd) => {
                     self.counters.requests = self.counters.requests.wrapping_add(1);
                     let reply = self.command(board, h.seq, cmd);
@@ -316,14 +316,22 @@ impl<F: NorFlash> Handler<F> {
         seq: u16,
         cmd: Command<'_>,
     ) -> Result<Reply, Refuse> {
+        if let Some(axis) = cmd.axis().filter(|&a| a >= AXES) {
+            return Err(refuse(
+                Refusal::Axis,
+                format_args!("axis {axis} does not exist: this board has {AXES} (numbered from 0)"),
+            ));
+        }
         match cmd {
             Command::Hello => self.ack(board).map(|_| Reply::Hello(self.hello())),
-            Command::Status => {
+            Command::Status { axis } => {
                 let summary = self.summary;
-                Ok(Reply::Status(self.locked(board, |x| status(x, &summary))))
+                Ok(Reply::Status(
+                    self.locked(board, |x| status(x, &summary, axis)),
+                ))
             }
             Command::Ping => self.ack(board),
-            Command::Move { target, speed } => {
+            Command::Move { target, speed, .. } => {
                 let target = self.in_stroke("target", target)?;
                 if speed <= 0 || speed as i64 > MAX_SPEED_UM_S << 16 {
                     return Err(refuse(
@@ -341,6 +349,7 @@ impl<F: NorFlash> Handler<F> {
             Command::Step {
                 target,
                 duration_us,
+                ..
             } => {
                 let target = self.in_stroke("target", target)?;
                 if !(1..=1_000_000).contains(&duration_us) {
@@ -363,52 +372,56 @@ impl<F: NorFlash> Handler<F> {
                 amplitude,
                 freq_mhz,
                 cycles,
+                ..
             } => {
                 let wave = self.wave(shape, offset, amplitude, freq_mhz, cycles)?;
                 let damping_on = board.exchange(|x| x.snapshot.damping_on);
                 self.within_the_mode(&wave, freq_mhz, damping_on)?;
                 self.order(board, seq, Order::Source(SourceOrder::Wave(wave)))
             }
-            Command::Points { first, points } => self.points(board, first, &points),
-            Command::Stream { interval } => self.stream(board, seq, interval),
-            Command::StreamEnd => {
+            Command::Points { first, points, .. } => self.points(board, first, &points),
+            Command::Stream { interval, .. } => self.stream(board, seq, interval),
+            Command::StreamEnd { .. } => {
                 self.locked(board, |x| x.points.end());
                 Ok(Reply::Ack)
             }
-            Command::StreamClear => {
+            Command::StreamClear { .. } => {
                 self.locked(board, |x| x.points.clear());
                 Ok(Reply::Ack)
             }
-            Command::Analog => self.order(board, seq, Order::Source(SourceOrder::Analog)),
-            Command::Hold => self.order(board, seq, Order::Source(SourceOrder::Hold)),
+            Command::Analog { .. } => self.order(board, seq, Order::Source(SourceOrder::Analog)),
+            Command::Hold { .. } => self.order(board, seq, Order::Source(SourceOrder::Hold)),
             Command::Safe => self.order(board, seq, Order::Safe),
             Command::ClearFault => self.order(board, seq, Order::ClearFault),
-            Command::Drive { compensated } => self.order(board, seq, Order::Drive { compensated }),
-            Command::Loop { mode } => {
+            Command::Drive { compensated, .. } => {
+                self.order(board, seq, Order::Drive { compensated })
+            }
+            Command::Loop { mode, .. } => {
                 let damping_on = board.exchange(|x| x.snapshot.damping_on);
                 if mode != LoopMode::Open {
                     self.stable_with(damping_on, mode)?;
                 }
                 self.order(board, seq, Order::Loop(mode))
             }
-            Command::Damping { on } => {
+            Command::Damping { on, .. } => {
                 let mode = board.exchange(|x| x.snapshot.loop_mode);
                 if !on && mode != LoopMode::Open {
                     self.stable_with(false, mode)?;
                 }
                 self.order(board, seq, Order::Damping(on))
             }
-            Command::Shaping { on } => self.order(board, seq, Order::Shaping(on)),
+            Command::Shaping { on, .. } => self.order(board, seq, Order::Shaping(on)),
             Command::Analyse {
                 freq_mhz,
                 amplitude,
                 settle,
                 cycles,
+                ..
             } => {
                 let o = self.analyse_order(board, freq_mhz, amplitude, settle, cycles)?;
                 self.order(board, seq, Order::Analyse(o))
             }
-            Command::AnalysisResult => {
+            Command::AnalysisResult { .. } => {
                 let r = self.locked(board, |x| x.analysis);
                 Ok(Reply::Analysis(r.map(|a| Analysis {
                     freq_mhz: a.freq_mhz,
@@ -885,11 +898,12 @@ pub(super) fn refused(r: Refused) -> Refuse {
     }
 }
 
-/// The status a request gets.
-fn status(x: &Exchange<'_>, summary: &Summary) -> Status {
+/// The status of `axis` (the board's one).
+fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
     let s = &x.snapshot;
     let (q, r) = (&x.points, &x.recorder);
     Status {
+        axis,
         tick: s.tick,
         signals: [
             s.x_ref.to_bits(),

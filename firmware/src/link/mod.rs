@@ -1,7 +1,9 @@
-//! The command link: messages ([`protocol`]), their framing ([`frame`]) and the
-//! link task's command handler ([`handler`], with the model upload in `upload`).
+//! The command link: the link task's command handler ([`handler`], with the
+//! model upload in `upload`). The messages and their framing are the
+//! `fpi-protocol` crate's, re-exported here as [`protocol`] and [`frame`].
 
-pub mod frame;
+pub use fpi_protocol as protocol;
+pub use fpi_protocol::frame;
+
 pub mod handler;
-pub mod protocol;
 mod upload;

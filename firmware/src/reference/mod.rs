@@ -18,28 +18,12 @@ pub mod stream;
 pub mod wave;
 
 use piezo_fpi::q::Micrometres;
-use serde::{Deserialize, Serialize};
 
 use analog::{AnalogFault, AnalogInput};
 use stream::{Playback, Points};
 use wave::{Wave, WavePhase};
 
-/// Which source drives the reference.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[repr(u8)]
-pub enum SourceKind {
-    /// Standing still.
-    Hold = 0,
-    /// Ramping to a position.
-    Move = 1,
-    /// The waveform generator.
-    Wave = 2,
-    /// The host's streamed trajectory.
-    Stream = 3,
-    /// The analog reference input.
-    Analog = 4,
-}
+pub use fpi_protocol::SourceKind;
 
 /// A new source, as the link task orders it (values already checked against the
 /// model's stroke).

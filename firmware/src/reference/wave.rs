@@ -16,7 +16,6 @@
 //! it is back at its start value: the reference then holds there, without a jump.
 
 use piezo_fpi::q::Micrometres;
-use serde::{Deserialize, Serialize};
 
 include!(concat!(env!("OUT_DIR"), "/cosine.rs"));
 
@@ -31,40 +30,19 @@ pub fn cos_turns(phase: u32) -> i32 {
     }
 }
 
-/// The shape of a periodic reference.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Shape {
-    /// `sin 2πφ`.
-    Sine,
-    /// A symmetric triangle in phase with the sine.
-    Triangle,
-    /// `−cos 2πφ`: from the bottom of the swing, with zero speed at the turning points.
-    RaisedCosine,
-}
+pub use fpi_protocol::Shape;
 
-impl Shape {
-    /// `s(φ)` for a phase in 2⁻³² turns, `I2F30` raw in `[−1, 1]`.
-    #[inline]
-    pub fn at(self, phase: u32) -> i32 {
-        match self {
-            Self::Sine => cos_turns(phase.wrapping_sub(1 << 30)),
-            Self::Triangle => {
-                // Shifted by a quarter turn: p = 2³¹ is the top, p = 0 the bottom.
-                let p = phase.wrapping_add(1 << 30) as i64;
-                ((1i64 << 30) - (p - (1i64 << 31)).abs()) as i32
-            }
-            Self::RaisedCosine => -cos_turns(phase),
+/// `s(φ)` of `shape` for a phase in 2⁻³² turns, `I2F30` raw in `[−1, 1]`.
+#[inline]
+pub fn shape_at(shape: Shape, phase: u32) -> i32 {
+    match shape {
+        Shape::Sine => cos_turns(phase.wrapping_sub(1 << 30)),
+        Shape::Triangle => {
+            // Shifted by a quarter turn: p = 2³¹ is the top, p = 0 the bottom.
+            let p = phase.wrapping_add(1 << 30) as i64;
+            ((1i64 << 30) - (p - (1i64 << 31)).abs()) as i32
         }
-    }
-
-    /// Name for logs and the host tools.
-    pub const fn name(self) -> &'static str {
-        match self {
-            Self::Sine => "sine",
-            Self::Triangle => "triangle",
-            Self::RaisedCosine => "cosine",
-        }
+        Shape::RaisedCosine => -cos_turns(phase),
     }
 }
 
@@ -121,7 +99,7 @@ impl Wave {
     /// The value at a phase, µm.
     #[inline]
     pub fn value_at(&self, phase: u32) -> Micrometres {
-        let s = self.shape.at(phase) as i64;
+        let s = shape_at(self.shape, phase) as i64;
         let swing = ((self.amplitude.to_bits() as i64 * s + (1 << 29)) >> 30) as i32;
         Micrometres::from_bits(self.offset.to_bits().wrapping_add(swing))
     }

@@ -276,7 +276,7 @@ fn payload(seq: u16, cmd: &Command<'_>) -> Vec<u8> {
 }
 
 fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
-    let mv = |um: i32| Command::Move {
+    let mv = |um: i32| Command::Move { axis: 0,
         target: um << 16,
         speed: 200 << 16,
     };
@@ -289,19 +289,19 @@ fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
             "hello",
             vec![
                 Command::Hello,
-                Command::Status,
+                Command::Status { axis: 0 },
                 Command::Ping,
                 Command::Counters,
             ],
         ),
         (
             "move",
-            vec![mv(10), Command::Status, Command::Hold, Command::Safe],
+            vec![mv(10), Command::Status { axis: 0 }, Command::Hold { axis: 0 }, Command::Safe],
         ),
         (
             "wave",
             vec![
-                Command::Wave {
+                Command::Wave { axis: 0,
                     shape: Shape::Sine,
                     offset: 20 << 16,
                     amplitude: 5 << 16,
@@ -319,21 +319,21 @@ fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
         (
             "stream",
             vec![
-                Command::StreamClear,
-                Command::Points {
+                Command::StreamClear { axis: 0 },
+                Command::Points { axis: 0,
                     first: 0,
                     points: pts,
                 },
-                Command::Stream { interval: 2 },
-                Command::StreamEnd,
+                Command::Stream { axis: 0, interval: 2 },
+                Command::StreamEnd { axis: 0 },
             ],
         ),
         (
             "analog",
             vec![
                 Command::Bench(BenchOrder::Analog(2048)),
-                Command::Analog,
-                Command::Status,
+                Command::Analog { axis: 0 },
+                Command::Status { axis: 0 },
             ],
         ),
         (
@@ -342,7 +342,7 @@ fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
                 Command::Supervise { timeout_ms: 5 },
                 mv(15),
                 Command::Bench(BenchOrder::SensorOpen(true)),
-                Command::Status,
+                Command::Status { axis: 0 },
                 Command::Bench(BenchOrder::SensorOpen(false)),
                 Command::ClearFault,
             ],
@@ -354,7 +354,7 @@ fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
                 Command::Bench(BenchOrder::SensorOffset(3 << 16)),
                 Command::Bench(BenchOrder::Stall(3)),
                 Command::Bench(BenchOrder::DamageStored),
-                Command::Drive { compensated: false },
+                Command::Drive { axis: 0, compensated: false },
                 mv(5),
             ],
         ),
@@ -402,7 +402,7 @@ fn link() {
         "garbage",
         &[0, 1, 2, 3, 0, 0xff, 0xff, 0, 5, 1, 1, 1, 0],
     );
-    let mut bad_crc = request(9, &Command::Status);
+    let mut bad_crc = request(9, &Command::Status { axis: 0 });
     let n = bad_crc.len();
     bad_crc[n - 2] ^= 0x55;
     seed("link_bytes", "bad-crc", &bad_crc);
@@ -415,7 +415,7 @@ fn link() {
     seed("link_bytes", "old-version", &out[..n]);
     seed("link_bytes", "overlong", &vec![7u8; MAX_FRAME + 8]);
     // Uploads (op 3 | 4: store in flash) of the factory image, edited.
-    let status = payload(50, &Command::Status);
+    let status = payload(50, &Command::Status { axis: 0 });
     let mut upload = vec![1, status.len() as u8, 0];
     upload.extend_from_slice(&status);
     let safe = payload(51, &Command::Safe);

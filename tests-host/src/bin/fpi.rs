@@ -792,9 +792,9 @@ fn run(args: Args) -> Result<()> {
 }
 
 fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
-    use fpi_firmware::link::protocol::Command as C;
     use fpi_host::board::emulator::Emulator;
     use fpi_host::cli::board as b;
+    use fpi_protocol::Command as C;
     if let BoardCommand::Emulate { listen } = &command {
         let e = Emulator::start(Some(listen))?;
         println!(
@@ -843,8 +843,8 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
         BoardCommand::Factory => b::simple(&mut c, &C::ModelFactory),
         BoardCommand::Safe => b::simple(&mut c, &C::Safe),
         BoardCommand::ClearFault => b::simple(&mut c, &C::ClearFault),
-        BoardCommand::Hold => b::simple(&mut c, &C::Hold),
-        BoardCommand::Analog => b::simple(&mut c, &C::Analog),
+        BoardCommand::Hold => b::simple(&mut c, &C::Hold { axis: 0 }),
+        BoardCommand::Analog => b::simple(&mut c, &C::Analog { axis: 0 }),
         BoardCommand::Drive { mode } => b::drive(&mut c, &mode),
         BoardCommand::Reset => b::reset(&mut c),
         BoardCommand::Bench { settings } => b::bench(&mut c, &settings),

@@ -17,9 +17,9 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use fpi_firmware::closed_loop::LoopMode;
-use fpi_firmware::link::protocol::Command;
-use fpi_firmware::reference::wave::Shape;
+use fpi_protocol::Command;
+use fpi_protocol::LoopMode;
+use fpi_protocol::Shape;
 use piezo_sim::file::FirmwareModel;
 
 use super::client::{refusal, Client};
@@ -51,6 +51,7 @@ pub struct Autotune {
 /// refuses the switch: nothing to switch).
 fn bare(c: &mut Client) -> Result<()> {
     c.ack(&Command::Loop {
+        axis: 0,
         mode: LoopMode::Open,
     })?;
     for r in [c.damping(false), c.shaping(false)] {
@@ -132,6 +133,7 @@ pub fn verify(c: &mut Client) -> Result<StepFigures> {
     c.move_to(20.0, 1000.0)?;
     Follow::new(c, 0).until_hold()?;
     c.ack(&Command::Loop {
+        axis: 0,
         mode: LoopMode::Closed,
     })?;
     warm_up(c)?;
@@ -146,7 +148,7 @@ pub fn warm_up(c: &mut Client) -> Result<()> {
     let mut f = Follow::new(c, 0);
     f.until("the warm-up's end", |s| {
         step::no_fault(s, "the warm-up")?;
-        Ok(s.source == fpi_firmware::reference::SourceKind::Hold && !s.approaching)
+        Ok(s.source == fpi_protocol::SourceKind::Hold && !s.approaching)
     })?;
     Ok(())
 }

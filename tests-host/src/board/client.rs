@@ -1,7 +1,7 @@
 //! The host's side of the command link: requests out, replies in, the log of
 //! what the board did when.
 //!
-//! [`Client`] speaks the firmware's own protocol types (`fpi_firmware::link`), so
+//! [`Client`] speaks the protocol crate's types (`fpi_protocol`, the firmware's own), so
 //! the host and the board cannot disagree on a message. Every request the board
 //! read is kept in [`Client::log`] with the tick its reply names (the first tick
 //! that saw it); the twin ([`super::twin`]) replays that log to reproduce the run.
@@ -10,14 +10,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
 use fixed::types::I16F16;
-use fpi_firmware::closed_loop::LoopMode;
-use fpi_firmware::link::frame::{self, FrameReader, Push};
-use fpi_firmware::link::protocol::{
+use fpi_firmware::recorder::Sample;
+use fpi_protocol::frame::{self, FrameReader, Push};
+use fpi_protocol::LoopMode;
+use fpi_protocol::Shape;
+use fpi_protocol::{
     Analysis, Batch, BenchOrder, Command, Counters, Header, Hello, ModelReport, Refusal, Reply,
     ReplyHeader, Status, MAX_CHUNK, MAX_FRAME, MAX_POINTS, NO_SEQ, VERSION,
 };
-use fpi_firmware::recorder::Sample;
-use fpi_firmware::reference::wave::Shape;
 use piezo_fpi::control::Fault;
 use piezo_fpi::model::image::CRC32;
 use piezo_fpi::q;
@@ -177,12 +177,12 @@ impl Client {
             hello: Hello {
                 protocol: 0,
                 firmware: Default::default(),
-                board: fpi_firmware::link::protocol::BoardKind::Driver,
+                board: fpi_protocol::BoardKind::Driver,
                 rate_hz: 0,
                 capacity: [0; 4],
                 buffers: [0; 2],
                 limits: [0; 5],
-                reset: fpi_firmware::link::protocol::ResetReason::Unknown,
+                reset: fpi_protocol::ResetReason::Unknown,
             },
             log: Vec::new(),
         };
@@ -296,7 +296,7 @@ impl Client {
                 let Ok((h, body)) = frame::decode::<ReplyHeader>(self.reader.frame()) else {
                     continue;
                 };
-                let Ok(reply) = frame::body::<Reply>(body, u32::MAX) else {
+                let Ok(reply) = frame::body::<Reply>(body) else {
                     continue;
                 };
                 if seq.is_none_or(|s| s == h.seq) {
@@ -347,6 +347,7 @@ impl Client {
     /// off) and waits until it is at the safe voltage; the tick it got there.
     pub fn park(&mut self) -> Result<u32> {
         self.ack(&Command::Loop {
+            axis: 0,
             mode: LoopMode::Open,
         })?;
         self.ack(&Command::Safe)?;
@@ -391,7 +392,7 @@ impl Client {
 
     /// The loop's state.
     pub fn status(&mut self) -> Result<Status> {
-        match self.request(&Command::Status)? {
+        match self.request(&Command::Status { axis: 0 })? {
             (_, Reply::Status(s)) => Ok(s),
             (_, r) => bail!("unexpected reply to status: {r:?}"),
         }
@@ -416,6 +417,7 @@ impl Client {
     /// Ramps to `target_um` at `speed_um_s`, then holds; the tick it started.
     pub fn move_to(&mut self, target_um: f64, speed_um_s: f64) -> Result<u32> {
         self.ack(&Command::Move {
+            axis: 0,
             target: bits(target_um),
             speed: bits(speed_um_s),
         })
@@ -431,6 +433,7 @@ impl Client {
         cycles: u32,
     ) -> Result<u32> {
         self.ack(&Command::Wave {
+            axis: 0,
             shape,
             offset: bits(offset_um),
             amplitude: bits(amplitude_um),
@@ -494,6 +497,7 @@ impl Client {
     /// holds; the tick it started.
     pub fn step(&mut self, target_um: f64, duration_ms: f64) -> Result<u32> {
         self.ack(&Command::Step {
+            axis: 0,
             target: bits(target_um),
             duration_us: (duration_ms * 1e3).round() as u32,
         })
@@ -501,17 +505,17 @@ impl Client {
 
     /// Switches the model's active damping on or off (bumpless).
     pub fn damping(&mut self, on: bool) -> Result<u32> {
-        self.ack(&Command::Damping { on })
+        self.ack(&Command::Damping { axis: 0, on })
     }
 
     /// Switches the model's reference shaping on or off (bumpless).
     pub fn shaping(&mut self, on: bool) -> Result<u32> {
-        self.ack(&Command::Shaping { on })
+        self.ack(&Command::Shaping { axis: 0, on })
     }
 
     /// The last frequency-response analysis (`None` while one runs).
     pub fn analysis(&mut self) -> Result<Option<Analysis>> {
-        match self.request(&Command::AnalysisResult)? {
+        match self.request(&Command::AnalysisResult { axis: 0 })? {
             (_, Reply::Analysis(a)) => Ok(a),
             (_, r) => bail!("unexpected reply to analysis result: {r:?}"),
         }
@@ -560,7 +564,11 @@ impl Client {
             .take(MAX_POINTS)
             .map(|&x| bits(x))
             .collect();
-        self.ack(&Command::Points { first, points: pts })
+        self.ack(&Command::Points {
+            axis: 0,
+            first,
+            points: pts,
+        })
     }
 }
 
@@ -596,19 +604,19 @@ impl Client {
         mut idle: impl FnMut(&mut Self) -> Result<()>,
     ) -> Result<StreamReport> {
         let supervised = self.status()?.supervision[0] != 0;
-        self.ack(&Command::StreamClear)?;
+        self.ack(&Command::StreamClear { axis: 0 })?;
         let capacity = self.hello.buffers[1] as usize;
         let mut sent = 0;
         while sent < points_um.len() && sent + MAX_POINTS <= capacity {
             sent += self.send_points(sent, points_um)?;
             progress(sent);
         }
-        let started = self.ack(&Command::Stream { interval })?;
+        let started = self.ack(&Command::Stream { axis: 0, interval })?;
         loop {
             let s = self.status()?;
             let free = s.stream[1] as usize;
             if sent == points_um.len() {
-                self.ack(&Command::StreamEnd)?;
+                self.ack(&Command::StreamEnd { axis: 0 })?;
                 break;
             }
             if free >= MAX_POINTS.min(points_um.len() - sent) {
@@ -622,7 +630,7 @@ impl Client {
         // Until the board has played the last point (and holds it).
         let underruns = loop {
             let s = self.status()?;
-            if s.source != fpi_firmware::reference::SourceKind::Stream || s.fault.is_some() {
+            if s.source != fpi_protocol::SourceKind::Stream || s.fault.is_some() {
                 break s.stream[3];
             }
             idle(self)?;

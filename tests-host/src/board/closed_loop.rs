@@ -19,11 +19,11 @@
 //! periods.
 
 use anyhow::{Context, Result};
-use fpi_firmware::closed_loop::LoopMode;
-use fpi_firmware::link::protocol::{BenchOrder, Command, StageVariant};
 use fpi_firmware::recorder::{signal, status};
-use fpi_firmware::reference::wave::Shape;
-use fpi_firmware::reference::SourceKind;
+use fpi_protocol::LoopMode;
+use fpi_protocol::Shape;
+use fpi_protocol::SourceKind;
+use fpi_protocol::{BenchOrder, Command, StageVariant};
 use piezo_sim::stats::ErrorStats;
 
 use super::autotune::warm_up;
@@ -130,7 +130,7 @@ fn prepare(c: &mut Client, image: &[u8], d: Drive) -> Result<()> {
     };
     switch(c.damping(matches!(d, Drive::Damped | Drive::DampedFeedforward)))?;
     switch(c.shaping(d == Drive::DampedFeedforward))?;
-    c.ack(&Command::Loop { mode })?;
+    c.ack(&Command::Loop { axis: 0, mode })?;
     warm_up(c)
 }
 

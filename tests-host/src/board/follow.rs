@@ -5,8 +5,8 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
-use fpi_firmware::link::protocol::{Command, Status};
-use fpi_firmware::reference::SourceKind;
+use fpi_protocol::SourceKind;
+use fpi_protocol::{Command, Status};
 
 use super::client::Client;
 use super::recording::Recording;

@@ -11,7 +11,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
-use fpi_firmware::link::protocol::{Analysis, Command};
+use fpi_protocol::{Analysis, Command};
 use nalgebra::Complex;
 use piezo_fpi::control::Fault;
 
@@ -150,6 +150,7 @@ fn analyse(c: &mut Client, f: f64, amplitude_um: f64) -> Result<FrfPoint> {
     {
         let freq_mhz = (f * 1000.0).round() as u32;
         c.ack(&Command::Analyse {
+            axis: 0,
             freq_mhz,
             amplitude: bits(amplitude_um),
             settle: settle_periods(f),

@@ -19,13 +19,13 @@ use fpi_firmware::emulated::{EmulatedFlash, Virtual, FLASH_SLOTS};
 use fpi_firmware::exchange::Exchange;
 use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
 use fpi_firmware::hardware::{Store, IMAGE_BYTES, RATE_HZ};
-use fpi_firmware::link::frame::{FrameReader, Push};
 use fpi_firmware::link::handler::Handler;
-use fpi_firmware::link::protocol::MAX_FRAME;
 use fpi_firmware::recorder::Recorder;
 use fpi_firmware::reference::stream::Points;
 use fpi_firmware::sim_io::SimLink;
 use fpi_firmware::storage::ModelFlash;
+use fpi_protocol::frame::{FrameReader, Push};
+use fpi_protocol::MAX_FRAME;
 
 use super::port::Port;
 

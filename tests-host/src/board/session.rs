@@ -12,9 +12,9 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use fpi_firmware::link::protocol::{BenchOrder, Command, Counters, FaultReport, Refusal, Reply};
 use fpi_firmware::recorder::{signal, status};
-use fpi_firmware::reference::wave::Shape;
+use fpi_protocol::Shape;
+use fpi_protocol::{BenchOrder, Command, Counters, FaultReport, Refusal, Reply};
 use piezo_fpi::control::Fault;
 use piezo_sim::stats::ErrorStats;
 
@@ -108,7 +108,10 @@ impl Session<'_> {
         hz: f64,
         cycles: u32,
     ) -> Result<PhaseResult> {
-        self.f.c.ack(&Command::Drive { compensated })?;
+        self.f.c.ack(&Command::Drive {
+            axis: 0,
+            compensated,
+        })?;
         let from = self.f.c.wave(Shape::RaisedCosine, 18.0, 20.0, hz, cycles)?;
         let to = self.f.until_hold()?;
         let settle = self.f.ticks(0.2);
@@ -224,14 +227,14 @@ impl Session<'_> {
         let before = self.f.c.counters()?;
         let mut good = Vec::new();
         {
-            use fpi_firmware::link::frame;
-            use fpi_firmware::link::protocol::{Header, MAX_FRAME, VERSION};
+            use fpi_protocol::frame;
+            use fpi_protocol::{Header, MAX_FRAME, VERSION};
             let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
             let h = Header {
                 version: VERSION,
                 seq: 999,
             };
-            let n = frame::encode(&h, &Command::Status, &mut scratch, &mut out)
+            let n = frame::encode(&h, &Command::Status { axis: 0 }, &mut scratch, &mut out)
                 .map_err(|e| anyhow::anyhow!(e.message()))?;
             good.extend_from_slice(&out[..n]);
         }

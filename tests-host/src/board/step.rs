@@ -9,8 +9,8 @@
 //! figure is timed from the tick the step starts.
 
 use anyhow::{bail, Result};
-use fpi_firmware::link::protocol::{Command, Status};
 use fpi_firmware::recorder::signal;
+use fpi_protocol::{Command, Status};
 use piezo_fpi::control::Fault;
 
 use super::client::{real, Client};
@@ -148,7 +148,7 @@ pub fn run(c: &mut Client, s: &StepSettings) -> Result<(Recording, StepFigures)>
     f.c.move_to(s.from_um, 1000.0)?;
     let rest = f.until("the start", |st| {
         no_fault(st, "the approach")?;
-        Ok(st.source == fpi_firmware::reference::SourceKind::Hold && !st.approaching)
+        Ok(st.source == fpi_protocol::SourceKind::Hold && !st.approaching)
     })?;
     f.until_tick(rest + f.ticks(0.05))?;
     f.record(s.decimation)?;

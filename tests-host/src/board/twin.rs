@@ -11,8 +11,8 @@ use anyhow::Result;
 use fpi_firmware::emulated::Virtual;
 use fpi_firmware::exchange::Exchange;
 use fpi_firmware::link::handler::Board;
-use fpi_firmware::link::protocol::MAX_FRAME;
 use fpi_firmware::recorder::{signal, Sample};
+use fpi_protocol::MAX_FRAME;
 
 use super::client::{real, Logged};
 

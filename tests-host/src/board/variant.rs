@@ -19,7 +19,7 @@
 use std::path::Path;
 
 use anyhow::{anyhow, bail, Result};
-use fpi_firmware::link::protocol::StageVariant;
+use fpi_protocol::StageVariant;
 use piezo_sim::quote::{toml_error, Quoted};
 use serde::Deserialize;
 

@@ -9,11 +9,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
-use fpi_firmware::closed_loop::LoopMode;
-use fpi_firmware::link::protocol::{BoardKind, Command, ResetReason, SlotReport, Status};
 use fpi_firmware::recorder::signal;
-use fpi_firmware::reference::wave::Shape;
-use fpi_firmware::slots::Origin;
+use fpi_protocol::LoopMode;
+use fpi_protocol::Origin;
+use fpi_protocol::Shape;
+use fpi_protocol::{BoardKind, Command, ResetReason, SlotReport, Status};
 use indicatif::{ProgressBar, ProgressStyle};
 use piezo_fpi::control::Fault;
 use piezo_fpi::q::LoopGain;
@@ -253,7 +253,7 @@ pub fn loop_mode(name: &str) -> Result<LoopMode> {
 /// `fpi board loop`: opens or closes the loop, without a jump.
 pub fn set_loop(c: &mut Client, mode: &str) -> Result<()> {
     let mode = loop_mode(mode)?;
-    let tick = c.order(&Command::Loop { mode })?;
+    let tick = c.order(&Command::Loop { axis: 0, mode })?;
     let s = c.status()?;
     println!("from tick {tick}: {}", loop_text(mode, s.compensated));
     Ok(())
@@ -487,7 +487,7 @@ pub struct BenchSettings {
 
 /// `fpi board bench`: the emulated board's virtual bench (a real board refuses).
 pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<()> {
-    use fpi_firmware::link::protocol::BenchOrder;
+    use fpi_protocol::BenchOrder;
     if *b == BenchSettings::default() {
         bail!(
             "nothing to set: --analog-v V, --sensor ok|open|stuck, --force-offset-n N, \
@@ -518,7 +518,7 @@ fn sensor_state(
     c: &mut Client,
     option: &str,
     s: &str,
-    [open, stuck]: [fn(bool) -> fpi_firmware::link::protocol::BenchOrder; 2],
+    [open, stuck]: [fn(bool) -> fpi_protocol::BenchOrder; 2],
 ) -> Result<()> {
     let orders = match s {
         "ok" => vec![open(false), stuck(false)],
@@ -535,7 +535,7 @@ fn sensor_state(
 /// The fault injections of [`bench`]: a force step, overrunning ticks, a damaged
 /// stored model.
 fn bench_faults(c: &mut Client, b: &BenchSettings) -> Result<()> {
-    use fpi_firmware::link::protocol::BenchOrder;
+    use fpi_protocol::BenchOrder;
     if let Some(n) = b.force_offset_n {
         if !n.is_finite() || n.abs() > 4096.0 {
             bail!("--force-offset-n {n}: a finite step within ±4096 N");
@@ -560,7 +560,7 @@ fn bench_faults(c: &mut Client, b: &BenchSettings) -> Result<()> {
 
 /// The position sensor's faults and the choice of virtual stage of [`bench`].
 fn bench_position(c: &mut Client, b: &BenchSettings) -> Result<()> {
-    use fpi_firmware::link::protocol::BenchOrder;
+    use fpi_protocol::BenchOrder;
     if let Some(s) = b.position_sensor.as_deref() {
         let orders = [BenchOrder::PositionOpen, BenchOrder::PositionStuck];
         sensor_state(c, "--position-sensor", s, orders)?;
@@ -586,6 +586,7 @@ pub fn open(port: &str) -> Result<Client> {
 /// `fpi board move`: ramps to `um` at `speed` µm/s and holds it.
 pub fn move_to(c: &mut Client, um: f64, speed: f64) -> Result<()> {
     let t = c.order(&Command::Move {
+        axis: 0,
         target: to_link("the target", um, "µm")?,
         speed: to_link("--speed", speed, "µm/s")?,
     })?;
@@ -620,6 +621,7 @@ pub fn wave(
         );
     }
     let t = c.order(&Command::Wave {
+        axis: 0,
         shape: shape(shape_name)?,
         offset: to_link("--offset-um", offset_um, "µm")?,
         amplitude: to_link("--amplitude-um", amplitude_um, "µm")?,
@@ -637,8 +639,8 @@ pub fn simple(c: &mut Client, cmd: &Command<'_>) -> Result<()> {
     match cmd {
         Command::Safe => println!("parking from tick {t}"),
         Command::ClearFault => println!("cleared at tick {t}; parked"),
-        Command::Hold => println!("holding from tick {t}"),
-        Command::Analog => println!("following the analog input from tick {t}"),
+        Command::Hold { .. } => println!("holding from tick {t}"),
+        Command::Analog { .. } => println!("following the analog input from tick {t}"),
         Command::ModelFactory => println!("factory model from tick {t}"),
         _ => println!("done at tick {t}"),
     }
@@ -652,7 +654,10 @@ pub fn drive(c: &mut Client, mode: &str) -> Result<()> {
         "uncompensated" => false,
         m => bail!("drive {}: compensated or uncompensated", Quoted(m)),
     };
-    let t = c.order(&Command::Drive { compensated })?;
+    let t = c.order(&Command::Drive {
+        axis: 0,
+        compensated,
+    })?;
     println!("{mode} from tick {t}");
     Ok(())
 }
@@ -668,14 +673,20 @@ fn on_off(s: &str) -> Result<bool> {
 
 /// `fpi board damping on|off`.
 pub fn damping(c: &mut Client, state: &str) -> Result<()> {
-    let t = c.order(&Command::Damping { on: on_off(state)? })?;
+    let t = c.order(&Command::Damping {
+        axis: 0,
+        on: on_off(state)?,
+    })?;
     println!("active damping {state} from tick {t}");
     Ok(())
 }
 
 /// `fpi board shaping on|off`.
 pub fn shaping(c: &mut Client, state: &str) -> Result<()> {
-    let t = c.order(&Command::Shaping { on: on_off(state)? })?;
+    let t = c.order(&Command::Shaping {
+        axis: 0,
+        on: on_off(state)?,
+    })?;
     println!("reference shaping {state} from tick {t}");
     Ok(())
 }

@@ -10,8 +10,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use fpi_firmware::closed_loop::LoopMode;
-use fpi_firmware::link::protocol::{BenchOrder, Command, StageVariant};
+use fpi_protocol::LoopMode;
+use fpi_protocol::{BenchOrder, Command, StageVariant};
 use nalgebra::Complex;
 use piezo_fpi::stability::Plant;
 use piezo_sim::file::FirmwareModel;
@@ -85,6 +85,7 @@ fn damped_frf(c: &mut Client, image: &[u8]) -> Result<Vec<FrfPoint>> {
     c.move_to(20.0, 1000.0)?;
     Follow::new(c, 0).until_hold()?;
     c.ack(&Command::Loop {
+        axis: 0,
         mode: LoopMode::Open,
     })?;
     c.damping(true)?;

@@ -1,0 +1,183 @@
+//! Orders for the emulated board's virtual bench: fault injection and the
+//! virtual stage (a real board refuses them).
+
+use serde::de::SeqAccess;
+use serde::ser::SerializeTuple;
+use serde::{Deserialize, Serialize};
+
+use crate::wire::{field, Tagged};
+
+crate::wire_enum! {
+    /// The kinds of [`BenchOrder`]: its wire numbers.
+    pub enum BenchKind {
+        /// [`BenchOrder::SensorOpen`].
+        SensorOpen = 0,
+        /// [`BenchOrder::SensorStuck`].
+        SensorStuck = 1,
+        /// [`BenchOrder::Analog`].
+        Analog = 2,
+        /// [`BenchOrder::SensorOffset`].
+        SensorOffset = 3,
+        /// [`BenchOrder::Stall`].
+        Stall = 4,
+        /// [`BenchOrder::DamageStored`].
+        DamageStored = 5,
+        /// [`BenchOrder::PositionOpen`].
+        PositionOpen = 6,
+        /// [`BenchOrder::PositionStuck`].
+        PositionStuck = 7,
+        /// [`BenchOrder::Stage`].
+        Stage = 8,
+    }
+}
+
+/// Orders for the emulated board's virtual bench (a real board refuses them);
+/// on the wire its [`BenchKind`] byte, then its value.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum BenchOrder {
+    /// The force sensor's wire is open (the reading sits on the ADC's top rail), or intact.
+    SensorOpen(bool),
+    /// The force sensor freezes at its present reading, or follows the stage again.
+    SensorStuck(bool),
+    /// The analog reference input reads this many ADC counts.
+    Analog(u16),
+    /// The force sensor's reading is offset by this much (N, `I16F16` bits): a
+    /// sudden step, as a loose connector or a knock would cause.
+    SensorOffset(i32),
+    /// The next this-many control ticks take longer than the control period (the
+    /// emulated board burns time in its control task): a loop that cannot keep
+    /// its rate.
+    Stall(u16),
+    /// Damage the newest model stored in flash (one byte cleared), to see the
+    /// board refuse it at its next start.
+    DamageStored,
+    /// The position sensor's wire is open (the reading sits on a rail), or intact.
+    PositionOpen(bool),
+    /// The position sensor freezes at its present reading, or follows the stage again.
+    PositionStuck(bool),
+    /// Replace the virtual stage by a fresh one at rest: the nominal twin of
+    /// stage A or the stage as built (kinematics, preload and creep a few percent
+    /// off the model, a lightly damped first mode, position sensor noise), with
+    /// any of their values replaced. Send it with the stage parked.
+    Stage(StageVariant),
+}
+
+impl BenchOrder {
+    /// Its kind (wire number).
+    pub const fn kind(&self) -> BenchKind {
+        match self {
+            Self::SensorOpen(_) => BenchKind::SensorOpen,
+            Self::SensorStuck(_) => BenchKind::SensorStuck,
+            Self::Analog(_) => BenchKind::Analog,
+            Self::SensorOffset(_) => BenchKind::SensorOffset,
+            Self::Stall(_) => BenchKind::Stall,
+            Self::DamageStored => BenchKind::DamageStored,
+            Self::PositionOpen(_) => BenchKind::PositionOpen,
+            Self::PositionStuck(_) => BenchKind::PositionStuck,
+            Self::Stage(_) => BenchKind::Stage,
+        }
+    }
+}
+
+impl<'de> Tagged<'de> for BenchOrder {
+    const NAME: &'static str = "a bench order";
+
+    fn kind(&self) -> u8 {
+        BenchOrder::kind(self).to_u8()
+    }
+
+    fn write<T: SerializeTuple>(&self, t: &mut T) -> Result<(), T::Error> {
+        match self {
+            Self::SensorOpen(on)
+            | Self::SensorStuck(on)
+            | Self::PositionOpen(on)
+            | Self::PositionStuck(on) => t.serialize_element(on),
+            Self::Analog(n) | Self::Stall(n) => t.serialize_element(n),
+            Self::SensorOffset(x) => t.serialize_element(x),
+            Self::DamageStored => Ok(()),
+            Self::Stage(v) => t.serialize_element(v),
+        }
+    }
+
+    fn read<A: SeqAccess<'de>>(kind: u8, a: &mut A) -> Result<Option<Self>, A::Error> {
+        let Some(kind) = BenchKind::from_u8(kind) else {
+            return Ok(None);
+        };
+        Ok(Some(match kind {
+            BenchKind::SensorOpen => Self::SensorOpen(field(a)?),
+            BenchKind::SensorStuck => Self::SensorStuck(field(a)?),
+            BenchKind::Analog => Self::Analog(field(a)?),
+            BenchKind::SensorOffset => Self::SensorOffset(field(a)?),
+            BenchKind::Stall => Self::Stall(field(a)?),
+            BenchKind::DamageStored => Self::DamageStored,
+            BenchKind::PositionOpen => Self::PositionOpen(field(a)?),
+            BenchKind::PositionStuck => Self::PositionStuck(field(a)?),
+            BenchKind::Stage => Self::Stage(field(a)?),
+        }))
+    }
+}
+
+crate::tagged_serde!(BenchOrder);
+
+/// A virtual stage: a base and the values that replace the base's (`None`: the
+/// base's).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+pub struct StageVariant {
+    /// The stage as built (`true`) or the nominal twin.
+    pub built: bool,
+    /// First mode, Hz (the nominal twin has none: quasi-static).
+    pub mode_hz: Option<f32>,
+    /// Its damping ratio.
+    pub mode_damping: Option<f32>,
+    /// Kinematics relative to the FEM's `f_K`.
+    pub output_gain: Option<f32>,
+    /// Preload relative to the FEM's `f_F`.
+    pub force_scale: Option<f32>,
+    /// Creep relative to the model's.
+    pub creep_scale: Option<f32>,
+    /// Position sensor noise (standard deviation), µm.
+    pub position_noise_um: Option<f32>,
+    /// Force sensor noise (standard deviation), N.
+    pub force_noise_n: Option<f32>,
+}
+
+impl StageVariant {
+    /// The nominal twin.
+    pub const NOMINAL: Self = Self {
+        built: false,
+        mode_hz: None,
+        mode_damping: None,
+        output_gain: None,
+        force_scale: None,
+        creep_scale: None,
+        position_noise_um: None,
+        force_noise_n: None,
+    };
+    /// The stage as built.
+    pub const BUILT: Self = Self {
+        built: true,
+        ..Self::NOMINAL
+    };
+
+    /// Each value that is given, by its key, with the range it must lie in: the
+    /// one check of a variant, for the host's file reader and the board.
+    pub fn check(&self) -> Result<(), (&'static str, f32, (f32, f32))> {
+        let ranges: [(&'static str, Option<f32>, (f32, f32)); 7] = [
+            ("mode_hz", self.mode_hz, (100.0, 5000.0)),
+            ("mode_damping", self.mode_damping, (0.001, 0.5)),
+            ("output_gain", self.output_gain, (0.5, 2.0)),
+            ("force_scale", self.force_scale, (0.5, 1.5)),
+            ("creep_scale", self.creep_scale, (0.0, 5.0)),
+            ("position_noise_um", self.position_noise_um, (0.0, 1.0)),
+            ("force_noise_n", self.force_noise_n, (0.0, 10.0)),
+        ];
+        for (key, v, (lo, hi)) in ranges {
+            if let Some(v) = v {
+                if !(v >= lo && v <= hi) {
+                    return Err((key, v, (lo, hi)));
+                }
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,538 @@
+//! What the host asks: the request header and the [`Command`]s, each with the
+//! wire number of its [`CommandKind`].
+//!
+//! A command that addresses a stage carries its `axis` first (0: the board's one
+//! axis today; a board refuses an axis it does not have with
+//! [`Refusal::Axis`](crate::Refusal::Axis)), so a second axis needs no new
+//! protocol.
+
+use heapless::Vec;
+use serde::de::SeqAccess;
+use serde::ser::SerializeTuple;
+use serde::{Deserialize, Serialize};
+
+use crate::bench::BenchOrder;
+use crate::modes::{LoopMode, Shape};
+use crate::put;
+use crate::wire::{field, Tagged};
+use crate::MAX_POINTS;
+
+/// The start of every request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Header {
+    /// [`VERSION`](crate::VERSION) of the sender.
+    pub version: u8,
+    /// Request number, echoed by its reply.
+    pub seq: u16,
+}
+
+crate::wire_enum! {
+    /// The kinds of [`Command`]: their wire numbers.
+    pub enum CommandKind {
+        /// [`Command::Hello`].
+        Hello = 0,
+        /// [`Command::Status`].
+        Status = 1,
+        /// [`Command::Ping`].
+        Ping = 2,
+        /// [`Command::Move`].
+        Move = 3,
+        /// [`Command::Wave`].
+        Wave = 4,
+        /// [`Command::Points`].
+        Points = 5,
+        /// [`Command::Stream`].
+        Stream = 6,
+        /// [`Command::StreamEnd`].
+        StreamEnd = 7,
+        /// [`Command::StreamClear`].
+        StreamClear = 8,
+        /// [`Command::Analog`].
+        Analog = 9,
+        /// [`Command::Hold`].
+        Hold = 10,
+        /// [`Command::Safe`].
+        Safe = 11,
+        /// [`Command::ClearFault`].
+        ClearFault = 12,
+        /// [`Command::Drive`].
+        Drive = 13,
+        /// [`Command::Supervise`].
+        Supervise = 14,
+        /// [`Command::Record`].
+        Record = 15,
+        /// [`Command::RecordStop`].
+        RecordStop = 16,
+        /// [`Command::ReadRecord`].
+        ReadRecord = 17,
+        /// [`Command::ModelBegin`].
+        ModelBegin = 18,
+        /// [`Command::ModelChunk`].
+        ModelChunk = 19,
+        /// [`Command::ModelCommit`].
+        ModelCommit = 20,
+        /// [`Command::ModelInfo`].
+        ModelInfo = 21,
+        /// [`Command::ModelFactory`].
+        ModelFactory = 22,
+        /// [`Command::Counters`].
+        Counters = 23,
+        /// [`Command::Bench`].
+        Bench = 24,
+        /// [`Command::Reset`].
+        Reset = 25,
+        /// [`Command::Loop`].
+        Loop = 26,
+        /// [`Command::Damping`].
+        Damping = 27,
+        /// [`Command::Step`].
+        Step = 28,
+        /// [`Command::Shaping`].
+        Shaping = 29,
+        /// [`Command::Analyse`].
+        Analyse = 30,
+        /// [`Command::AnalysisResult`].
+        AnalysisResult = 31,
+        /// [`Command::ModelRead`].
+        ModelRead = 32,
+    }
+}
+
+/// What the host asks; on the wire its [`CommandKind`] byte, then its fields in
+/// order.
+// Messages are built once per request and there is no heap to box the large ones.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq)]
+pub enum Command<'a> {
+    /// Who are you? → [`Reply::Hello`](crate::Reply::Hello).
+    Hello,
+    /// The loop's state of `axis` → [`Reply::Status`](crate::Reply::Status).
+    Status {
+        /// The stage.
+        axis: u8,
+    },
+    /// A heartbeat (any valid request is one) → `Ack`.
+    Ping,
+    /// Ramp to `target` at `speed`, then hold.
+    Move {
+        /// The stage.
+        axis: u8,
+        /// Position, µm (`I16F16` bits).
+        target: i32,
+        /// Speed, µm/s (`I16F16` bits, > 0).
+        speed: i32,
+    },
+    /// Run a waveform between `offset − amplitude` and `offset + amplitude`.
+    Wave {
+        /// The stage.
+        axis: u8,
+        /// Sine, triangle or raised cosine.
+        shape: Shape,
+        /// Mid-point, µm (`I16F16` bits).
+        offset: i32,
+        /// Half-swing, µm (`I16F16` bits, ≥ 0).
+        amplitude: i32,
+        /// Frequency, mHz (below half the control rate).
+        freq_mhz: u32,
+        /// Periods to run; 0 runs until another source is chosen.
+        cycles: u32,
+    },
+    /// Append points to the stream buffer; `first` must be the index the board
+    /// expects next (the count of points received since the last `Stream`).
+    Points {
+        /// The stage.
+        axis: u8,
+        /// Index of the first point.
+        first: u32,
+        /// Positions, µm (`I16F16` bits).
+        points: Vec<i32, MAX_POINTS>,
+    },
+    /// Play the buffered points, one every `interval` ticks, interpolated.
+    Stream {
+        /// The stage.
+        axis: u8,
+        /// Ticks per point (≥ 1).
+        interval: u16,
+    },
+    /// The stream has no more points: hold the last without an underrun flag.
+    StreamEnd {
+        /// The stage.
+        axis: u8,
+    },
+    /// Drop the stream buffer and count points from 0 again.
+    StreamClear {
+        /// The stage.
+        axis: u8,
+    },
+    /// Follow the analog reference input.
+    Analog {
+        /// The stage.
+        axis: u8,
+    },
+    /// Stop where the reference is.
+    Hold {
+        /// The stage.
+        axis: u8,
+    },
+    /// Park every stage: ramp to the safe voltage, amplifier off.
+    Safe,
+    /// Clear a latched fault (the stage stays parked until the next motion command).
+    ClearFault,
+    /// Inverse FPI (`true`) or the straight-line baseline (`false`).
+    Drive {
+        /// The stage.
+        axis: u8,
+        /// Compensated.
+        compensated: bool,
+    },
+    /// Supervise the host: a motion with no request for `timeout_ms` parks the
+    /// stage with a *link lost* fault; 0 switches it off.
+    Supervise {
+        /// Timeout, ms.
+        timeout_ms: u32,
+    },
+    /// Start recording every `decimation`-th tick; `signals`
+    /// ([`signal`](crate::record::signal) bits) says what
+    /// [`Command::ReadRecord`] sends.
+    Record {
+        /// Keep one tick in this many (≥ 1).
+        decimation: u16,
+        /// Signal mask.
+        signals: u8,
+    },
+    /// Stop recording (the samples stay readable).
+    RecordStop,
+    /// Take up to `max` recorded samples → [`Reply::Record`](crate::Reply::Record).
+    ReadRecord {
+        /// Most samples to send.
+        max: u16,
+    },
+    /// Announce a model image of `len` bytes with CRC-32 `crc` (of the whole image).
+    ModelBegin {
+        /// Bytes.
+        len: u32,
+        /// CRC-32 (ISO-HDLC) of the image.
+        crc: u32,
+    },
+    /// The image's bytes from `offset` (in order, at most [`MAX_CHUNK`](crate::MAX_CHUNK)).
+    ModelChunk {
+        /// Where these bytes go.
+        offset: u32,
+        /// The bytes.
+        data: &'a [u8],
+    },
+    /// Validate the received image and run it (the stage must be parked);
+    /// `store` also writes it to flash, where it survives a reset.
+    ModelCommit {
+        /// Keep it in flash.
+        store: bool,
+    },
+    /// The running model → [`Reply::Model`](crate::Reply::Model).
+    ModelInfo,
+    /// Forget the stored model and run the factory default (the stage must be parked).
+    ModelFactory,
+    /// The link's counters → [`Reply::Counters`](crate::Reply::Counters).
+    Counters,
+    /// An order for the emulated board's virtual bench.
+    Bench(BenchOrder),
+    /// Reset the board (after this reply); it starts parked with its stored model.
+    Reset,
+    /// Open the loop or close it on the position sensor, without a jump (the
+    /// running model must have feedback settings to close it).
+    Loop {
+        /// The stage.
+        axis: u8,
+        /// Open, closed (feedback plus the inverse FPI) or feedback only.
+        mode: LoopMode,
+    },
+    /// Switch active damping on or off (it runs where the running model has it),
+    /// without a jump.
+    Damping {
+        /// The stage.
+        axis: u8,
+        /// On.
+        on: bool,
+    },
+    /// Step to `target` along a raised cosine lasting `duration_us` (zero speed at
+    /// both ends), then hold.
+    Step {
+        /// The stage.
+        axis: u8,
+        /// Position, µm (`I16F16` bits).
+        target: i32,
+        /// Duration, µs (one control period to one second).
+        duration_us: u32,
+    },
+    /// Switch the model's reference shaping (the feedforward of the stage's
+    /// dynamics) on or off, without a jump.
+    Shaping {
+        /// The stage.
+        axis: u8,
+        /// On.
+        on: bool,
+    },
+    /// Measure the frequency response at one frequency: add
+    /// `amplitude·sin(2π·f·t)` to the command (µm) for `settle` then `cycles`
+    /// whole periods, correlating the position sensor, the force reading, the
+    /// force channel's dynamic part and the setpoint with the excitation over
+    /// the last `cycles` (the stage must be holding). → `Ack`; the result by
+    /// [`Command::AnalysisResult`].
+    Analyse {
+        /// The stage.
+        axis: u8,
+        /// Frequency, mHz (below a quarter of the control rate).
+        freq_mhz: u32,
+        /// Excitation, µm (`I16F16` bits, > 0).
+        amplitude: i32,
+        /// Periods before the correlation starts.
+        settle: u16,
+        /// Periods correlated (≥ 1).
+        cycles: u16,
+    },
+    /// The last analysis → [`Reply::Analysis`](crate::Reply::Analysis) (`None`
+    /// while one runs or before any).
+    AnalysisResult {
+        /// The stage.
+        axis: u8,
+    },
+    /// A piece of the running model's image, from `offset` →
+    /// [`Reply::ModelBytes`](crate::Reply::ModelBytes).
+    ModelRead {
+        /// Where in the image.
+        offset: u32,
+    },
+}
+
+impl Command<'_> {
+    /// Its kind (wire number).
+    pub const fn kind(&self) -> CommandKind {
+        use CommandKind as K;
+        match self {
+            Self::Hello => K::Hello,
+            Self::Status { .. } => K::Status,
+            Self::Ping => K::Ping,
+            Self::Move { .. } => K::Move,
+            Self::Wave { .. } => K::Wave,
+            Self::Points { .. } => K::Points,
+            Self::Stream { .. } => K::Stream,
+            Self::StreamEnd { .. } => K::StreamEnd,
+            Self::StreamClear { .. } => K::StreamClear,
+            Self::Analog { .. } => K::Analog,
+            Self::Hold { .. } => K::Hold,
+            Self::Safe => K::Safe,
+            Self::ClearFault => K::ClearFault,
+            Self::Drive { .. } => K::Drive,
+            Self::Supervise { .. } => K::Supervise,
+            Self::Record { .. } => K::Record,
+            Self::RecordStop => K::RecordStop,
+            Self::ReadRecord { .. } => K::ReadRecord,
+            Self::ModelBegin { .. } => K::ModelBegin,
+            Self::ModelChunk { .. } => K::ModelChunk,
+            Self::ModelCommit { .. } => K::ModelCommit,
+            Self::ModelInfo => K::ModelInfo,
+            Self::ModelFactory => K::ModelFactory,
+            Self::Counters => K::Counters,
+            Self::Bench(_) => K::Bench,
+            Self::Reset => K::Reset,
+            Self::Loop { .. } => K::Loop,
+            Self::Damping { .. } => K::Damping,
+            Self::Step { .. } => K::Step,
+            Self::Shaping { .. } => K::Shaping,
+            Self::Analyse { .. } => K::Analyse,
+            Self::AnalysisResult { .. } => K::AnalysisResult,
+            Self::ModelRead { .. } => K::ModelRead,
+        }
+    }
+
+    /// The stage it addresses (`None`: the board as a whole).
+    pub const fn axis(&self) -> Option<u8> {
+        match *self {
+            Self::Status { axis }
+            | Self::Move { axis, .. }
+            | Self::Wave { axis, .. }
+            | Self::Points { axis, .. }
+            | Self::Stream { axis, .. }
+            | Self::StreamEnd { axis }
+            | Self::StreamClear { axis }
+            | Self::Analog { axis }
+            | Self::Hold { axis }
+            | Self::Drive { axis, .. }
+            | Self::Loop { axis, .. }
+            | Self::Damping { axis, .. }
+            | Self::Step { axis, .. }
+            | Self::Shaping { axis, .. }
+            | Self::Analyse { axis, .. }
+            | Self::AnalysisResult { axis } => Some(axis),
+            _ => None,
+        }
+    }
+}
+
+impl<'a> Tagged<'a> for Command<'a> {
+    const NAME: &'static str = "a command";
+
+    fn kind(&self) -> u8 {
+        Command::kind(self).to_u8()
+    }
+
+    fn write<T: SerializeTuple>(&self, t: &mut T) -> Result<(), T::Error> {
+        match self {
+            Self::Hello
+            | Self::Ping
+            | Self::Safe
+            | Self::ClearFault
+            | Self::RecordStop
+            | Self::ModelInfo
+            | Self::ModelFactory
+            | Self::Counters
+            | Self::Reset => {}
+            Self::Status { axis }
+            | Self::StreamEnd { axis }
+            | Self::StreamClear { axis }
+            | Self::Analog { axis }
+            | Self::Hold { axis }
+            | Self::AnalysisResult { axis } => put!(t; axis),
+            Self::Move {
+                axis,
+                target,
+                speed,
+            } => put!(t; axis, target, speed),
+            Self::Wave {
+                axis,
+                shape,
+                offset,
+                amplitude,
+                freq_mhz,
+                cycles,
+            } => put!(t; axis, shape, offset, amplitude, freq_mhz, cycles),
+            Self::Points {
+                axis,
+                first,
+                points,
+            } => put!(t; axis, first, points),
+            Self::Stream { axis, interval } => put!(t; axis, interval),
+            Self::Drive { axis, compensated } => put!(t; axis, compensated),
+            Self::Supervise { timeout_ms } => put!(t; timeout_ms),
+            Self::Record {
+                decimation,
+                signals,
+            } => put!(t; decimation, signals),
+            Self::ReadRecord { max } => put!(t; max),
+            Self::ModelBegin { len, crc } => put!(t; len, crc),
+            Self::ModelChunk { offset, data } => put!(t; offset, data),
+            Self::ModelCommit { store } => put!(t; store),
+            Self::Bench(order) => put!(t; order),
+            Self::Loop { axis, mode } => put!(t; axis, mode),
+            Self::Damping { axis, on } | Self::Shaping { axis, on } => put!(t; axis, on),
+            Self::Step {
+                axis,
+                target,
+                duration_us,
+            } => put!(t; axis, target, duration_us),
+            Self::Analyse {
+                axis,
+                freq_mhz,
+                amplitude,
+                settle,
+                cycles,
+            } => put!(t; axis, freq_mhz, amplitude, settle, cycles),
+            Self::ModelRead { offset } => put!(t; offset),
+        }
+        Ok(())
+    }
+
+    fn read<A: SeqAccess<'a>>(kind: u8, a: &mut A) -> Result<Option<Self>, A::Error> {
+        use CommandKind as K;
+        let Some(kind) = K::from_u8(kind) else {
+            return Ok(None);
+        };
+        Ok(Some(match kind {
+            K::Hello => Self::Hello,
+            K::Status => Self::Status { axis: field(a)? },
+            K::Ping => Self::Ping,
+            K::Move => Self::Move {
+                axis: field(a)?,
+                target: field(a)?,
+                speed: field(a)?,
+            },
+            K::Wave => Self::Wave {
+                axis: field(a)?,
+                shape: field(a)?,
+                offset: field(a)?,
+                amplitude: field(a)?,
+                freq_mhz: field(a)?,
+                cycles: field(a)?,
+            },
+            K::Points => Self::Points {
+                axis: field(a)?,
+                first: field(a)?,
+                points: field(a)?,
+            },
+            K::Stream => Self::Stream {
+                axis: field(a)?,
+                interval: field(a)?,
+            },
+            K::StreamEnd => Self::StreamEnd { axis: field(a)? },
+            K::StreamClear => Self::StreamClear { axis: field(a)? },
+            K::Analog => Self::Analog { axis: field(a)? },
+            K::Hold => Self::Hold { axis: field(a)? },
+            K::Safe => Self::Safe,
+            K::ClearFault => Self::ClearFault,
+            K::Drive => Self::Drive {
+                axis: field(a)?,
+                compensated: field(a)?,
+            },
+            K::Supervise => Self::Supervise {
+                timeout_ms: field(a)?,
+            },
+            K::Record => Self::Record {
+                decimation: field(a)?,
+                signals: field(a)?,
+            },
+            K::RecordStop => Self::RecordStop,
+            K::ReadRecord => Self::ReadRecord { max: field(a)? },
+            K::ModelBegin => Self::ModelBegin {
+                len: field(a)?,
+                crc: field(a)?,
+            },
+            K::ModelChunk => Self::ModelChunk {
+                offset: field(a)?,
+                data: field(a)?,
+            },
+            K::ModelCommit => Self::ModelCommit { store: field(a)? },
+            K::ModelInfo => Self::ModelInfo,
+            K::ModelFactory => Self::ModelFactory,
+            K::Counters => Self::Counters,
+            K::Bench => Self::Bench(field(a)?),
+            K::Reset => Self::Reset,
+            K::Loop => Self::Loop {
+                axis: field(a)?,
+                mode: field(a)?,
+            },
+            K::Damping => Self::Damping {
+                axis: field(a)?,
+                on: field(a)?,
+            },
+            K::Step => Self::Step {
+                axis: field(a)?,
+                target: field(a)?,
+                duration_us: field(a)?,
+            },
+            K::Shaping => Self::Shaping {
+                axis: field(a)?,
+                on: field(a)?,
+            },
+            K::Analyse => Self::Analyse {
+                axis: field(a)?,
+                freq_mhz: field(a)?,
+                amplitude: field(a)?,
+                settle: field(a)?,
+                cycles: field(a)?,
+            },
+            K::AnalysisResult => Self::AnalysisResult { axis: field(a)? },
+            K::ModelRead => Self::ModelRead { offset: field(a)? },
+        }))
+    }
+}
+
+crate::tagged_serde!(Command<'a>);

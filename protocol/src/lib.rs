@@ -1,0 +1,64 @@
+//! The board's command link in one place: every message, enum and frame that
+//! crosses it, shared by the firmware and the host so the two cannot disagree
+//! (`firmware/PROTOCOL.md` describes the bytes for other clients).
+//!
+//! Every request is a [`Header`] (protocol version, sequence number) and a
+//! [`Command`]; every reply is a [`ReplyHeader`] echoing the sequence number and
+//! a [`Reply`]: an acknowledgement, the data asked for, or [`Reply::Refused`]
+//! with a [`Refusal`] code and a one-line reason. Positions, voltages and forces
+//! travel as the core's raw `I16F16` bits (µm, V, N: multiply by 2⁻¹⁶), so the
+//! host sends and receives exactly the values the control loop uses.
+//!
+//! * [`wire`] — how an enum crosses the link: by the number written beside each
+//!   variant (`#[repr(u8)]`), never by its place in the declaration;
+//! * [`command`] — the requests; [`reply`] — the replies and refusals;
+//! * [`modes`] — the loop's modes and sources the messages name; [`bench`] —
+//!   the emulated board's bench orders; [`record`] — a recording's signals;
+//! * [`frame`] — COBS framing with a CRC-32.
+//!
+//! `no_std`, no allocation; decoding never panics (the firmware's no-panic proof
+//! links it).
+#![cfg_attr(not(test), no_std)]
+#![deny(clippy::panic, clippy::unwrap_used, clippy::expect_used)]
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+
+pub mod bench;
+pub mod command;
+pub mod frame;
+pub mod modes;
+pub mod record;
+pub mod reply;
+pub mod wire;
+
+#[doc(hidden)]
+pub use serde;
+
+pub use bench::{BenchKind, BenchOrder, StageVariant};
+pub use command::{Command, CommandKind, Header};
+pub use modes::{LoopMode, Shape, SourceKind};
+pub use reply::{
+    Analysis, Batch, BoardKind, Counters, FaultReport, Hello, ModelReport, Origin, OriginKind,
+    Refusal, Reply, ReplyHeader, ReplyKind, ResetReason, SlotKind, SlotReport, Status,
+};
+
+/// The protocol version of these messages (5: explicit wire numbers, an axis in
+/// every command that addresses a stage).
+pub const VERSION: u8 = 5;
+/// Axes a board has today: a command for axis `AXES` or beyond is refused
+/// ([`Refusal::Axis`]).
+pub const AXES: u8 = 1;
+/// Largest encoded frame, delimiter included, bytes.
+pub const MAX_FRAME: usize = 1280;
+/// Model bytes per [`Command::ModelChunk`].
+pub const MAX_CHUNK: usize = 256;
+/// Points per [`Command::Points`].
+pub const MAX_POINTS: usize = 64;
+/// Values per [`Reply::Record`].
+pub const MAX_VALUES: usize = 200;
+/// Bytes per [`Reply::ModelBytes`].
+pub const MAX_MODEL_BYTES: usize = 256;
+/// The sequence number of a reply to a frame that could not be read.
+pub const NO_SEQ: u16 = u16::MAX;
+
+/// A short text (a refusal's reason, a firmware version).
+pub type Text = heapless::String<96>;

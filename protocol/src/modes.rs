@@ -1,0 +1,56 @@
+//! The control loop's modes and sources that the link names: the waveform's
+//! shape, how the loop is closed, which source drives the reference.
+
+crate::wire_enum! {
+    /// The shape of a periodic reference.
+    #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    pub enum Shape {
+        /// `sin 2πφ`.
+        Sine = 0,
+        /// A symmetric triangle in phase with the sine.
+        Triangle = 1,
+        /// `−cos 2πφ`: from the bottom of the swing, with zero speed at the turning points.
+        RaisedCosine = 2,
+    }
+}
+
+impl Shape {
+    /// Name for logs and the host tools.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Sine => "sine",
+            Self::Triangle => "triangle",
+            Self::RaisedCosine => "cosine",
+        }
+    }
+}
+
+crate::wire_enum! {
+    /// How the loop is closed.
+    #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    pub enum LoopMode {
+        /// Feedforward only: the reference through the inverse FPI (or the straight line).
+        Open = 0,
+        /// PI feedback on the position sensor plus the inverse FPI as feedforward.
+        Closed = 1,
+        /// PI feedback alone, its output through the straight-line drive (no model).
+        FeedbackOnly = 2,
+    }
+}
+
+crate::wire_enum! {
+    /// Which source drives the reference.
+    #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    pub enum SourceKind {
+        /// Standing still.
+        Hold = 0,
+        /// Ramping to a position.
+        Move = 1,
+        /// The waveform generator.
+        Wave = 2,
+        /// The host's streamed trajectory.
+        Stream = 3,
+        /// The analog reference input.
+        Analog = 4,
+    }
+}
