@@ -276,7 +276,8 @@ fn payload(seq: u16, cmd: &Command<'_>) -> Vec<u8> {
 }
 
 fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
-    let mv = |um: i32| Command::Move { axis: 0,
+    let mv = |um: i32| Command::Move {
+        axis: 0,
         target: um << 16,
         speed: 200 << 16,
     };
@@ -296,12 +297,18 @@ fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
         ),
         (
             "move",
-            vec![mv(10), Command::Status { axis: 0 }, Command::Hold { axis: 0 }, Command::Safe],
+            vec![
+                mv(10),
+                Command::Status { axis: 0 },
+                Command::Hold { axis: 0 },
+                Command::Safe,
+            ],
         ),
         (
             "wave",
             vec![
-                Command::Wave { axis: 0,
+                Command::Wave {
+                    axis: 0,
                     shape: Shape::Sine,
                     offset: 20 << 16,
                     amplitude: 5 << 16,
@@ -320,11 +327,15 @@ fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
             "stream",
             vec![
                 Command::StreamClear { axis: 0 },
-                Command::Points { axis: 0,
+                Command::Points {
+                    axis: 0,
                     first: 0,
                     points: pts,
                 },
-                Command::Stream { axis: 0, interval: 2 },
+                Command::Stream {
+                    axis: 0,
+                    interval: 2,
+                },
                 Command::StreamEnd { axis: 0 },
             ],
         ),
@@ -354,7 +365,10 @@ fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
                 Command::Bench(BenchOrder::SensorOffset(3 << 16)),
                 Command::Bench(BenchOrder::Stall(3)),
                 Command::Bench(BenchOrder::DamageStored),
-                Command::Drive { axis: 0, compensated: false },
+                Command::Drive {
+                    axis: 0,
+                    compensated: false,
+                },
                 mv(5),
             ],
         ),

@@ -366,7 +366,8 @@ mod tests {
     fn the_board_answers_every_request() {
         let mut rig = Rig::boot();
         rig.send(&Command::Hello);
-        rig.send(&Command::Move { axis: 0,
+        rig.send(&Command::Move {
+            axis: 0,
             target: 10 << 16,
             speed: 1000 << 16,
         });
