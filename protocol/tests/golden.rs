@@ -363,5 +363,9 @@ fn status_reply_size() {
     let (mut scratch, mut out) = ([0u8; MAX_FRAME], [0u8; MAX_FRAME]);
     let framed = frame::encode(&h, &Reply::Status(status()), &mut scratch, &mut out).unwrap();
     println!("status reply: {n} bytes of body, {framed} bytes framed");
-    assert_eq!((n, framed), (56, 67), "the status reply's size changed: update PROTOCOL.md");
+    assert_eq!(
+        (n, framed),
+        (56, 67),
+        "the status reply's size changed: update PROTOCOL.md"
+    );
 }
