@@ -17,7 +17,7 @@ use core::marker::PhantomData;
 
 use serde::de::{self, SeqAccess, Visitor};
 use serde::ser::SerializeTuple;
-use serde::{Deserialize, Deserializer, Serialize, Serializer};
+use serde::{Deserialize, Deserializer, Serializer};
 
 /// Declares a fieldless enum that crosses the link as its `#[repr(u8)]`
 /// discriminant: every variant's number written out, `ALL` (every variant, in
@@ -169,9 +169,4 @@ macro_rules! tagged_serde {
             }
         }
     };
-}
-
-/// Serializes to postcard bytes in `buf` (for tests and tools): the bytes used.
-pub fn to_slice<'b, T: Serialize>(v: &T, buf: &'b mut [u8]) -> Option<&'b mut [u8]> {
-    postcard::to_slice(v, buf).ok()
 }
