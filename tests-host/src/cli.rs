@@ -16,21 +16,12 @@ use crate::data::fem::FemMaps;
 use crate::data::{self, read_drive, read_target, Num};
 use crate::method::calibrate::{self, Options};
 use crate::method::compare::{note_renamed, unique_names};
-use crate::method::kinds;
 use crate::method::limits::AMPLIFIER_MAX_V;
 use crate::method::model::{HostModel, Kind};
 use crate::method::predict;
 use crate::output::{self, not_an_input};
 
-/// Fewest rows `--rows` may select: a fit of even one operator needs a handful of
-/// samples of motion (and [`min_fit_rows`] asks more of larger models).
-pub const MIN_FIT_ROWS: usize = 20;
-
-/// Fewest rows a fit of `operators` play operators takes: [`MIN_FIT_ROWS`], and
-/// at least two per operator.
-pub fn min_fit_rows(operators: usize) -> usize {
-    MIN_FIT_ROWS.max(2 * operators)
-}
+pub use crate::method::calibrate::{min_fit_rows, MIN_FIT_ROWS};
 
 /// Writes a CSV with a header and `f64` columns of equal length, atomically
 /// ([`output::write_atomic_with`]). Refuses columns of different lengths and
@@ -141,44 +132,11 @@ pub fn calibrate(
     not_an_input("--out", out, &inputs("--rig", rig))?;
     output::prepare(out)?;
     let data = calibrate::load(rig, rows)?;
-    let has_force = data.iter().all(|d| d.has_force);
-    let kind = kind.unwrap_or_else(|| {
-        let (kind, note) = kinds::default_for(&data);
-        if let Some(note) = note {
-            eprintln!("note: {note}");
-        }
-        kind
-    });
-    let mut opt = Options::for_kind(kind);
-    if let Some(n) = operators {
-        opt.operators = n;
+    let (opt, note) = calibrate::settle(&data, kind, operators, compliance, rows)?;
+    if let Some(note) = note {
+        eprintln!("note: {note}");
     }
-    if let Some(c) = compliance {
-        if !kind.takes_compliance() {
-            let takers: Vec<&str> = kinds::ALL
-                .iter()
-                .filter(|k| k.takes_compliance())
-                .map(|k| k.name())
-                .collect();
-            bail!("--compliance applies to {} models only", takers.join(", "));
-        }
-        opt.compliance = c;
-    }
-    if let Some((a, b)) = rows {
-        let (n, need) = (
-            b.saturating_sub(a).saturating_add(1),
-            min_fit_rows(opt.operators),
-        );
-        if n < need {
-            bail!(
-                "--rows {a}-{b}: {n} rows; a {kind} fit of {} operators needs at least {need}",
-                opt.operators
-            );
-        }
-    }
-    if !has_force {
-        opt.offset = true;
-    }
+    let kind = opt.kind;
     let start = std::time::Instant::now();
     let mut model = calibrate::calibrate(&data, &opt)?;
     model.calibration.rows = rows.map(|(a, b)| [a, b]);

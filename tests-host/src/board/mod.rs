@@ -8,6 +8,7 @@ pub mod accuracy;
 pub mod autotune;
 pub mod client;
 pub mod closed_loop;
+pub mod commands;
 pub mod emulator;
 pub mod follow;
 pub mod frf;

@@ -76,39 +76,47 @@ impl Recording {
         crate::output::write_atomic_with(path, |w| self.write_rows(w))
     }
 
+    /// The columns recorded, in the CSV's order after `t_s`: each signal bit with
+    /// its column name.
+    fn recorded(&self) -> impl Iterator<Item = (u8, &'static str)> + '_ {
+        COLUMNS
+            .into_iter()
+            .filter(move |(bit, _)| self.signals & bit != 0)
+    }
+
+    /// The recording by column, as the CSV has them (`t_s` first, in s; then the
+    /// signals recorded, in µm, V, N, and `status` as its bits), each value
+    /// exactly as the board reported it (the CSV rounds them).
+    pub fn columns(&self) -> Vec<(&'static str, Vec<f64>)> {
+        let mut out = vec![(
+            "t_s",
+            self.samples
+                .iter()
+                .map(|s| s.tick as f64 / self.rate_hz)
+                .collect(),
+        )];
+        for (bit, name) in self.recorded() {
+            out.push((name, self.samples.iter().map(|s| value(bit, s)).collect()));
+        }
+        out
+    }
+
     /// The CSV's header and rows into `w`.
     fn write_rows(&self, w: &mut dyn Write) -> std::io::Result<()> {
-        let cols = [
-            (signal::VOLTAGE, "voltage_V"),
-            (signal::FORCE, "force_N"),
-            (signal::X_REF, "x_ref_um"),
-            (signal::X_EST, "x_est_um"),
-            (signal::STATUS, "status"),
-            (signal::X_TRUE, "x_fhps_um"),
-            (signal::X_SENSOR, "x_sensor_um"),
-        ];
         let mut head = String::from("t_s");
-        for (bit, name) in cols {
-            if self.signals & bit != 0 {
-                head.push(',');
-                head.push_str(name);
-            }
+        for (_, name) in self.recorded() {
+            head.push(',');
+            head.push_str(name);
         }
         writeln!(w, "{head}")?;
         for s in &self.samples {
             let mut line = format!("{:.6}", s.tick as f64 / self.rate_hz);
-            for (bit, _) in cols {
-                if self.signals & bit == 0 {
-                    continue;
-                }
+            for (bit, _) in self.recorded() {
+                let v = value(bit, s);
                 let v = match bit {
-                    signal::VOLTAGE => format!("{:.5}", real(s.voltage)),
-                    signal::FORCE => format!("{:.4}", real(s.force)),
-                    signal::X_REF => format!("{:.5}", real(s.x_ref)),
-                    signal::X_EST => format!("{:.5}", real(s.x_est)),
+                    signal::FORCE => format!("{v:.4}"),
                     signal::STATUS => s.status.to_string(),
-                    signal::X_TRUE => format!("{:.5}", real(s.x_true)),
-                    _ => format!("{:.5}", real(s.x_sensor)),
+                    _ => format!("{v:.5}"),
                 };
                 line.push(',');
                 line.push_str(&v);
@@ -116,5 +124,29 @@ impl Recording {
             writeln!(w, "{line}")?;
         }
         Ok(())
+    }
+}
+
+/// The signals a recording may hold, by their bit, with their CSV column.
+const COLUMNS: [(u8, &str); 7] = [
+    (signal::VOLTAGE, "voltage_V"),
+    (signal::FORCE, "force_N"),
+    (signal::X_REF, "x_ref_um"),
+    (signal::X_EST, "x_est_um"),
+    (signal::STATUS, "status"),
+    (signal::X_TRUE, "x_fhps_um"),
+    (signal::X_SENSOR, "x_sensor_um"),
+];
+
+/// The value of signal `bit` in a sample, in µm, V or N (`status`: its bits).
+fn value(bit: u8, s: &Sample) -> f64 {
+    match bit {
+        signal::VOLTAGE => real(s.voltage),
+        signal::FORCE => real(s.force),
+        signal::X_REF => real(s.x_ref),
+        signal::X_EST => real(s.x_est),
+        signal::STATUS => f64::from(s.status),
+        signal::X_TRUE => real(s.x_true),
+        _ => real(s.x_sensor),
     }
 }

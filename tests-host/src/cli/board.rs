@@ -4,25 +4,21 @@
 //! checks its effect ([`Client::order`]): a command the board took and faulted
 //! on fails with the fault.
 
+use std::fmt::Write as _;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
-use fpi_firmware::recorder::signal;
-use fpi_protocol::LoopMode;
-use fpi_protocol::Origin;
-use fpi_protocol::Shape;
-use fpi_protocol::{BoardKind, Command, ResetReason, SlotReport, Status};
+use fpi_protocol::{BoardKind, Command, LoopMode, Origin, ResetReason, SlotReport, Status};
 use indicatif::{ProgressBar, ProgressStyle};
 use piezo_fpi::control::Fault;
 use piezo_fpi::q::LoopGain;
 use piezo_sim::file::FirmwareModel;
 
-use crate::board::client::{real, to_link, Client};
+use crate::board::client::{real, Client};
 use crate::board::recording::Recording;
-use crate::board::{inprocess, variant};
-use crate::data::{Num, Quoted};
+use crate::board::{commands, inprocess};
+use crate::data::Quoted;
 use crate::method::export::{self, ExportOptions, LoopSettings};
 use crate::method::model::HostModel;
 
@@ -149,12 +145,21 @@ pub fn load(c: &mut Client, image: &[u8], store: bool) -> Result<()> {
 
 /// `fpi board status`.
 pub fn status(c: &mut Client) -> Result<()> {
+    print!("{}", status_text(c)?);
+    Ok(())
+}
+
+/// What `fpi board status` prints: the board, its model, the loop's state and
+/// the link's counters, one line each.
+pub fn status_text(c: &mut Client) -> Result<String> {
+    let mut out = String::new();
     let h = c.hello().clone();
     let s = c.status()?;
     let m = c.model()?;
     let k = c.counters()?;
     let rate = h.rate_hz as f64;
-    println!(
+    let _ = writeln!(
+        out,
         "board: {}, firmware {}, protocol {}, control at {} Hz; room for {} operators, {} creep \
          terms, {} table intervals",
         match h.board {
@@ -171,7 +176,8 @@ pub fn status(c: &mut Client) -> Result<()> {
         h.capacity[1],
         h.capacity[2]
     );
-    println!(
+    let _ = writeln!(
+        out,
         "started by: {}; flash slots at start-up: {}",
         match h.reset {
             ResetReason::PowerOn => "power-on",
@@ -192,7 +198,8 @@ pub fn status(c: &mut Client) -> Result<()> {
             .collect::<Vec<_>>()
             .join(", ")
     );
-    println!(
+    let _ = writeln!(
+        out,
         "model: {:08x}, {}; {} operators, {} creep terms{}{}; stroke {:.3}–{:.3} µm, safe at {:.3} V",
         m.crc,
         match m.origin {
@@ -209,25 +216,34 @@ pub fn status(c: &mut Client) -> Result<()> {
         real(m.window[2]),
     );
     match m.feedback {
-        None => println!("feedback: none in this model (open loop only; `fpi tune` adds it)"),
-        Some(f) => println!(
-            "feedback: kp {:.4}, ki {:.1}/s, correction within ±{:.3} µm; position sensor \
+        None => {
+            let _ = writeln!(
+                out,
+                "feedback: none in this model (open loop only; `fpi tune` adds it)"
+            );
+        }
+        Some(f) => {
+            let _ = writeln!(
+                out,
+                "feedback: kp {:.4}, ki {:.1}/s, correction within ±{:.3} µm; position sensor \
              {:.2}–{:.2} µm, tolerance {:.3} µm",
-            LoopGain::from_bits(f[0]).to_num::<f64>(),
-            LoopGain::from_bits(f[1]).to_num::<f64>() * rate,
-            real(f[2]),
-            real(f[3]),
-            real(f[4]),
-            real(f[5]),
-        ),
+                LoopGain::from_bits(f[0]).to_num::<f64>(),
+                LoopGain::from_bits(f[1]).to_num::<f64>() * rate,
+                real(f[2]),
+                real(f[3]),
+                real(f[4]),
+                real(f[5]),
+            );
+        }
     }
-    print_state(&s, rate);
-    println!(
+    out.push_str(&state_text(&s, rate));
+    let _ = writeln!(
+        out,
         "link: {} requests, {} refused; {} malformed ({} CRC errors, {} too long), {} of another \
          protocol version, {} unknown commands",
         k.requests, k.refused, k.malformed, k.crc_errors, k.overlong, k.version, k.unknown
     );
-    Ok(())
+    Ok(out)
 }
 
 /// The loop's mode and drive, for people.
@@ -240,28 +256,27 @@ pub fn loop_text(mode: LoopMode, compensated: bool) -> &'static str {
     }
 }
 
-/// A loop mode by name: `open`, `closed` or `feedback`.
-pub fn loop_mode(name: &str) -> Result<LoopMode> {
-    Ok(match name {
-        "open" => LoopMode::Open,
-        "closed" => LoopMode::Closed,
-        "feedback" | "feedback-only" => LoopMode::FeedbackOnly,
-        _ => bail!("loop {}: open, closed or feedback", Quoted(name)),
-    })
-}
-
 /// `fpi board loop`: opens or closes the loop, without a jump.
 pub fn set_loop(c: &mut Client, mode: &str) -> Result<()> {
-    let mode = loop_mode(mode)?;
-    let tick = c.order(&Command::Loop { axis: 0, mode })?;
+    let tick = commands::set_loop(c, mode)?;
     let s = c.status()?;
-    println!("from tick {tick}: {}", loop_text(mode, s.compensated));
+    println!(
+        "from tick {tick}: {}",
+        loop_text(s.loop_mode, s.compensated)
+    );
     Ok(())
 }
 
 /// The loop's state, for people.
 pub fn print_state(s: &Status, rate: f64) {
-    println!(
+    print!("{}", state_text(s, rate));
+}
+
+/// The loop's state, for people: what [`print_state`] prints.
+pub fn state_text(s: &Status, rate: f64) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
         "tick {} ({:.3} s): reference {:.4} µm, estimate {:.4} µm, position sensor {:.4} µm, \
          setpoint {:.3} V, force {:.2} N; amplifier {}",
         s.tick,
@@ -273,7 +288,8 @@ pub fn print_state(s: &Status, rate: f64) {
         real(s.signals[3]),
         if s.amplifier_on { "on" } else { "off" }
     );
-    println!(
+    let _ = writeln!(
+        out,
         "source: {:?}{}, {}; host supervision {}",
         s.source,
         if s.approaching { " (approaching)" } else { "" },
@@ -289,7 +305,9 @@ pub fn print_state(s: &Status, rate: f64) {
         }
     );
     match s.fault {
-        None => println!("state: running"),
+        None => {
+            let _ = writeln!(out, "state: running");
+        }
         Some(f) => {
             let what = Fault::from_code(f.code).map_or("unknown fault", |f| f.message());
             let safe = f
@@ -298,16 +316,18 @@ pub fn print_state(s: &Status, rate: f64) {
                     format!("at the safe voltage since tick {t}")
                 });
             if f.code == Fault::Stopped as u8 {
-                println!("state: parked ({safe}); a motion command re-arms it");
+                let _ = writeln!(out, "state: parked ({safe}); a motion command re-arms it");
             } else {
-                println!(
+                let _ = writeln!(
+                    out,
                     "state: FAULT since tick {}: {what}; {safe}; clear it with `clear-fault`",
                     f.at
                 );
             }
         }
     }
-    println!(
+    let _ = writeln!(
+        out,
         "stream: {} points queued, {} free, {} received, {} underrun ticks; recorder: {}, {} \
          samples kept, {} dropped, {} waiting; late control ticks: {}",
         s.stream[0],
@@ -324,6 +344,7 @@ pub fn print_state(s: &Status, rate: f64) {
         s.recorder[3],
         s.overruns
     );
+    out
 }
 
 /// `fpi board record` was stopped by Ctrl-C: what was recorded is written, the
@@ -358,56 +379,32 @@ fn catch_ctrl_c() -> Result<()> {
 }
 
 /// `fpi board record`: records every `decimation`-th tick for `seconds` of board
-/// time into a CSV. Ctrl-C stops it early: the recorder is stopped, what it
-/// recorded is written (a valid CSV) and the error is [`Interrupted`].
+/// time into a CSV ([`commands::record`]). Ctrl-C stops it early: the recorder is
+/// stopped, what it recorded is written (a valid CSV) and the error is
+/// [`Interrupted`].
 pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Result<Recording> {
     catch_ctrl_c()?;
     let rate = c.rate_hz();
-    let ticks = (seconds * rate).round() as u32;
-    let start = c.ack(&Command::Record {
+    let pb = bar((seconds * rate).round() as u64, "record");
+    let r = commands::record(
+        c,
+        seconds,
         decimation,
-        signals: signal::ALL,
-    })?;
-    let pb = bar(ticks as u64, "record");
-    let mut rec = Recording {
-        rate_hz: rate,
-        signals: signal::ALL,
-        ..Recording::default()
-    };
-    let started = Instant::now();
-    loop {
-        let (samples, dropped) = c.drain()?;
-        rec.samples.extend(samples);
-        rec.dropped = dropped;
-        let now = c.status()?.tick;
-        pb.set_position(now.saturating_sub(start).min(ticks) as u64);
-        if now >= start + ticks || CTRL_C.load(Ordering::SeqCst) {
-            break;
-        }
-        if started.elapsed() > Duration::from_secs_f64(seconds * 20.0 + 30.0) {
-            bail!("the board's clock does not advance (tick {now})");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    c.ack(&Command::RecordStop)?;
-    let (samples, dropped) = c.drain()?;
-    rec.samples.extend(samples);
-    rec.dropped = dropped;
-    rec.samples.retain(|s| s.tick < start + ticks);
+        |done, _| pb.set_position(u64::from(done)),
+        || CTRL_C.load(Ordering::SeqCst),
+    )?;
     pb.finish_and_clear();
+    let rec = r.recording;
     rec.write_csv(out)?;
-    let recorded = rec
-        .samples
-        .last()
-        .map_or(0.0, |s| (s.tick - start) as f64 / rate);
-    let kept = format!(
-        "{} samples ({recorded:.3} s of the {seconds} s asked for, at {:.0} Hz) written to {}; \
-         the recorder is stopped and the stage left as it was",
-        rec.samples.len(),
-        rate / decimation as f64,
-        out.display()
-    );
-    if CTRL_C.load(Ordering::SeqCst) {
+    if r.stopped {
+        let kept = format!(
+            "{} samples ({:.3} s of the {seconds} s asked for, at {:.0} Hz) written to {}; \
+             the recorder is stopped and the stage left as it was",
+            rec.samples.len(),
+            r.seconds,
+            rate / decimation as f64,
+            out.display()
+        );
         return Err(Interrupted { kept }.into());
     }
     println!(
@@ -443,136 +440,12 @@ pub fn stream(c: &mut Client, points: &[f64], interval: u16) -> Result<()> {
     Ok(())
 }
 
-/// A waveform shape by name.
-pub fn shape(name: &str) -> Result<Shape> {
-    Ok(match name {
-        "sine" => Shape::Sine,
-        "triangle" => Shape::Triangle,
-        "cosine" | "raised-cosine" => Shape::RaisedCosine,
-        _ => bail!("--shape {}: sine, triangle or cosine", Quoted(name)),
-    })
-}
-
-/// What `fpi board bench` sets on the emulated board's virtual bench (also its
-/// command-line options).
-#[derive(Debug, Clone, Default, PartialEq, clap::Args)]
-pub struct BenchSettings {
-    /// Voltage on the analog reference input, 0–3.3 V.
-    #[arg(long, allow_negative_numbers = true)]
-    pub analog_v: Option<f64>,
-    /// The force sensor: ok, open (a broken wire) or stuck (frozen reading).
-    #[arg(long)]
-    pub sensor: Option<String>,
-    /// A step added to the force reading, N (a loose connector; 0 removes it).
-    #[arg(long, allow_negative_numbers = true)]
-    pub force_offset_n: Option<f64>,
-    /// Make this many control ticks overrun their period.
-    #[arg(long)]
-    pub stall_ticks: Option<u16>,
-    /// Damage the newest model stored in flash (the next start refuses it).
-    #[arg(long)]
-    pub damage_stored: bool,
-    /// The position sensor: ok, open (a broken wire) or stuck (frozen reading).
-    #[arg(long)]
-    pub position_sensor: Option<String>,
-    /// The virtual stage, replaced by a fresh one at rest (send it parked):
-    /// nominal (the model's twin), built (kinematics, preload and creep a few
-    /// percent off the model, an 850 Hz mode, position-sensor noise) or a TOML
-    /// file naming one of them as `base` and the values it changes (mode_hz,
-    /// mode_damping, output_gain, force_scale, creep_scale, position_noise_um,
-    /// force_noise_n).
-    #[arg(long)]
-    pub stage: Option<String>,
-}
+pub use crate::board::commands::{loop_mode, shape, BenchSettings, WAVE_STEP_HZ};
 
 /// `fpi board bench`: the emulated board's virtual bench (a real board refuses).
 pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<()> {
-    use fpi_protocol::BenchOrder;
-    if *b == BenchSettings::default() {
-        bail!(
-            "nothing to set: --analog-v V, --sensor ok|open|stuck, --force-offset-n N, \
-             --stall-ticks T, --damage-stored, --position-sensor ok|open|stuck or \
-             --stage nominal|built|VARIANT.toml"
-        );
-    }
-    let (analog_v, sensor) = (b.analog_v, b.sensor.as_deref());
-    if let Some(v) = analog_v {
-        if !(0.0..=3.3).contains(&v) {
-            bail!("--analog-v {v}: the input spans 0–3.3 V");
-        }
-        let counts = (v / 3.3 * fpi_firmware::frontend::ADC_MAX as f64).round() as u16;
-        c.bench(BenchOrder::Analog(counts))?;
-        println!("analog input at {v} V ({counts} counts)");
-    }
-    if let Some(s) = sensor {
-        let orders = [BenchOrder::SensorOpen, BenchOrder::SensorStuck];
-        sensor_state(c, "--sensor", s, orders)?;
-        println!("force sensor {s}");
-    }
-    bench_faults(c, b)
-}
-
-/// Puts a sensor of the virtual bench in state `s` (`ok`, `open` or `stuck`,
-/// given as `option`), through its bench orders `[open, stuck]`.
-fn sensor_state(
-    c: &mut Client,
-    option: &str,
-    s: &str,
-    [open, stuck]: [fn(bool) -> fpi_protocol::BenchOrder; 2],
-) -> Result<()> {
-    let orders = match s {
-        "ok" => vec![open(false), stuck(false)],
-        "open" => vec![open(true)],
-        "stuck" => vec![stuck(true)],
-        _ => bail!("{option} {}: ok, open or stuck", Quoted(s)),
-    };
-    for o in orders {
-        c.bench(o)?;
-    }
-    Ok(())
-}
-
-/// The fault injections of [`bench`]: a force step, overrunning ticks, a damaged
-/// stored model.
-fn bench_faults(c: &mut Client, b: &BenchSettings) -> Result<()> {
-    use fpi_protocol::BenchOrder;
-    if let Some(n) = b.force_offset_n {
-        if !n.is_finite() || n.abs() > 4096.0 {
-            bail!("--force-offset-n {n}: a finite step within ±4096 N");
-        }
-        let tick = c.bench(BenchOrder::SensorOffset(to_link(
-            "--force-offset-n",
-            n,
-            "N",
-        )?))?;
-        println!("force reading offset by {n} N from tick {tick}");
-    }
-    if let Some(t) = b.stall_ticks {
-        let tick = c.bench(BenchOrder::Stall(t))?;
-        println!("{t} control ticks overrun their period from tick {tick}");
-    }
-    if b.damage_stored {
-        c.bench(BenchOrder::DamageStored)?;
-        println!("the newest stored model is damaged: `fpi board reset` shows the start-up check");
-    }
-    bench_position(c, b)
-}
-
-/// The position sensor's faults and the choice of virtual stage of [`bench`].
-fn bench_position(c: &mut Client, b: &BenchSettings) -> Result<()> {
-    use fpi_protocol::BenchOrder;
-    if let Some(s) = b.position_sensor.as_deref() {
-        let orders = [BenchOrder::PositionOpen, BenchOrder::PositionStuck];
-        sensor_state(c, "--position-sensor", s, orders)?;
-        println!("position sensor {s}");
-    }
-    if let Some(s) = b.stage.as_deref() {
-        let v = variant::parse(s)?;
-        let tick = c.bench(BenchOrder::Stage(v))?;
-        println!(
-            "virtual stage: stage A, {}, at rest from tick {tick}",
-            variant::describe(&v)
-        );
+    for line in commands::bench(c, b)? {
+        println!("{line}");
     }
     Ok(())
 }
@@ -585,17 +458,10 @@ pub fn open(port: &str) -> Result<Client> {
 
 /// `fpi board move`: ramps to `um` at `speed` µm/s and holds it.
 pub fn move_to(c: &mut Client, um: f64, speed: f64) -> Result<()> {
-    let t = c.order(&Command::Move {
-        axis: 0,
-        target: to_link("the target", um, "µm")?,
-        speed: to_link("--speed", speed, "µm/s")?,
-    })?;
+    let t = commands::move_to(c, um, speed)?;
     println!("moving to {um} µm at {speed} µm/s from tick {t}");
     Ok(())
 }
-
-/// The waveform generator's frequency resolution, Hz (it takes mHz).
-pub const WAVE_STEP_HZ: f64 = 1e-3;
 
 /// `fpi board wave`: the waveform generator (`cycles` 0: until the next command).
 pub fn wave(
@@ -606,28 +472,7 @@ pub fn wave(
     freq_hz: f64,
     cycles: u32,
 ) -> Result<()> {
-    let top = c.rate_hz() / 2.0;
-    if freq_hz >= top {
-        bail!(
-            "--freq-hz {}: at or above half the board's control rate ({top} Hz)",
-            Num(freq_hz)
-        );
-    }
-    let freq_mhz = (freq_hz / WAVE_STEP_HZ).round();
-    if freq_mhz < 1.0 {
-        bail!(
-            "--freq-hz {}: below the generator's resolution of {WAVE_STEP_HZ} Hz",
-            Num(freq_hz)
-        );
-    }
-    let t = c.order(&Command::Wave {
-        axis: 0,
-        shape: shape(shape_name)?,
-        offset: to_link("--offset-um", offset_um, "µm")?,
-        amplitude: to_link("--amplitude-um", amplitude_um, "µm")?,
-        freq_mhz: freq_mhz as u32,
-        cycles,
-    })?;
+    let t = commands::wave(c, shape_name, amplitude_um, offset_um, freq_hz, cycles)?;
     println!("{shape_name} wave from tick {t} (after an approach to its start)");
     Ok(())
 }
@@ -649,51 +494,28 @@ pub fn simple(c: &mut Client, cmd: &Command<'_>) -> Result<()> {
 
 /// `fpi board drive compensated|uncompensated`.
 pub fn drive(c: &mut Client, mode: &str) -> Result<()> {
-    let compensated = match mode {
-        "compensated" => true,
-        "uncompensated" => false,
-        m => bail!("drive {}: compensated or uncompensated", Quoted(m)),
-    };
-    let t = c.order(&Command::Drive {
-        axis: 0,
-        compensated,
-    })?;
+    let t = commands::drive(c, mode)?;
     println!("{mode} from tick {t}");
     Ok(())
 }
 
-/// `on` or `off`.
-fn on_off(s: &str) -> Result<bool> {
-    match s {
-        "on" => Ok(true),
-        "off" => Ok(false),
-        _ => bail!("{}: on or off", Quoted(s)),
-    }
-}
-
 /// `fpi board damping on|off`.
 pub fn damping(c: &mut Client, state: &str) -> Result<()> {
-    let t = c.order(&Command::Damping {
-        axis: 0,
-        on: on_off(state)?,
-    })?;
+    let t = commands::damping(c, state)?;
     println!("active damping {state} from tick {t}");
     Ok(())
 }
 
 /// `fpi board shaping on|off`.
 pub fn shaping(c: &mut Client, state: &str) -> Result<()> {
-    let t = c.order(&Command::Shaping {
-        axis: 0,
-        on: on_off(state)?,
-    })?;
+    let t = commands::shaping(c, state)?;
     println!("reference shaping {state} from tick {t}");
     Ok(())
 }
 
 /// `fpi board supervise MS`.
 pub fn supervise(c: &mut Client, ms: u32) -> Result<()> {
-    c.ack(&Command::Supervise { timeout_ms: ms })?;
+    commands::supervise(c, ms)?;
     if ms == 0 {
         println!("host supervision off");
     } else {

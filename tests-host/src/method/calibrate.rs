@@ -15,7 +15,8 @@ use rayon::prelude::*;
 
 use crate::data;
 use crate::method::checks;
-use crate::method::model::{FileFit, HostModel};
+use crate::method::kinds;
+use crate::method::model::{FileFit, HostModel, Kind};
 use crate::method::series::file_fit;
 
 pub use crate::method::model::Options;
@@ -40,52 +41,147 @@ pub fn load(paths: &[impl AsRef<Path>], rows: Option<(usize, usize)>) -> Result<
             .file_name()
             .map(|n| n.to_string_lossy().trim_end_matches(".gz").to_string())
             .unwrap_or_default();
-        let is_dat = name.ends_with(".dat");
-        let (dt, u, f, x, has_force) = if is_dat {
+        let d = if name.ends_with(".dat") {
             let m = data::read_micromanipulator(p)?;
-            let n = m.u.len();
-            (1.0 / 200.0, m.u, vec![0.0; n], m.sensor, false)
+            prepare(&name, 1.0 / 200.0, &m.u, None, &m.sensor, rows)
         } else {
             let r = data::read_rig(p)?;
-            let dt = median_step(&r.t)
-                .with_context(|| format!("{}: needs at least two samples", p.display()))?;
-            (dt, r.u, r.f, r.x, true)
+            from_columns(&name, &r.t, &r.u, Some(&r.f), &r.x, rows)
         };
-        let n = u.len();
-        let fit = match rows {
-            Some((a, b)) => {
-                if a < 1 || b < a || b > n {
-                    bail!(
-                        "{}: --rows {a}-{b} is outside the recording's {n} rows",
-                        p.display()
-                    );
-                }
-                (a - 1, b)
-            }
-            None => (0, n),
-        };
-        let f0 = f[fit.0];
-        let mut d = CalibData {
-            name,
-            dt,
-            u,
-            f,
-            x,
-            f0,
-            fit,
-            has_force,
-        };
-        // Values beyond the fixed-point range, as the file has them.
-        checks::ranges(&d)?;
-        // Zero the extension at the first fitted sample (the recordings are zeroed at t = 0).
-        let x0 = d.x[fit.0];
-        d.x.iter_mut().for_each(|v| *v -= x0);
-        out.push(d);
+        out.push(d.with_context(|| p.display().to_string())?);
     }
     if out.is_empty() {
         bail!("no calibration recordings given");
     }
     Ok(out)
+}
+
+/// One recording for calibration from its columns (the CSV's `t_s`, s;
+/// `voltage_V`, V; `force_N`, N, `None` for a recording without force; and the
+/// extension, µm, zeroed here at the first fitted row), named `name` in reports;
+/// `rows` as in [`load`]. The checks of [`load`]: at least two samples, columns
+/// of one length, `rows` within the recording, values within the fixed-point
+/// range. The sample period is the median time step.
+pub fn from_columns(
+    name: &str,
+    t: &[f64],
+    u: &[f64],
+    f: Option<&[f64]>,
+    x: &[f64],
+    rows: Option<(usize, usize)>,
+) -> Result<CalibData> {
+    let n = u.len();
+    if t.len() != n || x.len() != n || f.is_some_and(|f| f.len() != n) {
+        bail!(
+            "columns of different lengths (t_s {}, voltage_V {n}, force_N {}, \
+             displacement {})",
+            t.len(),
+            f.map_or("none".into(), |f| f.len().to_string()),
+            x.len()
+        );
+    }
+    let dt = median_step(t).with_context(|| "needs at least two samples".to_string())?;
+    prepare(name, dt, u, f, x, rows)
+}
+
+/// [`from_columns`] with the sample period `dt` (s) given.
+fn prepare(
+    name: &str,
+    dt: f64,
+    u: &[f64],
+    f: Option<&[f64]>,
+    x: &[f64],
+    rows: Option<(usize, usize)>,
+) -> Result<CalibData> {
+    let n = u.len();
+    let fit = match rows {
+        Some((a, b)) => {
+            if a < 1 || b < a || b > n {
+                bail!("--rows {a}-{b} is outside the recording's {n} rows");
+            }
+            (a - 1, b)
+        }
+        None => (0, n),
+    };
+    let has_force = f.is_some();
+    let f = f.map_or_else(|| vec![0.0; n], <[f64]>::to_vec);
+    let mut d = CalibData {
+        name: name.to_string(),
+        dt,
+        u: u.to_vec(),
+        f0: f[fit.0],
+        f,
+        x: x.to_vec(),
+        fit,
+        has_force,
+    };
+    // Values beyond the fixed-point range, as the recording has them.
+    checks::ranges(&d)?;
+    // Zero the extension at the first fitted sample (the recordings are zeroed at t = 0).
+    let x0 = d.x[fit.0];
+    d.x.iter_mut().for_each(|v| *v -= x0);
+    Ok(d)
+}
+
+/// The options of a calibration as `fpi calibrate` settles them: `kind`, or the
+/// default for the recordings ([`kinds::default_for`], with a note when it
+/// falls back), `operators` and `compliance` if given (compliance only for the
+/// kinds that take one), `rows` long enough for the operators
+/// ([`min_fit_rows`]), and an offset for recordings without force. The options
+/// and the note.
+pub fn settle(
+    data: &[CalibData],
+    kind: Option<Kind>,
+    operators: Option<usize>,
+    compliance: Option<f64>,
+    rows: Option<(usize, usize)>,
+) -> Result<(Options, Option<String>)> {
+    let has_force = data.iter().all(|d| d.has_force);
+    let (kind, note) = match kind {
+        Some(k) => (k, None),
+        None => kinds::default_for(data),
+    };
+    let mut opt = Options::for_kind(kind);
+    if let Some(n) = operators {
+        opt.operators = n;
+    }
+    if let Some(c) = compliance {
+        if !kind.takes_compliance() {
+            let takers: Vec<&str> = kinds::ALL
+                .iter()
+                .filter(|k| k.takes_compliance())
+                .map(|k| k.name())
+                .collect();
+            bail!("--compliance applies to {} models only", takers.join(", "));
+        }
+        opt.compliance = c;
+    }
+    if let Some((a, b)) = rows {
+        let (n, need) = (
+            b.saturating_sub(a).saturating_add(1),
+            min_fit_rows(opt.operators),
+        );
+        if n < need {
+            bail!(
+                "--rows {a}-{b}: {n} rows; a {kind} fit of {} operators needs at least {need}",
+                opt.operators
+            );
+        }
+    }
+    if !has_force {
+        opt.offset = true;
+    }
+    Ok((opt, note))
+}
+
+/// Fewest rows `--rows` may select: a fit of even one operator needs a handful of
+/// samples of motion (and [`min_fit_rows`] asks more of larger models).
+pub const MIN_FIT_ROWS: usize = 20;
+
+/// Fewest rows a fit of `operators` play operators takes: [`MIN_FIT_ROWS`], and
+/// at least two per operator.
+pub fn min_fit_rows(operators: usize) -> usize {
+    MIN_FIT_ROWS.max(2 * operators)
 }
 
 fn median_step(t: &[f64]) -> Option<f64> {
