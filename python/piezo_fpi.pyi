@@ -1,0 +1,241 @@
+"""Piezo nanopositioning stages from Python: the FPI board over its command link,
+and the FPI-FFEM method's calibration, prediction and inversion.
+
+A thin binding over the Rust host tools (`fpi`): every command and computation is
+the host library's. Units: lengths in µm, voltages in V, forces in N, times in s,
+frequencies in Hz, unless a name says otherwise (``_ms``, ``_um`` …).
+"""
+
+from os import PathLike
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+ArrayLike = Union[Sequence[float], npt.NDArray[np.float64]]
+Columns = Dict[str, npt.NDArray[np.float64]]
+Path = Union[str, PathLike]
+
+class BoardError(Exception):
+    """The board refused a command, or took it and faulted on it."""
+
+    reason: str
+    """The board's reason, e.g. ``target 45.000 µm outside the stroke 0.000–39.921 µm``."""
+    code: str
+    """The refusal's kind (``Range``, ``State`` …), or ``Fault``."""
+
+class LinkError(ConnectionError):
+    """The link to the board could not be opened, is closed, or the board stopped answering."""
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C stopped ``Board.record`` or ``Board.stream``; the board was left in order."""
+
+    done: Any
+    """What was done: the partial recording (a dict of arrays), or ``points`` and
+    ``held_at_tick`` of a stream."""
+
+def qemu_available() -> bool:
+    """Whether ``qemu-system-arm`` is there to run the emulated board."""
+
+class Emulator:
+    """The emulated board (``fpi board emulate``): the firmware on QEMU's
+    netduinoplus2, its link on a TCP port. Builds the firmware with cargo in the
+    source tree the package was built from. A context manager; ``close()`` stops QEMU."""
+
+    def __init__(self, listen: Optional[str] = None) -> None:
+        """``listen``: ``HOST:PORT`` (default: a free loopback port)."""
+    @property
+    def port(self) -> str:
+        """``tcp:HOST:PORT``: what ``Board`` opens."""
+    def output(self) -> str:
+        """What the firmware and QEMU printed so far."""
+    def close(self) -> None: ...
+    def __enter__(self) -> "Emulator": ...
+    def __exit__(self, *exc: object) -> bool: ...
+
+class Board:
+    """A board over its command link: one method per ``fpi board`` command.
+
+    Refusals and faults raise ``BoardError`` (with the board's ``reason``), bad
+    arguments ``ValueError``/``TypeError`` naming the argument, a failed link
+    ``LinkError``. Motion methods return the control tick the board took them on.
+    A context manager; ``close()`` closes the link.
+    """
+
+    def __init__(self, port: str) -> None:
+        """``port``: a serial device (``/dev/ttyUSB0``, ``COM3``), ``tcp:HOST:PORT``
+        (the emulated board) or ``virtual`` (the firmware built for this host, run
+        in this process at real time, starting afresh)."""
+    @property
+    def port(self) -> str: ...
+    @property
+    def rate_hz(self) -> float:
+        """The control rate, Hz."""
+    @property
+    def closed(self) -> bool: ...
+    def info(self) -> Dict[str, Any]:
+        """The greeting: ``board``, ``firmware``, ``protocol``, ``rate_hz``, ``capacity``, ``reset``."""
+    def status(self) -> Dict[str, Any]:
+        """The state (``fpi board status``): ``state`` (running, parked, fault),
+        ``fault``, ``reference_um``, ``estimate_um``, ``position_sensor_um``,
+        ``setpoint_V``, ``force_N``, ``amplifier_on``, ``source``, ``loop``,
+        ``model`` (``crc``, ``origin``, ``stroke_um``, ``feedback`` …), ``stream``,
+        ``recorder``, ``link`` …"""
+    def status_text(self) -> str:
+        """What ``fpi board status`` prints."""
+    def position(self) -> float:
+        """Position, µm: the position sensor when the model closes a loop on it,
+        else the model's estimate (PI: ``POS?``)."""
+    def on_target(self, tolerance_um: float = 0.1) -> bool:
+        """Running, the reference held, the position within ``tolerance_um`` of it (PI: ``ONT?``)."""
+    def wait_on_target(self, timeout: float = 5.0, tolerance_um: float = 0.1) -> float:
+        """Waits up to ``timeout`` s until on target; the position, µm. ``TimeoutError`` otherwise."""
+    def move(self, target_um: float, speed: float = 1000.0) -> int:
+        """Ramps to ``target_um`` at ``speed`` µm/s and holds it (PI: ``MOV``)."""
+    def wave(
+        self,
+        shape: str = "sine",
+        *,
+        amplitude_um: float,
+        offset_um: float,
+        freq_hz: float,
+        cycles: int = 0,
+    ) -> int:
+        """The waveform generator (PI: ``WAV`` + ``WGO``): ``sine``, ``triangle`` or
+        ``cosine``; half-swing ``amplitude_um`` about ``offset_um``; ``cycles`` 0 runs
+        until the next command."""
+    def stream(self, points_um: ArrayLike, interval: int = 20) -> Dict[str, int]:
+        """Streams a trajectory (µm), one point every ``interval`` control ticks;
+        ``points``, ``started_tick``, ``underrun_ticks``. Ctrl-C: ``Interrupted``, board holding."""
+    def record(self, seconds: float, decimation: int = 20) -> Columns:
+        """The data recorder (PI: ``DRC``/``DRR?``): every ``decimation``-th tick for
+        ``seconds`` of board time, as the recording's CSV columns (``t_s``,
+        ``voltage_V``, ``force_N``, ``x_ref_um``, ``x_est_um``, ``status``,
+        ``x_fhps_um``, ``x_sensor_um``). Ctrl-C: ``Interrupted`` with the partial recording."""
+    def load(
+        self,
+        model: Path,
+        fem: Optional[Path] = None,
+        *,
+        store: bool = False,
+        rate: int = 20000,
+        u_max: float = 150.0,
+        slew: float = 100.0,
+        stroke_voltage: Optional[float] = None,
+    ) -> Dict[str, Any]:
+        """Uploads a calibrated model (with the stage's FEM table ``fem``) or a
+        firmware model file; the stage must be parked. ``crc``, ``bytes``, ``tick``."""
+    def factory(self) -> int:
+        """Forgets the stored model and runs the factory default."""
+    def safe(self) -> int:
+        """Parks the stage: ramps to the safe voltage, amplifier off."""
+    def clear_fault(self) -> int:
+        """Clears a latched fault (the stage stays parked)."""
+    def hold(self) -> int:
+        """Stops the reference where it is (PI: ``HLT``)."""
+    def analog(self) -> int:
+        """Follows the analog reference input (0–3.3 V over the stroke)."""
+    def drive(self, mode: str) -> int:
+        """``compensated`` (inverse FPI) or ``uncompensated`` (straight line)."""
+    def loop(self, mode: str) -> int:
+        """``open``, ``closed`` or ``feedback``, without a jump (PI: ``SVO``)."""
+    def damping(self, on: Union[bool, str]) -> int:
+        """The model's active damping on or off."""
+    def shaping(self, on: Union[bool, str]) -> int:
+        """The model's reference shaping on or off."""
+    def supervise(self, ms: int) -> int:
+        """Parks the stage if the host is silent ``ms`` ms while it drives it (0: off)."""
+    def reset(self) -> Dict[str, Any]:
+        """Resets the board (it starts parked); its new ``info()``."""
+    def bench(
+        self,
+        *,
+        analog_v: Optional[float] = None,
+        sensor: Optional[str] = None,
+        force_offset_n: Optional[float] = None,
+        stall_ticks: Optional[int] = None,
+        damage_stored: bool = False,
+        position_sensor: Optional[str] = None,
+        stage: Optional[str] = None,
+    ) -> List[str]:
+        """The emulated board's virtual bench (a real board refuses); what was set."""
+    def step(
+        self,
+        from_um: float,
+        to_um: float,
+        *,
+        seconds: float = 0.05,
+        tol_um: Optional[float] = None,
+        duration_ms: float = 1.5,
+        decimation: int = 1,
+    ) -> Dict[str, Any]:
+        """A scored step: ``rise_ms``, ``overshoot_um``, ``settle_ms``,
+        ``settle_tol_ms``, ``final_error_um``, ``recording``."""
+    def frf(
+        self,
+        *,
+        from_hz: float = 20.0,
+        to_hz: float = 4000.0,
+        points: int = 40,
+        amplitude_um: float = 0.1,
+        at_um: float = 20.0,
+        zoom_points: int = 12,
+    ) -> Dict[str, npt.NDArray[Any]]:
+        """The frequency response: ``f_hz`` and complex ``x`` (µm/µm), ``force``
+        (N/µm), ``dynamic`` (N/µm), ``x_per_v`` (µm/V)."""
+    def autotune(
+        self,
+        model: Path,
+        out: Path,
+        fem: Optional[Path] = None,
+        *,
+        store: bool = False,
+        rate: int = 20000,
+        u_max: float = 150.0,
+        slew: float = 100.0,
+        stroke_voltage: Optional[float] = None,
+    ) -> str:
+        """``fpi board autotune`` with its defaults; writes the tuned model to ``out``; its table."""
+    def close(self) -> None: ...
+    def __enter__(self) -> "Board": ...
+    def __exit__(self, *exc: object) -> bool: ...
+
+class Model:
+    """A calibrated model (``fpi calibrate``'s file)."""
+
+    @staticmethod
+    def load(path: Path) -> "Model": ...
+    def save(self, path: Path) -> None: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def rmse_um(self) -> float:
+        """RMSE of the fit, µm."""
+    @property
+    def mte_um(self) -> float:
+        """Largest error of the fit, µm."""
+    @property
+    def per_file(self) -> List[Dict[str, Any]]: ...
+    @property
+    def warnings(self) -> List[str]: ...
+    def predict(self, *, fem: Path, t_s: ArrayLike, voltage_V: ArrayLike) -> Columns:
+        """``fpi predict``: ``t_s``, ``voltage_V``, ``x_pea_um``, ``preload_N``, ``x_fhps_um``."""
+    def invert(
+        self, *, fem: Path, t_s: ArrayLike, x_fhps_um: ArrayLike, u_max: float = 150.0
+    ) -> Columns:
+        """``fpi invert``: ``t_s``, ``voltage_V`` (V) that make the stage follow ``x_fhps_um``."""
+
+def calibrate(
+    runs: Sequence[Dict[str, ArrayLike]],
+    kind: Optional[str] = None,
+    *,
+    operators: Optional[int] = None,
+    compliance: Optional[float] = None,
+    rows: Optional[Tuple[int, int]] = None,
+    names: Optional[Sequence[str]] = None,
+) -> Model:
+    """``fpi calibrate`` on recordings given as dicts of arrays (``t_s``,
+    ``voltage_V``, ``force_N``, ``displacement_um`` or ``x_fhps_um``; a board
+    recording works as it is)."""

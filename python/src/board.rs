@@ -1,0 +1,675 @@
+//! `piezo_fpi.Board`: a board (a serial device, the emulated board on
+//! `tcp:HOST:PORT`, or `virtual`, the firmware built for this host and run in
+//! this process) through the host library's client (`fpi_host::board::client`),
+//! one method per `fpi board` command, each the library's function that
+//! `fpi board` runs (`fpi_host::board::commands`).
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+
+use anyhow::anyhow;
+use fpi_host::board::client::{real, Client};
+use fpi_host::board::commands::{self, BenchSettings, Streamed};
+use fpi_host::board::frf::FrfSettings;
+use fpi_host::board::step::StepSettings;
+use fpi_host::cli::board::{firmware_model, model_image};
+use fpi_host::method::export::ExportOptions;
+use pyo3::prelude::*;
+use pyo3::types::{PyComplex, PyDict};
+
+use crate::arrays::{columns_dict, floats};
+use crate::errors::{interrupted, to_py, Otherwise};
+
+/// The loop settings of an exported model with `fpi board load`'s defaults.
+fn export_options(rate: u32, u_max: f64, slew: f64, stroke_voltage: Option<f64>) -> ExportOptions {
+    ExportOptions {
+        rate_hz: rate,
+        u_max,
+        slew,
+        stroke_voltage,
+    }
+}
+
+/// A board over its command link. Each method is an `fpi board` command and
+/// returns the control tick the board took it on (or what the command reports);
+/// a refusal or a fault raises `BoardError` with the board's reason, a bad
+/// argument `ValueError` or `TypeError`, a failed link `LinkError`. Lengths are
+/// in µm, voltages in V, forces in N, times in s unless a name says otherwise.
+/// Use it as a context manager, or call `close()`.
+#[pyclass(module = "piezo_fpi")]
+pub struct Board {
+    client: Mutex<Option<Client>>,
+    port: String,
+}
+
+impl Board {
+    /// Runs `f` on the open client with the GIL released.
+    fn run<R: Send>(
+        &self,
+        py: Python<'_>,
+        f: impl FnOnce(&mut Client) -> anyhow::Result<R> + Send,
+    ) -> PyResult<R> {
+        py.detach(|| {
+            let mut guard = self
+                .client
+                .lock()
+                .map_err(|_| anyhow!("the link failed in another thread"))?;
+            let c = guard
+                .as_mut()
+                .ok_or_else(|| anyhow!("the link to {} is closed", self.port))?;
+            f(c)
+        })
+        .map_err(|e| to_py(py, e, Otherwise::Link))
+    }
+}
+
+/// Polls Python's signal handlers (Ctrl-C) from a loop running without the
+/// GIL: true once one raised, its exception kept in `caught`.
+fn signalled(caught: &mut Option<PyErr>) -> bool {
+    if caught.is_none() {
+        if let Err(e) = Python::attach(|py| py.check_signals()) {
+            *caught = Some(e);
+        }
+    }
+    caught.is_some()
+}
+
+#[pymethods]
+impl Board {
+    /// Opens the board on `port`: a serial device (`/dev/ttyUSB0`, `COM3`),
+    /// `tcp:HOST:PORT` (the emulated board), or `virtual` (the firmware built for
+    /// this host, in this process, board time at real time, starting afresh).
+    /// Raises `LinkError` if it cannot be opened or the board does not answer.
+    #[new]
+    fn new(py: Python<'_>, port: &str) -> PyResult<Self> {
+        let name = port.to_string();
+        let c = py
+            .detach(|| commands_open(&name))
+            .map_err(|e| to_py(py, e, Otherwise::Link))?;
+        Ok(Self {
+            client: Mutex::new(Some(c)),
+            port: port.to_string(),
+        })
+    }
+
+    /// The port it was opened on.
+    #[getter]
+    fn port(&self) -> String {
+        self.port.clone()
+    }
+
+    /// The control rate, Hz.
+    #[getter]
+    fn rate_hz(&self, py: Python<'_>) -> PyResult<f64> {
+        self.run(py, |c| Ok(c.rate_hz()))
+    }
+
+    /// The board's greeting: `board` (`driver`, `emulated` or `virtual`),
+    /// `firmware`, `protocol`, `rate_hz`, `capacity` (operators, creep terms,
+    /// table intervals), `reset` (why it started).
+    fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let (h, virt) = self.run(py, |c| {
+            Ok((
+                c.hello().clone(),
+                c.port_name() == fpi_host::board::inprocess::PORT_NAME,
+            ))
+        })?;
+        let d = PyDict::new(py);
+        let kind = format!("{:?}", h.board).to_lowercase();
+        d.set_item("board", if virt { "virtual".into() } else { kind })?;
+        d.set_item("firmware", h.firmware.to_string())?;
+        d.set_item("protocol", h.protocol)?;
+        d.set_item("rate_hz", h.rate_hz)?;
+        d.set_item("capacity", (h.capacity[0], h.capacity[1], h.capacity[2]))?;
+        d.set_item("reset", format!("{:?}", h.reset))?;
+        Ok(d)
+    }
+
+    /// The board, its model and the loop's state as a dict (`fpi board status`):
+    /// `tick`, `time_s`, `state` (`running`, `parked` or `fault`), `fault` (the
+    /// reason, or None), `reference_um`, `estimate_um`, `position_sensor_um`,
+    /// `setpoint_V`, `force_N`, `amplifier_on`, `source`, `approaching`, `loop`,
+    /// `compensated`, `model` (a dict: `crc`, `origin`, `operators`,
+    /// `creep_terms`, `stroke_um`, `safe_V`, `feedback`), `stream`, `recorder`,
+    /// `link` (counters), `supervision_ms`, `late_ticks`.
+    fn status<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let (h, m, s, k) = self.run(py, |c| {
+            Ok((c.hello().clone(), c.model()?, c.status()?, c.counters()?))
+        })?;
+        let rate = f64::from(h.rate_hz);
+        let d = PyDict::new(py);
+        d.set_item("tick", s.tick)?;
+        d.set_item("time_s", f64::from(s.tick) / rate)?;
+        let (state, fault) = match s.fault {
+            None => ("running", None),
+            Some(f) if f.code == piezo_fpi::control::Fault::Stopped as u8 => ("parked", None),
+            Some(f) => (
+                "fault",
+                Some(
+                    piezo_fpi::control::Fault::from_code(f.code)
+                        .map_or("unknown fault", |f| f.message()),
+                ),
+            ),
+        };
+        d.set_item("state", state)?;
+        d.set_item("fault", fault)?;
+        d.set_item(
+            "fault_tick",
+            s.fault.filter(|_| fault.is_some()).map(|f| f.at),
+        )?;
+        d.set_item("reference_um", real(s.signals[0]))?;
+        d.set_item("estimate_um", real(s.signals[1]))?;
+        d.set_item("setpoint_V", real(s.signals[2]))?;
+        d.set_item("force_N", real(s.signals[3]))?;
+        d.set_item("position_sensor_um", real(s.signals[4]))?;
+        d.set_item("amplifier_on", s.amplifier_on)?;
+        d.set_item("source", format!("{:?}", s.source).to_lowercase())?;
+        d.set_item("approaching", s.approaching)?;
+        d.set_item(
+            "loop",
+            match format!("{:?}", s.loop_mode).as_str() {
+                "Open" => "open",
+                "Closed" => "closed",
+                _ => "feedback",
+            },
+        )?;
+        d.set_item("compensated", s.compensated)?;
+        d.set_item("damping", s.damping)?;
+        d.set_item("shaping", s.shaping)?;
+        d.set_item("supervision_ms", f64::from(s.supervision[0]) / rate * 1e3)?;
+        d.set_item("late_ticks", s.overruns)?;
+        let model = PyDict::new(py);
+        model.set_item("crc", format!("{:08x}", m.crc))?;
+        model.set_item("origin", format!("{:?}", m.origin))?;
+        model.set_item("operators", m.size[0])?;
+        model.set_item("creep_terms", m.size[1])?;
+        model.set_item("stroke_um", (real(m.window[0]), real(m.window[1])))?;
+        model.set_item("safe_V", real(m.window[2]))?;
+        model.set_item("feedback", m.feedback.is_some())?;
+        model.set_item("stored_generation", m.stored.map(|(g, _)| g))?;
+        d.set_item("model", model)?;
+        let stream = PyDict::new(py);
+        stream.set_item("queued", s.stream[0])?;
+        stream.set_item("free", s.stream[1])?;
+        stream.set_item("received", s.stream[2])?;
+        stream.set_item("underrun_ticks", s.stream[3])?;
+        d.set_item("stream", stream)?;
+        let rec = PyDict::new(py);
+        rec.set_item("recording", s.recorder[0] == 1)?;
+        rec.set_item("kept", s.recorder[1])?;
+        rec.set_item("dropped", s.recorder[2])?;
+        rec.set_item("waiting", s.recorder[3])?;
+        d.set_item("recorder", rec)?;
+        let link = PyDict::new(py);
+        link.set_item("requests", k.requests)?;
+        link.set_item("refused", k.refused)?;
+        link.set_item("malformed", k.malformed)?;
+        link.set_item("crc_errors", k.crc_errors)?;
+        link.set_item("overlong", k.overlong)?;
+        link.set_item("other_version", k.version)?;
+        link.set_item("unknown", k.unknown)?;
+        d.set_item("link", link)?;
+        Ok(d)
+    }
+
+    /// What `fpi board status` prints, as text.
+    fn status_text(&self, py: Python<'_>) -> PyResult<String> {
+        self.run(py, fpi_host::cli::board::status_text)
+    }
+
+    /// The stage's position, µm: the position sensor's reading when the running
+    /// model closes a loop on it, else the model's estimate (PI's `POS?`).
+    fn position(&self, py: Python<'_>) -> PyResult<f64> {
+        self.run(py, commands::position)
+    }
+
+    /// Whether the stage is on target (PI's `ONT?`): running, the reference
+    /// standing still, and the position within `tolerance_um` of it.
+    #[pyo3(signature = (tolerance_um = commands::ON_TARGET_UM))]
+    fn on_target(&self, py: Python<'_>, tolerance_um: f64) -> PyResult<bool> {
+        self.run(py, |c| Ok(commands::on_target(c, tolerance_um)?.0))
+    }
+
+    /// Waits until the stage is on target (see `on_target`) for up to `timeout`
+    /// seconds; the position, µm. Raises `TimeoutError` if it is not, and
+    /// `BoardError` if the board faults meanwhile.
+    #[pyo3(signature = (timeout = 5.0, tolerance_um = commands::ON_TARGET_UM))]
+    fn wait_on_target(&self, py: Python<'_>, timeout: f64, tolerance_um: f64) -> PyResult<f64> {
+        let mut caught = None;
+        let r = self.run(py, |c| {
+            commands::wait_on_target(c, tolerance_um, timeout, || signalled(&mut caught))
+        })?;
+        if let Some(e) = caught {
+            return Err(e);
+        }
+        r.ok_or_else(|| {
+            pyo3::exceptions::PyTimeoutError::new_err(format!(
+                "the stage was not on target (within {tolerance_um} µm, the reference held) \
+                 within {timeout} s"
+            ))
+        })
+    }
+
+    /// Ramps to `target_um` (µm) at `speed` (µm/s) and holds it (PI's `MOV`).
+    #[pyo3(signature = (target_um, speed = 1000.0))]
+    fn r#move(&self, py: Python<'_>, target_um: f64, speed: f64) -> PyResult<u32> {
+        self.run(py, |c| commands::move_to(c, target_um, speed))
+    }
+
+    /// Runs the waveform generator (PI's `WAV`/`WGO`): `shape` `sine`,
+    /// `triangle` or `cosine` (a raised cosine from the bottom of the swing),
+    /// half-swing `amplitude_um` about `offset_um` (µm), at `freq_hz` (Hz), for
+    /// `cycles` periods (0: until the next command). It starts with an approach
+    /// to its first point.
+    #[pyo3(signature = (shape = "sine", *, amplitude_um, offset_um, freq_hz, cycles = 0))]
+    fn wave(
+        &self,
+        py: Python<'_>,
+        shape: &str,
+        amplitude_um: f64,
+        offset_um: f64,
+        freq_hz: f64,
+        cycles: u32,
+    ) -> PyResult<u32> {
+        self.run(py, |c| {
+            commands::wave(c, shape, amplitude_um, offset_um, freq_hz, cycles)
+        })
+    }
+
+    /// Streams a trajectory (µm, an array), one point every `interval` control
+    /// ticks (20 = 1 kHz at 20 kHz), interpolated on the board; the board
+    /// supervises the host meanwhile. Returns `points`, `started_tick`,
+    /// `underrun_ticks`. Ctrl-C stops it with the board holding (raises
+    /// `Interrupted`, whose `done` gives the points sent).
+    #[pyo3(signature = (points_um, interval = 20))]
+    fn stream<'py>(
+        &self,
+        py: Python<'py>,
+        points_um: &Bound<'py, PyAny>,
+        interval: u16,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let points = floats(points_um, "points_um")?;
+        let mut caught = None;
+        let r = self.run(py, |c| {
+            commands::stream(c, &points, interval, |_| {}, || signalled(&mut caught))
+        })?;
+        let d = PyDict::new(py);
+        match r {
+            Streamed::Played(r) => {
+                d.set_item("points", r.points)?;
+                d.set_item("started_tick", r.started)?;
+                d.set_item("underrun_ticks", r.underruns)?;
+                Ok(d)
+            }
+            Streamed::Stopped { sent, held_at } => {
+                d.set_item("points", sent)?;
+                d.set_item("held_at_tick", held_at)?;
+                Err(stopped(py, caught, "stream", d.into_any().unbind()))
+            }
+        }
+    }
+
+    /// Records every `decimation`-th control tick for `seconds` of board time
+    /// (PI's data recorder, `DRC`/`DRR?`): a dict of numpy arrays with the
+    /// recording's CSV columns (`t_s`, `voltage_V`, `force_N`, `x_ref_um`,
+    /// `x_est_um`, `status`, `x_fhps_um`, `x_sensor_um`). Ctrl-C stops it early:
+    /// the recorder is stopped, the stage left as it was, and `Interrupted` is
+    /// raised with what was recorded as its `done`.
+    #[pyo3(signature = (seconds, decimation = 20))]
+    fn record<'py>(
+        &self,
+        py: Python<'py>,
+        seconds: f64,
+        decimation: u16,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let mut caught = None;
+        let r = self.run(py, |c| {
+            commands::record(c, seconds, decimation, |_, _| {}, || signalled(&mut caught))
+        })?;
+        let d = columns_dict(py, r.recording.columns())?;
+        if r.stopped {
+            return Err(stopped(py, caught, "record", d.into_any().unbind()));
+        }
+        if r.recording.dropped > 0 {
+            warn(
+                py,
+                &format!(
+                    "the board dropped {} samples (the link could not keep up): raise decimation",
+                    r.recording.dropped
+                ),
+            )?;
+        }
+        Ok(d)
+    }
+
+    /// Uploads a model (`fpi board load`): a calibrated model file with the
+    /// stage's FEM table `fem` (exported as `fpi export` does, with the loop
+    /// settings `rate` Hz, `u_max` V, `slew` V/ms, `stroke_voltage` V), or a
+    /// firmware model file. `store` also keeps it in flash. The stage must be
+    /// parked. Returns `crc`, `bytes`, `tick`.
+    #[pyo3(signature = (model, fem = None, *, store = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn load<'py>(
+        &self,
+        py: Python<'py>,
+        model: PathBuf,
+        fem: Option<PathBuf>,
+        store: bool,
+        rate: u32,
+        u_max: f64,
+        slew: f64,
+        stroke_voltage: Option<f64>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let o = export_options(rate, u_max, slew, stroke_voltage);
+        let image = py
+            .detach(|| model_image(&model, fem.as_deref(), &o))
+            .map_err(|e| to_py(py, e, Otherwise::Input))?;
+        let (tick, crc) = self.run(py, |c| {
+            let tick = c.upload(&image, store, |_| {})?;
+            Ok((tick, c.model()?.crc))
+        })?;
+        let d = PyDict::new(py);
+        d.set_item("crc", format!("{crc:08x}"))?;
+        d.set_item("bytes", image.len())?;
+        d.set_item("tick", tick)?;
+        Ok(d)
+    }
+
+    /// Forgets the stored model and runs the factory default.
+    fn factory(&self, py: Python<'_>) -> PyResult<u32> {
+        self.run(py, commands::factory)
+    }
+
+    /// Parks the stage: ramps to the safe voltage, amplifier off.
+    fn safe(&self, py: Python<'_>) -> PyResult<u32> {
+        self.run(py, commands::safe)
+    }
+
+    /// Clears a latched fault (the stage stays parked until the next motion).
+    fn clear_fault(&self, py: Python<'_>) -> PyResult<u32> {
+        self.run(py, commands::clear_fault)
+    }
+
+    /// Stops the reference where it is (PI's `HLT`/`STP`).
+    fn hold(&self, py: Python<'_>) -> PyResult<u32> {
+        self.run(py, commands::hold)
+    }
+
+    /// Follows the analog reference input (0–3.3 V over the model's stroke).
+    fn analog(&self, py: Python<'_>) -> PyResult<u32> {
+        self.run(py, commands::analog)
+    }
+
+    /// `compensated` (inverse FPI) or `uncompensated` (straight-line) drive.
+    fn drive(&self, py: Python<'_>, mode: &str) -> PyResult<u32> {
+        self.run(py, |c| commands::drive(c, mode))
+    }
+
+    /// Opens or closes the loop without a jump (PI's `SVO`): `open`, `closed`
+    /// (feedback on the position sensor with the inverse FPI as feedforward) or
+    /// `feedback` (feedback alone); the model needs a `[feedback]` section.
+    #[pyo3(name = "loop")]
+    fn set_loop(&self, py: Python<'_>, mode: &str) -> PyResult<u32> {
+        self.run(py, |c| commands::set_loop(c, mode))
+    }
+
+    /// Switches the model's active damping on (`True`/`"on"`) or off.
+    fn damping(&self, py: Python<'_>, on: &Bound<'_, PyAny>) -> PyResult<u32> {
+        let state = on_off(on, "on")?;
+        self.run(py, |c| commands::damping(c, &state))
+    }
+
+    /// Switches the model's reference shaping on (`True`/`"on"`) or off.
+    fn shaping(&self, py: Python<'_>, on: &Bound<'_, PyAny>) -> PyResult<u32> {
+        let state = on_off(on, "on")?;
+        self.run(py, |c| commands::shaping(c, &state))
+    }
+
+    /// Parks the stage if the host is silent for `ms` milliseconds while it
+    /// drives the stage (0: off).
+    fn supervise(&self, py: Python<'_>, ms: u32) -> PyResult<u32> {
+        self.run(py, |c| commands::supervise(c, ms))
+    }
+
+    /// Resets the board; it starts parked with its stored model. Returns its
+    /// new greeting (`info()`).
+    fn reset<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        self.run(py, |c| c.reset().map(|_| ()))?;
+        self.info(py)
+    }
+
+    /// The emulated board's virtual bench (a real board refuses): `analog_v`
+    /// (V on the analog input, 0–3.3), `sensor` and `position_sensor` (`ok`,
+    /// `open` or `stuck`), `force_offset_n` (N), `stall_ticks`,
+    /// `damage_stored`, `stage` (`nominal`, `built` or a variant TOML file).
+    /// Returns what was set, one line each.
+    #[pyo3(signature = (*, analog_v = None, sensor = None, force_offset_n = None, stall_ticks = None, damage_stored = false, position_sensor = None, stage = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn bench(
+        &self,
+        py: Python<'_>,
+        analog_v: Option<f64>,
+        sensor: Option<String>,
+        force_offset_n: Option<f64>,
+        stall_ticks: Option<u16>,
+        damage_stored: bool,
+        position_sensor: Option<String>,
+        stage: Option<String>,
+    ) -> PyResult<Vec<String>> {
+        let b = BenchSettings {
+            analog_v,
+            sensor,
+            force_offset_n,
+            stall_ticks,
+            damage_stored,
+            position_sensor,
+            stage,
+        };
+        if b == BenchSettings::default() {
+            return Err(pyo3::exceptions::PyTypeError::new_err(
+                "bench: nothing to set: analog_v, sensor, force_offset_n, stall_ticks, \
+                 damage_stored, position_sensor or stage",
+            ));
+        }
+        self.run(py, |c| commands::bench(c, &b))
+    }
+
+    /// Steps the reference from `from_um` to `to_um` along a raised cosine of
+    /// `duration_ms`, records `seconds` of board time (one tick in
+    /// `decimation`) and scores the response: `rise_ms`, `overshoot_um`,
+    /// `settle_ms` (±0.1 µm), `settle_tol_ms` (±`tol_um`), `final_error_um`, and
+    /// the `recording` (a dict of arrays, as `record` gives).
+    #[pyo3(signature = (from_um, to_um, *, seconds = 0.05, tol_um = None, duration_ms = 1.5, decimation = 1))]
+    #[allow(clippy::too_many_arguments)]
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+        from_um: f64,
+        to_um: f64,
+        seconds: f64,
+        tol_um: Option<f64>,
+        duration_ms: f64,
+        decimation: u16,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let s = StepSettings {
+            from_um,
+            to_um,
+            seconds,
+            tol_um,
+            duration_ms,
+            decimation,
+        };
+        let (rec, fig) = self.run(py, |c| fpi_host::board::step::run(c, &s))?;
+        let d = PyDict::new(py);
+        d.set_item("rise_ms", fig.rise_ms)?;
+        d.set_item("overshoot_um", fig.overshoot_um)?;
+        d.set_item("settle_ms", fig.settle_ms)?;
+        d.set_item("settle_tol_ms", fig.settle_tol_ms)?;
+        d.set_item("final_error_um", fig.final_error_um)?;
+        d.set_item("true_position", fig.true_position)?;
+        d.set_item("recording", columns_dict(py, rec.columns())?)?;
+        Ok(d)
+    }
+
+    /// Measures the frequency response through the board's own lock-in
+    /// analyser (`fpi board frf`): `points` log-spaced frequencies from
+    /// `from_hz` to `to_hz` (Hz) plus `zoom_points` around the peak, an
+    /// excitation of `amplitude_um` about `at_um`. A dict of arrays: `f_hz`,
+    /// and the complex responses `x` (command → position sensor, µm/µm),
+    /// `force` (N/µm), `dynamic` (N/µm), `x_per_v` (µm/V).
+    #[pyo3(signature = (*, from_hz = 20.0, to_hz = 4000.0, points = 40, amplitude_um = 0.1, at_um = 20.0, zoom_points = 12))]
+    #[allow(clippy::too_many_arguments)]
+    fn frf<'py>(
+        &self,
+        py: Python<'py>,
+        from_hz: f64,
+        to_hz: f64,
+        points: usize,
+        amplitude_um: f64,
+        at_um: f64,
+        zoom_points: usize,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let s = FrfSettings {
+            from_hz,
+            to_hz,
+            points,
+            amplitude_um,
+            at_um,
+            zoom_points,
+        };
+        let pts = self.run(py, |c| fpi_host::board::frf::measure(c, &s, |_, _| {}))?;
+        let d = columns_dict(py, vec![("f_hz", pts.iter().map(|p| p.f_hz).collect())])?;
+        let j = PyComplex::from_doubles(py, 0.0, 1.0);
+        let parts: [(&str, Part); 4] = [
+            ("x", |p| (p.x.re, p.x.im)),
+            ("force", |p| (p.force.re, p.force.im)),
+            ("dynamic", |p| (p.dynamic.re, p.dynamic.im)),
+            ("x_per_v", |p| (p.x_per_v.re, p.x_per_v.im)),
+        ];
+        for (name, part) in parts {
+            let (re, im): (Vec<f64>, Vec<f64>) = pts.iter().map(part).unzip();
+            let c = columns_dict(py, vec![("re", re), ("im", im)])?;
+            let z = c
+                .get_item("re")?
+                .ok_or_else(|| anyhow_py("re"))?
+                .add(c.get_item("im")?.ok_or_else(|| anyhow_py("im"))?.mul(&j)?)?;
+            d.set_item(name, z)?;
+        }
+        Ok(d)
+    }
+
+    /// Tunes the loops of the model the board runs through the board (`fpi
+    /// board autotune`, with its default design and sweep): measures the
+    /// response, fits the stage's dynamics, designs damping, PI and
+    /// feedforward, loads the tuned model (also into flash with `store`) and
+    /// verifies it with a step. `model` (and `fem` for a calibrated one) is the
+    /// model the board runs, as `load` took it; the tuned firmware model is
+    /// written to `out`. Returns the table `fpi board autotune` prints.
+    #[pyo3(signature = (model, out, fem = None, *, store = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn autotune(
+        &self,
+        py: Python<'_>,
+        model: PathBuf,
+        out: PathBuf,
+        fem: Option<PathBuf>,
+        store: bool,
+        rate: u32,
+        u_max: f64,
+        slew: f64,
+        stroke_voltage: Option<f64>,
+    ) -> PyResult<String> {
+        use fpi_host::board::autotune;
+        let o = export_options(rate, u_max, slew, stroke_voltage);
+        let fw = py
+            .detach(|| firmware_model(&model, fem.as_deref(), &o))
+            .map_err(|e| to_py(py, e, Otherwise::Input))?;
+        let tuned = self.run(py, |c| {
+            autotune::run(
+                c,
+                &fw,
+                &Default::default(),
+                &FrfSettings::default(),
+                store,
+                |_| {},
+            )
+        })?;
+        py.detach(|| autotune::write(&tuned, &out, None))
+            .map_err(|e| to_py(py, e, Otherwise::Input))?;
+        Ok(autotune::table(&tuned))
+    }
+
+    /// Closes the link (a `virtual` board stops). Further calls raise
+    /// `LinkError`.
+    fn close(&self, py: Python<'_>) -> PyResult<()> {
+        let c = py.detach(|| self.client.lock().map(|mut g| g.take()).ok().flatten());
+        py.detach(move || drop(c));
+        Ok(())
+    }
+
+    /// Whether the link is closed.
+    #[getter]
+    fn closed(&self) -> bool {
+        self.client.lock().map(|g| g.is_none()).unwrap_or(true)
+    }
+
+    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    #[pyo3(signature = (*_exc))]
+    fn __exit__(&self, py: Python<'_>, _exc: &Bound<'_, pyo3::types::PyTuple>) -> PyResult<bool> {
+        self.close(py)?;
+        Ok(false)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Board({:?}{})",
+            self.port,
+            if self.closed() { ", closed" } else { "" }
+        )
+    }
+}
+
+/// One complex response of a measured frequency, as (real, imaginary).
+type Part = fn(&fpi_host::method::tune::frf::FrfPoint) -> (f64, f64);
+
+/// Opens a board as `fpi board --port` does.
+fn commands_open(port: &str) -> anyhow::Result<Client> {
+    fpi_host::cli::board::open(port)
+}
+
+/// `True`/`False` or `"on"`/`"off"` as `"on"`/`"off"`.
+fn on_off(v: &Bound<'_, PyAny>, name: &str) -> PyResult<String> {
+    if let Ok(b) = v.extract::<bool>() {
+        return Ok(if b { "on" } else { "off" }.into());
+    }
+    v.extract::<String>().map_err(|_| {
+        pyo3::exceptions::PyTypeError::new_err(format!("{name}: True or False (or \"on\"/\"off\")"))
+    })
+}
+
+fn anyhow_py(what: &str) -> PyErr {
+    pyo3::exceptions::PyRuntimeError::new_err(format!("internal: no column {what}"))
+}
+
+/// The exception for a long call that a signal stopped: `Interrupted` carrying
+/// `done` for Ctrl-C, else the exception the signal handler raised.
+fn stopped(py: Python<'_>, caught: Option<PyErr>, what: &str, done: Py<PyAny>) -> PyErr {
+    match caught {
+        Some(e) if e.is_instance_of::<pyo3::exceptions::PyKeyboardInterrupt>(py) => interrupted(
+            py,
+            format!("{what} stopped by Ctrl-C; the board is left in order (see .done)"),
+            done,
+        ),
+        Some(e) => e,
+        None => interrupted(py, format!("{what} stopped"), done),
+    }
+}
+
+/// `warnings.warn(message)`.
+pub fn warn(py: Python<'_>, message: &str) -> PyResult<()> {
+    py.import("warnings")?.call_method1("warn", (message,))?;
+    Ok(())
+}
