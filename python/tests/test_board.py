@@ -1,0 +1,261 @@
+"""The board from Python, on the in-process board and the emulated board: each
+`fpi board` command as a method, the board's refusals, bad arguments, Ctrl-C
+during record and stream, the link's loss."""
+
+import _thread
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import piezo_fpi as pf
+
+from conftest import ROOT, DATA
+
+COLUMNS = ["t_s", "voltage_V", "force_N", "x_ref_um", "x_est_um", "status", "x_fhps_um", "x_sensor_um"]
+
+
+def test_starts_parked_with_the_factory_model(board):
+    s = board.status()
+    assert s["state"] == "parked"
+    assert s["fault"] is None
+    assert s["amplifier_on"] is False
+    assert s["model"]["origin"] == "Factory"
+    lo, hi = s["model"]["stroke_um"]
+    assert lo == 0.0 and 39 < hi < 41
+    assert board.rate_hz == 20000.0
+    assert board.info()["board"] in ("virtual", "emulated")
+    text = board.status_text()
+    assert text.startswith("board: ") and "state: parked" in text
+
+
+def test_move_and_wait_on_target(board):
+    tick = board.move(20.0, speed=1000.0)
+    assert tick > 0
+    x = board.wait_on_target(timeout=10.0)
+    assert abs(x - 20.0) <= 0.1
+    assert board.on_target()
+    s = board.status()
+    assert s["state"] == "running" and s["source"] == "hold"
+    assert s["reference_um"] == pytest.approx(20.0, abs=1e-4)
+    assert abs(board.position() - 20.0) <= 0.1
+
+
+def test_a_refusal_carries_the_boards_reason(board):
+    with pytest.raises(pf.BoardError) as e:
+        board.move(45.0)
+    assert "outside the stroke" in e.value.reason
+    assert "45.000" in e.value.reason
+    assert e.value.code != "Fault"
+    # The factory model has no [feedback] section: the loop cannot close.
+    with pytest.raises(pf.BoardError):
+        board.loop("closed")
+
+
+def test_bad_arguments_name_the_argument(board):
+    with pytest.raises(ValueError, match=r"^speed 1e-30 µm/s: below the link's resolution"):
+        board.move(10.0, speed=1e-30)
+    with pytest.raises(ValueError, match=r"^speed .*above 0"):
+        board.move(10.0, speed=-5.0)
+    with pytest.raises(ValueError, match=r"^target_um "):
+        board.move(float("nan"))
+    with pytest.raises(ValueError, match=r"^freq_hz 10000: at or above half"):
+        board.wave("sine", amplitude_um=5, offset_um=20, freq_hz=10000)
+    with pytest.raises(ValueError, match=r'^shape "square": sine, triangle or cosine'):
+        board.wave("square", amplitude_um=5, offset_um=20, freq_hz=5)
+    with pytest.raises(ValueError, match=r'^mode "shut": open, closed or feedback'):
+        board.loop("shut")
+    with pytest.raises(ValueError, match=r'^mode "sideways"'):
+        board.drive("sideways")
+    with pytest.raises(ValueError, match=r"^seconds "):
+        board.record(seconds=0.0)
+    with pytest.raises(ValueError, match=r"^points_um"):
+        board.stream([1.0, float("inf")])
+    with pytest.raises(TypeError, match="target_um"):
+        board.move("twenty")
+    with pytest.raises(TypeError, match="points_um"):
+        board.stream([[1.0, 2.0], [3.0, 4.0]])
+    with pytest.raises(ValueError, match=r"^analog_v "):
+        board.bench(analog_v=5.0)
+    # Nothing reached the board as a command.
+    assert board.status()["state"] == "parked"
+
+
+def test_wave_and_record_give_the_csv_columns(board):
+    board.move(5.0)
+    board.wait_on_target(timeout=10.0)
+    board.wave("sine", amplitude_um=15, offset_um=20, freq_hz=15, cycles=0)
+    rec = board.record(seconds=0.2, decimation=20)
+    assert list(rec) == COLUMNS
+    n = len(rec["t_s"])
+    assert 195 <= n <= 200
+    assert all(len(v) == n and v.dtype == np.float64 for v in rec.values())
+    assert np.allclose(np.diff(rec["t_s"]), 20 / 20000.0)
+    # The sine's swing after its approach (the reference spans at most 5–35 µm).
+    assert rec["x_ref_um"].min() >= 4.99 and rec["x_ref_um"].max() <= 35.01
+    assert rec["voltage_V"].max() > rec["voltage_V"].min()
+    board.hold()
+    assert board.status()["source"] == "hold"
+
+
+def test_stream_plays_every_point(board):
+    board.move(10.0)
+    board.wait_on_target(timeout=10.0)
+    x = 10.0 + 5.0 * np.sin(np.linspace(0, 2 * np.pi, 300))
+    r = board.stream(x, interval=20)
+    assert r["points"] == 300
+    assert r["underrun_ticks"] == 0
+    s = board.status()
+    assert s["reference_um"] == pytest.approx(x[-1], abs=1e-3)
+    assert s["supervision_ms"] == 0.0
+
+
+def interrupt_after(seconds):
+    t = threading.Timer(seconds, _thread.interrupt_main)
+    t.start()
+    return t
+
+
+def test_ctrl_c_stops_record_and_keeps_what_was_recorded(board):
+    board.move(10.0)
+    board.wait_on_target(timeout=10.0)
+    t = interrupt_after(0.4)
+    with pytest.raises(pf.Interrupted) as e:
+        board.record(seconds=30.0, decimation=20)
+    t.join()
+    assert isinstance(e.value, KeyboardInterrupt)
+    done = e.value.done
+    assert list(done) == COLUMNS
+    assert 0 < len(done["t_s"]) < 30.0 * 1000
+    s = board.status()
+    assert s["recorder"]["recording"] is False
+    assert s["state"] == "running"  # the stage left as it was
+
+
+def test_ctrl_c_stops_a_stream_with_the_board_holding(board):
+    board.move(10.0)
+    board.wait_on_target(timeout=10.0)
+    x = 10.0 + 5.0 * np.sin(np.linspace(0, 20 * np.pi, 10000))  # 10 s at 1 kHz
+    t = interrupt_after(0.5)
+    with pytest.raises(pf.Interrupted) as e:
+        board.stream(x, interval=20)
+    t.join()
+    assert 0 < e.value.done["points"] < len(x)
+    s = board.status()
+    assert s["source"] == "hold"
+    assert s["state"] == "running"
+    assert s["supervision_ms"] == 0.0
+    # Still holding later: the host's silence does not park it.
+    r0 = s["reference_um"]
+    board.wait_on_target(timeout=10.0)
+    assert board.status()["reference_um"] == r0
+
+
+def wait_parked(board):
+    for _ in range(500):
+        s = board.status()
+        if s["state"] == "parked" and s["setpoint_V"] == s["model"]["safe_V"]:
+            return
+        time.sleep(0.01)
+    raise AssertionError(f"not parked: {s}")
+
+
+def test_load_a_firmware_model_when_parked(board):
+    model = ROOT / "firmware" / "model" / "stage-a.toml"
+    board.move(10.0)
+    board.wait_on_target(timeout=10.0)
+    with pytest.raises(pf.BoardError):
+        board.load(model)  # the stage is not parked
+    board.safe()
+    wait_parked(board)
+    r = board.load(model)
+    assert len(r["crc"]) == 8 and r["bytes"] > 1000
+    s = board.status()
+    assert s["model"]["origin"] == "Received"
+    assert s["model"]["crc"] == r["crc"]
+
+
+def test_load_errors(board):
+    with pytest.raises(FileNotFoundError):
+        board.load("no-such-model.toml")
+    with pytest.raises(ValueError, match="a CSV table .*, not a model"):
+        board.load(DATA / "stage-a" / "fem.csv.gz")
+
+
+def test_a_fault_is_a_board_error(board):
+    board.bench(sensor="open")
+    with pytest.raises(pf.BoardError) as e:
+        board.move(10.0)
+    assert e.value.code == "Fault"
+    assert "force" in e.value.reason
+    assert board.status()["state"] == "fault"
+    board.bench(sensor="ok")
+    board.clear_fault()
+    assert board.status()["state"] == "parked"
+
+
+def test_context_manager_closes_the_link():
+    with pf.Board("virtual") as b:
+        assert not b.closed
+    assert b.closed
+    with pytest.raises(pf.LinkError, match="closed"):
+        b.status()
+
+
+def test_a_port_that_cannot_be_opened_is_a_link_error():
+    with pytest.raises(pf.LinkError, match="serial port"):
+        pf.Board("/dev/no-such-fpi-board")
+    with pytest.raises(pf.LinkError):
+        pf.Board("tcp:not a host:1")
+
+
+def test_a_board_that_closes_the_connection_is_a_link_error():
+    import socket
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    port = srv.getsockname()[1]
+
+    def serve():
+        c, _ = srv.accept()
+        c.close()
+
+    t = threading.Thread(target=serve)
+    t.start()
+    with pytest.raises(pf.LinkError):
+        pf.Board(f"tcp:127.0.0.1:{port}")
+    t.join()
+    srv.close()
+
+
+def test_the_emulated_board_lost_is_a_link_error():
+    if not pf.qemu_available():
+        pytest.skip("qemu-system-arm is not installed")
+    e = pf.Emulator()
+    b = pf.Board(e.port)
+    assert b.status()["state"] == "parked"
+    e.close()
+    with pytest.raises(pf.LinkError):
+        b.status()
+    b.close()
+
+
+def test_long_calls_release_the_gil():
+    """Another Python thread runs while `record` waits on the board."""
+    with pf.Board("virtual") as b:
+        ticks = []
+        stop = threading.Event()
+
+        def count():
+            while not stop.is_set():
+                ticks.append(1)
+                stop.wait(0.01)
+
+        t = threading.Thread(target=count)
+        t.start()
+        b.record(seconds=0.5, decimation=100)
+        stop.set()
+        t.join()
+        assert len(ticks) >= 20

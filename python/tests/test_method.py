@@ -1,0 +1,145 @@
+"""The method from Python against the `fpi` CLI on the shared datasets: the same
+model file, and the same numbers to the last digit the CLI prints; and the
+errors of bad arguments."""
+
+import numpy as np
+import pytest
+
+import piezo_fpi as pf
+
+from conftest import DATA, read_csv
+
+RIG = [DATA / "pea-rig" / "preload_050N_sine_05Hz.csv.gz", DATA / "pea-rig" / "preload_100N_sine_05Hz.csv.gz"]
+FEM = DATA / "stage-a" / "fem.csv.gz"
+RUN = DATA / "stage-a" / "sine_05Hz.csv.gz"
+
+
+def csv_lines(path):
+    import gzip
+
+    opener = gzip.open if str(path).endswith(".gz") else open
+    with opener(path, "rt") as f:
+        return f.read().splitlines()
+
+
+def as_cli_prints(columns: dict) -> list:
+    """The CSV `fpi` writes for these columns (`{:.6}` each)."""
+    names = list(columns)
+    rows = zip(*(columns[n] for n in names))
+    return [",".join(names)] + [",".join(f"{v:.6f}" for v in row) for row in rows]
+
+
+@pytest.fixture(scope="module")
+def cli_model(tmp_path_factory, fpi):
+    out = tmp_path_factory.mktemp("cli") / "fpi.toml"
+    fpi("calibrate", "--kind", "fpi", "--rig", *RIG, "--out", out)
+    return out
+
+
+def test_calibrate_writes_the_clis_model_file(cli_model, tmp_path):
+    runs = [read_csv(p) for p in RIG]
+    m = pf.calibrate(runs, kind="fpi", names=[str(p) for p in RIG])
+    assert m.kind == "fpi"
+    assert 0 < m.rmse_um < 1.0
+    assert [f["file"] for f in m.per_file] == [p.name[: -len(".gz")] for p in RIG]
+    m.save(tmp_path / "py.toml")
+    assert (tmp_path / "py.toml").read_text() == cli_model.read_text()
+
+
+def test_model_file_round_trip(cli_model, tmp_path):
+    m = pf.Model.load(cli_model)
+    m.save(tmp_path / "again.toml")
+    assert (tmp_path / "again.toml").read_text() == cli_model.read_text()
+    assert "fpi" in repr(m)
+
+
+def test_predict_gives_the_clis_numbers(cli_model, tmp_path, fpi):
+    out = tmp_path / "pred.csv"
+    fpi("predict", "--model", cli_model, "--fem", FEM, "--drive", RUN, "--out", out)
+    run = read_csv(RUN)
+    p = pf.Model.load(cli_model).predict(fem=FEM, t_s=run["t_s"], voltage_V=run["voltage_V"])
+    assert list(p) == ["t_s", "voltage_V", "x_pea_um", "preload_N", "x_fhps_um"]
+    assert as_cli_prints(p) == csv_lines(out)
+
+
+def test_invert_gives_the_clis_numbers(cli_model, tmp_path, fpi):
+    out = tmp_path / "drive.csv"
+    fpi("invert", "--model", cli_model, "--fem", FEM, "--target", RUN, "--out", out)
+    run = read_csv(RUN)
+    u = pf.Model.load(cli_model).invert(fem=FEM, t_s=run["t_s"], x_fhps_um=run["x_fhps_um"])
+    assert as_cli_prints(u) == csv_lines(out)
+
+
+def test_predict_then_invert_comes_back(cli_model):
+    m = pf.Model.load(cli_model)
+    t = np.arange(0, 0.4, 1e-3)
+    target = 10.0 + 8.0 * np.sin(2 * np.pi * 5 * t)
+    u = m.invert(fem=FEM, t_s=t, x_fhps_um=target)
+    x = m.predict(fem=FEM, t_s=t, voltage_V=u["voltage_V"])["x_fhps_um"]
+    assert np.max(np.abs(x - target)) < 1e-6
+
+
+def test_a_board_recording_calibrates_as_it_is():
+    """A recording's columns go to `calibrate` unchanged (x_fhps_um as the
+    displacement, force_N as the force). The method assumes a recording that
+    starts at rest; `record` starts 50 ms into the wave (the command is checked
+    for faults first), so the fit is looser than on the rig's recordings."""
+    with pf.Board("virtual") as b:
+        b.wave("cosine", amplitude_um=15, offset_um=15, freq_hz=2, cycles=2)
+        rec = b.record(seconds=1.0, decimation=10)
+    m = pf.calibrate([rec], kind="efpi")
+    assert m.kind == "efpi"
+    assert m.per_file[0]["samples"] == len(rec["t_s"]) == 2000
+    swing = np.ptp(rec["x_fhps_um"])
+    assert swing > 25.0
+    assert m.rmse_um < 0.05 * swing
+
+
+def test_calibrate_errors():
+    run = read_csv(RIG[0])
+    with pytest.raises(ValueError, match="^kind: "):
+        pf.calibrate([run], kind="nonsense")
+    with pytest.raises(TypeError, match=r"runs\[0\]: a dict of arrays"):
+        pf.calibrate([[1, 2, 3]])
+    with pytest.raises(ValueError, match=r"runs\[0\]: no column 'voltage_V'|no column \"voltage_V\""):
+        pf.calibrate([{"t_s": run["t_s"]}])
+    with pytest.raises(ValueError, match="no recordings"):
+        pf.calibrate([])
+    with pytest.raises(ValueError, match="^compliance applies to"):
+        pf.calibrate([run], kind="pi", compliance=0.02)
+    with pytest.raises(ValueError, match=r"^rows 1-5: 5 rows"):
+        pf.calibrate([run], kind="fpi", rows=(1, 5))
+    short = dict(run)
+    short["force_N"] = short["force_N"][:-1]
+    with pytest.raises(ValueError, match="different lengths"):
+        pf.calibrate([short])
+    with pytest.raises(TypeError, match=r"runs\[0\]\['t_s'\]|t_s"):
+        pf.calibrate([dict(run, t_s="abc")])
+
+
+def test_predict_and_invert_errors(cli_model):
+    m = pf.Model.load(cli_model)
+    t = np.arange(0, 0.1, 1e-3)
+    u = np.full_like(t, 50.0)
+    with pytest.raises(FileNotFoundError):
+        m.predict(fem="no-such-fem.csv", t_s=t, voltage_V=u)
+    bad = u.copy()
+    bad[3] = np.nan
+    with pytest.raises(ValueError, match=r"^voltage_V\[3\] = NaN: not a finite number|^voltage_V\[3\] = nan"):
+        m.predict(fem=FEM, t_s=t, voltage_V=bad)
+    with pytest.raises(ValueError, match=r"^t_s\[5\] = .* does not increase"):
+        tt = t.copy()
+        tt[5] = tt[4]
+        m.predict(fem=FEM, t_s=tt, voltage_V=u)
+    with pytest.raises(ValueError, match=r"^voltage_V\[0\] = 400 V is outside the model's input range"):
+        m.predict(fem=FEM, t_s=t, voltage_V=np.full_like(t, 400.0))
+    with pytest.raises(ValueError, match="samples"):
+        m.predict(fem=FEM, t_s=t, voltage_V=u[:-1])
+    with pytest.raises(TypeError, match="voltage_V"):
+        m.predict(fem=FEM, t_s=t, voltage_V=None)
+    with pytest.raises(ValueError, match="u_max"):
+        m.invert(fem=FEM, t_s=t, x_fhps_um=np.full_like(t, 5.0), u_max=-1.0)
+    with pytest.raises(FileNotFoundError):
+        pf.Model.load("no-such-model.toml")
+    with pytest.raises(ValueError, match="not a model|format"):
+        pf.Model.load(FEM)
