@@ -61,7 +61,7 @@ def main() -> None:
         b.loop("open")
         opened, _ = track(b, "open loop (inverse FPI)")
         parked(b)
-        print("tuning the loops through the board (a minute or so) …")
+        print("tuning the loops through the board (half a minute) …")
         print(b.autotune(FACTORY, out / "tuned.toml"))
         b.loop("closed")
         closed, _ = track(b, "closed loop (feedback + inverse FPI)")

@@ -127,8 +127,14 @@ fn the_python_package_builds_and_passes_its_tests() {
     .expect("running pytest");
     let out = text(&o);
     let summary = out.lines().last().unwrap_or("").to_string();
+    // Past the harness's capture: the summary, and every skip with its reason.
+    let skipped: String = out
+        .lines()
+        .filter(|l| l.starts_with("SKIPPED"))
+        .map(|l| format!("!!!!! python/tests: {l}\n"))
+        .collect();
     let _ = std::io::stderr().lock().write_all(
-        format!("\npython/tests: built in {built:.0} s; pytest: {summary}\n").as_bytes(),
+        format!("\npython/tests: built in {built:.0} s; pytest: {summary}\n{skipped}").as_bytes(),
     );
     assert!(o.status.success(), "pytest failed:\n{out}");
     assert!(summary.contains(" passed"), "pytest ran no test:\n{out}");
