@@ -347,8 +347,9 @@ pub fn state_text(s: &Status, rate: f64) -> String {
     out
 }
 
-/// `fpi board record` was stopped by Ctrl-C: what was recorded is written, the
-/// board's recorder stopped, the stage left as it was. The binary exits with
+/// `fpi board record` or `fpi board stream` was stopped by Ctrl-C: what was
+/// recorded is written, the board's recorder stopped, the stage left as it was;
+/// or the stream ended with the board holding. The binary exits with
 /// status 130, as a shell does for an interrupted command.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Interrupted {
@@ -424,20 +425,40 @@ pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Resu
     Ok(rec)
 }
 
-/// `fpi board stream`.
+/// `fpi board stream` ([`commands::stream`]). Ctrl-C stops it with the board
+/// holding where the reference was (and the host supervision the stream
+/// switched on off again); the error is then [`Interrupted`].
 pub fn stream(c: &mut Client, points: &[f64], interval: u16) -> Result<()> {
+    catch_ctrl_c()?;
     let pb = bar(points.len() as u64, "stream");
-    let r = c.stream(points, interval, |n| pb.set_position(n as u64), |_| Ok(()))?;
-    pb.finish_and_clear();
-    println!(
-        "{} points streamed from tick {} ({:.3} s at {} ticks per point); {} underrun ticks",
-        r.points,
-        r.started,
-        r.points as f64 * interval as f64 / c.rate_hz(),
+    let r = commands::stream(
+        c,
+        points,
         interval,
-        r.underruns
-    );
-    Ok(())
+        |n| pb.set_position(n as u64),
+        || CTRL_C.load(Ordering::SeqCst),
+    )?;
+    pb.finish_and_clear();
+    match r {
+        commands::Streamed::Played(r) => {
+            println!(
+                "{} points streamed from tick {} ({:.3} s at {} ticks per point); {} underrun ticks",
+                r.points,
+                r.started,
+                r.points as f64 * interval as f64 / c.rate_hz(),
+                interval,
+                r.underruns
+            );
+            Ok(())
+        }
+        commands::Streamed::Stopped { sent, held_at } => Err(Interrupted {
+            kept: format!(
+                "{sent} of {} points sent; the board holds from tick {held_at}",
+                points.len()
+            ),
+        }
+        .into()),
+    }
 }
 
 pub use crate::board::commands::{loop_mode, shape, BenchSettings, WAVE_STEP_HZ};
