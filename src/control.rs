@@ -44,8 +44,9 @@
 //! **Safe state.** A force reading outside the sensor's plausible range, a force
 //! that disagrees with the FEM preload map `f_F` at the estimated extension by
 //! more than a tolerance, or a reference outside the reachable stroke latches a
-//! [`Fault`]: from then on every step ramps the output to the safe voltage at the
-//! slew limit (a piezo stack must not be discharged with a step) and reports the
+//! [`Fault`]: from then on every step ramps the output to the safe voltage along
+//! a gentle park profile (a piezo stack must not be discharged with a step, and a
+//! stage's first mode must not be set ringing: [`crate::limits`]) and reports the
 //! fault, until [`ControllerState::clear_fault`] is called once the ramp is done.
 
 use crate::error::{Field, Invalid, ModelError};
@@ -479,6 +480,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             force_tare_offset: Newtons::ZERO,
             force_scale: 0,
             fault: None,
+            park_rate: Volts::ZERO,
             limited_steps: 0,
         }
     }
@@ -712,7 +714,8 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         forces: &Forces,
         fault: Fault,
     ) -> StepOutput {
-        let (voltage, _) = self.limits.apply(st.voltage, self.safe_voltage);
+        let (voltage, rate) = self.limits.park(st.voltage, st.park_rate, self.safe_voltage);
+        st.park_rate = rate;
         // Trust the sensor for the estimate only if it is in range.
         let f = if matches!(self.force_source, ForceSource::Measured) && forces.in_range {
             forces.feedforward
@@ -830,6 +833,8 @@ pub struct ControllerState<const N: usize, const C: usize = 0> {
     /// The learned scale error `b` of the preload map, `I16F48` (raw `i64`).
     force_scale: i64,
     fault: Option<Fault>,
+    /// The rate of the park in progress, V per tick (`crate::limits::OutputLimits::park`).
+    park_rate: Volts,
     limited_steps: u32,
 }
 
@@ -902,6 +907,7 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
         }
         cfg.fpi.resync(&self.forward, &mut self.inverse);
         self.fault = None;
+        self.park_rate = Volts::ZERO;
         true
     }
 }
@@ -1299,8 +1305,8 @@ mod tests {
         assert_eq!(out.fault, Some(Fault::LinkLost));
         assert_eq!(
             top - out.voltage,
-            c.limits().max_step(),
-            "ramps at the slew limit"
+            crate::limits::PARK_ACCEL,
+            "starts the park gently"
         );
         for f in Fault::ALL {
             assert_eq!(Fault::from_code(f as u8), Some(f));
@@ -1309,13 +1315,13 @@ mod tests {
     }
 
     #[test]
-    fn a_fault_ramps_to_the_safe_voltage_at_the_slew_limit_and_latches() {
+    fn a_fault_parks_at_the_safe_voltage_along_the_gentle_profile_and_latches() {
         let c = testkit::controller();
         let mut st = c.initial_state();
         let top = drive_to(&c, &mut st, 24.0).voltage;
         assert!(top > Volts::from_num(100));
         // A broken wire: the reading leaves the sensor range.
-        let step = c.limits().max_step();
+        let step = crate::limits::PARK_RATE;
         let mut prev = top;
         let mut ticks = 0;
         loop {
@@ -1325,7 +1331,7 @@ mod tests {
             assert!(out.voltage < prev || out.voltage == c.safe_voltage());
             assert!(
                 prev - out.voltage <= step,
-                "never faster than the slew limit"
+                "never faster than the park rate"
             );
             prev = out.voltage;
             ticks += 1;
@@ -1334,8 +1340,10 @@ mod tests {
             }
             assert!(ticks < 1000);
         }
-        let need = (top.to_num::<f64>() / step.to_num::<f64>()).ceil() as usize;
-        assert_eq!(ticks, need, "ramps at the slew limit, not slower");
+        // At the park rate, plus the ramp-up and the braking (40 ticks each: one
+        // at the full rate's worth), not slower.
+        let need = (top.to_num::<f64>() / step.to_num::<f64>()).ceil() as usize + 40;
+        assert!((need - 2..=need + 2).contains(&ticks), "{ticks} ticks, {need} expected");
         // Good inputs do not clear it; a later, different fault does not replace it.
         let out = plausible(&c, &mut st, um(40.0));
         assert_eq!(out.fault, Some(Fault::ForceOutOfRange));
