@@ -35,6 +35,11 @@
 //! | `b` | 1 | `I16F48` (raw `i64`), used as `I2F30`, held to ±0.25 |
 //! | `μ`, `μ_0` | 1/N² and 1 per tick | 2⁻¹⁸ ([`SCALE_ADAPT_SHIFT`]), 2⁻¹¹ ([`OFFSET_ADAPT_SHIFT`]) |
 //!
+//! A reading that stays the same to the bit while the FEM's preload at the
+//! estimated extension moves by more than the tolerance is a stuck sensor
+//! ([`Fault::ForceImplausible`]): neither the learned map nor the split's
+//! low-pass can hide it.
+//!
 //! The virtual sensor's stage position `f_K(x_pea_est)` is a lookup the ISR does
 //! not need; telemetry consumers get it from [`ControllerConfig::stage_position`].
 //!
@@ -480,6 +485,8 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             force_tare_offset: Newtons::ZERO,
             force_scale: 0,
             fault: None,
+            force_held: Newtons::MIN,
+            force_held_model: Newtons::ZERO,
             park_rate: Volts::ZERO,
             limited_steps: 0,
         }
@@ -539,10 +546,25 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
                 ((st.force_slow + (1 << 31)) >> 32) as i32,
             ))
         };
+        // A reading frozen (bit for bit) while the FEM's preload at the estimate
+        // moved by more than the tolerance: a stuck sensor, whatever the learned
+        // map and the split's low-pass have absorbed of the residual.
+        let stuck = if reading.to_bits() == st.force_held.to_bits() {
+            !self
+                .residual_window
+                .contains(residual(model, st.force_held_model))
+        } else {
+            st.force_held = reading;
+            st.force_held_model = model;
+            false
+        };
         if st.fault.is_none() {
             if !in_range {
                 st.fault = Some(Fault::ForceOutOfRange);
-            } else if !self.residual_window.contains(slow) || !self.dynamic_window.contains(r) {
+            } else if stuck
+                || !self.residual_window.contains(slow)
+                || !self.dynamic_window.contains(r)
+            {
                 st.fault = Some(Fault::ForceImplausible);
             }
         }
@@ -714,7 +736,9 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         forces: &Forces,
         fault: Fault,
     ) -> StepOutput {
-        let (voltage, rate) = self.limits.park(st.voltage, st.park_rate, self.safe_voltage);
+        let (voltage, rate) = self
+            .limits
+            .park(st.voltage, st.park_rate, self.safe_voltage);
         st.park_rate = rate;
         // Trust the sensor for the estimate only if it is in range.
         let f = if matches!(self.force_source, ForceSource::Measured) && forces.in_range {
@@ -833,6 +857,10 @@ pub struct ControllerState<const N: usize, const C: usize = 0> {
     /// The learned scale error `b` of the preload map, `I16F48` (raw `i64`).
     force_scale: i64,
     fault: Option<Fault>,
+    /// The last force reading that differed from the one before, N, and the
+    /// FEM's preload at the estimate then, N (the stuck-sensor check).
+    force_held: Newtons,
+    force_held_model: Newtons,
     /// The rate of the park in progress, V per tick (`crate::limits::OutputLimits::park`).
     park_rate: Volts,
     limited_steps: u32,
@@ -1295,6 +1323,33 @@ mod tests {
     }
 
     #[test]
+    fn a_reading_frozen_while_the_preload_moves_is_a_stuck_sensor() {
+        let c = testkit::controller();
+        let mut st = c.initial_state();
+        drive_to(&c, &mut st, 1.0);
+        // A plausible reading follows the stage: no fault all the way up.
+        assert_eq!(drive_to(&c, &mut st, 24.0).fault, None);
+        let frozen = force_at(&c, st.x_pea_est());
+        // Frozen there, at rest: not seen (nothing to disagree with).
+        for _ in 0..100 {
+            assert_eq!(c.step(&mut st, um(24.0), frozen).fault, None);
+        }
+        // Frozen while the stage moves down: seen once the FEM's preload has
+        // moved by more than the tolerance, before the move ends.
+        let mut seen = None;
+        for k in 1..=400 {
+            let x_ref = 24.0 - 23.0 * k as f64 / 400.0;
+            if let Some(f) = c.step(&mut st, um(x_ref), frozen).fault {
+                seen = Some((k, f));
+                break;
+            }
+        }
+        let (k, f) = seen.expect("a stuck sensor is seen");
+        assert_eq!(f, Fault::ForceImplausible);
+        assert!(k < 400, "{k}");
+    }
+
+    #[test]
     fn a_tripped_fault_ramps_to_safe_like_a_detected_one_and_codes_round_trip() {
         let c = testkit::controller();
         let mut st = c.initial_state();
@@ -1342,8 +1397,11 @@ mod tests {
         }
         // At the park rate, plus the ramp-up and the braking (40 ticks each: one
         // at the full rate's worth), not slower.
-        let need = (top.to_num::<f64>() / step.to_num::<f64>()).ceil() as usize + 40;
-        assert!((need - 2..=need + 2).contains(&ticks), "{ticks} ticks, {need} expected");
+        let need = crate::limits::park_ticks(top) as usize;
+        assert!(
+            (need - 4..=need).contains(&ticks),
+            "{ticks} ticks, {need} expected"
+        );
         // Good inputs do not clear it; a later, different fault does not replace it.
         let out = plausible(&c, &mut st, um(40.0));
         assert_eq!(out.fault, Some(Fault::ForceOutOfRange));
