@@ -259,11 +259,17 @@ impl Loop {
             }
         }
         .saturating_add(self.damped);
-        // Where a loop runs (closed, or damping on), it is watched.
+        // Where a loop runs (closed, or damping on), it is watched: on the
+        // tracking error where the position loop is closed (an unstable loop's
+        // clearest sign), else on the damping's correction.
         let looped = self.mode != LoopMode::Open || self.damped != Micrometres::ZERO;
         self.alarm = if looped {
             let limited = self.clamp != Saturation::Free || self.sat != Saturation::Free;
-            self.watch.update(wanted.saturating_sub(ff), limited)
+            let swing = match (self.mode, io.feedback) {
+                (LoopMode::Open, _) | (_, None) => wanted.saturating_sub(ff),
+                _ => error,
+            };
+            self.watch.update(swing, limited)
         } else {
             self.watch.reset();
             None

@@ -1,15 +1,25 @@
 //! The loops watched: an oscillating or saturating loop caught before the stage
 //! leaves its stroke (a stage that changed, a wrong model), in the control ISR.
 //!
-//! **Oscillation.** The correction the loops add to the feedforward, `δ` (µm:
-//! PI plus damping), less its own low-pass (`MEAN_SHIFT`: a one-pole at about
-//! 100 Hz at 20 kHz), is a healthy loop's small, slow residue; an unstable loop
-//! makes it swing. A *half-cycle* is counted each time it goes beyond `±SWING`
+//! **Oscillation.** The swing watched — the tracking error `x_ref − x_sensor`
+//! where the position loop is closed, else the damping's correction (µm) —
+//! less its own low-pass (`MEAN_SHIFT`: a one-pole at about 100 Hz at 20 kHz),
+//! is a healthy loop's small, slow residue; an unstable loop makes it swing. A *half-cycle* ends each time it goes beyond `±GROWTH_SWING`
 //! on the side opposite to its last excursion, within `MAX_HALF_TICKS` of the
-//! previous one (else the count starts again): `HALF_CYCLES` in a row — four
-//! periods of an oscillation above 125 Hz — trip [`Fault::Oscillation`]: 4.7 ms
-//! at 850 Hz, 13 ms at 300 Hz once the swing exceeds ±2.5 µm. A 100 Hz
-//! triangle's corners (5 ms apart) or a step's two or three swings never do.
+//! previous one (else the count starts again); its *peak* is the largest swing
+//! since the previous one. Two rules trip [`Fault::Oscillation`]:
+//!
+//! * **growing:** `GROWING_HALF_CYCLES` half-cycles in a row, each peak at least
+//!   `1 + 2^-GROWTH_SHIFT` times the one before — an unstable loop, caught while
+//!   it is small: 2.4 ms at 850 Hz, 6.7 ms at 300 Hz once the swing exceeds
+//!   0.5 µm, however slowly it grows beyond 6 % per half-cycle. A ringing that
+//!   decays (a step's, a triangle's corners), however lightly damped, never
+//!   grows;
+//! * **sustained:** `HALF_CYCLES` half-cycles in a row with peaks beyond
+//!   `±SWING` — a loop in a limit cycle (that stopped growing at a limit): three
+//!   periods of an oscillation above 125 Hz, 3.5 ms at 850 Hz, 10 ms at 300 Hz.
+//!   A 100 Hz triangle's corners (5 ms apart) or a step's two or three swings
+//!   never do.
 //!
 //! **Saturation.** The command held at the stroke's edge or the step limited (by
 //! the voltage range or the slew) for `SATURATED_TICKS` ticks in a row trips
@@ -20,14 +30,22 @@
 use piezo_fpi::control::Fault;
 use piezo_fpi::q::Micrometres;
 
-/// The swing a half-cycle must exceed, µm (`I16F16` bits: 2.5 µm). Above the
-/// ringing a 100 Hz triangle's corners leave in a PI's correction on an undamped
-/// 850 Hz mode (a forced, bounded ringing that must not trip).
+/// The swing a sustained oscillation's half-cycles must exceed, µm (`I16F16`
+/// bits: 2.5 µm). Above the ringing a 100 Hz triangle's corners leave in a PI's
+/// correction on an undamped 850 Hz mode (a forced, bounded ringing that must
+/// not trip).
 pub const SWING: i32 = 5 << 15;
+/// The swing that ends a half-cycle, µm (`I16F16` bits: 0.5 µm).
+pub const GROWTH_SWING: i32 = 1 << 15;
+/// A growing half-cycle's peak exceeds the last one's by at least 2^-GROWTH_SHIFT
+/// of it (6.25 %).
+pub const GROWTH_SHIFT: u32 = 4;
 /// The low-pass the swing is measured against: `m += (δ − m) >> MEAN_SHIFT`.
 pub const MEAN_SHIFT: u32 = 5;
-/// Half-cycles in a row that trip the fault.
-pub const HALF_CYCLES: u16 = 8;
+/// Half-cycles in a row beyond [`SWING`] that trip the fault.
+pub const HALF_CYCLES: u16 = 6;
+/// Growing half-cycles in a row that trip the fault.
+pub const GROWING_HALF_CYCLES: u16 = 4;
 /// Longest time between two half-cycles of one oscillation, ticks (4 ms).
 pub const MAX_HALF_TICKS: u16 = 80;
 /// Ticks in a row at a limit that trip the fault (20 ms at 20 kHz).
@@ -38,7 +56,12 @@ pub const SATURATED_TICKS: u16 = 400;
 pub struct LoopWatch {
     mean: i32,
     side: i8,
+    /// The largest swing of the half-cycle in progress and of the last one
+    /// (`I16F16` bits, ≥ 0).
+    peak: i32,
+    last_peak: i32,
     half_cycles: u16,
+    growing: u16,
     since: u16,
     saturated: u16,
 }
@@ -49,7 +72,10 @@ impl LoopWatch {
         Self {
             mean: 0,
             side: 0,
+            peak: 0,
+            last_peak: 0,
             half_cycles: 0,
+            growing: 0,
             since: 0,
             saturated: 0,
         }
@@ -67,35 +93,52 @@ impl LoopWatch {
         let d = delta.to_bits();
         let hp = d.saturating_sub(self.mean);
         self.mean = self.mean.saturating_add(hp >> MEAN_SHIFT);
-        let side = if hp > SWING {
+        let side = if hp > GROWTH_SWING {
             1
-        } else if hp < -SWING {
+        } else if hp < -GROWTH_SWING {
             -1
         } else {
             0
         };
         self.since = self.since.saturating_add(1);
         if side != 0 && side != self.side {
-            self.half_cycles = if self.side != 0 && self.since <= MAX_HALF_TICKS {
-                self.half_cycles.saturating_add(1)
-            } else {
-                0
-            };
+            self.half_cycle_ends();
             self.side = side;
             self.since = 0;
         }
+        self.peak = self.peak.max(hp.saturating_abs());
         self.saturated = if limited {
             self.saturated.saturating_add(1)
         } else {
             0
         };
-        if self.half_cycles >= HALF_CYCLES {
+        if self.half_cycles >= HALF_CYCLES || self.growing >= GROWING_HALF_CYCLES {
             Some(Fault::Oscillation)
         } else if self.saturated >= SATURATED_TICKS {
             Some(Fault::Saturated)
         } else {
             None
         }
+    }
+
+    /// The half-cycle in progress ended (the swing crossed to the other side):
+    /// counts it for either rule, or starts the counts again.
+    #[inline]
+    fn half_cycle_ends(&mut self) {
+        let chained = self.side != 0 && self.since <= MAX_HALF_TICKS;
+        let (peak, last) = (self.peak, self.last_peak);
+        self.half_cycles = if chained && peak > SWING {
+            self.half_cycles.saturating_add(1)
+        } else {
+            0
+        };
+        self.growing = if chained && peak >= last.saturating_add(last >> GROWTH_SHIFT) {
+            self.growing.saturating_add(1)
+        } else {
+            0
+        };
+        self.last_peak = if chained { peak } else { 0 };
+        self.peak = 0;
     }
 }
 
@@ -130,6 +173,44 @@ mod tests {
         assert_eq!(run(&mut w, 100.0, 5.0, 40_000), None);
         let mut w = LoopWatch::new();
         assert_eq!(run(&mut w, 850.0, 2.0, 40_000), None);
+    }
+
+    /// A sine whose amplitude is multiplied by `growth` every half-period.
+    fn growing(w: &mut LoopWatch, f_hz: f64, from_um: f64, growth: f64) -> Option<(u32, f64)> {
+        for k in 0..20_000u32 {
+            let t = k as f64 / 20_000.0;
+            let amp = from_um * growth.powf(2.0 * f_hz * t);
+            let v = amp * (core::f64::consts::TAU * f_hz * t).sin();
+            if let Some(f) = w.update(Micrometres::from_num(v), false) {
+                assert_eq!(f, Fault::Oscillation);
+                return Some((k, amp));
+            }
+        }
+        None
+    }
+
+    #[test]
+    fn a_growing_oscillation_trips_while_it_is_small() {
+        // Growing by a fifth per half-cycle from 0.2 µm: caught below 3 µm.
+        for f_hz in [300.0, 850.0, 2000.0] {
+            let mut w = LoopWatch::new();
+            let (k, amp) = growing(&mut w, f_hz, 0.2, 1.2).unwrap();
+            assert!(amp < 3.0, "{f_hz} Hz: {amp} µm after {k} ticks");
+        }
+    }
+
+    #[test]
+    fn a_decaying_ringing_does_not_trip_however_light_its_damping() {
+        // ζ = 0.005 at 850 Hz: 1.6 % less per half-cycle, from 2.4 µm, kicked
+        // again every 5 ms (a 100 Hz triangle's corners on an undamped stage).
+        let mut w = LoopWatch::new();
+        for k in 0..40_000u32 {
+            let t = (k % 100) as f64 / 20_000.0;
+            let v = 2.4
+                * (-0.005 * core::f64::consts::TAU * 850.0 * t).exp()
+                * (core::f64::consts::TAU * 850.0 * t).sin();
+            assert_eq!(w.update(Micrometres::from_num(v), false), None, "tick {k}");
+        }
     }
 
     #[test]

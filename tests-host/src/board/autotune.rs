@@ -64,15 +64,6 @@ fn bare(c: &mut Client) -> Result<()> {
     Ok(())
 }
 
-/// Parks the stage and waits for the safe voltage.
-pub fn park(c: &mut Client) -> Result<()> {
-    c.ack(&Command::Safe)?;
-    Follow::new(c, 0).until("the safe voltage", |s| {
-        Ok(s.fault.is_some_and(|f| f.safe_at.is_some()))
-    })?;
-    Ok(())
-}
-
 /// Runs autotune on `c`, which must run `fw`; loads the tuned model (`store`:
 /// also into flash). `progress` hears what is happening.
 pub fn run(
@@ -115,7 +106,7 @@ pub fn run(
     let tuned = tune::with_tuning(fw, &t, o)?;
     let tuned_image = tuned.image().map_err(anyhow::Error::msg)?;
     progress("loading the tuned model");
-    park(c)?;
+    c.park()?;
     c.upload(&tuned_image, store, |_| {})
         .context("loading the tuned model")?;
     let step = verify(c)?;
