@@ -100,6 +100,21 @@ fn tune_writes_gains_with_a_stated_margin() {
     assert!(e.contains("--max-sensitivity 0.5"), "{e}");
     let e = common::fails(&["tune", "--firmware", s(&factory), "--out", s(&factory)]);
     assert!(e.contains("refusing to overwrite an input"), "{e}");
+    // Without identified dynamics: a unit plant with the tick's delay (this
+    // panicked on a damping ratio the fixed-point spec cannot hold).
+    let blind = scratch("closed-loop").join("blind.toml");
+    let printed = ok(&[
+        "tune",
+        "--firmware",
+        s(&factory),
+        "--no-damping",
+        "--no-feedforward",
+        "--out",
+        s(&blind),
+    ]);
+    assert!(printed.contains("no dynamics"), "{printed}");
+    let text = std::fs::read_to_string(&blind).unwrap();
+    FirmwareModel::parse(&text, "blind.toml").unwrap();
 }
 
 /// Waits until a fault other than *parked* has latched and the output is safe.
