@@ -213,7 +213,7 @@ impl DampingConfig {
         if lim <= 0 || lim > SIGNAL_ABS_MAX_BITS {
             return Err(Invalid::at(
                 Field::DampingLimit,
-                ModelError::NotRepresentable,
+                ModelError::LimitOutOfRange,
             ));
         }
         if channel.split.to_bits() <= 0 {

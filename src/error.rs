@@ -97,6 +97,8 @@ pub enum ModelError {
     LimitsInverted,
     /// The slew limit (largest change per step) is not positive.
     NonPositiveSlew,
+    /// A correction's limit is not above zero, or beyond the signal range.
+    LimitOutOfRange,
     /// The reference interval reaches beyond the `f_K⁻¹` table's grid.
     ReferenceOutsideTable,
     /// The safe voltage lies outside the voltage limits.
@@ -190,6 +192,7 @@ impl ModelError {
             }
             Self::LimitsInverted => "the lower limit exceeds the upper limit",
             Self::NonPositiveSlew => "the slew limit is not positive",
+            Self::LimitOutOfRange => "the limit must be > 0 µm and within ±32 767 µm",
             Self::ReferenceOutsideTable => "the reference range reaches beyond the f_K⁻¹ table",
             Self::SafeVoltageOutsideLimits => "the safe voltage lies outside the voltage limits",
             Self::NonPositiveTolerance => "the tolerance is not positive",

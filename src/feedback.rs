@@ -80,7 +80,7 @@ impl FeedbackConfig {
         if limit <= 0 || limit > SIGNAL_ABS_MAX_BITS {
             return Err(Invalid::at(
                 Field::FeedbackLimit,
-                ModelError::NotRepresentable,
+                ModelError::LimitOutOfRange,
             ));
         }
         let tol = spec.tolerance.to_bits();
@@ -302,6 +302,16 @@ mod tests {
                 ..spec()
             }),
             Field::FeedbackLimit
+        );
+        let e = FeedbackConfig::new(FeedbackSpec {
+            limit: um(0.0),
+            ..spec()
+        })
+        .unwrap_err();
+        assert!(
+            e.error.message().contains("must be > 0"),
+            "{}",
+            e.error.message()
         );
         assert_eq!(
             bad(FeedbackSpec {

@@ -19,7 +19,17 @@ use crate::q::{at_least, at_most, within, Volts};
 pub const PARK_RATE: Volts = Volts::from_bits(1 << 14);
 /// Change of a park's rate per tick, V per tick², `I16F16` (reaches
 /// [`PARK_RATE`] in 40 ticks: 2 ms at 20 kHz).
-pub const PARK_ACCEL: Volts = Volts::from_bits((1 << 14) / 40);
+pub const PARK_ACCEL: Volts = Volts::from_bits((1 << 14) / PARK_RAMP_TICKS as i32);
+/// Ticks a park takes to reach [`PARK_RATE`] (and to brake from it).
+pub const PARK_RAMP_TICKS: u32 = 40;
+
+/// The most ticks a park over `distance` volts takes (at most the slew limit's
+/// rate permitting): `distance / PARK_RATE + PARK_RAMP_TICKS`, plus two for the
+/// rounding of the last steps (`2√(d/a) ≤ d/R + R/a` covers the short parks that
+/// never reach the full rate).
+pub const fn park_ticks(distance: Volts) -> u32 {
+    (distance.to_bits().unsigned_abs() / PARK_RATE.to_bits() as u32) + PARK_RAMP_TICKS + 2
+}
 
 /// The range and per-step rate the amplifier setpoint must respect.
 ///
@@ -163,8 +173,12 @@ mod tests {
             assert!(prev.1.abs() <= PARK_ACCEL * 2, "arrives slowly: {}", prev.1);
         }
         // 120 V: 40 ticks up, cruise, 40 down: 120/0.25 + 40 ticks.
-        let n = park_path(&l, 120.0, 0.0).len();
-        assert!((515..=530).contains(&n), "{n} ticks");
+        let n = park_path(&l, 120.0, 0.0).len() as u32;
+        assert!((515..=park_ticks(v(120.0))).contains(&n), "{n} ticks");
+        for d in [0.001, 0.5, 3.0, 9.9, 10.1, 40.0, 150.0] {
+            let n = park_path(&l, d, 0.0).len() as u32;
+            assert!(n <= park_ticks(v(d)), "{d} V: {n} ticks");
+        }
         // A slew limit below the park rate bounds it.
         let slow = OutputLimits::new(v(0.0), v(150.0), v(0.1)).unwrap();
         let path = park_path(&slow, 10.0, 0.0);

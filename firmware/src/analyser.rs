@@ -186,7 +186,7 @@ mod tests {
             let e = an.excitation().to_num::<f64>();
             let phi = (k as f64) * step as f64 / 4_294_967_296.0 * core::f64::consts::TAU;
             let x = 2.0 * (phi - theta).sin();
-            let bits = |v: f64| (v * 65536.0).round() as i32;
+            let bits = |v: f64| Micrometres::from_num(v).to_bits();
             if let Some(r) = an.take([bits(x), 0, 0, 0, bits(e)], false) {
                 break r;
             }

@@ -36,7 +36,7 @@ pub fn drive<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>(
         }
         u_hi = out.voltage.to_num::<f64>();
     }
-    let um = |bits: i64| bits as f64 / 65536.0;
+    let um = |bits: i64| Micrometres::from_bits(bits as i32).to_num::<f64>();
     LinearDrive::through(um(lo), u_lo, um(hi), u_hi)
         .ok_or(Invalid::at(Field::Model, ModelError::NotRepresentable))
 }
