@@ -601,6 +601,34 @@ mod bench {
         }
     }
 
+    /// One tick's converter work on the precision front end
+    /// (`fpi_firmware::converters::tick_frames`: read the AD7606's two channels,
+    /// scale them, write the AD5791's code) on SPI devices that answer at once:
+    /// the processor's share, without the bus time. Printed as
+    /// `converter_tick_instructions`.
+    fn converter_report(baseline: u32) {
+        use fpi_firmware::converters::{bench, front_end, tick_frames};
+        let mut fe = bench::front_end();
+        let wave = full_stroke(5.0);
+        let mut w = fpi_firmware::reference::wave::WavePhase::default();
+        let mut c = Counts::new();
+        for _ in 0..STEPS {
+            let u = black_box(Volts::from_bits(wave.next(&mut w).to_bits() << 2));
+            c.add(instructions(
+                ticks(|| tick_frames(&mut fe, &front_end::BOARD, u)),
+                baseline,
+            ));
+        }
+        hprintln!(
+            "converter_tick_instructions: {} (min {} mean {}.{}, {} ticks: AD7606 read and scale, AD5791 write)",
+            c.max,
+            c.min,
+            c.mean_x10() / 10,
+            c.mean_x10() % 10,
+            c.n
+        );
+    }
+
     #[entry]
     fn main() -> ! {
         let Some(mut cp) = cortex_m::Peripherals::take() else {
@@ -625,6 +653,7 @@ mod bench {
             baseline
         );
         biquad_bench::report(baseline);
+        converter_report(baseline);
 
         report(&C4, baseline);
         report(&C10, baseline);
