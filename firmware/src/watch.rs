@@ -11,7 +11,7 @@
 //!
 //! * **growing:** `GROWING_HALF_CYCLES` half-cycles in a row, each peak at least
 //!   `1 + 2^-GROWTH_SHIFT` times the one before — an unstable loop, caught while
-//!   it is small: 2.4 ms at 850 Hz, 6.7 ms at 300 Hz once the swing exceeds
+//!   it is small: 1.8 ms at 850 Hz, 5 ms at 300 Hz once the swing exceeds
 //!   0.5 µm, however slowly it grows beyond 6 % per half-cycle. A ringing that
 //!   decays (a step's, a triangle's corners), however lightly damped, never
 //!   grows;
@@ -45,7 +45,7 @@ pub const MEAN_SHIFT: u32 = 5;
 /// Half-cycles in a row beyond [`SWING`] that trip the fault.
 pub const HALF_CYCLES: u16 = 6;
 /// Growing half-cycles in a row that trip the fault.
-pub const GROWING_HALF_CYCLES: u16 = 4;
+pub const GROWING_HALF_CYCLES: u16 = 3;
 /// Longest time between two half-cycles of one oscillation, ticks (4 ms).
 pub const MAX_HALF_TICKS: u16 = 80;
 /// Ticks in a row at a limit that trip the fault (20 ms at 20 kHz).
