@@ -227,8 +227,8 @@ fn a_step_through_the_board_is_scored_on_the_true_position() {
 /// The tuned loops on a stage far outside the family they were designed for:
 /// what trips, how soon, and how far the stage went.
 fn unstable_run(c: &mut Client, a: &Autotune, v: StageVariant) -> Unstable {
-    use fpi_protocol::LoopMode;
     use fpi_protocol::Command;
+    use fpi_protocol::LoopMode;
     load(c, &a.model, v);
     c.move_to(20.0, 1000.0).unwrap();
     fpi_host::board::follow::Follow::new(c, 0)
@@ -247,10 +247,10 @@ fn unstable_run(c: &mut Client, a: &Autotune, v: StageVariant) -> Unstable {
 /// something on the board) for 100 ms: the fault that latched, how soon, and the
 /// true position's range up to it and after it (the park).
 fn watched(c: &mut Client, start: impl FnOnce(&mut Client) -> u32) -> Unstable {
-    use fpi_protocol::Command;
     use fpi_firmware::recorder::signal;
     use fpi_host::board::client::real;
     use fpi_host::board::follow::Follow;
+    use fpi_protocol::Command;
     let mut f = Follow::new(c, signal::X_TRUE | signal::X_REF | signal::STATUS);
     f.record(1).unwrap();
     f.rec.samples.clear();
@@ -327,8 +327,7 @@ fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
             );
         }
         c.park().unwrap();
-        c.ack(&fpi_protocol::Command::ClearFault)
-            .ok();
+        c.ack(&fpi_protocol::Command::ClearFault).ok();
     }
 }
 
@@ -359,8 +358,8 @@ fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_refused() {
 
 #[test]
 fn a_stage_that_no_longer_matches_its_model_is_caught_in_open_and_closed_loop() {
-    use fpi_protocol::LoopMode;
     use fpi_protocol::Command;
+    use fpi_protocol::LoopMode;
     use piezo_fpi::control::Fault;
     let a = tuned();
     let (_e, mut c) = board("changed stage");
