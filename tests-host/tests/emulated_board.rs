@@ -317,10 +317,11 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
         f.at > last_request + timeout_ticks - 1,
         "not before the timeout"
     );
-    // Within the timeout plus the ramp (150 V at 5 V per tick) and a few ticks of
+    // Within the timeout plus the park (over 150 V at most) and a few ticks of
     // slack for the request's own handling.
+    let park = piezo_fpi::limits::park_ticks(piezo_fpi::q::Volts::const_from_int(150));
     assert!(
-        safe <= last_request + timeout_ticks + 32 + 4,
+        safe <= last_request + timeout_ticks + park + 4,
         "safe at {safe}, last request {last_request}, timeout {timeout_ticks} ticks"
     );
     assert!(!s.amplifier_on);

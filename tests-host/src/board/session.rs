@@ -154,8 +154,8 @@ impl Session<'_> {
     }
 
     /// The force sensor's wire breaks during a 5 Hz stroke: the fault latches at
-    /// once and the output ramps to the safe voltage at the slew limit, then the
-    /// amplifier goes off.
+    /// once and the output parks at the safe voltage along the gentle profile
+    /// (`piezo_fpi::limits`), then the amplifier goes off.
     fn sensor_fault(&mut self) -> Result<PhaseResult> {
         let from = self.f.c.wave(Shape::RaisedCosine, 18.0, 20.0, 5.0, 0)?;
         self.f.until_tick(from + self.f.ticks(0.15))?;
@@ -173,8 +173,9 @@ impl Session<'_> {
             .rec
             .between(f.safe_at.unwrap_or(u32::MAX), to)
             .all(|s| s.status & status::AMPLIFIER_ON == 0);
-        // 150 V at 5 V per tick, and one tick to notice.
-        let ramp_ok = ramp.is_some_and(|r| r <= 32);
+        // The park over the whole 150 V at most, and one tick to notice.
+        let full = piezo_fpi::limits::park_ticks(piezo_fpi::q::Volts::const_from_int(150));
+        let ramp_ok = ramp.is_some_and(|r| r <= full + 1);
         // The broken wire's reading reaches the loop at the next tick's sample.
         p.pass = f.code == Fault::ForceOutOfRange as u8 && f.at == broken + 1 && ramp_ok && off;
         p.note = format!(
