@@ -702,7 +702,7 @@ mod tests {
         let x = Micrometres::from_bits(s.signals[0]).to_num::<f64>();
         assert!(x > 15.0 && x < 25.0, "mid-scale: {x}");
         h.ack(Command::Bench(BenchOrder::SensorOpen(true)));
-        h.run(200);
+        h.run(piezo_fpi::limits::park_ticks(piezo_fpi::q::Volts::const_from_int(150)) + 2);
         let f = h.status().fault.unwrap();
         assert_eq!(f.code, Fault::ForceOutOfRange as u8);
         assert!(f.safe_at.is_some());
@@ -733,7 +733,10 @@ mod tests {
         for _ in 0..OVERRUN_RUN {
             h.board.control.late(true);
         }
-        h.run(40);
+        // The run, then the park (from 10 µm: well under the whole 150 V's).
+        h.run(
+            OVERRUN_RUN + piezo_fpi::limits::park_ticks(piezo_fpi::q::Volts::const_from_int(150)),
+        );
         let s = h.status();
         let f = s.fault.unwrap();
         assert_eq!(f.code, Fault::Overrun as u8);
