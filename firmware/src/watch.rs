@@ -4,7 +4,8 @@
 //! **Oscillation.** The swing watched — the tracking error `x_ref − x_sensor`
 //! where the position loop is closed, else the damping's correction (µm) —
 //! less its own low-pass (`MEAN_SHIFT`: a one-pole at about 100 Hz at 20 kHz),
-//! is a healthy loop's small, slow residue; an unstable loop makes it swing. A *half-cycle* ends each time it goes beyond `±GROWTH_SWING`
+//! is a healthy loop's small, slow residue; an unstable loop makes it swing. A
+//! *half-cycle* ends each time it goes beyond `±GROWTH_SWING`
 //! on the side opposite to its last excursion, within `MAX_HALF_TICKS` of the
 //! previous one (else the count starts again); its *peak* is the largest swing
 //! since the previous one. Two rules trip [`Fault::Oscillation`]:
@@ -31,9 +32,9 @@ use piezo_fpi::control::Fault;
 use piezo_fpi::q::Micrometres;
 
 /// The swing a sustained oscillation's half-cycles must exceed, µm (`I16F16`
-/// bits: 2.5 µm). Above the ringing a 100 Hz triangle's corners leave in a PI's
-/// correction on an undamped 850 Hz mode (a forced, bounded ringing that must
-/// not trip).
+/// bits: 2.5 µm). Above the ringing a 100 Hz triangle's corners leave in the
+/// swing watched on an undamped 850 Hz mode (a forced, bounded ringing that
+/// must not trip).
 pub const SWING: i32 = 5 << 15;
 /// The swing that ends a half-cycle, µm (`I16F16` bits: 0.5 µm).
 pub const GROWTH_SWING: i32 = 1 << 15;
