@@ -31,9 +31,15 @@
 //! | quantity | unit | format |
 //! |---|---|---|
 //! | `r`, `p`, `r_d`, `r_0` | N | `I16F16` |
-//! | `r_s`, `r_0` | N | `I16F48` (raw `i64`) |
-//! | `b` | 1 | `I16F48` (raw `i64`), used as `I2F30`, held to ±0.25 |
+//! | `r_s`, `r_0` (state) | N | `I16F48` (raw `i64`) plus 2⁻¹⁷ (half an `I16F16` LSB), so that the high word is the rounded `I16F16` value |
+//! | `b` | 1 | `I0F32` (raw `i32`), held to `[−0.25, 0.25 − 2⁻³²]` |
 //! | `μ`, `μ_0` | 1/N² and 1 per tick | 2⁻¹⁸ ([`SCALE_ADAPT_SHIFT`]), 2⁻¹¹ ([`OFFSET_ADAPT_SHIFT`]) |
+//!
+//! The scale's step `μ·r_s·Δ` takes `r_s` held to ±32 N and `Δ` to ±2048 N
+//! ([`SCALE_ERROR_MAX_BITS`], [`DELTA_MAX_BITS`]), so that it is one 32 × 32 → 64
+//! multiply whose shifted product fits 32 bits: a slow part beyond 32 N (far
+//! beyond any tolerance a stage is run with) learns the scale no faster than one
+//! of 32 N.
 //!
 //! A reading that stays the same to the bit while the FEM's preload at the
 //! estimated extension moves by more than the tolerance is a stuck sensor
@@ -148,14 +154,32 @@ pub struct ForceChannel {
 /// The force channel's scale adaptation: `b` moves by `2⁻¹⁸·r_s·Δ` per tick
 /// (N², `Δ = f_F(x̂) − f_F(x_0)`): at 20 kHz and a 10 N swing of the preload, a
 /// time constant of 0.13 s. As a shift of the `I32F32` product into `b`'s
-/// `I16F48`: `18 − 16`.
-pub const SCALE_ADAPT_SHIFT: u32 = 2;
+/// `I0F32`: `18 + 32 − 32` (rounded toward −∞).
+pub const SCALE_ADAPT_SHIFT: u32 = 18;
 /// The force channel's offset adaptation: `r_0` moves by `2⁻¹¹·r_s` per tick
 /// (a time constant of 0.1 s at 20 kHz), so that an offset the tare missed (a
 /// stage that settled after it) does not bias the scale.
 pub const OFFSET_ADAPT_SHIFT: u32 = 11;
-/// Largest learned scale error `|b|` (`I16F48` bits): 0.25.
-const SCALE_MAX_BITS: i64 = 1 << 46;
+/// Largest learned scale error `|b|` (`I0F32` bits): 0.25 (`b` is held to
+/// `[−2³⁰, 2³⁰ − 1]`, one `ssat`).
+const SCALE_MAX_BITS: i32 = 1 << 30;
+/// The slow part `r_s` the scale's step takes, held to `[−2²¹, 2²¹ − 1]`
+/// (`I16F16` bits: ±32 N).
+pub const SCALE_ERROR_MAX_BITS: i32 = 1 << 21;
+/// The preload's change `Δ` the scale's step takes, held to `[−2²⁷, 2²⁷ − 1]`
+/// (`I16F16` bits: ±2048 N). With [`SCALE_ERROR_MAX_BITS`], `|r_s·Δ| ≤ 2⁴⁸`:
+/// the step is at most 2³⁰, and `b` plus it cannot overflow 32 bits.
+pub const DELTA_MAX_BITS: i32 = 1 << 27;
+/// Half an `I16F16` LSB in `I16F48` (raw `i64`): the rounding bias `r_s` and
+/// `r_0` carry.
+const HALF_LSB_I16F48: i64 = 1 << 31;
+
+/// The high word of an `I16F48` (raw `i64`): the `I16F16` bits, rounded for a
+/// value stored with [`HALF_LSB_I16F48`].
+#[inline(always)]
+const fn hi_word(x: i64) -> i32 {
+    (x >> 32) as i32
+}
 
 /// The force channel's default split corner, Hz: well above the motion a preload
 /// change follows, well below any first mode of a stage.
@@ -457,7 +481,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         {
             st.force_ref = force;
             // The channel starts settled: the residual at rest is the offset.
-            st.force_tare_offset = residual(force, self.f_f.eval(st.x_pea_est));
+            st.force_tare_model = self.f_f.eval(st.x_pea_est);
             st.forget_force_learning();
             true
         } else {
@@ -480,9 +504,9 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             force_ref: self.fpi.coupling().force_ref,
             voltage: self.safe_voltage,
             x_pea_est: Micrometres::ZERO,
-            force_slow: 0,
-            force_offset: 0,
-            force_tare_offset: Newtons::ZERO,
+            force_slow: HALF_LSB_I16F48,
+            force_offset: HALF_LSB_I16F48,
+            force_tare_model: self.fpi.coupling().force_ref,
             force_scale: 0,
             fault: None,
             force_held: Newtons::MIN,
@@ -501,9 +525,28 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
     /// With a predicted force the reading is ignored. Bounded time, no panic.
     #[inline(always)]
     pub fn sense(&self, st: &mut ControllerState<N, C>, reading: Newtons) -> Forces {
+        if matches!(self.force_source, ForceSource::Measured) {
+            self.sense_as::<true>(st, reading)
+        } else {
+            self.sense_as::<false>(st, reading)
+        }
+    }
+
+    /// [`sense`](Self::sense) with the force source resolved at compile time.
+    ///
+    /// The channel's state is kept so that the tick needs no 64-bit shift or
+    /// compare: `r_s` and `r_0` carry a rounding bias of half an `I16F16` LSB in
+    /// their low words (their high words are the rounded values), `r_s` advances
+    /// by one multiply-accumulate (`smlal`) and `b` is an `I0F32` word
+    /// (`b·Δ` one rounding `smmulr`, its clamp one `ssat`).
+    #[inline(always)]
+    fn sense_as<const MEASURED: bool>(
+        &self,
+        st: &mut ControllerState<N, C>,
+        reading: Newtons,
+    ) -> Forces {
         let model = self.f_f.eval(st.x_pea_est);
-        let in_range = self.force_window.contains(reading);
-        if !matches!(self.force_source, ForceSource::Measured) {
+        if !MEASURED {
             return Forces {
                 reading,
                 feedforward: model,
@@ -511,40 +554,49 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
                 in_range: true,
             };
         }
-        let r = residual(reading, model);
-        let split = self.channel.split.to_bits() as i64;
+        let in_range = self.force_window.contains(reading);
+        let r = residual(reading, model).to_bits();
+        let split = self.channel.split.to_bits();
         let slow = if split == 0 {
             r
         } else {
             // The learned static part: the offset and the scale error times the
-            // FEM preload's change since the tare (the model's preload there is
-            // the tared reading less the offset taken then).
-            let at_tare = residual(st.force_ref, st.force_tare_offset);
-            let delta = residual(model, at_tare).to_bits() as i64;
-            let b = (st.force_scale >> 18) as i32 as i64; // I2F30
-            let learned = Newtons::from_bits(
-                (((st.force_offset + (1 << 31)) >> 32) + ((b * delta + (1 << 29)) >> 30)) as i32,
-            );
+            // FEM preload's change since the tare.
+            let delta = residual(model, st.force_tare_model).to_bits();
+            let b = st.force_scale;
+            // round(b·Δ): I0F32 × I16F16 → I16F16 (`smmulr`).
+            let scaled = ((b as i64 * delta as i64 + (1 << 31)) >> 32) as i32;
+            let learned = hi_word(st.force_offset).wrapping_add(scaled);
             if in_range {
-                let e = residual(r, learned).to_bits() as i64;
-                let diff = e - (st.force_slow >> 32);
-                st.force_slow = st.force_slow.wrapping_add(diff * split);
+                // r_s += a·(r − p − r_s): I16F16 × I0F32 into I16F48 (`smlal`).
+                let diff = r
+                    .wrapping_sub(learned)
+                    .saturating_sub(hi_word(st.force_slow));
+                st.force_slow = st.force_slow.wrapping_add(diff as i64 * split as i64);
                 if st.fault.is_none() {
                     // Least mean squares on the slow part: the offset and the scale.
-                    let rs = st.force_slow >> 32; // I16F16 bits of r_s
-                    st.force_offset += (rs << 32) >> OFFSET_ADAPT_SHIFT;
-                    let step = (rs * delta) >> SCALE_ADAPT_SHIFT;
+                    let rs = hi_word(st.force_slow); // I16F16 bits of r_s
+                    st.force_offset = st
+                        .force_offset
+                        .wrapping_add((rs as i64) << (32 - OFFSET_ADAPT_SHIFT));
+                    // μ·r_s·Δ as I0F32: the I32F32 product shifted by
+                    // SCALE_ADAPT_SHIFT, its factors held (`ssat`) so that it
+                    // stays within ±2³⁰ (see SCALE_ERROR_MAX_BITS, DELTA_MAX_BITS).
+                    #[allow(clippy::manual_clamp)]
+                    let rs = rs.max(-SCALE_ERROR_MAX_BITS).min(SCALE_ERROR_MAX_BITS - 1);
+                    #[allow(clippy::manual_clamp)]
+                    let d = delta.max(-DELTA_MAX_BITS).min(DELTA_MAX_BITS - 1);
+                    let step = ((rs as i64 * d as i64) >> SCALE_ADAPT_SHIFT) as i32;
                     // max/min, not `clamp`: no panic branch on the ISR path.
                     #[allow(clippy::manual_clamp)]
-                    let scale = (st.force_scale + step)
+                    let scale = b
+                        .wrapping_add(step)
                         .max(-SCALE_MAX_BITS)
-                        .min(SCALE_MAX_BITS);
+                        .min(SCALE_MAX_BITS - 1);
                     st.force_scale = scale;
                 }
             }
-            learned.wrapping_add(Newtons::from_bits(
-                ((st.force_slow + (1 << 31)) >> 32) as i32,
-            ))
+            learned.wrapping_add(hi_word(st.force_slow))
         };
         // A reading frozen (bit for bit) while the FEM's preload at the estimate
         // moved by more than the tolerance: a stuck sensor, whatever the learned
@@ -562,20 +614,16 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             if !in_range {
                 st.fault = Some(Fault::ForceOutOfRange);
             } else if stuck
-                || !self.residual_window.contains(slow)
-                || !self.dynamic_window.contains(r)
+                || !self.residual_window.contains_bits(slow)
+                || !self.dynamic_window.contains_bits(r)
             {
                 st.fault = Some(Fault::ForceImplausible);
             }
         }
         Forces {
             reading,
-            feedforward: model.wrapping_add(slow),
-            dynamic: if in_range {
-                r.wrapping_sub(slow)
-            } else {
-                Newtons::ZERO
-            },
+            feedforward: model.wrapping_add(Newtons::from_bits(slow)),
+            dynamic: Newtons::from_bits(if in_range { r.wrapping_sub(slow) } else { 0 }),
             in_range,
         }
     }
@@ -593,8 +641,29 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         x_ref: Micrometres,
         force: Newtons,
     ) -> StepOutput {
-        let f = self.sense(st, force);
-        self.step_sensed(st, x_ref, &f)
+        // One branch on the force source and the model's structure for both the
+        // channel and the step.
+        match (
+            matches!(self.force_source, ForceSource::Measured),
+            self.fpi.is_bare(),
+        ) {
+            (true, true) => {
+                let f = self.sense_as::<true>(st, force);
+                self.step_with::<true, true>(st, x_ref, &f)
+            }
+            (true, false) => {
+                let f = self.sense_as::<true>(st, force);
+                self.step_with::<true, false>(st, x_ref, &f)
+            }
+            (false, true) => {
+                let f = self.sense_as::<false>(st, force);
+                self.step_with::<false, true>(st, x_ref, &f)
+            }
+            (false, false) => {
+                let f = self.sense_as::<false>(st, force);
+                self.step_with::<false, false>(st, x_ref, &f)
+            }
+        }
     }
 
     /// The control step on a force channel read this tick ([`sense`](Self::sense)):
@@ -848,14 +917,17 @@ pub struct ControllerState<const N: usize, const C: usize = 0> {
     force_ref: Newtons,
     voltage: Volts,
     x_pea_est: Micrometres,
-    /// The slow part `r_s` of the force residual, N, `I16F48` (raw `i64`).
+    /// The slow part `r_s` of the force residual, N, `I16F48` (raw `i64`) plus
+    /// [`HALF_LSB_I16F48`]: its high word is `r_s` rounded to `I16F16`.
     force_slow: i64,
-    /// The learned offset `r_0` of the preload map, N, `I16F48` (raw `i64`).
+    /// The learned offset `r_0` of the preload map, N, `I16F48` (raw `i64`) plus
+    /// [`HALF_LSB_I16F48`].
     force_offset: i64,
-    /// The residual at the tare, N: where the scale's change is counted from.
-    force_tare_offset: Newtons,
-    /// The learned scale error `b` of the preload map, `I16F48` (raw `i64`).
-    force_scale: i64,
+    /// The FEM's preload at the tare, `f_F(x_0)`, N: where the scale's change
+    /// `Δ` is counted from (the tared reading less the offset taken then).
+    force_tare_model: Newtons,
+    /// The learned scale error `b` of the preload map, `I0F32` (raw `i32`).
+    force_scale: i32,
     fault: Option<Fault>,
     /// The last force reading that differed from the one before, N, and the
     /// FEM's preload at the estimate then, N (the stuck-sensor check).
@@ -870,15 +942,15 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
     /// The slow part of the force residual beyond the learned map, N (rounded to
     /// `I16F16`).
     pub const fn force_slow(&self) -> Newtons {
-        Newtons::from_bits(((self.force_slow + (1 << 31)) >> 32) as i32)
+        Newtons::from_bits(hi_word(self.force_slow))
     }
-    /// The preload map's learned offset, N.
+    /// The preload map's learned offset, N (rounded to `I16F16`).
     pub const fn force_offset(&self) -> Newtons {
-        Newtons::from_bits(((self.force_offset + (1 << 31)) >> 32) as i32)
+        Newtons::from_bits(hi_word(self.force_offset))
     }
     /// The learned scale error of the preload map (dimensionless, ±0.25).
     pub fn force_scale(&self) -> f64 {
-        self.force_scale as f64 / (1u64 << 48) as f64
+        self.force_scale as f64 / (1u64 << 32) as f64
     }
     /// The latched fault, if any.
     pub const fn fault(&self) -> Option<Fault> {
@@ -918,8 +990,9 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
     /// learned may be the fault's. The slow part settles again within a few of
     /// its time constants (16 ms at the default 10 Hz split) while parked.
     pub fn forget_force_learning(&mut self) {
-        self.force_offset = (self.force_tare_offset.to_bits() as i64) << 32;
-        self.force_slow = 0;
+        let at_tare = residual(self.force_ref, self.force_tare_model);
+        self.force_offset = ((at_tare.to_bits() as i64) << 32) + HALF_LSB_I16F48;
+        self.force_slow = HALF_LSB_I16F48;
         self.force_scale = 0;
     }
 

@@ -146,9 +146,9 @@ impl<F: Real> Controller<'_, F> {
             r
         } else {
             // The learned map: the offset at the tare and the scale error (used
-            // to 2⁻³⁰, as the fixed-point channel does).
+            // to 2⁻³², as the fixed-point channel keeps it).
             let delta = model - (self.force_ref - st.force_tare_offset);
-            let q = F::of(1073741824.0); // 2³⁰
+            let q = F::of(4294967296.0); // 2³²
             let b = (st.force_scale * q).floor() / q;
             let learned = st.force_offset + b * delta;
             if in_range {
@@ -157,8 +157,11 @@ impl<F: Real> Controller<'_, F> {
                     st.force_offset += F::of(1.0 / 2048.0) * st.force_slow; // 2⁻¹¹
                     let mu = F::of(1.0 / 262144.0); // 2⁻¹⁸
                     let lim = F::of(0.25);
-                    st.force_scale =
-                        (st.force_scale + mu * st.force_slow * delta).clamp_to(-lim, lim);
+                    // The step's factors held as the fixed-point channel holds
+                    // them (±32 N and ±2048 N).
+                    let rs = st.force_slow.clamp_to(F::of(-32.0), F::of(32.0));
+                    let d = delta.clamp_to(F::of(-2048.0), F::of(2048.0));
+                    st.force_scale = (st.force_scale + mu * rs * d).clamp_to(-lim, lim);
                 }
             }
             learned + st.force_slow
