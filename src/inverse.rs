@@ -200,11 +200,13 @@ impl<const N: usize> InversePi<N> {
         // S_N in GAIN_FRAC bits: |S_j| <= sum|w| fits an i32 (checked by PiModel::new).
         let w0 = fwd.w0().to_bits();
         let mut s = fwd.bank().slope();
-        let round =
-            |v: i64| Micrometres::from_bits(((v + (1 << (GAIN_FRAC - 1))) >> GAIN_FRAC) as i32);
+        // `tail` carries the rounding half LSB from the start, so that each
+        // rounding below is a shift alone (the same values as rounding each sum).
+        let round = |v: i64| Micrometres::from_bits((v >> GAIN_FRAC) as i32);
         // The new outputs z_j first: the gap form needs the new last input too.
         let mut z = [Micrometres::ZERO; N];
-        let mut tail: i64 = 0; // Σ_{i>j} w_i y_i, GAIN + SIGNAL bits
+        // Σ_{i>j} w_i y_i + ½ LSB, GAIN + SIGNAL bits.
+        let mut tail: i64 = 1 << (GAIN_FRAC - 1);
         for (j, (op, z)) in ops.iter().zip(z.iter_mut()).enumerate().rev() {
             let y = fwd_state.output(fwd.bank(), j).to_bits();
             *z = round(s as i64 * y as i64 + tail);
