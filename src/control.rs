@@ -576,9 +576,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
                 if st.fault.is_none() {
                     // Least mean squares on the slow part: the offset and the scale.
                     let rs = hi_word(st.force_slow); // I16F16 bits of r_s
-                    st.force_offset = st
-                        .force_offset
-                        .wrapping_add((rs as i64) << (32 - OFFSET_ADAPT_SHIFT));
+                    st.force_offset = add_shifted(st.force_offset, rs);
                     // μ·r_s·Δ as I0F32: the I32F32 product shifted by
                     // SCALE_ADAPT_SHIFT, its factors held (`ssat`) so that it
                     // stays within ±2³⁰ (see SCALE_ERROR_MAX_BITS, DELTA_MAX_BITS).
@@ -642,7 +640,9 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         force: Newtons,
     ) -> StepOutput {
         // One branch on the force source and the model's structure for both the
-        // channel and the step.
+        // channel and the step. A model received at run time has its structure
+        // as a flag: its general path is out of line, so that the paper's FPI,
+        // the one the ISR's budget is set for, is compiled alone.
         match (
             matches!(self.force_source, ForceSource::Measured),
             self.fpi.is_bare(),
@@ -651,19 +651,43 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
                 let f = self.sense_as::<true>(st, force);
                 self.step_with::<true, true>(st, x_ref, &f)
             }
-            (true, false) => {
-                let f = self.sense_as::<true>(st, force);
-                self.step_with::<true, false>(st, x_ref, &f)
-            }
+            (true, false) => self.step_general::<true>(st, x_ref, force),
             (false, true) => {
                 let f = self.sense_as::<false>(st, force);
                 self.step_with::<false, true>(st, x_ref, &f)
             }
-            (false, false) => {
-                let f = self.sense_as::<false>(st, force);
-                self.step_with::<false, false>(st, x_ref, &f)
-            }
+            (false, false) => self.step_general::<false>(st, x_ref, force),
         }
+    }
+
+    /// [`step`](Self::step) for a model that is not the paper's bare FPI:
+    /// inlined where the model's structure is in its type (the one path), out of
+    /// line where it is a run-time flag.
+    #[inline(always)]
+    fn step_general<const MEASURED: bool>(
+        &self,
+        st: &mut ControllerState<N, C>,
+        x_ref: Micrometres,
+        force: Newtons,
+    ) -> StepOutput {
+        if G::FIXED.is_some() && H::FIXED.is_some() {
+            let f = self.sense_as::<MEASURED>(st, force);
+            self.step_with::<MEASURED, false>(st, x_ref, &f)
+        } else {
+            self.step_general_outlined::<MEASURED>(st, x_ref, force)
+        }
+    }
+
+    /// [`step_general`](Self::step_general), out of line.
+    #[inline(never)]
+    fn step_general_outlined<const MEASURED: bool>(
+        &self,
+        st: &mut ControllerState<N, C>,
+        x_ref: Micrometres,
+        force: Newtons,
+    ) -> StepOutput {
+        let f = self.sense_as::<MEASURED>(st, force);
+        self.step_with::<MEASURED, false>(st, x_ref, &f)
     }
 
     /// The control step on a force channel read this tick ([`sense`](Self::sense)):
@@ -697,7 +721,8 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         if let Some(fault) = self.supervise(st, x_ref) {
             return self.ramp_to_safe(st, forces, fault);
         }
-        let x_pea_ref = self.f_k_inv.eval(x_ref);
+        // The reference passed its window, which lies inside the grid.
+        let x_pea_ref = self.f_k_inv.eval_from_x_min(x_ref);
         let f = if MEASURED {
             forces.feedforward
         } else {
@@ -1013,6 +1038,18 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
     }
 }
 
+/// `x + 2⁻¹¹·rs` for an `I16F48` `x` (raw `i64`) and an `I16F16` `rs` (raw
+/// `i32`), exact and wrapping ([`OFFSET_ADAPT_SHIFT`]): written as its two words
+/// with the carry, so that it is one `adds` and one `adc` with shifted operands.
+#[inline(always)]
+const fn add_shifted(x: i64, rs: i32) -> i64 {
+    let (lo, carry) = (x as u32).overflowing_add((rs as u32) << (32 - OFFSET_ADAPT_SHIFT));
+    let hi = ((x >> 32) as i32)
+        .wrapping_add(rs >> OFFSET_ADAPT_SHIFT)
+        .wrapping_add(carry as i32);
+    ((hi as i64) << 32) | lo as i64
+}
+
 /// `reading − model` (N): exact for readings and maps inside ±4096 N.
 #[inline(always)]
 const fn residual(reading: Newtons, model: Newtons) -> Newtons {
@@ -1105,6 +1142,37 @@ impl LinearDrive {
 mod tests {
     use super::*;
     use crate::testkit::{self, force_at, TestController};
+
+    /// The offset's update in two words with the carry is the `i64` one.
+    #[test]
+    fn the_offset_update_in_two_words_is_exact() {
+        let xs = [
+            0i64,
+            HALF_LSB_I16F48,
+            -1,
+            (61i64 << 48) + 12_345,
+            -(61i64 << 48) - 7,
+            ((1i64 << 28) << 32) - 1,
+            i64::MIN / 3,
+        ];
+        let rss = [
+            0,
+            1,
+            -1,
+            2047,
+            -2048,
+            1 << 20,
+            -(1 << 28),
+            i32::MAX,
+            i32::MIN,
+        ];
+        for &x in &xs {
+            for &rs in &rss {
+                let want = x.wrapping_add((rs as i64) << (32 - OFFSET_ADAPT_SHIFT));
+                assert_eq!(add_shifted(x, rs), want, "{x} {rs}");
+            }
+        }
+    }
 
     fn with(force: Interval, tolerance: Newtons) -> Result<TestController, ModelError> {
         let p = testkit::parts(ForceSource::Measured);

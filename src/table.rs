@@ -191,6 +191,27 @@ impl<'a> Table<'a> {
         }
     }
 
+    /// [`eval`](Self::eval) for an `x` the caller knows to be at least
+    /// [`x_min`](Self::x_min) (a reference checked against a window inside the
+    /// grid): the same value there, without the clamp below the grid. Below it
+    /// the offset wraps to at least 2³¹ LSB, an interval index of at least 2¹⁵
+    /// (the spacing is at most 2¹⁶ LSB), beyond any table: the last knot's value
+    /// is returned, no panic, no out-of-bounds read.
+    #[inline]
+    pub fn eval_from_x_min(&self, x: I16F16) -> I16F16 {
+        let d = x.to_bits().wrapping_sub(self.x0.to_bits()) as u32;
+        let p = d as u64 * self.scale as u64;
+        match self.segments.get((p >> 32) as usize) {
+            Some(s) => {
+                let phi = ((p as u32) >> 1) as i64;
+                let rise = s.twice_rise as i64;
+                let step = ((rise * phi + (1 << 31)) >> 32) as i32;
+                I16F16::from_bits(s.start.to_bits() + step)
+            }
+            None => self.end,
+        }
+    }
+
     /// First grid point (input unit).
     pub const fn x_min(&self) -> I16F16 {
         self.x0
@@ -271,6 +292,27 @@ mod tests {
         assert_eq!(t.eval(v(9.0)), v(0.75));
         assert_eq!(t.eval(I16F16::MIN), v(0.0));
         assert_eq!(t.eval(I16F16::MAX), v(0.75));
+    }
+
+    /// From the first knot on, the evaluation without the lower clamp is the
+    /// same; below it, it holds the last knot's value without a panic.
+    #[test]
+    fn evaluation_from_the_first_knot_matches_and_stays_in_bounds() {
+        let segs: [Segment; 3] = Segment::between(&[v(-1.0), v(-0.875), v(-0.625), v(-0.25)]);
+        for shift in [MIN_SHIFT, 8, 14, MAX_SHIFT] {
+            let t = Table::new(v(-1.0), shift, &segs).unwrap();
+            let top = t.x_max().to_bits();
+            let mut x = t.x_min().to_bits();
+            while x <= top + (1 << shift) {
+                let xi = I16F16::from_bits(x);
+                assert_eq!(t.eval_from_x_min(xi), t.eval(xi), "shift {shift} x {x}");
+                x += (1 << shift) / 3 + 1;
+            }
+            for below in [t.x_min() - I16F16::DELTA, v(-2.0), I16F16::MIN] {
+                assert_eq!(t.eval_from_x_min(below), t.last());
+            }
+            assert_eq!(t.eval_from_x_min(I16F16::MAX), t.last());
+        }
     }
 
     /// The multiply-split evaluation equals the plain one: index by a shift,
