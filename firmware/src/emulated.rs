@@ -97,8 +97,8 @@ impl Bench {
                 self.offset = Newtons::from_bits(bits).to_num::<f32>();
             }
             BenchOrder::Stall(ticks) => self.stall = ticks,
-            // The link handler damages the stored model itself.
-            BenchOrder::DamageStored => {}
+            // The link handler damages the stored model and paces the link itself.
+            BenchOrder::DamageStored | BenchOrder::Link(_) => {}
             BenchOrder::PositionOpen(open) => self.position_open = open,
             BenchOrder::PositionStuck(stuck) => {
                 self.position_stuck = stuck.then_some(self.position);
@@ -275,12 +275,13 @@ impl Board for Virtual {
 mod tests {
     use super::*;
     use crate::frontend::{FORCE_ADC, SETPOINT_DAC};
+    use crate::hardware::RATE_HZ;
     use crate::link::frame;
     use crate::link::protocol::{
-        Command, Header, Refusal, Reply, ReplyHeader, SlotReport, Status, MAX_CHUNK, MAX_FRAME,
-        NO_SEQ, VERSION,
+        Command, Header, LinkKind, Refusal, Reply, ReplyHeader, SlotReport, Status, MAX_CHUNK,
+        MAX_FRAME, NO_SEQ, VERSION,
     };
-    use crate::recorder::{signal, Recorder};
+    use crate::recorder::{signal, Recorder, Sample};
     use crate::reference::stream::Points;
     use crate::reference::wave::Shape;
     use piezo_fpi::control::Fault;
@@ -322,13 +323,32 @@ mod tests {
 
     impl Host {
         fn raw(&mut self, frame_bytes: &mut [u8]) -> (ReplyHeader, Reply) {
+            let (h, reply, _) = self.raw_sized(frame_bytes);
+            (h, reply)
+        }
+
+        /// The reply to a frame, and the reply frame's size, bytes.
+        fn raw_sized(&mut self, frame_bytes: &mut [u8]) -> (ReplyHeader, Reply, usize) {
             let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
             let n = self
                 .handler
                 .handle(&mut self.board, frame_bytes, &mut scratch, &mut out);
             assert!(n > 0 && out[n - 1] == 0);
             let (h, body) = frame::decode::<ReplyHeader>(&mut out[..n - 1]).unwrap();
-            (h, frame::body::<Reply>(body).unwrap())
+            (h, frame::body::<Reply>(body).unwrap(), n)
+        }
+
+        /// The reply to `cmd` and its size on the line, bytes.
+        fn sized(&mut self, cmd: Command<'_>) -> (usize, Reply) {
+            self.seq = self.seq.wrapping_add(1);
+            let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
+            let h = Header {
+                version: VERSION,
+                seq: self.seq,
+            };
+            let n = frame::encode(&h, &cmd, &mut scratch, &mut out).unwrap();
+            let (_, reply, m) = self.raw_sized(&mut out[..n - 1]);
+            (m, reply)
         }
 
         fn send(&mut self, cmd: Command<'_>) -> Reply {
@@ -605,6 +625,8 @@ mod tests {
     fn a_recording_reads_back_with_its_ticks_and_drops_are_counted() {
         let mut h = host();
         h.run(5);
+        // 5 000 samples/s of two signals: more than the UART carries.
+        h.ack(Command::Bench(BenchOrder::Link(LinkKind::Usb)));
         h.ack(Command::Record {
             decimation: 4,
             signals: signal::X_REF | signal::X_TRUE,
@@ -620,7 +642,7 @@ mod tests {
             match h.send(Command::ReadRecord { max: 1000 }) {
                 Reply::Record(b) => {
                     assert_eq!(b.values.len() % 3, 0);
-                    ticks.extend(b.values.chunks(3).map(|c| c[0] as u32));
+                    ticks.extend(Sample::batch(b.signals, &b.values).map(|s| s.tick));
                     if b.waiting == 0 {
                         assert_eq!(b.dropped, 0);
                         break;
@@ -639,6 +661,70 @@ mod tests {
         let s = h.status();
         assert_eq!(s.recorder[3], crate::hardware::RECORDER_SAMPLES as u32);
         assert!(s.recorder[2] >= 90, "dropped: {:?}", s.recorder);
+    }
+
+    /// Reads a recording for `ticks` of board time as fast as the link allows;
+    /// the samples read, the bytes of their replies per second of board time
+    /// and the samples dropped.
+    fn read_for(h: &mut Host, ticks: u32) -> (usize, f64, u32) {
+        let (mut samples, mut bytes, mut dropped) = (0, 0, 0);
+        let start = h.board.control.next_tick();
+        let end = start + ticks;
+        while h.board.control.next_tick() < end {
+            let (n, reply) = h.sized(Command::ReadRecord { max: u16::MAX });
+            let Reply::Record(b) = reply else {
+                panic!("{reply:?}")
+            };
+            samples += Sample::batch(b.signals, &b.values).count();
+            bytes += n;
+            dropped = b.dropped;
+        }
+        let seconds = f64::from(h.board.control.next_tick() - start) / f64::from(RATE_HZ);
+        (samples, bytes as f64 / seconds, dropped)
+    }
+
+    #[test]
+    fn the_link_carries_what_its_line_rate_allows() {
+        let mut h = host();
+        h.run(5);
+        // Every signal at 2 000 samples/s: about 20 kB/s of differences.
+        h.ack(Command::Record {
+            decimation: 10,
+            signals: signal::ALL,
+        });
+        h.ack(Command::Wave {
+            axis: 0,
+            shape: Shape::Sine,
+            offset: um(20.0),
+            amplitude: um(15.0),
+            freq_mhz: 15_000,
+            cycles: 0,
+        });
+        // The UART: 11 520 B/s; the ring fills and the rest is dropped.
+        let (samples, rate, dropped) = read_for(&mut h, 20_000);
+        assert!((10_500.0..=11_520.0).contains(&rate), "{rate} B/s");
+        assert!(
+            dropped > 200 && samples < 1_900,
+            "{samples} read, {dropped} dropped"
+        );
+        // Over USB even every tick is kept: 20 000 samples/s.
+        h.ack(Command::Bench(BenchOrder::Link(LinkKind::Usb)));
+        h.ack(Command::Record {
+            decimation: 1,
+            signals: signal::ALL,
+        });
+        let (samples, rate, dropped) = read_for(&mut h, 20_000);
+        assert_eq!(dropped, 0);
+        assert!(samples >= 19_900, "{samples}");
+        // Measured: 15.7 B a sample, framing and polling included (the stage
+        // moving along a 15 Hz sine, all seven signals and the tick): 314 kB/s,
+        // 39 % of the USB link.
+        let per_sample = rate / f64::from(RATE_HZ);
+        println!("USB, every tick, every signal: {per_sample:.1} B a sample, {rate:.0} B/s");
+        assert!(
+            per_sample < 20.0,
+            "{per_sample} B a sample, framing included"
+        );
     }
 
     #[test]

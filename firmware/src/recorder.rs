@@ -9,7 +9,7 @@
 //! Values are the core's raw fixed-point bits (`I16F16`: µm, V, N), so a recording
 //! carries exactly what the loop computed.
 
-pub use fpi_protocol::record::{signal, status, Sample, NO_TRUE_POSITION};
+pub use fpi_protocol::record::{signal, status, wire_len, Sample, NO_TRUE_POSITION};
 
 /// The recorder: its ring (state) and settings.
 #[derive(Debug, Clone)]
@@ -98,6 +98,14 @@ impl<const N: usize> Recorder<N> {
         }
         self.tail = self.tail.wrapping_add(1);
         self.kept = self.kept.wrapping_add(1);
+    }
+
+    /// The oldest sample, left in the ring.
+    pub fn peek(&self) -> Option<Sample> {
+        if self.head == self.tail {
+            return None;
+        }
+        self.buf.get((self.head & Self::MASK) as usize).copied()
     }
 
     /// The link task's side: the oldest sample, removed.

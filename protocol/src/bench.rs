@@ -5,6 +5,7 @@ use serde::de::SeqAccess;
 use serde::ser::SerializeTuple;
 use serde::{Deserialize, Serialize};
 
+use crate::link::LinkKind;
 use crate::wire::{field, Tagged};
 
 crate::wire_enum! {
@@ -28,6 +29,8 @@ crate::wire_enum! {
         PositionStuck = 7,
         /// [`BenchOrder::Stage`].
         Stage = 8,
+        /// [`BenchOrder::Link`].
+        Link = 9,
     }
 }
 
@@ -60,6 +63,11 @@ pub enum BenchOrder {
     /// off the model, a lightly damped first mode, position sensor noise), with
     /// any of their values replaced. Send it with the stage parked.
     Stage(StageVariant),
+    /// Pace the link as this one: its rate each way and its latency
+    /// ([`LinkKind::bytes_per_s`], [`LinkKind::latency_us`]) in board time, so
+    /// the emulated board's recorder drops what a real board's would. The
+    /// emulated board starts paced as [`LinkKind::Uart`].
+    Link(LinkKind),
 }
 
 impl BenchOrder {
@@ -75,6 +83,7 @@ impl BenchOrder {
             Self::PositionOpen(_) => BenchKind::PositionOpen,
             Self::PositionStuck(_) => BenchKind::PositionStuck,
             Self::Stage(_) => BenchKind::Stage,
+            Self::Link(_) => BenchKind::Link,
         }
     }
 }
@@ -96,6 +105,7 @@ impl<'de> Tagged<'de> for BenchOrder {
             Self::SensorOffset(x) => t.serialize_element(x),
             Self::DamageStored => Ok(()),
             Self::Stage(v) => t.serialize_element(v),
+            Self::Link(l) => t.serialize_element(l),
         }
     }
 
@@ -113,6 +123,7 @@ impl<'de> Tagged<'de> for BenchOrder {
             BenchKind::PositionOpen => Self::PositionOpen(field(a)?),
             BenchKind::PositionStuck => Self::PositionStuck(field(a)?),
             BenchKind::Stage => Self::Stage(field(a)?),
+            BenchKind::Link => Self::Link(field(a)?),
         }))
     }
 }

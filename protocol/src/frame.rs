@@ -356,14 +356,21 @@ mod tests {
 
     #[test]
     fn the_largest_reply_fits_a_frame() {
-        use crate::{Batch, MAX_FRAME, MAX_VALUES};
+        use crate::{Batch, MAX_BATCH_BYTES, MAX_FRAME};
+        // The board fills a batch up to MAX_BATCH_BYTES of values: the worst is
+        // that many bytes of five-byte values, plus one value that takes fewer.
+        let mut values = heapless::Vec::new();
+        for _ in 0..MAX_BATCH_BYTES / 5 {
+            values.push(i32::MIN).unwrap();
+        }
+        values.push(-(1 << 27)).unwrap();
         let batch = Reply::Record(Batch {
-            signals: 63,
+            signals: 127,
             decimation: u16::MAX,
             active: true,
             dropped: u32::MAX,
             waiting: u32::MAX,
-            values: heapless::Vec::from_slice(&[i32::MIN; MAX_VALUES]).unwrap(),
+            values,
         });
         let (mut scratch, mut out) = ([0u8; MAX_FRAME], [0u8; MAX_FRAME]);
         let h = Header {

@@ -14,7 +14,7 @@
 //! * [`command`] — the requests; [`reply`] — the replies and refusals;
 //! * [`modes`] — the loop's modes and sources the messages name; [`bench`] —
 //!   the emulated board's bench orders; [`record`] — a recording's signals;
-//! * [`frame`] — COBS framing with a CRC-32.
+//! * [`frame`] — COBS framing with a CRC-32; [`link`] — the links and their rates.
 //!
 //! `no_std`, no allocation; decoding never panics (the firmware's no-panic proof
 //! links it).
@@ -25,6 +25,7 @@
 pub mod bench;
 pub mod command;
 pub mod frame;
+pub mod link;
 pub mod modes;
 pub mod record;
 pub mod reply;
@@ -35,15 +36,17 @@ pub use serde;
 
 pub use bench::{BenchKind, BenchOrder, StageVariant};
 pub use command::{Command, CommandKind, Header};
+pub use link::LinkKind;
 pub use modes::{LoopMode, Shape, SourceKind};
 pub use reply::{
     Analysis, Batch, BoardKind, Counters, FaultReport, Hello, ModelReport, Origin, OriginKind,
     Refusal, Reply, ReplyHeader, ReplyKind, ResetReason, SlotKind, SlotReport, Status,
 };
 
-/// The protocol version of these messages (5: explicit wire numbers, an axis in
+/// The protocol version of these messages (6: the link in the hello, recordings
+/// sent as differences between samples; 5: explicit wire numbers, an axis in
 /// every command that addresses a stage).
-pub const VERSION: u8 = 5;
+pub const VERSION: u8 = 6;
 /// Axes a board has today: a command for axis `AXES` or beyond is refused
 /// ([`Refusal::Axis`]).
 pub const AXES: u8 = 1;
@@ -54,7 +57,11 @@ pub const MAX_CHUNK: usize = 256;
 /// Points per [`Command::Points`].
 pub const MAX_POINTS: usize = 64;
 /// Values per [`Reply::Record`].
-pub const MAX_VALUES: usize = 200;
+pub const MAX_VALUES: usize = 480;
+/// Encoded bytes of the values of one [`Reply::Record`] at most (the board stops
+/// adding samples to a batch before its values would take more): the batch fills
+/// a frame by bytes, whatever the signals' deltas take.
+pub const MAX_BATCH_BYTES: usize = 1_100;
 /// Bytes per [`Reply::ModelBytes`].
 pub const MAX_MODEL_BYTES: usize = 256;
 /// The sequence number of a reply to a frame that could not be read.

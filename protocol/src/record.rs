@@ -85,6 +85,40 @@ impl Sample {
         )
     }
 
+    /// The values of `self` for `mask` as the board sends them in a batch: each
+    /// the difference (wrapping) from the same value of `prev`, the batch's
+    /// previous sample ([`Sample::default`] before the first). Successive ticks
+    /// and slowly moving signals then take one to three bytes each instead of
+    /// three to five.
+    pub fn deltas<'a>(&'a self, prev: &'a Sample, mask: u8) -> impl Iterator<Item = i32> + 'a {
+        self.values(mask)
+            .zip(prev.values(mask))
+            .map(|(v, p)| v.wrapping_sub(p))
+    }
+
+    /// The sample whose [`Sample::deltas`] from `prev` for `mask` are `deltas`;
+    /// `None` if `deltas` is too short.
+    pub fn from_deltas(prev: &Sample, mask: u8, deltas: &[i32]) -> Option<Self> {
+        let mut values = [0i32; 8];
+        let width = Self::width(mask);
+        let (values, deltas) = (values.get_mut(..width)?, deltas.get(..width)?);
+        for ((v, d), p) in values.iter_mut().zip(deltas).zip(prev.values(mask)) {
+            *v = p.wrapping_add(*d);
+        }
+        Self::from_values(mask, values)
+    }
+
+    /// The samples of a batch's values (see [`Sample::deltas`]), in order; a
+    /// trailing partial sample is ignored.
+    pub fn batch(mask: u8, deltas: &[i32]) -> impl Iterator<Item = Sample> + '_ {
+        let mut prev = Sample::default();
+        deltas.chunks_exact(Self::width(mask)).filter_map(move |d| {
+            let s = Self::from_deltas(&prev, mask, d)?;
+            prev = s;
+            Some(s)
+        })
+    }
+
     /// Values per sample on the wire for `mask` (the tick included).
     pub fn width(mask: u8) -> usize {
         1 + (mask & signal::ALL).count_ones() as usize
@@ -115,5 +149,86 @@ impl Sample {
             }
         }
         Some(s)
+    }
+}
+
+/// Bytes one value takes on the wire (postcard's zigzag varint: 7 bits a byte).
+pub const fn wire_len(v: i32) -> usize {
+    let z = ((v << 1) ^ (v >> 31)) as u32;
+    match z {
+        0..=0x7f => 1,
+        0x80..=0x3fff => 2,
+        0x4000..=0x1f_ffff => 3,
+        0x20_0000..=0xfff_ffff => 4,
+        _ => 5,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn deltas_round_trip_whatever_the_mask_and_wrap() {
+        let a = Sample {
+            tick: u32::MAX - 1,
+            x_ref: i32::MAX,
+            voltage: -5,
+            force: i32::MIN,
+            x_est: 7,
+            x_true: 9,
+            x_sensor: -11,
+            status: 255,
+        };
+        let b = Sample {
+            tick: 3,
+            x_ref: i32::MIN,
+            voltage: 6,
+            force: i32::MAX,
+            x_est: -8,
+            x_true: 10,
+            x_sensor: 12,
+            status: 1,
+        };
+        for mask in 0..=signal::ALL {
+            let mut values = Vec::new();
+            let mut prev = Sample::default();
+            for s in [a, b, a] {
+                values.extend(s.deltas(&prev, mask));
+                prev = s;
+            }
+            let back: Vec<Sample> = Sample::batch(mask, &values).collect();
+            let want = |s: &Sample| Sample::from_values(mask, &s.values(mask).collect::<Vec<_>>());
+            assert_eq!(back.len(), 3);
+            for (got, s) in back.iter().zip([a, b, a]) {
+                assert_eq!(Some(*got), want(&s), "mask {mask}");
+            }
+        }
+    }
+
+    #[test]
+    fn wire_len_is_postcards() {
+        for v in [
+            0,
+            1,
+            -1,
+            63,
+            -64,
+            64,
+            -65,
+            8191,
+            -8192,
+            8192,
+            1 << 20,
+            -(1 << 20),
+            (1 << 20) + 5,
+            1 << 27,
+            i32::MAX,
+            i32::MIN,
+        ] {
+            let mut buf = [0u8; 8];
+            let n = postcard::to_slice(&v, &mut buf).unwrap().len();
+            assert_eq!(wire_len(v), n, "{v}");
+        }
     }
 }

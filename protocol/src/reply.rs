@@ -6,6 +6,7 @@ use serde::de::SeqAccess;
 use serde::ser::SerializeTuple;
 use serde::{Deserialize, Serialize};
 
+use crate::link::LinkKind;
 use crate::modes::{LoopMode, SourceKind};
 use crate::put;
 use crate::wire::{field, Tagged};
@@ -224,6 +225,9 @@ pub struct Hello {
     pub limits: [i32; 5],
     /// Why the board last started.
     pub reset: ResetReason,
+    /// The link this hello came over (the emulated board: the link it paces
+    /// its own as).
+    pub link: LinkKind,
 }
 
 /// A latched fault.
@@ -345,7 +349,13 @@ pub struct Batch {
     pub dropped: u32,
     /// Samples still waiting after this batch.
     pub waiting: u32,
-    /// Per sample: the tick, then the chosen signals in wire order.
+    /// Per sample: the tick, then the chosen signals in wire order, each as its
+    /// difference from the batch's previous sample ([`Sample::deltas`]; read them
+    /// back with [`Sample::batch`]). At most
+    /// [`MAX_BATCH_BYTES`](crate::MAX_BATCH_BYTES) on the wire.
+    ///
+    /// [`Sample::deltas`]: crate::record::Sample::deltas
+    /// [`Sample::batch`]: crate::record::Sample::batch
     pub values: Vec<i32, MAX_VALUES>,
 }
 

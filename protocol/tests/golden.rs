@@ -104,6 +104,7 @@ goldens! {
     command_model_factory: Command::ModelFactory => "16";
     command_counters: Command::Counters => "17";
     command_bench: Command::Bench(BenchOrder::SensorOffset(-(2 << 16))) => "18 03 ff ff 0f";
+    command_bench_link: Command::Bench(BenchOrder::Link(LinkKind::Usb)) => "18 09 01";
     command_reset: Command::Reset => "19";
     command_loop: Command::Loop { axis: 0, mode: LoopMode::FeedbackOnly } => "1a 00 02";
     command_damping: Command::Damping { axis: 0, on: false } => "1b 00 00";
@@ -131,6 +132,7 @@ fn hello() -> Hello {
         buffers: [8192, 1024],
         limits: [0, 150 << 16, 5 << 16, 0, 10 << 16],
         reset: ResetReason::Command,
+        link: LinkKind::Usb,
     }
 }
 
@@ -184,7 +186,8 @@ fn batch() -> Batch {
         active: true,
         dropped: 0,
         waiting: 7,
-        values: heapless::Vec::from_slice(&[1000, 1 << 16, 3, 1025, 1 << 16, 3]).unwrap(),
+        // Two samples, ticks 1000 and 1025: the second as differences.
+        values: heapless::Vec::from_slice(&[1000, 1 << 16, 3, 25, 0, 0]).unwrap(),
     }
 }
 
@@ -192,11 +195,11 @@ goldens! {
     Reply, all_replies;
     reply_ack: Reply::Ack => "00";
     reply_hello: Reply::Hello(hello())
-        => "01 05 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02";
+        => "01 06 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01";
     reply_status: Reply::Status(status())
         => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 02 f8 ac d1 91 01";
     reply_record: Reply::Record(batch())
-        => "03 11 19 01 00 07 06 d0 0f 80 80 08 06 82 10 80 80 08 06";
+        => "03 11 19 01 00 07 06 d0 0f 80 80 08 06 32 00 00";
     reply_model: Reply::Model(model_report())
         => "04 f8 ac d1 91 01 01 03 08 02 01 00 00 80 80 c0 02 80 80 08 01 03 f8 ac d1 91 01 01 03 03 02 00 01 80 89 7a 80 80 80 80 02 00 80 80 08 00 80 80 80 01 80 80 90 03";
     reply_counters: Reply::Counters(Counters {
@@ -255,6 +258,7 @@ fn wire_numbers_are_pinned() {
         names(SlotKind::ALL, SlotKind::to_u8),
         names(OriginKind::ALL, OriginKind::to_u8),
         names(BenchKind::ALL, BenchKind::to_u8),
+        names(LinkKind::ALL, LinkKind::to_u8),
     ];
     let golden = [
         "Sine=0 Triangle=1 RaisedCosine=2",
@@ -267,7 +271,8 @@ fn wire_numbers_are_pinned() {
         "Empty=0 Valid=1 Damaged=2 Refused=3",
         "Factory=0 Stored=1 Received=2",
         "SensorOpen=0 SensorStuck=1 Analog=2 SensorOffset=3 Stall=4 DamageStored=5 \
-         PositionOpen=6 PositionStuck=7 Stage=8",
+         PositionOpen=6 PositionStuck=7 Stage=8 Link=9",
+        "Uart=0 Usb=1",
     ];
     assert_eq!(pinned, golden);
     for k in CommandKind::ALL {
@@ -319,7 +324,7 @@ fn a_request_frame_golden() {
         seq: 1,
     };
     let n = frame::encode(&h, &Command::Status { axis: 0 }, &mut scratch, &mut out).unwrap();
-    assert_eq!(hex(&out[..n]), "04 05 01 01 05 58 74 43 0e 00");
+    assert_eq!(hex(&out[..n]), "04 06 01 01 05 b6 db f6 1c 00");
 }
 
 /// An unknown kind is told apart from garbage; a known kind with bad fields is

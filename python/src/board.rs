@@ -111,7 +111,7 @@ impl Board {
         let (h, virt) = self.run(py, |c| {
             Ok((
                 c.hello().clone(),
-                c.port_name() == fpi_host::board::inprocess::PORT_NAME,
+                fpi_host::board::inprocess::is_in_process(c.port_name()),
             ))
         })?;
         let d = PyDict::new(py);

@@ -17,10 +17,11 @@ use heapless::Vec;
 use piezo_fpi::q::Micrometres;
 
 use super::frame::{self, FrameError};
+use super::pace::{reached, Pace};
 use super::protocol::{
-    Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, Header, Hello, Refusal,
-    Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES, MAX_FRAME, MAX_MODEL_BYTES,
-    MAX_VALUES, NO_SEQ, VERSION,
+    Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, Header, Hello,
+    LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES,
+    MAX_BATCH_BYTES, MAX_FRAME, MAX_MODEL_BYTES, MAX_VALUES, NO_SEQ, VERSION,
 };
 use super::upload::Upload;
 use crate::analyser::AnalyseOrder;
@@ -30,7 +31,7 @@ use crate::hardware::{
     BOARD, CREEP_TERMS, IMAGE_BYTES, OPERATORS, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS,
     TABLE_INTERVALS,
 };
-use crate::recorder::{signal, Sample};
+use crate::recorder::{signal, wire_len, Sample};
 use crate::reference::wave::Wave;
 use crate::reference::SourceOrder;
 use crate::slots::{Origin, Running, Spare, Summary};
@@ -51,6 +52,13 @@ pub trait Board {
     /// which stalls the STM32F405 for up to 2 s. The board runs its watchdog with
     /// a longer period meanwhile.
     fn long_operation(&mut self, _on: bool) {}
+}
+
+/// Waits until the board's tick reaches `due`.
+fn wait_until(board: &mut impl Board, due: u32) {
+    while !reached(board.exchange(|x| x.snapshot.tick), due) {
+        board.wait();
+    }
 }
 
 /// Ticks the handler waits for an order to be applied before giving up.
@@ -101,6 +109,8 @@ pub struct Handler<F> {
     /// The length of the running model's image where the upload buffer still
     /// holds it (a model received, stored or restored since no upload began).
     pub(super) image_len: Option<usize>,
+    /// The link and, on the emulated board, its pace.
+    pace: Pace,
 }
 
 impl<F: NorFlash> Handler<F> {
@@ -176,6 +186,10 @@ impl<F: NorFlash> Handler<F> {
             counters: Counters::default(),
             tick: None,
             image_len,
+            pace: match kind {
+                BoardKind::Emulated => Pace::emulating(LinkKind::Uart),
+                BoardKind::Driver => Pace::hardware(LinkKind::Uart),
+            },
         };
         Some((handler, running))
     }
@@ -247,6 +261,12 @@ impl<F: NorFlash> Handler<F> {
         out: &mut [u8],
     ) -> usize {
         self.tick = None;
+        if self.pace.paced() {
+            let now = board.exchange(|x| x.snapshot.tick);
+            // Framed: a delimiter and about one COBS byte per 254.
+            let due = self.pace.received(now, request.len() + 2);
+            wait_until(board, due);
+        }
         let (seq, reply) = match frame::decode::<Header>(request) {
             Ok((h, _)) if h.version != VERSION => {
                 self.counters.version = self.counters.version.wrapping_add(1);
@@ -283,7 +303,19 @@ impl<F: NorFlash> Handler<F> {
             seq,
             tick,
         };
-        frame::encode(&header, &reply, scratch, out).unwrap_or(0)
+        let n = frame::encode(&header, &reply, scratch, out).unwrap_or(0);
+        if self.pace.paced() {
+            let now = board.exchange(|x| x.snapshot.tick);
+            let due = self.pace.sent(now, n);
+            wait_until(board, due);
+        }
+        n
+    }
+
+    /// The link this board answers on (the emulated board: the link it paces
+    /// its own as).
+    pub const fn link(&self) -> LinkKind {
+        self.pace.link()
     }
 
     /// Runs `f` on the exchange and counts the request as a heartbeat in the same
@@ -451,9 +483,9 @@ impl<F: NorFlash> Handler<F> {
             Command::RecordStop => self.order(board, seq, Order::StopRecording),
             Command::ReadRecord { max } => {
                 let signals = self.signals;
-                Ok(Reply::Record(
-                    self.locked(board, |x| batch(x, signals, max)),
-                ))
+                let b = batch(board, signals, max);
+                self.locked(board, |_| ());
+                Ok(Reply::Record(b))
             }
             Command::ModelBegin { len, crc } => self.begin(board, len, crc),
             Command::ModelChunk { offset, data } => self.chunk(board, offset, data),
@@ -491,6 +523,11 @@ impl<F: NorFlash> Handler<F> {
                     ));
                 }
                 self.order(board, seq, Order::Bench(BenchOrder::Stage(v)))
+            }
+            Command::Bench(BenchOrder::Link(link)) if self.kind == BoardKind::Emulated => {
+                // This reply already leaves at the new pace.
+                self.pace = Pace::emulating(link);
+                self.ack(board)
             }
             Command::Bench(b) => match self.kind {
                 BoardKind::Emulated => self.order(board, seq, Order::Bench(b)),
@@ -864,6 +901,7 @@ impl<F: NorFlash> Handler<F> {
                 l.safe.hi.to_bits(),
             ],
             reset: self.reset,
+            link: self.pace.link(),
         }
     }
 }
@@ -935,23 +973,34 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
 }
 
 /// Up to `max` recorded samples, the `signals` of each.
-fn batch(x: &mut Exchange<'_>, signals: u8, max: u16) -> Batch {
-    let width = Sample::width(signals);
-    let room = (MAX_VALUES / width).min(max as usize);
+/// Up to `max` recorded samples, as a batch fills a frame (see [`Batch`]). The
+/// exchange is locked for one sample at a time, so the control ISR waits at
+/// most a sample's copy however long the batch.
+fn batch(board: &mut impl Board, signals: u8, max: u16) -> Batch {
     let mut values = Vec::new();
-    for _ in 0..room {
-        let Some(s) = x.recorder.take() else { break };
-        for v in s.values(signals) {
-            // `room` leaves space for every value.
+    let (mut bytes, mut prev) = (0, Sample::default());
+    for _ in 0..max {
+        let Some(next) = board.exchange(|x| x.recorder.peek()) else {
+            break;
+        };
+        let len: usize = next.deltas(&prev, signals).map(wire_len).sum();
+        if bytes + len > MAX_BATCH_BYTES || values.len() + Sample::width(signals) > MAX_VALUES {
+            break;
+        }
+        for v in next.deltas(&prev, signals) {
+            // Room for every value was checked above.
             let _ = values.push(v);
         }
+        bytes += len;
+        prev = next;
+        board.exchange(|x| x.recorder.take());
     }
-    Batch {
+    board.exchange(|x| Batch {
         signals,
         decimation: x.recorder.decimation(),
         active: x.recorder.active(),
         dropped: x.recorder.dropped(),
         waiting: x.recorder.len() as u32,
         values,
-    }
+    })
 }

@@ -296,6 +296,12 @@ enum BoardCommand {
         /// Where the link listens: HOST:PORT.
         #[arg(long, default_value = "127.0.0.1:4545", value_parser = parse_listen)]
         listen: String,
+        /// The link whose rate (in board time) the emulated board paces its own
+        /// at: `uart` (115 200 Bd, 11 520 B/s) or `usb` (full-speed CDC, 800 kB/s,
+        /// 1 ms latency). QEMU's bridged USART carries what its host allows on
+        /// top of that.
+        #[arg(long, default_value = "uart", value_parser = parse_link)]
+        link: fpi_protocol::LinkKind,
     },
     /// The board, its model and the loop's state.
     Status,
@@ -791,14 +797,23 @@ fn run(args: Args) -> Result<()> {
     }
 }
 
+/// `--link`: `uart` or `usb`.
+fn parse_link(s: &str) -> Result<fpi_protocol::LinkKind, String> {
+    fpi_host::board::client::link_kind(s).ok_or_else(|| format!("{s:?}: uart or usb"))
+}
+
 fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
     use fpi_host::board::emulator::Emulator;
     use fpi_host::cli::board as b;
     use fpi_protocol::Command as C;
-    if let BoardCommand::Emulate { listen } = &command {
+    if let BoardCommand::Emulate { listen, link } = &command {
         let e = Emulator::start(Some(listen))?;
+        e.pace_as(*link)?;
         println!(
-            "emulated board running; its link is --port {} (Ctrl-C stops it)",
+            "emulated board running, its link paced as {} ({} B/s); its link is --port {} \
+             (Ctrl-C stops it)",
+            link.name(),
+            link.bytes_per_s(),
             e.port()
         );
         return e.wait();

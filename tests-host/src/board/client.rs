@@ -15,7 +15,7 @@ use fpi_protocol::frame::{self, FrameReader, Push};
 use fpi_protocol::LoopMode;
 use fpi_protocol::Shape;
 use fpi_protocol::{
-    Analysis, Batch, BenchOrder, Command, Counters, Header, Hello, ModelReport, Refusal, Reply,
+    Analysis, Batch, BenchOrder, Command, Counters, Header, Hello, LinkKind, ModelReport, Refusal, Reply,
     ReplyHeader, Status, MAX_CHUNK, MAX_FRAME, MAX_POINTS, NO_SEQ, VERSION,
 };
 use piezo_fpi::control::Fault;
@@ -108,6 +108,11 @@ pub struct Client {
     pub log: Vec<Logged>,
 }
 
+/// A link by its name on the command line (`uart`, `usb`).
+pub fn link_kind(name: &str) -> Option<LinkKind> {
+    LinkKind::ALL.iter().copied().find(|l| l.name() == name)
+}
+
 /// The largest magnitude of a value the link carries as `I16F16` (µm, V, N,
 /// µm/s).
 pub const LINK_ABS_MAX: f64 = 32767.999;
@@ -164,7 +169,16 @@ impl Client {
     /// Opens `port` (a serial device, `tcp:HOST:PORT`, or `virtual`: the board in this
     /// process) and greets the board; refuses a board that speaks another protocol version.
     pub fn open(port: &str) -> Result<Self> {
-        let p: Box<dyn Port> = if port == inprocess::PORT_NAME {
+        let (in_process, link) = match port.split_once(':') {
+            Some((inprocess::PORT_NAME, l)) => {
+                let link = link_kind(l).ok_or_else(|| {
+                    anyhow!("--port {port}: the in-process board's link is uart or usb")
+                })?;
+                (true, Some(link))
+            }
+            _ => (port == inprocess::PORT_NAME, None),
+        };
+        let p: Box<dyn Port> = if in_process {
             Box::new(inprocess::InProcess::start()?)
         } else {
             port::open(port, Duration::from_secs(10))?
@@ -183,6 +197,7 @@ impl Client {
                 buffers: [0; 2],
                 limits: [0; 5],
                 reset: fpi_protocol::ResetReason::Unknown,
+                link: fpi_protocol::LinkKind::Uart,
             },
             log: Vec::new(),
         };
@@ -197,6 +212,9 @@ impl Client {
                 h.protocol
             ),
             (_, r) => bail!("the board on {port} answered hello with {r:?}"),
+        }
+        if let Some(link) = link {
+            c.pace_as(link)?;
         }
         Ok(c)
     }
@@ -223,6 +241,19 @@ impl Client {
     /// The board's identity and capacity.
     pub const fn hello(&self) -> &Hello {
         &self.hello
+    }
+
+    /// The tick of the last reply the board sent (its header's), if any.
+    pub fn last_tick(&self) -> Option<u32> {
+        self.log.last().map(|l| l.tick)
+    }
+
+    /// Has the emulated board pace its link as `link` from now on (a real board
+    /// refuses: its link is what it is).
+    pub fn pace_as(&mut self, link: LinkKind) -> Result<()> {
+        self.bench(BenchOrder::Link(link))?;
+        self.hello.link = link;
+        Ok(())
     }
 
     /// The control rate, Hz.
@@ -483,10 +514,7 @@ impl Client {
         let mut out = Vec::new();
         loop {
             let b = self.read_batch()?;
-            let w = Sample::width(b.signals);
-            for v in b.values.chunks(w) {
-                out.extend(Sample::from_values(b.signals, v));
-            }
+            out.extend(Sample::batch(b.signals, &b.values));
             if b.waiting == 0 {
                 return Ok((out, b.dropped));
             }

@@ -414,7 +414,8 @@ pub fn record(
         let (samples, dropped) = c.drain()?;
         rec.samples.extend(samples);
         rec.dropped = dropped;
-        let now = c.status()?.tick;
+        // The read's own reply says the tick: no status poll takes the link's time.
+        let now = c.last_tick().unwrap_or(start);
         progress(now.saturating_sub(start).min(ticks), ticks);
         if now >= start + ticks {
             break;

@@ -149,7 +149,12 @@ impl Emulator {
         Ok(e)
     }
 
-    /// The port to open: `tcp:HOST:PORT`.
+    /// Has the board pace its link as `link` (it starts paced as the UART).
+    pub fn pace_as(&self, link: fpi_protocol::LinkKind) -> Result<()> {
+        super::client::Client::open(&self.port)?.pace_as(link)
+    }
+
+        /// The port to open: `tcp:HOST:PORT`.
     pub fn port(&self) -> &str {
         &self.port
     }

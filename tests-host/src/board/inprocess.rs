@@ -29,8 +29,14 @@ use fpi_protocol::MAX_FRAME;
 
 use super::port::Port;
 
-/// The port name that opens an in-process board.
+/// The port name that opens an in-process board (`virtual:usb` or `virtual:uart`
+/// paces its link as that link; plain `virtual` as the UART, as a board boots).
 pub const PORT_NAME: &str = "virtual";
+
+/// Whether `port` names an in-process board.
+pub fn is_in_process(port: &str) -> bool {
+    port.split(':').next() == Some(PORT_NAME)
+}
 
 /// The handler of an in-process board (its flash is the emulated board's, in RAM).
 pub type VirtualHandler = Handler<&'static mut EmulatedFlash>;

@@ -9,12 +9,14 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{anyhow, bail, Context, Result};
+use fpi_protocol::record::signal;
 use fpi_protocol::{BoardKind, Command, LoopMode, Origin, ResetReason, SlotReport, Status};
 use indicatif::{ProgressBar, ProgressStyle};
 use piezo_fpi::control::Fault;
 use piezo_fpi::q::LoopGain;
 use piezo_sim::file::FirmwareModel;
 
+use crate::board::budget::Budget;
 use crate::board::client::{real, Client};
 use crate::board::recording::Recording;
 use crate::board::{commands, inprocess};
@@ -164,7 +166,7 @@ pub fn status_text(c: &mut Client) -> Result<String> {
          terms, {} table intervals",
         match h.board {
             BoardKind::Driver => "STM32F405 driver board",
-            BoardKind::Emulated if c.port_name() == inprocess::PORT_NAME => {
+            BoardKind::Emulated if inprocess::is_in_process(c.port_name()) => {
                 "emulated board's firmware built for this host (in-process, virtual stage)"
             }
             BoardKind::Emulated => "emulated board (QEMU netduinoplus2, virtual stage)",
@@ -239,9 +241,22 @@ pub fn status_text(c: &mut Client) -> Result<String> {
     out.push_str(&state_text(&s, rate));
     let _ = writeln!(
         out,
-        "link: {} requests, {} refused; {} malformed ({} CRC errors, {} too long), {} of another \
-         protocol version, {} unknown commands",
-        k.requests, k.refused, k.malformed, k.crc_errors, k.overlong, k.version, k.unknown
+        "link: {} ({} B/s{}); {} requests, {} refused; {} malformed ({} CRC errors, {} too \
+         long), {} of another protocol version, {} unknown commands",
+        h.link.name(),
+        h.link.bytes_per_s(),
+        if h.board == BoardKind::Emulated {
+            ", paced in board time"
+        } else {
+            ""
+        },
+        k.requests,
+        k.refused,
+        k.malformed,
+        k.crc_errors,
+        k.overlong,
+        k.version,
+        k.unknown
     );
     Ok(out)
 }
@@ -386,6 +401,12 @@ fn catch_ctrl_c() -> Result<()> {
 pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Result<Recording> {
     catch_ctrl_c()?;
     let rate = c.rate_hz();
+    let budget = Budget::new(c.hello(), signal::ALL, decimation, seconds);
+    if budget.fits() {
+        println!("{}", budget.describe(c.hello().rate_hz));
+    } else {
+        eprintln!("warning: {}", budget.describe(c.hello().rate_hz));
+    }
     let pb = bar((seconds * rate).round() as u64, "record");
     let r = commands::record(
         c,
