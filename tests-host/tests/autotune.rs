@@ -22,7 +22,7 @@ use fpi_host::board::emulator::{self, Emulator};
 use fpi_host::board::frf::{self, FrfSettings};
 use fpi_host::board::step::{self, StepSettings};
 use fpi_host::method::tune::TuneOptions;
-use fpi_protocol::{BenchOrder, StageVariant};
+use fpi_protocol::{BenchOrder, LinkKind, StageVariant};
 use piezo_sim::file::FirmwareModel;
 
 /// The factory model (stage A, no loops).
@@ -37,11 +37,13 @@ fn board(test: &str) -> (Option<Emulator>, Client) {
     if emulator::available_for(test) {
         let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
         let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
-        let c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
+        let mut c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
+        // Steps are recorded at every tick: the USB link's rate.
+        c.pace_as(LinkKind::Usb).unwrap();
         (Some(e), c)
     } else {
         println!("{test}: on the firmware built for the host (in-process)");
-        (None, Client::open("virtual").unwrap())
+        (None, Client::open("virtual:usb").unwrap())
     }
 }
 

@@ -20,7 +20,7 @@ use fpi_host::board::client::{real, refusal, Client};
 use fpi_host::board::emulator::{self, Emulator};
 use fpi_protocol::LoopMode;
 use fpi_protocol::Shape;
-use fpi_protocol::{BenchOrder, Command, FaultReport, Refusal, StageVariant};
+use fpi_protocol::{BenchOrder, Command, FaultReport, LinkKind, Refusal, StageVariant};
 use piezo_fpi::control::Fault;
 use piezo_sim::file::FirmwareModel;
 
@@ -66,11 +66,13 @@ fn board(test: &str) -> (Option<Emulator>, Client) {
     if emulator::available_for(test) {
         let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
         let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
-        let c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
+        let mut c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
+        // Steps are recorded at every tick: the USB link's rate.
+        c.pace_as(LinkKind::Usb).unwrap();
         (Some(e), c)
     } else {
         println!("{test}: on the firmware built for the host (in-process)");
-        (None, Client::open("virtual").unwrap())
+        (None, Client::open("virtual:usb").unwrap())
     }
 }
 

@@ -134,8 +134,9 @@ fn the_papers_fpi_with_ten_operators_runs_as_a_received_model() {
             ([10, 0], [false, false]),
             "n = 10, bare FPI"
         );
+        // 400 samples/s: what the UART the board is paced as carries.
         c.ack(&Command::Record {
-            decimation: 20,
+            decimation: 50,
             signals: signal::ALL,
         })?;
         c.move_to(3.0, 1000.0)?;

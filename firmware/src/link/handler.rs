@@ -318,6 +318,12 @@ impl<F: NorFlash> Handler<F> {
         self.pace.link()
     }
 
+    /// Stops pacing the link: for a replay of requests at the ticks a paced
+    /// board took them up (the host's twin), which must not wait again.
+    pub fn unpaced(&mut self) {
+        self.pace = Pace::hardware(self.pace.link());
+    }
+
     /// Runs `f` on the exchange and counts the request as a heartbeat in the same
     /// lock; the request's tick is the next one (the first to see its effect).
     fn locked<R>(&mut self, board: &mut impl Board, f: impl FnOnce(&mut Exchange<'_>) -> R) -> R {
@@ -526,7 +532,7 @@ impl<F: NorFlash> Handler<F> {
             }
             Command::Bench(BenchOrder::Link(link)) if self.kind == BoardKind::Emulated => {
                 // This reply already leaves at the new pace.
-                self.pace = Pace::emulating(link);
+                self.pace = self.pace.relinked(link);
                 self.ack(board)
             }
             Command::Bench(b) => match self.kind {

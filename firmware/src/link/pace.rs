@@ -56,6 +56,14 @@ impl Pace {
         }
     }
 
+    /// The same pacing (or none) for another link, its lines free.
+    pub const fn relinked(&self, link: LinkKind) -> Self {
+        Self {
+            paced: self.paced,
+            ..Self::emulating(link)
+        }
+    }
+
     /// The link.
     pub const fn link(&self) -> LinkKind {
         self.link

@@ -13,6 +13,7 @@ use fpi_firmware::recorder::signal;
 use fpi_protocol::{Command, Status};
 use piezo_fpi::control::Fault;
 
+use super::budget::Budget;
 use super::client::{real, Client};
 use super::follow::Follow;
 use super::recording::Recording;
@@ -143,6 +144,14 @@ pub fn run(c: &mut Client, s: &StepSettings) -> Result<(Recording, StepFigures)>
         if !(t > 0.0 && t.is_finite()) {
             bail!("--tol {t}: a band > 0 µm");
         }
+    }
+    // The recorder starts a few ms before the step (a request and its reply).
+    let budget = Budget::new(c.hello(), SIGNALS, s.decimation, s.seconds + 0.005);
+    if !budget.fits() {
+        bail!(
+            "the step's recording would drop samples: {} (or shorten --seconds)",
+            budget.describe(c.hello().rate_hz)
+        );
     }
     let mut f = Follow::new(c, SIGNALS);
     f.c.move_to(s.from_um, 1000.0)?;

@@ -42,6 +42,8 @@ impl Board for Traced {
 /// the factory model, empty flash) through tick `until`; every tick's sample.
 pub fn replay(log: &[Logged], until: u32) -> Result<Vec<Sample>> {
     let (board, mut handler) = super::inprocess::boot()?;
+    // The log's ticks already hold the link's pace.
+    handler.unpaced();
     let mut t = Traced {
         board,
         trace: Vec::with_capacity(until as usize + 1),

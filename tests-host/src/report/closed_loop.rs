@@ -10,6 +10,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
+use fpi_protocol::LinkKind;
 use fpi_protocol::LoopMode;
 use fpi_protocol::{BenchOrder, Command, StageVariant};
 use nalgebra::Complex;
@@ -42,6 +43,9 @@ pub fn run(out: &Path, exported: &Path, port: &str) -> Result<LoopDemo> {
     let fw =
         FirmwareModel::parse(&text, &exported.display().to_string()).map_err(anyhow::Error::msg)?;
     let mut c = Client::open(port)?;
+    // Steps are recorded at every tick (20 000 samples/s): the USB link's rate,
+    // which the emulated board paces its link at from here on.
+    c.pace_as(LinkKind::Usb)?;
     c.park()?;
     c.upload(&fw.image().map_err(anyhow::Error::msg)?, false, |_| {})?;
     c.bench(BenchOrder::Stage(StageVariant::BUILT))?;
