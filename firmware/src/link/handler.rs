@@ -318,6 +318,14 @@ impl<F: NorFlash> Handler<F> {
         self.pace.link()
     }
 
+    /// The next frame came over `link` (a board with more than one link): its
+    /// hello names it. The emulated board's pace stays what the bench set.
+    pub fn arrived_on(&mut self, link: LinkKind) {
+        if !self.pace.paced() {
+            self.pace = Pace::hardware(link);
+        }
+    }
+
     /// Stops pacing the link: for a replay of requests at the ticks a paced
     /// board took them up (the host's twin), which must not wait again.
     pub fn unpaced(&mut self) {

@@ -15,8 +15,8 @@ use fpi_protocol::frame::{self, FrameReader, Push};
 use fpi_protocol::LoopMode;
 use fpi_protocol::Shape;
 use fpi_protocol::{
-    Analysis, Batch, BenchOrder, Command, Counters, Header, Hello, LinkKind, ModelReport, Refusal, Reply,
-    ReplyHeader, Status, MAX_CHUNK, MAX_FRAME, MAX_POINTS, NO_SEQ, VERSION,
+    Analysis, Batch, BenchOrder, Command, Counters, Header, Hello, LinkKind, ModelReport, Refusal,
+    Reply, ReplyHeader, Status, MAX_CHUNK, MAX_FRAME, MAX_POINTS, NO_SEQ, VERSION,
 };
 use piezo_fpi::control::Fault;
 use piezo_fpi::model::image::CRC32;

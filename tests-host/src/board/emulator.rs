@@ -154,7 +154,7 @@ impl Emulator {
         super::client::Client::open(&self.port)?.pace_as(link)
     }
 
-        /// The port to open: `tcp:HOST:PORT`.
+    /// The port to open: `tcp:HOST:PORT`.
     pub fn port(&self) -> &str {
         &self.port
     }

@@ -7,7 +7,8 @@
 //! | stage-position sensor (0–3.3 V = −10…+70 µm) | PC0 | ADC3 channel 10 |
 //! | amplifier setpoint (0–3.3 V = 0–150 V) | PA4 | DAC channel 1 |
 //! | amplifier enable (high = on) | PB0 | GPIO |
-//! | host link (115 200 Bd, 8N1) | PA9 TX, PA10 RX | USART1 |
+//! | host link, USB (CDC-ACM, full speed) | PA11 D−, PA12 D+ | OTG_FS |
+//! | host link, fallback (115 200 Bd, 8N1) | PA9 TX, PA10 RX | USART1 |
 //!
 //! The ADC conversions for tick k+1 are started at the end of tick k, so the ISR
 //! reads finished results (3.4 µs conversions in a 50 µs period) instead of
@@ -35,10 +36,20 @@ use stm32f4xx_hal::adc::Adc;
 use stm32f4xx_hal::dac::{DacOut, DacPin, C1};
 use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
 use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA0, PA1, PB0, PC0};
+use stm32f4xx_hal::otg_fs::{UsbBus, UsbBusType, USB};
 use stm32f4xx_hal::pac::{self, ADC1, ADC2, ADC3, USART1};
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
 use stm32f4xx_hal::serial::{Event, Serial};
+
+use core::sync::atomic::{AtomicBool, Ordering};
+use fpi_firmware::link::usb::TxPump;
+use heapless::spsc::{Consumer, Producer};
+use usb_device::bus::UsbBusAllocator;
+use usb_device::device::{
+    StringDescriptors, UsbDevice, UsbDeviceBuilder, UsbDeviceState, UsbVidPid,
+};
+use usbd_serial::SerialPort;
 
 /// Which board this is.
 pub const KIND: BoardKind = BoardKind::Driver;
@@ -160,6 +171,80 @@ impl embedded_storage::nor_flash::NorFlash for Flash {
     }
 }
 
+/// A host has the USB port open (set by the USB interrupt).
+static USB_CONNECTED: AtomicBool = AtomicBool::new(false);
+
+/// Whether a host has the USB port open: the device configured and DTR set.
+pub fn usb_connected() -> bool {
+    USB_CONNECTED.load(Ordering::Relaxed)
+}
+
+/// The USB link: the device, its CDC-ACM port and the link task's queues.
+pub struct Usb {
+    dev: UsbDevice<'static, UsbBusType>,
+    serial: SerialPort<'static, UsbBusType>,
+    rx: Producer<'static, u8>,
+    tx: Consumer<'static, u8>,
+    pump: TxPump,
+}
+
+impl Usb {
+    /// One poll of the device (the USB interrupt): received bytes into their
+    /// queue (dropped if the link task is 2 KiB behind, then seen as a malformed
+    /// frame), queued bytes out as the endpoint takes them.
+    pub fn poll(&mut self) {
+        let _ = self.dev.poll(&mut [&mut self.serial]);
+        let connected = self.dev.state() == UsbDeviceState::Configured && self.serial.dtr();
+        self.pump.connected(connected, &mut self.tx);
+        USB_CONNECTED.store(connected, Ordering::Relaxed);
+        let mut buf = [0u8; 64];
+        while let Ok(n @ 1..) = self.serial.read(&mut buf) {
+            for &b in buf.get(..n).unwrap_or(&[]) {
+                let _ = self.rx.enqueue(b);
+            }
+        }
+        let serial = &mut self.serial;
+        self.pump.pump(&mut self.tx, |b| serial.write(b).ok());
+    }
+}
+
+/// The USB device on OTG_FS (PA11/PA12) with one CDC-ACM port.
+fn usb(
+    (global, device, pwrclk): (pac::OTG_FS_GLOBAL, pac::OTG_FS_DEVICE, pac::OTG_FS_PWRCLK),
+    pins: (stm32f4xx_hal::gpio::PA11, stm32f4xx_hal::gpio::PA12),
+    clocks: &stm32f4xx_hal::rcc::Clocks,
+    (rx, tx): (Producer<'static, u8>, Consumer<'static, u8>),
+) -> Usb {
+    let Some(ep_memory) = cortex_m::singleton!(: [u32; 1024] = [0; 1024]) else {
+        halt("USB endpoint memory")
+    };
+    let usb = USB::new((global, device, pwrclk), pins, clocks);
+    let Some(bus) =
+        cortex_m::singleton!(: UsbBusAllocator<UsbBusType> = UsbBus::new(usb, ep_memory))
+    else {
+        halt("USB bus")
+    };
+    let serial = SerialPort::new(bus);
+    let strings = StringDescriptors::default()
+        .manufacturer("piezo-fpi")
+        .product("FPI piezo driver board")
+        .serial_number("FPI-0001");
+    // pid.codes' test VID/PID for CDC-ACM, as the HAL's examples use: a
+    // product needs its own.
+    let Ok(builder) = UsbDeviceBuilder::new(bus, UsbVidPid(0x16c0, 0x27dd)).strings(&[strings])
+    else {
+        halt("USB descriptors")
+    };
+    let dev = builder.device_class(usbd_serial::USB_CLASS_CDC).build();
+    Usb {
+        dev,
+        serial,
+        rx,
+        tx,
+        pump: TxPump::new(),
+    }
+}
+
 /// The independent watchdog (40 kHz LSI; it keeps running through a reset).
 pub struct Iwdg(IndependentWatchdog);
 
@@ -208,10 +293,17 @@ impl Io {
     }
 }
 
-/// Sets up the board: 168 MHz, converters with their first conversions done,
-/// amplifier off at 0 V, USART1 with its receive interrupt, the flash store.
-pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
-    let mut rcc = dp.RCC.freeze(Config::hse(8.MHz()).sysclk(168.MHz()));
+/// Sets up the board: 168 MHz (and the USB's 48 MHz), converters with their
+/// first conversions done, amplifier off at 0 V, USART1 with its receive
+/// interrupt, the USB device on the queues `usb_queues`, the flash store.
+pub fn init(
+    dp: pac::Peripherals,
+    usb_rx: Producer<'static, u8>,
+    usb_tx: Consumer<'static, u8>,
+) -> (ModelFlash<Flash>, Serial<USART1>, Usb, Io) {
+    let mut rcc = dp
+        .RCC
+        .freeze(Config::hse(8.MHz()).sysclk(168.MHz()).require_pll48clk());
     let gpioa = dp.GPIOA.split(&mut rcc);
     let gpiob = dp.GPIOB.split(&mut rcc);
 
@@ -241,6 +333,13 @@ pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
     };
     serial.listen(Event::RxNotEmpty);
 
+    let usb = usb(
+        (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK),
+        (gpioa.pa11, gpioa.pa12),
+        &rcc.clocks,
+        (usb_rx, usb_tx),
+    );
+
     let flash = ModelFlash::new(Flash(LockedFlash::new(dp.FLASH)), BOARD_SLOTS);
     let iwdg = IndependentWatchdog::new(dp.IWDG);
     iwdg.stop_on_debug(&dp.DBGMCU, true);
@@ -256,7 +355,7 @@ pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
         reference,
         iwdg,
     };
-    (flash, serial, io)
+    (flash, serial, usb, io)
 }
 
 /// Why the board started, from the reset flags (then cleared) and the mark of a

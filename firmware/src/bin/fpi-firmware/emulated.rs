@@ -21,6 +21,7 @@ use fpi_firmware::storage::ModelFlash;
 use fpi_firmware::watchdog::Watchdog;
 
 use crate::supervisor::{was_reset_by_command, Supervisor};
+use heapless::spsc::{Consumer, Producer};
 use stm32f4xx_hal::pac::{self, USART1};
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
@@ -46,6 +47,22 @@ impl Watchdog for NoWatchdog {
         self.feeds = self.feeds.wrapping_add(1);
     }
     fn set_period(&mut self, _ms: u32) {}
+}
+
+/// QEMU models no USB controller: the link stays on the USART and this port
+/// never connects (its interrupt never fires).
+pub struct Usb {
+    _queues: (Producer<'static, u8>, Consumer<'static, u8>),
+}
+
+impl Usb {
+    /// Nothing to poll.
+    pub fn poll(&mut self) {}
+}
+
+/// No host on a USB port QEMU does not have.
+pub fn usb_connected() -> bool {
+    false
 }
 
 /// The control task's hardware: the loop on the [`SimLink`], the virtual stage,
@@ -83,7 +100,14 @@ impl Io {
 
 /// Sets up the emulated board: clock, USART1 with its receive interrupt, the
 /// virtual stage at rest, the RAM-backed flash.
-pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
+pub fn init(
+    dp: pac::Peripherals,
+    usb_rx: Producer<'static, u8>,
+    usb_tx: Consumer<'static, u8>,
+) -> (ModelFlash<Flash>, Serial<USART1>, Usb, Io) {
+    let usb = Usb {
+        _queues: (usb_rx, usb_tx),
+    };
     let mut rcc = dp.RCC.freeze(Config::hsi());
     let gpioa = dp.GPIOA.split(&mut rcc);
     let Ok(mut serial) = Serial::new(dp.USART1, (gpioa.pa9, gpioa.pa10), 115_200.bps(), &mut rcc)
@@ -97,7 +121,7 @@ pub fn init(dp: pac::Peripherals) -> (ModelFlash<Flash>, Serial<USART1>, Io) {
     bench.prime(&LINK);
     let ram = emulated_flash();
     seed(ram);
-    (ModelFlash::new(ram, FLASH_SLOTS), serial, Io { bench })
+    (ModelFlash::new(ram, FLASH_SLOTS), serial, usb, Io { bench })
 }
 
 /// The RAM standing in for the stored-model flash: outside the real board's

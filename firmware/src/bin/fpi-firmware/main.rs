@@ -6,7 +6,10 @@
 //! |---|---|---|
 //! | `control` (SysTick, 20 kHz) | 3 | one control tick: order, reference, sensor, step, DAC, recorder |
 //! | `usart1` (USART1 RX) | 2 | moves received bytes into a queue |
-//! | `idle` (link task) | 0 | frames, commands, replies, model loading, flash |
+//! | `otg_fs` (OTG_FS) | 2 | polls the USB device: received bytes into a queue, queued replies out ([`TxPump`]) |
+//! | `idle` (link task) | 0 | frames from either link, commands, replies (on the link the request came over), model loading, flash |
+//!
+//! [`TxPump`]: fpi_firmware::link::usb::TxPump
 //!
 //! The control task and the link task share one [`Exchange`], which the control
 //! task reaches without a lock (it is the highest-priority user) and the link
@@ -17,11 +20,13 @@
 //!
 //! * Board build (`cargo fw`): 168 MHz from the 8 MHz HSE crystal; force sensor on
 //!   ADC1/PA0, analog reference on ADC2/PA1, amplifier setpoint on DAC1/PA4,
-//!   amplifier enable on PB0, link on USART1 (PA9 TX, PA10 RX, 115 200 Bd),
-//!   stored model in flash sectors 10/11, defmt logs over RTT.
+//!   amplifier enable on PB0, link on USB (CDC-ACM on OTG_FS, PA11/PA12) and,
+//!   as the fallback, USART1 (PA9 TX, PA10 RX, 115 200 Bd), stored model in
+//!   flash sectors 10/11, defmt logs over RTT.
 //! * Emulated build (feature `qemu`, run by `fpi board emulate`): the same
 //!   application on QEMU's `netduinoplus2` (an STM32F405 memory map) with USART1
-//!   bridged to a TCP port. QEMU models no PLL, DAC, analog world or flash
+//!   bridged to a TCP port (QEMU has no OTG model: its USB never connects; the
+//!   link is paced as the one it emulates, see `fpi_firmware::link::pace`). QEMU models no PLL, DAC, analog world or flash
 //!   programming, so the clock stays on the 16 MHz HSI, the ADCs and DAC are the
 //!   virtual stage's ([`fpi_firmware::emulated`]) and the model store is
 //!   RAM-backed.
@@ -59,7 +64,7 @@ mod app {
     use fpi_firmware::hardware::{Store, IMAGE_BYTES, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS};
     use fpi_firmware::link::frame::{FrameReader, Push};
     use fpi_firmware::link::handler::{Board, Handler};
-    use fpi_firmware::link::protocol::MAX_FRAME;
+    use fpi_firmware::link::protocol::{LinkKind, MAX_FRAME};
     use fpi_firmware::model::MODEL_IMAGE;
     use fpi_firmware::recorder::Recorder;
     use fpi_firmware::reference::stream::Points;
@@ -73,6 +78,8 @@ mod app {
 
     /// Received bytes between the USART interrupt and the link task.
     const RX_QUEUE: usize = 2048;
+    /// Bytes between the USB interrupt and the link task, each way.
+    const USB_QUEUE: usize = 2048;
 
     #[shared]
     struct Shared {
@@ -86,6 +93,9 @@ mod app {
         rx_in: Producer<'static, u8>,
         rx_out: Consumer<'static, u8>,
         tx: Tx<USART1>,
+        usb: io::Usb,
+        usb_in: Consumer<'static, u8>,
+        usb_out: Producer<'static, u8>,
         handler: Handler<io::Flash>,
     }
 
@@ -96,10 +106,14 @@ mod app {
         recorder: Recorder<RECORDER_SAMPLES> = Recorder::new(),
         points: Points<STREAM_POINTS> = Points::new(),
         rx_queue: Queue<u8, RX_QUEUE> = Queue::new(),
+        usb_rx: Queue<u8, USB_QUEUE> = Queue::new(),
+        usb_tx: Queue<u8, USB_QUEUE> = Queue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let reset = io::reset_reason(&cx.device);
-        let (flash, serial, board) = io::init(cx.device);
+        let (usb_rx_in, usb_in) = cx.local.usb_rx.split();
+        let (usb_out, usb_tx_out) = cx.local.usb_tx.split();
+        let (flash, serial, usb, board) = io::init(cx.device, usb_rx_in, usb_tx_out);
         let stores = [Spare::new(cx.local.store_a), Spare::new(cx.local.store_b)];
         let Some((handler, running)) =
             Handler::boot(io::KIND, stores, cx.local.image, flash, MODEL_IMAGE, reset)
@@ -108,7 +122,7 @@ mod app {
         };
         let summary = *running.summary();
         say!(
-            "fpi-firmware: control at {} Hz, model crc {} ({} operators), link on USART1",
+            "fpi-firmware: control at {} Hz, model crc {} ({} operators), link on USB and USART1",
             RATE_HZ,
             summary.crc,
             summary.shape.operators as u32
@@ -134,6 +148,9 @@ mod app {
                 rx_in,
                 rx_out,
                 tx,
+                usb,
+                usb_in,
+                usb_out,
                 handler,
             },
         )
@@ -156,11 +173,20 @@ mod app {
         }
     }
 
-    /// The link task: frames in, replies out.
+    /// The USB device: received bytes into their queue, queued replies out.
+    /// Fires on the device's events and when the link task has queued bytes.
+    #[task(binds = OTG_FS, priority = 2, local = [usb])]
+    fn otg_fs(cx: otg_fs::Context) {
+        cx.local.usb.poll();
+    }
+
+    /// The link task: frames in from either link, each reply out on the link
+    /// its request came over.
     #[idle(
         local = [
-            rx_out, tx, handler,
+            rx_out, tx, usb_in, usb_out, handler,
             reader: FrameReader<MAX_FRAME> = FrameReader::new(),
+            usb_reader: FrameReader<MAX_FRAME> = FrameReader::new(),
             scratch: [u8; MAX_FRAME] = [0; MAX_FRAME],
             out: [u8; MAX_FRAME] = [0; MAX_FRAME],
         ],
@@ -171,24 +197,59 @@ mod app {
         let mut board = Link(cx.shared.exchange);
         loop {
             super::supervisor::LINK_PASSES.fetch_add(1, Ordering::Relaxed);
-            let Some(b) = l.rx_out.dequeue() else {
+            let (b, link, reader) = if let Some(b) = l.usb_in.dequeue() {
+                (b, LinkKind::Usb, &mut *l.usb_reader)
+            } else if let Some(b) = l.rx_out.dequeue() {
+                (b, LinkKind::Uart, &mut *l.reader)
+            } else {
                 cortex_m::asm::wfi();
                 continue;
             };
-            let n = match l.reader.push(b) {
-                Push::Pending => continue,
+            let push = reader.push(b);
+            if push == Push::Pending {
+                continue;
+            }
+            l.handler.arrived_on(link);
+            let n = match push {
                 Push::Frame => l
                     .handler
-                    .handle(&mut board, l.reader.frame(), l.scratch, l.out),
-                Push::Overlong => l.handler.overlong(l.scratch, l.out),
+                    .handle(&mut board, reader.frame(), l.scratch, l.out),
+                _ => l.handler.overlong(l.scratch, l.out),
             };
-            // A write error leaves the host without a reply; it times out and retries.
-            let _ = l.tx.write_all(l.out.get(..n).unwrap_or(&[]));
+            let reply = l.out.get(..n).unwrap_or(&[]);
+            match link {
+                // A write error leaves the host without a reply; it times out and retries.
+                LinkKind::Uart => {
+                    let _ = l.tx.write_all(reply);
+                }
+                LinkKind::Usb => usb_send(l.usb_out, reply),
+            }
             if l.handler.reset_requested() {
                 let _ = l.tx.flush();
+                // The reply leaves before the reset (the USB interrupt empties the
+                // queue unless the host has gone).
+                while !l.usb_out.is_empty() && io::usb_connected() {
+                    rtic::pend(stm32f4xx_hal::pac::Interrupt::OTG_FS);
+                    cortex_m::asm::wfi();
+                }
                 super::supervisor::reset_by_command();
             }
         }
+    }
+
+    /// Queues `bytes` for the USB interrupt, waiting while the queue is full;
+    /// drops them if no host has the port open (it left mid-reply).
+    fn usb_send(q: &mut Producer<'static, u8>, bytes: &[u8]) {
+        for &b in bytes {
+            while q.enqueue(b).is_err() {
+                if !io::usb_connected() {
+                    return;
+                }
+                rtic::pend(stm32f4xx_hal::pac::Interrupt::OTG_FS);
+                cortex_m::asm::wfi();
+            }
+        }
+        rtic::pend(stm32f4xx_hal::pac::Interrupt::OTG_FS);
     }
 
     /// The handler's view of the board: the exchange behind the RTIC lock.
