@@ -44,8 +44,10 @@ class Emulator:
     netduinoplus2, its link on a TCP port. Builds the firmware with cargo in the
     source tree the package was built from. A context manager; ``close()`` stops QEMU."""
 
-    def __init__(self, listen: Optional[str] = None) -> None:
-        """``listen``: ``HOST:PORT`` (default: a free loopback port)."""
+    def __init__(self, listen: Optional[str] = None, link: str = "usb") -> None:
+        """``listen``: ``HOST:PORT`` (default: a free loopback port); ``link``: the
+        link whose rate the board paces its own at, ``"usb"`` (800 kB/s) or
+        ``"uart"`` (11 520 B/s)."""
     @property
     def port(self) -> str:
         """``tcp:HOST:PORT``: what ``Board`` opens."""
@@ -76,7 +78,7 @@ class Board:
     @property
     def closed(self) -> bool: ...
     def info(self) -> Dict[str, Any]:
-        """The greeting: ``board``, ``firmware``, ``protocol``, ``rate_hz``, ``capacity``, ``reset``."""
+        """The greeting: ``board``, ``firmware``, ``protocol``, ``rate_hz``, ``capacity``, ``reset``, ``link`` (``usb`` or ``uart``), ``link_bytes_per_s``."""
     def status(self) -> Dict[str, Any]:
         """The state (``fpi board status``): ``state`` (running, parked, fault),
         ``fault``, ``reference_um``, ``estimate_um``, ``position_sensor_um``,

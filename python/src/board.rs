@@ -106,7 +106,9 @@ impl Board {
 
     /// The board's greeting: `board` (`driver`, `emulated` or `virtual`),
     /// `firmware`, `protocol`, `rate_hz`, `capacity` (operators, creep terms,
-    /// table intervals), `reset` (why it started).
+    /// table intervals), `reset` (why it started), `link` (`usb` or `uart`: the
+    /// link it answers on; the emulated board: the one it paces its own as) and
+    /// `link_bytes_per_s`.
     fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let (h, virt) = self.run(py, |c| {
             Ok((
@@ -122,6 +124,8 @@ impl Board {
         d.set_item("rate_hz", h.rate_hz)?;
         d.set_item("capacity", (h.capacity[0], h.capacity[1], h.capacity[2]))?;
         d.set_item("reset", format!("{:?}", h.reset))?;
+        d.set_item("link", h.link.name())?;
+        d.set_item("link_bytes_per_s", h.link.bytes_per_s())?;
         Ok(d)
     }
 

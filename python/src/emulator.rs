@@ -30,10 +30,19 @@ pub struct Emulator {
 #[pymethods]
 impl Emulator {
     #[new]
-    #[pyo3(signature = (listen = None))]
-    fn new(py: Python<'_>, listen: Option<String>) -> PyResult<Self> {
+    #[pyo3(signature = (listen = None, link = "usb"))]
+    fn new(py: Python<'_>, listen: Option<String>, link: &str) -> PyResult<Self> {
+        let Some(link) = fpi_host::board::client::link_kind(link) else {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "link={link:?}: \"usb\" or \"uart\""
+            )));
+        };
         let q = py
-            .detach(|| Qemu::start(listen.as_deref()))
+            .detach(|| {
+                let q = Qemu::start(listen.as_deref())?;
+                q.pace_as(link)?;
+                Ok::<_, anyhow::Error>(q)
+            })
             .map_err(|e| to_py(py, e, Otherwise::Link))?;
         let port = q.port().to_string();
         Ok(Self {

@@ -348,6 +348,32 @@ fn board_commands_drive_the_emulated_board() {
     assert!(
         csv.starts_with("t_s,voltage_V,force_N,x_ref_um,x_est_um,status,x_fhps_um,x_sensor_um\n")
     );
+    assert!(out.contains("link: uart (12 kB/s)") && out.contains(": fits"), "{out}");
+    // Every tick for a second: more than the UART (the emulated board's link
+    // until told otherwise) carries. Said up front, and the drops counted.
+    let all = dir.join("board-record-all.csv");
+    let out = run(&[
+        "record",
+        "--seconds",
+        "1",
+        "--out",
+        s(&all),
+        "--decimation",
+        "1",
+    ]);
+    assert!(
+        out.contains("MORE THAN THE LINK CARRIES") && out.contains("--decimation 44 or more fits"),
+        "{out}"
+    );
+    let dropped: u32 = out
+        .split(" dropped")
+        .next()
+        .and_then(|h| h.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{out}"));
+    // 20 000 asked for; the ring and about 11.5 kB/s of 20-byte samples kept.
+    println!("{out}");
+    assert!(dropped > 15_000, "{out}");
     let a = board(&["move", "45"]);
     let err = fails(&a.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(err.contains("outside the stroke"), "{err}");

@@ -318,6 +318,12 @@ impl<F: NorFlash> Handler<F> {
         self.pace.link()
     }
 
+    /// The emulated board paces its link as `link` from now on (a board's
+    /// link is what it is: there this only names it).
+    pub fn pace_as(&mut self, link: LinkKind) {
+        self.pace = self.pace.relinked(link);
+    }
+
     /// The next frame came over `link` (a board with more than one link): its
     /// hello names it. The emulated board's pace stays what the bench set.
     pub fn arrived_on(&mut self, link: LinkKind) {
@@ -540,7 +546,7 @@ impl<F: NorFlash> Handler<F> {
             }
             Command::Bench(BenchOrder::Link(link)) if self.kind == BoardKind::Emulated => {
                 // This reply already leaves at the new pace.
-                self.pace = self.pace.relinked(link);
+                self.pace_as(link);
                 self.ack(board)
             }
             Command::Bench(b) => match self.kind {

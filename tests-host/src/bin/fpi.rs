@@ -300,7 +300,7 @@ enum BoardCommand {
         /// at: `uart` (115 200 Bd, 11 520 B/s) or `usb` (full-speed CDC, 800 kB/s,
         /// 1 ms latency). QEMU's bridged USART carries what its host allows on
         /// top of that.
-        #[arg(long, default_value = "uart", value_parser = parse_link)]
+        #[arg(long, default_value = "usb", value_parser = parse_link)]
         link: fpi_protocol::LinkKind,
     },
     /// The board, its model and the loop's state.

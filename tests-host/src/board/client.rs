@@ -509,13 +509,17 @@ impl Client {
         }
     }
 
-    /// Takes every recorded sample waiting; the samples and the dropped count so far.
+    /// Takes the recorded samples waiting when it starts (not those recorded
+    /// meanwhile: a recording faster than the link would keep it reading for
+    /// ever); the samples and the dropped count so far.
     pub fn drain(&mut self) -> Result<(Vec<Sample>, u32)> {
         let mut out = Vec::new();
+        let mut due = None;
         loop {
             let b = self.read_batch()?;
             out.extend(Sample::batch(b.signals, &b.values));
-            if b.waiting == 0 {
+            let due = *due.get_or_insert(out.len() + b.waiting as usize);
+            if b.waiting == 0 || out.len() >= due {
                 return Ok((out, b.dropped));
             }
         }

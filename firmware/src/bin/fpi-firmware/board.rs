@@ -179,6 +179,14 @@ pub fn usb_connected() -> bool {
     USB_CONNECTED.load(Ordering::Relaxed)
 }
 
+/// A board's link is what it is: nothing to keep across a reset.
+pub fn keep_link(_link: fpi_firmware::link::protocol::LinkKind) {}
+
+/// Nothing kept (see [`keep_link`]).
+pub fn kept_link() -> Option<fpi_firmware::link::protocol::LinkKind> {
+    None
+}
+
 /// The USB link: the device, its CDC-ACM port and the link task's queues.
 pub struct Usb {
     dev: UsbDevice<'static, UsbBusType>,

@@ -21,6 +21,8 @@ use fpi_firmware::storage::ModelFlash;
 use fpi_firmware::watchdog::Watchdog;
 
 use crate::supervisor::{was_reset_by_command, Supervisor};
+use core::mem::MaybeUninit;
+use fpi_firmware::link::protocol::LinkKind;
 use heapless::spsc::{Consumer, Producer};
 use stm32f4xx_hal::pac::{self, USART1};
 use stm32f4xx_hal::prelude::*;
@@ -58,6 +60,34 @@ pub struct Usb {
 impl Usb {
     /// Nothing to poll.
     pub fn poll(&mut self) {}
+}
+
+/// The link the bench paces the board's as, kept across a reset by command in
+/// a word of RAM that start-up code does not clear (`.uninit`): the emulated
+/// board stays the board it was started as.
+#[link_section = ".uninit.fpi_link"]
+static mut LINK_MARK: MaybeUninit<u32> = MaybeUninit::uninit();
+/// [`LINK_MARK`]'s tag; the link's wire number in its low byte.
+const LINK_TAG: u32 = 0x4c4e_4b00;
+
+/// Keeps `link` for the next start (just before a reset by command).
+pub fn keep_link(link: LinkKind) {
+    let p = &raw mut LINK_MARK;
+    // SAFETY: a plain word of RAM only this module touches.
+    unsafe { core::ptr::write_volatile(p.cast::<u32>(), LINK_TAG | u32::from(link.to_u8())) };
+}
+
+/// The link kept by [`keep_link`] before this start, if any; clears it.
+pub fn kept_link() -> Option<LinkKind> {
+    let p = &raw mut LINK_MARK;
+    // SAFETY: `.uninit` RAM holds some bit pattern after any reset, and every
+    // pattern is a valid `u32`; volatile, because no Rust code wrote it in this run.
+    let mark = unsafe {
+        let m = core::ptr::read_volatile(p.cast::<u32>());
+        core::ptr::write_volatile(p.cast::<u32>(), 0);
+        m
+    };
+    (mark & !0xff == LINK_TAG).then(|| LinkKind::from_u8(mark as u8)).flatten()
 }
 
 /// No host on a USB port QEMU does not have.

@@ -115,11 +115,14 @@ mod app {
         let (usb_out, usb_tx_out) = cx.local.usb_tx.split();
         let (flash, serial, usb, board) = io::init(cx.device, usb_rx_in, usb_tx_out);
         let stores = [Spare::new(cx.local.store_a), Spare::new(cx.local.store_b)];
-        let Some((handler, running)) =
+        let Some((mut handler, running)) =
             Handler::boot(io::KIND, stores, cx.local.image, flash, MODEL_IMAGE, reset)
         else {
             io::halt("the factory model does not load")
         };
+        if let Some(link) = io::kept_link() {
+            handler.pace_as(link);
+        }
         let summary = *running.summary();
         say!(
             "fpi-firmware: control at {} Hz, model crc {} ({} operators), link on USB and USART1",
@@ -232,6 +235,7 @@ mod app {
                     rtic::pend(stm32f4xx_hal::pac::Interrupt::OTG_FS);
                     cortex_m::asm::wfi();
                 }
+                io::keep_link(l.handler.link());
                 super::supervisor::reset_by_command();
             }
         }
