@@ -11,7 +11,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
-use fpi_firmware::recorder::signal;
+use fpi_firmware::recorder::{signal, Sample};
 use fpi_protocol::{BenchOrder, Command, LoopMode, Shape, SourceKind};
 
 use super::client::{real, to_link, Client, StreamReport};
@@ -411,9 +411,10 @@ pub fn record(
     let started = Instant::now();
     let mut stopped = false;
     loop {
-        let (samples, dropped) = c.drain()?;
-        rec.samples.extend(samples);
-        rec.dropped = dropped;
+        // One batch at a time: on a link slower than the recording, reading
+        // everything waiting would run past the end.
+        let b = c.read_batch()?;
+        rec.samples.extend(Sample::batch(b.signals, &b.values));
         // The read's own reply says the tick: no status poll takes the link's time.
         let now = c.last_tick().unwrap_or(start);
         progress(now.saturating_sub(start).min(ticks), ticks);
@@ -427,17 +428,26 @@ pub fn record(
         if started.elapsed() > Duration::from_secs_f64(seconds * 20.0 + 30.0) {
             bail!("the board's clock does not advance (tick {now})");
         }
-        std::thread::sleep(Duration::from_millis(20));
+        if b.waiting == 0 {
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
     c.ack(&Command::RecordStop)?;
-    let (samples, dropped) = c.drain()?;
+    let (samples, _) = c.drain()?;
     rec.samples.extend(samples);
-    rec.dropped = dropped;
     rec.samples.retain(|s| s.tick < start + ticks);
     let recorded = rec
         .samples
         .last()
         .map_or(0.0, |s| (s.tick - start) as f64 / rate);
+    // What the ring dropped within the time asked for (it went on recording,
+    // and dropping, until the stop arrived).
+    let asked = if stopped {
+        (recorded * rate) as u32 / u32::from(decimation) + 1
+    } else {
+        ticks.div_ceil(u32::from(decimation))
+    };
+    rec.dropped = asked.saturating_sub(rec.samples.len() as u32);
     Ok(Recorded {
         recording: rec,
         start,

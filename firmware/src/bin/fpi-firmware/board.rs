@@ -223,7 +223,9 @@ fn usb(
     clocks: &stm32f4xx_hal::rcc::Clocks,
     (rx, tx): (Producer<'static, u8>, Consumer<'static, u8>),
 ) -> Usb {
-    let Some(ep_memory) = cortex_m::singleton!(: [u32; 1024] = [0; 1024]) else {
+    // The OUT endpoints' buffers: EP0 and the CDC data endpoint, 64 bytes each,
+    // with room to spare.
+    let Some(ep_memory) = cortex_m::singleton!(: [u32; 256] = [0; 256]) else {
         halt("USB endpoint memory")
     };
     let usb = USB::new((global, device, pwrclk), pins, clocks);

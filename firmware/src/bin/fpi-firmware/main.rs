@@ -78,8 +78,10 @@ mod app {
 
     /// Received bytes between the USART interrupt and the link task.
     const RX_QUEUE: usize = 2048;
-    /// Bytes between the USB interrupt and the link task, each way.
-    const USB_QUEUE: usize = 2048;
+    /// Bytes between the USB interrupt and the link task, each way (a request
+    /// is at most 1 280 bytes, and the link task takes bytes as they come; a
+    /// reply waits for room).
+    const USB_QUEUE: usize = 1024;
 
     #[shared]
     struct Shared {
