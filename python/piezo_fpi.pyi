@@ -69,7 +69,8 @@ class Board:
     def __init__(self, port: str) -> None:
         """``port``: a serial device (``/dev/ttyUSB0``, ``COM3``), ``tcp:HOST:PORT``
         (the emulated board) or ``virtual`` (the firmware built for this host, run
-        in this process at real time, starting afresh)."""
+        in this process at real time, starting afresh; its link paced as the UART,
+        or as USB with ``virtual:usb``)."""
     @property
     def port(self) -> str: ...
     @property

@@ -5,7 +5,7 @@ board's data recorder, and its tracking error.
 
     python calibrate_and_upload.py [PORT] [--out DIR]
 
-PORT: "virtual" (default), tcp:127.0.0.1:4545 (`cargo emulate`), /dev/ttyUSB0.
+PORT: "virtual:usb" (default), tcp:127.0.0.1:4545 (`cargo emulate`), /dev/ttyUSB0.
 """
 
 import argparse
@@ -28,7 +28,7 @@ def read_csv(path):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("port", nargs="?", default="virtual")
+    ap.add_argument("port", nargs="?", default="virtual:usb")
     ap.add_argument("--out", default="calibrate-out")
     args = ap.parse_args()
     out = Path(args.out)

@@ -5,7 +5,7 @@ track it again closed on the position sensor. Prints both errors and plots them.
 
     python closed_loop.py [PORT] [--out DIR]
 
-PORT: "virtual" (default) or tcp:127.0.0.1:4545 (`cargo emulate`): it needs the
+PORT: "virtual:usb" (default) or tcp:127.0.0.1:4545 (`cargo emulate`): it needs the
 emulated board's virtual bench to choose the stage as built.
 """
 
@@ -49,7 +49,7 @@ def track(b, label):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("port", nargs="?", default="virtual")
+    ap.add_argument("port", nargs="?", default="virtual:usb")
     ap.add_argument("--out", default="closed-loop-out")
     args = ap.parse_args()
     out = Path(args.out)

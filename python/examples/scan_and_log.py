@@ -4,7 +4,7 @@ board's data recorder, log it to CSV and plot it to a PNG.
 
     python scan_and_log.py [PORT] [--out DIR]
 
-PORT: "virtual" (the firmware in this process; the default), tcp:127.0.0.1:4545
+PORT: "virtual:usb" (the firmware in this process, its link paced as USB; the default), tcp:127.0.0.1:4545
 (`cargo emulate`), or a serial device (/dev/ttyUSB0).
 """
 
@@ -22,7 +22,7 @@ import piezo_fpi as pf  # noqa: E402
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("port", nargs="?", default="virtual")
+    ap.add_argument("port", nargs="?", default="virtual:usb")
     ap.add_argument("--out", default="scan-out", help="folder for scan.csv and scan.png")
     ap.add_argument("--lines", type=int, default=4)
     args = ap.parse_args()

@@ -78,7 +78,8 @@ fn signalled(caught: &mut Option<PyErr>) -> bool {
 impl Board {
     /// Opens the board on `port`: a serial device (`/dev/ttyUSB0`, `COM3`),
     /// `tcp:HOST:PORT` (the emulated board), or `virtual` (the firmware built for
-    /// this host, in this process, board time at real time, starting afresh).
+    /// this host, in this process, board time at real time, starting afresh; its
+    /// link paced as the UART, or as USB with `virtual:usb`).
     /// Raises `LinkError` if it cannot be opened or the board does not answer.
     #[new]
     fn new(py: Python<'_>, port: &str) -> PyResult<Self> {

@@ -84,7 +84,8 @@ def test_a_board_recording_calibrates_as_it_is():
     displacement, force_N as the force). The method assumes a recording that
     starts at rest; `record` starts 50 ms into the wave (the command is checked
     for faults first), so the fit is looser than on the rig's recordings."""
-    with pf.Board("virtual") as b:
+    # 2 000 samples/s: the USB link's rate (the UART would drop most of them).
+    with pf.Board("virtual:usb") as b:
         b.wave("cosine", amplitude_um=15, offset_um=15, freq_hz=2, cycles=2)
         rec = b.record(seconds=1.0, decimation=10)
     m = pf.calibrate([rec], kind="efpi")

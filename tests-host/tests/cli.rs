@@ -348,7 +348,10 @@ fn board_commands_drive_the_emulated_board() {
     assert!(
         csv.starts_with("t_s,voltage_V,force_N,x_ref_um,x_est_um,status,x_fhps_um,x_sensor_um\n")
     );
-    assert!(out.contains("link: uart (12 kB/s)") && out.contains(": fits"), "{out}");
+    assert!(
+        out.contains("link: uart (12 kB/s)") && out.contains(": fits"),
+        "{out}"
+    );
     // Every tick for a second: more than the UART (the emulated board's link
     // until told otherwise) carries. Said up front, and the drops counted.
     let all = dir.join("board-record-all.csv");

@@ -87,7 +87,9 @@ pub fn kept_link() -> Option<LinkKind> {
         core::ptr::write_volatile(p.cast::<u32>(), 0);
         m
     };
-    (mark & !0xff == LINK_TAG).then(|| LinkKind::from_u8(mark as u8)).flatten()
+    (mark & !0xff == LINK_TAG)
+        .then(|| LinkKind::from_u8(mark as u8))
+        .flatten()
 }
 
 /// No host on a USB port QEMU does not have.
