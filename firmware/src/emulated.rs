@@ -1,7 +1,9 @@
 //! The emulated board's virtual bench: the virtual stage (`piezo_sim::stage`,
 //! stage A) behind the [`SimLink`], stepped after every control tick, with the
 //! fault injection a test needs (an open or stuck force sensor, the analog input's
-//! reading).
+//! reading), and the analog front end it converts with (`BenchOrder::FrontEnd`:
+//! the [`SimLink`]'s converters and, for the precision front end, the ADC's
+//! transition noise, [`crate::sim_io::PRECISION_ADC_NOISE_LSB`]).
 //!
 //! [`tick`] is one period of the emulated board: bench orders, the control loop,
 //! the virtual stage, the recorder. The QEMU firmware's control task calls it; the
@@ -17,14 +19,17 @@ use piezo_sim::stage::{stage_a, Overrides, Stage};
 use embedded_storage::nor_flash::NorFlash;
 
 use crate::control_loop::ControlLoop;
+use crate::converters::scale;
 use crate::exchange::{Applied, Exchange, Order};
 use crate::frontend::AnalogIn;
 use crate::hardware::{Store, IMAGE_BYTES};
 use crate::link::handler::{Board, Handler};
-use crate::link::protocol::{BenchOrder, BoardKind, ResetReason};
+use crate::link::protocol::{BenchOrder, BoardKind, FrontEndKind, ResetReason};
 use crate::model::MODEL_IMAGE;
 use crate::recorder::Sample;
-use crate::sim_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor};
+use crate::sim_io::{
+    SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor, PRECISION_ADC_NOISE_LSB,
+};
 use crate::slots::Spare;
 use crate::storage::{ModelFlash, RamFlash, Slots};
 
@@ -34,6 +39,8 @@ pub const BROKEN_WIRE_N: f32 = 500.0;
 pub const BROKEN_POSITION_UM: f32 = 1000.0;
 /// Seed of the virtual sensor's noise.
 pub const SEED: u32 = 0x5EED;
+/// Seed of the precision ADC's transition noise.
+pub const ADC_NOISE_SEED: u32 = 0xAD76_06AD;
 /// Bytes of one of the emulated board's flash slots (a model image and its header).
 pub const FLASH_SLOT: usize = 13_056;
 /// The emulated board's flash: two slots in RAM (QEMU cannot program its flash).
@@ -57,6 +64,22 @@ pub struct Bench {
     offset: f32,
     stall: u16,
     force: f32,
+    /// The precision front end's ADC noise generator (xorshift32); `None` with the
+    /// internal front end, which adds none.
+    adc_noise: Option<u32>,
+}
+
+/// A zero-mean, unit-variance sample (the sum of four uniforms, as the virtual
+/// stage's sensor noise), from a xorshift32 state.
+fn unit_noise(rng: &mut u32) -> f32 {
+    let mut s = 0.0;
+    for _ in 0..4 {
+        *rng ^= *rng << 13;
+        *rng ^= *rng >> 17;
+        *rng ^= *rng << 5;
+        s += (*rng >> 8) as f32 / 16_777_216.0 - 0.5;
+    }
+    s * 1.732_050_8
 }
 
 impl Bench {
@@ -75,6 +98,7 @@ impl Bench {
             offset: 0.0,
             stall: 0,
             force,
+            adc_noise: None,
         })
     }
 
@@ -102,6 +126,10 @@ impl Bench {
             BenchOrder::PositionOpen(open) => self.position_open = open,
             BenchOrder::PositionStuck(stuck) => {
                 self.position_stuck = stuck.then_some(self.position);
+            }
+            BenchOrder::FrontEnd(kind) => {
+                link.select(kind);
+                self.adc_noise = (kind == FrontEndKind::Precision).then_some(ADC_NOISE_SEED);
             }
             BenchOrder::Stage(v) => {
                 let base = if v.built {
@@ -141,6 +169,16 @@ impl Bench {
         true
     }
 
+    /// A reading as the selected ADC sees it before its quantisation: with its
+    /// transition noise (`lsb`: a code in the reading's unit) on the precision
+    /// front end, unchanged on the internal one.
+    fn convert(&mut self, reading: f32, lsb: f32) -> f32 {
+        match &mut self.adc_noise {
+            Some(rng) => reading + unit_noise(rng) * PRECISION_ADC_NOISE_LSB * lsb,
+            None => reading,
+        }
+    }
+
     /// The stage's true position now, µm: where it was when this tick's sensors
     /// were read (the position the last step left it at).
     pub fn true_position(&self) -> Micrometres {
@@ -160,7 +198,7 @@ impl Bench {
             (false, None) => sensed + self.offset,
         };
         self.force = reading;
-        link.set_force(reading);
+        link.set_force(self.convert(reading, per_code(&scale::FORCE)));
         let sensed = self.stage.sense_position(s.x_fhps_um);
         let position = match (self.position_open, self.position_stuck) {
             (true, _) => BROKEN_POSITION_UM,
@@ -168,10 +206,15 @@ impl Bench {
             (false, None) => sensed,
         };
         self.position = position;
-        link.set_position(position);
+        link.set_position(self.convert(position, per_code(&scale::POSITION)));
         self.x_true = Micrometres::from_num(s.x_fhps_um);
         self.x_true
     }
+}
+
+/// A code of an ADC channel, in its unit.
+fn per_code(s: &piezo_fpi::io::AdcScale) -> f32 {
+    s.per_count.to_num::<f32>()
 }
 
 /// One period of the emulated board: a pending bench order, the control tick, the
@@ -859,6 +902,52 @@ mod tests {
             }
             r => panic!("{r:?}"),
         }
+    }
+
+    #[test]
+    fn the_precision_front_end_converts_finer_on_both_sides() {
+        use crate::link::protocol::FrontEndKind;
+        let mut h = host();
+        h.run(5);
+        assert_eq!(h.board.link.front_end(), FrontEndKind::Internal);
+        h.ack(Command::Bench(BenchOrder::FrontEnd(FrontEndKind::Precision)));
+        assert_eq!(h.board.link.front_end(), FrontEndKind::Precision);
+        h.ack(Command::Move {
+            axis: 0,
+            target: um(20.0),
+            speed: um(1000.0),
+        });
+        h.run(1000);
+        let s = h.status();
+        assert_eq!(s.fault, None);
+        assert!((s.signals[1] - um(20.0)).abs() < um(0.05), "{s:?}");
+        // The setpoint moves by less than one of the 12-bit DAC's codes
+        // (36.6 mV), the force reading by less than one of its counts (0.125 N).
+        let (mut dv, mut df) = (f32::MAX, f32::MAX);
+        let (mut v0, _) = h.board.link.output();
+        let mut f0 = h.board.link.hardware().sensor.read_force();
+        for _ in 0..200 {
+            h.run(1);
+            let (v, on) = h.board.link.output();
+            assert!(on);
+            let f = h.board.link.hardware().sensor.read_force();
+            if v != v0 {
+                dv = dv.min((v - v0).abs());
+            }
+            if f != f0 {
+                df = df.min((f - f0).abs().to_num::<f32>());
+            }
+            (v0, f0) = (v, f);
+        }
+        assert!(dv < 0.01 && df < 0.05, "{dv} V, {df} N");
+        // Back to the internal front end: the 12-bit grids again.
+        h.ack(Command::Bench(BenchOrder::FrontEnd(FrontEndKind::Internal)));
+        h.run(2);
+        let (v, _) = h.board.link.output();
+        let codes = v * 4095.0 / 150.0;
+        assert!((codes - codes.round()).abs() < 1e-3, "{v} V");
+        let f = h.board.link.hardware().sensor.read_force().to_num::<f32>();
+        assert!(((f + 5.0) * 8.0).fract() == 0.0, "{f} N");
     }
 
     #[test]

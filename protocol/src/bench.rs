@@ -31,6 +31,37 @@ crate::wire_enum! {
         Stage = 8,
         /// [`BenchOrder::Link`].
         Link = 9,
+        /// [`BenchOrder::FrontEnd`].
+        FrontEnd = 10,
+    }
+}
+
+crate::wire_enum! {
+    /// The analog front end the emulated board converts with ([`BenchOrder::FrontEnd`]).
+    pub enum FrontEndKind {
+        /// The STM32's on-chip converters: a 12-bit ADC for the force sensor
+        /// (0.125 N a count), the 12-bit DAC for the setpoint (36.6 mV of the
+        /// 0–150 V amplifier a code), the position channel's 16-bit code.
+        Internal = 0,
+        /// The precision front end: an AD5791 20-bit DAC for the setpoint
+        /// (143 µV a code) and an AD7606 16-bit ADC for the force (7.8 mN a code)
+        /// and position (1.22 nm a code) sensors, with its transition noise.
+        Precision = 1,
+    }
+}
+
+impl FrontEndKind {
+    /// Its name as the command line spells it (`internal`, `precision`).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Internal => "internal",
+            Self::Precision => "precision",
+        }
+    }
+
+    /// The kind a command-line name stands for.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.iter().copied().find(|k| k.name() == name)
     }
 }
 
@@ -68,6 +99,11 @@ pub enum BenchOrder {
     /// the emulated board's recorder drops what a real board's would. The
     /// emulated board starts paced as [`LinkKind::Uart`].
     Link(LinkKind),
+    /// Convert with this front end from now on, both the virtual stage's side
+    /// (the converters' resolution and noise) and the firmware's (the scale it
+    /// turns codes into newtons, micrometres and volts with). The emulated board
+    /// starts with [`FrontEndKind::Internal`]; a reset returns to it.
+    FrontEnd(FrontEndKind),
 }
 
 impl BenchOrder {
@@ -84,6 +120,7 @@ impl BenchOrder {
             Self::PositionStuck(_) => BenchKind::PositionStuck,
             Self::Stage(_) => BenchKind::Stage,
             Self::Link(_) => BenchKind::Link,
+            Self::FrontEnd(_) => BenchKind::FrontEnd,
         }
     }
 }
@@ -106,6 +143,7 @@ impl<'de> Tagged<'de> for BenchOrder {
             Self::DamageStored => Ok(()),
             Self::Stage(v) => t.serialize_element(v),
             Self::Link(l) => t.serialize_element(l),
+            Self::FrontEnd(f) => t.serialize_element(f),
         }
     }
 
@@ -124,6 +162,7 @@ impl<'de> Tagged<'de> for BenchOrder {
             BenchKind::PositionStuck => Self::PositionStuck(field(a)?),
             BenchKind::Stage => Self::Stage(field(a)?),
             BenchKind::Link => Self::Link(field(a)?),
+            BenchKind::FrontEnd => Self::FrontEnd(field(a)?),
         }))
     }
 }

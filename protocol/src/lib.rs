@@ -34,7 +34,7 @@ pub mod wire;
 #[doc(hidden)]
 pub use serde;
 
-pub use bench::{BenchKind, BenchOrder, StageVariant};
+pub use bench::{BenchKind, BenchOrder, FrontEndKind, StageVariant};
 pub use command::{Command, CommandKind, Header};
 pub use link::LinkKind;
 pub use modes::{LoopMode, Shape, SourceKind};

@@ -105,6 +105,7 @@ goldens! {
     command_counters: Command::Counters => "17";
     command_bench: Command::Bench(BenchOrder::SensorOffset(-(2 << 16))) => "18 03 ff ff 0f";
     command_bench_link: Command::Bench(BenchOrder::Link(LinkKind::Usb)) => "18 09 01";
+    command_bench_front_end: Command::Bench(BenchOrder::FrontEnd(FrontEndKind::Precision)) => "18 0a 01";
     command_reset: Command::Reset => "19";
     command_loop: Command::Loop { axis: 0, mode: LoopMode::FeedbackOnly } => "1a 00 02";
     command_damping: Command::Damping { axis: 0, on: false } => "1b 00 00";
@@ -259,6 +260,7 @@ fn wire_numbers_are_pinned() {
         names(OriginKind::ALL, OriginKind::to_u8),
         names(BenchKind::ALL, BenchKind::to_u8),
         names(LinkKind::ALL, LinkKind::to_u8),
+        names(FrontEndKind::ALL, FrontEndKind::to_u8),
     ];
     let golden = [
         "Sine=0 Triangle=1 RaisedCosine=2",
@@ -271,8 +273,9 @@ fn wire_numbers_are_pinned() {
         "Empty=0 Valid=1 Damaged=2 Refused=3",
         "Factory=0 Stored=1 Received=2",
         "SensorOpen=0 SensorStuck=1 Analog=2 SensorOffset=3 Stall=4 DamageStored=5 \
-         PositionOpen=6 PositionStuck=7 Stage=8 Link=9",
+         PositionOpen=6 PositionStuck=7 Stage=8 Link=9 FrontEnd=10",
         "Uart=0 Usb=1",
+        "Internal=0 Precision=1",
     ];
     assert_eq!(pinned, golden);
     for k in CommandKind::ALL {
