@@ -302,6 +302,11 @@ enum BoardCommand {
         /// top of that.
         #[arg(long, default_value = "usb", value_parser = parse_link)]
         link: fpi_protocol::LinkKind,
+        /// The analog front end it converts with: `internal` (the STM32's 12-bit
+        /// ADC and DAC) or `precision` (AD7606 16-bit ADC, AD5791 20-bit DAC, with
+        /// the ADC's transition noise). A reset returns to `internal`.
+        #[arg(long, default_value = "internal", value_parser = parse_front_end)]
+        frontend: fpi_protocol::FrontEndKind,
     },
     /// The board, its model and the loop's state.
     Status,
@@ -802,18 +807,29 @@ fn parse_link(s: &str) -> Result<fpi_protocol::LinkKind, String> {
     fpi_host::board::client::link_kind(s).ok_or_else(|| format!("{s:?}: uart or usb"))
 }
 
+fn parse_front_end(s: &str) -> Result<fpi_protocol::FrontEndKind, String> {
+    fpi_protocol::FrontEndKind::from_name(s).ok_or_else(|| format!("{s:?}: internal or precision"))
+}
+
 fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
     use fpi_host::board::emulator::Emulator;
     use fpi_host::cli::board as b;
     use fpi_protocol::Command as C;
-    if let BoardCommand::Emulate { listen, link } = &command {
+    if let BoardCommand::Emulate {
+        listen,
+        link,
+        frontend,
+    } = &command
+    {
         let e = Emulator::start(Some(listen))?;
         e.pace_as(*link)?;
+        e.front_end(*frontend)?;
         println!(
-            "emulated board running, its link paced as {} ({} B/s); its link is --port {} \
+            "emulated board running, its link paced as {} ({} B/s), its front end {}; its link is --port {} \
              (Ctrl-C stops it)",
             link.name(),
             link.bytes_per_s(),
+            frontend.name(),
             e.port()
         );
         return e.wait();

@@ -12,6 +12,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use fixed::types::I16F16;
 use fpi_firmware::recorder::Sample;
 use fpi_protocol::frame::{self, FrameReader, Push};
+use fpi_protocol::FrontEndKind;
 use fpi_protocol::LoopMode;
 use fpi_protocol::Shape;
 use fpi_protocol::{
@@ -254,6 +255,13 @@ impl Client {
         self.bench(BenchOrder::Link(link))?;
         self.hello.link = link;
         Ok(())
+    }
+
+    /// Has the emulated board convert with the `kind` front end from now on: the
+    /// virtual stage's converters (resolution, noise) and the firmware's scales
+    /// together (a real board refuses: its converters are what it has).
+    pub fn front_end(&mut self, kind: FrontEndKind) -> Result<()> {
+        self.bench(BenchOrder::FrontEnd(kind)).map(|_| ())
     }
 
     /// The control rate, Hz.

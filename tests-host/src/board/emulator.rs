@@ -154,6 +154,12 @@ impl Emulator {
         super::client::Client::open(&self.port)?.pace_as(link)
     }
 
+    /// Has the board convert with the `kind` front end (it starts with the
+    /// internal one).
+    pub fn front_end(&self, kind: fpi_protocol::FrontEndKind) -> Result<()> {
+        super::client::Client::open(&self.port)?.front_end(kind)
+    }
+
     /// The port to open: `tcp:HOST:PORT`.
     pub fn port(&self) -> &str {
         &self.port
