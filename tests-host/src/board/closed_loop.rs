@@ -23,7 +23,7 @@ use fpi_firmware::recorder::{signal, status};
 use fpi_protocol::LoopMode;
 use fpi_protocol::Shape;
 use fpi_protocol::SourceKind;
-use fpi_protocol::{BenchOrder, Command, StageVariant};
+use fpi_protocol::{BenchOrder, Command, FrontEndKind, StageVariant};
 use piezo_sim::stats::ErrorStats;
 
 use super::autotune::warm_up;
@@ -117,10 +117,15 @@ fn switch(r: Result<u32>) -> Result<()> {
 
 /// Loads `image` onto a fresh stage as built and sets the drive up, warmed up.
 fn prepare(c: &mut Client, image: &[u8], d: Drive) -> Result<()> {
+    prepare_on(c, image, d, StageVariant::BUILT)
+}
+
+/// Loads `image` onto a fresh stage `v` and sets the drive up, warmed up.
+fn prepare_on(c: &mut Client, image: &[u8], d: Drive, v: StageVariant) -> Result<()> {
     c.park()?;
     c.upload(image, false, |_| {})
         .context("uploading a model")?;
-    c.bench(BenchOrder::Stage(StageVariant::BUILT))?;
+    c.bench(BenchOrder::Stage(v))?;
     c.move_to(WAVE_UM.0, 1000.0)?;
     Follow::new(c, 0).until_hold()?;
     let mode = if d == Drive::Open {
@@ -237,6 +242,123 @@ pub fn table(r: &Comparison) -> String {
             run.step
                 .settle_ms
                 .map_or("> 50 ms".to_string(), |v| format!("{v:.2} ms"))
+        ));
+    }
+    t
+}
+
+/// Where the hold noise is measured, µm.
+pub const HOLD_UM: f64 = 20.0;
+/// How long the hold is scored, s.
+pub const HOLD_S: f64 = 0.2;
+/// The hold is recorded every this many ticks (10 000 samples/s).
+pub const HOLD_DECIMATION: u16 = 2;
+/// How long the stage settles at [`HOLD_UM`] before the hold is scored, s.
+pub const HOLD_SETTLE_S: f64 = 0.05;
+
+/// One front end's figures in closed loop (damping + PI + feedforward) on the
+/// stage as built, on the true position.
+#[derive(Debug, Clone)]
+pub struct FrontEndRun {
+    /// The front end the board converted with.
+    pub kind: FrontEndKind,
+    /// The true position while holding [`HOLD_UM`] for [`HOLD_S`] (every
+    /// [`HOLD_DECIMATION`]-th tick):
+    /// its mean minus the target, µm.
+    pub hold_offset_um: f64,
+    /// Its standard deviation about its mean, µm.
+    pub hold_rms_um: f64,
+    /// Its peak-to-peak, µm.
+    pub hold_pp_um: f64,
+    /// Samples scored in the hold.
+    pub hold_samples: usize,
+    /// The 15 Hz sine over 5–35 µm: true position − reference after the first
+    /// period, µm.
+    pub sine: ErrorStats<f64>,
+}
+
+/// The hold noise and the 15 Hz sine of `tuned` (a model with damping, PI and
+/// feedforward) on a fresh stage `stage` (the stage as built:
+/// [`StageVariant::BUILT`]), with each front end in turn; the board is left
+/// parked with the nominal stage and the internal front end.
+pub fn front_ends(c: &mut Client, tuned: &[u8], stage: StageVariant) -> Result<Vec<FrontEndRun>> {
+    let rate = c.rate_hz();
+    let mut runs = Vec::new();
+    for &kind in FrontEndKind::ALL {
+        c.park()?;
+        c.front_end(kind)
+            .with_context(|| format!("selecting the {} front end", kind.name()))?;
+        prepare_on(c, tuned, Drive::DampedFeedforward, stage)
+            .with_context(|| format!("setting up, {} front end", kind.name()))?;
+        // The hold: every tick of the true position.
+        c.move_to(HOLD_UM, 1000.0)?;
+        let mut f = Follow::new(c, SIGNALS);
+        let at = f.until_hold()?;
+        let from = at + f.ticks(HOLD_SETTLE_S);
+        let to = from + f.ticks(HOLD_S);
+        f.record(HOLD_DECIMATION)?;
+        f.until_tick(to)?;
+        f.c.ack(&Command::RecordStop)?;
+        f.drain()?;
+        let held: Vec<f64> = tracking(&f.rec, from)
+            .filter(|&(t, _, _)| t < to)
+            .map(|(_, _, x)| x)
+            .collect();
+        // The in-process board keeps time with the wall clock: a busy host may
+        // read the recorder late and lose a few samples; the figures are
+        // statistics over what is kept.
+        let expected = ((to - from) / u32::from(HOLD_DECIMATION)) as usize;
+        if held.len() * 10 < expected * 9 {
+            anyhow::bail!(
+                "the hold kept {} of {expected} samples ({} front end)",
+                held.len(),
+                kind.name()
+            );
+        }
+        let n = held.len() as f64;
+        let mean = held.iter().sum::<f64>() / n;
+        let rms = (held.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let (lo, hi) = held
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                (lo.min(x), hi.max(x))
+            });
+        let (rec, started) = wave(c, Shape::Sine, SINE_HZ, 5, 10)?;
+        let mut sine = ErrorStats::new();
+        for (_, r, x) in tracking(&rec, started + (rate / SINE_HZ) as u32) {
+            sine.add(x - r);
+        }
+        runs.push(FrontEndRun {
+            kind,
+            hold_offset_um: mean - HOLD_UM,
+            hold_rms_um: rms,
+            hold_pp_um: hi - lo,
+            hold_samples: held.len(),
+            sine,
+        });
+    }
+    c.park()?;
+    c.front_end(FrontEndKind::Internal)?;
+    c.bench(BenchOrder::Stage(StageVariant::NOMINAL))?;
+    Ok(runs)
+}
+
+/// The front ends' table, for people (markdown): hold noise in nm, the sine's
+/// RMS error in µm and % of the 30 µm span.
+pub fn front_end_table(runs: &[FrontEndRun]) -> String {
+    let span = 2.0 * WAVE_UM.1;
+    let mut t = format!(
+        "| front end | hold at {HOLD_UM:.0} µm: RMS | peak-to-peak | mean − target | {SINE_HZ:.0} Hz sine 5–35 µm RMS |\n|---|---|---|---|---|\n"
+    );
+    for r in runs {
+        t.push_str(&format!(
+            "| {} | {:.2} nm | {:.2} nm | {:+.2} nm | {:.4} µm ({:.3} %) |\n",
+            r.kind.name(),
+            1e3 * r.hold_rms_um,
+            1e3 * r.hold_pp_um,
+            1e3 * r.hold_offset_um,
+            r.sine.rms(),
+            100.0 * r.sine.rms() / span
         ));
     }
     t
