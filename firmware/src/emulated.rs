@@ -910,7 +910,9 @@ mod tests {
         let mut h = host();
         h.run(5);
         assert_eq!(h.board.link.front_end(), FrontEndKind::Internal);
-        h.ack(Command::Bench(BenchOrder::FrontEnd(FrontEndKind::Precision)));
+        h.ack(Command::Bench(BenchOrder::FrontEnd(
+            FrontEndKind::Precision,
+        )));
         assert_eq!(h.board.link.front_end(), FrontEndKind::Precision);
         h.ack(Command::Move {
             axis: 0,
