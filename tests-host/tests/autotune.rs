@@ -274,7 +274,28 @@ fn watched(c: &mut Client, start: impl FnOnce(&mut Client) -> u32) -> Unstable {
                 (lo.min(x), hi.max(x))
             })
     };
+    let last = f.ticks(0.01);
+    let tail: Vec<f64> = f
+        .rec
+        .samples
+        .iter()
+        .filter(|s| s.tick + last > end)
+        .map(|s| real(s.x_true))
+        .collect();
+    let rest = tail.iter().sum::<f64>() / tail.len().max(1) as f64;
+    let residual_um = tail.iter().map(|x| (x - rest).abs()).fold(0.0, f64::max);
+    let ring_ms = f
+        .rec
+        .samples
+        .iter()
+        .filter(|s| s.tick > at && (real(s.x_true) - rest).abs() > 0.5)
+        .map(|s| s.tick)
+        .max()
+        .filter(|t| t + last <= end)
+        .map(|t| (t - at) as f64 / 20.0);
     Unstable {
+        ring_ms,
+        residual_um,
         fault: fault.and_then(|x| piezo_fpi::control::Fault::from_code(x.code)),
         ms: (at - started) as f64 / 20.0,
         safe_ms: fault
@@ -296,6 +317,13 @@ struct Unstable {
     /// The true position's range up to the fault and after it (the park), µm.
     before: (f64, f64),
     after: (f64, f64),
+    /// From the fault until the true position stays within ±0.5 µm of where
+    /// it rests (its mean over the record's last 10 ms), ms; `None` if it does
+    /// not within the record.
+    ring_ms: Option<f64>,
+    /// The true position's largest departure from where it rests over the
+    /// record's last 10 ms, µm.
+    residual_um: f64,
 }
 
 #[test]
@@ -311,8 +339,17 @@ fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
         let u = unstable_run(&mut c, a, v);
         println!(
             "{mode_hz} Hz, ζ {zeta}: {:?} after {:.2} ms; true position {:.2}–{:.2} µm until \
-             then, {:.2}–{:.2} µm while parking (safe voltage after {:?} ms)",
-            u.fault, u.ms, u.before.0, u.before.1, u.after.0, u.after.1, u.safe_ms
+             then, {:.2}–{:.2} µm while parking (safe voltage after {:?} ms); within ±0.5 µm \
+             of its rest after {:?} ms (swing over the last 10 ms ±{:.2} µm)",
+            u.fault,
+            u.ms,
+            u.before.0,
+            u.before.1,
+            u.after.0,
+            u.after.1,
+            u.safe_ms,
+            u.ring_ms,
+            u.residual_um
         );
         if mode_hz < 1000.0 {
             // Caught, named, within 20 ms of closing the loop and inside the
