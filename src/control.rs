@@ -387,6 +387,43 @@ impl Fault {
         }
     }
 
+    /// Whether a park after this fault may keep the active damping running
+    /// ([`crate::limits::OutputLimits::park_damped`]): where neither the force
+    /// sensor nor the damping law can be the fault's cause, and the loop's
+    /// timing and the model's force map still hold.
+    ///
+    /// * Kept: [`Oscillation`](Self::Oscillation) (the position loop is
+    ///   dropped by the park; the application keeps the damping only if the
+    ///   swing the watch caught was the tracking error, not the damping's own
+    ///   correction), [`Stopped`](Self::Stopped), [`LinkLost`](Self::LinkLost),
+    ///   [`ReferenceUnreachable`](Self::ReferenceUnreachable),
+    ///   [`ReferenceInput`](Self::ReferenceInput) and
+    ///   [`PositionOutOfRange`](Self::PositionOutOfRange) (the damping reads
+    ///   the force, not the position).
+    /// * Dropped: [`ForceOutOfRange`](Self::ForceOutOfRange) and
+    ///   [`ForceImplausible`](Self::ForceImplausible) (the damping's own sensor
+    ///   is suspect), [`Overrun`](Self::Overrun) (a loop whose ticks come late
+    ///   has more delay than it was designed for),
+    ///   [`PositionImplausible`](Self::PositionImplausible) and
+    ///   [`Saturated`](Self::Saturated) (the stage no longer matches the model
+    ///   whose preload map the damping's dynamic force is taken against, or the
+    ///   output cannot follow).
+    pub const fn damps_park(&self) -> bool {
+        match self {
+            Self::Oscillation
+            | Self::Stopped
+            | Self::LinkLost
+            | Self::ReferenceUnreachable
+            | Self::ReferenceInput
+            | Self::PositionOutOfRange => true,
+            Self::ForceOutOfRange
+            | Self::ForceImplausible
+            | Self::Overrun
+            | Self::PositionImplausible
+            | Self::Saturated => false,
+        }
+    }
+
     /// The fault with code `code` (its `repr(u8)` value).
     pub fn from_code(code: u8) -> Option<Self> {
         Self::ALL.into_iter().find(|f| *f as u8 == code)
@@ -512,6 +549,9 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             force_held: Newtons::MIN,
             force_held_model: Newtons::ZERO,
             park_rate: Volts::ZERO,
+            park_offset: Volts::ZERO,
+            park_damping: Volts::ZERO,
+            park_tick: 0,
             limited_steps: 0,
         }
     }
@@ -830,10 +870,26 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         forces: &Forces,
         fault: Fault,
     ) -> StepOutput {
-        let (voltage, rate) = self
-            .limits
-            .park(st.voltage, st.park_rate, self.safe_voltage);
+        // The damping's correction offered for this tick, where the fault
+        // leaves it running (the application offers it only then; checked here
+        // again), used once.
+        let damping = if fault.damps_park() {
+            st.park_damping
+        } else {
+            Volts::ZERO
+        };
+        st.park_damping = Volts::ZERO;
+        let (voltage, rate, offset) = self.limits.park_damped(
+            st.voltage,
+            st.park_offset,
+            st.park_rate,
+            self.safe_voltage,
+            st.park_tick,
+            damping,
+        );
         st.park_rate = rate;
+        st.park_offset = offset;
+        st.park_tick = st.park_tick.saturating_add(1);
         // Trust the sensor for the estimate only if it is in range.
         let f = if matches!(self.force_source, ForceSource::Measured) && forces.in_range {
             forces.feedforward
@@ -960,6 +1016,14 @@ pub struct ControllerState<const N: usize, const C: usize = 0> {
     force_held_model: Newtons,
     /// The rate of the park in progress, V per tick (`crate::limits::OutputLimits::park`).
     park_rate: Volts,
+    /// The output's departure from the park's profile (the damping's share), V,
+    /// `I16F16` (`crate::limits::OutputLimits::park_damped`); zero outside a park.
+    park_offset: Volts,
+    /// The damping's correction offered for the next park step, V, `I16F16`
+    /// ([`ControllerState::damp_park`]); zero once used.
+    park_damping: Volts,
+    /// Ticks since the park began (saturating); zero outside a park.
+    park_tick: u32,
     limited_steps: u32,
 }
 
@@ -1010,6 +1074,22 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
         true
     }
 
+    /// Offers the active damping's correction (V, `I16F16`: the damping's µm
+    /// through the small-signal slope of the drive) to the next step, if it is
+    /// a park after a fault that keeps the damping ([`Fault::damps_park`];
+    /// otherwise it is ignored): see
+    /// [`crate::limits::OutputLimits::park_damped`]. Used by one step.
+    #[inline]
+    pub fn damp_park(&mut self, correction: Volts) {
+        self.park_damping = correction;
+    }
+
+    /// The output's present departure from the park's profile (the damping's
+    /// share), V; zero outside a park.
+    pub const fn park_offset(&self) -> Volts {
+        self.park_offset
+    }
+
     /// Forgets what the force channel learned since the tare (its offset and
     /// scale back to the tare's, its slow part to zero): after a fault, what it
     /// learned may be the fault's. The slow part settles again within a few of
@@ -1034,6 +1114,9 @@ impl<const N: usize, const C: usize> ControllerState<N, C> {
         cfg.fpi.resync(&self.forward, &mut self.inverse);
         self.fault = None;
         self.park_rate = Volts::ZERO;
+        self.park_offset = Volts::ZERO;
+        self.park_damping = Volts::ZERO;
+        self.park_tick = 0;
         true
     }
 }
@@ -1508,6 +1591,69 @@ mod tests {
             assert_eq!(Fault::from_code(f as u8), Some(f));
         }
         assert_eq!(Fault::from_code(0), None);
+    }
+
+    /// The faults after which a park keeps the damping, and a damped park:
+    /// the correction offered moves the output (within the slew limit), fades,
+    /// and the park arrives at the safe voltage within the undamped bound; after
+    /// a force fault the same offer is ignored, tick for tick.
+    #[test]
+    fn a_park_keeps_the_damping_only_where_it_cannot_be_the_cause() {
+        let keeps: Vec<Fault> = Fault::ALL.into_iter().filter(Fault::damps_park).collect();
+        assert_eq!(
+            keeps,
+            [
+                Fault::ReferenceUnreachable,
+                Fault::Stopped,
+                Fault::LinkLost,
+                Fault::ReferenceInput,
+                Fault::PositionOutOfRange,
+                Fault::Oscillation,
+            ]
+        );
+        let c = testkit::controller();
+        let ring = |k: usize| {
+            Volts::from_num(12.0 * (k as f64 * 300.0 / 20_000.0 * std::f64::consts::TAU).cos())
+        };
+        let park = |fault: Fault| {
+            let mut st = c.initial_state();
+            let top = drive_to(&c, &mut st, 24.0).voltage;
+            st.trip(fault);
+            let mut path = Vec::new();
+            let mut prev = top;
+            while st.voltage() != c.safe_voltage() || path.is_empty() {
+                st.damp_park(ring(path.len()));
+                let out = plausible(&c, &mut st, um(24.0));
+                assert_eq!(out.fault, Some(fault));
+                assert!((out.voltage - prev).abs() <= c.limits().max_step());
+                prev = out.voltage;
+                path.push(out.voltage);
+                assert!(path.len() < 1000);
+            }
+            assert_eq!(st.park_offset(), Volts::ZERO);
+            assert!(st.clear_fault(&c));
+            (top, path)
+        };
+        let (top, damped) = park(Fault::Oscillation);
+        let (_, plain) = park(Fault::ForceImplausible);
+        assert_eq!(plain, park(Fault::Overrun).1, "the offer ignored");
+        assert_ne!(damped, plain, "the damping moves the output");
+        let need = crate::limits::damped_park_ticks(top) as usize;
+        assert!(damped.len() <= need, "{} {need}", damped.len());
+        // The same profile underneath; the damping's share within the
+        // profile's distance to go, and faded in proportion to it at the end.
+        let safe = c.safe_voltage();
+        for (k, (d, p)) in damped.iter().zip(&plain).enumerate() {
+            let (share, left) = ((*d - *p).abs(), (*p - safe).abs());
+            assert!(
+                share <= left.min(Volts::from_num(12)),
+                "{k}: {share} {left}"
+            );
+            if left < crate::limits::PARK_FADE {
+                let faded = left * Volts::from_num(12) / crate::limits::PARK_FADE;
+                assert!(share <= faded + Volts::from_bits(1), "{k}: {share} {faded}");
+            }
+        }
     }
 
     #[test]
