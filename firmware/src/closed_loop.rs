@@ -26,6 +26,19 @@
 //! integrator is preset to it ([`Pi::preset`]). Back in open loop, the
 //! difference to the reference bleeds off at [`APPROACH_STEP`] per tick.
 //!
+//! **A damped park.** After a fault the loop's memory is forgotten tick by
+//! tick and the core parks the output; the damping alone may run on through
+//! the park ([`Loop::park_correction`], added to the park's profile by
+//! `piezo_fpi::limits::OutputLimits::park_damped`, faded out by its end) where
+//! it cannot be the fault's cause: it was on, the fault is one that keeps it
+//! (`Fault::damps_park`: not the force sensor's, not an overrun, not a stage
+//! that left its model), and for [`Fault::Oscillation`] the watch caught the
+//! tracking error (the position loop, which the park drops), not the damping's
+//! own correction. Integral force feedback on the collocated force sensor adds
+//! damping to the first mode wherever the mode lies above its high-pass and
+//! leak corners, whatever its frequency; it is decided at the fault's first
+//! tick, and only ever dropped later (by a switch, or at the safe voltage).
+//!
 //! In the closed modes a position reading outside the sensor's range, or one that
 //! disagrees with the model's estimate by more than the tolerance for
 //! [`IMPLAUSIBLE_RUN`] ticks in a row, trips a fault: the output ramps to the safe
@@ -81,6 +94,13 @@ pub struct Loop {
     damped: Micrometres,
     shaping_on: bool,
     fresh_shaping: bool,
+    /// The watch's swing is the damping's correction (open loop, or no
+    /// position loop), not the tracking error.
+    damping_watched: bool,
+    /// A fault is latched (the last step parked).
+    parking: bool,
+    /// The damping runs on through this park.
+    park_damping: bool,
 }
 
 /// Ticks in a row a position reading must disagree with the model's estimate to
@@ -117,6 +137,9 @@ impl Loop {
             fresh_shaping: false,
             watch: LoopWatch::new(),
             alarm: None,
+            damping_watched: false,
+            parking: false,
+            park_damping: false,
         }
     }
 
@@ -165,6 +188,16 @@ impl Loop {
     /// The damping's correction of the last command, µm.
     pub const fn damping_correction(&self) -> Micrometres {
         self.damped
+    }
+
+    /// The damping's correction of the last command where it runs on through a
+    /// park (see the module docs), else zero, µm.
+    pub const fn park_correction(&self) -> Micrometres {
+        if self.park_damping {
+            self.damped
+        } else {
+            Micrometres::ZERO
+        }
     }
 
     /// The PI's integrator, µm (for diagnostics).
@@ -265,9 +298,12 @@ impl Loop {
         let looped = self.mode != LoopMode::Open || self.damped != Micrometres::ZERO;
         self.alarm = if looped {
             let limited = self.clamp != Saturation::Free || self.sat != Saturation::Free;
-            let swing = match (self.mode, io.feedback) {
-                (LoopMode::Open, _) | (_, None) => wanted.saturating_sub(ff),
-                _ => error,
+            self.damping_watched =
+                matches!((self.mode, io.feedback), (LoopMode::Open, _) | (_, None));
+            let swing = if self.damping_watched {
+                wanted.saturating_sub(ff)
+            } else {
+                error
             };
             self.watch.update(swing, limited)
         } else {
@@ -291,19 +327,42 @@ impl Loop {
     }
 
     /// Takes the step's result: the direction it was limited in, for the
-    /// integrator's anti-windup; a fault forgets the memory.
+    /// integrator's anti-windup; a fault forgets the memory (but the damping's
+    /// where it runs on through the park: see the module docs).
     #[inline]
     pub fn after(&mut self, out: &StepOutput, before: Volts, cfg: &Controller<'_>) {
-        if out.fault.is_some() {
-            self.reset();
+        if let Some(f) = out.fault {
+            self.after_fault(f, out.voltage == cfg.safe_voltage());
             return;
         }
+        self.parking = false;
+        self.park_damping = false;
         let l = cfg.limits();
         let mid = l.min() + ((l.max() - l.min()) >> 1);
         self.sat = match self.clamp {
             Saturation::Free => Saturation::of_step(out.limited, before, out.voltage, mid),
             clamped => clamped,
         };
+    }
+
+    /// A parking step: forgets the memory; decides at the fault's first step
+    /// whether the damping runs on, and drops it later when switched off or at
+    /// the safe voltage (`at_safe`).
+    #[inline(never)]
+    #[cold]
+    fn after_fault(&mut self, f: Fault, at_safe: bool) {
+        let keep = self.damping_on
+            && f.damps_park()
+            && !(matches!(f, Fault::Oscillation) && self.damping_watched)
+            && (self.park_damping || !self.parking)
+            && !at_safe;
+        let damping = self.damping;
+        self.reset();
+        if keep {
+            self.damping = damping;
+        }
+        self.park_damping = keep;
+        self.parking = true;
     }
 
     /// Starts `law` from the command that reproduces the present output under it.

@@ -179,6 +179,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         let cfg = self.model.get();
         let forces = self.hw.sense(cfg, &mut self.state);
         let cmd = self.command(x_ref, forces.dynamic);
+        if self.state.fault().is_some() {
+            self.damp_park();
+        }
         let excitation = self.analyser.excitation();
         let cfg = self.model.get();
         let before = self.state.voltage();
@@ -263,6 +266,18 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             }
         }
         cmd
+    }
+
+    /// Offers the damping's correction, where it runs on through the park
+    /// (`closed_loop`'s module docs), to the park's next step: µm through the
+    /// straight-line drive's slope (the stroke's mean V/µm), V.
+    #[inline(never)]
+    #[cold]
+    fn damp_park(&mut self) {
+        let d = self.feedback.park_correction();
+        let line = &self.model.summary().baseline;
+        let v = line.voltage(d).saturating_sub(line.offset);
+        self.state.damp_park(v);
     }
 
     /// Offers this tick to the recorder, with the stage's true position where the
