@@ -35,9 +35,13 @@
 //! that left its model), and for [`Fault::Oscillation`] the watch caught the
 //! tracking error (the position loop, which the park drops), not the damping's
 //! own correction. Integral force feedback on the collocated force sensor adds
-//! damping to the first mode wherever the mode lies above its high-pass and
-//! leak corners, whatever its frequency; it is decided at the fault's first
-//! tick, and only ever dropped later (by a switch, or at the safe voltage).
+//! damping to the first mode wherever the mode lies well above the law's
+//! high-pass and leak corners (its root locus leaves the mode to the left while
+//! the mode's frequency exceeds their geometric mean, whatever it is), and
+//! the park bounds what it can do in any case (its share of the output is held
+//! to ±32 V and faded out within the park). It runs at half its gain there
+//! (`ControlLoop`'s park offer). It is decided at the fault's first tick, and
+//! only ever dropped later (by a switch, or at the safe voltage).
 //!
 //! In the closed modes a position reading outside the sensor's range, or one that
 //! disagrees with the model's estimate by more than the tolerance for

@@ -269,14 +269,20 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
     }
 
     /// Offers the damping's correction, where it runs on through the park
-    /// (`closed_loop`'s module docs), to the park's next step: µm through the
-    /// straight-line drive's slope (the stroke's mean V/µm), V.
+    /// (`closed_loop`'s module docs), to the park's next step: half its µm
+    /// through the straight-line drive's slope (the stroke's mean V/µm), V
+    /// (`I16F16`). Half the loop gain: the law's gain is designed for the
+    /// stage's mode, and the mode a caught oscillation rings at may be far
+    /// below it, where the full gain overdamps the mode and leaves a slow swing
+    /// of its own near the law's 100 Hz corners (measured: a mode at 300 Hz
+    /// swings down to −2.3 to −3.2 µm with the full gain, −0.2 µm with half, −0.5 µm
+    /// with a quarter; `autotune`'s unstable-loop test).
     #[inline(never)]
     #[cold]
     fn damp_park(&mut self) {
         let d = self.feedback.park_correction();
         let line = &self.model.summary().baseline;
-        let v = line.voltage(d).saturating_sub(line.offset);
+        let v = line.voltage(d >> 1).saturating_sub(line.offset);
         self.state.damp_park(v);
     }
 
