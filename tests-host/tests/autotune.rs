@@ -353,8 +353,10 @@ fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
         );
         if mode_hz < 1000.0 {
             // Caught, named, within 20 ms of closing the loop and inside the
-            // stroke; the park sets off no ringing of its own (what rings on
-            // is the oscillation caught, decaying at the stage's own damping).
+            // stroke; the park sets off no ringing of its own, and the force
+            // feedback, kept through the park, damps the oscillation caught
+            // (undamped it rang down to −3.8 µm at 300 Hz).
+            assert!(u.after.0 > -1.0, "a damped park: {u:?}");
             assert_eq!(
                 u.fault,
                 Some(piezo_fpi::control::Fault::Oscillation),
