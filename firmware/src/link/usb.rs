@@ -6,9 +6,9 @@
 //! serial port as the endpoint takes them ([`TxPump::pump`]): a packet at a time,
 //! held until accepted, so nothing is lost or reordered when the host is slow
 //! to poll. When the host goes away (unplugged, or its program closed the port:
-//! the device leaves the configured state or DTR drops), what was held and
-//! queued is discarded ([`TxPump::connected`]), so the next host never reads the
-//! tail of a reply meant for the last; the frame reader drops a request cut
+//! the device leaves the configured state or DTR drops) or a new one arrives,
+//! what was held and queued is discarded ([`TxPump::connected`]), so the next
+//! host never reads the tail of a reply meant for the last; the frame reader drops a request cut
 //! short the same way, at the next frame delimiter.
 
 use heapless::spsc::Consumer;
@@ -47,10 +47,11 @@ impl TxPump {
         self.connected
     }
 
-    /// Tells the pump whether a host has the port open now; a host gone
-    /// discards what was held and queued for it.
+    /// Tells the pump whether a host has the port open now. A host that goes
+    /// away, or one that arrives, discards what was held and queued: it was for
+    /// a host that is gone (a reply queued after its host left included).
     pub fn connected(&mut self, now: bool, queue: &mut Consumer<'_, u8>) {
-        if self.connected && !now {
+        if self.connected != now {
             self.len = 0;
             self.at = 0;
             while queue.dequeue().is_some() {}
@@ -149,16 +150,18 @@ mod tests {
             room: 0,
             got: Vec::new(),
         };
-        // No host yet: nothing moves, nothing is lost.
+        // No host yet: nothing moves; what was queued for no one is dropped
+        // when a host arrives.
         tx.enqueue(1).unwrap();
         assert_eq!(pump.pump(&mut rx, |b| port.write(b)), 0);
         pump.connected(true, &mut rx);
+        assert!(rx.dequeue().is_none());
         for b in 2..100 {
             tx.enqueue(b).unwrap();
         }
         port.room = 30;
         pump.pump(&mut rx, |b| port.write(b));
-        assert_eq!(port.got.len(), 30);
+        assert_eq!(port.got, (2..32).collect::<Vec<u8>>());
         // Unplugged mid-reply: the rest is discarded.
         pump.connected(false, &mut rx);
         assert!(rx.dequeue().is_none());
