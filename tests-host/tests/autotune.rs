@@ -355,8 +355,9 @@ fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
             // Caught, named, within 20 ms of closing the loop and inside the
             // stroke; the park sets off no ringing of its own, and the force
             // feedback, kept through the park, damps the oscillation caught
-            // (undamped it rang down to −3.8 µm at 300 Hz).
-            assert!(u.after.0 > -1.0, "a damped park: {u:?}");
+            // (undamped it rang down to −3.1…−3.8 µm at 300 Hz; damped −0.18…−1.95
+            // µm over four runs, depending on the phase at which the fault lands).
+            assert!(u.after.0 > -2.5, "a damped park: {u:?}");
             assert_eq!(
                 u.fault,
                 Some(piezo_fpi::control::Fault::Oscillation),
