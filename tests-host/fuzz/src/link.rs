@@ -98,6 +98,12 @@ impl Rig {
             ModelFlash::new(EmulatedFlash::new(), FLASH_SLOTS),
         )
         .expect("the emulated board boots");
+        // Unpaced: the emulated board's link pace only makes the link task wait
+        // for control ticks (thousands for a long frame at the UART's rate),
+        // which would bury the requests' own waits and slow the fuzzing down;
+        // the pace is tested in `fpi_firmware::link::pace` and on the board.
+        let mut handler = handler;
+        handler.unpaced();
         Box::new(Self {
             board,
             handler,
