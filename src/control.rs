@@ -352,11 +352,15 @@ pub enum Fault {
     /// The command stayed at a limit (voltage, slew or stroke) for longer than a
     /// loop may: the stage cannot follow what the loop asks.
     Saturated = 11,
+    /// A precision converter failed: the sensor ADC's conversions stopped
+    /// completing (BUSY high at the read of too many ticks in a row) or an SPI
+    /// transaction with the ADC or the setpoint DAC failed.
+    Converter = 12,
 }
 
 impl Fault {
     /// Every fault, by code.
-    pub const ALL: [Fault; 11] = [
+    pub const ALL: [Fault; 12] = [
         Self::ForceOutOfRange,
         Self::ForceImplausible,
         Self::ReferenceUnreachable,
@@ -368,6 +372,7 @@ impl Fault {
         Self::PositionImplausible,
         Self::Oscillation,
         Self::Saturated,
+        Self::Converter,
     ];
 
     /// A one-line description for logs.
@@ -384,6 +389,9 @@ impl Fault {
             Self::PositionImplausible => "position sensor disagrees with the model's estimate",
             Self::Oscillation => "the loop oscillates (the stage or its model changed)",
             Self::Saturated => "the loop stayed saturated: the stage cannot follow",
+            Self::Converter => {
+                "a sensor ADC or setpoint DAC stopped answering (stalled or SPI error)"
+            }
         }
     }
 
@@ -407,7 +415,8 @@ impl Fault {
     ///   [`PositionImplausible`](Self::PositionImplausible) and
     ///   [`Saturated`](Self::Saturated) (the stage no longer matches the model
     ///   whose preload map the damping's dynamic force is taken against, or the
-    ///   output cannot follow).
+    ///   output cannot follow), [`Converter`](Self::Converter) (the force
+    ///   reading may be stale or the converter dead).
     pub const fn damps_park(&self) -> bool {
         match self {
             Self::Oscillation
@@ -420,7 +429,8 @@ impl Fault {
             | Self::ForceImplausible
             | Self::Overrun
             | Self::PositionImplausible
-            | Self::Saturated => false,
+            | Self::Saturated
+            | Self::Converter => false,
         }
     }
 

@@ -317,6 +317,13 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         }
     }
 
+    /// Latches a fault the board finds outside the loop (a failed converter,
+    /// [`Fault::Converter`]); from the next tick the output ramps to the safe
+    /// voltage. A fault already latched stays.
+    pub fn fail(&mut self, fault: Fault) {
+        self.trip(fault);
+    }
+
     /// The number the next tick will have.
     pub const fn next_tick(&self) -> u32 {
         self.tick

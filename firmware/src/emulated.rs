@@ -18,8 +18,8 @@ use piezo_sim::stage::{stage_a, Overrides, Stage};
 
 use embedded_storage::nor_flash::NorFlash;
 
+use crate::board_def::{precision, POSITION};
 use crate::control_loop::ControlLoop;
-use crate::converters::scale;
 use crate::exchange::{Applied, Exchange, Order};
 use crate::frontend::AnalogIn;
 use crate::hardware::{Store, IMAGE_BYTES};
@@ -198,7 +198,7 @@ impl Bench {
             (false, None) => sensed + self.offset,
         };
         self.force = reading;
-        link.set_force(self.convert(reading, per_code(&scale::FORCE)));
+        link.set_force(self.convert(reading, per_code(&precision::FORCE)));
         let sensed = self.stage.sense_position(s.x_fhps_um);
         let position = match (self.position_open, self.position_stuck) {
             (true, _) => BROKEN_POSITION_UM,
@@ -206,7 +206,7 @@ impl Bench {
             (false, None) => sensed,
         };
         self.position = position;
-        link.set_position(self.convert(position, per_code(&scale::POSITION)));
+        link.set_position(self.convert(position, per_code(&POSITION)));
         self.x_true = Micrometres::from_num(s.x_fhps_um);
         self.x_true
     }

@@ -12,9 +12,9 @@
 //!   12-bit DAC: 36.6 mV a code, about 10 nm of stage), position [`POSITION_ADC`]
 //!   (16-bit code, 1.22 nm). No converter noise is added: the behaviour of before
 //!   the front end could be chosen, bit for bit.
-//! * [`FrontEndKind::Precision`]: force [`scale::FORCE`] (AD7606, 16 bits over
-//!   −5…507 N, 7.8 mN a code), position [`scale::POSITION`] (the same 16-bit code
-//!   as [`POSITION_ADC`]), setpoint [`scale::SETPOINT_20`] (AD5791, 20 bits over
+//! * [`FrontEndKind::Precision`]: force [`precision::FORCE`] (AD7606, 16 bits over
+//!   −5…507 N, 7.8 mN a code), position [`crate::board_def::POSITION`] (the same 16-bit code
+//!   as [`POSITION_ADC`]), setpoint [`precision::SETPOINT`] (AD5791, 20 bits over
 //!   0–150 V, 143 µV a code, about 0.04 nm of stage). The ADC's transition noise is
 //!   added by the bench ([`crate::emulated::Bench`]), [`PRECISION_ADC_NOISE_LSB`].
 //!
@@ -27,7 +27,7 @@ use embedded_hal::digital::{ErrorType, OutputPin};
 use piezo_fpi::io::{AdcScale, DacScale, ForceSensor, Hardware, Setpoint};
 use piezo_fpi::q::{Newtons, Volts};
 
-use crate::converters::scale;
+use crate::board_def::precision;
 use crate::frontend::{AnalogIn, ADC_MAX, POSITION_ADC, POSITION_MAX};
 use crate::link::protocol::FrontEndKind;
 
@@ -96,7 +96,7 @@ impl SimLink {
     #[inline]
     fn dac_code_of(&self, voltage: Volts) -> u32 {
         if self.precision.load(Ordering::Acquire) {
-            scale::SETPOINT_20.to_code(voltage)
+            precision::SETPOINT.to_code(voltage)
         } else {
             u32::from(self.dac.to_code(voltage))
         }
@@ -104,7 +104,7 @@ impl SimLink {
     /// Thread mode: the force the sensor reads from now on, N.
     pub fn set_force(&self, force_n: f32) {
         let c = if self.precision.load(Ordering::Acquire) {
-            scale::FORCE.to_counts(force_n, u16::MAX)
+            precision::FORCE.to_counts(force_n, u16::MAX)
         } else {
             self.adc.to_counts(force_n, ADC_MAX)
         };
@@ -123,7 +123,7 @@ impl SimLink {
     pub fn output(&self) -> (f32, bool) {
         let code = self.dac_code.load(Ordering::Acquire);
         let voltage = if self.precision.load(Ordering::Acquire) {
-            scale::SETPOINT_20.to_voltage(code)
+            precision::SETPOINT.to_voltage(code)
         } else {
             self.dac.to_voltage(code as u16)
         };
@@ -165,7 +165,7 @@ impl ForceSensor for SimSensor<'_> {
     fn read_force(&mut self) -> Newtons {
         let c = self.0.adc_counts.load(Ordering::Acquire) as u16;
         if self.0.precision.load(Ordering::Acquire) {
-            scale::FORCE.to_value(c)
+            precision::FORCE.to_value(c)
         } else {
             self.0.adc.to_force(c)
         }

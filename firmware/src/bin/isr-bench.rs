@@ -607,7 +607,7 @@ mod bench {
     /// the processor's share, without the bus time. Printed as
     /// `converter_tick_instructions`.
     fn converter_report(baseline: u32) {
-        use fpi_firmware::converters::{bench, front_end, tick_frames};
+        use fpi_firmware::converters::{bench, tick_frames};
         let mut fe = bench::front_end();
         let wave = full_stroke(5.0);
         let mut w = fpi_firmware::reference::wave::WavePhase::default();
@@ -615,7 +615,7 @@ mod bench {
         for _ in 0..STEPS {
             let u = black_box(Volts::from_bits(wave.next(&mut w).to_bits() << 2));
             c.add(instructions(
-                ticks(|| tick_frames(&mut fe, &front_end::BOARD, u)),
+                ticks(|| tick_frames(&mut fe, &fpi_firmware::board_def::precision::FRONT_END, u)),
                 baseline,
             ));
         }

@@ -151,14 +151,6 @@ pub struct Config {
     pub gain_of_two: bool,
 }
 
-/// The board's setpoint DAC: an AD5791 with V_REFN = 0 V and V_REFP = 10 V (a 10 V
-/// span) and a unity-gain buffer, into the ×15 high-voltage amplifier.
-pub const BOARD: Config = Config {
-    part: Part::Ad5791,
-    span: Span::UpTo10V,
-    gain_of_two: false,
-};
-
 impl Config {
     /// The control register's data bits: offset-binary coding, the span's LIN COMP,
     /// RBUF for the output stage, SDO enabled (for readback), and `output`.

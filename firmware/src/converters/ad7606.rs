@@ -120,12 +120,6 @@ pub struct Config {
     pub oversampling: Oversampling,
 }
 
-/// The board's ADC: ±10 V, no averaging (a result 4.15 µs after CONVST at most).
-pub const BOARD: Config = Config {
-    range: Range::PlusMinus10V,
-    oversampling: Oversampling::Off,
-};
-
 /// The ADC's configuration pins, driven by the processor.
 #[derive(Debug)]
 pub struct ConfigPins<P> {

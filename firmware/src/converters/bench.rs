@@ -4,9 +4,10 @@
 //! goes through [`black_box`], so the optimiser keeps the frames' encoding and
 //! decoding.
 
-use super::ad579x::{self, Ad579x};
+use super::ad579x::Ad579x;
 use super::ad7606::Ad7606;
 use super::front_end::FrontEnd;
+use crate::board_def::precision::DAC;
 use core::convert::Infallible;
 use core::hint::black_box;
 use embedded_hal::digital::{self, InputPin};
@@ -84,7 +85,7 @@ pub type BenchFrontEnd = FrontEnd<Canned, Busy, Canned>;
 pub const fn front_end() -> BenchFrontEnd {
     FrontEnd::new(
         Ad7606::new(Canned::ADC, Busy(false)),
-        Ad579x::new(Canned::DAC, ad579x::BOARD),
+        Ad579x::new(Canned::DAC, DAC),
         [0, 0],
     )
 }
@@ -92,7 +93,7 @@ pub const fn front_end() -> BenchFrontEnd {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::converters::front_end::BOARD;
+    use crate::board_def::precision::FRONT_END as BOARD;
     use crate::converters::tick_frames;
     use piezo_fpi::q::{Micrometres, Newtons, Volts};
 

@@ -6,8 +6,8 @@
 
 use super::ad579x::Ad579x;
 use super::ad7606::Ad7606;
-use super::scale::{self, offset_binary, PrecisionDacScale};
-use super::schedule::{self, Freshness};
+use super::scale::{offset_binary, PrecisionDacScale};
+use super::schedule::Freshness;
 use super::Error;
 use embedded_hal::digital::InputPin;
 use embedded_hal::spi::SpiDevice;
@@ -27,15 +27,6 @@ pub struct FrontEndConfig {
     pub stale_limit: u16,
 }
 
-/// The board's front end: [`scale::FORCE`], [`scale::POSITION`], the AD5791's
-/// [`scale::SETPOINT_20`], [`schedule::STALE_LIMIT`].
-pub const BOARD: FrontEndConfig = FrontEndConfig {
-    force: scale::FORCE,
-    position: scale::POSITION,
-    setpoint: scale::SETPOINT_20,
-    stale_limit: schedule::STALE_LIMIT,
-};
-
 /// What one tick's sensing gives the control step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Sensed {
@@ -51,20 +42,18 @@ pub struct Sensed {
     pub age: u16,
 }
 
-/// The ADC (two channels) and the DAC, with the state of the ADC's misses.
+/// The ADC's half: the two channels and the state of their misses.
 #[derive(Debug)]
-pub struct FrontEnd<SA, B, SD> {
+pub struct Sensing<SA, B> {
     adc: Ad7606<SA, B, 2>,
-    dac: Ad579x<SD>,
     held: Freshness<2>,
 }
 
-impl<SA: SpiDevice, B: InputPin, SD: SpiDevice> FrontEnd<SA, B, SD> {
-    /// Both parts, set up, and the first conversion's codes (read at start-up).
-    pub const fn new(adc: Ad7606<SA, B, 2>, dac: Ad579x<SD>, first: [i16; 2]) -> Self {
+impl<SA: SpiDevice, B: InputPin> Sensing<SA, B> {
+    /// The ADC, set up, and its first conversion's codes (read at start-up).
+    pub const fn new(adc: Ad7606<SA, B, 2>, first: [i16; 2]) -> Self {
         Self {
             adc,
-            dac,
             held: Freshness::new(first),
         }
     }
@@ -83,6 +72,24 @@ impl<SA: SpiDevice, B: InputPin, SD: SpiDevice> FrontEnd<SA, B, SD> {
         })
     }
 
+    /// Misses in the current run and since start-up.
+    pub const fn misses(&self) -> (u16, u32) {
+        (self.held.missed(), self.held.missed_total())
+    }
+}
+
+/// The DAC's half.
+#[derive(Debug)]
+pub struct Driving<SD> {
+    dac: Ad579x<SD>,
+}
+
+impl<SD: SpiDevice> Driving<SD> {
+    /// The DAC, set up.
+    pub const fn new(dac: Ad579x<SD>) -> Self {
+        Self { dac }
+    }
+
     /// The end of a tick: the setpoint's code in one 24-bit frame. Returns the code.
     #[inline]
     pub fn drive(&mut self, cfg: &FrontEndConfig, voltage: Volts) -> Result<u32, Error> {
@@ -91,14 +98,51 @@ impl<SA: SpiDevice, B: InputPin, SD: SpiDevice> FrontEnd<SA, B, SD> {
         Ok(code)
     }
 
+    /// The DAC, for its self-test or to clamp its output.
+    pub fn dac(&mut self) -> &mut Ad579x<SD> {
+        &mut self.dac
+    }
+}
+
+/// The ADC (two channels) and the DAC, with the state of the ADC's misses: the
+/// two halves together.
+#[derive(Debug)]
+pub struct FrontEnd<SA, B, SD> {
+    /// The ADC's half.
+    pub sensing: Sensing<SA, B>,
+    /// The DAC's half.
+    pub driving: Driving<SD>,
+}
+
+impl<SA: SpiDevice, B: InputPin, SD: SpiDevice> FrontEnd<SA, B, SD> {
+    /// Both parts, set up, and the first conversion's codes (read at start-up).
+    pub const fn new(adc: Ad7606<SA, B, 2>, dac: Ad579x<SD>, first: [i16; 2]) -> Self {
+        Self {
+            sensing: Sensing::new(adc, first),
+            driving: Driving::new(dac),
+        }
+    }
+
+    /// [`Sensing::sense`].
+    #[inline]
+    pub fn sense(&mut self, cfg: &FrontEndConfig) -> Result<Sensed, Error> {
+        self.sensing.sense(cfg)
+    }
+
+    /// [`Driving::drive`].
+    #[inline]
+    pub fn drive(&mut self, cfg: &FrontEndConfig, voltage: Volts) -> Result<u32, Error> {
+        self.driving.drive(cfg, voltage)
+    }
+
     /// Misses in the current run and since start-up.
     pub const fn misses(&self) -> (u16, u32) {
-        (self.held.missed(), self.held.missed_total())
+        self.sensing.misses()
     }
 
     /// The DAC, for its self-test or to clamp its output.
     pub fn dac(&mut self) -> &mut Ad579x<SD> {
-        &mut self.dac
+        self.driving.dac()
     }
 }
 

@@ -9,6 +9,8 @@
 //!   that is not ready does;
 //! * [`front_end`] — both parts as the control ISR uses them, and [`tick_frames`],
 //!   one tick's converter work (for `cargo isr-bench`);
+//! * [`ports`] — the two as the core's force sensor and setpoint and the loop's
+//!   position channel, and the converter fault they raise;
 //! * [`bench`](mod@bench) — SPI devices that answer at once, for counting that work.
 //!
 //! The drivers are generic over embedded-hal 1.0's [`SpiDevice`] (it frames each
@@ -19,7 +21,7 @@
 //!
 //! # One control tick
 //!
-//! Timer phases within the 50 µs period (the board's values, [`schedule::BOARD`]):
+//! Timer phases within the 50 µs period (the board's values, [`crate::board_def::precision::TIMING`]):
 //!
 //! ```text
 //! phase  0 µs   timer update: the control ISR starts; LDAC̅ pulse (optional, timer
@@ -55,6 +57,7 @@ pub mod ad579x;
 pub mod ad7606;
 pub mod bench;
 pub mod front_end;
+pub mod ports;
 pub mod scale;
 pub mod schedule;
 #[cfg(test)]

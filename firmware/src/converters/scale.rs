@@ -10,7 +10,7 @@
 //!   `I4F28`, `offset` the value at code 0).
 
 use super::ad7606::Range;
-use fixed::types::{I16F16, I4F28};
+use fixed::types::I16F16;
 use piezo_fpi::io::AdcScale;
 use piezo_fpi::q::{self, Newtons, Volts};
 
@@ -61,13 +61,6 @@ impl PrecisionDacScale {
     }
 }
 
-/// The board's setpoint: an AD5791 over 0–10 V into the ×15 amplifier, 0–150 V
-/// (143 µV per code).
-pub const SETPOINT_20: PrecisionDacScale = PrecisionDacScale {
-    codes_per_volt: I16F16::from_bits(458_129_408), // 1 048 575 / 150, exact
-    max_code: (1 << 20) - 1,
-};
-
 /// The same with an AD5781: 0–150 V in 18 bits (572 µV per code).
 pub const SETPOINT_18: PrecisionDacScale = PrecisionDacScale {
     codes_per_volt: I16F16::from_bits(114_532_024), // 262 143 / 150, within 5·10⁻⁶
@@ -92,19 +85,6 @@ pub const fn channel(range: Range, at_zero: f64, per_volt: f64) -> Option<AdcSca
         _ => None,
     }
 }
-
-/// The force sensor on V1: ±10 V = −5…507 N (0.0078 N per code), the span of the
-/// board's 12-bit force channel ([`crate::frontend::FORCE_ADC`]) in 16 bits, so a
-/// broken wire still reads a rail outside the plausible range.
-pub const FORCE: AdcScale = AdcScale {
-    offset: Newtons::from_bits(-5 << 16),
-    per_count: I4F28::from_bits(1 << 21), // 512 N / 65 536
-};
-
-/// The position sensor on V2: ±10 V = −10…+70 µm, so the offset-binary code is the
-/// one [`crate::frontend::AnalogIn::read_position`] returns
-/// ([`crate::frontend::POSITION_ADC`]).
-pub const POSITION: AdcScale = crate::frontend::POSITION_ADC;
 
 #[cfg(test)]
 mod tests;

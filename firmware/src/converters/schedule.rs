@@ -18,7 +18,7 @@
 //! are [`Error::Stalled`] (or the failed read's error), which the application
 //! latches as a fault. One good conversion clears the run.
 
-use super::ad7606::{self, Conversion};
+use super::ad7606::Conversion;
 use super::Error;
 
 /// Time from CONVST's compare event to the earliest moment the ISR may read, on
@@ -73,22 +73,6 @@ impl TickTiming {
         self.period_ns - self.convst_ns
     }
 }
-
-/// The board's timing: 50 µs period (20 kHz), CONVST at 44 µs, the AD7606 without
-/// averaging (4.15 µs), the ISR's read done within 44 µs of its start. The sample
-/// is 6 µs old when the tick starts.
-pub const BOARD: TickTiming = TickTiming {
-    period_ns: 1_000_000_000 / crate::hardware::RATE_HZ,
-    convst_ns: 44_000,
-    conversion_max_ns: ad7606::BOARD.oversampling.conversion_max_ns(),
-    read_done_ns: 44_000,
-};
-
-const _: () = assert!(BOARD.check().is_ok(), "the board's converter timing");
-
-/// Misses in a row that the board tolerates before [`Error::Stalled`]: 3 ticks
-/// (150 µs) on the last good sample.
-pub const STALE_LIMIT: u16 = 3;
 
 /// The codes a tick runs on, and how old they are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -2,7 +2,7 @@
 //! scaled sample, and a stalled ADC.
 
 use super::*;
-use crate::converters::ad579x;
+use crate::board_def::precision::{DAC, FRONT_END as BOARD};
 use crate::converters::testkit;
 use embedded_hal_mock::eh1::digital::{Mock as Pin, State, Transaction as Level};
 use embedded_hal_mock::eh1::spi::{Mock, Transaction};
@@ -32,7 +32,7 @@ fn a_tick_reads_one_frame_and_writes_one() {
     );
     let mut fe = FrontEnd::new(
         Ad7606::new(a.clone(), b.clone()),
-        Ad579x::new(d.clone(), ad579x::BOARD),
+        Ad579x::new(d.clone(), DAC),
         [0, 0],
     );
     let s = tick_frames(&mut fe, &BOARD, Volts::from_num(150)).unwrap();
@@ -58,7 +58,7 @@ fn the_setpoint_code_follows_the_scaling() {
     );
     let mut fe = FrontEnd::new(
         Ad7606::new(a.clone(), b.clone()),
-        Ad579x::new(d.clone(), ad579x::BOARD),
+        Ad579x::new(d.clone(), DAC),
         [0, 0],
     );
     for (u, code) in [(0.0, 0), (75.0, 0x8_0000), (-1.0, 0)] {
@@ -78,7 +78,7 @@ fn a_busy_adc_holds_the_last_sample_then_stalls() {
     );
     let mut fe = FrontEnd::new(
         Ad7606::new(a.clone(), b.clone()),
-        Ad579x::new(d.clone(), ad579x::BOARD),
+        Ad579x::new(d.clone(), DAC),
         [0, 0],
     );
     let first = fe.sense(&BOARD).unwrap();
