@@ -180,8 +180,6 @@ pub mod precision {
     pub const ADC_SCLK_HZ: u32 = 10_500_000;
     /// The DAC's SCLK (SPI2 on the 42 MHz APB1: 42 / 4), Hz.
     pub const DAC_SCLK_HZ: u32 = 10_500_000;
-    /// The clock of the timer that drives CONVST and LDAC̅ (TIM4 on APB1, ×2), Hz.
-    pub const TIMER_HZ: u32 = 84_000_000;
 }
 
 /// The pins and peripherals (the board build only: the HAL's types).
@@ -258,6 +256,7 @@ pub mod pins {
     }
 
     /// A pin as a push-pull output at `high`.
+    #[cfg(feature = "precision")]
     fn out<const P: char, const N: u8, M>(p: gpio::Pin<P, N, M>, high: bool) -> AnyPin<Output>
     where
         M: gpio::PinMode,
@@ -270,14 +269,19 @@ pub mod pins {
         p.into_push_pull_output_in_state(state).erase()
     }
 
+    /// The build's front end's pins.
+    #[cfg(not(feature = "precision"))]
+    pub type FrontPins = Internal;
+    /// The build's front end's pins.
+    #[cfg(feature = "precision")]
+    pub type FrontPins = Precision;
+
     /// The board's pins, in their modes (outputs at their idle levels), from the
-    /// GPIO ports: the ones both front ends use, the internal front end's, the
-    /// precision front end's (only the build's front end takes its pins).
-    #[allow(clippy::type_complexity)]
+    /// GPIO ports: the ones both front ends use, and the build's front end's.
     pub fn take(
         (a, b, c): (pac::GPIOA, pac::GPIOB, pac::GPIOC),
         rcc: &mut Rcc,
-    ) -> (Common, Option<Internal>, Option<Precision>) {
+    ) -> (Common, FrontPins) {
         use stm32f4xx_hal::gpio::GpioExt;
         let (a, b, c) = (a.split(rcc), b.split(rcc), c.split(rcc));
         let common = Common {
@@ -286,15 +290,14 @@ pub mod pins {
             usb: (a.pa11, a.pa12),
             uart: (a.pa9, a.pa10),
         };
-        if super::FRONT_END == super::FrontEnd::Internal {
-            let internal = Internal {
-                force: a.pa0.into_analog(),
-                position: c.pc0.into_analog(),
-                setpoint: a.pa4.into_analog(),
-            };
-            return (common, Some(internal), None);
-        }
-        let precision = Precision {
+        #[cfg(not(feature = "precision"))]
+        let front = Internal {
+            force: a.pa0.into_analog(),
+            position: c.pc0.into_analog(),
+            setpoint: a.pa4.into_analog(),
+        };
+        #[cfg(feature = "precision")]
+        let front = Precision {
             adc_spi: (a.pa5.into(), a.pa6.into()),
             adc_cs: out(c.pc4, true),
             busy: b.pb8.into_floating_input().erase(),
@@ -308,6 +311,6 @@ pub mod pins {
             dac_cs: out(b.pb12, true),
             ldac: b.pb7.into_alternate(),
         };
-        (common, None, Some(precision))
+        (common, front)
     }
 }

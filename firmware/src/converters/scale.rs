@@ -12,7 +12,7 @@
 use super::ad7606::Range;
 use fixed::types::I16F16;
 use piezo_fpi::io::AdcScale;
-use piezo_fpi::q::{self, Newtons, Volts};
+use piezo_fpi::q::{self, Volts};
 
 /// Volts of amplifier output to DAC codes: `code = round(u · codes_per_volt)`,
 /// saturated to `0..=max_code`.

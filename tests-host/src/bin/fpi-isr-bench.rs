@@ -4,8 +4,9 @@
 //! Builds `isr-bench` for the emulated board and runs it under
 //! `-icount shift=10,align=off,sleep=off` (SysTick differences are then exact
 //! instruction counts), printing `control_step_instructions n=<N>: <count>` for
-//! n = 4, 10, 16, 32; then builds the board firmware (`--features defmt`) and the
-//! emulated one and reads their section sizes.
+//! n = 4, 10, 16, 32; then builds the board firmware (`--features defmt`, and
+//! `defmt,precision` for the precision front end) and the emulated one and reads
+//! their section sizes.
 
 use std::process::ExitCode;
 use std::time::Duration;
@@ -33,7 +34,11 @@ fn run() -> Result<()> {
     // Program flash: 768 KiB (sectors 10 and 11 hold the stored model); RAM: the
     // chip's 128 KiB, and the 192 KiB of QEMU's netduinoplus2 for the emulated
     // board, which keeps its model "flash" in RAM.
-    for (name, features, ram_kib) in [("board", "defmt", 128), ("emulated", "qemu", 192)] {
+    for (name, features, ram_kib) in [
+        ("board", "defmt", 128),
+        ("board_precision", "defmt,precision", 128),
+        ("emulated", "qemu", 192),
+    ] {
         let elf = board::build("fpi-firmware", features)?;
         let f = board::footprint(&elf)?;
         println!(

@@ -18,11 +18,12 @@
 //! a tick, as in quartiq's Stabilizer, where settings are rebuilt at low priority
 //! and swapped in.
 //!
-//! * Board build (`cargo fw`): 168 MHz from the 8 MHz HSE crystal; force sensor on
-//!   ADC1/PA0, analog reference on ADC2/PA1, amplifier setpoint on DAC1/PA4,
-//!   amplifier enable on PB0, link on USB (CDC-ACM on OTG_FS, PA11/PA12) and,
-//!   as the fallback, USART1 (PA9 TX, PA10 RX, 115 200 Bd), stored model in
-//!   flash sectors 10/11, defmt logs over RTT.
+//! * Board build (`cargo fw`): the board definition's
+//!   ([`fpi_firmware::board_def`]) clock (168 MHz from the 8 MHz HSE crystal),
+//!   front end (the STM32's 12-bit ADCs and DAC; with `--features precision` an
+//!   AD7606 and an AD5791 on SPI), pins and link (USB CDC-ACM on OTG_FS and, as
+//!   the fallback, USART1 at 115 200 Bd); stored model in flash sectors 10/11,
+//!   defmt logs over RTT.
 //! * Emulated build (feature `qemu`, run by `fpi board emulate`): the same
 //!   application on QEMU's `netduinoplus2` (an STM32F405 memory map) with USART1
 //!   bridged to a TCP port (QEMU has no OTG model: its USB never connects; the

@@ -4,7 +4,7 @@ use super::*;
 use crate::board_def::precision::{FORCE, SETPOINT as SETPOINT_20};
 use crate::board_def::POSITION;
 use crate::converters::ad579x::Part;
-use piezo_fpi::q::Micrometres;
+use piezo_fpi::q::{Micrometres, Newtons};
 
 #[test]
 fn the_setpoint_covers_0_to_150_v_within_half_a_code() {

@@ -1,25 +1,28 @@
-//! The STM32F405 driver board.
+//! The STM32F405 driver board: the board definition's
+//! ([`fpi_firmware::board_def`]) clock, pins, converters and link brought up, and
+//! the control task's hardware.
 //!
-//! | signal | pin | peripheral |
-//! |---|---|---|
-//! | force sensor (0–3.3 V = −5…507 N) | PA0 | ADC1 channel 0 |
-//! | analog reference (0–3.3 V = the model's stroke) | PA1 | ADC2 channel 1 |
-//! | stage-position sensor (0–3.3 V = −10…+70 µm) | PC0 | ADC3 channel 10 |
-//! | amplifier setpoint (0–3.3 V = 0–150 V) | PA4 | DAC channel 1 |
-//! | amplifier enable (high = on) | PB0 | GPIO |
-//! | host link, USB (CDC-ACM, full speed) | PA11 D−, PA12 D+ | OTG_FS |
-//! | host link, fallback (115 200 Bd, 8N1) | PA9 TX, PA10 RX | USART1 |
-//!
-//! The ADC conversions for tick k+1 are started at the end of tick k, so the ISR
-//! reads finished results (3.4 µs conversions in a 50 µs period) instead of
-//! waiting. The stored model lives in flash sectors 10 and 11 (reserved in
-//! `memory.x`); erasing a sector stalls instruction fetch for up to 2 s, which the
-//! firmware only does with the stage parked at its safe voltage.
+//! The front end is the board definition's: [`internal`] (the STM32's 12-bit
+//! ADCs and DAC, the default) or, with the cargo feature `precision`,
+//! [`precision`] (AD7606 and AD5791 on SPI). The analog reference input is on
+//! ADC2 with either. The stored model lives in flash sectors 10 and 11 (reserved
+//! in `memory.x`); erasing a sector stalls instruction fetch for up to 2 s, which
+//! the firmware only does with the stage parked at its safe voltage.
+
+#[cfg(not(feature = "precision"))]
+mod internal;
+#[cfg(not(feature = "precision"))]
+use internal as front;
+#[cfg(feature = "precision")]
+mod precision;
+#[cfg(feature = "precision")]
+use precision as front;
 
 use defmt_rtt as _;
-use fpi_firmware::control_loop::ControlLoop;
+use fpi_firmware::board_def::pins::{self, ReferenceAdc as Adc2};
+use fpi_firmware::board_def::{internal::REFERENCE_CHANNEL, UART_BAUD, USB_STRINGS, USB_VID_PID};
+use fpi_firmware::converters::ports::ReferenceIn;
 use fpi_firmware::exchange::Exchange;
-use fpi_firmware::frontend::{AnalogIn, FORCE_ADC, SETPOINT_DAC};
 use fpi_firmware::link::protocol::BoardKind;
 use fpi_firmware::link::protocol::ResetReason;
 use fpi_firmware::slots::Running;
@@ -29,17 +32,13 @@ use stm32f4xx_hal::watchdog::IndependentWatchdog;
 
 use crate::supervisor::{was_reset_by_command, Supervisor};
 use panic_probe as _;
-use piezo_fpi::io::{ForceSensor, Hardware, Setpoint};
-use piezo_fpi::q::{Newtons, Volts};
-use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime, Sequence};
-use stm32f4xx_hal::adc::Adc;
-use stm32f4xx_hal::dac::{DacOut, DacPin, C1};
+use piezo_fpi::io::Hardware;
 use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
-use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA0, PA1, PB0, PC0};
+use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA1, PB0};
 use stm32f4xx_hal::otg_fs::{UsbBus, UsbBusType, USB};
-use stm32f4xx_hal::pac::{self, ADC1, ADC2, ADC3, USART1};
+use stm32f4xx_hal::pac::{self, USART1};
 use stm32f4xx_hal::prelude::*;
-use stm32f4xx_hal::rcc::Config;
+use stm32f4xx_hal::rcc::{Enable as _, Rcc, Reset as _};
 use stm32f4xx_hal::serial::{Event, Serial};
 
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -54,30 +53,13 @@ use usbd_serial::SerialPort;
 /// Which board this is.
 pub const KIND: BoardKind = BoardKind::Driver;
 /// The core clock SysTick counts, Hz.
-pub const CORE_HZ: u32 = 168_000_000;
+pub const CORE_HZ: u32 = fpi_firmware::board_def::CORE_HZ;
 
-/// The force sensor on ADC1/PA0.
-pub struct Sensor {
-    adc: Adc<ADC1>,
-    _pin: PA0<Analog>,
-}
-
-impl ForceSensor for Sensor {
-    fn read_force(&mut self) -> Newtons {
-        let counts = self.adc.current_sample();
-        self.adc.start_conversion();
-        FORCE_ADC.to_force(counts)
-    }
-}
-
-/// The analog reference input on ADC2/PA1 and the stage-position sensor on
-/// ADC3/PC0, driven through their registers: the HAL's `Adc::new` only takes ADC1
-/// (its calibration needs ADC1's VREF channel).
-pub struct Reference {
-    adc: ADC2,
+/// The analog reference input on ADC2, driven through its registers: the HAL's
+/// `Adc::new` only takes ADC1 (its calibration needs ADC1's VREF channel).
+pub struct ReferenceAdc {
+    adc: Adc2,
     _pin: PA1<Analog>,
-    position: ADC3,
-    _position_pin: PC0<Analog>,
 }
 
 /// Starts an ADC converting one channel (56-cycle sample time) on software start,
@@ -85,7 +67,7 @@ pub struct Reference {
 fn start_single(adc: &pac::adc1::RegisterBlock, channel: u8) {
     adc.smpr2().modify(|_, w| w.smp1().cycles56());
     adc.smpr1().modify(|_, w| w.smp10().cycles56());
-    // SAFETY: the channels used (1, 10) are channels of ADC2/ADC3 (0–18).
+    // SAFETY: the board definition's channels (1, 10) are channels of ADC2/ADC3 (0–18).
     adc.sqr3().write(|w| unsafe { w.sq1().bits(channel) });
     adc.cr2().modify(|_, w| w.adon().set_bit());
     adc.cr2().modify(|_, w| w.swstart().set_bit());
@@ -98,44 +80,19 @@ fn take_single(adc: &pac::adc1::RegisterBlock) -> u16 {
     counts
 }
 
-impl Reference {
-    /// ADC2 on channel 1 and ADC3 on channel 10, first conversions started.
-    fn new(
-        (adc, pin): (ADC2, PA1<Analog>),
-        (position, position_pin): (ADC3, PC0<Analog>),
-        rcc: &mut stm32f4xx_hal::rcc::Rcc,
-    ) -> Self {
-        <ADC2 as stm32f4xx_hal::rcc::Enable>::enable(rcc);
-        <ADC2 as stm32f4xx_hal::rcc::Reset>::reset(rcc);
-        <ADC3 as stm32f4xx_hal::rcc::Enable>::enable(rcc);
-        <ADC3 as stm32f4xx_hal::rcc::Reset>::reset(rcc);
-        start_single(&adc, 1);
-        start_single(&position, 10);
-        Self {
-            adc,
-            _pin: pin,
-            position,
-            _position_pin: position_pin,
-        }
+impl ReferenceAdc {
+    /// ADC2 on the reference input's channel, its first conversion started.
+    fn new(adc: Adc2, pin: PA1<Analog>, rcc: &mut Rcc) -> Self {
+        Adc2::enable(rcc);
+        Adc2::reset(rcc);
+        start_single(&adc, REFERENCE_CHANNEL);
+        Self { adc, _pin: pin }
     }
 }
 
-impl AnalogIn for Reference {
+impl ReferenceIn for ReferenceAdc {
     fn read_counts(&mut self) -> u16 {
         take_single(&self.adc)
-    }
-    fn read_position(&mut self) -> u16 {
-        // 12 bits, left-aligned to the channel's 16-bit code.
-        take_single(&self.position) << 4
-    }
-}
-
-/// The amplifier setpoint on DAC channel 1 (PA4).
-pub struct Amplifier(C1);
-
-impl Setpoint for Amplifier {
-    fn write_voltage(&mut self, voltage: Volts) {
-        self.0.set_value(SETPOINT_DAC.to_code(voltage));
     }
 }
 
@@ -235,14 +192,13 @@ fn usb(
         halt("USB bus")
     };
     let serial = SerialPort::new(bus);
+    let [manufacturer, product, serial_number] = USB_STRINGS;
     let strings = StringDescriptors::default()
-        .manufacturer("piezo-fpi")
-        .product("FPI piezo driver board")
-        .serial_number("FPI-0001");
-    // pid.codes' test VID/PID for CDC-ACM, as the HAL's examples use: a
-    // product needs its own.
-    let Ok(builder) = UsbDeviceBuilder::new(bus, UsbVidPid(0x16c0, 0x27dd)).strings(&[strings])
-    else {
+        .manufacturer(manufacturer)
+        .product(product)
+        .serial_number(serial_number);
+    let (vid, pid) = USB_VID_PID;
+    let Ok(builder) = UsbDeviceBuilder::new(bus, UsbVidPid(vid, pid)).strings(&[strings]) else {
         halt("USB descriptors")
     };
     let dev = builder.device_class(usbd_serial::USB_CLASS_CDC).build();
@@ -270,7 +226,7 @@ impl Watchdog for Iwdg {
 /// The control task's hardware: the loop on the board's converters, the
 /// supervisor with the independent watchdog.
 pub struct TickIo {
-    control: ControlLoop<Sensor, Amplifier, Enable, Reference>,
+    control: front::Control,
     supervisor: Supervisor<Iwdg>,
 }
 
@@ -278,7 +234,9 @@ impl TickIo {
     /// One period.
     #[inline]
     pub fn tick(&mut self, x: &mut Exchange<'_>) {
+        front::before_tick();
         let t = self.control.tick(x);
+        front::after_tick(&mut self.control);
         self.control.record(x, &t, None);
         self.supervisor.after_tick(&mut self.control);
     }
@@ -286,8 +244,8 @@ impl TickIo {
 
 /// What `init` hands on to the control task.
 pub struct Io {
-    hw: Hardware<Sensor, Amplifier, Enable>,
-    reference: Reference,
+    hw: Hardware<front::Sensor, front::Amplifier, Enable>,
+    analog: front::Analog,
     iwdg: IndependentWatchdog,
 }
 
@@ -297,55 +255,38 @@ impl Io {
         let mut iwdg = Iwdg(self.iwdg);
         iwdg.set_period(PERIOD_MS);
         TickIo {
-            control: ControlLoop::new(model, self.hw, self.reference),
+            control: front::Control::new(model, self.hw, self.analog),
             supervisor: Supervisor::new(iwdg),
         }
     }
 }
 
-/// Sets up the board: 168 MHz (and the USB's 48 MHz), converters with their
-/// first conversions done, amplifier off at 0 V, USART1 with its receive
-/// interrupt, the USB device on the queues `usb_queues`, the flash store.
+/// Sets up the board: the board definition's clocks (168 MHz, the USB's 48 MHz)
+/// and pins, the front end's converters ready (first conversions done,
+/// amplifier off at 0 V), USART1 with its receive interrupt, the USB device on
+/// the queues `usb_queues`, the flash store.
 pub fn init(
     dp: pac::Peripherals,
     usb_rx: Producer<'static, u8>,
     usb_tx: Consumer<'static, u8>,
 ) -> (ModelFlash<Flash>, Serial<USART1>, Usb, Io) {
-    let mut rcc = dp
-        .RCC
-        .freeze(Config::hse(8.MHz()).sysclk(168.MHz()).require_pll48clk());
-    let gpioa = dp.GPIOA.split(&mut rcc);
-    let gpiob = dp.GPIOB.split(&mut rcc);
+    let mut rcc = dp.RCC.freeze(pins::clocks());
+    let (common, front_pins) = pins::take((dp.GPIOA, dp.GPIOB, dp.GPIOC), &mut rcc);
+    let reference = ReferenceAdc::new(dp.ADC2, common.reference, &mut rcc);
+    #[cfg(not(feature = "precision"))]
+    let peripherals = (dp.ADC1, dp.ADC3, dp.DAC);
+    #[cfg(feature = "precision")]
+    let peripherals = (dp.SPI1, dp.SPI2, dp.TIM4);
+    let (hw, analog) = front::init(front_pins, peripherals, reference, common.enable, &mut rcc);
 
-    let mut enable = gpiob.pb0.into_push_pull_output();
-    enable.set_low();
-    let mut dac = dp.DAC.constrain(gpioa.pa4.into_analog(), &mut rcc);
-    dac.enable();
-    dac.set_value(0);
-
-    let pa0 = gpioa.pa0.into_analog();
-    let mut adc1 = Adc::<ADC1>::new(dp.ADC1, true, AdcConfig::default(), &mut rcc);
-    adc1.configure_channel(&pa0, Sequence::One, SampleTime::Cycles_56);
-    adc1.enable();
-    let _ = adc1.convert(&pa0, SampleTime::Cycles_56);
-    adc1.start_conversion();
-
-    let gpioc = dp.GPIOC.split(&mut rcc);
-    let reference = Reference::new(
-        (dp.ADC2, gpioa.pa1.into_analog()),
-        (dp.ADC3, gpioc.pc0.into_analog()),
-        &mut rcc,
-    );
-
-    let Ok(mut serial) = Serial::new(dp.USART1, (gpioa.pa9, gpioa.pa10), 115_200.bps(), &mut rcc)
-    else {
+    let Ok(mut serial) = Serial::new(dp.USART1, common.uart, UART_BAUD.bps(), &mut rcc) else {
         halt("USART1 configuration")
     };
     serial.listen(Event::RxNotEmpty);
 
     let usb = usb(
         (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK),
-        (gpioa.pa11, gpioa.pa12),
+        common.usb,
         &rcc.clocks,
         (usb_rx, usb_tx),
     );
@@ -353,18 +294,7 @@ pub fn init(
     let flash = ModelFlash::new(Flash(LockedFlash::new(dp.FLASH)), BOARD_SLOTS);
     let iwdg = IndependentWatchdog::new(dp.IWDG);
     iwdg.stop_on_debug(&dp.DBGMCU, true);
-    let io = Io {
-        hw: Hardware {
-            sensor: Sensor {
-                adc: adc1,
-                _pin: pa0,
-            },
-            amplifier: Amplifier(dac),
-            enable,
-        },
-        reference,
-        iwdg,
-    };
+    let io = Io { hw, analog, iwdg };
     (flash, serial, usb, io)
 }
 
