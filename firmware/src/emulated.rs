@@ -317,7 +317,7 @@ impl Board for Virtual {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frontend::{FORCE_ADC, SETPOINT_DAC};
+    use crate::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
     use crate::hardware::RATE_HZ;
     use crate::link::frame;
     use crate::link::protocol::{

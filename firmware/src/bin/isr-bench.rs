@@ -25,10 +25,10 @@ mod bench {
     use cortex_m_rt::entry;
     use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
     use cortex_m_semihosting::hprintln;
+    use fpi_firmware::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
     use fpi_firmware::closed_loop::LoopMode;
     use fpi_firmware::control_loop::ControlLoop;
     use fpi_firmware::exchange::{Exchange, Order};
-    use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
     use fpi_firmware::hardware::{self, Store, BOARD};
     use fpi_firmware::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
     use fpi_firmware::model::{self, CONTROLLER, MODEL_IMAGE};

@@ -16,9 +16,9 @@
 mod proof {
     use core::hint::black_box;
     use cortex_m_rt::entry;
+    use fpi_firmware::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
     use fpi_firmware::control_loop::ControlLoop;
     use fpi_firmware::exchange::{Exchange, Order};
-    use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
     use fpi_firmware::hardware::{Store, RECORDER_SAMPLES, STREAM_POINTS};
     use fpi_firmware::model::{CONTROLLER, MODEL_IMAGE};
     use fpi_firmware::recorder::Recorder;

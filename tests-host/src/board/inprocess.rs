@@ -15,9 +15,9 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Result};
+use fpi_firmware::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
 use fpi_firmware::emulated::{EmulatedFlash, Virtual, FLASH_SLOTS};
 use fpi_firmware::exchange::Exchange;
-use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
 use fpi_firmware::hardware::{Store, IMAGE_BYTES, RATE_HZ};
 use fpi_firmware::link::handler::Handler;
 use fpi_firmware::recorder::Recorder;

@@ -10,9 +10,9 @@
 //! does.
 
 use cortex_m_semihosting::debug::{self, EXIT_FAILURE};
+use fpi_firmware::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
 use fpi_firmware::emulated::{tick, Bench, EmulatedFlash, Loop, FLASH_SLOTS};
 use fpi_firmware::exchange::Exchange;
-use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
 use fpi_firmware::link::protocol::BoardKind;
 use fpi_firmware::link::protocol::ResetReason;
 use fpi_firmware::sim_io::SimLink;
