@@ -210,5 +210,6 @@ fn a_failing_dac_latches_the_converter_fault_at_once() {
     let failure = r.tick();
     assert_eq!(failure.map(|f| f.0), Some(Device::Dac));
     assert_eq!(r.fault(), Some(Fault::Converter));
-    r.ticks_to_park(4000);
+    let parked = r.ticks_to_park(4000);
+    println!("failing DAC: latched in the tick it failed, amplifier off {parked} ticks later");
 }
