@@ -42,12 +42,14 @@
 //! # Cost per tick
 //!
 //! On the bus (blocking SPI): the ADC frame is 32 SCLK, 3.05 µs at 10.5 MHz; the DAC
-//! frame is 24 SCLK, 1.14 µs at 21 MHz (2.29 µs at 10.5 MHz); with chip-select
-//! edges, about 4.5 µs of the 50 µs period. The processor's share (framing,
+//! frame is 24 SCLK, 1.14 µs at 21 MHz (2.29 µs at 10.5 MHz); with the board's
+//! 10.5 MHz on both buses ([`crate::board_def::precision`]) and chip-select
+//! edges, about 5.6 µs of the 50 µs period. The processor's share (framing,
 //! decoding, scaling) is what `cargo isr-bench` counts through [`tick_frames`] on
-//! the [`bench`](mod@bench) devices: 157 instructions on the emulated Cortex-M4
-//! (108 to sense, 49 to drive; the isr-bench's SysTick method, release build),
-//! under 1 µs at 168 MHz, without the HAL's own loop over the SPI registers.
+//! the [`bench`](mod@bench) devices: `converter_tick_instructions` 150 on the
+//! emulated Cortex-M4 (min 144, mean 149.5 over 4 000 ticks; the isr-bench's
+//! SysTick method, release build), under 1 µs at 168 MHz, without the HAL's own
+//! loop over the SPI registers.
 //!
 //! [`SpiDevice`]: embedded_hal::spi::SpiDevice
 //! [`InputPin`]: embedded_hal::digital::InputPin
