@@ -1,6 +1,6 @@
 //! The board definition: everything one STM32F4 board has that another may not —
-//! its clock, which converters it senses and drives with, their scaling, the pins
-//! and peripherals they sit on, and the link. A user with another STM32F4 board
+//! its clock, the amplifier's limits, which converters it senses and drives with,
+//! their scaling, the pins and peripherals they sit on, and the link. A user with another STM32F4 board
 //! edits this file only; the firmware's board code
 //! (`src/bin/fpi-firmware/board/`) and the emulated board take what they need
 //! from here.
@@ -53,8 +53,10 @@ use crate::converters::ad7606::{self, Oversampling, Range};
 use crate::converters::front_end::FrontEndConfig;
 use crate::converters::scale::PrecisionDacScale;
 use crate::converters::schedule::TickTiming;
+use piezo_fpi::control::Interval;
 use piezo_fpi::io::{AdcScale, DacScale};
-use piezo_fpi::q::{Micrometres, Newtons};
+use piezo_fpi::model::store::HardwareLimits;
+use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
 /// Which converters the board senses and drives with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,6 +72,20 @@ pub const FRONT_END: FrontEnd = if cfg!(feature = "precision") {
     FrontEnd::Precision
 } else {
     FrontEnd::Internal
+};
+
+/// The high-voltage amplifier, as far as a model may use it (a model may narrow
+/// these limits, never widen them): 0–150 V, at most 100 V/ms (5 V per control
+/// step: the amplifier's current limit into the stack's capacitance); the safe
+/// voltage within 0–10 V, where the stack is at rest under any preload.
+pub const AMPLIFIER: HardwareLimits = HardwareLimits {
+    u_min: Volts::ZERO,
+    u_max: Volts::from_bits(150 << 16),
+    max_step: Volts::from_bits(5 << 16),
+    safe: Interval {
+        lo: Volts::ZERO,
+        hi: Volts::from_bits(10 << 16),
+    },
 };
 
 /// The board's crystal (HSE), Hz.

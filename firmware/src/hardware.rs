@@ -1,17 +1,15 @@
 //! What the driver board's hardware allows and what it has room for: the limits a
 //! model may narrow but never widen, and the capacity of the model it runs.
 //!
-//! * Control rate 20 kHz (TIM2 on the board, SysTick on the emulated board).
-//! * Amplifier: 0–150 V, at most 100 V/ms (5 V per control step): the amplifier's
-//!   current limit into the stack's capacitance.
-//! * Safe voltage: 0–10 V, where the stack is at rest under any preload.
+//! * Control rate 20 kHz (SysTick on both boards).
+//! * Amplifier and safe voltage: the board definition's
+//!   ([`crate::board_def::AMPLIFIER`]).
 //! * Capacity: 10 play operators, 4 creep terms, 3 072 table intervals (24 KiB of
 //!   RAM per model; the board holds two, the running one and the one it receives).
 
-use piezo_fpi::control::Interval;
 use piezo_fpi::model::image;
-use piezo_fpi::model::store::{Board, HardwareLimits, ModelStore, RuntimeController};
-use piezo_fpi::q::{Micrometres, Volts};
+use piezo_fpi::model::store::{Board, ModelStore, RuntimeController};
+use piezo_fpi::q::Micrometres;
 
 /// Play operators a model may have.
 pub const OPERATORS: usize = 10;
@@ -36,15 +34,7 @@ pub const RATE_HZ: u32 = 20_000;
 /// The board: its rate and hardware limits.
 pub const BOARD: Board = Board {
     rate_hz: RATE_HZ,
-    limits: HardwareLimits {
-        u_min: Volts::ZERO,
-        u_max: Volts::from_bits(150 << 16),
-        max_step: Volts::from_bits(5 << 16),
-        safe: Interval {
-            lo: Volts::ZERO,
-            hi: Volts::from_bits(10 << 16),
-        },
-    },
+    limits: crate::board_def::AMPLIFIER,
 };
 
 /// A model in the board's RAM.
