@@ -18,7 +18,7 @@
 //! either front end's scaling (the bench order `FrontEnd`).
 //!
 //! **Wiring** (the README's table is checked against this one and this one
-//! against [`pins::take`] by `tests-host/tests/wiring.rs`; the last column says
+//! against `pins::take` by `tests-host/tests/wiring.rs`; the last column says
 //! which front end uses the pin):
 //!
 //! | signal | pin | peripheral | front end |
@@ -113,7 +113,7 @@ pub const POSITION: AdcScale = AdcScale {
 pub const POSITION_MAX: u16 = u16::MAX;
 
 /// The STM32's own converters: the scaling, and the ADC channels (the pins are in
-/// [`pins`]).
+/// `pins`, built for the board only).
 pub mod internal {
     use super::*;
 
@@ -140,7 +140,7 @@ pub mod internal {
 }
 
 /// The precision converters: which parts, how they are strapped, their scaling,
-/// buses and timing (the pins are in [`pins`]).
+/// buses and timing (the pins are in `pins`, built for the board only).
 pub mod precision {
     use super::*;
 

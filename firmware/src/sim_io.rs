@@ -7,7 +7,7 @@
 //! amplifier's voltage go through, and the scale the ISR converts codes with,
 //! switch together.
 //!
-//! * [`FrontEndKind::Internal`] (at start): force [`FORCE_ADC`]-style 12-bit
+//! * [`FrontEndKind::Internal`] (at start): force [`FORCE_ADC`](crate::board_def::internal::FORCE)-style 12-bit
 //!   counts (`SimLink::adc`, 0.125 N a count), setpoint `SimLink::dac` (the
 //!   12-bit DAC: 36.6 mV a code, about 10 nm of stage), position [`POSITION_ADC`]
 //!   (16-bit code, 1.22 nm). No converter noise is added: the behaviour of before
