@@ -5,11 +5,11 @@
 //! (`ControlLoop::tick` and the recorder) on a model loaded at run time, orders
 //! included. Its panic handler calls a function that exists nowhere, so if the
 //! optimiser leaves any panic branch reachable (an index, an overflow check, an
-//! `unwrap`, a division) the release build fails to link with
+//! `unwrap`, a division) the build (profile `firmware`) fails to link with
 //! `undefined symbol: control_path_can_panic`. Loading the model (the link
 //! task's work) is reachable too, so the proof covers it. CI builds it.
 //!
-//! `cargo build --release --target thumbv7em-none-eabihf -p fpi-firmware --bin no-panic --features qemu`
+//! `cargo build --profile firmware --target thumbv7em-none-eabihf -p fpi-firmware --bin no-panic --features qemu`
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]

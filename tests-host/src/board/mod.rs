@@ -106,10 +106,16 @@ pub fn qemu() -> Result<PathBuf> {
     })
 }
 
-/// Builds a firmware binary in release mode for the target and returns a copy of
-/// its ELF named after the feature set (`fpi-firmware-qemu.elf`): cargo writes
-/// every feature set of a binary to the same path, so callers in parallel (tests)
-/// would otherwise run each other's builds. Builds within one process are serialised.
+/// The Cargo profile of the firmware (`[profile.firmware]` in the workspace's
+/// Cargo.toml: fat LTO, one codegen unit), also the folder of its ELFs under
+/// `target/thumbv7em-none-eabihf/`. The host tools' `release` profile is cheaper.
+pub const PROFILE: &str = "firmware";
+
+/// Builds a firmware binary with the firmware's profile ([`PROFILE`]) for the
+/// target and returns a copy of its ELF named after the feature set
+/// (`fpi-firmware-qemu.elf`): cargo writes every feature set of a binary to the
+/// same path, so callers in parallel (tests) would otherwise run each other's
+/// builds. Builds within one process are serialised.
 pub fn build(bin: &str, features: &str) -> Result<PathBuf> {
     static BUILD: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _guard = BUILD.lock().unwrap_or_else(|p| p.into_inner());
@@ -119,7 +125,8 @@ pub fn build(bin: &str, features: &str) -> Result<PathBuf> {
         .current_dir(&root)
         .args([
             "build",
-            "--release",
+            "--profile",
+            PROFILE,
             "--target",
             TARGET,
             "-p",
@@ -137,7 +144,7 @@ pub fn build(bin: &str, features: &str) -> Result<PathBuf> {
     let target_dir = std::env::var_os("CARGO_TARGET_DIR")
         .map(PathBuf::from)
         .unwrap_or_else(|| root.join("target"));
-    let elf = target_dir.join(TARGET).join("release").join(bin);
+    let elf = target_dir.join(TARGET).join(PROFILE).join(bin);
     if !elf.is_file() {
         bail!(
             "the build reported success but {} is missing",
