@@ -515,6 +515,8 @@ mod tests {
     }
 }
 
+use crate::preview::{Fir, TAPS};
+
 /// Sections of a model's reference-shaping filter ([`ShapingSpec`]).
 pub const SHAPING_SECTIONS: usize = 2;
 
@@ -528,12 +530,24 @@ pub const SHAPING_SECTIONS: usize = 2;
 pub struct ShapingSpec {
     /// Raw coefficient bits, section by section.
     pub sections: [[i32; 5]; SHAPING_SECTIONS],
+    /// Ticks the shaping runs ahead of the reference the loops track
+    /// (`crate::preview`), `0..=PREVIEW_MAX`: 0, the sections run on the
+    /// tracked reference; else the shaping is [`ShapingSpec::taps`] on the
+    /// preview's delay line and the sections are the identity. Where the model
+    /// damps, the damping then also leaves the force the shaped reference's own
+    /// motion explains out of the force it damps (`firmware`'s closed loop).
+    pub preview: u8,
+    /// The feedforward's raw `I8F24` taps on the delay line, newest first
+    /// (`crate::preview::Fir`; zero without a preview).
+    pub taps: [i32; TAPS],
 }
 
 impl ShapingSpec {
     /// No shaping (both sections the identity).
     pub const IDENTITY: Self = Self {
         sections: [[1 << COEFF_FRAC, 0, 0, 0, 0]; SHAPING_SECTIONS],
+        preview: 0,
+        taps: [0; TAPS],
     };
 
     /// The cascade, each section checked: stable, and of unit static gain exactly
@@ -568,5 +582,26 @@ impl ShapingSpec {
             i += 1;
         }
         Ok(Cascade::new(out))
+    }
+
+    /// The feedforward on the preview's delay line where the shaping runs
+    /// ahead (`preview > 0`), checked ([`Fir::new`]; the sections must then be
+    /// the identity); `None` where it runs its sections.
+    pub const fn fir(&self) -> Result<Option<Fir>, Invalid> {
+        if self.preview == 0 {
+            return Ok(None);
+        }
+        let mut i = 0;
+        while i < SHAPING_SECTIONS {
+            let (c, id) = (self.sections[i], Self::IDENTITY.sections[i]);
+            if c[0] != id[0] || c[1] != 0 || c[2] != 0 || c[3] != 0 || c[4] != 0 {
+                return Err(Invalid::at(Field::Preview, ModelError::PreviewWithSections));
+            }
+            i += 1;
+        }
+        match Fir::new(self.preview, self.taps) {
+            Ok(f) => Ok(Some(f)),
+            Err(e) => Err(e),
+        }
     }
 }

@@ -120,8 +120,8 @@ pub enum ModelError {
     ChecksumMismatch,
     /// A model image ends before its contents do, or runs on past them.
     Truncated,
-    /// The model needs more operators, creep terms or table knots than the board
-    /// has room for.
+    /// The model needs more operators, creep terms or table knots, or a longer
+    /// reference preview, than the board has room for.
     OverCapacity,
     /// The model's control rate is not the board's.
     RateMismatch,
@@ -147,6 +147,9 @@ pub enum ModelError {
     LoopUnstable,
     /// Active damping needs the stage's dynamics (a `[dynamics]` section).
     DampingWithoutDynamics,
+    /// A shaping that runs ahead (a preview) is taps on the delay line: its
+    /// sections must be the identity.
+    PreviewWithSections,
 }
 
 impl ModelError {
@@ -226,6 +229,9 @@ impl ModelError {
             }
             Self::DampingWithoutDynamics => {
                 "active damping needs the stage's dynamics with its force gain ([dynamics] force_gain_n_per_um)"
+            }
+            Self::PreviewWithSections => {
+                "a shaping that runs ahead (preview_ticks > 0) is its taps: it has no sections"
             }
         }
     }
@@ -377,6 +383,8 @@ pub enum Field {
     PositionTolerance,
     /// A section of the reference-shaping filter.
     Shaping,
+    /// The shaping's preview: its delay and taps.
+    Preview,
     /// Stage dynamics: the first mode, Hz.
     DynamicsModeHz,
     /// Stage dynamics: its damping ratio.
@@ -438,6 +446,7 @@ impl Field {
             Self::PositionMax => "feedback.position_max_um",
             Self::PositionTolerance => "feedback.position_tolerance_um",
             Self::Shaping => "shaping.sections",
+            Self::Preview => "shaping.taps",
             Self::DynamicsModeHz => "dynamics.mode_hz",
             Self::DynamicsDamping => "dynamics.damping_ratio",
             Self::DynamicsLagHz => "dynamics.lag_hz",

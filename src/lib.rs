@@ -41,6 +41,7 @@ pub mod limits;
 pub mod model;
 pub mod pi;
 pub mod play;
+pub mod preview;
 pub mod q;
 pub mod stability;
 pub mod table;

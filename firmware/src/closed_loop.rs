@@ -11,6 +11,16 @@
 //! stage's lightly damped modes, or of the damped stage (`piezo_fpi::biquad`), so
 //! that a fast reference is followed without lag or ringing; otherwise `S(x) = x`.
 //!
+//! **Preview.** Where the model's shaping runs ahead (`preview` ticks,
+//! `piezo_fpi::preview`), `S` is taps on a delay line whose newest entry is the
+//! reference source's, and the loops (the PI's error, the recorder's `x_ref`,
+//! the range check) take the one `preview` ticks older: the damped stage's lag
+//! is then inverted, not just shaped. The damping then
+//! also leaves out the force the shaped reference's own motion explains,
+//! `κ·(S_{k−1} − x_ref)` (κ the model's dynamic force per µm): it damps what
+//! departs from the motion asked for, not the motion itself, whose slow
+//! high-pass-and-leak response would otherwise trail every step by milliseconds.
+//!
 //! **Active damping** (`piezo_fpi::damping`), where the model has it and it is
 //! switched on (the default): in every mode the command also gets `δ_d`, the
 //! integral force feedback on the force channel's dynamic part, which damps the
@@ -53,6 +63,7 @@ use piezo_fpi::biquad::{Cascade, CascadeState, SHAPING_SECTIONS};
 use piezo_fpi::control::{Fault, Interval, LinearDrive, Mode, StepOutput};
 use piezo_fpi::damping::{Damping, DampingConfig};
 use piezo_fpi::feedback::{FeedbackConfig, Pi, Saturation};
+use piezo_fpi::preview::{Fir, Preview};
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
 use crate::hardware::{Controller, APPROACH_STEP, RATE_HZ};
@@ -105,6 +116,17 @@ pub struct Loop {
     parking: bool,
     /// The damping runs on through this park.
     park_damping: bool,
+    /// The reference's delay line (the shaping's preview).
+    ahead: Preview,
+    /// The shaped reference of the last tick, µm.
+    last_ff: Micrometres,
+    /// The feedforward on the preview's line this tick ([`Loop::preview`]), µm.
+    ahead_ff: Micrometres,
+    /// The model's shaping runs on the preview's line.
+    previewing: bool,
+    /// κ where the damping leaves the shaped reference's force out, else zero,
+    /// N/µm.
+    lead: Newtons,
 }
 
 /// Ticks in a row a position reading must disagree with the model's estimate to
@@ -144,6 +166,42 @@ impl Loop {
             damping_watched: false,
             parking: false,
             park_damping: false,
+            ahead: Preview::new(),
+            last_ff: Micrometres::ZERO,
+            ahead_ff: Micrometres::ZERO,
+            previewing: false,
+            lead: Newtons::ZERO,
+        }
+    }
+
+    /// Takes the reference source's newest value `ahead` (µm) and gives the
+    /// reference the loops track this tick: where the model's shaping runs ahead
+    /// (`fir`, `piezo_fpi::preview`), the one its delay older, the shaping then
+    /// taken on the line; else `ahead` itself. `lead`: κ (N/µm) where the damping
+    /// leaves the shaped reference's force out (the model's `lead_force`), else
+    /// none. Call it before [`Loop::command`].
+    #[inline]
+    pub fn preview(
+        &mut self,
+        ahead: Micrometres,
+        fir: Option<&Fir>,
+        lead: Option<Newtons>,
+    ) -> Micrometres {
+        self.lead = match lead {
+            Some(k) => k,
+            None => Newtons::ZERO,
+        };
+        match fir {
+            Some(f) => {
+                let (tracked, ff) = self.ahead.run(ahead, f);
+                self.ahead_ff = ff;
+                self.previewing = true;
+                tracked
+            }
+            None => {
+                self.previewing = false;
+                ahead
+            }
         }
     }
 
@@ -266,8 +324,16 @@ impl Loop {
             (LoopMode::Open, true) | (LoopMode::Closed, _) => Law::Fpi,
             (LoopMode::Open, false) | (LoopMode::FeedbackOnly, _) => Law::Linear,
         };
+        // The force the shaped reference's motion explains is not damped (see
+        // the module docs): κ·(S_{k−1} − x_ref), N.
+        let dynamic = if self.lead != Newtons::ZERO && self.shaping_on && !self.parking {
+            let moved = self.last_ff.saturating_sub(io.x_ref);
+            io.dynamic.saturating_sub(self.lead.saturating_mul(moved))
+        } else {
+            io.dynamic
+        };
         self.damped = match (self.damping_on, io.damping) {
-            (true, Some(c)) => self.damping.update(c, io.dynamic),
+            (true, Some(c)) => self.damping.update(c, dynamic),
             _ => {
                 self.damping.reset();
                 Micrometres::ZERO
@@ -279,9 +345,11 @@ impl Loop {
         // The feedforward's reference: shaped by the inverse of the stage's
         // dynamics, where the model has it and it is on.
         let ff = match (self.shaping_on, io.shaping) {
+            (true, _) if self.previewing => self.ahead_ff,
             (true, Some(c)) => c.update(&mut self.shaped, io.x_ref),
             _ => io.x_ref,
         };
+        self.last_ff = ff;
         let window = io.cfg.reference();
         let error = io.x_ref.saturating_sub(io.reading);
         let wanted = match (self.mode, io.feedback) {
@@ -422,7 +490,7 @@ pub struct Inputs<'c, 'm> {
     pub drive: &'c LinearDrive,
     /// Inverse FPI (else the straight line) in open loop.
     pub compensated: bool,
-    /// Reference, µm.
+    /// Reference the loops track ([`Loop::preview`]), µm.
     pub x_ref: Micrometres,
     /// Position sensor, µm.
     pub reading: Micrometres,

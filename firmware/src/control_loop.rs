@@ -169,13 +169,17 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         } else {
             0
         };
-        let x_ref = match self.reference.next(x.points, counts) {
+        let x_ahead = match self.reference.next(x.points, counts) {
             Ok(r) => r,
             Err(_) => {
                 self.trip(Fault::ReferenceInput);
                 self.reference.position()
             }
         };
+        let summary = self.model.summary();
+        let x_ref = self
+            .feedback
+            .preview(x_ahead, summary.preview.as_ref(), summary.lead_force);
         let cfg = self.model.get();
         let forces = self.hw.sense(cfg, &mut self.state);
         let cmd = self.command(x_ref, forces.dynamic);
@@ -234,8 +238,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
     }
 
     /// Reads the position sensor, checks it (a bad reading trips a fault), and
-    /// turns the reference into this tick's command, with the force channel's
-    /// dynamic part (N) for the damping.
+    /// turns the reference the loops track (µm) into this tick's command, with
+    /// the force channel's dynamic part (N) for the damping.
     #[inline]
     fn command(&mut self, x_ref: Micrometres, dynamic: Newtons) -> Command {
         self.x_sensor = POSITION_ADC.to_value(self.analog_in.read_position());

@@ -24,7 +24,8 @@ use piezo_fpi::error::{Field, Invalid, ModelError};
 use piezo_fpi::feedback::FeedbackConfig;
 use piezo_fpi::model::image::CRC32;
 use piezo_fpi::model::Shape;
-use piezo_fpi::q::Volts;
+use piezo_fpi::preview::Fir;
+use piezo_fpi::q::{Newtons, Volts};
 
 use crate::hardware::{Controller, Store, BOARD};
 
@@ -50,6 +51,14 @@ pub struct Summary {
     pub feedback: Option<FeedbackConfig>,
     /// Reference shaping (the inverse of the stage's modes), if the model has it.
     pub shaping: Option<Cascade<SHAPING_SECTIONS>>,
+    /// The shaping where it runs ahead of the tracked reference: taps on the
+    /// preview's delay line (`piezo_fpi::preview`); [`Summary::shaping`] is then
+    /// `None`.
+    pub preview: Option<Fir>,
+    /// κ, N/µm (`I16F16`), where the shaping runs ahead and the model damps: the
+    /// damping then leaves out the force the shaped reference's motion explains
+    /// (`crate::closed_loop`).
+    pub lead_force: Option<Newtons>,
     /// The stage's dynamics, if the model declares them.
     pub dynamics: Option<DynamicsSpec>,
     /// Active damping, if the model has it.
@@ -111,7 +120,12 @@ impl Spare {
             let baseline = crate::baseline::drive(&cfg)?;
             let spec = shared.spec();
             let feedback = spec.feedback.map(FeedbackConfig::new).transpose()?;
-            let shaping = spec.shaping.map(|s| s.cascade()).transpose()?;
+            let preview = spec.shaping.map(|s| s.fir()).transpose()?.flatten();
+            let shaping = spec
+                .shaping
+                .filter(|_| preview.is_none())
+                .map(|s| s.cascade())
+                .transpose()?;
             let channel = spec.supervision.channel;
             let damping = spec
                 .damping
@@ -122,10 +136,20 @@ impl Spare {
                 baseline,
                 shape,
                 (feedback, shaping, damping, spec.dynamics, channel),
+                preview,
             ))
         });
         match built {
-            Ok((cfg, baseline, shape, (feedback, shaping, damping, dynamics, channel))) => {
+            Ok((
+                cfg,
+                baseline,
+                shape,
+                (feedback, shaping, damping, dynamics, channel),
+                preview,
+            )) => {
+                let lead_force = dynamics
+                    .filter(|_| preview.is_some() && damping.is_some())
+                    .map(|d| d.force_gain);
                 Ok(Running {
                     store: ptr,
                     summary: Summary {
@@ -137,6 +161,8 @@ impl Spare {
                         baseline,
                         feedback,
                         shaping,
+                        preview,
+                        lead_force,
                         dynamics,
                         damping,
                         channel,

@@ -28,6 +28,7 @@ use piezo_fpi::feedback::FeedbackSpec;
 use piezo_fpi::fpi::Coupling as FixedCoupling;
 use piezo_fpi::model::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
 use piezo_fpi::play::Operator;
+use piezo_fpi::preview::{PREVIEW_MAX, TAPS};
 use piezo_fpi::q::{self, CreepRate, LoopGain, UmPerVolt, VoltsPerNewton};
 use piezo_fpi::table::Segment;
 use serde::{Deserialize, Serialize};
@@ -196,6 +197,10 @@ fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, String> {
         .ok_or_else(|| format!("{key} = {f_hz}: does not fit its Q format"))
 }
 
+fn is_zero(v: &u8) -> bool {
+    *v == 0
+}
+
 /// The reference-shaping filter: up to two second-order sections at the control
 /// rate, `y = b0·x + b1·x₁ + b2·x₂ − a1·y₁ − a2·y₂`, each of static gain 1.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -203,6 +208,15 @@ fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, String> {
 pub struct ShapingSection {
     /// `[b0, b1, b2, a1, a2]` of each section (at most two), dimensionless.
     pub sections: Vec<[f64; 5]>,
+    /// Ticks the shaping runs ahead of the reference the loops track (0–7; 0:
+    /// none): it is then `taps` on the preview's delay line, not sections (see
+    /// `piezo_fpi::preview`).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub preview_ticks: u8,
+    /// The taps on the delay line, newest first (at most 8, summing to 1),
+    /// with `preview_ticks > 0`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub taps: Vec<f64>,
     /// What the filter cancels (the modes, the damping it leaves).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub notes: String,
@@ -217,7 +231,37 @@ impl ShapingSection {
                 self.sections.len()
             ));
         }
-        let mut out = ShapingSpec::IDENTITY;
+        if self.preview_ticks > PREVIEW_MAX {
+            return Err(format!(
+                "shaping.preview_ticks = {}: the board looks ahead at most {PREVIEW_MAX} ticks",
+                self.preview_ticks
+            ));
+        }
+        let mut out = ShapingSpec {
+            preview: self.preview_ticks,
+            ..ShapingSpec::IDENTITY
+        };
+        match (self.preview_ticks, self.sections.is_empty(), self.taps.len()) {
+            (0, _, 0) => {}
+            (0, _, _) => return Err("shaping.taps: taps run with preview_ticks > 0".into()),
+            (_, false, _) => {
+                return Err(
+                    "shaping.sections: a shaping that runs ahead (preview_ticks > 0) is its taps, not sections"
+                        .into(),
+                )
+            }
+            (_, true, n) if n > TAPS => {
+                return Err(format!(
+                    "shaping.taps has {n} taps: the board runs at most {TAPS}"
+                ))
+            }
+            _ => {}
+        }
+        for (j, (&v, o)) in self.taps.iter().zip(out.taps.iter_mut()).enumerate() {
+            *o = q::quantize(v, COEFF_FRAC, COEFF_ABS_MAX).ok_or_else(|| {
+                format!("shaping.taps[{j}] = {v}: not a finite value within ±128 (I8F24)")
+            })?;
+        }
         for (i, (s, o)) in self
             .sections
             .iter()
@@ -891,7 +935,7 @@ impl FirmwareModel {
             Field::PositionMin => self.feedback.as_ref().map(|f| f.position_min_um),
             Field::PositionMax => self.feedback.as_ref().map(|f| f.position_max_um),
             Field::PositionTolerance => self.feedback.as_ref().map(|f| f.position_tolerance_um),
-            Field::Shaping => None,
+            Field::Shaping | Field::Preview => None,
             Field::ForceSplit => Some(
                 k.force_split_hz
                     .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(k.rate_hz as f64 / 64.0)),

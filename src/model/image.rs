@@ -7,7 +7,7 @@
 //! header (16 bytes)  magic "PFPM", u16 version, u16 flags, u32 body length, u32 CRC-32 of the body
 //!                    flags: bit 0 soft dead zone, bit 1 output saturation, bit 2 predicted force,
 //!                    bit 3 position feedback, bit 4 reference shaping, bit 5 stage dynamics,
-//!                    bit 6 active damping
+//!                    bit 6 active damping, bit 7 reference preview
 //! body               u32 rate_hz; i32 w0 (I4F28); i32 input_max (I16F16); u8 operators; u8 creep terms; u16 0
 //!                    operators × (i32 threshold I16F16, i32 weight I4F28)
 //!                    coupling: i32 k0, k_f (I0F32), k_q (I0F32), F_q, compliance (I0F32), F_ref
@@ -22,6 +22,7 @@
 //!                    dynamics (when flagged): u32 mode mHz, i32 damping ratio (I0F32), u32 lag mHz,
 //!                    i32 force gain (I16F16, N/µm)
 //!                    damping (when flagged): i32 gain (I8F24), high-pass and leak rates (I0F32), limit (I16F16)
+//!                    preview (when flagged, with shaping): u32 ticks the shaping runs ahead, 8 × i32 taps (I8F24)
 //! ```
 //!
 //! [`encode`] writes a [`ModelSpec`]; [`Reader`] walks an image for
@@ -59,6 +60,11 @@ pub const FLAG_SHAPING: u16 = 16;
 pub const FLAG_DYNAMICS: u16 = 32;
 /// Flag: the model carries active-damping settings (a block after the dynamics').
 pub const FLAG_DAMPING: u16 = 64;
+/// Flag: the shaping runs ahead of the tracked reference (a block after the
+/// damping's; version-2 images without it read as before).
+pub const FLAG_PREVIEW: u16 = 128;
+/// Bytes of the preview block.
+const PREVIEW_LEN: usize = 4 + 4 * crate::preview::TAPS;
 /// Bytes of the dynamics block.
 const DYNAMICS_LEN: usize = 16;
 /// Bytes of the damping block.
@@ -145,6 +151,12 @@ pub fn encoded_len(m: &ModelSpec<'_>) -> usize {
             0
         }
         + if m.damping.is_some() { DAMPING_LEN } else { 0 }
+        + if previews(m) { PREVIEW_LEN } else { 0 }
+}
+
+/// Whether `m`'s shaping runs ahead of the reference (the image's preview block).
+fn previews(m: &ModelSpec<'_>) -> bool {
+    matches!(&m.shaping, Some(s) if s.preview > 0)
 }
 
 /// Bytes of the largest image a board with room for `operators`, `creep` terms and
@@ -157,6 +169,7 @@ pub const fn max_len(operators: usize, creep: usize, intervals: usize) -> usize 
         + SHAPING_LEN
         + DYNAMICS_LEN
         + DAMPING_LEN
+        + PREVIEW_LEN
 }
 
 /// Writes the image of a model into `out`; its length. The model should be valid
@@ -234,6 +247,12 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
         w.i32(d.leak.to_bits())?;
         w.i32(d.limit.to_bits())?;
     }
+    if let Some(s) = m.shaping.as_ref().filter(|_| previews(m)) {
+        w.u32(u32::from(s.preview))?;
+        for t in s.taps {
+            w.i32(t)?;
+        }
+    }
     let len = w.at;
     let mut flags = 0;
     if m.dead_zone.is_some() {
@@ -256,6 +275,9 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
     }
     if m.damping.is_some() {
         flags |= FLAG_DAMPING;
+    }
+    if previews(m) {
+        flags |= FLAG_PREVIEW;
     }
     let out = w.out;
     let body = out.get(HEADER_LEN..len).ok_or_else(truncated)?;

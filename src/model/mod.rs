@@ -229,6 +229,7 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
     }
     if let Some(s) = m.shaping {
         s.cascade()?;
+        s.fir()?;
     }
     if let Some(d) = m.dynamics {
         d.check(m.rate_hz)?;

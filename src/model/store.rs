@@ -14,7 +14,7 @@ use fixed::types::I16F16;
 
 use super::image::{
     Reader, FLAG_DAMPING, FLAG_DEAD_ZONE, FLAG_DYNAMICS, FLAG_FEEDBACK, FLAG_PREDICTED,
-    FLAG_SATURATION, FLAG_SHAPING,
+    FLAG_PREVIEW, FLAG_SATURATION, FLAG_SHAPING,
 };
 use super::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
 use crate::biquad::{ShapingSpec, SHAPING_SECTIONS};
@@ -199,6 +199,8 @@ const NO_SCALARS: Scalars = Scalars {
     has_feedback: false,
     shaping: ShapingSpec {
         sections: [[0; 5]; SHAPING_SECTIONS],
+        preview: 0,
+        taps: [0; crate::preview::TAPS],
     },
     has_shaping: false,
     dynamics: DynamicsSpec {
@@ -401,6 +403,20 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             d.leak = CreepRate::from_bits(r.i32()?);
             d.limit = I16F16::from_bits(r.i32()?);
         }
+        b.shaping.preview = 0;
+        b.shaping.taps = [0; crate::preview::TAPS];
+        if r.flags & FLAG_PREVIEW != 0 {
+            // A preview without shaping, or beyond a byte, is not a model this
+            // build wrote: refused (the validator bounds the rest).
+            let ticks = r.u32()?;
+            b.shaping.preview = match u8::try_from(ticks) {
+                Ok(t) if b.has_shaping => t,
+                _ => return Err(Invalid::at(Field::Preview, ModelError::OverCapacity)),
+            };
+            for t in b.shaping.taps.iter_mut() {
+                *t = r.i32()?;
+            }
+        }
         if !r.finished() {
             return Err(Invalid::at(Field::Model, ModelError::Truncated));
         }
@@ -554,6 +570,7 @@ mod tests {
         let section = [one / 2, 0, 0, -one / 2, 0];
         let shaping = ShapingSpec {
             sections: [section, ShapingSpec::IDENTITY.sections[0]],
+            ..ShapingSpec::IDENTITY
         };
         let spec = ModelSpec {
             shaping: Some(shaping),
@@ -568,6 +585,7 @@ mod tests {
             let bad = ModelSpec {
                 shaping: Some(ShapingSpec {
                     sections: [ShapingSpec::IDENTITY.sections[0], s],
+                    ..ShapingSpec::IDENTITY
                 }),
                 ..spec
             };
@@ -583,6 +601,58 @@ mod tests {
         assert_eq!(
             refuse([0, 0, 0, -one, 0]),
             (Field::Shaping, Some(1), ModelError::FilterUnstable)
+        );
+        // A preview (taps on the delay line) travels in its own block, read
+        // back as written; one beyond the board's delay line, one that is not
+        // of unit gain and one with sections as well are refused.
+        let mut taps = [0; crate::preview::TAPS];
+        taps[..3].copy_from_slice(&[one * 2, -one / 2, -one / 2]);
+        let ahead = ShapingSpec {
+            preview: 3,
+            taps,
+            ..ShapingSpec::IDENTITY
+        };
+        for ticks in [1, crate::preview::PREVIEW_MAX] {
+            let s = ShapingSpec {
+                preview: ticks,
+                ..ahead
+            };
+            let m = ModelSpec {
+                shaping: Some(s),
+                ..spec
+            };
+            let img = image(&m);
+            assert_eq!(img.len(), image(&spec).len() + 36);
+            let mut store = Store::new();
+            store.load(&img, &BOARD).unwrap();
+            assert_eq!(store.spec().shaping, Some(s));
+        }
+        let refused = |s: ShapingSpec| {
+            let m = ModelSpec {
+                shaping: Some(s),
+                ..spec
+            };
+            let e = Store::new().load(&image(&m), &BOARD).unwrap_err();
+            (e.field, e.error)
+        };
+        let long = ShapingSpec {
+            preview: crate::preview::PREVIEW_MAX + 1,
+            ..ahead
+        };
+        let mut gain = ahead;
+        gain.taps[0] += 1;
+        let both = ShapingSpec {
+            sections: shaping.sections,
+            ..ahead
+        };
+        assert_eq!(refused(long), (Field::Preview, ModelError::OverCapacity));
+        assert_eq!(
+            refused(gain),
+            (Field::Preview, ModelError::FilterStaticGain)
+        );
+        assert_eq!(
+            refused(both),
+            (Field::Preview, ModelError::PreviewWithSections)
         );
     }
 

@@ -16,14 +16,14 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use fpi_host::board::autotune::{self, Autotune};
-use fpi_host::board::client::Client;
+use fpi_host::board::client::{real, Client};
 use fpi_host::board::closed_loop::{self, Drive};
 use fpi_host::board::emulator::{self, Emulator};
 use fpi_host::board::frf::{self, FrfSettings};
 use fpi_host::board::step::{self, StepSettings};
 use fpi_host::method::tune::TuneOptions;
 use fpi_protocol::{BenchOrder, LinkKind, StageVariant};
-use piezo_sim::file::FirmwareModel;
+use piezo_sim::file::{FirmwareModel, ShapingSection};
 
 /// The factory model (stage A, no loops).
 fn factory() -> FirmwareModel {
@@ -136,7 +136,10 @@ fn autotune_fits_the_stage_and_its_loops_settle_a_step() {
     );
     // The verification step: settled (generous; the figures are printed).
     let settle = a.step.settle_ms.unwrap_or(f64::INFINITY);
-    assert!(settle < 10.0 && a.step.overshoot_um < 5.0, "{:?}", a.step);
+    assert!(settle < 10.0 && a.step.overshoot_um < 1.5, "{:?}", a.step);
+    // The feedforward runs ahead of the tracked reference.
+    let preview = a.model.shaping.as_ref().map(|s| s.preview_ticks);
+    assert_eq!(preview, Some(5));
     // The tuned model is a model file any board loads.
     let text = a.model.to_toml().unwrap();
     let back = FirmwareModel::parse(&text, "tuned").unwrap();
@@ -174,6 +177,44 @@ fn damping_and_feedforward_beat_the_pi_alone() {
     assert!(ff.triangle.rms() < pi.triangle.rms());
     let settle = |s: Option<f64>| s.unwrap_or(f64::INFINITY);
     assert!(settle(ff.step.settle_ms) < settle(pi.step.settle_ms));
+}
+
+#[test]
+fn the_preview_runs_the_shaping_ahead_and_the_loops_that_many_ticks_late() {
+    let (_e, mut c) = board("preview");
+    let mut fw = factory();
+    let s = StepSettings {
+        from_um: 10.0,
+        to_um: 20.0,
+        seconds: 0.01,
+        ..StepSettings::default()
+    };
+    // The tick the tracked (and recorded) reference leaves its start, from the
+    // step's first tick, for a model whose shaping (the identity) runs `ticks`
+    // ahead.
+    let mut starts = Vec::new();
+    for ticks in [0u8, 5] {
+        // The shaping is the newest reference itself (one tap of 1).
+        fw.shaping = (ticks > 0).then(|| ShapingSection {
+            sections: Vec::new(),
+            preview_ticks: ticks,
+            taps: vec![1.0],
+            notes: String::new(),
+        });
+        load(&mut c, &fw, StageVariant::NOMINAL);
+        let (rec, fig) = step::run(&mut c, &s).unwrap();
+        let from = rec.samples[0].tick;
+        let moved = rec
+            .samples
+            .iter()
+            .find(|x| real(x.x_ref) > s.from_um + 1e-3)
+            .map(|x| x.tick - from)
+            .unwrap();
+        println!("preview {ticks}: the reference moves {moved} ticks after the step; {fig:?}");
+        starts.push(moved);
+    }
+    assert_eq!(starts[1], starts[0] + 5, "{starts:?}");
+    c.park().unwrap();
 }
 
 #[test]

@@ -321,6 +321,8 @@ fn feedback_and_shaping_sections_name_their_keys() {
     good.feedback = Some(fb.clone());
     good.shaping = Some(ShapingSection {
         sections: vec![[0.5, 0.0, 0.0, -0.5, 0.0]],
+        preview_ticks: 0,
+        taps: Vec::new(),
         notes: String::new(),
     });
     let again = FirmwareModel::parse(&good.to_toml().unwrap(), "again").unwrap();
@@ -346,5 +348,38 @@ fn feedback_and_shaping_sections_name_their_keys() {
     check(
         &|b| b.shaping.as_mut().unwrap().sections[0] = [300.0, 0.0, 0.0, -0.5, 0.0],
         "shaping.sections[0][0] = 300: not a finite value within ±128",
+    );
+    check(
+        &|b| b.shaping.as_mut().unwrap().preview_ticks = 8,
+        "shaping.preview_ticks = 8: the board looks ahead at most 7 ticks",
+    );
+    check(
+        &|b| b.shaping.as_mut().unwrap().preview_ticks = 3,
+        "shaping.sections: a shaping that runs ahead (preview_ticks > 0) is its taps, not sections",
+    );
+    // A shaping that runs ahead: taps summing to 1, at most 8 of them.
+    let mut ahead = good.clone();
+    ahead.shaping = Some(ShapingSection {
+        sections: Vec::new(),
+        preview_ticks: 4,
+        taps: vec![1.5, -0.25, -0.25],
+        notes: String::new(),
+    });
+    let again = FirmwareModel::parse(&ahead.to_toml().unwrap(), "again").unwrap();
+    assert_eq!(again, ahead);
+    assert!(again.image().is_ok());
+    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| {
+        let mut bad = ahead.clone();
+        edit(&mut bad);
+        let e = error_of(&bad.to_toml().unwrap());
+        assert!(e.contains(want), "{e}");
+    };
+    check(
+        &|b| b.shaping.as_mut().unwrap().taps[0] = 1.6,
+        "shaping.taps: a filter section's static gain is not exactly 1",
+    );
+    check(
+        &|b| b.shaping.as_mut().unwrap().taps = vec![0.125; 9],
+        "shaping.taps has 9 taps: the board runs at most 8",
     );
 }

@@ -322,7 +322,7 @@ mod bench {
     /// The embedded model with every loop on, as `fpi tune --dynamics` tunes it for
     /// stage A (its 850.9 Hz mode, ζ 0.0301, the 2027 Hz lag, κ 7.02 N/µm): active
     /// damping (IFF, 1316 µm/(N·s) between 100 Hz corners), the position PI
-    /// (kp 0.75, ki 1762.6/s) and the two-section feedforward of the damped stage;
+    /// (kp 0.75, ki 1762.6/s) and the feedforward of the damped stage (8 taps on the preview's line);
     /// its image in `buf`. The validator's loop check runs on it as on any model.
     fn closed_image<'b>(store: &mut Store, buf: &'b mut [u8]) -> Option<&'b [u8]> {
         use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
@@ -357,18 +357,16 @@ mod bench {
             lag_mhz: 2_026_966,
             force_gain: Newtons::from_num(7.017),
         };
-        // Each section's b1 absorbs the rounding: unit static gain exactly.
-        let bits = |c: [f64; 5]| {
-            let b = piezo_fpi::biquad::Biquad::from_f64([c[0], c[1], c[2]], [c[3], c[4]]).ok()?;
-            let b = b.with_unit_static_gain().ok()?;
-            let ([b0, b1, b2], [a1, a2]) = (b.b(), b.a());
-            Some([b0, b1, b2, a1, a2].map(|c| c.to_bits()))
-        };
+        // Autotune's feedforward: taps on the preview's delay line, 4 ticks
+        // ahead (the delay line, the taps and the damping's lead force run).
+        let one = f64::from(1 << piezo_fpi::biquad::COEFF_FRAC);
+        let mut taps =
+            [1.67, -0.08, -0.63, -0.57, -0.7, -0.04, 0.61, 0.74].map(|t| (t * one) as i32);
+        taps[0] += (1 << piezo_fpi::biquad::COEFF_FRAC) - taps.iter().sum::<i32>();
         let shaping = piezo_fpi::biquad::ShapingSpec {
-            sections: [
-                bits([11.993_35, -21.262_266, 9.602_843, -0.950_683, 0.284_610])?,
-                bits([0.102_026, 0.142_970, 0.088_931, -0.950_683, 0.284_610])?,
-            ],
+            preview: 4,
+            taps,
+            ..piezo_fpi::biquad::ShapingSpec::IDENTITY
         };
         let closed = ModelSpec {
             feedback: Some(feedback),
@@ -464,7 +462,7 @@ mod bench {
             model::OPERATORS,
             c.max,
             if closed {
-                " in closed loop (damping from the force sensor, PI on the position sensor, two-section feedforward)"
+                " in closed loop (damping from the force sensor, PI on the position sensor, feedforward: 8 taps on the preview's delay line, 4 ticks ahead, with the damping's lead force)"
             } else {
                 ""
             },

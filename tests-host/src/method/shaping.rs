@@ -109,6 +109,8 @@ pub fn with_dynamics(
     let mut out = fw.clone();
     out.shaping = (!sections.is_empty()).then(|| ShapingSection {
         sections,
+        preview_ticks: 0,
+        taps: Vec::new(),
         notes: format!(
             "fpi export --dynamics: the inverse of the mode(s) at {} leaving a pair {}× faster \
              at ζ = {} (Tustin at {rate} Hz, pre-warped at each mode)",

@@ -2,12 +2,26 @@
 //! stage follow a fast reference without the lag of its damped mode and of the
 //! loop's delay.
 //!
-//! `S(z) = N(z)/D(z)` in biquad sections: the poles `D` are fixed (a well-damped
+//! **Sections** ([`design_time`], without a preview). `S(z) = N(z)/D(z)` in biquad sections: the poles `D` are fixed (a well-damped
 //! pair per section at `pole_hz`), the numerator `N` (3 coefficients per
 //! section, 5 for two) is found by least squares, with the static gain held to
 //! exactly 1 (a heavily weighted row; the quantised sections are then made exact
 //! by the core's `with_unit_static_gain`). Two sections split a fourth-order
 //! numerator into two quadratics by its roots.
+//!
+//! **Preview** ([`design_preview`], the default). Where the board's
+//! reference runs [`TimeOptions::preview`] ticks ahead of the one the loops
+//! track (`piezo_fpi::preview`), the feedforward is eight taps on that delay
+//! line, so that it inverts the damped stage's lag and delay instead of only
+//! shaping them; where the loops damp, the damping leaves out the force the
+//! shaped reference's own motion explains (`κ·(S_{k−1} − r_k)`), so that the
+//! damped stage's slow high-pass-and-leak response does not trail every step.
+//! On the linear model of the stage as built (856 Hz, ζ 0.023), five ticks
+//! ahead: the 10 µm, 1.5 ms step overshoots by 0.04 µm and settles within
+//! ±0.1 µm in 1.4 ms, the 100 Hz triangle is tracked within 0.04 µm RMS,
+//! against 1.7 µm, 4.6 ms and 0.42 µm with the two sections and no preview.
+//! Through the board, whose stage is nonlinear (its hysteresis and creep
+//! differ from the model's), the feedback is left more to do: see the README.
 //!
 //! [`design_time`] fits in the time domain: the position is linear in `N`, so
 //! the closed loop (damping, PI and plant, the PI acting on the reference too)
@@ -138,6 +152,11 @@ pub struct TimeOptions {
     /// Weight of the coefficients' size (keeps a reference's corner from being
     /// amplified into a saturating drive), relative to the data.
     pub ridge: f64,
+    /// Ticks the shaping runs ahead of the tracked reference (1–7,
+    /// `piezo_fpi::preview`: it is then taps on the delay line, and with damping
+    /// the damping leaves the shaped reference's own force out); 0: sections
+    /// on the tracked reference.
+    pub preview: u8,
 }
 
 impl Default for TimeOptions {
@@ -148,9 +167,151 @@ impl Default for TimeOptions {
             sections: 2,
             step_ticks: 30,
             triangle_hz: 100.0,
-            ridge: 1e-4,
+            ridge: 1e-6,
+            preview: 5,
         }
     }
+}
+
+/// A designed feedforward.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Feedforward {
+    /// Sections on the tracked reference (`[b0, b1, b2, a1, a2]` each).
+    Sections(Vec<[f64; 5]>),
+    /// Taps on the preview's delay line, newest first, `ticks` ahead.
+    Preview {
+        /// Ticks ahead of the tracked reference.
+        ticks: u8,
+        /// The taps (quantised, summing to 1 exactly in `I8F24`).
+        taps: Vec<f64>,
+    },
+}
+
+impl Feedforward {
+    /// What it is, for people.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Sections(s) => format!("{} section(s) inverting the damped stage", s.len()),
+            Self::Preview { ticks, taps } => format!(
+                "{} taps {} ticks ahead inverting the damped stage, the damping leaving the \
+                 shaped reference's force out",
+                taps.len(),
+                ticks
+            ),
+        }
+    }
+}
+
+/// The feedforward for the loops `l` on the plant `p` at `rate_hz` (see the
+/// module docs): taps on the preview's line where `o.preview > 0`, else
+/// sections.
+pub fn design(
+    p: &piezo_fpi::stability::Plant,
+    l: &piezo_fpi::stability::Laws,
+    rate_hz: f64,
+    o: &TimeOptions,
+) -> Result<Feedforward> {
+    if o.preview == 0 {
+        return design_time(p, l, rate_hz, o).map(Feedforward::Sections);
+    }
+    design_preview(p, l, rate_hz, o)
+}
+
+/// The taps on the preview's line (`o.preview` ticks ahead), fitted like
+/// [`design_time`]'s numerators: the position is affine in the taps (the
+/// shaped reference `u = Σ h_j·r_{k+n−j}` and, where the loops damp, the lead
+/// force `κ·(u_{k−1} − r_k)` the damping leaves out), so least squares over
+/// the step and the triangle, with the sum held to 1 exactly (a heavily
+/// weighted row, then the rounding put on the largest tap).
+pub fn design_preview(
+    p: &piezo_fpi::stability::Plant,
+    l: &piezo_fpi::stability::Laws,
+    rate_hz: f64,
+    o: &TimeOptions,
+) -> Result<Feedforward> {
+    use super::simulate::{respond_led, step, triangle};
+    use piezo_fpi::preview::{PREVIEW_MAX, TAPS};
+    if !(1..=PREVIEW_MAX).contains(&o.preview) {
+        bail!("a preview of {} ticks: 1 to {PREVIEW_MAX}", o.preview);
+    }
+    let n = usize::from(o.preview);
+    let kappa = if l.damps() { p.force_gain } else { 0.0 };
+    // Tap j of reference r at tick k: r_{k+n−j}, held at the ends.
+    let tap = |r: &[f64], j: usize| -> Vec<f64> {
+        (0..r.len())
+            .map(|k| r[(k + n).saturating_sub(j).min(r.len() - 1)])
+            .collect()
+    };
+    let lead = |u: &[f64], r: &[f64]| -> Vec<f64> {
+        (0..r.len())
+            .map(|k| kappa * (if k > 0 { u[k - 1] } else { 0.0 } - r[k]))
+            .collect()
+    };
+    let period = (rate_hz / o.triangle_hz).round() as usize;
+    let refs = [
+        step(1.0, o.step_ticks, 2 * TAPS, 8 * o.step_ticks),
+        triangle(1.0, period, 3),
+    ];
+    let mut rows: Vec<Vec<f64>> = Vec::new();
+    let mut rhs: Vec<f64> = Vec::new();
+    for r in &refs {
+        let zeros = vec![0.0; r.len()];
+        let y0 = respond_led(p, l, r, &zeros, &lead(&zeros, r), true);
+        let basis: Vec<Vec<f64>> = (0..TAPS)
+            .map(|j| {
+                let u = tap(r, j);
+                respond_led(p, l, &zeros, &u, &lead(&u, &zeros), true)
+            })
+            .collect();
+        for k in 0..r.len() {
+            rows.push(basis.iter().map(|b| b[k]).collect());
+            rhs.push(r[k] - y0[k]);
+        }
+    }
+    let m = rows.len() + TAPS + 1;
+    let mut a = DMatrix::<f64>::zeros(m, TAPS);
+    let mut b = DVector::<f64>::zeros(m);
+    let scale: f64 = rows.iter().flatten().map(|v| v * v).sum::<f64>() / TAPS as f64;
+    for (i, row) in rows.iter().enumerate() {
+        for (k, v) in row.iter().enumerate() {
+            a[(i, k)] = *v;
+        }
+        b[i] = rhs[i];
+    }
+    let lam = (o.ridge * scale).sqrt();
+    for k in 0..TAPS {
+        a[(rows.len() + k, k)] = lam;
+    }
+    let big = 1e3 * scale.sqrt();
+    for k in 0..TAPS {
+        a[(m - 1, k)] = big;
+    }
+    b[m - 1] = big;
+    let h = a
+        .svd(true, true)
+        .solve(&b, 1e-14)
+        .map_err(|e| anyhow!("the feedforward's least squares failed: {e}"))?;
+    Ok(Feedforward::Preview {
+        ticks: o.preview,
+        taps: quantise_taps(h.as_slice())?,
+    })
+}
+
+/// Taps in `I8F24`, their sum exactly 1 (the rounding on the largest tap).
+pub fn quantise_taps(h: &[f64]) -> Result<Vec<f64>> {
+    use piezo_fpi::biquad::COEFF_FRAC;
+    let one = f64::from(1u32 << COEFF_FRAC);
+    if let Some(t) = h.iter().find(|t| !t.is_finite() || t.abs() >= COEFF_ABS_MAX) {
+        bail!("a feedforward tap of {t:.2} is beyond the board's range ±{COEFF_ABS_MAX:.0}");
+    }
+    let mut raw: Vec<i64> = h.iter().map(|t| (t * one).round() as i64).collect();
+    let (big, _) = raw
+        .iter()
+        .enumerate()
+        .max_by_key(|(_, v)| v.abs())
+        .ok_or_else(|| anyhow!("a feedforward without taps"))?;
+    raw[big] += (1i64 << COEFF_FRAC) - raw.iter().sum::<i64>();
+    Ok(raw.iter().map(|v| *v as f64 / one).collect())
 }
 
 /// The feedforward sections for the loops `l` on the plant `p` at `rate_hz`,
@@ -161,10 +322,13 @@ pub fn design_time(
     rate_hz: f64,
     o: &TimeOptions,
 ) -> Result<Vec<[f64; 5]>> {
-    use super::simulate::{filter, respond, step, triangle};
+    use super::simulate::{filter, respond_led, step, triangle};
     if !(1..=2).contains(&o.sections) {
         bail!("a feedforward of {} sections: 1 or 2", o.sections);
     }
+    // Sections run on the tracked reference, without a lead force.
+    let kappa = 0.0;
+    let ahead = |r: &[f64]| r.to_vec();
     let t = 1.0 / rate_hz;
     let w = std::f64::consts::TAU * o.pole_hz;
     let zeta = o.pole_damping;
@@ -185,14 +349,22 @@ pub fn design_time(
     let mut rows: Vec<Vec<f64>> = Vec::new();
     let mut rhs: Vec<f64> = Vec::new();
     for (r, wgt) in &refs {
+        // The response is affine in N: the reference's own share (its lead
+        // force −κ·r) plus each coefficient's (its shaped reference u and
+        // lead force κ·u_{k−1}).
         let zeros = vec![0.0; r.len()];
-        let y0 = respond(p, l, r, &zeros, true);
+        let lead: Vec<f64> = r.iter().map(|v| -kappa * v).collect();
+        let y0 = respond_led(p, l, r, &zeros, &lead, true);
+        let led = ahead(r);
         let basis: Vec<Vec<f64>> = (0..nb)
             .map(|k| {
                 let mut b = vec![0.0; k + 1];
                 b[k] = 1.0;
-                let u = filter(&b, &den, r);
-                respond(p, l, &zeros, &u, true)
+                let u = filter(&b, &den, &led);
+                let lead: Vec<f64> = (0..u.len())
+                    .map(|n| if n > 0 { kappa * u[n - 1] } else { 0.0 })
+                    .collect();
+                respond_led(p, l, &zeros, &u, &lead, true)
             })
             .collect();
         for n in 0..r.len() {

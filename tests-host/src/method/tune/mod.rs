@@ -48,7 +48,7 @@ use piezo_sim::file::{
     DampingSection, DynamicsSection, FeedbackSection, FirmwareModel, ShapingSection,
 };
 
-pub use feedforward::TimeOptions;
+pub use feedforward::{Feedforward, TimeOptions};
 use loops::{Family, Variant};
 
 use super::dynamics::Dynamics;
@@ -129,8 +129,8 @@ pub struct Tuning {
     pub bandwidth_hz: f64,
     /// Gain and phase margins of the position loop at the nominal plant, dB and degrees.
     pub margins: (f64, f64),
-    /// The feedforward's sections (quantised), if designed.
-    pub feedforward: Option<Vec<[f64; 5]>>,
+    /// The feedforward (sections, or taps on the preview's line; quantised), if designed.
+    pub feedforward: Option<Feedforward>,
     /// What the plant was taken to be.
     pub plant: String,
     /// The laws' coefficients per tick as designed (the force channel's split,
@@ -336,7 +336,7 @@ fn design(
     let feedforward = match (&o.feedforward, dynamics) {
         (Some(ff), Some(_)) => {
             let p = piezo_fpi::stability::Plant::new(&spec, rate, 1.0, None, 1.0);
-            Some(feedforward::design_time(&p, &laws, rate as f64, ff)?)
+            Some(feedforward::design(&p, &laws, rate as f64, ff)?)
         }
         _ => None,
     };
@@ -560,10 +560,7 @@ impl Tuning {
             self.margins.1
         );
         if let Some(ff) = &self.feedforward {
-            s += &format!(
-                "\nfeedforward: {} section(s) inverting the damped stage",
-                ff.len()
-            );
+            s += &format!("\nfeedforward: {}", ff.describe());
         }
         s
     }
@@ -626,12 +623,18 @@ pub fn with_tuning(fw: &FirmwareModel, t: &Tuning, o: &TuneOptions) -> Result<Fi
         notes: format!("fpi tune: {summary}"),
     });
     if let Some(ff) = &t.feedforward {
+        let (sections, preview_ticks, taps) = match ff {
+            Feedforward::Sections(s) => (s.clone(), 0, Vec::new()),
+            Feedforward::Preview { ticks, taps } => (Vec::new(), *ticks, taps.clone()),
+        };
         out.shaping = Some(ShapingSection {
-            sections: ff.clone(),
+            sections,
+            preview_ticks,
+            taps,
             notes: format!(
-                "fpi tune: the feedforward of the damped stage ({} section(s), least squares \
-                 over the tracking band)",
-                ff.len()
+                "fpi tune: the feedforward of the damped stage ({}, least squares on a step \
+                 and a triangle)",
+                ff.describe()
             ),
         });
     }

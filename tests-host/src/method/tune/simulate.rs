@@ -30,14 +30,16 @@ impl<'a> Loops<'a> {
     }
 
     /// One tick: the position read this tick, then the command `u_ff + PI(r − x)
-    /// − damping` drives the plant to the next. `pi_on`: whether the PI runs.
-    pub fn tick(&mut self, r: f64, u_ff: f64, pi_on: bool) -> f64 {
+    /// − damping` drives the plant to the next; the damping leaves `lead` (N)
+    /// out of the dynamic force it damps (the shaped reference's own force,
+    /// see `fpi_firmware::closed_loop`). `pi_on`: whether the PI runs.
+    pub fn tick(&mut self, r: f64, u_ff: f64, lead: f64, pi_on: bool) -> f64 {
         let (p, l) = (self.p, &self.l);
         let x = self.y[1];
         let force = p.force_gain * (self.y[0] - self.y[1]);
         let rd = if l.split > 0.0 {
             self.rs += l.split * (force - self.rs);
-            force - self.rs
+            force - self.rs - lead
         } else {
             0.0
         };
@@ -66,10 +68,24 @@ impl<'a> Loops<'a> {
 /// The positions the loops give for the reference `r` with the feedforward
 /// input `u_ff` (same length), read each tick.
 pub fn respond(p: &Plant, l: &Laws, r: &[f64], u_ff: &[f64], pi_on: bool) -> Vec<f64> {
+    respond_led(p, l, r, u_ff, &vec![0.0; r.len()], pi_on)
+}
+
+/// [`respond`] with the force `lead` (N, same length) left out of the damping's
+/// input each tick.
+pub fn respond_led(
+    p: &Plant,
+    l: &Laws,
+    r: &[f64],
+    u_ff: &[f64],
+    lead: &[f64],
+    pi_on: bool,
+) -> Vec<f64> {
     let mut s = Loops::new(p, l);
     r.iter()
         .zip(u_ff)
-        .map(|(&ri, &ui)| s.tick(ri, ui, pi_on))
+        .zip(lead)
+        .map(|((&ri, &ui), &fi)| s.tick(ri, ui, fi, pi_on))
         .collect()
 }
 
