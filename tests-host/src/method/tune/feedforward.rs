@@ -268,40 +268,50 @@ pub fn design_preview(
             rhs.push(r[k] - y0[k]);
         }
     }
-    let m = rows.len() + TAPS + 1;
-    let mut a = DMatrix::<f64>::zeros(m, TAPS);
+    let h = fit_with_sum(&rows, &rhs, o.ridge, 1.0)?;
+    Ok(Feedforward::Preview {
+        ticks: o.preview,
+        taps: quantise_taps(&h)?,
+    })
+}
+
+/// The least-squares solution `c` of `rows·c ≈ rhs` with a ridge of `ridge`
+/// (relative to the data) on each coefficient and `Σ c = sum` held (a row
+/// weighted a thousandfold).
+fn fit_with_sum(rows: &[Vec<f64>], rhs: &[f64], ridge: f64, sum: f64) -> Result<Vec<f64>> {
+    let nb = rows.first().map_or(0, Vec::len);
+    let m = rows.len() + nb + 1;
+    let mut a = DMatrix::<f64>::zeros(m, nb);
     let mut b = DVector::<f64>::zeros(m);
-    let scale: f64 = rows.iter().flatten().map(|v| v * v).sum::<f64>() / TAPS as f64;
-    for (i, row) in rows.iter().enumerate() {
+    let scale: f64 = rows.iter().flatten().map(|v| v * v).sum::<f64>() / nb as f64;
+    for (i, (row, y)) in rows.iter().zip(rhs).enumerate() {
         for (k, v) in row.iter().enumerate() {
             a[(i, k)] = *v;
         }
-        b[i] = rhs[i];
+        b[i] = *y;
     }
-    let lam = (o.ridge * scale).sqrt();
-    for k in 0..TAPS {
-        a[(rows.len() + k, k)] = lam;
-    }
+    let lam = (ridge * scale).sqrt();
     let big = 1e3 * scale.sqrt();
-    for k in 0..TAPS {
+    for k in 0..nb {
+        a[(rows.len() + k, k)] = lam;
         a[(m - 1, k)] = big;
     }
-    b[m - 1] = big;
-    let h = a
+    b[m - 1] = big * sum;
+    let c = a
         .svd(true, true)
         .solve(&b, 1e-14)
         .map_err(|e| anyhow!("the feedforward's least squares failed: {e}"))?;
-    Ok(Feedforward::Preview {
-        ticks: o.preview,
-        taps: quantise_taps(h.as_slice())?,
-    })
+    Ok(c.iter().copied().collect())
 }
 
 /// Taps in `I8F24`, their sum exactly 1 (the rounding on the largest tap).
 pub fn quantise_taps(h: &[f64]) -> Result<Vec<f64>> {
     use piezo_fpi::biquad::COEFF_FRAC;
     let one = f64::from(1u32 << COEFF_FRAC);
-    if let Some(t) = h.iter().find(|t| !t.is_finite() || t.abs() >= COEFF_ABS_MAX) {
+    if let Some(t) = h
+        .iter()
+        .find(|t| !t.is_finite() || t.abs() >= COEFF_ABS_MAX)
+    {
         bail!("a feedforward tap of {t:.2} is beyond the board's range ±{COEFF_ABS_MAX:.0}");
     }
     let mut raw: Vec<i64> = h.iter().map(|t| (t * one).round() as i64).collect();
@@ -322,13 +332,10 @@ pub fn design_time(
     rate_hz: f64,
     o: &TimeOptions,
 ) -> Result<Vec<[f64; 5]>> {
-    use super::simulate::{filter, respond_led, step, triangle};
+    use super::simulate::{filter, respond, step, triangle};
     if !(1..=2).contains(&o.sections) {
         bail!("a feedforward of {} sections: 1 or 2", o.sections);
     }
-    // Sections run on the tracked reference, without a lead force.
-    let kappa = 0.0;
-    let ahead = |r: &[f64]| r.to_vec();
     let t = 1.0 / rate_hz;
     let w = std::f64::consts::TAU * o.pole_hz;
     let zeta = o.pole_damping;
@@ -349,22 +356,14 @@ pub fn design_time(
     let mut rows: Vec<Vec<f64>> = Vec::new();
     let mut rhs: Vec<f64> = Vec::new();
     for (r, wgt) in &refs {
-        // The response is affine in N: the reference's own share (its lead
-        // force −κ·r) plus each coefficient's (its shaped reference u and
-        // lead force κ·u_{k−1}).
         let zeros = vec![0.0; r.len()];
-        let lead: Vec<f64> = r.iter().map(|v| -kappa * v).collect();
-        let y0 = respond_led(p, l, r, &zeros, &lead, true);
-        let led = ahead(r);
+        let y0 = respond(p, l, r, &zeros, true);
         let basis: Vec<Vec<f64>> = (0..nb)
             .map(|k| {
                 let mut b = vec![0.0; k + 1];
                 b[k] = 1.0;
-                let u = filter(&b, &den, &led);
-                let lead: Vec<f64> = (0..u.len())
-                    .map(|n| if n > 0 { kappa * u[n - 1] } else { 0.0 })
-                    .collect();
-                respond_led(p, l, &zeros, &u, &lead, true)
+                let u = filter(&b, &den, r);
+                respond(p, l, &zeros, &u, true)
             })
             .collect();
         for n in 0..r.len() {
@@ -372,31 +371,8 @@ pub fn design_time(
             rhs.push((r[n] - y0[n]) * wgt);
         }
     }
-    let m = rows.len() + nb + 1;
-    let mut a = DMatrix::<f64>::zeros(m, nb);
-    let mut b = DVector::<f64>::zeros(m);
-    let scale: f64 = rows.iter().flatten().map(|v| v * v).sum::<f64>() / nb as f64;
-    for (i, row) in rows.iter().enumerate() {
-        for (k, v) in row.iter().enumerate() {
-            a[(i, k)] = *v;
-        }
-        b[i] = rhs[i];
-    }
-    let lam = (o.ridge * scale).sqrt();
-    for k in 0..nb {
-        a[(rows.len() + k, k)] = lam;
-    }
     // N(1) = D(1): unit static gain.
-    let big = 1e3 * scale.sqrt();
-    for k in 0..nb {
-        a[(m - 1, k)] = big;
-    }
-    b[m - 1] = big * den.iter().sum::<f64>();
-    let n = a
-        .svd(true, true)
-        .solve(&b, 1e-14)
-        .map_err(|e| anyhow!("the feedforward's least squares failed: {e}"))?;
-    let num: Vec<f64> = n.iter().copied().collect();
+    let num = fit_with_sum(&rows, &rhs, o.ridge, den.iter().sum::<f64>())?;
     let sections = if o.sections == 1 {
         vec![[num[0], num[1], num[2], d1[1], d1[2]]]
     } else {
