@@ -19,8 +19,11 @@ pub fn qemu_available() -> bool {
 /// The emulated board (`fpi board emulate`): builds the firmware for the
 /// emulated STM32F405 with cargo (in the source tree this package was built
 /// from) and runs it on QEMU, its link on `listen` (`HOST:PORT`; a free
-/// loopback port if None). `port` is what `Board` opens. Use it as a context
-/// manager, or call `close()` (which stops QEMU).
+/// loopback port if None), paced as `link` (`"usb"` or `"uart"`), converting
+/// with the analog front end `frontend` (`"internal"`: the STM32's 12-bit
+/// converters; `"precision"`: AD7606 and AD5791, as `--frontend`). `port` is
+/// what `Board` opens. Use it as a context manager, or call `close()` (which
+/// stops QEMU).
 #[pyclass(module = "piezo_fpi")]
 pub struct Emulator {
     qemu: Mutex<Option<Qemu>>,
@@ -30,17 +33,23 @@ pub struct Emulator {
 #[pymethods]
 impl Emulator {
     #[new]
-    #[pyo3(signature = (listen = None, link = "usb"))]
-    fn new(py: Python<'_>, listen: Option<String>, link: &str) -> PyResult<Self> {
+    #[pyo3(signature = (listen = None, link = "usb", frontend = "internal"))]
+    fn new(py: Python<'_>, listen: Option<String>, link: &str, frontend: &str) -> PyResult<Self> {
         let Some(link) = fpi_host::board::client::link_kind(link) else {
             return Err(pyo3::exceptions::PyValueError::new_err(format!(
                 "link={link:?}: \"usb\" or \"uart\""
+            )));
+        };
+        let Some(front) = fpi_protocol::FrontEndKind::from_name(frontend) else {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "frontend={frontend:?}: \"internal\" or \"precision\""
             )));
         };
         let q = py
             .detach(|| {
                 let q = Qemu::start(listen.as_deref())?;
                 q.pace_as(link)?;
+                q.front_end(front)?;
                 Ok::<_, anyhow::Error>(q)
             })
             .map_err(|e| to_py(py, e, Otherwise::Link))?;

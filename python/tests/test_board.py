@@ -242,6 +242,20 @@ def test_the_emulated_board_lost_is_a_link_error():
     b.close()
 
 
+def test_the_emulator_takes_a_front_end():
+    with pytest.raises(ValueError, match="internal.*precision"):
+        pf.Emulator(frontend="sigma-delta")
+    if not pf.qemu_available():
+        pytest.skip("qemu-system-arm is not installed")
+    with pf.Emulator(frontend="precision") as e:
+        with pf.Board(e.port) as b:
+            s = b.status()
+            assert s["state"] == "parked"
+            # The precision front end's 16-bit force channel: the rest preload
+            # read to finer than the internal 12-bit channel's 0.125 N steps.
+            assert abs(s["force_N"] / 0.125 - round(s["force_N"] / 0.125)) > 1e-6
+
+
 def test_long_calls_release_the_gil():
     """Another Python thread runs while `record` waits on the board."""
     with pf.Board("virtual") as b:
