@@ -64,8 +64,8 @@ use crate::q::{SIGNAL_ABS_MAX, SIGNAL_ABS_MAX_BITS};
 /// A biquad coefficient, dimensionless, `I8F24`: range ±128, resolution 2⁻²⁴.
 pub type Coefficient = I8F24;
 
-/// Fractional bits of a [`Coefficient`].
-pub const COEFF_FRAC: u32 = 24;
+/// Fractional bits of a [`Coefficient`] (the core's `I8F24` gains' format).
+pub use crate::q::COEFF_FRAC;
 
 /// Largest coefficient magnitude [`Biquad::from_f64`] accepts (`I8F24` holds
 /// `[-128, 128 - 2⁻²⁴]`).

@@ -24,9 +24,8 @@
 //! The output is rounded to nearest (±½ LSB, 15 pm); there is no recursion,
 //! so no error accumulates. The delay `n` is `1..=PREVIEW_MAX` ticks.
 
-use crate::biquad::COEFF_FRAC;
 use crate::error::{Field, Invalid, ModelError};
-use crate::q::{Micrometres, SIGNAL_ABS_MAX_BITS};
+use crate::q::{Micrometres, COEFF_FRAC, SIGNAL_ABS_MAX_BITS};
 
 /// Taps of the feedforward on the line (its length).
 pub const TAPS: usize = 8;

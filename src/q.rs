@@ -68,6 +68,11 @@ const _: () = {
 /// Raw bits of [`SIGNAL_ABS_MAX`] in a signal (`I16F16`).
 pub(crate) const SIGNAL_ABS_MAX_BITS: i32 = (SIGNAL_ABS_MAX as i32) << SIGNAL_FRAC;
 
+/// Fractional bits of the dimensionless `I8F24` coefficients: the biquad
+/// sections' (`crate::biquad::Coefficient`) and the feedforward's taps
+/// (`crate::preview`); range ±128, resolution 2⁻²⁴.
+pub const COEFF_FRAC: u32 = 24;
+
 /// Rounds a gain × signal accumulator to the nearest signal LSB (ties toward +∞).
 ///
 /// Callers guarantee `|acc| < SIGNAL_ABS_MAX`, which the model constructors check.

@@ -74,6 +74,10 @@ pub const FRONT_END: FrontEnd = if cfg!(feature = "precision") {
     FrontEnd::Internal
 };
 
+/// The control rate, Hz: one control tick every 50 µs (a model's `rate_hz`
+/// must be this).
+pub const RATE_HZ: u32 = 20_000;
+
 /// The high-voltage amplifier, as far as a model may use it (a model may narrow
 /// these limits, never widen them): 0–150 V, at most 100 V/ms (5 V per control
 /// step: the amplifier's current limit into the stack's capacitance); the safe
@@ -183,7 +187,7 @@ pub mod precision {
     /// averaging, the ISR's read done within 44 µs of its start. The sample is
     /// 6 µs old when the tick starts.
     pub const TIMING: TickTiming = TickTiming {
-        period_ns: 1_000_000_000 / crate::hardware::RATE_HZ,
+        period_ns: 1_000_000_000 / RATE_HZ,
         convst_ns: 44_000,
         conversion_max_ns: ADC.oversampling.conversion_max_ns(),
         read_done_ns: 44_000,

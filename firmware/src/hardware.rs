@@ -28,8 +28,7 @@ pub const STREAM_POINTS: usize = 1024;
 /// at 20 kHz; a 40 µm stroke in 40 ms).
 pub const APPROACH_STEP: Micrometres = Micrometres::from_bits(3277);
 
-/// The control rate, Hz.
-pub const RATE_HZ: u32 = 20_000;
+pub use crate::board_def::RATE_HZ;
 
 /// The board: its rate and hardware limits.
 pub const BOARD: Board = Board {
