@@ -5,8 +5,9 @@
 //! cannot be inverted causally: a feedforward that only knows the reference up
 //! to now lags it. Where the reference is generated on the board (waves, steps,
 //! moves, streams), its next ticks are known; the loops then track the reference
-//! `n` ticks late while the reference shaping (`crate::biquad`) runs on the
-//! newest value, `n` ticks ahead of what is tracked. The cost is `n` ticks of
+//! `n` ticks late while the feedforward ([`Fir`], taps on this line in place of
+//! the biquad sections of `crate::biquad`) reaches the newest value, `n` ticks
+//! ahead of what is tracked. The cost is `n` ticks of
 //! latency between a command and the stage's motion (50 µs a tick at 20 kHz),
 //! the same for every reference source, so that switching sources never jumps.
 //!
