@@ -194,13 +194,16 @@ class Board:
         out: Path,
         fem: Optional[Path] = None,
         *,
+        trials: int = 2,
         store: bool = False,
         rate: int = 20000,
         u_max: float = 150.0,
         slew: float = 100.0,
         stroke_voltage: Optional[float] = None,
     ) -> str:
-        """``fpi board autotune`` with its defaults; writes the tuned model to ``out``; its table."""
+        """``fpi board autotune`` with its defaults (``trials``: ``--trials``, the
+        feedforward's refinement through the board); writes the tuned model to
+        ``out``; its table."""
     def close(self) -> None: ...
     def __enter__(self) -> "Board": ...
     def __exit__(self, *exc: object) -> bool: ...

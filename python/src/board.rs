@@ -566,11 +566,12 @@ impl Board {
     /// Tunes the loops of the model the board runs through the board (`fpi
     /// board autotune`, with its default design and sweep): measures the
     /// response, fits the stage's dynamics, designs damping, PI and
-    /// feedforward, loads the tuned model (also into flash with `store`) and
-    /// verifies it with a step. `model` (and `fem` for a calibrated one) is the
+    /// feedforward, refines the feedforward on `trials` trials through the
+    /// board (0: as designed), loads the tuned model (also into flash with
+    /// `store`) and verifies it with a step. `model` (and `fem` for a calibrated one) is the
     /// model the board runs, as `load` took it; the tuned firmware model is
     /// written to `out`. Returns the table `fpi board autotune` prints.
-    #[pyo3(signature = (model, out, fem = None, *, store = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None))]
+    #[pyo3(signature = (model, out, fem = None, *, trials = fpi_host::board::autotune::TRIALS, store = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None))]
     #[allow(clippy::too_many_arguments)]
     fn autotune(
         &self,
@@ -578,6 +579,7 @@ impl Board {
         model: PathBuf,
         out: PathBuf,
         fem: Option<PathBuf>,
+        trials: u32,
         store: bool,
         rate: u32,
         u_max: f64,
@@ -594,7 +596,10 @@ impl Board {
                 c,
                 &fw,
                 &Default::default(),
-                &FrfSettings::default(),
+                &autotune::Settings {
+                    trials,
+                    ..Default::default()
+                },
                 store,
                 |_| {},
             )

@@ -65,7 +65,7 @@ fn tuned() -> &'static Autotune {
             &mut c,
             &fw,
             &TuneOptions::default(),
-            &FrfSettings::default(),
+            &autotune::Settings::default(),
             false,
             |m| println!("{m}"),
         )

@@ -14,7 +14,6 @@ use std::path::Path;
 use fpi_host::board::autotune;
 use fpi_host::board::client::Client;
 use fpi_host::board::closed_loop;
-use fpi_host::board::frf::FrfSettings;
 use fpi_host::method::tune::TuneOptions;
 use fpi_protocol::{BenchOrder, FrontEndKind, StageVariant};
 use piezo_sim::file::FirmwareModel;
@@ -32,7 +31,7 @@ fn the_front_ends_hold_noise_and_tracking_error_on_the_stage_as_built() {
         &mut c,
         &fw,
         &TuneOptions::default(),
-        &FrfSettings::default(),
+        &autotune::Settings::default(),
         false,
         |_| {},
     )

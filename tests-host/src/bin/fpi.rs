@@ -471,6 +471,11 @@ enum BoardCommand {
         loops: TuneArgs,
         #[command(flatten)]
         sweep: FrfArgs,
+        /// Trials through the board the feedforward's taps are refined on (each:
+        /// the step and the 100 Hz triangle, recorded at every tick); 0: the taps
+        /// as designed on the fitted plant.
+        #[arg(long, default_value_t = fpi_host::board::autotune::TRIALS)]
+        trials: u32,
         /// Also keep the tuned model in the board's flash.
         #[arg(long)]
         store: bool,
@@ -908,6 +913,7 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             settings,
             loops,
             sweep,
+            trials,
             store,
             frf_out,
             out,
@@ -916,7 +922,10 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
                 model: (&model, fem.as_deref()),
                 export: settings.options(),
                 tune: loops.options(),
-                sweep: sweep.settings(),
+                settings: fpi_host::board::autotune::Settings {
+                    sweep: sweep.settings(),
+                    trials,
+                },
                 store,
                 out: (&out, frf_out.as_deref()),
             };

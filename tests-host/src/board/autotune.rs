@@ -11,7 +11,12 @@
 //! 4. The loops are designed on it ([`crate::method::tune`]: damping for the
 //!    mode's family ±20 % with ζ 0.01–0.06, the PI for a sensitivity peak, the
 //!    feedforward), written into the model and loaded.
-//! 5. After a warm-up (slow sines: the force channel learns the stage's preload
+//! 5. The feedforward's taps are refined on trials through the board
+//!    ([`super::trial`], [`crate::method::tune::trials`]): each round closes
+//!    the loops, warms up, runs the step and the triangle at every tick and
+//!    updates the taps from the error the position sensor measured; the taps
+//!    of the round with the least error are kept.
+//! 6. After a warm-up (slow sines: the force channel learns the stage's preload
 //!    map), a 10 → 20 µm step verifies it; a table says what was achieved.
 
 use std::path::Path;
@@ -26,11 +31,53 @@ use super::client::{refusal, Client};
 use super::follow::Follow;
 use super::frf::{self, FrfSettings};
 use super::step::{self, StepFigures, StepSettings};
+use super::trial;
+use crate::method::tune::feedforward::Feedforward;
 use crate::method::tune::frf::{self as fit, FrfFit, FrfPoint};
+use crate::method::tune::trials;
 use crate::method::tune::{self, TuneOptions, Tuning};
 
 /// Slow sines before the verification: 5 Hz over most of the stroke, this many.
 pub const WARM_UP_CYCLES: u32 = 10;
+
+/// Trials the feedforward's taps are refined on, by default.
+pub const TRIALS: u32 = 2;
+
+/// How autotune measures (configuration).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    /// The frequency-response sweep.
+    pub sweep: FrfSettings,
+    /// Trials through the board the feedforward's taps are refined on (0: the
+    /// taps as designed on the fitted plant).
+    pub trials: u32,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Self {
+            sweep: FrfSettings::default(),
+            trials: TRIALS,
+        }
+    }
+}
+
+/// One round of the feedforward's refinement: the RMS tracking errors the
+/// position sensor measured with that round's taps, µm.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Round {
+    /// On the 10 → 20 µm step (30 ms from its start).
+    pub step_um: f64,
+    /// On the 100 Hz triangle (three periods).
+    pub triangle_um: f64,
+}
+
+impl Round {
+    /// What the rounds are ranked by: the two errors' sum, µm.
+    pub fn score(&self) -> f64 {
+        self.step_um + self.triangle_um
+    }
+}
 
 /// What autotune did.
 #[derive(Debug, Clone)]
@@ -43,6 +90,11 @@ pub struct Autotune {
     pub tuning: Tuning,
     /// The tuned model (loaded on the board).
     pub model: FirmwareModel,
+    /// The feedforward's refinement: round 0 with the taps as designed, round
+    /// `k` after `k` trials (empty: not refined).
+    pub rounds: Vec<Round>,
+    /// The round whose taps the model holds.
+    pub kept: usize,
     /// The verification step, 10 → 20 µm.
     pub step: StepFigures,
 }
@@ -70,7 +122,7 @@ pub fn run(
     c: &mut Client,
     fw: &FirmwareModel,
     o: &TuneOptions,
-    settings: &FrfSettings,
+    settings: &Settings,
     store: bool,
     mut progress: impl FnMut(&str),
 ) -> Result<Autotune> {
@@ -92,7 +144,7 @@ pub fn run(
     let split_rate = tune::split_rate_f64(split, rate);
     bare(c)?;
     progress("measuring the frequency response through the board");
-    let points = frf::measure(c, settings, |k, p| {
+    let points = frf::measure(c, &settings.sweep, |k, p| {
         progress(&format!(
             "  {:>2}: {:7.1} Hz  |x/u| {:.3}",
             k + 1,
@@ -102,34 +154,131 @@ pub fn run(
     })?;
     let fitted = fit::fit(&points, rate, split_rate)?;
     progress(&fit::describe(&fitted));
-    let t = tune::tune_measured(fw, fitted.spec, o)?;
-    let tuned = tune::with_tuning(fw, &t, o)?;
-    let tuned_image = tuned.image().map_err(anyhow::Error::msg)?;
+    let mut t = tune::tune_measured(fw, fitted.spec, o)?;
     progress("loading the tuned model");
-    c.park()?;
-    c.upload(&tuned_image, store, |_| {})
-        .context("loading the tuned model")?;
+    let mut tuned = load(c, fw, &t, o, false)?;
+    let (mut rounds, mut kept) = (Vec::new(), 0);
+    if let Some(Feedforward::Preview { ticks, taps, .. }) = t.feedforward.clone() {
+        if settings.trials > 0 {
+            let (r, k, best) = refine(c, fw, &t, o, (ticks, taps), settings.trials, &mut progress)?;
+            (rounds, kept) = (r, k);
+            t.feedforward = Some(Feedforward::Preview {
+                ticks,
+                taps: best,
+                trials: kept as u32,
+            });
+            tuned = tune::with_tuning(fw, &t, o)?;
+            if kept + 1 != rounds.len() {
+                load(c, fw, &t, o, false)?;
+            }
+        }
+    }
+    if store {
+        load(c, fw, &t, o, true)?;
+    }
     let step = verify(c)?;
     Ok(Autotune {
         frf: points,
         fit: fitted,
         tuning: t,
         model: tuned,
+        rounds,
+        kept,
         step,
     })
 }
 
+/// Loads `fw` with the tuning `t` onto the parked board (`store`: also into
+/// flash); the model loaded.
+fn load(
+    c: &mut Client,
+    fw: &FirmwareModel,
+    t: &Tuning,
+    o: &TuneOptions,
+    store: bool,
+) -> Result<FirmwareModel> {
+    let model = tune::with_tuning(fw, t, o)?;
+    let image = model.image().map_err(anyhow::Error::msg)?;
+    c.park()?;
+    c.upload(&image, store, |_| {})
+        .context("loading the tuned model")?;
+    Ok(model)
+}
+
+/// Refines the taps `(ticks, taps)` of the tuning `t`, which the board runs, on
+/// `trials` trials (see the module docs): the rounds' errors, the round with
+/// the least, and its taps (the board is left parked, running the last round's).
+fn refine(
+    c: &mut Client,
+    fw: &FirmwareModel,
+    t: &Tuning,
+    o: &TuneOptions,
+    (ticks, taps): (u8, Vec<f64>),
+    trials: u32,
+    progress: &mut impl FnMut(&str),
+) -> Result<(Vec<Round>, usize, Vec<f64>)> {
+    let spec = t
+        .dynamics
+        .ok_or_else(|| anyhow::anyhow!("taps designed without the stage's dynamics"))?;
+    let plant = piezo_fpi::stability::Plant::new(&spec, fw.controller.rate_hz, 1.0, None, 1.0);
+    let ridge = o.feedforward.map_or(0.0, |f| f.ridge);
+    let mut candidates = vec![taps];
+    let mut rounds = Vec::new();
+    for k in 0..=trials as usize {
+        if k > 0 {
+            let mut next = t.clone();
+            next.feedforward = Some(Feedforward::Preview {
+                ticks,
+                taps: candidates[k].clone(),
+                trials: k as u32,
+            });
+            load(c, fw, &next, o, false)?;
+        }
+        close_and_warm_up(c)?;
+        let run = trial::run(c).with_context(|| format!("the feedforward's trial {k}"))?;
+        let round = Round {
+            step_um: run[0].rms_error(),
+            triangle_um: run[1].rms_error(),
+        };
+        progress(&format!(
+            "  trial {k}: RMS error {:.3} µm on the step, {:.3} µm on the triangle",
+            round.step_um, round.triangle_um
+        ));
+        rounds.push(round);
+        if k == trials as usize {
+            break;
+        }
+        match trials::refine(&plant, &t.laws, ticks, &candidates[k], &run, ridge) {
+            Ok(h) => candidates.push(h),
+            Err(e) => {
+                progress(&format!("  the refinement stops: {e:#}"));
+                break;
+            }
+        }
+    }
+    c.park()?;
+    let kept = (0..rounds.len())
+        .min_by(|&a, &b| rounds[a].score().total_cmp(&rounds[b].score()))
+        .unwrap_or(0);
+    Ok((rounds, kept, candidates.swap_remove(kept)))
+}
+
 /// Closes the loop, warms up and steps 10 → 20 µm; the step's figures.
 pub fn verify(c: &mut Client) -> Result<StepFigures> {
+    close_and_warm_up(c)?;
+    let (_, fig) = step::run(c, &StepSettings::default())?;
+    Ok(fig)
+}
+
+/// Moves to mid-stroke, closes the loop and warms up.
+fn close_and_warm_up(c: &mut Client) -> Result<()> {
     c.move_to(20.0, 1000.0)?;
     Follow::new(c, 0).until_hold()?;
     c.ack(&Command::Loop {
         axis: 0,
         mode: LoopMode::Closed,
     })?;
-    warm_up(c)?;
-    let (_, fig) = step::run(c, &StepSettings::default())?;
-    Ok(fig)
+    warm_up(c)
 }
 
 /// [`WARM_UP_CYCLES`] slow sines, 5–35 µm at 5 Hz: the force channel learns
@@ -183,6 +332,7 @@ pub fn table(a: &Autotune) -> String {
             "sensitivity peak (family)",
             format!("{:.2}", t.sensitivity_peak),
         ),
+        ("feedforward refined through the board", refinement(a)),
         ("step 10 → 20 µm: rise", format!("{:.2} ms", a.step.rise_ms)),
         ("overshoot", format!("{:.3} µm", a.step.overshoot_um)),
         ("settles within ±0.1 µm", ms(a.step.settle_ms)),
@@ -192,6 +342,25 @@ pub fn table(a: &Autotune) -> String {
         s.push_str(&format!("| {k} | {v} |\n"));
     }
     s
+}
+
+/// The refinement's row: the position sensor's RMS errors (step / triangle)
+/// round by round, and the round kept.
+fn refinement(a: &Autotune) -> String {
+    if a.rounds.is_empty() {
+        return "no (taps as designed on the fitted plant)".into();
+    }
+    let rounds: Vec<String> = a
+        .rounds
+        .iter()
+        .map(|r| format!("{:.3} / {:.3}", r.step_um, r.triangle_um))
+        .collect();
+    format!(
+        "RMS error step / triangle (position sensor) {} µm; {} trial(s), round {} kept",
+        rounds.join(" → "),
+        a.rounds.len() - 1,
+        a.kept
+    )
 }
 
 /// Writes the tuned model and the measured response next to it.

@@ -18,6 +18,7 @@ pub mod port;
 pub mod recording;
 pub mod session;
 pub mod step;
+pub mod trial;
 pub mod twin;
 pub mod variant;
 

@@ -607,8 +607,8 @@ pub struct AutotuneArgs<'a> {
     pub export: ExportOptions,
     /// How the loops are designed.
     pub tune: crate::method::tune::TuneOptions,
-    /// The sweep.
-    pub sweep: crate::board::frf::FrfSettings,
+    /// The sweep and the trials.
+    pub settings: crate::board::autotune::Settings,
     /// Also keep the tuned model in flash.
     pub store: bool,
     /// Where the tuned model goes, and the measured response (if wanted).
@@ -620,7 +620,7 @@ pub struct AutotuneArgs<'a> {
 pub fn autotune(c: &mut Client, a: &AutotuneArgs<'_>) -> Result<()> {
     use crate::board::autotune;
     let fw = firmware_model(a.model.0, a.model.1, &a.export)?;
-    let tuned = autotune::run(c, &fw, &a.tune, &a.sweep, a.store, |m| eprintln!("{m}"))?;
+    let tuned = autotune::run(c, &fw, &a.tune, &a.settings, a.store, |m| eprintln!("{m}"))?;
     autotune::write(&tuned, a.out.0, a.out.1)?;
     println!(
         "tuned model written to {} and running on the board",

@@ -51,8 +51,15 @@ pub fn run(out: &Path, exported: &Path, port: &str) -> Result<LoopDemo> {
     c.upload(&fw.image().map_err(anyhow::Error::msg)?, false, |_| {})?;
     c.bench(BenchOrder::Stage(StageVariant::BUILT))?;
     let o = TuneOptions::default();
-    let a = autotune::run(&mut c, &fw, &o, &FrfSettings::default(), false, |_| {})
-        .context("autotune")?;
+    let a = autotune::run(
+        &mut c,
+        &fw,
+        &o,
+        &autotune::Settings::default(),
+        false,
+        |_| {},
+    )
+    .context("autotune")?;
     autotune::write(
         &a,
         &out.join("firmware-stage-a-tuned.toml"),

@@ -20,8 +20,9 @@
 //! ahead: the 10 µm, 1.5 ms step overshoots by 0.04 µm and settles within
 //! ±0.1 µm in 1.4 ms, the 100 Hz triangle is tracked within 0.04 µm RMS,
 //! against 1.7 µm, 4.6 ms and 0.42 µm with the two sections and no preview.
-//! Through the board, whose stage is nonlinear (its hysteresis and creep
-//! differ from the model's), the feedback is left more to do: see the README.
+//! Through the board the stage is not the fitted model, and these taps leave
+//! about ten times the model's error: `fpi board autotune` then refines them on
+//! trials on the stage itself ([`super::trials`]).
 //!
 //! [`design_time`] fits in the time domain: the position is linear in `N`, so
 //! the closed loop (damping, PI and plant, the PI acting on the reference too)
@@ -184,6 +185,9 @@ pub enum Feedforward {
         ticks: u8,
         /// The taps (quantised, summing to 1 exactly in `I8F24`).
         taps: Vec<f64>,
+        /// Trials through the board they were refined on (`super::trials`;
+        /// 0: as designed on the model).
+        trials: u32,
     },
 }
 
@@ -192,12 +196,23 @@ impl Feedforward {
     pub fn describe(&self) -> String {
         match self {
             Self::Sections(s) => format!("{} section(s) inverting the damped stage", s.len()),
-            Self::Preview { ticks, taps } => format!(
-                "{} taps {} ticks ahead inverting the damped stage, the damping leaving the \
-                 shaped reference's force out",
-                taps.len(),
-                ticks
-            ),
+            Self::Preview {
+                ticks,
+                taps,
+                trials,
+            } => {
+                let refined = match trials {
+                    0 => String::new(),
+                    1 => ", refined on a trial through the board".into(),
+                    n => format!(", refined on {n} trials through the board"),
+                };
+                format!(
+                    "{} taps {} ticks ahead inverting the damped stage, the damping leaving \
+                     the shaped reference's force out{refined}",
+                    taps.len(),
+                    ticks
+                )
+            }
         }
     }
 }
@@ -230,23 +245,9 @@ pub fn design_preview(
     o: &TimeOptions,
 ) -> Result<Feedforward> {
     use super::simulate::{respond_led, step, triangle};
-    use piezo_fpi::preview::{PREVIEW_MAX, TAPS};
-    if !(1..=PREVIEW_MAX).contains(&o.preview) {
-        bail!("a preview of {} ticks: 1 to {PREVIEW_MAX}", o.preview);
-    }
+    use piezo_fpi::preview::TAPS;
+    check_preview(o.preview)?;
     let n = usize::from(o.preview);
-    let kappa = if l.damps() { p.force_gain } else { 0.0 };
-    // Tap j of reference r at tick k: r_{k+n−j}, held at the ends.
-    let tap = |r: &[f64], j: usize| -> Vec<f64> {
-        (0..r.len())
-            .map(|k| r[(k + n).saturating_sub(j).min(r.len() - 1)])
-            .collect()
-    };
-    let lead = |u: &[f64], r: &[f64]| -> Vec<f64> {
-        (0..r.len())
-            .map(|k| kappa * (if k > 0 { u[k - 1] } else { 0.0 } - r[k]))
-            .collect()
-    };
     let period = (rate_hz / o.triangle_hz).round() as usize;
     let refs = [
         step(1.0, o.step_ticks, 2 * TAPS, 8 * o.step_ticks),
@@ -256,13 +257,8 @@ pub fn design_preview(
     let mut rhs: Vec<f64> = Vec::new();
     for r in &refs {
         let zeros = vec![0.0; r.len()];
-        let y0 = respond_led(p, l, r, &zeros, &lead(&zeros, r), true);
-        let basis: Vec<Vec<f64>> = (0..TAPS)
-            .map(|j| {
-                let u = tap(r, j);
-                respond_led(p, l, &zeros, &u, &lead(&u, &zeros), true)
-            })
-            .collect();
+        let y0 = respond_led(p, l, r, &zeros, &lead_force(p, l, &zeros, r), true);
+        let basis = tap_responses(p, l, n, r);
         for k in 0..r.len() {
             rows.push(basis.iter().map(|b| b[k]).collect());
             rhs.push(r[k] - y0[k]);
@@ -272,13 +268,62 @@ pub fn design_preview(
     Ok(Feedforward::Preview {
         ticks: o.preview,
         taps: quantise_taps(&h)?,
+        trials: 0,
     })
+}
+
+/// A preview of `ticks` the board has: 1 to `PREVIEW_MAX`.
+pub fn check_preview(ticks: u8) -> Result<()> {
+    use piezo_fpi::preview::PREVIEW_MAX;
+    if !(1..=PREVIEW_MAX).contains(&ticks) {
+        bail!("a preview of {ticks} ticks: 1 to {PREVIEW_MAX}");
+    }
+    Ok(())
+}
+
+/// The force the damping leaves out (N, per tick): `κ·(u_{k−1} − r_k)` for the
+/// shaped reference `u` and the tracked one `r`, where the loops damp; zeros
+/// where they do not.
+fn lead_force(
+    p: &piezo_fpi::stability::Plant,
+    l: &piezo_fpi::stability::Laws,
+    u: &[f64],
+    r: &[f64],
+) -> Vec<f64> {
+    let kappa = if l.damps() { p.force_gain } else { 0.0 };
+    (0..r.len())
+        .map(|k| kappa * (if k > 0 { u[k - 1] } else { 0.0 } - r[k]))
+        .collect()
+}
+
+/// The loops' response (from rest, µm) to each tap of the preview's line alone,
+/// for the reference `r` (µm from its first value, per tick) `n` ticks ahead:
+/// tap `j` feeds `r_{k+n−j}` (held at the ends) forward, with the lead force it
+/// brings. The position is affine in the taps, so these are the columns of
+/// every least squares on them.
+pub fn tap_responses(
+    p: &piezo_fpi::stability::Plant,
+    l: &piezo_fpi::stability::Laws,
+    n: usize,
+    r: &[f64],
+) -> Vec<Vec<f64>> {
+    use super::simulate::respond_led;
+    use piezo_fpi::preview::TAPS;
+    let zeros = vec![0.0; r.len()];
+    (0..TAPS)
+        .map(|j| {
+            let u: Vec<f64> = (0..r.len())
+                .map(|k| r[(k + n).saturating_sub(j).min(r.len() - 1)])
+                .collect();
+            respond_led(p, l, &zeros, &u, &lead_force(p, l, &u, &zeros), true)
+        })
+        .collect()
 }
 
 /// The least-squares solution `c` of `rows·c ≈ rhs` with a ridge of `ridge`
 /// (relative to the data) on each coefficient and `Σ c = sum` held (a row
 /// weighted a thousandfold).
-fn fit_with_sum(rows: &[Vec<f64>], rhs: &[f64], ridge: f64, sum: f64) -> Result<Vec<f64>> {
+pub fn fit_with_sum(rows: &[Vec<f64>], rhs: &[f64], ridge: f64, sum: f64) -> Result<Vec<f64>> {
     let nb = rows.first().map_or(0, Vec::len);
     let m = rows.len() + nb + 1;
     let mut a = DMatrix::<f64>::zeros(m, nb);

@@ -28,7 +28,9 @@
 //!    margin ≥ 36°), and whose crossover stays at or below `--bandwidth-hz` where
 //!    one is asked (a crossover the margin does not allow is refused).
 //! 3. **Feedforward**: the reference shaping that inverts the nominal damped
-//!    closed loop on a step and a 100 Hz triangle ([`feedforward`]).
+//!    closed loop on a step and a 100 Hz triangle ([`feedforward`]); through a
+//!    board, autotune then refines its taps on trials on the stage itself
+//!    ([`trials`]).
 //!
 //! Without dynamics there is no mode to design around: only the PI, with its
 //! crossover held at `--bandwidth-hz` (20 Hz by default), as a plain integrator
@@ -38,6 +40,7 @@ pub mod feedforward;
 pub mod frf;
 pub mod loops;
 pub mod simulate;
+pub mod trials;
 
 use anyhow::{bail, Result};
 use piezo_fpi::control::{split_rate, DEFAULT_SPLIT_HZ};
@@ -625,7 +628,7 @@ pub fn with_tuning(fw: &FirmwareModel, t: &Tuning, o: &TuneOptions) -> Result<Fi
     if let Some(ff) = &t.feedforward {
         let (sections, preview_ticks, taps) = match ff {
             Feedforward::Sections(s) => (s.clone(), 0, Vec::new()),
-            Feedforward::Preview { ticks, taps } => (Vec::new(), *ticks, taps.clone()),
+            Feedforward::Preview { ticks, taps, .. } => (Vec::new(), *ticks, taps.clone()),
         };
         out.shaping = Some(ShapingSection {
             sections,
@@ -649,7 +652,7 @@ mod tests {
 
     /// Stage A as built, as autotune fits it (850 Hz, ζ 0.03, a 1.9 kHz lag,
     /// κ 6.3 N/µm).
-    fn stage_a() -> (FirmwareModel, DynamicsSpec) {
+    pub(super) fn stage_a() -> (FirmwareModel, DynamicsSpec) {
         let path =
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/model/stage-a.toml");
         let text = std::fs::read_to_string(&path).unwrap();
@@ -674,7 +677,7 @@ mod tests {
         let (fw, d) = stage_a();
         let rate = fw.controller.rate_hz;
         let t = tune_measured(&fw, d, &TuneOptions::default()).unwrap();
-        let Some(Feedforward::Preview { ticks, taps }) = &t.feedforward else {
+        let Some(Feedforward::Preview { ticks, taps, .. }) = &t.feedforward else {
             panic!("{:?}", t.feedforward)
         };
         let one = f64::from(1u32 << piezo_fpi::biquad::COEFF_FRAC);
