@@ -7,7 +7,8 @@
 //! * `fpi board step`'s figures;
 //! * `fpi board autotune`: the fitted plant, the loops designed and loaded, the
 //!   verification step; then the four drives compared (open loop, PI,
-//!   damping and PI, damping, PI and feedforward) — the targets are **printed**
+//!   damping and PI, damping, PI and feedforward) and the damped drives'
+//!   tracking bandwidth — the targets are **printed**
 //!   (run with `--nocapture`), generous bounds are asserted;
 //! * robustness: the tuning loaded unchanged onto stage variants (mode
 //!   700–1000 Hz, damping 0.015–0.05, gains a few percent off).
@@ -16,6 +17,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use fpi_host::board::autotune::{self, Autotune};
+use fpi_host::board::bandwidth;
 use fpi_host::board::client::{real, Client};
 use fpi_host::board::closed_loop::{self, Drive};
 use fpi_host::board::emulator::{self, Emulator};
@@ -140,6 +142,22 @@ fn autotune_fits_the_stage_and_its_loops_settle_a_step() {
     // The feedforward runs ahead of the tracked reference.
     let preview = a.model.shaping.as_ref().map(|s| s.preview_ticks);
     assert_eq!(preview, Some(5));
+    // Its taps were refined on the default trials, and the round kept has
+    // less error on the position sensor than the taps as designed (on the
+    // stage as built, about a quarter: the figures are printed).
+    assert_eq!(
+        a.rounds.len(),
+        autotune::TRIALS as usize + 1,
+        "{:?}",
+        a.rounds
+    );
+    assert!(
+        a.rounds[a.kept].score() < 0.7 * a.rounds[0].score(),
+        "{:?}",
+        a.rounds
+    );
+    let notes = &a.model.shaping.as_ref().unwrap().notes;
+    assert!(a.kept == 0 || notes.contains("trial"), "{notes}");
     // The tuned model is a model file any board loads.
     let text = a.model.to_toml().unwrap();
     let back = FirmwareModel::parse(&text, "tuned").unwrap();
@@ -177,6 +195,15 @@ fn damping_and_feedforward_beat_the_pi_alone() {
     assert!(ff.triangle.rms() < pi.triangle.rms());
     let settle = |s: Option<f64>| s.unwrap_or(f64::INFINITY);
     assert!(settle(ff.step.settle_ms) < settle(pi.step.settle_ms));
+    // The tracking bandwidth, measured through the board: ≥ 200 Hz (the
+    // issue's target) for both damped drives, flat at low frequency.
+    for d in [Drive::Damped, Drive::DampedFeedforward] {
+        let resp = &run(d).response;
+        assert_eq!(resp.len(), closed_loop::RESPONSE_SINE.3, "{d:?}");
+        assert!(resp[0].db().abs() < 0.5, "{d:?}: {:?}", resp[0]);
+        let bw = bandwidth::bandwidth_hz(resp).unwrap_or(f64::INFINITY);
+        assert!(bw >= 200.0, "{d:?}: {bw} Hz");
+    }
 }
 
 #[test]

@@ -12,7 +12,9 @@
 //!
 //! Each drive gets a fresh stage and a warm-up (slow sines: the force channel
 //! learns the preload map), then a 15 Hz sine and a 100 Hz triangle over 5–35 µm
-//! and a 10 → 20 µm raised-cosine step ([`super::step`]). Every figure is on
+//! and a 10 → 20 µm raised-cosine step ([`super::step`]); the damped drives
+//! then their tracking bandwidth ([`super::bandwidth`]: ±0.2 µm sines on the
+//! reference, 20 Hz–2 kHz). Every figure is on
 //! the virtual stage's true position from the board's own recording: the sine
 //! after its first period, the triangle over the central 80 % of each ramp
 //! (the reference within 80 % of the half-swing of the mid-point) after two
@@ -27,6 +29,7 @@ use fpi_protocol::{BenchOrder, Command, FrontEndKind, StageVariant};
 use piezo_sim::stats::ErrorStats;
 
 use super::autotune::warm_up;
+use super::bandwidth::{self, Point};
 use super::client::{real, refusal, Client};
 use super::follow::Follow;
 use super::recording::Recording;
@@ -38,6 +41,8 @@ pub const WAVE_UM: (f64, f64) = (20.0, 15.0);
 pub const SINE_HZ: f64 = 15.0;
 /// The triangle's frequency, Hz.
 pub const TRIANGLE_HZ: f64 = 100.0;
+/// The bandwidth's sines: half-swing, µm, and frequencies (log-spaced), Hz.
+pub const RESPONSE_SINE: (f64, f64, f64, usize) = (0.2, 20.0, 2000.0, 16);
 /// The share of each ramp the triangle is scored on.
 pub const RAMP_CENTRE: f64 = 0.8;
 /// What the waves record.
@@ -91,6 +96,9 @@ pub struct DriveRun {
     pub step_trace: Vec<(f64, f64)>,
     /// Two periods of the triangle: time (ms), reference and true position (µm).
     pub triangle_trace: Vec<(f64, f64, f64)>,
+    /// The response from the reference to the true position (the damped
+    /// drives; empty for the others).
+    pub response: Vec<Point>,
 }
 
 /// The comparison.
@@ -207,6 +215,13 @@ pub fn run(c: &mut Client, pi: &[u8], tuned: &[u8]) -> Result<Comparison> {
             .iter()
             .map(|s| ((s.tick - t0) as f64 / rate * 1e3, real(s.x_true)))
             .collect();
+        let response = if matches!(d, Drive::Damped | Drive::DampedFeedforward) {
+            let (a, lo, hi, n) = RESPONSE_SINE;
+            bandwidth::measure(c, &bandwidth::log_spaced(lo, hi, n), a, WAVE_UM.0)
+                .with_context(|| format!("the bandwidth, {}", d.name()))?
+        } else {
+            Vec::new()
+        };
         runs.push(DriveRun {
             drive: d,
             sine,
@@ -214,6 +229,7 @@ pub fn run(c: &mut Client, pi: &[u8], tuned: &[u8]) -> Result<Comparison> {
             step: fig,
             step_trace,
             triangle_trace,
+            response,
         });
     }
     c.park()?;
@@ -226,12 +242,12 @@ pub fn run(c: &mut Client, pi: &[u8], tuned: &[u8]) -> Result<Comparison> {
 pub fn table(r: &Comparison) -> String {
     let span = 2.0 * WAVE_UM.1;
     let mut t = format!(
-        "| drive | {SINE_HZ:.0} Hz sine RMS | {TRIANGLE_HZ:.0} Hz triangle RMS (central {:.0} %) | step rise | overshoot | settles ±0.1 µm |\n|---|---|---|---|---|---|\n",
+        "| drive | {SINE_HZ:.0} Hz sine RMS | {TRIANGLE_HZ:.0} Hz triangle RMS (central {:.0} %) | step rise | overshoot | settles ±0.1 µm | −3 dB bandwidth (peak) |\n|---|---|---|---|---|---|---|\n",
         100.0 * RAMP_CENTRE
     );
     for run in &r.runs {
         t.push_str(&format!(
-            "| {} | {:.3} µm ({:.2} %) | {:.3} µm ({:.2} %) | {:.2} ms | {:.3} µm | {} |\n",
+            "| {} | {:.3} µm ({:.2} %) | {:.3} µm ({:.2} %) | {:.2} ms | {:.3} µm | {} | {} |\n",
             run.drive.name(),
             run.sine.rms(),
             100.0 * run.sine.rms() / span,
@@ -241,10 +257,23 @@ pub fn table(r: &Comparison) -> String {
             run.step.overshoot_um,
             run.step
                 .settle_ms
-                .map_or("> 50 ms".to_string(), |v| format!("{v:.2} ms"))
+                .map_or("> 50 ms".to_string(), |v| format!("{v:.2} ms")),
+            describe_response(&run.response)
         ));
     }
     t
+}
+
+/// A response's bandwidth and peak, for the table.
+fn describe_response(points: &[Point]) -> String {
+    let Some((db, f)) = bandwidth::peak(points) else {
+        return "—".into();
+    };
+    let bw = bandwidth::bandwidth_hz(points).map_or_else(
+        || format!("> {:.0} Hz", points.last().map_or(0.0, |p| p.f_hz)),
+        |b| format!("{b:.0} Hz"),
+    );
+    format!("{bw} ({db:+.1} dB at {f:.0} Hz)")
 }
 
 /// Where the hold noise is measured, µm.
