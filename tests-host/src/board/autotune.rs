@@ -158,19 +158,19 @@ pub fn run(
     progress("loading the tuned model");
     let mut tuned = load(c, fw, &t, o, false)?;
     let (mut rounds, mut kept) = (Vec::new(), 0);
-    if let Some(Feedforward::Preview { ticks, taps, .. }) = t.feedforward.clone() {
-        if settings.trials > 0 {
-            let (r, k, best) = refine(c, fw, &t, o, (ticks, taps), settings.trials, &mut progress)?;
-            (rounds, kept) = (r, k);
-            t.feedforward = Some(Feedforward::Preview {
-                ticks,
-                taps: best,
-                trials: kept as u32,
-            });
-            tuned = tune::with_tuning(fw, &t, o)?;
-            if kept + 1 != rounds.len() {
-                load(c, fw, &t, o, false)?;
-            }
+    if let (Some(Feedforward::Preview { ticks, taps, .. }), 1..) =
+        (t.feedforward.clone(), settings.trials)
+    {
+        let best;
+        (rounds, kept, best) = refine(c, fw, &t, o, (ticks, taps), settings.trials, &mut progress)?;
+        t.feedforward = Some(Feedforward::Preview {
+            ticks,
+            taps: best,
+            trials: kept as u32,
+        });
+        tuned = tune::with_tuning(fw, &t, o)?;
+        if kept + 1 != rounds.len() {
+            load(c, fw, &t, o, false)?;
         }
     }
     if store {
