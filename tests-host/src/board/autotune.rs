@@ -24,21 +24,17 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use fpi_protocol::Command;
 use fpi_protocol::LoopMode;
-use fpi_protocol::Shape;
 use piezo_sim::file::FirmwareModel;
 
 use super::client::{refusal, Client};
-use super::follow::Follow;
 use super::frf::{self, FrfSettings};
 use super::step::{self, StepFigures, StepSettings};
 use super::trial;
+use super::warm::close_and_warm_up;
 use crate::method::tune::feedforward::Feedforward;
 use crate::method::tune::frf::{self as fit, FrfFit, FrfPoint};
 use crate::method::tune::trials;
 use crate::method::tune::{self, TuneOptions, Tuning};
-
-/// Slow sines before the verification: 5 Hz over most of the stroke, this many.
-pub const WARM_UP_CYCLES: u32 = 10;
 
 /// Trials the feedforward's taps are refined on, by default.
 pub const TRIALS: u32 = 2;
@@ -268,29 +264,6 @@ pub fn verify(c: &mut Client) -> Result<StepFigures> {
     close_and_warm_up(c)?;
     let (_, fig) = step::run(c, &StepSettings::default())?;
     Ok(fig)
-}
-
-/// Moves to mid-stroke, closes the loop and warms up.
-fn close_and_warm_up(c: &mut Client) -> Result<()> {
-    c.move_to(20.0, 1000.0)?;
-    Follow::new(c, 0).until_hold()?;
-    c.ack(&Command::Loop {
-        axis: 0,
-        mode: LoopMode::Closed,
-    })?;
-    warm_up(c)
-}
-
-/// [`WARM_UP_CYCLES`] slow sines, 5–35 µm at 5 Hz: the force channel learns
-/// the preload map's offset and scale.
-pub fn warm_up(c: &mut Client) -> Result<()> {
-    c.wave(Shape::Sine, 15.0, 20.0, 5.0, WARM_UP_CYCLES)?;
-    let mut f = Follow::new(c, 0);
-    f.until("the warm-up's end", |s| {
-        step::no_fault(s, "the warm-up")?;
-        Ok(s.source == fpi_protocol::SourceKind::Hold && !s.approaching)
-    })?;
-    Ok(())
 }
 
 /// The table autotune prints (markdown).

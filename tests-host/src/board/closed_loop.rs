@@ -28,12 +28,12 @@ use fpi_protocol::SourceKind;
 use fpi_protocol::{BenchOrder, Command, FrontEndKind, StageVariant};
 use piezo_sim::stats::ErrorStats;
 
-use super::autotune::warm_up;
 use super::bandwidth::{self, Point};
 use super::client::{real, refusal, Client};
 use super::follow::Follow;
 use super::recording::Recording;
 use super::step::{self, no_fault, StepFigures, StepSettings};
+use super::warm::warm_up;
 
 /// The waves' mid-point and half-swing, µm (5–35 µm of the 0–40 µm stroke).
 pub const WAVE_UM: (f64, f64) = (20.0, 15.0);

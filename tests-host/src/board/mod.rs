@@ -22,6 +22,7 @@ pub mod step;
 pub mod trial;
 pub mod twin;
 pub mod variant;
+pub mod warm;
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};

@@ -1,0 +1,36 @@
+//! A board's loops made ready to be scored: closed at mid-stroke and warmed up
+//! by slow sines, over which the force channel learns the stage's preload map
+//! (its offset and scale) — before autotune's trials and verification, and
+//! before each drive of the closed-loop comparison.
+
+use anyhow::Result;
+use fpi_protocol::{Command, LoopMode, Shape, SourceKind};
+
+use super::client::Client;
+use super::follow::Follow;
+use super::step::no_fault;
+
+/// Slow sines of the warm-up: 5 Hz over 5–35 µm, this many.
+pub const WARM_UP_CYCLES: u32 = 10;
+
+/// [`WARM_UP_CYCLES`] slow sines, 5–35 µm at 5 Hz, with the loops as they are.
+pub fn warm_up(c: &mut Client) -> Result<()> {
+    c.wave(Shape::Sine, 15.0, 20.0, 5.0, WARM_UP_CYCLES)?;
+    let mut f = Follow::new(c, 0);
+    f.until("the warm-up's end", |s| {
+        no_fault(s, "the warm-up")?;
+        Ok(s.source == SourceKind::Hold && !s.approaching)
+    })?;
+    Ok(())
+}
+
+/// Moves to mid-stroke (20 µm), closes the loop and warms up.
+pub fn close_and_warm_up(c: &mut Client) -> Result<()> {
+    c.move_to(20.0, 1000.0)?;
+    Follow::new(c, 0).until_hold()?;
+    c.ack(&Command::Loop {
+        axis: 0,
+        mode: LoopMode::Closed,
+    })?;
+    warm_up(c)
+}
