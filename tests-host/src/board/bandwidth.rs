@@ -13,13 +13,11 @@
 //! source): a pure delay, which leaves the magnitude alone.
 
 use anyhow::{bail, Result};
-use fpi_protocol::{Command, Shape, SourceKind};
+use fpi_protocol::{Shape, SourceKind};
 use nalgebra::{Complex, DMatrix, DVector};
 
-use super::budget::Budget;
 use super::client::{real, Client};
-use super::follow::Follow;
-use super::step::no_fault;
+use super::follow::{no_fault, Capture, Follow};
 use fpi_firmware::recorder::signal;
 
 /// What a sine records.
@@ -77,29 +75,22 @@ fn point(c: &mut Client, f_hz: f64, amplitude_um: f64, mid_um: f64) -> Result<Po
     let scored = (f64::from(MIN_CYCLES) / f_hz).max(SCORED_S);
     let cycles = SETTLE_CYCLES + (scored * f_hz).ceil() as u32;
     let seconds = f64::from(cycles) / f_hz;
-    let budget = Budget::new(c.hello(), SIGNALS, 1, seconds + 0.01);
-    if !budget.fits() {
-        bail!(
-            "a {f_hz:.1} Hz sine recorded at every tick: {}",
-            budget.describe(c.hello().rate_hz)
-        );
-    }
+    let what = format!("the {f_hz:.1} Hz sine");
+    let cap = Capture {
+        what: &what,
+        decimation: 1,
+        seconds: seconds + 0.005,
+        hint: "the bandwidth records every tick",
+    };
     let mut f = Follow::new(c, SIGNALS);
-    f.record(1)?;
-    f.rec.samples.clear();
-    let from = f.c.wave(Shape::Sine, amplitude_um, mid_um, f_hz, cycles)?;
-    f.until(&format!("the {f_hz:.1} Hz sine's end"), |s| {
-        no_fault(s, "the sine")?;
-        Ok(s.source == SourceKind::Hold && !s.approaching && s.tick > from)
-    })?;
-    f.c.ack(&Command::RecordStop)?;
-    f.drain()?;
-    if f.rec.dropped > 0 {
-        bail!(
-            "the {f_hz:.1} Hz sine: the board dropped {} samples",
-            f.rec.dropped
-        );
-    }
+    let from = f.capture(
+        &cap,
+        |c| c.wave(Shape::Sine, amplitude_um, mid_um, f_hz, cycles),
+        |s, from| {
+            no_fault(s, "the sine")?;
+            Ok(s.source == SourceKind::Hold && !s.approaching && s.tick > from)
+        },
+    )?;
     let start = from + (f64::from(SETTLE_CYCLES) * rate / f_hz).round() as u32;
     let end = from + (seconds * rate).round() as u32;
     let s: Vec<_> = f

@@ -30,9 +30,10 @@ use piezo_sim::stats::ErrorStats;
 
 use super::bandwidth::{self, Point};
 use super::client::{real, refusal, Client};
+use super::follow::no_fault;
 use super::follow::Follow;
 use super::recording::Recording;
-use super::step::{self, no_fault, StepFigures, StepSettings};
+use super::step::{self, StepFigures, StepSettings};
 use super::warm::warm_up;
 
 /// The waves' mid-point and half-swing, µm (5–35 µm of the 0–40 µm stroke).

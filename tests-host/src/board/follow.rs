@@ -7,12 +7,40 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Result};
 use fpi_protocol::SourceKind;
 use fpi_protocol::{Command, Status};
+use piezo_fpi::control::Fault;
 
+use super::budget::Budget;
 use super::client::Client;
 use super::recording::Recording;
 
 /// How long a wait may take before it is an error.
 const PATIENCE: Duration = Duration::from_secs(180);
+
+/// Fails on a latched fault other than *parked*, naming it.
+pub fn no_fault(s: &Status, what: &str) -> Result<bool> {
+    if let Some(f) = s.fault.filter(|f| f.code != Fault::Stopped as u8) {
+        bail!(
+            "fault {} ({}) at tick {} during {what}",
+            f.code,
+            Fault::from_code(f.code).map_or("?", |f| f.message()),
+            f.at
+        );
+    }
+    Ok(false)
+}
+
+/// What [`Follow::capture`] records (configuration).
+#[derive(Debug, Clone, Copy)]
+pub struct Capture<'a> {
+    /// The action recorded, for errors ("the step").
+    pub what: &'a str,
+    /// Ticks per recorded sample.
+    pub decimation: u16,
+    /// The longest the recording runs, board time, s.
+    pub seconds: f64,
+    /// What to do where the link cannot carry it ("shorten --seconds").
+    pub hint: &'a str,
+}
 
 /// A board being followed (state): its client and what it recorded so far.
 pub struct Follow<'c> {
@@ -86,6 +114,64 @@ impl<'c> Follow<'c> {
             }
             std::thread::sleep(Duration::from_millis(20));
         }
+    }
+
+    /// Records an action: starts the recorder, lets `go` start the action
+    /// (it returns the tick the action starts on) and records until `done`
+    /// says so for a status and that tick; the tick. The recording is
+    /// `self.rec`, from a request before the action. Refused before the
+    /// recorder starts where the link and the board's ring cannot hold
+    /// `cap.seconds` (and the 5 ms a request and its reply may take); fails
+    /// where the board dropped a sample of it.
+    pub fn capture(
+        &mut self,
+        cap: &Capture<'_>,
+        go: impl FnOnce(&mut Client) -> Result<u32>,
+        done: impl Fn(&Status, u32) -> Result<bool>,
+    ) -> Result<u32> {
+        let budget = Budget::new(
+            self.c.hello(),
+            self.rec.signals,
+            cap.decimation,
+            cap.seconds + 0.005,
+        );
+        if !budget.fits() {
+            bail!(
+                "{}'s recording would drop samples: {} ({})",
+                cap.what,
+                budget.describe(self.c.hello().rate_hz),
+                cap.hint
+            );
+        }
+        self.record(cap.decimation)?;
+        self.rec.samples.clear();
+        let from = go(self.c)?;
+        self.until(&format!("the end of {}", cap.what), |s| done(s, from))?;
+        self.c.ack(&Command::RecordStop)?;
+        self.drain()?;
+        if self.rec.dropped > self.dropped_before {
+            bail!(
+                "the board dropped {} samples of {}'s recording: the link cannot keep up at \
+                 decimation {} ({})",
+                self.rec.dropped - self.dropped_before,
+                cap.what,
+                cap.decimation,
+                cap.hint
+            );
+        }
+        Ok(from)
+    }
+
+    /// Moves the reference to `um` and waits until it rests there, and 50 ms
+    /// more (the loops settle); fails on a fault during `what`.
+    pub fn rest_at(&mut self, um: f64, what: &str) -> Result<()> {
+        self.c.move_to(um, 1000.0)?;
+        let rest = self.until(what, |s| {
+            no_fault(s, what)?;
+            Ok(s.source == SourceKind::Hold && !s.approaching)
+        })?;
+        self.until_tick(rest + self.ticks(0.05))?;
+        Ok(())
     }
 
     /// Waits until tick `t` has passed.

@@ -10,12 +10,9 @@
 
 use anyhow::{bail, Result};
 use fpi_firmware::recorder::signal;
-use fpi_protocol::{Command, Status};
-use piezo_fpi::control::Fault;
 
-use super::budget::Budget;
 use super::client::{real, Client};
-use super::follow::Follow;
+use super::follow::{no_fault, Capture, Follow};
 use super::recording::Recording;
 
 /// What a step records.
@@ -120,19 +117,6 @@ pub fn figures(rec: &Recording, from: u32, (a, b): (f64, f64), tol_um: Option<f6
     }
 }
 
-/// Fails on a latched fault other than *parked*, naming it.
-pub fn no_fault(s: &Status, what: &str) -> Result<bool> {
-    if let Some(f) = s.fault.filter(|f| f.code != Fault::Stopped as u8) {
-        bail!(
-            "fault {} ({}) at tick {} during {what}",
-            f.code,
-            Fault::from_code(f.code).map_or("?", |f| f.message()),
-            f.at
-        );
-    }
-    Ok(false)
-}
-
 /// Makes the step `s` on the board `c` in whatever loop it runs: moves to
 /// `from_um`, rests 50 ms, records, steps; the recording from the step's start
 /// and its figures. The board is left holding at `to_um`.
@@ -145,40 +129,26 @@ pub fn run(c: &mut Client, s: &StepSettings) -> Result<(Recording, StepFigures)>
             bail!("--tol {t}: a band > 0 µm");
         }
     }
-    // The recorder starts a few ms before the step (a request and its reply).
-    let budget = Budget::new(c.hello(), SIGNALS, s.decimation, s.seconds + 0.005);
-    if !budget.fits() {
-        bail!(
-            "the step's recording would drop samples: {} (or shorten --seconds)",
-            budget.describe(c.hello().rate_hz)
-        );
-    }
     let mut f = Follow::new(c, SIGNALS);
-    f.c.move_to(s.from_um, 1000.0)?;
-    let rest = f.until("the start", |st| {
-        no_fault(st, "the approach")?;
-        Ok(st.source == fpi_protocol::SourceKind::Hold && !st.approaching)
-    })?;
-    f.until_tick(rest + f.ticks(0.05))?;
-    f.record(s.decimation)?;
-    f.rec.samples.clear();
-    let from = f.c.step(s.to_um, s.duration_ms)?;
-    let to = from + f.ticks(s.seconds);
-    f.until(&format!("tick {to}"), |st| {
-        no_fault(st, "the step")?;
-        Ok(st.tick >= to)
-    })?;
-    f.c.ack(&Command::RecordStop)?;
-    f.drain()?;
-    f.rec.samples.retain(|x| x.tick >= from && x.tick < to);
-    if f.rec.dropped > 0 {
-        bail!(
-            "the board dropped {} recorded samples: the link cannot keep up at decimation {} \
-             (raise --decimation)",
-            f.rec.dropped,
-            s.decimation
-        );
-    }
+    f.rest_at(s.from_um, "the approach")?;
+    let ticks = f.ticks(s.seconds);
+    let cap = Capture {
+        what: "the step",
+        decimation: s.decimation,
+        seconds: s.seconds,
+        hint: "shorten --seconds or raise --decimation",
+    };
+    let from = f.capture(
+        &cap,
+        |c| c.step(s.to_um, s.duration_ms),
+        |st, from| {
+            no_fault(st, "the step")?;
+            Ok(st.tick >= from + ticks)
+        },
+    )?;
+    f.rec
+        .samples
+        .retain(|x| x.tick >= from && x.tick < from + ticks);
     let fig = figures(&f.rec, from, (s.from_um, s.to_um), s.tol_um);
     Ok((f.rec, fig))
 }

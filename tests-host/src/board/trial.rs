@@ -12,13 +12,12 @@
 
 use anyhow::{bail, Result};
 use fpi_protocol::record::signal;
-use fpi_protocol::{Command, Shape, SourceKind};
+use fpi_protocol::{Shape, SourceKind};
 
-use super::budget::Budget;
 use super::client::{real, Client};
 use super::closed_loop::{TRIANGLE_HZ, WAVE_UM};
-use super::follow::Follow;
-use super::step::{no_fault, StepSettings};
+use super::follow::{no_fault, Capture, Follow};
+use super::step::StepSettings;
 use crate::method::tune::trials::Trial;
 
 /// What a trial records: the tracked reference, the position sensor, the status.
@@ -40,33 +39,20 @@ fn record(
     seconds: f64,
     go: impl FnOnce(&mut Client) -> Result<u32>,
 ) -> Result<Trial> {
-    let budget = Budget::new(c.hello(), SIGNALS, 1, seconds + 0.005);
-    if !budget.fits() {
-        bail!(
-            "{what}: a trial records every tick, and {} (or autotune with --trials 0)",
-            budget.describe(c.hello().rate_hz)
-        );
-    }
     let mut f = Follow::new(c, SIGNALS);
-    f.c.move_to(start_um, 1000.0)?;
-    let rest = f.until_hold()?;
-    f.until_tick(rest + f.ticks(0.05))?;
-    f.record(1)?;
-    f.rec.samples.clear();
-    let from = go(f.c)?;
-    let to = from + f.ticks(seconds);
-    f.until(&format!("tick {to}"), |s| {
+    f.rest_at(start_um, what)?;
+    let ticks = f.ticks(seconds);
+    let cap = Capture {
+        what,
+        decimation: 1,
+        seconds,
+        hint: "a trial records every tick; or autotune with --trials 0",
+    };
+    let from = f.capture(&cap, go, |s, from| {
         no_fault(s, what)?;
-        Ok(s.tick >= to)
+        Ok(s.tick >= from + ticks)
     })?;
-    f.c.ack(&Command::RecordStop)?;
-    f.drain()?;
-    if f.rec.dropped > 0 {
-        bail!(
-            "{what}: the board dropped {} recorded samples",
-            f.rec.dropped
-        );
-    }
+    let to = from + ticks;
     let s: Vec<_> = f
         .rec
         .samples

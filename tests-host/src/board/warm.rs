@@ -7,8 +7,8 @@ use anyhow::Result;
 use fpi_protocol::{Command, LoopMode, Shape, SourceKind};
 
 use super::client::Client;
+use super::follow::no_fault;
 use super::follow::Follow;
-use super::step::no_fault;
 
 /// Slow sines of the warm-up: 5 Hz over 5–35 µm, this many.
 pub const WARM_UP_CYCLES: u32 = 10;
