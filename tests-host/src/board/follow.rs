@@ -166,12 +166,18 @@ impl<'c> Follow<'c> {
     /// more (the loops settle); fails on a fault during `what`.
     pub fn rest_at(&mut self, um: f64, what: &str) -> Result<()> {
         self.c.move_to(um, 1000.0)?;
-        let rest = self.until(what, |s| {
-            no_fault(s, what)?;
-            Ok(s.source == SourceKind::Hold && !s.approaching)
-        })?;
+        let rest = self.until_rest(what)?;
         self.until_tick(rest + self.ticks(0.05))?;
         Ok(())
+    }
+
+    /// Waits until the reference holds again after `what`; its tick. Fails on
+    /// a fault meanwhile.
+    pub fn until_rest(&mut self, what: &str) -> Result<u32> {
+        self.until(&format!("the end of {what}"), |s| {
+            no_fault(s, what)?;
+            Ok(s.source == SourceKind::Hold && !s.approaching)
+        })
     }
 
     /// Waits until tick `t` has passed.

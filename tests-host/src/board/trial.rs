@@ -12,7 +12,7 @@
 
 use anyhow::{bail, Result};
 use fpi_protocol::record::signal;
-use fpi_protocol::{Shape, SourceKind};
+use fpi_protocol::Shape;
 
 use super::client::{real, Client};
 use super::closed_loop::{TRIANGLE_HZ, WAVE_UM};
@@ -79,20 +79,15 @@ pub fn run(c: &mut Client) -> Result<Vec<Trial>> {
     })?;
     let seconds = f64::from(TRIANGLE_PERIODS) / TRIANGLE_HZ + 0.005;
     let triangle = record(c, "the trial's triangle", WAVE_UM.0, seconds, |c| {
-        let from = c.wave(
+        c.wave(
             Shape::Triangle,
             WAVE_UM.1,
             WAVE_UM.0,
             TRIANGLE_HZ,
             TRIANGLE_PERIODS,
-        )?;
-        Ok(from)
+        )
     })?;
     // The wave ends where it began, holding.
-    let mut f = Follow::new(c, 0);
-    f.until("the trial's end", |s| {
-        no_fault(s, "the trial's triangle")?;
-        Ok(s.source == SourceKind::Hold && !s.approaching)
-    })?;
+    Follow::new(c, 0).until_rest("the trial's triangle")?;
     Ok(vec![step, triangle])
 }

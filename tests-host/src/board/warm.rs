@@ -4,10 +4,9 @@
 //! before each drive of the closed-loop comparison.
 
 use anyhow::Result;
-use fpi_protocol::{Command, LoopMode, Shape, SourceKind};
+use fpi_protocol::{Command, LoopMode, Shape};
 
 use super::client::Client;
-use super::follow::no_fault;
 use super::follow::Follow;
 
 /// Slow sines of the warm-up: 5 Hz over 5–35 µm, this many.
@@ -16,11 +15,7 @@ pub const WARM_UP_CYCLES: u32 = 10;
 /// [`WARM_UP_CYCLES`] slow sines, 5–35 µm at 5 Hz, with the loops as they are.
 pub fn warm_up(c: &mut Client) -> Result<()> {
     c.wave(Shape::Sine, 15.0, 20.0, 5.0, WARM_UP_CYCLES)?;
-    let mut f = Follow::new(c, 0);
-    f.until("the warm-up's end", |s| {
-        no_fault(s, "the warm-up")?;
-        Ok(s.source == SourceKind::Hold && !s.approaching)
-    })?;
+    Follow::new(c, 0).until_rest("the warm-up")?;
     Ok(())
 }
 
