@@ -273,3 +273,18 @@ def test_long_calls_release_the_gil():
         stop.set()
         t.join()
         assert len(ticks) >= 20
+
+
+def test_autotune_refines_the_feedforward_on_trials(tmp_path):
+    """`autotune` on the in-process board with the stage as built: the table
+    names the trials asked for, the tuned model is written; a negative count
+    of trials is refused before anything runs."""
+    model = ROOT / "firmware" / "model" / "stage-a.toml"
+    with pf.Board("virtual:usb") as b:
+        b.bench(stage="built")
+        with pytest.raises(OverflowError):
+            b.autotune(model, tmp_path / "never.toml", trials=-1)
+        table = b.autotune(model, tmp_path / "tuned.toml", trials=1)
+        assert "1 trial(s)" in table, table
+        text = (tmp_path / "tuned.toml").read_text()
+        assert "taps" in text and "preview_ticks = 5" in text
