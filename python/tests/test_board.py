@@ -249,11 +249,14 @@ def test_the_emulator_takes_a_front_end():
         pytest.skip("qemu-system-arm is not installed")
     with pf.Emulator(frontend="precision") as e:
         with pf.Board(e.port) as b:
-            s = b.status()
-            assert s["state"] == "parked"
+            assert b.status()["state"] == "parked"
             # The precision front end's 16-bit force channel: the rest preload
             # read to finer than the internal 12-bit channel's 0.125 N steps.
-            assert abs(s["force_N"] / 0.125 - round(s["force_N"] / 0.125)) > 1e-6
+            # One reading in 16 lands on that grid by chance (the sensor's
+            # noise moves it): one of 20 readings must fall between.
+            forces = [b.status()["force_N"] for _ in range(20)]
+            off_grid = [f for f in forces if abs(f / 0.125 - round(f / 0.125)) > 1e-6]
+            assert off_grid, forces
 
 
 def test_long_calls_release_the_gil():

@@ -9,6 +9,8 @@
 //! three for each other signal while it moves less than 16 µm (16 V, 16 N) between
 //! two samples; a batch adds its header, CRC and framing, and each read its request.
 
+use std::time::Duration;
+
 use fpi_protocol::record::{signal, wire_len};
 use fpi_protocol::{Hello, LinkKind};
 
@@ -16,8 +18,8 @@ use fpi_protocol::{Hello, LinkKind};
 const SIGNAL_BYTES: f64 = 3.0;
 /// Bytes a batch adds (reply header, batch fields, CRC, COBS, delimiter).
 const BATCH_BYTES: f64 = 24.0;
-/// Reads per second while a recording runs (the host polls every 20 ms).
-const READS_PER_S: f64 = 50.0;
+/// The longest the host waits between two reads of a recording, s.
+const LONGEST_PAUSE_S: f64 = 0.02;
 /// The share of the link a recording may plan to use.
 const HEADROOM: f64 = 0.9;
 
@@ -57,9 +59,18 @@ impl Budget {
         }
     }
 
+    /// How long the host waits between two reads while the recording runs:
+    /// 20 ms, or a quarter of the time the board's ring takes to fill at this
+    /// rate (6.4 ms for the 512-sample ring at every tick at 20 kHz), so that a
+    /// late wake-up of the host's thread does not overrun the ring.
+    pub fn pause(&self) -> Duration {
+        let ring_s = f64::from(self.ring) / self.samples_per_s;
+        Duration::from_secs_f64((ring_s / 4.0).min(LONGEST_PAUSE_S))
+    }
+
     /// Bytes per second the recording needs, framing and reads included.
     pub fn needed(&self) -> f64 {
-        self.samples_per_s * self.bytes_per_sample + READS_PER_S * BATCH_BYTES
+        self.samples_per_s * self.bytes_per_sample + BATCH_BYTES / self.pause().as_secs_f64()
     }
 
     /// Bytes per second the link carries.
@@ -145,6 +156,14 @@ mod tests {
         assert!(Budget::new(&hello(LinkKind::Uart), signal::ALL, d, 2.0).fits());
         assert!(!Budget::new(&hello(LinkKind::Uart), signal::ALL, d - 1, 2.0).fits());
         assert!(uart.describe(20_000).contains("--decimation 44"));
+    }
+
+    #[test]
+    fn the_host_reads_four_times_while_the_ring_fills() {
+        let every_tick = Budget::new(&hello(LinkKind::Usb), signal::ALL, 1, 2.0);
+        assert_eq!(every_tick.pause(), Duration::from_micros(6400));
+        let slow = Budget::new(&hello(LinkKind::Uart), signal::ALL, 44, 2.0);
+        assert_eq!(slow.pause(), Duration::from_millis(20));
     }
 
     #[test]

@@ -14,6 +14,7 @@ use anyhow::{bail, Result};
 use fpi_firmware::recorder::{signal, Sample};
 use fpi_protocol::{BenchOrder, Command, LoopMode, Shape, SourceKind};
 
+use super::budget::Budget;
 use super::client::{real, to_link, Client, StreamReport};
 use super::recording::Recording;
 use super::variant;
@@ -408,10 +409,8 @@ pub fn record(
         signals: signal::ALL,
         ..Recording::default()
     };
-    // Between reads while nothing waits: 20 ms, or a quarter of the time the
-    // board's ring takes to fill at this rate (26 ms at every tick).
-    let ring_s = f64::from(c.hello().buffers[0]) * f64::from(decimation) / rate;
-    let pause = Duration::from_secs_f64((ring_s / 4.0).min(0.02));
+    // Between reads while nothing waits.
+    let pause = Budget::new(c.hello(), signal::ALL, decimation, seconds).pause();
     let started = Instant::now();
     let mut stopped = false;
     loop {

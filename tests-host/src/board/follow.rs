@@ -15,6 +15,8 @@ use super::recording::Recording;
 
 /// How long a wait may take before it is an error.
 const PATIENCE: Duration = Duration::from_secs(180);
+/// The wait between two polls before a recording starts.
+const IDLE_PAUSE: Duration = Duration::from_millis(20);
 
 /// Fails on a latched fault other than *parked*, naming it.
 pub fn no_fault(s: &Status, what: &str) -> Result<bool> {
@@ -50,6 +52,8 @@ pub struct Follow<'c> {
     pub rec: Recording,
     /// Samples the board dropped in recordings restarted since.
     dropped_before: u32,
+    /// The wait between two polls while the recorder runs at its decimation.
+    pause: Duration,
 }
 
 impl<'c> Follow<'c> {
@@ -64,6 +68,7 @@ impl<'c> Follow<'c> {
                 ..Recording::default()
             },
             dropped_before: 0,
+            pause: IDLE_PAUSE,
         }
     }
 
@@ -85,10 +90,13 @@ impl<'c> Follow<'c> {
         Ok(())
     }
 
-    /// (Re)starts the recorder at `decimation` (what it held is read first).
+    /// (Re)starts the recorder at `decimation` (what it held is read first);
+    /// the waits poll often enough that its ring does not overrun
+    /// ([`Budget::pause`]).
     pub fn record(&mut self, decimation: u16) -> Result<()> {
         self.drain()?;
         self.dropped_before = self.rec.dropped;
+        self.pause = Budget::new(self.c.hello(), self.rec.signals, decimation, 0.0).pause();
         self.c.ack(&Command::Record {
             decimation,
             signals: self.rec.signals,
@@ -112,7 +120,7 @@ impl<'c> Follow<'c> {
                     PATIENCE.as_secs()
                 );
             }
-            std::thread::sleep(Duration::from_millis(20));
+            std::thread::sleep(self.pause);
         }
     }
 
@@ -148,6 +156,7 @@ impl<'c> Follow<'c> {
         let from = go(self.c)?;
         self.until(&format!("the end of {}", cap.what), |s| done(s, from))?;
         self.c.ack(&Command::RecordStop)?;
+        self.pause = IDLE_PAUSE;
         self.drain()?;
         if self.rec.dropped > self.dropped_before {
             bail!(
