@@ -377,7 +377,7 @@ impl Loop {
             } else {
                 error
             };
-            self.watch.update(swing, limited)
+            self.watch.update(swing, io.x_ref, limited)
         } else {
             self.watch.reset();
             None
