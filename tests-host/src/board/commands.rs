@@ -374,9 +374,10 @@ pub struct Recorded {
 
 /// Records every `decimation`-th tick for `seconds` (s) of board time, every
 /// signal (the datasets' columns, [`Recording`]). `progress` gets the ticks
-/// recorded and the ticks asked for; `stop` is polled every 20 ms of waiting and
-/// ends the recording early (the recorder is stopped, what it recorded kept, the
-/// stage left as it was: [`Recorded::stopped`]).
+/// recorded and the ticks asked for; `stop` is polled between reads (every
+/// 20 ms at most, [`Budget::pause`]) and ends the recording early (the recorder
+/// is stopped, what it recorded kept, the stage left as it was:
+/// [`Recorded::stopped`]).
 pub fn record(
     c: &mut Client,
     seconds: f64,
