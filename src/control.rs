@@ -1151,7 +1151,7 @@ const fn residual(reading: Newtons, model: Newtons) -> Newtons {
 
 /// Checks a force channel against the force tolerance: the split rate in
 /// `[0, 0.5)`, the dynamic limit at least the tolerance and inside the signal
-/// range. The one check, shared by [`ControllerConfig::with_force_channel`] and
+/// range. The one check, shared by [`check_settings`] and
 /// the model validator.
 pub const fn check_force_channel(c: &ForceChannel, tolerance: Newtons) -> Result<(), Invalid> {
     match force_channel_window(c, tolerance) {

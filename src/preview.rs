@@ -76,7 +76,7 @@ impl Fir {
     }
 }
 
-/// The delay line (state): the last [`SLOTS`] references, µm.
+/// The delay line (state): the last `SLOTS` references, µm.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Preview {
     ring: [Micrometres; SLOTS],

@@ -22,7 +22,7 @@
 //! * [`converters`] — precision converters on SPI (AD5781/AD5791 DAC, AD7606 ADC)
 //!   and the schedule that keeps the tick deterministic around them;
 //! * [`sim_io`] — the emulated board's virtual sensor, DAC, enable line and analog
-//!   input; with the `sim` feature, [`emulated`] — its virtual bench (the virtual
+//!   input; with the `sim` feature, `emulated` — its virtual bench (the virtual
 //!   stage and its fault injection), which the host also runs as its twin.
 //!
 //! The binaries (`src/bin/`) add the hardware and the tasks: the STM32F405 board

@@ -16,7 +16,7 @@
 //!   −5…507 N, 7.8 mN a code), position [`crate::board_def::POSITION`] (the same 16-bit code
 //!   as [`POSITION_ADC`]), setpoint [`precision::SETPOINT`] (AD5791, 20 bits over
 //!   0–150 V, 143 µV a code, about 0.04 nm of stage). The ADC's transition noise is
-//!   added by the bench ([`crate::emulated::Bench`]), [`PRECISION_ADC_NOISE_LSB`].
+//!   added by the bench (`emulated::Bench`), [`PRECISION_ADC_NOISE_LSB`].
 //!
 //! Q formats as in the core: codes are `u16` (ADC) and `u32` (DAC; the 12-bit
 //! DAC's `u16` widened), values `I16F16` (N, µm, V), gains `I4F28`/`I16F16`.

@@ -12,7 +12,7 @@
 //! * [`wire`] — how an enum crosses the link: by the number written beside each
 //!   variant (`#[repr(u8)]`), never by its place in the declaration;
 //! * [`command`] — the requests; [`reply`] — the replies and refusals;
-//! * [`modes`] — the loop's modes and sources the messages name; [`bench`] —
+//! * [`modes`] — the loop's modes and sources the messages name; [`bench`](mod@bench) —
 //!   the emulated board's bench orders; [`record`] — a recording's signals;
 //! * [`frame`] — COBS framing with a CRC-32; [`link`] — the links and their rates.
 //!

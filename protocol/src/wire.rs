@@ -1,7 +1,7 @@
 //! How an enum crosses the link: by the number written beside each variant,
 //! never by its place in the declaration.
 //!
-//! * A fieldless enum ([`wire_enum!`]) is one byte, its `#[repr(u8)]`
+//! * A fieldless enum (`wire_enum!`) is one byte, its `#[repr(u8)]`
 //!   discriminant.
 //! * An enum with fields (a [`Command`](crate::Command), a
 //!   [`Reply`](crate::Reply), …) is its kind's byte — the discriminant of its

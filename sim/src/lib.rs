@@ -10,8 +10,8 @@
 //!   models the host tools calibrate, predict and invert with;
 //! * in `f32`, [`stage`] — the virtual stage the emulated board drives.
 //!
-//! `no_std`; the `file` feature (host) adds the firmware model file ([`file`])
-//! and what an error quotes of a file's text ([`quote`]).
+//! `no_std`; the `file` feature (host) adds the firmware model file (`file`)
+//! and what an error quotes of a file's text (`quote`).
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![deny(clippy::unwrap_used, clippy::expect_used)]
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]

@@ -3,7 +3,7 @@
 //! true position where the board knows it (the emulated board), else on the
 //! position sensor.
 //!
-//! The step is the board's raised-cosine step ([`Command::Step`]): the
+//! The step is the board's raised-cosine step ([`Command::Step`](fpi_protocol::Command::Step)): the
 //! reference goes from `A` to `B` along half a cosine lasting `duration_ms`
 //! (zero speed at both ends, so it does not kick the mode), then holds. Every
 //! figure is timed from the tick the step starts.

@@ -234,7 +234,7 @@ fn print_held_out(c: &Comparison) {
     }
 }
 
-/// The lines of [`print_held_out`] (none when no model carries a correction): the
+/// The lines of `print_held_out` (none when no model carries a correction): the
 /// terminal and the report show the same.
 pub fn held_out_summary(c: &Comparison) -> Vec<String> {
     if c.models.iter().all(|(_, m)| m.fem_correction.is_none()) {

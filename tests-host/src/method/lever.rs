@@ -42,7 +42,7 @@
 //!    is the same tangent construction without the root: read without it.
 //! 3. Lever 2 turns 12.12° for 50 µm whatever `α₀` is (eqs. 8–9 do not involve it),
 //!    not the stated 1.5° → 20°; no reading of the transcription changes that.
-//! 4. `α₀` is an input of eqs. 9–11 "the initial angular position [deg]" with no
+//! 4. `α₀` is an input of eqs. 9–11 "the initial angular position \[deg\]" with no
 //!    value given. With `α₀ = 0` the output turns only 5.39° for 50 µm. The stated
 //!    40° needs point 4 to pass close to lever 3's pivot, which `α₀` sets: 40° is
 //!    reached at `α₀ = 65.20°` and at `α₀ = 80.97°`. The default is **80.9678°**

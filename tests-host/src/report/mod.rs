@@ -101,7 +101,7 @@ pub fn table4(c: &Comparison) -> String {
     s
 }
 
-/// Whether [`write`] writes a file of this name into its folder (`report.md` and
+/// Whether [`write()`] writes a file of this name into its folder (`report.md` and
 /// the `.svg` plots), for [`crate::output::folder_spares_inputs`].
 pub fn writes(name: &str) -> bool {
     name == "report.md" || name.ends_with(".svg")
