@@ -190,6 +190,8 @@ impl LoopWatch {
 mod tests {
     use super::*;
 
+    /// A steady sine on a moving reference (the held rule does not count):
+    /// the tick it trips and the fault.
     fn run(w: &mut LoopWatch, f_hz: f64, amp_um: f64, ticks: u32) -> Option<(u32, Fault)> {
         for k in 0..ticks {
             let v = amp_um * (core::f64::consts::TAU * f_hz * k as f64 / 20_000.0).sin();
@@ -223,7 +225,8 @@ mod tests {
         assert_eq!(run(&mut w, 850.0, 2.0, 40_000), None);
     }
 
-    /// A sine whose amplitude is multiplied by `growth` every half-period.
+    /// A sine whose amplitude is multiplied by `growth` every half-period, on a
+    /// moving reference (the held rule does not count).
     fn growing(w: &mut LoopWatch, f_hz: f64, from_um: f64, growth: f64) -> Option<(u32, f64)> {
         for k in 0..20_000u32 {
             let t = k as f64 / 20_000.0;
