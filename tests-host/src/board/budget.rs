@@ -18,8 +18,9 @@ use fpi_protocol::{Hello, LinkKind};
 const SIGNAL_BYTES: f64 = 3.0;
 /// Bytes a batch adds (reply header, batch fields, CRC, COBS, delimiter).
 const BATCH_BYTES: f64 = 24.0;
-/// The longest the host waits between two reads of a recording, s.
-const LONGEST_PAUSE_S: f64 = 0.02;
+/// The longest the host waits between two polls of a board (and two reads of
+/// a recording).
+pub const LONGEST_PAUSE: Duration = Duration::from_millis(20);
 /// The share of the link a recording may plan to use.
 const HEADROOM: f64 = 0.9;
 
@@ -65,7 +66,7 @@ impl Budget {
     /// late wake-up of the host's thread does not overrun the ring.
     pub fn pause(&self) -> Duration {
         let ring_s = f64::from(self.ring) / self.samples_per_s;
-        Duration::from_secs_f64((ring_s / 4.0).min(LONGEST_PAUSE_S))
+        Duration::from_secs_f64(ring_s / 4.0).min(LONGEST_PAUSE)
     }
 
     /// Bytes per second the recording needs, framing and reads included.

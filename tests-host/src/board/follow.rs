@@ -9,14 +9,12 @@ use fpi_protocol::SourceKind;
 use fpi_protocol::{Command, Status};
 use piezo_fpi::control::Fault;
 
-use super::budget::Budget;
+use super::budget::{Budget, LONGEST_PAUSE};
 use super::client::Client;
 use super::recording::Recording;
 
 /// How long a wait may take before it is an error.
 const PATIENCE: Duration = Duration::from_secs(180);
-/// The wait between two polls before a recording starts.
-const IDLE_PAUSE: Duration = Duration::from_millis(20);
 
 /// Fails on a latched fault other than *parked*, naming it.
 pub fn no_fault(s: &Status, what: &str) -> Result<bool> {
@@ -68,7 +66,7 @@ impl<'c> Follow<'c> {
                 ..Recording::default()
             },
             dropped_before: 0,
-            pause: IDLE_PAUSE,
+            pause: LONGEST_PAUSE,
         }
     }
 
@@ -156,7 +154,7 @@ impl<'c> Follow<'c> {
         let from = go(self.c)?;
         self.until(&format!("the end of {}", cap.what), |s| done(s, from))?;
         self.c.ack(&Command::RecordStop)?;
-        self.pause = IDLE_PAUSE;
+        self.pause = LONGEST_PAUSE;
         self.drain()?;
         if self.rec.dropped > self.dropped_before {
             bail!(
