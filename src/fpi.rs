@@ -39,7 +39,7 @@
 use crate::error::{Field, Invalid, ModelError};
 use crate::inverse::InversePi;
 use crate::pi::PiModel;
-use crate::play::{Edge, PlayBank};
+use crate::play::{Bank, Edge, PlayBank};
 use crate::q::{
     coupling_mul, quad_mul, within, CreepRate, GainAcc, Micrometres, Newtons, UmPerNewton,
     UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2, GAIN_FRAC, MAX_CREEP_TERMS, QUAD_MAX_BITS,
@@ -606,15 +606,15 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
         x_pea: Micrometres,
         t: &ForceTerms,
     ) -> (Volts, bool) {
-        self.inverse_as::<E, false>(bank, creep, x_pea, t)
+        self.inverse_as::<_, false>(bank, creep, x_pea, t)
     }
 
     /// [`inverse_checked`](Self::inverse_checked); with `BARE` the caller has
     /// checked [`is_bare`](Self::is_bare) (see [`forward_as`](Self::forward_as)).
     #[inline(always)]
-    pub fn inverse_as<E: Edge, const BARE: bool>(
+    pub fn inverse_as<B: Bank<N>, const BARE: bool>(
         &self,
-        bank: &mut PlayBank<N, E>,
+        bank: &mut B,
         creep: &CreepMemory<C>,
         x_pea: Micrometres,
         t: &ForceTerms,
@@ -641,6 +641,29 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
     #[inline]
     pub fn resync<F: Edge, E: Edge>(&self, forward: &PlayBank<N, F>, inverse: &mut PlayBank<N, E>) {
         self.inverse.resync(&self.pi_prime, forward, inverse);
+    }
+
+    /// Sets the forward bank to the state that matches the inverse bank (see
+    /// [`InversePi::forward_state`]): the forward memory of the voltages the
+    /// inverse returned, when they were applied as they were.
+    #[inline]
+    pub fn forward_from_inverse<E: Edge, F: Edge>(
+        &self,
+        inverse: &PlayBank<N, E>,
+        forward: &mut PlayBank<N, F>,
+    ) {
+        self.inverse.forward_state(&self.pi_prime, inverse, forward);
+    }
+
+    /// What [`forward_as`](Self::forward_as) returns for the voltage the bare
+    /// inverse ([`inverse_as`](Self::inverse_as) with `BARE`) returned for
+    /// `x_pea` under the same terms, up to rounding: `x_pea`, held to the range
+    /// the model reaches. The controller's estimate while the drive is the
+    /// inverse's; µm.
+    #[inline(always)]
+    pub fn reached(&self, x_pea: Micrometres, t: &ForceTerms) -> Micrometres {
+        let z = x_pea + t.compression;
+        within(z, Micrometres::ZERO, self.inverse.input_max()) - t.compression
     }
 
     /// The forward PI model.

@@ -14,15 +14,18 @@
 //! The states of the two banks are tied: if the forward operators hold `y_i`, the
 //! inverse operators hold `z_j = S_j·y_j + Σ_{i>j} w_i·y_i`. [`InversePi::resync`]
 //! uses this to realign the inverse bank when the output limiter applied a voltage
-//! other than the one the inverse asked for.
+//! other than the one the inverse asked for. The relation is its own inverse: the
+//! forward model is the inverse of the inverse, so `y_j = S'_j·z_j + Σ_{i>j} w'_i·z_i`
+//! with `S'_j = 1/S_j` ([`InversePi::forward_state`]).
 
 use crate::error::ModelError;
 use crate::pi::PiModel;
-use crate::play::{Edge, Operator, Operators, PlayBank};
+use crate::play::{Bank, Edge, Operator, Operators, PlayBank, Weight};
 use crate::q::{
     narrow_inv_gain_biased, within, Micrometres, UmPerVolt, Volts, VoltsPerUm, GAIN_FRAC,
     INV_GAIN_FRAC, INV_GAIN_ROUND, SIGNAL_ABS_MAX_BITS, SIGNAL_FRAC,
 };
+use fixed::types::I16F16;
 
 /// Configuration of an inverse PI model: stack extension in (µm), voltage out (V).
 ///
@@ -179,7 +182,7 @@ impl<const N: usize> InversePi<N> {
     /// `x` is clamped to `[0, input_max]`; `u` then lies in `[0, output_max]` up to
     /// rounding (a few LSB; the caller's actuator limits bound it). No division, no panic.
     #[inline(always)]
-    pub fn apply<E: Edge>(&self, state: &mut PlayBank<N, E>, x: Micrometres) -> Volts {
+    pub fn apply<B: Bank<N>>(&self, state: &mut B, x: Micrometres) -> Volts {
         let x = within(x, Micrometres::ZERO, self.input_max);
         narrow_inv_gain_biased(state.advance(&self.ops, x))
     }
@@ -196,27 +199,32 @@ impl<const N: usize> InversePi<N> {
         fwd_state: &PlayBank<N, F>,
         state: &mut PlayBank<N, E>,
     ) {
-        let ops = fwd.operators();
-        // S_N in GAIN_FRAC bits: |S_j| <= sum|w| fits an i32 (checked by PiModel::new).
-        let w0 = fwd.w0().to_bits();
-        let mut s = fwd.bank().slope();
-        // `tail` carries the rounding half LSB from the start, so that each
-        // rounding below is a shift alone (the same values as rounding each sum).
-        let round = |v: i64| Micrometres::from_bits((v >> GAIN_FRAC) as i32);
-        // The new outputs z_j first: the gap form needs the new last input too.
-        let mut z = [Micrometres::ZERO; N];
-        // Σ_{i>j} w_i y_i + ½ LSB, GAIN + SIGNAL bits.
-        let mut tail: i64 = 1 << (GAIN_FRAC - 1);
-        for (j, (op, z)) in ops.iter().zip(z.iter_mut()).enumerate().rev() {
-            let y = fwd_state.output(fwd.bank(), j).to_bits();
-            *z = round(s as i64 * y as i64 + tail);
-            let wj = op.weight.to_bits();
-            tail += wj as i64 * y as i64;
-            s = s.wrapping_sub(wj);
-        }
-        // The inverse bank's last input is the forward output Y = w0·û + Σ w_i y_i.
-        let x = round(w0 as i64 * fwd_state.last().to_bits() as i64 + tail);
-        state.set(&self.ops, within(x, Micrometres::ZERO, self.input_max), &z);
+        let (w0, from) = (fwd.w0().to_bits(), fwd.bank());
+        mirror::<_, _, GAIN_FRAC, N, F, E>(w0, from, fwd_state, &self.ops, self.input_max, state);
+    }
+
+    /// The other way: sets a forward bank of `fwd` (the model this inverse was
+    /// built from) to the state that matches this inverse's bank,
+    /// `y_j = S'_j·z_j + Σ_{i>j} w'_i·z_i` (V) after the input
+    /// `û = w0'·x + Σ w'_j·z_j`, the voltage the inverse last returned. Each is
+    /// rounded once; they agree with the forward bank the voltages would have
+    /// driven up to the rounding of the inverse weights (a few LSB, tested).
+    /// N multiply-adds, no division.
+    pub fn forward_state<E: Edge, F: Edge>(
+        &self,
+        fwd: &PiModel<N>,
+        state: &PlayBank<N, E>,
+        fwd_state: &mut PlayBank<N, F>,
+    ) {
+        let (w0, to) = (self.w0.to_bits(), fwd.bank());
+        mirror::<_, _, INV_GAIN_FRAC, N, E, F>(
+            w0,
+            &self.ops,
+            state,
+            to,
+            fwd.input_max(),
+            fwd_state,
+        );
     }
 
     /// `1/w0`, V/µm.
@@ -249,11 +257,46 @@ impl<const N: usize> InversePi<N> {
     }
 }
 
+/// Sets `to` (a bank of the model with operators `to_ops`, inputs held to
+/// `[0, to_max]`) to the state that matches `from`, a bank of the model with
+/// linear weight `w0` and operators `from_ops` (weights with `FRAC` fractional
+/// bits): `t_j = S_j·y_j + Σ_{i>j} w_i·y_i` after the input `w0·u + Σ w_i·y_i`,
+/// with `S_j = w0 + Σ_{i<=j} w_i` (see the module docs). One mapping for both
+/// directions: a model and its closed-form inverse are each other's inverse.
+fn mirror<W: Weight, V: Copy, const FRAC: u32, const N: usize, E: Edge, F: Edge>(
+    w0: i32,
+    from_ops: &Operators<W, N>,
+    from: &PlayBank<N, E>,
+    to_ops: &Operators<V, N>,
+    to_max: I16F16,
+    to: &mut PlayBank<N, F>,
+) {
+    // S_N in FRAC bits: |S_j| <= sum|w| fits an i32 (checked by the constructors).
+    let mut s = from_ops.slope();
+    // `tail` carries the rounding half LSB from the start, so that each
+    // rounding below is a shift alone (the same values as rounding each sum).
+    let round = |v: i64| I16F16::from_bits((v >> FRAC) as i32);
+    // The new outputs first: the gap form needs the new last input too.
+    let mut t = [I16F16::ZERO; N];
+    // Σ_{i>j} w_i y_i + ½ LSB, FRAC + SIGNAL bits.
+    let mut tail: i64 = 1 << (FRAC - 1);
+    for (j, (op, t)) in from_ops.ops().iter().zip(t.iter_mut()).enumerate().rev() {
+        let y = from.output(from_ops, j).to_bits();
+        *t = round(s as i64 * y as i64 + tail);
+        let wj = op.weight.bits();
+        tail += wj as i64 * y as i64;
+        s = s.wrapping_sub(wj);
+    }
+    let last = round(w0 as i64 * from.last().to_bits() as i64 + tail);
+    to.set(to_ops, within(last, I16F16::ZERO, to_max), &t);
+}
+
 const _: () = assert!(SIGNAL_FRAC + GAIN_FRAC < 63);
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::play::Bottom;
 
     fn pair() -> (PiModel<4>, InversePi<4>) {
         let f = PiModel::from_f64(
@@ -313,6 +356,38 @@ mod tests {
             let d = (synced.last() - is.last()).to_num::<f64>().abs();
             assert!(d < 1e-4, "u={u}: last differs by {d}");
         }
+    }
+
+    /// The forward bank rebuilt from the inverse bank is the one the inverse's
+    /// voltages drive, within a few LSB, and continues as it does.
+    #[test]
+    fn forward_state_reproduces_the_forward_bank() {
+        let (f, i) = pair();
+        let (mut fs, mut is) = (PlayBank::<4, Bottom>::at_rest(f.bank()), PlayBank::new());
+        let mut worst = 0.0f64;
+        for x in [3.0, 9.5, 6.0, 8.0, 0.5, 11.0, 7.25, 7.5, 2.0] {
+            let u = i.apply(&mut is, Micrometres::from_num(x));
+            f.apply(&mut fs, u);
+            let mut rebuilt = PlayBank::<4, Bottom>::at_rest(f.bank());
+            i.forward_state(&f, &is, &mut rebuilt);
+            let (a, b) = (rebuilt.outputs(f.bank()), fs.outputs(f.bank()));
+            for j in 0..4 {
+                worst = worst.max((a[j] - b[j]).to_num::<f64>().abs());
+            }
+            worst = worst.max((rebuilt.last() - fs.last()).to_num::<f64>().abs());
+            // Both continue alike.
+            let (mut r, mut s) = (rebuilt, fs);
+            for u in [20.0, 140.0, 60.0] {
+                let (a, b) = (
+                    f.apply(&mut r, Volts::from_num(u)),
+                    f.apply(&mut s, Volts::from_num(u)),
+                );
+                assert!((a - b).to_num::<f64>().abs() < 1e-4, "x={x} u={u}");
+            }
+        }
+        eprintln!("forward bank rebuilt from the inverse: worst {worst:.2e} V");
+        // Each output rounded once from inverse weights of 2^-22 V/µm.
+        assert!(worst < 2e-4, "worst {worst} V");
     }
 
     #[test]

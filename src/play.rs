@@ -236,31 +236,158 @@ impl<const N: usize, E: Edge> PlayBank<N, E> {
     /// `(Σ w_i)·u - Σ w_i·r_i + Σ w_i·g_i` ([`Bottom`]).
     #[inline(always)]
     pub fn advance<W: Weight>(&mut self, ops: &Operators<W, N>, u: I16F16) -> i64 {
-        let u = u.to_bits();
-        let last = self.last.to_bits();
+        let last = self.last;
+        self.last = u;
+        Self::step(ops, last, u, self.gap.iter_mut().map(|g| (*g, g)))
+    }
+
+    /// [`advance`](Self::advance) from this state into `next`, which receives
+    /// the new state; this one is left as it was (the state one step back, for
+    /// a double-buffered bank: [`Stepped`]). The same operations per operator.
+    #[inline(always)]
+    pub fn advance_into<W: Weight>(
+        &self,
+        next: &mut Self,
+        ops: &Operators<W, N>,
+        u: I16F16,
+    ) -> i64 {
+        next.last = u;
+        Self::step(
+            ops,
+            self.last,
+            u,
+            self.gap.iter().copied().zip(&mut next.gap),
+        )
+    }
+
+    /// The one update of a bank's gaps (see [`advance`](Self::advance)): each
+    /// pair is an operator's gap before the step and where its new gap goes.
+    #[inline(always)]
+    fn step<'g, W: Weight>(
+        ops: &Operators<W, N>,
+        last: I16F16,
+        u: I16F16,
+        gaps: impl Iterator<Item = (I16F16, &'g mut I16F16)>,
+    ) -> i64 {
+        let (u, last) = (u.to_bits(), last.to_bits());
         let rising = u >= last;
         let d = if rising { u - last } else { last - u };
         let mut acc = 0i64;
         if rising == E::BOTTOM {
-            for (op, g) in ops.ops.iter().zip(self.gap.iter_mut()) {
+            for (op, (g, next)) in ops.ops.iter().zip(gaps) {
                 let v = (g.to_bits() - d).max(0);
-                *g = I16F16::from_bits(v);
+                *next = I16F16::from_bits(v);
                 acc += op.weight.bits() as i64 * v as i64;
             }
         } else {
-            for (op, g) in ops.ops.iter().zip(self.gap.iter_mut()) {
+            for (op, (g, next)) in ops.ops.iter().zip(gaps) {
                 let v = (g.to_bits() + d).min(op.threshold.to_bits());
-                *g = I16F16::from_bits(v);
+                *next = I16F16::from_bits(v);
                 acc += op.weight.bits() as i64 * v as i64;
             }
         }
-        self.last = I16F16::from_bits(u);
         let linear = ops.slope as i64 * u as i64;
         if E::BOTTOM {
             linear - ops.offset_less_bias + acc
         } else {
             linear + ops.bias - acc
         }
+    }
+}
+
+/// A memory a model's bank advances ([`PlayBank::advance`]): one bank in
+/// place, or a double-buffered one ([`Stepped`]).
+pub trait Bank<const N: usize> {
+    /// Advances with input `u`; returns the bank's sum ([`PlayBank::advance`]).
+    fn advance<W: Weight>(&mut self, ops: &Operators<W, N>, u: I16F16) -> i64;
+}
+
+impl<const N: usize, E: Edge> Bank<N> for PlayBank<N, E> {
+    #[inline(always)]
+    fn advance<W: Weight>(&mut self, ops: &Operators<W, N>, u: I16F16) -> i64 {
+        PlayBank::advance(self, ops, u)
+    }
+}
+
+/// A double-buffered bank: each advance writes the new state into the other
+/// buffer, so the state before the last advance stays at hand
+/// ([`before`](Self::before)) at the cost of a buffer swap, not a copy.
+///
+/// The controller keeps its inverse bank so: when the limiter changes the
+/// drive, the forward memory, which it does not advance while the inverse is
+/// exact, is rebuilt from the inverse memory as it was before the step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Stepped<const N: usize, E: Edge = Top> {
+    banks: [PlayBank<N, E>; 2],
+    /// Which buffer holds the present state (0 or 1).
+    now: usize,
+}
+
+impl<const N: usize, E: Edge> Stepped<N, E> {
+    /// Both buffers at `bank`.
+    pub const fn new(bank: PlayBank<N, E>) -> Self {
+        Self {
+            banks: [bank, bank],
+            now: 0,
+        }
+    }
+
+    /// The present state.
+    #[inline(always)]
+    pub fn now(&self) -> &PlayBank<N, E> {
+        &self.banks[self.now & 1]
+    }
+
+    /// The present state, to set it ([`PlayBank::set`]).
+    #[inline(always)]
+    pub fn now_mut(&mut self) -> &mut PlayBank<N, E> {
+        &mut self.banks[self.now & 1]
+    }
+
+    /// The first buffer, at a fixed address: the present state of a bank that
+    /// is only ever advanced in place through it, never through
+    /// [`advance`](Bank::advance) on the pair (which swaps the buffers).
+    #[inline(always)]
+    pub fn first_mut(&mut self) -> &mut PlayBank<N, E> {
+        &mut self.banks[0]
+    }
+
+    /// The state before the last [`advance`](Bank::advance); after a change
+    /// through [`now_mut`](Self::now_mut), whatever the other buffer held.
+    #[inline(always)]
+    pub fn before(&self) -> &PlayBank<N, E> {
+        &self.banks[(self.now & 1) ^ 1]
+    }
+}
+
+/// A [`Stepped`] bank whose last advance is done again with another input:
+/// from the state before it into the present buffer, without a swap.
+pub struct Redo<'b, const N: usize, E: Edge>(pub &'b mut Stepped<N, E>);
+
+impl<const N: usize, E: Edge> Bank<N> for Redo<'_, N, E> {
+    #[inline(always)]
+    fn advance<W: Weight>(&mut self, ops: &Operators<W, N>, u: I16F16) -> i64 {
+        let [a, b] = &mut self.0.banks;
+        let (from, to) = if self.0.now & 1 == 0 {
+            (&*b, a)
+        } else {
+            (&*a, b)
+        };
+        from.advance_into(to, ops, u)
+    }
+}
+
+impl<const N: usize, E: Edge> Bank<N> for Stepped<N, E> {
+    #[inline(always)]
+    fn advance<W: Weight>(&mut self, ops: &Operators<W, N>, u: I16F16) -> i64 {
+        let [a, b] = &mut self.banks;
+        let (from, to) = if self.now & 1 == 0 {
+            (&*a, b)
+        } else {
+            (&*b, a)
+        };
+        self.now ^= 1;
+        from.advance_into(to, ops, u)
     }
 }
 
@@ -350,6 +477,26 @@ mod tests {
     #[test]
     fn gaps_from_the_bottom_follow_eq_3_on_any_history() {
         follows_eq_3(PlayBank::<6, Bottom>::at_rest(&operators()));
+    }
+
+    /// The double-buffered bank advances as one bank in place, and keeps the
+    /// state before each advance.
+    #[test]
+    fn a_stepped_bank_advances_as_one_bank_and_keeps_the_state_before() {
+        let ops = operators();
+        let mut one = PlayBank::<6, Top>::new();
+        let mut two = Stepped::new(PlayBank::<6, Top>::new());
+        for (k, u) in [40.0, 12.0, 90.0, 55.0, 55.0, 150.0, 0.0, 33.5]
+            .into_iter()
+            .enumerate()
+        {
+            let before = one;
+            let a = one.advance(&ops, v(u));
+            let b = Bank::advance(&mut two, &ops, v(u));
+            assert_eq!(a, b, "step {k}");
+            assert_eq!(two.now(), &one, "step {k}");
+            assert_eq!(two.before(), &before, "step {k}");
+        }
     }
 
     #[test]
