@@ -479,8 +479,8 @@ mod tests {
         follows_eq_3(PlayBank::<6, Bottom>::at_rest(&operators()));
     }
 
-    /// The double-buffered bank advances as one bank in place, and keeps the
-    /// state before each advance.
+    /// The double-buffered bank advances as one bank in place, keeps the
+    /// state before each advance, and redoes its last advance from it.
     #[test]
     fn a_stepped_bank_advances_as_one_bank_and_keeps_the_state_before() {
         let ops = operators();
@@ -496,6 +496,17 @@ mod tests {
             assert_eq!(a, b, "step {k}");
             assert_eq!(two.now(), &one, "step {k}");
             assert_eq!(two.before(), &before, "step {k}");
+            // The same step done again with another input starts from the
+            // state before it, as one bank advanced from there would.
+            let (mut redone, again) = (before, u * 0.5 + 7.0);
+            let a = redone.advance(&ops, v(again));
+            let b = Bank::advance(&mut Redo(&mut two), &ops, v(again));
+            assert_eq!(
+                (a, two.now(), two.before()),
+                (b, &redone, &before),
+                "step {k}"
+            );
+            one = redone;
         }
     }
 
