@@ -132,11 +132,13 @@ enum Command {
               allow_negative_numbers = true)]
         u_max: f64,
     },
-    /// The board's loops for a stated robustness: active damping of the stage's
-    /// first mode from the force sensor, the position PI around the damped stage
-    /// and the feedforward that inverts it, from the identified dynamics (if given;
-    /// else the PI alone, slow); written into the firmware model (its [dynamics],
-    /// [damping], [feedback] and [shaping] sections), which `fpi board load` sends.
+    /// Design the board's loops for a stated robustness, offline.
+    ///
+    /// Active damping of the stage's first mode from the force sensor, the
+    /// position PI around the damped stage and the feedforward that inverts it,
+    /// from the identified dynamics (if given; else the PI alone, slow), written
+    /// into the firmware model (its `[dynamics]`, `[damping]`, `[feedback]` and
+    /// `[shaping]` sections), which `fpi board load` sends.
     Tune {
         /// A firmware model file (from `fpi export`).
         #[arg(long)]
@@ -154,9 +156,10 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Refine a stage's FEM tables from measured runs of the built stage: the gain
-    /// and offset of its output f_K and the scale of its preload f_F, stored in the
-    /// model file (the actuator's parameters are kept).
+    /// Refine a stage's FEM tables from measured runs of the built stage.
+    ///
+    /// The gain and offset of its output f_K and the scale of its preload f_F,
+    /// stored in the model file (the actuator's parameters are kept).
     Refine {
         /// A calibrated model.
         #[arg(long)]
@@ -207,8 +210,10 @@ enum Command {
     },
     /// Throughput of the host model and the calibration (figures, not a test).
     Bench,
-    /// The stage's linear dynamics from chirps (voltage → x_fhps_um): frequency
-    /// response, rational transfer function, voltage-dependent gain, capacitance.
+    /// The stage's linear dynamics from chirps (voltage → x_fhps_um).
+    ///
+    /// Frequency response, rational transfer function, voltage-dependent gain,
+    /// capacitance.
     Identify {
         /// Chirp recordings `t_s,voltage_V,x_fhps_um[,current_mA]` (CSV, .gz allowed).
         #[arg(long = "chirp", required = true, num_args = 1..)]
@@ -225,8 +230,10 @@ enum Command {
               value_parser = parse_positive, allow_negative_numbers = true)]
         min_hz: f64,
     },
-    /// An analytic stage: the second paper's three-stage lever (eqs. 8–12, Table 5)
-    /// as an FEM table `x_pea_um,preload_N,x_fhps_um`.
+    /// An analytic stage: the second paper's three-stage lever as an FEM table.
+    ///
+    /// Eqs. 8–12 and Table 5 of the second paper, written as
+    /// `x_pea_um,preload_N,x_fhps_um`.
     Lever {
         /// Lever parameters (TOML: [geometry], [output], [load]; default Table 5).
         #[arg(long)]
@@ -290,8 +297,9 @@ impl LoopArgs {
 
 #[derive(Subcommand)]
 enum BoardCommand {
-    /// Run the emulated board (QEMU with the firmware and its virtual stage) until
-    /// stopped; its link listens on a TCP port.
+    /// Run the emulated board until stopped; its link listens on a TCP port.
+    ///
+    /// QEMU runs the firmware and its virtual stage.
     Emulate {
         /// Where the link listens: HOST:PORT.
         #[arg(long, default_value = "127.0.0.1:4545", value_parser = parse_listen)]
@@ -338,8 +346,9 @@ enum BoardCommand {
         #[arg(long, default_value_t = 0)]
         cycles: u32,
     },
-    /// Stream a trajectory: column `x_ref_um` of a CSV, one point every
-    /// `--interval` control ticks, interpolated.
+    /// Stream a trajectory: column `x_ref_um` of a CSV.
+    ///
+    /// One point every `--interval` control ticks, interpolated.
     Stream {
         /// The trajectory.
         file: PathBuf,
@@ -359,8 +368,10 @@ enum BoardCommand {
         #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u16).range(1..))]
         decimation: u16,
     },
-    /// Load a model into the board: a calibrated model with the stage's FEM tables
-    /// (as `fpi export` takes them), or a firmware model file.
+    /// Load a model into the board.
+    ///
+    /// A calibrated model with the stage's FEM tables (as `fpi export` takes
+    /// them), or a firmware model file.
     Load {
         /// The model.
         model: PathBuf,
@@ -396,33 +407,40 @@ enum BoardCommand {
     },
     /// Reset the board (it starts parked, with its stored model).
     Reset,
-    /// The emulated board's virtual bench: what its analog input reads, what its
-    /// force and position sensors do, which virtual stage it drives.
+    /// The emulated board's virtual bench.
+    ///
+    /// What its analog input reads, what its force and position sensors do,
+    /// which virtual stage it drives.
     Bench {
         #[command(flatten)]
         settings: fpi_host::cli::board::BenchSettings,
     },
-    /// Open the loop, or close it on the position sensor (the model needs a
-    /// [feedback] section, from `fpi tune`); without a jump.
+    /// Open the loop, or close it on the position sensor, without a jump.
+    ///
+    /// Closing needs a model with a `[feedback]` section (from `fpi tune`).
     Loop {
         /// open, closed (feedback plus the inverse FPI feedforward) or feedback
         /// (feedback alone, through the straight-line drive).
         mode: String,
     },
-    /// Switch the model's active damping (its [damping] section) on or off,
-    /// without a jump.
+    /// Switch the model's active damping on or off, without a jump.
+    ///
+    /// The damping is the model's `[damping]` section.
     Damping {
         /// on or off.
         state: String,
     },
-    /// Switch the model's reference shaping (its [shaping] section) on or off,
-    /// without a jump.
+    /// Switch the model's reference shaping on or off, without a jump.
+    ///
+    /// The shaping is the model's `[shaping]` section.
     Shaping {
         /// on or off.
         state: String,
     },
-    /// Step the reference along a raised cosine, record and score the response:
-    /// rise time, overshoot, settling to ±0.1 µm (and to --tol).
+    /// Step the reference, record and score the response.
+    ///
+    /// The step is a raised cosine; the figures are the rise time, the overshoot
+    /// and the settling to ±0.1 µm (and to --tol).
     Step {
         /// From, µm (the stage moves there first and rests 50 ms).
         #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
@@ -446,9 +464,10 @@ enum BoardCommand {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Measure the frequency response through the board (its own lock-in
-    /// analyser) from the command to the position and force sensors; `fpi tune
-    /// --frf` designs loops on it.
+    /// Measure the frequency response through the board.
+    ///
+    /// Its own lock-in analyser, from the command to the position and force
+    /// sensors; `fpi tune --frf` designs loops on it.
     Frf {
         #[command(flatten)]
         sweep: FrfArgs,
@@ -456,9 +475,11 @@ enum BoardCommand {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Tune the loops of the model the board runs through the board: measure
-    /// the frequency response, fit the stage's dynamics, design damping, PI and
-    /// feedforward, load the tuned model and verify it with a step.
+    /// Tune the loops of the model the board runs, through the board.
+    ///
+    /// Measures the frequency response, fits the stage's dynamics, designs
+    /// damping, PI and feedforward, loads the tuned model and verifies it with a
+    /// step.
     Autotune {
         /// The model the board runs (as `fpi board load` took it).
         model: PathBuf,
