@@ -1,0 +1,246 @@
+//! The loops' sections of the firmware model file: the stage's dynamics, the
+//! active damping, the reference shaping and the position feedback.
+
+use piezo_fpi::biquad::{ShapingSpec, COEFF_ABS_MAX, COEFF_FRAC, SHAPING_SECTIONS};
+use piezo_fpi::control::Interval;
+use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
+use piezo_fpi::feedback::FeedbackSpec;
+use piezo_fpi::preview::{PREVIEW_MAX, TAPS};
+use piezo_fpi::q::{self, CreepRate, LoopGain};
+use serde::{Deserialize, Serialize};
+
+use super::sections::signal;
+
+/// The stage's first mode as the loops see it from the command (µm in, the
+/// position sensor and the force channel's dynamic part out).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DynamicsSection {
+    /// Natural frequency of the first mode, small-signal, undamped, Hz.
+    pub mode_hz: f64,
+    /// Its damping ratio (0–0.5).
+    pub damping_ratio: f64,
+    /// The amplifier's and sensors' lag as a real pole, Hz (absent: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lag_hz: Option<f64>,
+    /// κ: the dynamic force per µm of command well above the mode, N/µm (absent:
+    /// not measured; active damping needs it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_gain_n_per_um: Option<f64>,
+    /// Where the numbers came from.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub notes: String,
+}
+
+impl DynamicsSection {
+    pub(super) fn quantize(&self) -> Result<DynamicsSpec, String> {
+        let mhz = |key: &str, v: f64| -> Result<u32, String> {
+            if v.is_finite() && v > 0.0 && v < 4.0e6 {
+                Ok((v * 1000.0).round() as u32)
+            } else {
+                Err(format!("{key} = {v}: not a positive frequency below 4 MHz"))
+            }
+        };
+        let ratio = |key: &str, v: f64| {
+            q::quantize(v, q::COUPLING_FRAC, q::COUPLING_ABS_MAX)
+                .map(CreepRate::from_bits)
+                .ok_or_else(|| format!("{key} = {v}: not a finite value within ±0.5 (I0F32)"))
+        };
+        Ok(DynamicsSpec {
+            mode_mhz: mhz("dynamics.mode_hz", self.mode_hz)?,
+            damping: ratio("dynamics.damping_ratio", self.damping_ratio)?,
+            lag_mhz: self
+                .lag_hz
+                .map(|v| mhz("dynamics.lag_hz", v))
+                .transpose()?
+                .unwrap_or(0),
+            force_gain: signal(
+                "dynamics.force_gain_n_per_um",
+                self.force_gain_n_per_um.unwrap_or(0.0),
+            )?,
+        })
+    }
+}
+
+/// Active damping: integral force feedback on the force channel's dynamic part,
+/// in a band (`C(s) ≈ g·s/((s + ω_h)(s + ω_l))`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DampingSection {
+    /// IFF gain: µm of command per N·s of dynamic force.
+    pub gain_um_per_n_s: f64,
+    /// Corner of the high-pass below which the law stops integrating, Hz (> 0).
+    pub highpass_hz: f64,
+    /// Corner of the integrator's leak, Hz (> 0).
+    pub leak_hz: f64,
+    /// Largest correction the damping adds to the command, µm.
+    pub limit_um: f64,
+    /// How the gains were chosen (what the tuning assumed and the margins it got).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub notes: String,
+}
+
+impl DampingSection {
+    pub(super) fn quantize(&self, rate_hz: u32) -> Result<DampingSpec, String> {
+        let fs = rate_hz.max(1) as f64;
+        let g = self.gain_um_per_n_s / fs;
+        let gain = q::quantize(g, q::LOOP_GAIN_FRAC, 127.9)
+            .map(LoopGain::from_bits)
+            .ok_or_else(|| {
+                format!(
+                    "damping.gain_um_per_n_s = {}: not a finite value within ±128 µm/N per tick (I8F24)",
+                    self.gain_um_per_n_s
+                )
+            })?;
+        Ok(DampingSpec {
+            gain,
+            highpass: rate_per_tick("damping.highpass_hz", self.highpass_hz, fs)?,
+            leak: rate_per_tick("damping.leak_hz", self.leak_hz, fs)?,
+            limit: signal("damping.limit_um", self.limit_um)?,
+        })
+    }
+}
+
+/// `1 − e^{−2π·f/f_s}` in `I0F32` for a corner `f` (Hz, ≥ 0) at `f_s`; errors
+/// name `key`.
+pub(super) fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, String> {
+    if !(f_hz.is_finite() && f_hz >= 0.0 && f_hz * 64.0 <= fs) {
+        return Err(format!(
+            "{key} = {f_hz}: not a corner between 0 and f_s/64 = {} Hz",
+            fs / 64.0
+        ));
+    }
+    let a = -(-2.0 * std::f64::consts::PI * f_hz / fs).exp_m1();
+    q::quantize(a, q::COUPLING_FRAC, q::COUPLING_ABS_MAX)
+        .map(CreepRate::from_bits)
+        .ok_or_else(|| format!("{key} = {f_hz}: does not fit its Q format"))
+}
+
+fn is_zero(v: &u8) -> bool {
+    *v == 0
+}
+
+/// The reference-shaping filter: up to two second-order sections at the control
+/// rate, `y = b0·x + b1·x₁ + b2·x₂ − a1·y₁ − a2·y₂`, each of static gain 1.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShapingSection {
+    /// `[b0, b1, b2, a1, a2]` of each section (at most two), dimensionless.
+    pub sections: Vec<[f64; 5]>,
+    /// Ticks the shaping runs ahead of the reference the loops track (0–7; 0:
+    /// none): it is then `taps` on the preview's delay line, not sections (see
+    /// `piezo_fpi::preview`).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub preview_ticks: u8,
+    /// The taps on the delay line, newest first (at most 8, summing to 1),
+    /// with `preview_ticks > 0`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub taps: Vec<f64>,
+    /// What the filter cancels (the modes, the damping it leaves).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub notes: String,
+}
+
+impl ShapingSection {
+    /// The sections in the core's format (`I8F24`), the missing ones the identity.
+    pub(super) fn quantize(&self) -> Result<ShapingSpec, String> {
+        if self.sections.len() > SHAPING_SECTIONS {
+            return Err(format!(
+                "shaping.sections has {} sections: the board runs at most {SHAPING_SECTIONS}",
+                self.sections.len()
+            ));
+        }
+        if self.preview_ticks > PREVIEW_MAX {
+            return Err(format!(
+                "shaping.preview_ticks = {}: the board looks ahead at most {PREVIEW_MAX} ticks",
+                self.preview_ticks
+            ));
+        }
+        let mut out = ShapingSpec {
+            preview: self.preview_ticks,
+            ..ShapingSpec::IDENTITY
+        };
+        match (self.preview_ticks, self.sections.is_empty(), self.taps.len()) {
+            (0, _, 0) => {}
+            (0, _, _) => return Err("shaping.taps: taps run with preview_ticks > 0".into()),
+            (_, false, _) => {
+                return Err(
+                    "shaping.sections: a shaping that runs ahead (preview_ticks > 0) is its taps, not sections"
+                        .into(),
+                )
+            }
+            (_, true, n) if n > TAPS => {
+                return Err(format!(
+                    "shaping.taps has {n} taps: the board runs at most {TAPS}"
+                ))
+            }
+            _ => {}
+        }
+        for (j, (&v, o)) in self.taps.iter().zip(out.taps.iter_mut()).enumerate() {
+            *o = q::quantize(v, COEFF_FRAC, COEFF_ABS_MAX).ok_or_else(|| {
+                format!("shaping.taps[{j}] = {v}: not a finite value within ±128 (I8F24)")
+            })?;
+        }
+        for (i, (s, o)) in self
+            .sections
+            .iter()
+            .zip(out.sections.iter_mut())
+            .enumerate()
+        {
+            for (j, (&v, o)) in s.iter().zip(o.iter_mut()).enumerate() {
+                *o = q::quantize(v, COEFF_FRAC, COEFF_ABS_MAX).ok_or_else(|| {
+                    format!(
+                        "shaping.sections[{i}][{j}] = {v}: not a finite value within ±128 (I8F24)"
+                    )
+                })?;
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// Position-feedback settings: the PI law's gains and the sensor's supervision.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeedbackSection {
+    /// Proportional gain, µm per µm of error (0–16).
+    pub kp: f64,
+    /// Integral gain, per second (`ki_per_s / rate_hz` per tick, 0–1 per tick).
+    pub ki_per_s: f64,
+    /// Largest correction the feedback adds to the reference, µm.
+    pub limit_um: f64,
+    /// Lowest plausible position reading, µm.
+    pub position_min_um: f64,
+    /// Highest plausible position reading, µm.
+    pub position_max_um: f64,
+    /// Largest tolerated `|x_sensor − f_K(x̂_pea)|`, µm.
+    pub position_tolerance_um: f64,
+    /// How the gains were chosen (what `fpi tune` assumed and the margins it got).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub notes: String,
+}
+
+impl FeedbackSection {
+    /// The settings in the core's formats at `rate_hz` (ranges only; the core's
+    /// validator checks the rest).
+    pub(super) fn quantize(&self, rate_hz: u32) -> Result<FeedbackSpec, String> {
+        let loop_gain = |key: &str, v: f64| {
+            q::quantize(v, q::LOOP_GAIN_FRAC, 127.9)
+                .map(LoopGain::from_bits)
+                .ok_or_else(|| format!("{key} = {v}: not a finite value within ±128 (I8F24)"))
+        };
+        Ok(FeedbackSpec {
+            kp: loop_gain("feedback.kp", self.kp)?,
+            ki: loop_gain(
+                "feedback.ki_per_s (per control step)",
+                self.ki_per_s / rate_hz.max(1) as f64,
+            )?,
+            limit: signal("feedback.limit_um", self.limit_um)?,
+            sensor: Interval {
+                lo: signal("feedback.position_min_um", self.position_min_um)?,
+                hi: signal("feedback.position_max_um", self.position_max_um)?,
+            },
+            tolerance: signal("feedback.position_tolerance_um", self.position_tolerance_um)?,
+        })
+    }
+}

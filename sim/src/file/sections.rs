@@ -1,0 +1,438 @@
+//! The FPI model's sections of the firmware model file (the PI bank, the
+//! coupling, the maps, creep, the controller's settings, the tables) and their
+//! quantisation into the core's formats.
+
+use fixed::types::I16F16;
+use piezo_fpi::control::{ForceChannel, ForceSource, Interval, Supervision, DEFAULT_SPLIT_HZ};
+use piezo_fpi::fpi::Coupling as FixedCoupling;
+use piezo_fpi::model::{CreepSpec, MapSpec, ModelSpec, TableSpec};
+use piezo_fpi::play::Operator;
+use piezo_fpi::q::{self, UmPerVolt, VoltsPerNewton};
+use piezo_fpi::table::Segment;
+use serde::{Deserialize, Serialize};
+
+use super::loops::rate_per_tick;
+use super::DYNAMIC_LIMIT_FACTOR;
+use crate::curve::Curve;
+use crate::maps::TableMap;
+
+/// Provenance of a model file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Provenance {
+    /// The calibrated model it was exported from.
+    pub model: String,
+    /// The FEM table the maps came from.
+    pub fem: String,
+    /// Tool and version that wrote it.
+    pub created_by: String,
+    /// Free text: calibration data, fit metrics.
+    pub notes: String,
+}
+
+/// `Y[u] = w0·u + Σ w_i G_{r_i}[u]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PiSection {
+    /// Linear weight, µm/V (> 0).
+    pub w0_um_per_v: f64,
+    /// Thresholds, V, non-decreasing, in `[0, input_max_v]`.
+    pub thresholds_v: Vec<f64>,
+    /// Weights, µm/V; partial sums with `w0` positive.
+    pub weights_um_per_v: Vec<f64>,
+    /// Input domain `[0, input_max_v]`, V.
+    pub input_max_v: f64,
+}
+
+/// `U_p(F) = k0 + k_f·F + k_q·(F - F_q)²`, `x = h(Y[g(u - U_p)]) - c·(F - F_ref)`
+/// (also the coupling of the host tools' calibrated models, which have no `F_ref`:
+/// that belongs to a stage).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct CouplingSection {
+    /// Constant part `k0` of the preload offset, V.
+    #[serde(default)]
+    pub offset_v: f64,
+    /// Force–voltage coupling, V/N.
+    pub k_f_v_per_n: f64,
+    /// Curvature `k_q` of the preload offset, V/N².
+    #[serde(default)]
+    pub k_q_v_per_n2: f64,
+    /// Centre `F_q` of the curvature term, N.
+    #[serde(default)]
+    pub force_q_n: f64,
+    /// Stack compliance, µm/N (0 for the paper's FPI).
+    #[serde(default)]
+    pub compliance_um_per_n: f64,
+    /// Force at zero extension, N: the stage's rest preload (a firmware model
+    /// needs it; a calibrated actuator model has none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_ref_n: Option<f64>,
+}
+
+/// A monotone map and its inverse, both tabulated (see the core's `fpi::Map`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MapSection {
+    /// `y = map(x)`.
+    pub forward: TableSection,
+    /// `x = map⁻¹(y)`.
+    pub inverse: TableSection,
+}
+
+/// One creep term: `m ← m + (1 - exp(-T_s/τ))·(û - m)`, contributing `b·m` to `Y`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CreepSection {
+    /// Time constant `τ`, s.
+    pub tau_s: f64,
+    /// Gain `b`, µm/V.
+    pub gain_um_per_v: f64,
+}
+
+/// Control-loop settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerSection {
+    /// ISR rate, Hz.
+    pub rate_hz: u32,
+    /// Lowest amplifier setpoint, V.
+    pub u_min_v: f64,
+    /// Highest amplifier setpoint, V.
+    pub u_max_v: f64,
+    /// Largest setpoint slew, V/ms.
+    pub slew_v_per_ms: f64,
+    /// Lowest reachable reference, µm of stage output.
+    pub reference_min_um: f64,
+    /// Highest reachable reference, µm of stage output.
+    pub reference_max_um: f64,
+    /// Lowest plausible force reading, N.
+    pub force_min_n: f64,
+    /// Highest plausible force reading, N.
+    pub force_max_n: f64,
+    /// Largest tolerated `|F - f_F(x_pea_est)|`, N.
+    pub force_tolerance_n: f64,
+    /// Safe-state voltage, V.
+    pub safe_voltage_v: f64,
+    /// `"measured"` (force sensor) or `"predicted"` (`f_F` of the reference).
+    pub force_source: String,
+    /// The amplifier's output current limit, mA: with `capacitance_uf` it bounds
+    /// the slew to `I_max / C` (second paper, eq. 14).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub current_limit_ma: Option<f64>,
+    /// The stack's capacitance, µF (`fpi identify`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capacitance_uf: Option<f64>,
+    /// Corner of the force channel's split, Hz: below it the FPI uses the measured
+    /// force, above it the FEM's preload (the dynamic part goes to the damping).
+    /// Absent: 10 Hz; 0: no split (the reading as it is).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_split_hz: Option<f64>,
+    /// Largest tolerated `|F − f_F(x_pea_est)|` at once (the dynamic force
+    /// included), N; the slow part is held to `force_tolerance_n`. Absent:
+    /// [`DYNAMIC_LIMIT_FACTOR`] times the tolerance (a stage's first mode, rung by a
+    /// fast move, swings the force by tens of newtons).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_dynamic_limit_n: Option<f64>,
+}
+
+impl ControllerSection {
+    /// The slew the loop enforces, V/ms: `slew_v_per_ms`, or `I_max / C` (mA/µF =
+    /// V/ms) where the amplifier's current limit and the stack's capacitance are
+    /// given and it is lower. An `I_max` or `C` that is not positive and finite is
+    /// refused, naming its key.
+    pub fn slew_limit_v_per_ms(&self) -> Result<f64, String> {
+        match (self.current_limit_ma, self.capacitance_uf) {
+            (None, None) => Ok(self.slew_v_per_ms),
+            (Some(i), Some(c)) => {
+                if !(i > 0.0 && i.is_finite()) {
+                    return Err(format!(
+                        "controller.current_limit_ma = {i}: not a positive current"
+                    ));
+                }
+                if !(c > 0.0 && c.is_finite()) {
+                    return Err(format!(
+                        "controller.capacitance_uf = {c}: not a positive capacitance"
+                    ));
+                }
+                Ok(self.slew_v_per_ms.min(i / c))
+            }
+            _ => Err(
+                "controller.current_limit_ma and controller.capacitance_uf go together \
+                 (the slew limit I_max / C needs both)"
+                    .to_string(),
+            ),
+        }
+    }
+
+    /// The slew the loop enforces ([`slew_limit_v_per_ms`](Self::slew_limit_v_per_ms))
+    /// per control step at `rate_hz`, V.
+    pub fn slew_per_step_v(&self) -> Result<f64, String> {
+        Ok(self.slew_limit_v_per_ms()? * 1e3 / self.rate_hz as f64)
+    }
+}
+
+/// The three FEM-derived maps.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Tables {
+    /// Preload, N, vs stack extension, µm.
+    pub f_f: TableSection,
+    /// Stage output, µm, vs stack extension, µm.
+    pub f_k: TableSection,
+    /// Stack extension, µm, vs stage output, µm.
+    pub f_k_inv: TableSection,
+}
+
+/// A monotone function sampled at `x0 + k·2^step_log2`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TableSection {
+    /// First knot, input unit.
+    pub x0: f64,
+    /// Knot spacing is `2^step_log2` input units; `-15..=0`.
+    pub step_log2: i32,
+    /// Values at the knots, output unit.
+    pub values: Vec<f64>,
+}
+
+/// A table quantised to the core's format (owns what a [`TableSpec`] borrows).
+#[derive(Debug, Clone, PartialEq)]
+pub struct QuantizedTable {
+    /// First knot, `I16F16`.
+    pub x0: I16F16,
+    /// Spacing as `log2` of raw LSB.
+    pub shift: u32,
+    /// The intervals.
+    pub segments: Vec<Segment>,
+}
+
+impl QuantizedTable {
+    /// The borrowed form.
+    pub fn spec(&self) -> TableSpec<'_> {
+        TableSpec {
+            x0: self.x0,
+            shift: self.shift,
+            segments: &self.segments,
+        }
+    }
+}
+
+/// A model quantised to the core's formats: owns the arrays a [`ModelSpec`]
+/// borrows, and lends them with [`spec`](Self::spec).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Quantized {
+    /// Everything but the arrays (which are empty here).
+    pub(super) base: ModelSpec<'static>,
+    pub(super) operators: Vec<Operator<UmPerVolt>>,
+    pub(super) creep: Vec<CreepSpec>,
+    pub(super) dead_zone: Option<[QuantizedTable; 2]>,
+    pub(super) saturation: Option<[QuantizedTable; 2]>,
+    pub(super) tables: [QuantizedTable; 3],
+}
+
+impl Quantized {
+    /// The model in the core's format, for [`validate`](piezo_fpi::model::validate) and the firmware's types.
+    pub fn spec(&self) -> ModelSpec<'_> {
+        fn map(m: &Option<[QuantizedTable; 2]>) -> Option<MapSpec<'_>> {
+            m.as_ref().map(|[f, i]| MapSpec {
+                forward: f.spec(),
+                inverse: i.spec(),
+            })
+        }
+        let [f_f, f_k, f_k_inv] = &self.tables;
+        ModelSpec {
+            operators: &self.operators,
+            creep: &self.creep,
+            dead_zone: map(&self.dead_zone),
+            saturation: map(&self.saturation),
+            f_f: f_f.spec(),
+            f_k: f_k.spec(),
+            f_k_inv: f_k_inv.spec(),
+            ..self.base
+        }
+    }
+}
+
+pub(super) fn signal(key: &str, v: f64) -> Result<I16F16, String> {
+    q::signal(v).ok_or_else(|| {
+        format!(
+            "{key} = {v}: not a finite value within ±{} (I16F16 signal range)",
+            q::SIGNAL_ABS_MAX
+        )
+    })
+}
+
+pub(super) fn gain(key: &str, v: f64) -> Result<UmPerVolt, String> {
+    q::gain(v).ok_or_else(|| {
+        format!(
+            "{key} = {v}: not a finite value within ±{} (I4F28 gain range)",
+            q::GAIN_ABS_MAX
+        )
+    })
+}
+
+pub(super) fn coupling(key: &str, v: f64) -> Result<VoltsPerNewton, String> {
+    q::coupling(v).ok_or_else(|| {
+        format!(
+            "{key} = {v}: not a finite value within ±{} (I0F32 coupling range)",
+            q::COUPLING_ABS_MAX
+        )
+    })
+}
+
+impl PiSection {
+    /// The operators in the core's formats.
+    pub(super) fn operators(&self) -> Result<Vec<Operator<UmPerVolt>>, String> {
+        if self.weights_um_per_v.len() != self.thresholds_v.len() {
+            return Err(format!(
+                "pi.weights_um_per_v has {} values but pi.thresholds_v has {}",
+                self.weights_um_per_v.len(),
+                self.thresholds_v.len()
+            ));
+        }
+        self.thresholds_v
+            .iter()
+            .zip(&self.weights_um_per_v)
+            .enumerate()
+            .map(|(i, (&r, &w))| {
+                Ok(Operator {
+                    threshold: signal(&format!("pi.thresholds_v[{i}]"), r)?,
+                    weight: gain(&format!("pi.weights_um_per_v[{i}]"), w)?,
+                })
+            })
+            .collect()
+    }
+}
+
+impl CouplingSection {
+    /// The coupling in the core's formats (a firmware model needs `force_ref_n`).
+    pub(super) fn quantize(&self) -> Result<FixedCoupling, String> {
+        let force_ref = self
+            .force_ref_n
+            .ok_or("coupling.force_ref_n: missing (the stage's force at zero extension, N)")?;
+        Ok(FixedCoupling {
+            offset: signal("coupling.offset_v", self.offset_v)?,
+            k_f: coupling("coupling.k_f_v_per_n", self.k_f_v_per_n)?,
+            k_q: coupling("coupling.k_q_v_per_n2", self.k_q_v_per_n2)?,
+            force_q: signal("coupling.force_q_n", self.force_q_n)?,
+            compliance: coupling("coupling.compliance_um_per_n", self.compliance_um_per_n)?,
+            force_ref: signal("coupling.force_ref_n", force_ref)?,
+        })
+    }
+}
+
+impl ControllerSection {
+    /// The supervision settings in the core's formats.
+    pub(super) fn supervision(&self) -> Result<Supervision, String> {
+        let force_source = match self.force_source.as_str() {
+            "measured" => ForceSource::Measured,
+            "predicted" => ForceSource::Predicted,
+            other => {
+                return Err(format!(
+                    "controller.force_source = {}: expected \"measured\" or \"predicted\"",
+                    crate::quote::Quoted(other)
+                ))
+            }
+        };
+        let interval = |lo_key: &str, lo, hi_key: &str, hi| -> Result<Interval, String> {
+            Ok(Interval {
+                lo: signal(lo_key, lo)?,
+                hi: signal(hi_key, hi)?,
+            })
+        };
+        // The default corner, or f_s/64 at a rate too low for it (the validator
+        // then names the rate).
+        let split_hz = self
+            .force_split_hz
+            .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(self.rate_hz as f64 / 64.0));
+        let channel = ForceChannel {
+            split: rate_per_tick("controller.force_split_hz", split_hz, self.rate_hz as f64)?,
+            dynamic_limit: match self.force_dynamic_limit_n {
+                Some(v) => signal("controller.force_dynamic_limit_n", v)?,
+                None => signal(
+                    "controller.force_tolerance_n (times the default dynamic-limit factor)",
+                    DYNAMIC_LIMIT_FACTOR * self.force_tolerance_n,
+                )?,
+            },
+        };
+        Ok(Supervision {
+            channel,
+            reference: interval(
+                "controller.reference_min_um",
+                self.reference_min_um,
+                "controller.reference_max_um",
+                self.reference_max_um,
+            )?,
+            force: interval(
+                "controller.force_min_n",
+                self.force_min_n,
+                "controller.force_max_n",
+                self.force_max_n,
+            )?,
+            force_tolerance: signal("controller.force_tolerance_n", self.force_tolerance_n)?,
+            safe_voltage: signal("controller.safe_voltage_v", self.safe_voltage_v)?,
+            force_source,
+        })
+    }
+}
+
+/// A tabulated map and its inverse in the core's format.
+pub(super) fn quantize_map(
+    name: &str,
+    m: &Option<MapSection>,
+) -> Result<Option<[QuantizedTable; 2]>, String> {
+    m.as_ref()
+        .map(|m| {
+            Ok([
+                quantize_table(&format!("{name}.forward"), &m.forward)?,
+                quantize_table(&format!("{name}.inverse"), &m.inverse)?,
+            ])
+        })
+        .transpose()
+}
+
+pub(super) fn quantize_table(key: &str, t: &TableSection) -> Result<QuantizedTable, String> {
+    let values = t
+        .values
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| signal(&format!("{key}.values[{i}]"), v))
+        .collect::<Result<Vec<_>, _>>()?;
+    let segments = values
+        .windows(2)
+        .map(|w| Segment::from_bits(w[0].to_bits(), w[1].to_bits() - w[0].to_bits()))
+        .collect();
+    Ok(QuantizedTable {
+        x0: signal(&format!("{key}.x0"), t.x0)?,
+        // Out-of-range spacings are passed on for the validator to name.
+        shift: (t.step_log2 + q::SIGNAL_FRAC as i32).clamp(0, 32) as u32,
+        segments,
+    })
+}
+
+impl TableSection {
+    /// Knot spacing in input units.
+    pub fn step(&self) -> f64 {
+        2f64.powi(self.step_log2)
+    }
+    /// Last knot, input unit.
+    pub fn x_max(&self) -> f64 {
+        self.x0 + self.step() * (self.values.len().saturating_sub(1)) as f64
+    }
+    /// The table as a curve (ends held, like the core's table); `None` for fewer
+    /// than two knots.
+    pub fn curve(&self) -> Option<Curve<'_, f64>> {
+        Curve::uniform(self.x0, self.step(), &self.values)
+    }
+}
+
+impl MapSection {
+    /// The map and its inverse as curves.
+    pub fn table_map(&self) -> Option<TableMap<'_, f64>> {
+        Some(TableMap {
+            forward: self.forward.curve()?,
+            inverse: self.inverse.curve()?,
+        })
+    }
+}
