@@ -9,7 +9,7 @@ use piezo_fpi::preview::{PREVIEW_MAX, TAPS};
 use piezo_fpi::q::{self, CreepRate, LoopGain};
 use serde::{Deserialize, Serialize};
 
-use super::sections::signal;
+use super::sections::{rate_per_tick, signal};
 
 /// The stage's first mode as the loops see it from the command (µm in, the
 /// position sensor and the force channel's dynamic part out).
@@ -99,21 +99,6 @@ impl DampingSection {
             limit: signal("damping.limit_um", self.limit_um)?,
         })
     }
-}
-
-/// `1 − e^{−2π·f/f_s}` in `I0F32` for a corner `f` (Hz, ≥ 0) at `f_s`; errors
-/// name `key`.
-pub(super) fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, String> {
-    if !(f_hz.is_finite() && f_hz >= 0.0 && f_hz * 64.0 <= fs) {
-        return Err(format!(
-            "{key} = {f_hz}: not a corner between 0 and f_s/64 = {} Hz",
-            fs / 64.0
-        ));
-    }
-    let a = -(-2.0 * std::f64::consts::PI * f_hz / fs).exp_m1();
-    q::quantize(a, q::COUPLING_FRAC, q::COUPLING_ABS_MAX)
-        .map(CreepRate::from_bits)
-        .ok_or_else(|| format!("{key} = {f_hz}: does not fit its Q format"))
 }
 
 fn is_zero(v: &u8) -> bool {

@@ -7,11 +7,10 @@ use piezo_fpi::control::{ForceChannel, ForceSource, Interval, Supervision, DEFAU
 use piezo_fpi::fpi::Coupling as FixedCoupling;
 use piezo_fpi::model::{CreepSpec, MapSpec, ModelSpec, TableSpec};
 use piezo_fpi::play::Operator;
-use piezo_fpi::q::{self, UmPerVolt, VoltsPerNewton};
+use piezo_fpi::q::{self, CreepRate, UmPerVolt, VoltsPerNewton};
 use piezo_fpi::table::Segment;
 use serde::{Deserialize, Serialize};
 
-use super::loops::rate_per_tick;
 use super::DYNAMIC_LIMIT_FACTOR;
 use crate::curve::Curve;
 use crate::maps::TableMap;
@@ -252,6 +251,21 @@ impl Quantized {
             ..self.base
         }
     }
+}
+
+/// `1 − e^{−2π·f/f_s}` in `I0F32` for a corner `f` (Hz, ≥ 0) at `f_s`; errors
+/// name `key`.
+pub(super) fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, String> {
+    if !(f_hz.is_finite() && f_hz >= 0.0 && f_hz * 64.0 <= fs) {
+        return Err(format!(
+            "{key} = {f_hz}: not a corner between 0 and f_s/64 = {} Hz",
+            fs / 64.0
+        ));
+    }
+    let a = -(-2.0 * std::f64::consts::PI * f_hz / fs).exp_m1();
+    q::quantize(a, q::COUPLING_FRAC, q::COUPLING_ABS_MAX)
+        .map(CreepRate::from_bits)
+        .ok_or_else(|| format!("{key} = {f_hz}: does not fit its Q format"))
 }
 
 pub(super) fn signal(key: &str, v: f64) -> Result<I16F16, String> {
