@@ -84,6 +84,10 @@ class Board:
         """The state (``fpi board status``): ``state`` (running, parked, fault),
         ``fault``, ``reference_um``, ``estimate_um``, ``position_sensor_um``,
         ``setpoint_V``, ``force_N``, ``amplifier_on``, ``source``, ``loop``,
+        ``damping``, ``shaping``, ``lead_ratio`` and ``lead_applied`` (the
+        explained force's learned ratio: the stage's mass over the tuned one's
+        where applied, else the fit's ratio that autotune stores as
+        ``damping.lead_baseline``; ``None`` where the model has no lead),
         ``model`` (``crc``, ``origin``, ``stroke_um``, ``feedback`` …), ``stream``,
         ``recorder``, ``link`` …"""
     def status_text(self) -> str:

@@ -150,6 +150,10 @@ pub enum ModelError {
     /// A shaping that runs ahead (a preview) is taps on the delay line: its
     /// sections must be the identity.
     PreviewWithSections,
+    /// The lead's baseline (`crate::lead`) scales the force the shaped
+    /// reference's motion explains: it needs active damping and a shaping that
+    /// runs ahead.
+    LeadWithoutPreview,
 }
 
 impl ModelError {
@@ -232,6 +236,9 @@ impl ModelError {
             }
             Self::PreviewWithSections => {
                 "a shaping that runs ahead (preview_ticks > 0) is its taps: it has no sections"
+            }
+            Self::LeadWithoutPreview => {
+                "a lead baseline needs active damping ([damping]) and a shaping that runs ahead (preview_ticks > 0)"
             }
         }
     }
@@ -401,6 +408,8 @@ pub enum Field {
     DampingHighpass,
     /// Damping: the largest correction, µm.
     DampingLimit,
+    /// Damping: the lead's baseline, the fit's ratio on the tuned stage.
+    LeadBaseline,
     /// The force channel's split corner.
     ForceSplit,
     /// The force channel's dynamic limit, N.
@@ -455,6 +464,7 @@ impl Field {
             Self::DampingLeak => "damping.leak_hz",
             Self::DampingHighpass => "damping.highpass_hz",
             Self::DampingLimit => "damping.limit_um",
+            Self::LeadBaseline => "damping.lead_baseline",
             Self::ForceSplit => "controller.force_split_hz",
             Self::ForceDynamicLimit => "controller.force_dynamic_limit_n",
             Self::Model => "model",

@@ -37,6 +37,7 @@ pub mod feedback;
 pub mod fpi;
 pub mod inverse;
 pub mod io;
+pub mod lead;
 pub mod limits;
 pub mod model;
 pub mod pi;

@@ -13,6 +13,7 @@
 //! | creep memory | V | `I16F48` (raw `i64`) | 3.6·10⁻¹⁵ | ±4096 |
 //! | [`VoltsPerUm`] | V/µm | `I10F22` | 2.4·10⁻⁷ | ±512 (inverse PI weights `w0'`, `w'_j`) |
 //! | [`LoopGain`] | 1 (µm/µm), 1/tick | `I8F24` | 6.0·10⁻⁸ | kp 0–16, ki 0–1 per tick (position feedback) |
+//! | [`LeadRatio`] | 1 | `I2F30` | 9.3·10⁻¹⁰ | [1/2, 2) (the explained force's mass ratio, `crate::lead`) |
 //! | feedback integrator | µm | `I24F40` (raw `i64`) | 9.1·10⁻¹³ | ±4096 |
 //!
 //! Sums of products are accumulated exactly in 64 bits ([`GainAcc`] = `I20F44` for
@@ -25,7 +26,7 @@
 //! One 16-bit DAC LSB over 0–150 V is 2.29 mV = 150 LSB of [`Volts`]; one nm is
 //! 65.5 LSB of [`Micrometres`].
 
-use fixed::types::{I0F32, I10F22, I16F16, I20F44, I26F38, I4F28, I8F24};
+use fixed::types::{I0F32, I10F22, I16F16, I20F44, I26F38, I2F30, I4F28, I8F24};
 
 include!("qformat.rs");
 
@@ -51,6 +52,8 @@ pub type VoltsPerNewton2 = I0F32;
 pub type CreepRate = I0F32;
 /// Inverse PI weight, volts per µm, `I10F22`.
 pub type VoltsPerUm = I10F22;
+/// The explained force's mass ratio (`crate::lead`), `I2F30`.
+pub type LeadRatio = I2F30;
 /// Exact product accumulator of a forward gain and a signal, `I20F44`.
 pub type GainAcc = I20F44;
 /// Exact product accumulator of an inverse gain and a signal, `I26F38`.

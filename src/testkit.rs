@@ -115,5 +115,6 @@ pub fn spec<'a>(p: &'a ControllerParts<'static, 3>, creep: &'a [CreepSpec]) -> M
         shaping: None,
         dynamics: None,
         damping: None,
+        lead_baseline: None,
     }
 }

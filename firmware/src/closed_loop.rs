@@ -20,6 +20,10 @@
 //! `κ·(S_{k−1} − x_ref)` (κ the model's dynamic force per µm): it damps what
 //! departs from the motion asked for, not the motion itself, whose slow
 //! high-pass-and-leak response would otherwise trail every step by milliseconds.
+//! κ is the identified stage's; on a stage whose mass differs the explained
+//! force is scaled by the mass ratio the loop learns during fast moves
+//! (`piezo_fpi::lead`, where the model carries the lead's baseline). The
+//! learned ratio survives faults and parks; a new model starts it again at 1.
 //!
 //! **Active damping** (`piezo_fpi::damping`), where the model has it and it is
 //! switched on (the default): in every mode the command also gets `δ_d`, the
@@ -63,8 +67,9 @@ use piezo_fpi::biquad::{Cascade, CascadeState, SHAPING_SECTIONS};
 use piezo_fpi::control::{Fault, Interval, LinearDrive, Mode, StepOutput};
 use piezo_fpi::damping::{Damping, DampingConfig};
 use piezo_fpi::feedback::{FeedbackConfig, Pi, Saturation};
+use piezo_fpi::lead::{LeadGain, LeadSpec};
 use piezo_fpi::preview::{Fir, Preview};
-use piezo_fpi::q::{Micrometres, Newtons, Volts};
+use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
 
 use crate::hardware::{Controller, APPROACH_STEP, RATE_HZ};
 
@@ -124,9 +129,8 @@ pub struct Loop {
     ahead_ff: Micrometres,
     /// The model's shaping runs on the preview's line.
     previewing: bool,
-    /// κ where the damping leaves the shaped reference's force out, else zero,
-    /// N/µm.
-    lead: Newtons,
+    /// The explained force's learned mass ratio.
+    lead_gain: LeadGain,
 }
 
 /// Ticks in a row a position reading must disagree with the model's estimate to
@@ -170,27 +174,16 @@ impl Loop {
             last_ff: Micrometres::ZERO,
             ahead_ff: Micrometres::ZERO,
             previewing: false,
-            lead: Newtons::ZERO,
+            lead_gain: LeadGain::new(),
         }
     }
 
     /// Takes the reference source's newest value `ahead` (µm) and gives the
     /// reference the loops track this tick: where the model's shaping runs ahead
     /// (`fir`, `piezo_fpi::preview`), the one its delay older, the shaping then
-    /// taken on the line; else `ahead` itself. `lead`: κ (N/µm) where the damping
-    /// leaves the shaped reference's force out (the model's `lead_force`), else
-    /// none. Call it before [`Loop::command`].
+    /// taken on the line; else `ahead` itself. Call it before [`Loop::command`].
     #[inline]
-    pub fn preview(
-        &mut self,
-        ahead: Micrometres,
-        fir: Option<&Fir>,
-        lead: Option<Newtons>,
-    ) -> Micrometres {
-        self.lead = match lead {
-            Some(k) => k,
-            None => Newtons::ZERO,
-        };
+    pub fn preview(&mut self, ahead: Micrometres, fir: Option<&Fir>) -> Micrometres {
         match fir {
             Some(f) => {
                 let (tracked, ff) = self.ahead.run(ahead, f);
@@ -272,8 +265,19 @@ impl Loop {
         self.last_cmd
     }
 
+    /// The explained force's learned mass ratio (`piezo_fpi::lead`).
+    pub const fn lead_ratio(&self) -> LeadRatio {
+        self.lead_gain.ratio()
+    }
+
+    /// Starts learning the mass ratio again from 1 (a new model: a new stage).
+    pub fn forget_lead(&mut self) {
+        self.lead_gain = LeadGain::new();
+    }
+
     /// Forgets the feedback's memory (after a fault, a park or a new model): the
-    /// next tick starts afresh from the present output.
+    /// next tick starts afresh from the present output. The learned mass ratio
+    /// stays ([`Loop::forget_lead`]).
     pub fn reset(&mut self) {
         self.watch.reset();
         self.alarm = None;
@@ -325,12 +329,14 @@ impl Loop {
             (LoopMode::Open, false) | (LoopMode::FeedbackOnly, _) => Law::Linear,
         };
         // The force the shaped reference's motion explains is not damped (see
-        // the module docs): κ·(S_{k−1} − x_ref), N.
-        let dynamic = if self.lead != Newtons::ZERO && self.shaping_on && !self.parking {
-            let moved = self.last_ff.saturating_sub(io.x_ref);
-            io.dynamic.saturating_sub(self.lead.saturating_mul(moved))
-        } else {
-            io.dynamic
+        // the module docs): β·κ·(S_{k−1} − x_ref), N, β learned.
+        let dynamic = match io.lead {
+            Some(lead) if self.shaping_on && !self.parking => {
+                let moved = self.last_ff.saturating_sub(io.x_ref);
+                let accel = self.ahead.acceleration();
+                self.lead_gain.step(lead, io.dynamic, moved, accel)
+            }
+            _ => io.dynamic,
         };
         self.damped = match (self.damping_on, io.damping) {
             (true, Some(c)) => self.damping.update(c, dynamic),
@@ -484,6 +490,9 @@ pub struct Inputs<'c, 'm> {
     pub shaping: Option<&'c Cascade<SHAPING_SECTIONS>>,
     /// Its active damping, if it has it.
     pub damping: Option<&'c DampingConfig>,
+    /// Its lead, where the damping leaves the shaped reference's force out
+    /// (`Summary::lead`: damping and a preview).
+    pub lead: Option<&'c LeadSpec>,
     /// The force channel's dynamic part this tick, N.
     pub dynamic: Newtons,
     /// Its straight-line drive.

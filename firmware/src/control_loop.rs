@@ -177,9 +177,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             }
         };
         let summary = self.model.summary();
-        let x_ref = self
-            .feedback
-            .preview(x_ahead, summary.preview.as_ref(), summary.lead_force);
+        let x_ref = self.feedback.preview(x_ahead, summary.preview.as_ref());
         let cfg = self.model.get();
         let forces = self.hw.sense(cfg, &mut self.state);
         let cmd = self.command(x_ref, forces.dynamic);
@@ -256,6 +254,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             feedback,
             shaping: summary.shaping.as_ref(),
             damping: summary.damping.as_ref(),
+            lead: summary.lead.as_ref(),
             dynamic,
             drive: &summary.baseline,
             compensated: self.compensated,
@@ -396,6 +395,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             loop_mode: self.feedback.mode(),
             damping_on: self.feedback.damping_on(),
             shaping_on: self.feedback.shaping_on(),
+            lead_ratio: self.feedback.lead_ratio(),
             analysing: self.analyser.running(),
         };
     }
@@ -567,6 +567,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         self.feedback.set_damping(true);
         self.feedback.set_shaping(true);
         self.feedback.reset();
+        self.feedback.forget_lead();
         self.x_est = rest_position(new.get(), &state);
         x.returned = Some(core::mem::replace(&mut self.model, new));
         self.state = state;

@@ -9,7 +9,7 @@
 
 use fpi_protocol::BenchOrder;
 use piezo_fpi::control::Fault;
-use piezo_fpi::q::{Micrometres, Newtons, Volts};
+use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
 
 use crate::analyser::{AnalyseOrder, AnalysisSums};
 use crate::closed_loop::LoopMode;
@@ -137,6 +137,8 @@ pub struct Snapshot {
     pub damping_on: bool,
     /// Reference shaping switched on (it runs where the model has it).
     pub shaping_on: bool,
+    /// The explained force's learned mass ratio (`piezo_fpi::lead`).
+    pub lead_ratio: LeadRatio,
     /// An analysis is running.
     pub analysing: bool,
 }
@@ -166,6 +168,7 @@ impl Snapshot {
             loop_mode: LoopMode::Open,
             damping_on: false,
             shaping_on: false,
+            lead_ratio: LeadRatio::ZERO,
             analysing: false,
         }
     }

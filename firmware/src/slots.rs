@@ -22,12 +22,13 @@ use piezo_fpi::control::{ForceChannel, Interval, LinearDrive};
 use piezo_fpi::damping::{DampingConfig, DynamicsSpec};
 use piezo_fpi::error::{Field, Invalid, ModelError};
 use piezo_fpi::feedback::FeedbackConfig;
+use piezo_fpi::lead::LeadSpec;
 use piezo_fpi::model::image::CRC32;
 use piezo_fpi::model::Shape;
 use piezo_fpi::preview::Fir;
-use piezo_fpi::q::{Newtons, Volts};
+use piezo_fpi::q::Volts;
 
-use crate::hardware::{Controller, Store, BOARD};
+use crate::hardware::{Controller, Store, BOARD, RATE_HZ};
 
 pub use fpi_protocol::Origin;
 
@@ -55,10 +56,11 @@ pub struct Summary {
     /// preview's delay line (`piezo_fpi::preview`); [`Summary::shaping`] is then
     /// `None`.
     pub preview: Option<Fir>,
-    /// κ, N/µm (`I16F16`), where the shaping runs ahead and the model damps: the
-    /// damping then leaves out the force the shaped reference's motion explains
+    /// The lead (κ, the learning's rate, the baseline; `piezo_fpi::lead`)
+    /// where the shaping runs ahead and the model damps: the damping then
+    /// leaves out the force the shaped reference's motion explains
     /// (`crate::closed_loop`).
-    pub lead_force: Option<Newtons>,
+    pub lead: Option<LeadSpec>,
     /// The stage's dynamics, if the model declares them.
     pub dynamics: Option<DynamicsSpec>,
     /// Active damping, if the model has it.
@@ -131,12 +133,16 @@ impl Spare {
                 .damping
                 .map(|d| DampingConfig::new(d, &channel))
                 .transpose()?;
+            let lead = spec
+                .dynamics
+                .filter(|_| preview.is_some() && damping.is_some())
+                .map(|d| LeadSpec::of(&d, RATE_HZ, spec.lead_baseline));
             Ok((
                 cfg,
                 baseline,
                 shape,
                 (feedback, shaping, damping, spec.dynamics, channel),
-                preview,
+                (preview, lead),
             ))
         });
         match built {
@@ -145,31 +151,26 @@ impl Spare {
                 baseline,
                 shape,
                 (feedback, shaping, damping, dynamics, channel),
-                preview,
-            )) => {
-                let lead_force = dynamics
-                    .filter(|_| preview.is_some() && damping.is_some())
-                    .map(|d| d.force_gain);
-                Ok(Running {
-                    store: ptr,
-                    summary: Summary {
-                        crc: CRC32.checksum(image),
-                        shape,
-                        reference: cfg.reference(),
-                        safe_voltage: cfg.safe_voltage(),
-                        origin,
-                        baseline,
-                        feedback,
-                        shaping,
-                        preview,
-                        lead_force,
-                        dynamics,
-                        damping,
-                        channel,
-                    },
-                    cfg,
-                })
-            }
+                (preview, lead),
+            )) => Ok(Running {
+                store: ptr,
+                summary: Summary {
+                    crc: CRC32.checksum(image),
+                    shape,
+                    reference: cfg.reference(),
+                    safe_voltage: cfg.safe_voltage(),
+                    origin,
+                    baseline,
+                    feedback,
+                    shaping,
+                    preview,
+                    lead,
+                    dynamics,
+                    damping,
+                    channel,
+                },
+                cfg,
+            }),
             // SAFETY: `shared` and `built` are gone; the store is exclusive again.
             Err(e) => Err((
                 Spare {

@@ -269,6 +269,12 @@ pub struct Status {
     /// Reference shaping: `None` if the running model has none, else whether it
     /// is switched on.
     pub shaping: Option<bool>,
+    /// The explained force's learned ratio (`piezo_fpi::lead`), `I2F30` bits,
+    /// and whether the damping applies it: `None` if the running model's
+    /// damping leaves no lead out (no damping or no preview); `(β, true)`, the
+    /// stage's mass over the tuned one's, where the model carries the lead's
+    /// baseline; `(α, false)`, the fit's ratio itself, where it does not.
+    pub lead_ratio: Option<(i32, bool)>,
     /// An analysis is running.
     pub analysing: bool,
     /// Heartbeat timeout, ticks (0: off), and ticks since the last request.

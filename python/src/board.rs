@@ -181,6 +181,12 @@ impl Board {
         d.set_item("compensated", s.compensated)?;
         d.set_item("damping", s.damping)?;
         d.set_item("shaping", s.shaping)?;
+        d.set_item(
+            "lead_ratio",
+            s.lead_ratio
+                .map(|(b, _)| f64::from(b) / f64::from(1u32 << 30)),
+        )?;
+        d.set_item("lead_applied", s.lead_ratio.map(|(_, a)| a))?;
         d.set_item("supervision_ms", f64::from(s.supervision[0]) / rate * 1e3)?;
         d.set_item("late_ticks", s.overruns)?;
         let model = PyDict::new(py);

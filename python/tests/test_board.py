@@ -22,6 +22,8 @@ def test_starts_parked_with_the_factory_model(board):
     assert s["fault"] is None
     assert s["amplifier_on"] is False
     assert s["model"]["origin"] == "Factory"
+    # The factory model has no damping: no lead to learn.
+    assert s["damping"] is None and s["lead_ratio"] is None and s["lead_applied"] is None
     lo, hi = s["model"]["stroke_um"]
     assert lo == 0.0 and 39 < hi < 41
     assert board.rate_hz == 20000.0

@@ -7,7 +7,7 @@
 //! header (16 bytes)  magic "PFPM", u16 version, u16 flags, u32 body length, u32 CRC-32 of the body
 //!                    flags: bit 0 soft dead zone, bit 1 output saturation, bit 2 predicted force,
 //!                    bit 3 position feedback, bit 4 reference shaping, bit 5 stage dynamics,
-//!                    bit 6 active damping, bit 7 reference preview
+//!                    bit 6 active damping, bit 7 reference preview, bit 8 lead baseline
 //! body               u32 rate_hz; i32 w0 (I4F28); i32 input_max (I16F16); u8 operators; u8 creep terms; u16 0
 //!                    operators × (i32 threshold I16F16, i32 weight I4F28)
 //!                    coupling: i32 k0, k_f (I0F32), k_q (I0F32), F_q, compliance (I0F32), F_ref
@@ -23,6 +23,7 @@
 //!                    i32 force gain (I16F16, N/µm)
 //!                    damping (when flagged): i32 gain (I8F24), high-pass and leak rates (I0F32), limit (I16F16)
 //!                    preview (when flagged, with shaping): u32 ticks the shaping runs ahead, 8 × i32 taps (I8F24)
+//!                    lead baseline (when flagged): i32 α_b (I2F30, `crate::lead`)
 //! ```
 //!
 //! [`encode`] writes a [`ModelSpec`]; [`Reader`] walks an image for
@@ -63,6 +64,11 @@ pub const FLAG_DAMPING: u16 = 64;
 /// Flag: the shaping runs ahead of the tracked reference (a block after the
 /// damping's; version-2 images without it read as before).
 pub const FLAG_PREVIEW: u16 = 128;
+/// Flag: the model carries the lead's baseline (a block after the preview's;
+/// version-2 images without it read as before).
+pub const FLAG_LEAD: u16 = 256;
+/// Bytes of the lead block.
+const LEAD_LEN: usize = 4;
 /// Bytes of the preview block.
 const PREVIEW_LEN: usize = 4 + 4 * crate::preview::TAPS;
 /// Bytes of the dynamics block.
@@ -152,6 +158,11 @@ pub fn encoded_len(m: &ModelSpec<'_>) -> usize {
         }
         + if m.damping.is_some() { DAMPING_LEN } else { 0 }
         + if previews(m) { PREVIEW_LEN } else { 0 }
+        + if m.lead_baseline.is_some() {
+            LEAD_LEN
+        } else {
+            0
+        }
 }
 
 /// Whether `m`'s shaping runs ahead of the reference (the image's preview block).
@@ -170,6 +181,7 @@ pub const fn max_len(operators: usize, creep: usize, intervals: usize) -> usize 
         + DYNAMICS_LEN
         + DAMPING_LEN
         + PREVIEW_LEN
+        + LEAD_LEN
 }
 
 /// Writes the image of a model into `out`; its length. The model should be valid
@@ -253,6 +265,9 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
             w.i32(t)?;
         }
     }
+    if let Some(b) = m.lead_baseline {
+        w.i32(b.to_bits())?;
+    }
     let len = w.at;
     let mut flags = 0;
     if m.dead_zone.is_some() {
@@ -278,6 +293,9 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
     }
     if previews(m) {
         flags |= FLAG_PREVIEW;
+    }
+    if m.lead_baseline.is_some() {
+        flags |= FLAG_LEAD;
     }
     let out = w.out;
     let body = out.get(HEADER_LEN..len).ok_or_else(truncated)?;

@@ -29,7 +29,7 @@ use crate::fpi::{creep_slope, Coupling, Creep};
 use crate::limits::OutputLimits;
 use crate::play::Operator;
 use crate::q::{
-    CreepRate, Micrometres, UmPerVolt, Volts, VoltsPerUm, MAX_CREEP_TERMS, MAX_OPERATORS,
+    CreepRate, LeadRatio, Micrometres, UmPerVolt, Volts, VoltsPerUm, MAX_CREEP_TERMS, MAX_OPERATORS,
 };
 use crate::table::{Segment, Table, INVERSE_TOLERANCE};
 
@@ -123,6 +123,11 @@ pub struct ModelSpec<'a> {
     pub dynamics: Option<DynamicsSpec>,
     /// Active damping from the force sensor; `None`: none.
     pub damping: Option<DampingSpec>,
+    /// The lead's baseline `α_b` (`crate::lead`), in `[1/2, 2)`: the board then
+    /// scales the force the shaped reference's motion explains by the stage's
+    /// mass over the tuned one's, which it learns; `None`: it learns `α` and
+    /// does not apply it. Needs damping and a shaping that runs ahead.
+    pub lead_baseline: Option<LeadRatio>,
 }
 
 /// The shape of a valid model: what the firmware's types are built from.
@@ -246,6 +251,9 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
             }
         }
     }
+    if let Some(b) = m.lead_baseline {
+        check_lead(m, b)?;
+    }
     crate::stability::check(
         m.rate_hz,
         m.dynamics.as_ref(),
@@ -260,6 +268,24 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
         saturation: m.saturation.is_some(),
         output_max: sums.output_max,
     })
+}
+
+/// The lead's baseline: in `[1/2, 2)`, with damping and a preview to scale.
+fn check_lead(m: &ModelSpec<'_>, b: LeadRatio) -> Result<(), Invalid> {
+    if b < crate::lead::RATIO_MIN {
+        return Err(Invalid::at(
+            Field::LeadBaseline,
+            ModelError::DampingOutOfRange,
+        ));
+    }
+    let previews = matches!(m.shaping, Some(s) if s.preview > 0);
+    if m.damping.is_none() || !previews {
+        return Err(Invalid::at(
+            Field::LeadBaseline,
+            ModelError::LeadWithoutPreview,
+        ));
+    }
+    Ok(())
 }
 
 /// The creep terms, each checked by [`Creep::new`].

@@ -13,7 +13,7 @@
 use fixed::types::I16F16;
 
 use super::image::{
-    Reader, FLAG_DAMPING, FLAG_DEAD_ZONE, FLAG_DYNAMICS, FLAG_FEEDBACK, FLAG_PREDICTED,
+    Reader, FLAG_DAMPING, FLAG_DEAD_ZONE, FLAG_DYNAMICS, FLAG_FEEDBACK, FLAG_LEAD, FLAG_PREDICTED,
     FLAG_PREVIEW, FLAG_SATURATION, FLAG_SHAPING,
 };
 use super::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
@@ -28,7 +28,7 @@ use crate::fpi::{Coupling, Creep, Fpi, Map};
 use crate::limits::OutputLimits;
 use crate::pi::PiModel;
 use crate::play::Operator;
-use crate::q::{CreepRate, LoopGain, UmPerVolt, Volts};
+use crate::q::{CreepRate, LeadRatio, LoopGain, UmPerVolt, Volts};
 use crate::table::{Segment, Table};
 
 /// The control step's configuration for a model received at run time: `N`
@@ -157,6 +157,8 @@ struct Scalars {
     has_dynamics: bool,
     damping: DampingSpec,
     has_damping: bool,
+    lead_baseline: LeadRatio,
+    has_lead: bool,
 }
 
 const NO_SCALARS: Scalars = Scalars {
@@ -217,6 +219,8 @@ const NO_SCALARS: Scalars = Scalars {
         limit: I16F16::ZERO,
     },
     has_damping: false,
+    lead_baseline: LeadRatio::ZERO,
+    has_lead: false,
 };
 
 impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
@@ -283,6 +287,7 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             shaping: b.has_shaping.then_some(b.shaping),
             dynamics: b.has_dynamics.then_some(b.dynamics),
             damping: b.has_damping.then_some(b.damping),
+            lead_baseline: b.has_lead.then_some(b.lead_baseline),
         }
     }
 
@@ -416,6 +421,10 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             for t in b.shaping.taps.iter_mut() {
                 *t = r.i32()?;
             }
+        }
+        b.has_lead = r.flags & FLAG_LEAD != 0;
+        if b.has_lead {
+            b.lead_baseline = LeadRatio::from_bits(r.i32()?);
         }
         if !r.finished() {
             return Err(Invalid::at(Field::Model, ModelError::Truncated));

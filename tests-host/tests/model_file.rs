@@ -383,3 +383,76 @@ fn feedback_and_shaping_sections_name_their_keys() {
         "shaping.taps has 9 taps: the board runs at most 8",
     );
 }
+
+/// The lead's baseline (`damping.lead_baseline`) travels in the model's image
+/// and back; outside [0.5, 2), or without damping and a shaping that runs
+/// ahead, it is refused with its key named.
+#[test]
+fn a_lead_baseline_names_its_key() {
+    use piezo_sim::file::{DampingSection, DynamicsSection, FeedbackSection, ShapingSection};
+    let mut m = FirmwareModel::parse(&embedded(), "m.toml").unwrap();
+    // The loops of isr-bench's closed-loop model (autotune's, stage as built).
+    m.feedback = Some(FeedbackSection {
+        kp: 0.75,
+        ki_per_s: 1762.6,
+        limit_um: 9.98,
+        position_min_um: -10.0,
+        position_max_um: 50.0,
+        position_tolerance_um: 6.0,
+        notes: String::new(),
+    });
+    m.dynamics = Some(DynamicsSection {
+        mode_hz: 850.852,
+        damping_ratio: 0.030_098,
+        lag_hz: Some(2026.966),
+        force_gain_n_per_um: Some(7.017),
+        notes: String::new(),
+    });
+    m.damping = Some(DampingSection {
+        gain_um_per_n_s: 1315.7,
+        highpass_hz: 100.0,
+        leak_hz: 100.0,
+        limit_um: 39.9,
+        lead_baseline: Some(0.88),
+        notes: String::new(),
+    });
+    m.shaping = Some(ShapingSection {
+        sections: Vec::new(),
+        preview_ticks: 4,
+        taps: vec![1.5, -0.25, -0.25],
+        notes: String::new(),
+    });
+    let text = m.to_toml().unwrap();
+    assert!(text.contains("lead_baseline = 0.88"), "{text}");
+    let again = FirmwareModel::parse(&text, "again").unwrap();
+    assert_eq!(again, m);
+    let with = m.image().unwrap();
+    let mut without = m.clone();
+    without.damping.as_mut().unwrap().lead_baseline = None;
+    // One i32 more (the lead block, flag bit 8).
+    assert_eq!(with.len(), without.image().unwrap().len() + 4);
+    assert_eq!(u16::from_le_bytes([with[6], with[7]]) & 256, 256);
+    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| {
+        let mut bad = m.clone();
+        edit(&mut bad);
+        let e = error_of(&bad.to_toml().unwrap());
+        assert!(e.contains(want), "{e}");
+    };
+    check(
+        &|b| b.damping.as_mut().unwrap().lead_baseline = Some(2.0),
+        "damping.lead_baseline = 2: not a ratio within [0.5, 2) (I2F30)",
+    );
+    check(
+        &|b| b.damping.as_mut().unwrap().lead_baseline = Some(0.4),
+        "damping.lead_baseline = 0.4: not a ratio within [0.5, 2) (I2F30)",
+    );
+    check(
+        &|b| {
+            let s = b.shaping.as_mut().unwrap();
+            s.preview_ticks = 0;
+            s.taps.clear();
+        },
+        "damping.lead_baseline = 0.88: a lead baseline needs active damping ([damping]) and a \
+         shaping that runs ahead (preview_ticks > 0)",
+    );
+}

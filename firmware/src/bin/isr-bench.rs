@@ -283,6 +283,7 @@ mod bench {
             shaping: None,
             dynamics: None,
             damping: None,
+            lead_baseline: None,
         }
     }
 
@@ -358,7 +359,8 @@ mod bench {
             force_gain: Newtons::from_num(7.017),
         };
         // Autotune's feedforward: taps on the preview's delay line, 4 ticks
-        // ahead (the delay line, the taps and the damping's lead force run).
+        // ahead (the delay line, the taps and the damping's lead force, with
+        // its learned mass ratio, run).
         let one = f64::from(1 << piezo_fpi::biquad::COEFF_FRAC);
         let mut taps =
             [1.67, -0.08, -0.63, -0.57, -0.7, -0.04, 0.61, 0.74].map(|t| (t * one) as i32);
@@ -373,6 +375,8 @@ mod bench {
             shaping: Some(shaping),
             dynamics: Some(dynamics),
             damping: Some(damping),
+            // The lead's learned mass ratio, applied (piezo_fpi::lead).
+            lead_baseline: Some(piezo_fpi::q::LeadRatio::from_num(0.88)),
             ..spec
         };
         let len = match image::encode(&closed, buf) {

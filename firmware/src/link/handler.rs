@@ -982,6 +982,7 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
         loop_mode: s.loop_mode,
         damping: summary.damping.map(|_| s.damping_on),
         shaping: summary.shaping.map(|_| s.shaping_on),
+        lead_ratio: summary.lead.map(|l| (s.lead_ratio.to_bits(), l.applied)),
         analysing: s.analysing,
         supervision: [s.timeout_ticks, s.silent_ticks],
         stream: [q.len() as u32, q.free() as u32, q.received(), s.underruns],

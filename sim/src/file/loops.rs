@@ -6,7 +6,7 @@ use piezo_fpi::control::Interval;
 use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
 use piezo_fpi::feedback::FeedbackSpec;
 use piezo_fpi::preview::{PREVIEW_MAX, TAPS};
-use piezo_fpi::q::{self, CreepRate, LoopGain};
+use piezo_fpi::q::{self, CreepRate, LeadRatio, LoopGain};
 use serde::{Deserialize, Serialize};
 
 use super::sections::{rate_per_tick, signal};
@@ -75,6 +75,13 @@ pub struct DampingSection {
     pub leak_hz: f64,
     /// Largest correction the damping adds to the command, µm.
     pub limit_um: f64,
+    /// The lead's baseline `α_b` (`piezo_fpi::lead`), in [0.5, 2): the ratio the
+    /// board's fit of the explained force settles at on the stage the model was
+    /// tuned on (`fpi board autotune` measures it). With it the board scales the
+    /// explained force by the stage's mass over the tuned one's; without it,
+    /// by 1.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lead_baseline: Option<f64>,
     /// How the gains were chosen (what the tuning assumed and the margins it got).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub notes: String,
@@ -98,6 +105,21 @@ impl DampingSection {
             leak: rate_per_tick("damping.leak_hz", self.leak_hz, fs)?,
             limit: signal("damping.limit_um", self.limit_um)?,
         })
+    }
+
+    /// The lead's baseline in its format, `I2F30`, if the section has one.
+    pub(super) fn lead(&self) -> Result<Option<LeadRatio>, String> {
+        self.lead_baseline
+            .map(|b| {
+                if (0.5..2.0).contains(&b) {
+                    Ok(LeadRatio::from_num(b))
+                } else {
+                    Err(format!(
+                        "damping.lead_baseline = {b}: not a ratio within [0.5, 2) (I2F30)"
+                    ))
+                }
+            })
+            .transpose()
     }
 }
 

@@ -192,6 +192,12 @@ impl FirmwareModel {
                     .as_ref()
                     .map(|d| d.quantize(k.rate_hz))
                     .transpose()?,
+                lead_baseline: self
+                    .damping
+                    .as_ref()
+                    .map(DampingSection::lead)
+                    .transpose()?
+                    .flatten(),
             },
             operators: self.pi.operators()?,
             creep: self.creep_terms()?,
@@ -302,6 +308,7 @@ impl FirmwareModel {
             Field::DampingLeak => self.damping.as_ref().map(|d| d.leak_hz),
             Field::DampingHighpass => self.damping.as_ref().map(|d| d.highpass_hz),
             Field::DampingLimit => self.damping.as_ref().map(|d| d.limit_um),
+            Field::LeadBaseline => self.damping.as_ref().and_then(|d| d.lead_baseline),
             Field::Operators | Field::Creep | Field::ForceSource | Field::Model => None,
         }
     }

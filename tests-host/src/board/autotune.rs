@@ -16,7 +16,13 @@
 //!    the loops, warms up, runs the step and the triangle at every tick and
 //!    updates the taps from the error the position sensor measured; the taps
 //!    of the round with the least error are kept.
-//! 6. After a warm-up (slow sines: the force channel learns the stage's preload
+//! 6. Where the damping leaves the shaped reference's force out (a preview),
+//!    the lead's baseline is measured ([`lead_baseline`]): the ratio the
+//!    board's fit of that force settles at over [`BASELINE_STEPS`] steps on
+//!    this stage, written into the model and loaded, so that on a stage whose
+//!    mass differs the board scales the force by the ratio it learns
+//!    (`piezo_fpi::lead`).
+//! 7. After a warm-up (slow sines: the force channel learns the stage's preload
 //!    map), a 10 → 20 µm step verifies it; a table says what was achieved.
 
 use std::path::Path;
@@ -38,6 +44,11 @@ use crate::method::tune::{self, TuneOptions, Tuning};
 
 /// Trials the feedforward's taps are refined on, by default.
 pub const TRIALS: u32 = 2;
+/// Steps the lead's baseline is measured over: at least the first, at most
+/// the second, until two in a row move it by less than [`BASELINE_SETTLED`].
+pub const BASELINE_STEPS: (usize, usize) = (4, 10);
+/// The change of the fit's ratio over one step that counts as settled.
+pub const BASELINE_SETTLED: f64 = 0.005;
 
 /// How autotune measures (configuration).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -91,6 +102,9 @@ pub struct Autotune {
     pub rounds: Vec<Round>,
     /// The round whose taps the model holds.
     pub kept: usize,
+    /// The lead's baseline measured, and over how many steps (`None`: the
+    /// model leaves no lead out).
+    pub baseline: Option<(f64, usize)>,
     /// The verification step, 10 → 20 µm.
     pub step: StepFigures,
 }
@@ -169,6 +183,11 @@ pub fn run(
             load(c, fw, &t, o, false)?;
         }
     }
+    let baseline = lead_baseline(c, &mut progress)?;
+    if let Some((b, _)) = baseline {
+        t.lead_baseline = Some(b);
+        tuned = load(c, fw, &t, o, false)?;
+    }
     if store {
         load(c, fw, &t, o, true)?;
     }
@@ -180,8 +199,46 @@ pub fn run(
         model: tuned,
         rounds,
         kept,
+        baseline,
         step,
     })
+}
+
+/// The lead's baseline of the model the board runs (one without a baseline):
+/// closes the loop, warms up and steps 10 → 20 µm until the fit's ratio in
+/// the board's status settles ([`BASELINE_STEPS`]); the ratio and the steps
+/// taken. `None` where the model leaves no lead out. The board is left parked.
+pub fn lead_baseline(
+    c: &mut Client,
+    progress: &mut impl FnMut(&str),
+) -> Result<Option<(f64, usize)>> {
+    let ratio = |c: &mut Client| -> Result<Option<f64>> {
+        match c.status()?.lead_ratio {
+            Some((_, true)) => bail!("the board's model carries a lead baseline already"),
+            r => Ok(r.map(|(b, _)| f64::from(b) / f64::from(1u32 << 30))),
+        }
+    };
+    if ratio(c)?.is_none() {
+        return Ok(None);
+    }
+    progress("measuring the lead's baseline");
+    close_and_warm_up(c)?;
+    let (least, most) = BASELINE_STEPS;
+    let (mut last, mut quiet, mut steps) = (f64::NAN, 0, 0);
+    while steps < most && !(steps >= least && quiet >= 2) {
+        step::run(c, &StepSettings::default()).context("the lead's baseline")?;
+        steps += 1;
+        let now = ratio(c)?.context("the lead's ratio left the board's status")?;
+        progress(&format!("  step {steps}: the fit's ratio {now:.4}"));
+        quiet = if (now - last).abs() < BASELINE_SETTLED {
+            quiet + 1
+        } else {
+            0
+        };
+        last = now;
+    }
+    c.park()?;
+    Ok(Some((last, steps)))
 }
 
 /// Loads `fw` with the tuning `t` onto the parked board (`store`: also into
@@ -306,6 +363,12 @@ pub fn table(a: &Autotune) -> String {
             format!("{:.2}", t.sensitivity_peak),
         ),
         ("feedforward refined through the board", refinement(a)),
+        (
+            "lead baseline (mass ratio learned from it)",
+            a.baseline.map_or("— (no lead)".into(), |(b, n)| {
+                format!("{b:.3}, measured over {n} steps")
+            }),
+        ),
         ("step 10 → 20 µm: rise", format!("{:.2} ms", a.step.rise_ms)),
         ("overshoot", format!("{:.3} µm", a.step.overshoot_um)),
         ("settles within ±0.1 µm", ms(a.step.settle_ms)),

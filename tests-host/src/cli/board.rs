@@ -287,6 +287,28 @@ pub fn print_state(s: &Status, rate: f64) {
     print!("{}", state_text(s, rate));
 }
 
+/// The damping, the shaping and the learned mass ratio, where the model has
+/// them: `damping on, shaping on, stage mass 1.020 × the tuned one's (learned)`.
+fn loops_text(s: &Status) -> Option<String> {
+    let on = |b: bool| if b { "on" } else { "off" };
+    let mut parts = Vec::new();
+    if let Some(d) = s.damping {
+        parts.push(format!("damping {}", on(d)));
+    }
+    if let Some(sh) = s.shaping {
+        parts.push(format!("shaping {}", on(sh)));
+    }
+    match s
+        .lead_ratio
+        .map(|(b, a)| (f64::from(b) / f64::from(1u32 << 30), a))
+    {
+        Some((b, true)) => parts.push(format!("stage mass {b:.3} × the tuned one's (learned)")),
+        Some((b, false)) => parts.push(format!("lead fit {b:.3} (not applied: no lead baseline)")),
+        None => {}
+    }
+    (!parts.is_empty()).then(|| parts.join(", "))
+}
+
 /// The loop's state, for people: what [`print_state`] prints.
 pub fn state_text(s: &Status, rate: f64) -> String {
     let mut out = String::new();
@@ -319,6 +341,9 @@ pub fn state_text(s: &Status, rate: f64) -> String {
             )
         }
     );
+    if let Some(line) = loops_text(s) {
+        let _ = writeln!(out, "{line}");
+    }
     match s.fault {
         None => {
             let _ = writeln!(out, "state: running");

@@ -134,6 +134,10 @@ pub struct Tuning {
     pub margins: (f64, f64),
     /// The feedforward (sections, or taps on the preview's line; quantised), if designed.
     pub feedforward: Option<Feedforward>,
+    /// The lead's baseline (`piezo_fpi::lead`): the ratio the board's fit of
+    /// the explained force settles at on the tuned stage. Measured on the board
+    /// (`fpi board autotune`); `None` from the design alone.
+    pub lead_baseline: Option<f64>,
     /// What the plant was taken to be.
     pub plant: String,
     /// The laws' coefficients per tick as designed (the force channel's split,
@@ -364,6 +368,7 @@ fn design(
         bandwidth_hz: fam.feedback_bandwidth_hz(&laws),
         margins: fam.margins(&laws),
         feedforward,
+        lead_baseline: None,
         plant,
         laws,
     })
@@ -623,6 +628,8 @@ pub fn with_tuning(fw: &FirmwareModel, t: &Tuning, o: &TuneOptions) -> Result<Fi
         leak_hz: o.damping_band_hz.1,
         // A fast step asks the damping for a correction of its own size.
         limit_um: span,
+        // Measured on the board, by `fpi board autotune` (piezo_fpi::lead).
+        lead_baseline: t.lead_baseline,
         notes: format!("fpi tune: {summary}"),
     });
     if let Some(ff) = &t.feedforward {
