@@ -32,7 +32,8 @@
 //! a lag and the mass together, in proportions that depend on the motion. The
 //! update therefore correlates the error with the inertial force the tracked
 //! reference asks for, `M·a`: its acceleration `a` (µm/tick²,
-//! [`crate::preview::Preview::acceleration`]) times the stage's mass `M`
+//! the tracked reference's second difference `x_k − 2x_{k−1} + x_{k−2}`)
+//! times the stage's mass `M`
 //! (`κ/(2π·f_n/f_s)²`, N per µm/tick²). Over a move velocity and
 //! acceleration are orthogonal (a step's velocity is even about its middle,
 //! its acceleration odd; a triangle accelerates at its turns, where its
@@ -41,12 +42,21 @@
 //! and barely move it; a held reference does not move it at all. `μ` is
 //! 2⁻⁸ per N², `M` is rounded to a power of two ([`LeadSpec::mass_log2`]) and
 //! `a` held to ±½ µm/tick² (2·10⁸ µm/s², beyond any stage's motion), so the
-//! update is one multiply and shifts: a 10 µm step in 1.5 ms asks for up to
+//! update is one 32-bit multiply's high word and shifts (`e` taken to
+//! 1/256 N within ±128 N, the step to 2⁻¹⁶): a 10 µm step in 1.5 ms asks for up to
 //! about 5 N for a millisecond, and `β` covers about half the way to a new
 //! stage's ratio in one step. (On the emulated board a faster update — 2⁻⁷,
 //! or steps up to 2⁻⁵ — learns a 700 Hz stage's ratio in fewer steps but
 //! lets `β` wander on the tuned stage and slows its steps; 2⁻⁹ learns too
 //! slowly for the first step on a changed stage.)
+//!
+//! **What it learns from.** The fit's ratio depends on the motion, not only
+//! on the stage: on the emulated stage as built, whose steps hold `β` at 1,
+//! five periods of a 15 Hz sine took it to 0.92 (a force error that follows
+//! the position correlates with a sine's acceleration), 100 Hz triangles to
+//! 0.74, ±0.2 µm sines near the mode to 1.5–2. So the caller says when to
+//! learn: the board learns from its step commands (raised cosines, the motion
+//! autotune measures `α_b` on) and holds `β` through every other motion.
 //!
 //! A model without a baseline (what autotune loads to measure it) learns `α`
 //! (`α_b = 1`) and does not apply it: its damping gets `r_d − f_m`.
@@ -54,16 +64,20 @@
 //! | quantity | unit | format | range |
 //! |---|---|---|---|
 //! | `r_d`, `e`, output | N | `I16F16` | saturated to the format |
-//! | `f_m` | N | `I16F16` | held to ±4096 (the signals' range), so `β·f_m` and `α_b·β·f_m` need no saturation |
+//! | `f_m` | N | `I16F16` | within ±4096 (the signals' range: `S − x_ref` held to `4096 N/κ`), so `β·f_m` and `α_b·β·f_m` need no saturation |
+//! | `e` in the update | N | 1/256 N | ±128 |
+//! | the update's step | 1 | `I2F30`, multiples of 2⁻¹⁶ | ±2⁻⁶ |
 //! | κ ([`LeadSpec::force_gain`]) | N/µm | `I16F16` | ≥ 0 |
 //! | `S − x_ref`, `a` | µm, µm/tick² | `I16F16` | |
 //! | `β`, `α_b` | 1 | `I2F30` ([`LeadRatio`]) | `β` in `[1/2, 2)` from 1; `α_b` in `[1/2, 2)` |
 //!
 //! Every product is exact in `i64` before one truncation; no division, no
-//! panic.
+//! panic. The update's inputs are truncated as the table says: against its
+//! f64 law, one tick's `β` is within 8·10⁻⁵ (the step's 2⁻¹⁶, and 1/256 N of
+//! `e` times `μ·M·|a|`).
 
 use crate::damping::DynamicsSpec;
-use crate::q::{LeadRatio, Micrometres, Newtons, SIGNAL_ABS_MAX_BITS};
+use crate::q::{LeadRatio, Micrometres, Newtons};
 
 /// `1` in raw [`LeadRatio`] bits.
 pub const ONE: i32 = 1 << 30;
@@ -76,13 +90,23 @@ pub const MASS_LOG2_MAX: u8 = 15;
 /// `|a|` is held to ½ µm/tick² (raw `I16F16`) before it is scaled by `M`.
 const ACCEL_MAX: i32 = 1 << 15;
 /// The largest change of `β` in one tick, raw bits (2⁻⁶).
-pub const STEP_MAX: i64 = (ONE >> 6) as i64;
+pub const STEP_MAX: i32 = ONE >> 6;
+/// The fit's error is held to ±128 N (±2¹⁵ in 1/256 N) in the update.
+const E8_MAX: i32 = 1 << 15;
+/// The update's product `e·M·a·2⁻²⁴` (raw) becomes `μ·e·M·a` in `I2F30` bits
+/// shifted left by this: `2 + ADAPT_SHIFT + Q_SHIFT = 24`.
+const Q_SHIFT: u32 = 22 - ADAPT_SHIFT;
+/// The product held to the largest step, before the shift.
+const Q_MAX: i32 = STEP_MAX >> Q_SHIFT;
 
 /// What the lead needs of the model (configuration).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LeadSpec {
     /// κ: the dynamic force per µm of `S − x_ref`, N/µm, `I16F16`.
     pub force_gain: Newtons,
+    /// `|S − x_ref|` is held to this, µm (`I16F16`): `4096 N/κ` less one LSB,
+    /// so that `f_m` stays within ±4096 N without a wide clamp.
+    pub moved_max: Micrometres,
     /// `log₂ M`, `M` the stage's mass (N per µm/tick²) rounded to a power of
     /// two, held to `0..=MASS_LOG2_MAX` (0 also where the model declares no κ).
     pub mass_log2: u8,
@@ -106,8 +130,17 @@ impl LeadSpec {
         } else {
             0
         };
+        let kappa = d.force_gain.to_num::<f64>();
+        let moved_max = if kappa > 0.0 {
+            // Less one LSB: κ·moved_max ≤ 4096 N in raw bits too.
+            Micrometres::saturating_from_num(crate::q::SIGNAL_ABS_MAX / kappa)
+                .saturating_sub(Micrometres::DELTA)
+        } else {
+            Micrometres::MAX
+        };
         Self {
             force_gain: d.force_gain,
+            moved_max,
             mass_log2: log2.clamp(0, i32::from(MASS_LOG2_MAX)) as u8,
             baseline: baseline.unwrap_or(LeadRatio::from_bits(ONE)),
             applied: baseline.is_some(),
@@ -143,8 +176,8 @@ impl LeadGain {
 
     /// The force left for the damping (N) from the dynamic force `dynamic`, the
     /// shaped reference's lead `moved = S_{k−1} − x_ref` (µm) and the tracked
-    /// reference's acceleration `accel` (µm/tick²); `β` takes one step (see the
-    /// module docs). Saturating, no division, no panic.
+    /// reference's acceleration `accel` (µm/tick²); where `learn`, `β` takes one
+    /// step (see the module docs). Saturating, no division, no panic.
     #[inline]
     pub fn step(
         &mut self,
@@ -152,29 +185,37 @@ impl LeadGain {
         dynamic: Newtons,
         moved: Micrometres,
         accel: Micrometres,
+        learn: bool,
     ) -> Newtons {
         let r = dynamic.to_bits();
-        // f_m: I16F16 × I16F16 → I16F16, held to ±4096 N.
-        let fm = (i64::from(spec.force_gain.to_bits()) * i64::from(moved.to_bits())) >> 16;
+        // f_m: I16F16 × I16F16 → I16F16, within ±4096 N by the held lead
+        // (κ ≥ 0 and κ·moved_max ≤ 4096 N).
+        let mm = spec.moved_max.to_bits();
         #[allow(clippy::manual_clamp)]
-        let fm = fm
-            .max(-i64::from(SIGNAL_ABS_MAX_BITS))
-            .min(i64::from(SIGNAL_ABS_MAX_BITS));
+        let m = moved.to_bits().max(-mm).min(mm);
+        let fm = ((i64::from(spec.force_gain.to_bits()) * i64::from(m)) >> 16) as i32;
         let beta = self.beta.to_bits();
         // β·f_m and α_b·β·f_m (I2F30 × I16F16 → I16F16): below 2¹³ and 2¹⁴ N.
-        let scaled = (i64::from(beta) * fm) >> 30;
-        let fit = ((i64::from(spec.baseline.to_bits()) * scaled) >> 30) as i32;
+        let scaled = ((i64::from(beta) * i64::from(fm)) >> 30) as i32;
+        let fit = ((i64::from(spec.baseline.to_bits()) * i64::from(scaled)) >> 30) as i32;
         let e = r.saturating_sub(fit);
-        // M·a (I16F16 bits, below 2³⁰), then μ·e·M·a: I32F32 → I2F30 is 2 bits
-        // right, μ ADAPT_SHIFT more.
+        // μ·e·M·a in 32 bits: e to 1/256 N within ±128 N (in the high half),
+        // M·a (I16F16 bits, below 2³⁰), their product's high word (e·M·a·2⁻²⁴
+        // in raw bits), held to the largest step and shifted to I2F30 (2⁻¹⁶
+        // resolution).
         #[allow(clippy::manual_clamp)]
-        let a = accel.to_bits().max(-ACCEL_MAX).min(ACCEL_MAX);
+        let e8 = (e >> 8).max(-E8_MAX).min(E8_MAX - 1) << 16;
+        #[allow(clippy::manual_clamp)]
+        let a = accel.to_bits().max(-ACCEL_MAX).min(ACCEL_MAX - 1);
         let inertial = a << (spec.mass_log2 & 15);
-        let d = (i64::from(e) * i64::from(inertial)) >> (2 + ADAPT_SHIFT);
+        let q = ((i64::from(e8) * i64::from(inertial)) >> 32) as i32;
         #[allow(clippy::manual_clamp)]
-        let d = d.max(-STEP_MAX).min(STEP_MAX) as i32;
-        self.beta = LeadRatio::from_bits(beta.saturating_add(d).max(RATIO_MIN.to_bits()));
-        let left = if spec.applied { scaled } else { fm } as i32;
+        let d = q.max(-Q_MAX).min(Q_MAX - 1) << Q_SHIFT;
+        let next = beta.saturating_add(d).max(RATIO_MIN.to_bits());
+        if learn {
+            self.beta = LeadRatio::from_bits(next);
+        }
+        let left = if spec.applied { scaled } else { fm };
         Newtons::from_bits(r.saturating_sub(left))
     }
 }

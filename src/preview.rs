@@ -133,24 +133,6 @@ impl Preview {
         self.ticks
     }
 
-    /// The tracked reference's acceleration, µm/tick²: the second difference
-    /// `x_{k+1} − 2x_k + x_{k−1}` centred on it (`crate::lead`'s instrument; on
-    /// a delay of 0 or [`PREVIEW_MAX`], centred one tick older or newer, where
-    /// the line holds both neighbours). Saturating; 0 on a held reference or a
-    /// ramp. The line's references are within ±4096 µm ([`Preview::run`]
-    /// clamps them), so the difference, within ±16384 µm/tick², is exact.
-    #[inline]
-    pub fn acceleration(&self) -> Micrometres {
-        let back = self.ticks.clamp(1, PREVIEW_MAX - 1);
-        let at = |d: u8| self.ring[(self.at.wrapping_sub(d) & MASK) as usize].to_bits();
-        let (newer, mid, older) = (at(back - 1), at(back), at(back + 1));
-        Micrometres::from_bits(
-            newer
-                .wrapping_sub(mid)
-                .wrapping_sub(mid.wrapping_sub(older)),
-        )
-    }
-
     /// Takes the newest reference `ahead` (µm) through `f`: the reference the
     /// loops track this tick (`f`'s delay older) and the feedforward `S_k` (µm,
     /// see the module docs). No division, no panic.
@@ -260,36 +242,5 @@ mod tests {
             let out = p.push(um(k), 200);
             assert!(out >= um(0) && out < um(20));
         }
-    }
-
-    /// The acceleration is the second difference centred on the tracked
-    /// reference: exact on a parabola, 0 on a ramp or a held value.
-    #[test]
-    fn the_acceleration_is_centred_on_the_tracked_reference() {
-        let one = 1 << COEFF_FRAC;
-        for ticks in 1..=PREVIEW_MAX {
-            let f = Fir::new(ticks, [one, 0, 0, 0, 0, 0, 0, 0]).unwrap();
-            let mut p = Preview::new();
-            let x = |k: i32| Micrometres::from_num(0.01 * f64::from(k * k));
-            for k in 0..20 {
-                p.run(x(k), &f);
-            }
-            let a = p.acceleration().to_num::<f64>();
-            assert!((a - 0.02).abs() <= 2.0 / 65536.0, "{ticks}: {a}");
-            let mut q = Preview::new();
-            for k in 0..20 {
-                q.run(Micrometres::from_num(0.5 * f64::from(k)), &f);
-            }
-            assert_eq!(q.acceleration(), Micrometres::ZERO);
-        }
-        // A step: its doublet reaches the tracked reference `ticks` late.
-        let f = Fir::new(4, [one, 0, 0, 0, 0, 0, 0, 0]).unwrap();
-        let mut p = Preview::new();
-        let mut seen = [0.0; 8];
-        for (k, s) in seen.iter_mut().enumerate() {
-            p.run(if k == 0 { um(0) } else { um(1) }, &f);
-            *s = p.acceleration().to_num::<f64>();
-        }
-        assert_eq!(seen, [0.0, 0.0, 0.0, 0.0, 1.0, -1.0, 0.0, 0.0]);
     }
 }

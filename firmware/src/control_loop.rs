@@ -177,7 +177,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             }
         };
         let summary = self.model.summary();
-        let x_ref = self.feedback.preview(x_ahead, summary.preview.as_ref());
+        let stepping = self.reference.stepping();
+        let x_ref = self
+            .feedback
+            .preview(x_ahead, summary.preview.as_ref(), stepping);
         let cfg = self.model.get();
         let forces = self.hw.sense(cfg, &mut self.state);
         let cmd = self.command(x_ref, forces.dynamic);

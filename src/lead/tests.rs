@@ -4,6 +4,7 @@ use crate::q::CreepRate;
 /// κ 6 N/µm, a mass of 90 N per µm/tick² (as 2⁶), the baseline 0.88.
 const SPEC: LeadSpec = LeadSpec {
     force_gain: Newtons::from_bits(6 << 16),
+    moved_max: Micrometres::from_bits(44_739_242),
     mass_log2: 6,
     baseline: LeadRatio::from_bits(944_892_805),
     applied: true,
@@ -32,7 +33,7 @@ fn reference(spec: &LeadSpec, beta: &mut f64, r: f64, moved: f64, accel: f64) ->
     let e = r - b * scaled;
     // μ·M = 2^(log₂ M − ADAPT_SHIFT) per N·µm/tick², a held to ±½ µm/tick².
     let shift = i32::from(spec.mass_log2) - ADAPT_SHIFT as i32;
-    let d = e * accel.clamp(-0.5, 0.5) * 2f64.powi(shift);
+    let d = e.clamp(-128.0, 128.0) * accel.clamp(-0.5, 0.5) * 2f64.powi(shift);
     *beta = (*beta + d.clamp(-1.0 / 64.0, 1.0 / 64.0)).clamp(0.5, 2.0);
     r - if spec.applied { scaled } else { fm }
 }
@@ -55,18 +56,18 @@ fn one_step(g: &mut LeadGain, beta: &mut f64, spec: &LeadSpec, mass_ratio: f64, 
         let (mq, aq) = (Micrometres::from_num(moved), Micrometres::from_num(acc));
         let r = Newtons::from_num(r).to_num::<f64>();
         *beta = g.ratio().to_num::<f64>();
-        let out = g.step(spec, Newtons::from_num(r), mq, aq);
+        let out = g.step(spec, Newtons::from_num(r), mq, aq, true);
         let want = reference(spec, beta, r, mq.to_num(), aq.to_num());
         worst = worst.max((out.to_num::<f64>() - want).abs());
         let fixed = g.ratio().to_num::<f64>();
-        assert!((fixed - *beta).abs() < 5e-7, "β {fixed} against {beta}");
+        assert!((fixed - *beta).abs() < 8e-5, "β {fixed} against {beta}");
     }
     worst
 }
 
 /// Steps on a stage 1.5 times as heavy as the tuned one: `β` reaches 1.5
-/// within 3 % in a few steps; each tick within 5·10⁻⁷ of its f64 reference
-/// (up to 2 LSB of force truncated, times `μ·M·|a|` ≤ 2⁻²·0.055),
+/// within 3 % in a few steps; each tick within 8·10⁻⁵ of its f64 reference
+/// (the step's 2⁻¹⁶, and 1/256 N of `e` times `μ·M·|a|` ≤ 2⁻²·0.055),
 /// the output within 4 LSB of it (each product truncated once).
 #[test]
 fn beta_learns_the_mass_ratio_against_f64() {
@@ -88,7 +89,8 @@ fn beta_learns_the_mass_ratio_against_f64() {
 
 /// On the tuned stage whose lag the explained force misreads by 20 %, `β`
 /// stays within 3 % of 1 over many steps (a velocity term is orthogonal to
-/// the instrument over a move); a held reference leaves it where it is.
+/// the instrument over a move); a held reference leaves it where it is, and
+/// so does any motion while the caller does not let it learn.
 #[test]
 fn a_lag_term_or_a_held_reference_leaves_beta_in_place() {
     let mut g = LeadGain::new();
@@ -110,9 +112,27 @@ fn a_lag_term_or_a_held_reference_leaves_beta_in_place() {
             Newtons::from_num(r),
             Micrometres::ZERO,
             Micrometres::ZERO,
+            true,
         );
     }
     assert_eq!(g, before);
+    // Not learning: `β` held whatever the motion, and the output is the one
+    // of the same `β` learning (the update is computed either way).
+    let mut learning = g;
+    for t in 0..=30 {
+        let (v, acc) = step_motion(t);
+        let (r, m, a) = (
+            Newtons::from_num(20.0 * acc + v),
+            Micrometres::from_num(3.0 * v),
+            Micrometres::from_num(acc),
+        );
+        let held = g.step(&SPEC, r, m, a, false);
+        let mut same = g;
+        assert_eq!(held, same.step(&SPEC, r, m, a, true));
+        learning.step(&SPEC, r, m, a, true);
+    }
+    assert_eq!(g, before);
+    assert_ne!(learning, before);
 }
 
 /// Without a baseline the fit learns `α` (the baseline itself on the tuned
@@ -136,7 +156,7 @@ fn without_a_baseline_alpha_is_learned_and_not_applied() {
         g.ratio()
     );
     let moved = Micrometres::from_num(1);
-    let out = g.step(&spec, Newtons::from_num(10), moved, Micrometres::ZERO);
+    let out = g.step(&spec, Newtons::from_num(10), moved, Micrometres::ZERO, true);
     assert_eq!(out, Newtons::from_num(4));
 }
 
@@ -146,16 +166,28 @@ fn beta_is_bounded_and_the_output_saturates() {
     let mut g = LeadGain::new();
     let one = Micrometres::from_num(1);
     for _ in 0..10_000 {
-        g.step(&SPEC, Newtons::from_num(-4000), one, one);
+        g.step(&SPEC, Newtons::from_num(-4000), one, one, true);
     }
     assert_eq!(g.ratio(), RATIO_MIN);
     for _ in 0..10_000 {
-        g.step(&SPEC, Newtons::from_num(4000), one, one);
+        g.step(&SPEC, Newtons::from_num(4000), one, one, true);
     }
     assert!(g.ratio() > 1.99 && g.ratio() < 2, "{}", g.ratio());
-    let e = g.step(&SPEC, Newtons::MIN, Micrometres::MAX, Micrometres::ZERO);
+    let e = g.step(
+        &SPEC,
+        Newtons::MIN,
+        Micrometres::MAX,
+        Micrometres::ZERO,
+        true,
+    );
     assert_eq!(e, Newtons::MIN);
-    let e = g.step(&SPEC, Newtons::MAX, Micrometres::MIN, Micrometres::MAX);
+    let e = g.step(
+        &SPEC,
+        Newtons::MAX,
+        Micrometres::MIN,
+        Micrometres::MAX,
+        true,
+    );
     assert_eq!(e, Newtons::MAX);
 }
 
@@ -178,6 +210,21 @@ fn the_rate_follows_from_the_mode_and_kappa() {
     );
     let s = LeadSpec::of(&d, 20_000, None);
     assert_eq!((s.baseline.to_bits(), s.applied), (ONE, false));
+    // The held lead keeps f_m within ±4096 N, exactly in raw bits.
+    for kappa in [0.001, 6.4, 7.017, 100.0, 4000.0] {
+        let k = DynamicsSpec {
+            force_gain: Newtons::from_num(kappa),
+            ..d
+        };
+        let s = LeadSpec::of(&k, 20_000, None);
+        let product = i64::from(s.force_gain.to_bits()) * i64::from(s.moved_max.to_bits());
+        assert!(product <= 4096 << 32, "κ {kappa}: {product}");
+        assert!(
+            product > (4096 << 32) - (1 << 40)
+                || s.moved_max == Micrometres::MAX - Micrometres::DELTA,
+            "κ {kappa}"
+        );
+    }
     // A stage 4 times as heavy learns at the same rate per N of inertial force.
     let heavy = DynamicsSpec {
         mode_mhz: 428_250,

@@ -15,6 +15,14 @@ fn error_of(text: &str) -> String {
     FirmwareModel::parse(text, "m.toml").expect_err("must be rejected")
 }
 
+/// `m` edited by `edit` is refused with a message that contains `want`.
+fn refused(m: &FirmwareModel, edit: &dyn Fn(&mut FirmwareModel), want: &str) {
+    let mut bad = m.clone();
+    edit(&mut bad);
+    let e = error_of(&bad.to_toml().unwrap());
+    assert!(e.contains(want), "{e}");
+}
+
 #[test]
 fn the_embedded_model_is_valid_and_round_trips() {
     let m = FirmwareModel::parse(&embedded(), model::MODEL_FILE).unwrap();
@@ -283,12 +291,7 @@ fn the_current_limit_bounds_the_slew_per_tick() {
     limited.controller.current_limit_ma = Some(10_000.0);
     assert!((step(&limited) - setting).abs() < 1e-9);
     // Bad or half-given values are refused by key.
-    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| {
-        let mut bad = m.clone();
-        edit(&mut bad);
-        let e = error_of(&bad.to_toml().unwrap());
-        assert!(e.contains(want), "{e}");
-    };
+    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| refused(&m, edit, want);
     check(
         &|b| b.controller.current_limit_ma = Some(100.0),
         "controller.current_limit_ma and controller.capacitance_uf go together",
@@ -327,12 +330,7 @@ fn feedback_and_shaping_sections_name_their_keys() {
     });
     let again = FirmwareModel::parse(&good.to_toml().unwrap(), "again").unwrap();
     assert_eq!(again, good);
-    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| {
-        let mut bad = good.clone();
-        edit(&mut bad);
-        let e = error_of(&bad.to_toml().unwrap());
-        assert!(e.contains(want), "{e}");
-    };
+    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| refused(&good, edit, want);
     check(
         &|b| b.feedback.as_mut().unwrap().ki_per_s = 40_000.0,
         "feedback.ki_per_s = 40000: a feedback gain is negative or beyond its range",
@@ -368,12 +366,7 @@ fn feedback_and_shaping_sections_name_their_keys() {
     let again = FirmwareModel::parse(&ahead.to_toml().unwrap(), "again").unwrap();
     assert_eq!(again, ahead);
     assert!(again.image().is_ok());
-    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| {
-        let mut bad = ahead.clone();
-        edit(&mut bad);
-        let e = error_of(&bad.to_toml().unwrap());
-        assert!(e.contains(want), "{e}");
-    };
+    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| refused(&ahead, edit, want);
     check(
         &|b| b.shaping.as_mut().unwrap().taps[0] = 1.6,
         "shaping.taps: a filter section's static gain is not exactly 1",
@@ -432,12 +425,7 @@ fn a_lead_baseline_names_its_key() {
     // One i32 more (the lead block, flag bit 8).
     assert_eq!(with.len(), without.image().unwrap().len() + 4);
     assert_eq!(u16::from_le_bytes([with[6], with[7]]) & 256, 256);
-    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| {
-        let mut bad = m.clone();
-        edit(&mut bad);
-        let e = error_of(&bad.to_toml().unwrap());
-        assert!(e.contains(want), "{e}");
-    };
+    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| refused(&m, edit, want);
     check(
         &|b| b.damping.as_mut().unwrap().lead_baseline = Some(2.0),
         "damping.lead_baseline = 2: not a ratio within [0.5, 2) (I2F30)",

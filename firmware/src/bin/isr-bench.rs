@@ -425,10 +425,20 @@ mod bench {
         x.order = Some((5, Order::Swap(closed)));
         lp.tick(&mut x);
         let swapped = matches!(x.applied, Some(a) if a.result.is_ok());
-        x.order = Some((6, Order::Loop(LoopMode::Closed)));
+        // A step command over the stroke, as long as the phase, running when
+        // the loop closes: the lead's mass ratio (which learns from steps
+        // only) learns at every tick, the loop's transfer included.
+        let up = SourceOrder::Step {
+            target: Micrometres::from_num(38),
+            phase_step: fpi_firmware::reference::step_phase_for(STEPS + 20),
+        };
+        x.order = Some((6, Order::Source(up)));
         lp.tick(&mut x);
-        let closed_ok = swapped && tick_phase(&mut lp, &mut x, baseline, true);
-        open_ok && closed_ok
+        x.order = Some((7, Order::Loop(LoopMode::Closed)));
+        lp.tick(&mut x);
+        let stepping_ok = swapped && stepping_phase(&mut lp, &mut x, baseline);
+        let closed_ok = stepping_ok && tick_phase(&mut lp, &mut x, baseline, true);
+        open_ok && closed_ok && stepping_ok
     }
 
     /// The benchmark's control loop (its I/O is the simulated link).
@@ -443,23 +453,7 @@ mod bench {
     fn tick_phase(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32, closed: bool) -> bool {
         x.order = Some((2, Order::Source(SourceOrder::Wave(full_stroke(5.0)))));
         lp.tick(x);
-        let kept = x.recorder.kept();
-        let mut c = Counts::new();
-        const PAINT: usize = 8192;
-        let sp = paint_below(PAINT);
-        for _ in 0..STEPS {
-            let t = ticks(|| {
-                let t = lp.tick(x);
-                lp.record(x, &t, None)
-            });
-            c.add(instructions(t, baseline));
-            // The link task reads the recorder; the sensors follow the stage.
-            while x.recorder.take().is_some() {}
-            let f = CONTROLLER.f_f().eval(lp.state().x_pea_est());
-            LINK.set_force(f.to_num::<f32>());
-            LINK.set_position(x.snapshot.x_est.to_num::<f32>());
-        }
-        let ok = x.snapshot.fault.is_none() && x.recorder.kept() >= kept + STEPS;
+        let (c, ok, depth) = run_ticks(lp, x, baseline);
         hprintln!(
             "{} n={}: {} (the board's control task on the runtime embedded model{}: order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder; min {} mean {}.{}){}",
             if closed { "isr_tick_closed_loop_instructions" } else { "isr_tick_instructions" },
@@ -487,9 +481,53 @@ mod bench {
             } else {
                 "isr_tick_stack_bytes"
             },
-            depth_below(sp, PAINT)
+            depth
         );
         ok
+    }
+
+    /// Runs on in closed loop during the step command the loop closed in, and
+    /// prints the counts: the ticks in which the lead's mass ratio learns.
+    fn stepping_phase(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32) -> bool {
+        let (c, ok, depth) = run_ticks(lp, x, baseline);
+        hprintln!(
+            "isr_tick_closed_loop_stepping_instructions n={}: {} (the same, closing the loop during a step command over the stroke: the lead's mass ratio learns at every tick; min {} mean {}.{}){}",
+            model::OPERATORS,
+            c.max,
+            c.min,
+            c.mean_x10() / 10,
+            c.mean_x10() % 10,
+            if ok { "" } else { " FAILED: faulted or not recording" }
+        );
+        if let Some((f, at)) = x.snapshot.fault {
+            hprintln!("  fault at tick {}: {}", at, f.message());
+        }
+        hprintln!("isr_tick_closed_loop_stepping_stack_bytes: {}", depth);
+        ok
+    }
+
+    /// [`STEPS`] ticks of the loop as it runs: their instruction counts,
+    /// whether it ran without a fault and recorded every tick, and the stack
+    /// the tick used, bytes.
+    fn run_ticks(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32) -> (Counts, bool, usize) {
+        let kept = x.recorder.kept();
+        let mut c = Counts::new();
+        const PAINT: usize = 8192;
+        let sp = paint_below(PAINT);
+        for _ in 0..STEPS {
+            let t = ticks(|| {
+                let t = lp.tick(x);
+                lp.record(x, &t, None)
+            });
+            c.add(instructions(t, baseline));
+            // The link task reads the recorder; the sensors follow the stage.
+            while x.recorder.take().is_some() {}
+            let f = CONTROLLER.f_f().eval(lp.state().x_pea_est());
+            LINK.set_force(f.to_num::<f32>());
+            LINK.set_position(x.snapshot.x_est.to_num::<f32>());
+        }
+        let ok = x.snapshot.fault.is_none() && x.recorder.kept() >= kept + STEPS;
+        (c, ok, depth_below(sp, PAINT))
     }
 
     static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);

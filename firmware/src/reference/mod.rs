@@ -271,6 +271,13 @@ impl Reference {
         }
     }
 
+    /// A step (the raised cosine of [`SourceOrder::Step`]) is running, not its
+    /// approach: the motion the lead's mass ratio learns from
+    /// (`crate::closed_loop`).
+    pub const fn stepping(&self) -> bool {
+        matches!(self.active, Active::Step { .. }) && !self.approaching
+    }
+
     /// Ramping to the new source's entry point.
     pub const fn approaching(&self) -> bool {
         self.approaching
