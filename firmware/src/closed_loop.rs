@@ -145,7 +145,7 @@ pub struct Loop {
 
 /// Ticks the mass ratio learns on after a step command's last one: the
 /// preview's longest delay and the second difference's tick.
-const LEAD_WINDOW: u8 = PREVIEW_MAX + 2;
+pub const LEAD_WINDOW: u8 = PREVIEW_MAX + 2;
 
 /// Ticks in a row a position reading must disagree with the model's estimate to
 /// trip [`Fault::PositionImplausible`]: 2 ms, longer than the swings of a stage
