@@ -104,7 +104,7 @@ const Q_MAX: i32 = STEP_MAX >> Q_SHIFT;
 pub struct LeadSpec {
     /// κ: the dynamic force per µm of `S − x_ref`, N/µm, `I16F16`.
     pub force_gain: Newtons,
-    /// `|S − x_ref|` is held to this, µm (`I16F16`): `4096 N/κ` less one LSB,
+    /// `|S − x_ref|` is held to this, µm (`I16F16`): `4096 N/κ` rounded down,
     /// so that `f_m` stays within ±4096 N without a wide clamp.
     pub moved_max: Micrometres,
     /// `log₂ M`, `M` the stage's mass (N per µm/tick²) rounded to a power of
@@ -130,11 +130,12 @@ impl LeadSpec {
         } else {
             0
         };
-        let kappa = d.force_gain.to_num::<f64>();
-        let moved_max = if kappa > 0.0 {
-            // Less one LSB: κ·moved_max ≤ 4096 N in raw bits too.
-            Micrometres::saturating_from_num(crate::q::SIGNAL_ABS_MAX / kappa)
-                .saturating_sub(Micrometres::DELTA)
+        // κ·moved_max ≤ 4096 N in raw bits: 2⁴⁴ over κ's bits, rounded down
+        // (integer arithmetic: no float-to-fixed conversion that could panic).
+        let k = i64::from(d.force_gain.to_bits());
+        let moved_max = if k > 0 {
+            let m = (1i64 << 44) / k;
+            Micrometres::from_bits(m.min(i64::from(i32::MAX)) as i32)
         } else {
             Micrometres::MAX
         };

@@ -220,8 +220,8 @@ fn the_rate_follows_from_the_mode_and_kappa() {
         let product = i64::from(s.force_gain.to_bits()) * i64::from(s.moved_max.to_bits());
         assert!(product <= 4096 << 32, "κ {kappa}: {product}");
         assert!(
-            product > (4096 << 32) - (1 << 40)
-                || s.moved_max == Micrometres::MAX - Micrometres::DELTA,
+            product > (4096 << 32) - i64::from(s.force_gain.to_bits())
+                || s.moved_max == Micrometres::MAX,
             "κ {kappa}"
         );
     }

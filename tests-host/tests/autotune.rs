@@ -288,6 +288,8 @@ fn the_tuning_holds_on_stage_variants() {
         };
         load(&mut c, &a.model, v);
         assert_eq!(lead_ratio(&mut c), Some((1.0, true)));
+        // The model's shaping is taps on the preview's line: shown, and on.
+        assert_eq!(c.status().unwrap().shaping, Some(true));
         let name = format!("{mode_hz} Hz, ζ {zeta}, gain {gain}");
         let mut figs = vec![autotune::verify(&mut c).unwrap_or_else(|e| panic!("{name}: {e:#}"))];
         for _ in 0..2 {

@@ -981,7 +981,8 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
         compensated: s.compensated,
         loop_mode: s.loop_mode,
         damping: summary.damping.map(|_| s.damping_on),
-        shaping: summary.shaping.map(|_| s.shaping_on),
+        // Sections or taps on the preview's line: either is the model's shaping.
+        shaping: (summary.shaping.is_some() || summary.preview.is_some()).then_some(s.shaping_on),
         lead_ratio: summary.lead.map(|l| (s.lead_ratio.to_bits(), l.applied)),
         analysing: s.analysing,
         supervision: [s.timeout_ticks, s.silent_ticks],
