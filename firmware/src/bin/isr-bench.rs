@@ -454,55 +454,65 @@ mod bench {
         x.order = Some((2, Order::Source(SourceOrder::Wave(full_stroke(5.0)))));
         lp.tick(x);
         let (c, ok, depth) = run_ticks(lp, x, baseline);
-        hprintln!(
-            "{} n={}: {} (the board's control task on the runtime embedded model{}: order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder; min {} mean {}.{}){}",
-            if closed { "isr_tick_closed_loop_instructions" } else { "isr_tick_instructions" },
-            model::OPERATORS,
-            c.max,
-            if closed {
-                " in closed loop (damping from the force sensor, PI on the position sensor, feedforward: 8 taps on the preview's delay line, 4 ticks ahead, with the damping's lead force)"
-            } else {
-                ""
-            },
-            c.min,
-            c.mean_x10() / 10,
-            c.mean_x10() % 10,
-            if ok { "" } else { " FAILED: faulted or not recording" }
-        );
-        if let Some((f, at)) = x.snapshot.fault {
-            hprintln!("  fault at tick {}: {}", at, f.message());
-        }
-        // The tick's own stack, without the benchmark's frames above it (the
-        // measurement closure included, a few words).
-        hprintln!(
-            "{}: {}",
-            if closed {
-                "isr_tick_closed_loop_stack_bytes"
-            } else {
-                "isr_tick_stack_bytes"
-            },
-            depth
-        );
-        ok
+        let names = if closed {
+            (
+                "isr_tick_closed_loop_instructions",
+                "isr_tick_closed_loop_stack_bytes",
+            )
+        } else {
+            ("isr_tick_instructions", "isr_tick_stack_bytes")
+        };
+        let what = if closed {
+            "the board's control task on the runtime embedded model in closed loop (damping from the force sensor, PI on the position sensor, feedforward: 8 taps on the preview's delay line, 4 ticks ahead, with the damping's lead force): order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder"
+        } else {
+            "the board's control task on the runtime embedded model: order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder"
+        };
+        print_phase(x, names, what, &c, ok, depth)
     }
 
     /// Runs on in closed loop during the step command the loop closed in, and
     /// prints the counts: the ticks in which the lead's mass ratio learns.
     fn stepping_phase(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32) -> bool {
         let (c, ok, depth) = run_ticks(lp, x, baseline);
+        let names = (
+            "isr_tick_closed_loop_stepping_instructions",
+            "isr_tick_closed_loop_stepping_stack_bytes",
+        );
+        let what = "the same, closing the loop during a step command over the stroke: the lead's mass ratio learns at every tick";
+        print_phase(x, names, what, &c, ok, depth)
+    }
+
+    /// Prints a phase's counts (`names`: of its instructions and its stack
+    /// line; `what` it ran), the fault if one latched, and the tick's own
+    /// stack (without the benchmark's frames above it, the measurement closure
+    /// included, a few words); whether it ran clean.
+    fn print_phase(
+        x: &Exchange<'static>,
+        (instructions, stack): (&str, &str),
+        what: &str,
+        c: &Counts,
+        ok: bool,
+        depth: usize,
+    ) -> bool {
         hprintln!(
-            "isr_tick_closed_loop_stepping_instructions n={}: {} (the same, closing the loop during a step command over the stroke: the lead's mass ratio learns at every tick; min {} mean {}.{}){}",
+            "{} n={}: {} ({}; min {} mean {}.{}){}",
+            instructions,
             model::OPERATORS,
             c.max,
+            what,
             c.min,
             c.mean_x10() / 10,
             c.mean_x10() % 10,
-            if ok { "" } else { " FAILED: faulted or not recording" }
+            if ok {
+                ""
+            } else {
+                " FAILED: faulted or not recording"
+            }
         );
         if let Some((f, at)) = x.snapshot.fault {
             hprintln!("  fault at tick {}: {}", at, f.message());
         }
-        hprintln!("isr_tick_closed_loop_stepping_stack_bytes: {}", depth);
+        hprintln!("{}: {}", stack, depth);
         ok
     }
 
