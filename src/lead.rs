@@ -119,8 +119,8 @@ pub struct LeadSpec {
 impl LeadSpec {
     /// The lead of the stage the model declares (a checked [`DynamicsSpec`]: its
     /// mode above 1 Hz), at control rate `rate_hz`, with the model's baseline if
-    /// it has one. `f32` arithmetic, once per model (not in the ISR): the mass
-    /// is `κ/(2π·f_n/f_s)²`, N per µm/tick².
+    /// it has one. `f32` and integer arithmetic, once per model (not in the
+    /// ISR): the mass is `κ/(2π·f_n/f_s)²`, N per µm/tick².
     pub fn of(d: &DynamicsSpec, rate_hz: u32, baseline: Option<LeadRatio>) -> Self {
         let w = core::f32::consts::TAU * d.mode_mhz as f32 / 1000.0 / rate_hz as f32;
         let mass = d.force_gain.to_num::<f32>() / (w * w);
