@@ -184,7 +184,7 @@ impl Board {
         d.set_item(
             "lead_ratio",
             s.lead_ratio
-                .map(|(b, _)| f64::from(b) / f64::from(1u32 << 30)),
+                .map(|(b, _)| piezo_fpi::q::LeadRatio::from_bits(b).to_num::<f64>()),
         )?;
         d.set_item("lead_applied", s.lead_ratio.map(|(_, a)| a))?;
         d.set_item("supervision_ms", f64::from(s.supervision[0]) / rate * 1e3)?;

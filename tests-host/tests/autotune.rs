@@ -255,8 +255,12 @@ fn the_preview_runs_the_shaping_ahead_and_the_loops_that_many_ticks_late() {
 /// damping applies it.
 fn lead_ratio(c: &mut Client) -> Option<(f64, bool)> {
     let s = c.status().unwrap();
-    s.lead_ratio
-        .map(|(b, applied)| (f64::from(b) / f64::from(1u32 << 30), applied))
+    s.lead_ratio.map(|(b, applied)| {
+        (
+            piezo_fpi::q::LeadRatio::from_bits(b).to_num::<f64>(),
+            applied,
+        )
+    })
 }
 
 /// The tuning loaded unchanged onto variants: each steps three times

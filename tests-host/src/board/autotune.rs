@@ -215,7 +215,7 @@ pub fn lead_baseline(
     let ratio = |c: &mut Client| -> Result<Option<f64>> {
         match c.status()?.lead_ratio {
             Some((_, true)) => bail!("the board's model carries a lead baseline already"),
-            r => Ok(r.map(|(b, _)| f64::from(b) / f64::from(1u32 << 30))),
+            r => Ok(r.map(|(b, _)| piezo_fpi::q::LeadRatio::from_bits(b).to_num::<f64>())),
         }
     };
     if ratio(c)?.is_none() {

@@ -300,7 +300,7 @@ fn loops_text(s: &Status) -> Option<String> {
     }
     match s
         .lead_ratio
-        .map(|(b, a)| (f64::from(b) / f64::from(1u32 << 30), a))
+        .map(|(b, a)| (piezo_fpi::q::LeadRatio::from_bits(b).to_num::<f64>(), a))
     {
         Some((b, true)) => parts.push(format!("stage mass {b:.3} × the tuned one's (learned)")),
         Some((b, false)) => parts.push(format!("lead fit {b:.3} (not applied: no lead baseline)")),
