@@ -50,9 +50,9 @@
 //! `piezo_fpi::limits::OutputLimits::park_damped`, faded out by its end) where
 //! it cannot be the fault's cause: it was on, the fault is one that keeps it
 //! (`Fault::damps_park`: not the force sensor's, not an overrun, not a stage
-//! that left its model), and for [`Fault::Oscillation`] the watch caught the
-//! tracking error (the position loop, which the park drops), not the damping's
-//! own correction. Integral force feedback on the collocated force sensor adds
+//! that left its model), and for [`Fault::Oscillation`] the watch caught it
+//! with the position loop closed (the loop the park drops), not with the
+//! damping running alone. Integral force feedback on the collocated force sensor adds
 //! damping to the first mode wherever the mode lies well above the law's
 //! high-pass and leak corners (its root locus leaves the mode to the left while
 //! the mode's frequency exceeds their geometric mean, whatever it is), and
@@ -118,9 +118,9 @@ pub struct Loop {
     damped: Micrometres,
     shaping_on: bool,
     fresh_shaping: bool,
-    /// The watch's swing is the damping's correction (open loop, or no
-    /// position loop), not the tracking error.
-    damping_watched: bool,
+    /// The damping is the only loop running (open loop, or no position
+    /// loop): an oscillation the watch sees is its own.
+    damping_alone: bool,
     /// A fault is latched (the last step parked).
     parking: bool,
     /// The damping runs on through this park.
@@ -181,7 +181,7 @@ impl Loop {
             fresh_shaping: false,
             watch: LoopWatch::new(),
             alarm: None,
-            damping_watched: false,
+            damping_alone: false,
             parking: false,
             park_damping: false,
             ahead: Preview::new(),
@@ -410,18 +410,21 @@ impl Loop {
         .saturating_add(self.damped);
         // Where a loop runs (closed, or damping on), it is watched: on the
         // tracking error where the position loop is closed (an unstable loop's
-        // clearest sign), else on the damping's correction.
+        // clearest sign), else on the damping's correction (in open loop the
+        // tracking error is also the feedforward's, which a fast wave without
+        // the shaping leaves large and periodic).
         let looped = self.mode != LoopMode::Open || self.damped != Micrometres::ZERO;
         self.alarm = if looped {
             let limited = self.clamp != Saturation::Free || self.sat != Saturation::Free;
-            self.damping_watched =
+            self.damping_alone =
                 matches!((self.mode, io.feedback), (LoopMode::Open, _) | (_, None));
-            let swing = if self.damping_watched {
+            let swing = if self.damping_alone {
                 wanted.saturating_sub(ff)
             } else {
                 error
             };
-            self.watch.update(swing, io.x_ref, limited)
+            self.watch
+                .update(swing, self.damping_alone, io.x_ref, limited)
         } else {
             self.watch.reset();
             None
@@ -469,7 +472,7 @@ impl Loop {
     fn after_fault(&mut self, f: Fault, at_safe: bool) {
         let keep = self.damping_on
             && f.damps_park()
-            && !(matches!(f, Fault::Oscillation) && self.damping_watched)
+            && !(matches!(f, Fault::Oscillation) && self.damping_alone)
             && (self.park_damping || !self.parking)
             && !at_safe;
         let damping = self.damping;
