@@ -97,11 +97,11 @@ pub const UNDECAYING: Rule = Rule {
 };
 
 impl Rule {
-    /// Whether `count` half-cycles in a row, the last `still` of which ended
-    /// with the reference unchanged since before the first, trip it.
+    /// Whether `count` half-cycles in a row, the reference held through the
+    /// last `held` of them, trip it.
     #[inline]
-    const fn trips(&self, count: u16, still: u16) -> bool {
-        count >= self.moving || (count >= self.held && still >= count)
+    const fn trips(&self, count: u16, held: u16) -> bool {
+        count >= self.moving || (count >= self.held && held >= count)
     }
 }
 
@@ -118,8 +118,8 @@ pub struct LoopWatch {
     sustained: u16,
     growing: u16,
     undecaying: u16,
-    /// Half-cycles ended since the reference last changed, counting the one in
-    /// progress then (the reference held through the last `still − 1` whole).
+    /// Half-cycles ended since the reference last changed (the one in
+    /// progress then included): the reference held through all but the first.
     still: u16,
     /// The reference of the last tick (`I16F16` bits).
     last_ref: i32,
@@ -215,9 +215,10 @@ impl LoopWatch {
     /// counts it for each rule, or starts the counts again.
     #[inline]
     fn half_cycle_ends(&mut self) {
-        let held = self.still > 0;
+        // The reference held through this half-cycle and the `held − 1` before.
+        let held = self.still;
         self.still = self.still.saturating_add(1);
-        let longest = if held {
+        let longest = if held > 0 {
             MAX_HELD_HALF_TICKS
         } else {
             MAX_HALF_TICKS
@@ -235,10 +236,9 @@ impl LoopWatch {
         let grew = peak > GROWTH_SWING && peak >= last.saturating_add(last >> GROWTH_SHIFT);
         self.growing = count(self.growing, grew);
         self.undecaying = count(self.undecaying, peak >= last - (last >> GROWTH_SHIFT));
-        let still = self.still - 1;
-        self.tripped = SUSTAINED.trips(self.sustained, still)
-            || GROWING.trips(self.growing, still)
-            || UNDECAYING.trips(self.undecaying, still);
+        self.tripped = SUSTAINED.trips(self.sustained, held)
+            || GROWING.trips(self.growing, held)
+            || UNDECAYING.trips(self.undecaying, held);
         self.last_peak = if chained { peak } else { 0 };
         self.peak = 0;
     }
