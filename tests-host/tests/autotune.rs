@@ -57,6 +57,17 @@ fn load(c: &mut Client, fw: &FirmwareModel, v: StageVariant) {
     c.bench(BenchOrder::Stage(v)).unwrap();
 }
 
+/// The stage as built with its mode at `mode_hz`, damped `zeta`, and its
+/// output gain scaled by `gain` where given.
+fn built_with_mode(mode_hz: f32, zeta: f32, gain: Option<f32>) -> StageVariant {
+    StageVariant {
+        mode_hz: Some(mode_hz),
+        mode_damping: Some(zeta),
+        output_gain: gain,
+        ..StageVariant::BUILT
+    }
+}
+
 /// Autotune on the stage as built (once), and the board it ran on.
 fn tuned() -> &'static Autotune {
     static TUNED: OnceLock<Autotune> = OnceLock::new();
@@ -285,12 +296,7 @@ fn the_tuning_holds_on_stage_variants() {
         (1000.0, 0.015, 1.03),
         (1000.0, 0.05, 0.97),
     ] {
-        let v = StageVariant {
-            mode_hz: Some(mode_hz),
-            mode_damping: Some(zeta),
-            output_gain: Some(gain),
-            ..StageVariant::BUILT
-        };
+        let v = built_with_mode(mode_hz, zeta, Some(gain));
         load(&mut c, &a.model, v);
         assert_eq!(lead_ratio(&mut c), Some((1.0, true)));
         // The model's shaping is taps on the preview's line: shown, and on.
@@ -462,11 +468,7 @@ fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
     let a = tuned();
     let (_e, mut c) = board("unstable");
     for (mode_hz, zeta) in [(300.0, 0.01), (400.0, 0.01), (2000.0, 0.01)] {
-        let v = StageVariant {
-            mode_hz: Some(mode_hz),
-            mode_damping: Some(zeta),
-            ..StageVariant::BUILT
-        };
+        let v = built_with_mode(mode_hz, zeta, None);
         let u = unstable_run(&mut c, a, v);
         println!(
             "{mode_hz} Hz, ζ {zeta}: {:?} after {:.2} ms; true position {:.2}–{:.2} µm until \
@@ -515,12 +517,7 @@ fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
 fn the_damping_alone_on_a_stage_that_changed_is_caught() {
     let a = tuned();
     let (_e, mut c) = board("damping alone");
-    let v = StageVariant {
-        mode_hz: Some(300.0),
-        mode_damping: Some(0.01),
-        ..StageVariant::BUILT
-    };
-    load(&mut c, &a.model, v);
+    load(&mut c, &a.model, built_with_mode(300.0, 0.01, None));
     let u = watched(&mut c, |f| f.c.move_to(20.0, 1000.0).unwrap());
     println!(
         "300 Hz, ζ 0.01, open loop, move 0 → 20 µm at 1 mm/s: {:?} after {:.2} ms; true \
@@ -549,9 +546,7 @@ fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_refused() {
     let (_e, mut c) = board("wave at the mode");
     load(&mut c, &a.model, StageVariant::BUILT);
     c.move_to(20.0, 1000.0).unwrap();
-    fpi_host::board::follow::Follow::new(&mut c, 0)
-        .until_hold()
-        .unwrap();
+    Follow::new(&mut c, 0).until_hold().unwrap();
     c.damping(false).unwrap();
     // The issue's case: 5 µm about 20 µm at the 850 Hz mode, undamped (±83 µm).
     let e = c.wave(Shape::Sine, 5.0, 20.0, 850.0, 0).unwrap_err();
@@ -582,9 +577,7 @@ fn a_stage_that_no_longer_matches_its_model_is_caught_in_open_and_closed_loop() 
     for mode in [LoopMode::Open, LoopMode::Closed] {
         load(&mut c, &a.model, v);
         c.move_to(8.0, 1000.0).unwrap();
-        fpi_host::board::follow::Follow::new(&mut c, 0)
-            .until_hold()
-            .unwrap();
+        Follow::new(&mut c, 0).until_hold().unwrap();
         c.ack(&Command::Loop { axis: 0, mode }).unwrap();
         let u = watched(&mut c, |f| f.c.move_to(35.0, 1000.0).unwrap());
         println!(
@@ -622,12 +615,7 @@ fn the_watch_on_references_the_loops_cannot_follow() {
     use fpi_protocol::{Command, LoopMode, Shape};
     let a = tuned();
     let (_e, mut c) = board("watch survey");
-    let stage = |mode_hz: f32, zeta: f32, gain: f32| StageVariant {
-        mode_hz: Some(mode_hz),
-        mode_damping: Some(zeta),
-        output_gain: Some(gain),
-        ..StageVariant::BUILT
-    };
+    let stage = |mode_hz, zeta, gain| built_with_mode(mode_hz, zeta, Some(gain));
     let stages = [
         ("as built", StageVariant::BUILT),
         ("700 Hz, ζ 0.015", stage(700.0, 0.015, 0.97)),
