@@ -26,7 +26,7 @@ use piezo_fpi::lead::LeadSpec;
 use piezo_fpi::model::image::CRC32;
 use piezo_fpi::model::Shape;
 use piezo_fpi::preview::Fir;
-use piezo_fpi::q::Volts;
+use piezo_fpi::q::{Newtons, Volts};
 
 use crate::hardware::{Controller, Store, BOARD, RATE_HZ};
 
@@ -67,6 +67,24 @@ pub struct Summary {
     pub damping: Option<DampingConfig>,
     /// The force channel (split and dynamic limit).
     pub channel: ForceChannel,
+    /// The dynamic force a move may ask of the stack, N: the least of the
+    /// room the force sensor's window leaves below the preload at the
+    /// stroke's low end and above it at the high end, and the channel's
+    /// dynamic limit ([`force_room`]).
+    pub force_room: Newtons,
+}
+
+/// The dynamic force a move may ask of the stack of `cfg`, N (see
+/// [`Summary::force_room`]); `limit` the channel's dynamic limit. The preload
+/// `f_F(f_K⁻¹(x))` is monotone in `x` (both tables are), so the stroke's ends
+/// bound it. Never negative.
+pub fn force_room(cfg: &Controller<'_>, limit: Newtons) -> Newtons {
+    let (r, f) = (cfg.reference(), cfg.force());
+    let preload = |x| cfg.f_f().eval(cfg.f_k_inv().eval(x));
+    let (a, b) = (preload(r.lo), preload(r.hi));
+    let below = a.min(b).saturating_sub(f.lo);
+    let above = f.hi.saturating_sub(a.max(b));
+    below.min(above).min(limit).max(Newtons::ZERO)
 }
 
 /// A store the link task owns: free to load an image into.
@@ -168,6 +186,7 @@ impl Spare {
                     dynamics,
                     damping,
                     channel,
+                    force_room: force_room(&cfg, channel.dynamic_limit),
                 },
                 cfg,
             }),

@@ -561,6 +561,56 @@ fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_refused() {
     c.park().unwrap();
 }
 
+/// A step the stack cannot push through the force sensor's window (it used to
+/// latch `ForceOutOfRange`): refused with the force, the room and the shortest
+/// duration that fits; that duration runs without a fault, shaped and not.
+#[test]
+fn a_step_too_fast_for_the_force_sensor_is_refused_with_the_shortest_that_fits() {
+    use fpi_firmware::recorder::signal;
+    use fpi_host::board::client::refusal;
+    use fpi_protocol::{Command, LoopMode};
+    let a = tuned();
+    let (_e, mut c) = board("step too fast");
+    for shaping in [true, false] {
+        load(&mut c, &a.model, StageVariant::BUILT);
+        c.move_to(30.0, 1000.0).unwrap();
+        Follow::new(&mut c, 0).until_hold().unwrap();
+        c.ack(&Command::Loop {
+            axis: 0,
+            mode: LoopMode::Closed,
+        })
+        .unwrap();
+        c.shaping(shaping).unwrap();
+        let e = c.step(5.0, 0.5).unwrap_err();
+        let r = refusal(&e).unwrap_or_else(|| panic!("{e:#}"));
+        println!("shaping {shaping}: refused: {}", r.reason);
+        assert!(r.reason.contains("N of room"), "{}", r.reason);
+        let shortest: f64 = r
+            .reason
+            .rsplit(": ")
+            .next()
+            .and_then(|t| t.strip_suffix(" ms at least"))
+            .and_then(|t| t.parse().ok())
+            .unwrap_or_else(|| panic!("{}", r.reason));
+        assert!(shortest > 0.5 && shortest < 3.0, "{shortest} ms");
+        let mut f = Follow::new(&mut c, signal::FORCE | signal::STATUS);
+        f.record(1).unwrap();
+        let t0 = f.c.status().unwrap().tick;
+        f.c.step(5.0, shortest).unwrap();
+        f.until_tick(t0 + 400).unwrap();
+        f.c.ack(&Command::RecordStop).unwrap();
+        f.drain().unwrap();
+        let st = f.c.status().unwrap();
+        assert_eq!(st.fault, None, "shaping {shaping}: {shortest} ms");
+        let force = f.rec.samples.iter().map(|s| real(s.force));
+        let (lo, hi) = force.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+            (l.min(v), h.max(v))
+        });
+        println!("shaping {shaping}: {shortest} ms ran, force {lo:.1}–{hi:.1} N");
+        c.park().unwrap();
+    }
+}
+
 #[test]
 fn a_stage_that_no_longer_matches_its_model_is_caught_in_open_and_closed_loop() {
     use fpi_protocol::Command;

@@ -14,7 +14,7 @@ use core::fmt::Write as _;
 
 use embedded_storage::nor_flash::NorFlash;
 use heapless::Vec;
-use piezo_fpi::q::Micrometres;
+use piezo_fpi::q::{Micrometres, Newtons};
 
 use super::frame::{self, FrameError};
 use super::pace::{reached, Pace};
@@ -411,6 +411,7 @@ impl<F: NorFlash> Handler<F> {
                     ));
                 }
                 let ticks = (duration_us as u64 * RATE_HZ as u64).div_ceil(1_000_000) as u32;
+                self.within_the_force(board, target, ticks)?;
                 let phase_step = crate::reference::step_phase_for(ticks);
                 self.order(
                     board,
@@ -789,6 +790,55 @@ impl<F: NorFlash> Handler<F> {
             phase_step: Wave::phase_step_for(freq_mhz, RATE_HZ),
             cycles,
         })
+    }
+
+    /// Refuses a step that would ask the stack for more dynamic force than the
+    /// force sensor's window leaves about the preload ([`Summary::force_room`];
+    /// [`crate::reference::step_force`]), with the shortest duration that
+    /// would not (the reason fits the link's 96 bytes: "25.000 µm step in
+    /// 0.500 ms: 110.322 N of force, 40.125 N of room: 0.850 ms at least"). A
+    /// model without the stage's dynamics or κ is not checked.
+    fn within_the_force(
+        &self,
+        board: &mut impl Board,
+        target: Micrometres,
+        ticks: u32,
+    ) -> Result<(), Refuse> {
+        use crate::reference::step_force::{shortest_within, step_force, Mode};
+        let s = &self.summary;
+        let Some(d) = s.dynamics.filter(|d| d.force_gain > Newtons::ZERO) else {
+            return Ok(());
+        };
+        let (from, shaping_on) = board.exchange(|x| (x.snapshot.x_ref, x.snapshot.shaping_on));
+        let shaped = shaping_on && (s.preview.is_some() || s.shaping.is_some());
+        let amplitude = target.saturating_sub(from).to_num::<f32>();
+        let mode = Mode {
+            hz: d.mode_mhz as f32 / 1000.0,
+            zeta: d.damping.to_num::<f32>(),
+            kappa: d.force_gain.to_num::<f32>(),
+        };
+        let room = s.force_room.to_num::<f32>();
+        let rate = RATE_HZ as f32;
+        let force = step_force(amplitude, ticks, rate, mode, shaped);
+        if force <= room {
+            return Ok(());
+        }
+        let bits = |v: f32| (v * 65536.0).clamp(i32::MIN as f32, i32::MAX as f32) as i32;
+        let ms = |t: u32| Milli(bits(t as f32 * 1000.0 / rate));
+        let mut why = Text::new();
+        let _ = write!(
+            why,
+            "{} µm step in {} ms: {} N of force, {} N of room",
+            Milli(bits(amplitude)),
+            ms(ticks),
+            Milli(bits(force)),
+            Milli(s.force_room.to_bits())
+        );
+        let _ = match shortest_within(amplitude, ticks, rate, mode, shaped, room) {
+            Some(t) => write!(why, ": {} ms at least", ms(t)),
+            None => write!(why, ": move there"),
+        };
+        Err(refuse(Refusal::OutOfRange, format_args!("{why}")))
     }
 
     /// Refuses a wave whose harmonics the model's first mode would amplify out

@@ -14,6 +14,7 @@
 //! panic, constant time per tick.
 
 pub mod analog;
+pub mod step_force;
 pub mod stream;
 pub mod wave;
 
