@@ -75,17 +75,18 @@ fn tuned() -> &'static Autotune {
         let (_e, mut c) = board("autotune");
         let fw = factory();
         load(&mut c, &fw, StageVariant::BUILT);
-        let a = autotune::run(
-            &mut c,
-            &fw,
-            &TuneOptions::default(),
-            &autotune::Settings::default(),
-            false,
-            |m| println!("{m}"),
-        )
-        .unwrap_or_else(|e| panic!("{e:#}"));
+        let a = autotune_as_a_user_would(&mut c, &fw).unwrap_or_else(|e| panic!("{e:#}"));
         println!("{}", autotune::table(&a));
         a
+    })
+}
+
+/// `fpi board autotune` with its defaults, not stored, on the board `c` runs
+/// `fw` on.
+fn autotune_as_a_user_would(c: &mut Client, fw: &FirmwareModel) -> anyhow::Result<Autotune> {
+    let settings = autotune::Settings::default();
+    autotune::run(c, fw, &TuneOptions::default(), &settings, false, |m| {
+        println!("{m}")
     })
 }
 
@@ -559,6 +560,39 @@ fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_refused() {
     c.damping(true).unwrap();
     c.wave(Shape::Sine, 5.0, 20.0, 850.0, 10).unwrap();
     c.park().unwrap();
+}
+
+/// The force sensor's noise, measured through the board at rest, and named
+/// where it makes the tuned damping's motion trip the loop watch (σ 3 N: the
+/// stage moves about 0.4 µm RMS at rest).
+#[test]
+fn a_noisy_force_sensor_is_measured_and_named_where_the_watch_trips() {
+    use fpi_host::board::noise;
+    let (_e, mut c) = board("noisy force sensor");
+    let fw = factory();
+    for (sigma, ok) in [(0.15, 0.12..0.18), (3.0, 2.4..3.6)] {
+        load(&mut c, &fw, built_with_force_noise(sigma));
+        let n = noise::force_noise(&mut c).unwrap();
+        println!("σ {sigma} N: measured {n:.3} N");
+        assert!(ok.contains(&n), "σ {sigma}: {n}");
+    }
+    let e = autotune_as_a_user_would(&mut c, &fw)
+        .expect_err("the watch trips on the damping's noise-driven motion");
+    let text = format!("{e:#}");
+    println!("{text}");
+    assert!(
+        text.contains("noise at rest") && text.contains("--no-damping"),
+        "{text}"
+    );
+    c.park().unwrap();
+}
+
+/// The stage as built with the force sensor's noise `sigma_n` (N).
+fn built_with_force_noise(sigma_n: f32) -> StageVariant {
+    StageVariant {
+        force_noise_n: Some(sigma_n),
+        ..StageVariant::BUILT
+    }
 }
 
 /// A step the stack cannot push through the force sensor's window (it used to

@@ -3,9 +3,11 @@
 //!
 //! 1. The board must run the model given (read back and compared byte for
 //!    byte: the tuning is written into that model's file).
-//! 2. Open loop, damping and shaping off, holding mid-stroke: the board's
-//!    analyser measures the response from the command to the position sensor
-//!    and to the force channel ([`super::frf`]).
+//! 2. Open loop, damping and shaping off, holding mid-stroke: the force
+//!    sensor's noise at rest is measured ([`super::noise`]; named in the
+//!    error where the loop watch trips later and it is high), then the
+//!    board's analyser measures the response from the command to the
+//!    position sensor and to the force channel ([`super::frf`]).
 //! 3. The core's plant model is fitted to it ([`crate::method::tune::frf`]):
 //!    mode, damping, lag, κ.
 //! 4. The loops are designed on it ([`crate::method::tune`]: damping for the
@@ -34,6 +36,7 @@ use piezo_sim::file::FirmwareModel;
 
 use super::client::{refusal, Client};
 use super::frf::{self, FrfSettings};
+use super::noise;
 use super::step::{self, StepFigures, StepSettings};
 use super::trial;
 use super::warm::close_and_warm_up;
@@ -93,6 +96,8 @@ pub struct Autotune {
     pub frf: Vec<FrfPoint>,
     /// The plant fitted to it.
     pub fit: FrfFit,
+    /// The force sensor's noise at rest, N (σ; [`noise::force_noise`]).
+    pub force_noise_n: f64,
     /// The loops designed.
     pub tuning: Tuning,
     /// The tuned model (loaded on the board).
@@ -153,6 +158,10 @@ pub fn run(
         .unwrap_or(piezo_fpi::control::DEFAULT_SPLIT_HZ as f64);
     let split_rate = tune::split_rate_f64(split, rate);
     bare(c)?;
+    let force_noise_n = noise::force_noise(c)?;
+    progress(&format!(
+        "the force sensor's noise at rest: σ {force_noise_n:.3} N"
+    ));
     progress("measuring the frequency response through the board");
     let points = frf::measure(c, &settings.sweep, |k, p| {
         progress(&format!(
@@ -166,37 +175,72 @@ pub fn run(
     progress(&fit::describe(&fitted));
     let mut t = tune::tune_measured(fw, fitted.spec, o)?;
     progress("loading the tuned model");
-    let mut tuned = load(c, fw, &t, o, false)?;
+    // The loops run on the stage from here: a tripped watch may be the damping's
+    // noise-driven motion.
+    let done = on_board(c, fw, o, settings, store, &mut t, &mut progress)
+        .map_err(|e| noise::explain(c, e, force_noise_n))?;
+    Ok(Autotune {
+        frf: points,
+        fit: fitted,
+        force_noise_n,
+        tuning: t,
+        model: done.model,
+        rounds: done.rounds,
+        kept: done.kept,
+        baseline: done.baseline,
+        step: done.step,
+    })
+}
+
+/// What autotune did on the board with the loops it designed.
+struct OnBoard {
+    model: FirmwareModel,
+    rounds: Vec<Round>,
+    kept: usize,
+    baseline: Option<(f64, usize)>,
+    step: StepFigures,
+}
+
+/// Loads the tuning `t`, refines its feedforward on trials, measures the
+/// lead's baseline (both written into `t`), stores it where asked and verifies
+/// it with a step (steps 4–7 of the module docs).
+fn on_board(
+    c: &mut Client,
+    fw: &FirmwareModel,
+    o: &TuneOptions,
+    settings: &Settings,
+    store: bool,
+    t: &mut Tuning,
+    progress: &mut impl FnMut(&str),
+) -> Result<OnBoard> {
+    let mut model = load(c, fw, t, o, false)?;
     let (mut rounds, mut kept) = (Vec::new(), 0);
     if let (Some(Feedforward::Preview { ticks, taps, .. }), 1..) =
         (t.feedforward.clone(), settings.trials)
     {
         let best;
-        (rounds, kept, best) = refine(c, fw, &t, o, (ticks, taps), settings.trials, &mut progress)?;
+        (rounds, kept, best) = refine(c, fw, t, o, (ticks, taps), settings.trials, progress)?;
         t.feedforward = Some(Feedforward::Preview {
             ticks,
             taps: best,
             trials: kept as u32,
         });
-        tuned = tune::with_tuning(fw, &t, o)?;
+        model = tune::with_tuning(fw, t, o)?;
         if kept + 1 != rounds.len() {
-            load(c, fw, &t, o, false)?;
+            load(c, fw, t, o, false)?;
         }
     }
-    let baseline = lead_baseline(c, &mut progress)?;
+    let baseline = lead_baseline(c, progress)?;
     if let Some((b, _)) = baseline {
         t.lead_baseline = Some(b);
-        tuned = load(c, fw, &t, o, false)?;
+        model = load(c, fw, t, o, false)?;
     }
     if store {
-        load(c, fw, &t, o, true)?;
+        load(c, fw, t, o, true)?;
     }
     let step = verify(c)?;
-    Ok(Autotune {
-        frf: points,
-        fit: fitted,
-        tuning: t,
-        model: tuned,
+    Ok(OnBoard {
+        model,
         rounds,
         kept,
         baseline,
@@ -337,6 +381,10 @@ pub fn table(a: &Autotune) -> String {
                 a.fit.spec.lag_mhz as f64 / 1000.0,
                 a.fit.spec.force_gain.to_num::<f64>()
             ),
+        ),
+        (
+            "force sensor's noise at rest",
+            format!("σ {:.3} N", a.force_noise_n),
         ),
         (
             "mode damping (family's least)",
