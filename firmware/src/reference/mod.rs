@@ -10,8 +10,9 @@
 //! ramp by itself. When a move arrives, a finite wave has run its cycles or an
 //! ended stream is drained, the source becomes *hold* at that point.
 //!
-//! Everything here runs in the control ISR: integer arithmetic, no division, no
-//! panic, constant time per tick.
+//! Everything here runs in the control ISR (integer arithmetic, no division, no
+//! panic, constant time per tick) but the link task's checks of a command
+//! before it is ordered, in `f32`: [`step_force`] and [`wave::mode_swing`].
 
 pub mod analog;
 pub mod step_force;
