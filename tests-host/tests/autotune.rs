@@ -587,6 +587,36 @@ fn a_noisy_force_sensor_is_measured_and_named_where_the_watch_trips() {
     c.park().unwrap();
 }
 
+/// A fault latched before autotune's warm-up (the board then refuses its
+/// sines) is named with its tick, not left as the refusal alone.
+#[test]
+fn a_fault_latched_before_the_warm_up_is_named() {
+    use fpi_host::board::warm;
+    use fpi_protocol::BenchOrder;
+    use piezo_fpi::control::Fault;
+    let (_e, mut c) = board("fault before the warm-up");
+    load(&mut c, &factory(), StageVariant::BUILT);
+    c.move_to(20.0, 1000.0).unwrap();
+    Follow::new(&mut c, 0).until_hold().unwrap();
+    c.bench(BenchOrder::SensorOpen(true)).unwrap();
+    while c
+        .status()
+        .unwrap()
+        .fault
+        .is_none_or(|f| f.code != Fault::ForceOutOfRange as u8)
+    {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    c.bench(BenchOrder::SensorOpen(false)).unwrap();
+    let e = format!("{:#}", warm::warm_up(&mut c).unwrap_err());
+    println!("{e}");
+    assert!(
+        e.starts_with("fault 1 (") && e.contains("before the warm-up"),
+        "{e}"
+    );
+    c.park().unwrap();
+}
+
 /// The stage as built with the force sensor's noise `sigma_n` (N).
 fn built_with_force_noise(sigma_n: f32) -> StageVariant {
     StageVariant {

@@ -7,14 +7,23 @@ use anyhow::Result;
 use fpi_protocol::{Command, LoopMode, Shape};
 
 use super::client::Client;
-use super::follow::Follow;
+use super::follow::{no_fault, Follow};
 
 /// Slow sines of the warm-up: 5 Hz over 5–35 µm, this many.
 pub const WARM_UP_CYCLES: u32 = 10;
 
 /// [`WARM_UP_CYCLES`] slow sines, 5–35 µm at 5 Hz, with the loops as they are.
+/// A fault latched before (the board then refuses the sines) is named with its
+/// tick.
 pub fn warm_up(c: &mut Client) -> Result<()> {
-    c.wave(Shape::Sine, 15.0, 20.0, 5.0, WARM_UP_CYCLES)?;
+    if let Err(e) = c.wave(Shape::Sine, 15.0, 20.0, 5.0, WARM_UP_CYCLES) {
+        let status = c.status()?;
+        no_fault(
+            &status,
+            "what ran before the warm-up (the board refused its sines)",
+        )?;
+        return Err(e);
+    }
     Follow::new(c, 0).until_rest("the warm-up")?;
     Ok(())
 }
