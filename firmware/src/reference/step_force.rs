@@ -30,9 +30,11 @@ pub const UNSHAPED_MARGIN: f32 = 1.5;
 /// Ticks simulated after the step: two periods of the mode at most, where the
 /// ringing's largest swing lies.
 const RINGING_PERIODS: f32 = 2.0;
-/// Sub-steps of the simulation per control tick (semi-implicit Euler: a phase
-/// error below 0.1 % per period up to a tenth of the control rate).
-const SUBSTEPS: u32 = 4;
+/// Steps of the simulation per period of the mode (semi-implicit Euler: a
+/// phase error of about 0.02 % per period), whatever the control rate: at most
+/// `(LONG_PERIODS + RINGING_PERIODS)·STEPS_PER_PERIOD` = 1 152 steps, so that a
+/// model with a slow mode does not hold the link task (and its watchdog).
+const STEPS_PER_PERIOD: f32 = 96.0;
 /// Beyond this many periods of the mode in the step, the unshaped force is
 /// bounded by the shaped one's 3/2 (the ringing left is below 1/(4(fT)²) of
 /// `A` there) instead of simulated.
@@ -54,7 +56,7 @@ pub struct Mode {
 /// mode is `m`, `shaped` or not (see the module docs; unshaped, with the
 /// loops' [`UNSHAPED_MARGIN`]).
 pub fn step_force(amplitude_um: f32, ticks: u32, rate_hz: f32, m: Mode, shaped: bool) -> f32 {
-    let a = abs(amplitude_um);
+    let a = amplitude_um.abs();
     let t = ticks.max(1) as f32 / rate_hz;
     let w = core::f32::consts::TAU * m.hz;
     let pi = core::f32::consts::PI;
@@ -67,16 +69,16 @@ pub fn step_force(amplitude_um: f32, ticks: u32, rate_hz: f32, m: Mode, shaped: 
     let alone = if periods >= LONG_PERIODS {
         1.5 * inertial
     } else {
-        m.kappa * lag_peak(a, t, rate_hz, w, m.zeta, m.hz)
+        m.kappa * lag_peak(a, t, w, m.zeta, m.hz)
     };
     UNSHAPED_MARGIN * alone
 }
 
 /// The largest `|u − x|`, µm, for the raised cosine `u` of `a` µm over `t`
 /// seconds and the mode's response `x`, from rest.
-fn lag_peak(a: f32, t: f32, rate_hz: f32, w: f32, zeta: f32, mode_hz: f32) -> f32 {
-    let dt = 1.0 / (rate_hz * SUBSTEPS as f32);
-    let n = ((t + RINGING_PERIODS / mode_hz) / dt) as u32;
+fn lag_peak(a: f32, t: f32, w: f32, zeta: f32, mode_hz: f32) -> f32 {
+    let dt = 1.0 / (STEPS_PER_PERIOD * mode_hz);
+    let n = ((t * mode_hz + RINGING_PERIODS) * STEPS_PER_PERIOD) as u32;
     let (mut x, mut v, mut peak) = (0.0f32, 0.0f32, 0.0f32);
     for k in 0..n {
         let time = k as f32 * dt;
@@ -87,7 +89,7 @@ fn lag_peak(a: f32, t: f32, rate_hz: f32, w: f32, zeta: f32, mode_hz: f32) -> f3
         };
         v += (w * w * (u - x) - 2.0 * zeta * w * v) * dt;
         x += v * dt;
-        peak = peak.max(abs(u - x));
+        peak = peak.max((u - x).abs());
     }
     peak
 }
@@ -130,14 +132,6 @@ pub fn shortest_within(
         }
     }
     Some(hi)
-}
-
-fn abs(x: f32) -> f32 {
-    if x < 0.0 {
-        -x
-    } else {
-        x
-    }
 }
 
 /// `cos(π·s)` for `s` in `[0, 1)`: the ISR's own cosine table
