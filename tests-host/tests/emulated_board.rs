@@ -253,13 +253,6 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
     let (e, mut c) = start();
     let timeout_ms = 200;
     c.ack(&Command::Supervise { timeout_ms }).unwrap();
-    // One sample every 40 ticks: the ring (512 samples) holds a second of board
-    // time, the stream and the fault included, until the new host reads it.
-    c.ack(&Command::Record {
-        decimation: 40,
-        signals: signal::ALL,
-    })
-    .unwrap();
     c.move_to(5.0, 1000.0).unwrap();
     // Three seconds of a slow sine at 1 kHz: more than the buffer holds.
     let points: Vec<f64> = (0..3000)
@@ -269,17 +262,33 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
     for k in (0..1024).step_by(64) {
         c.points(k as u32, &points[k..k + 64]).unwrap();
     }
+    // One sample every 40 ticks: the ring (512 samples) holds a second of board
+    // time from the stream's start, the fault included, until the new host
+    // reads it (started here, not before the points' upload, whose length in
+    // board ticks grows with the board's pace).
+    c.ack(&Command::Record {
+        decimation: 40,
+        signals: signal::ALL,
+    })
+    .unwrap();
     c.ack(&Command::Stream {
         axis: 0,
         interval: 20,
     })
     .unwrap();
     let mut last = c.status().unwrap().tick;
-    // Stream for a while, then the host goes away mid-stream.
+    // Stream for 6 000 ticks of board time, then the host goes away mid-stream:
+    // the recording's start, the stream, the timeout and the park fit in the
+    // ring's second however fast the board runs (600 ms of wall-clock time
+    // did not at 10 000 ticks/s).
     let t = Instant::now();
     let first = c.status().unwrap().tick;
     let mut sent = 1024;
-    while t.elapsed() < Duration::from_millis(600) {
+    while last < first + 6_000 {
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "the board's clock stalled"
+        );
         let s = c.status().unwrap();
         last = s.tick;
         if s.stream[1] >= 64 && sent + 64 <= points.len() {
