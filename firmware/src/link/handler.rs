@@ -79,6 +79,14 @@ pub(super) fn refuse(code: Refusal, args: core::fmt::Arguments<'_>) -> Refuse {
 /// µm (or V, N) with three decimals, for reasons.
 pub(super) struct Milli(pub(super) i32);
 
+impl Milli {
+    /// `x` (µm, V, N, ms…) held to the `I16F16` range: fixed-point text, no
+    /// float formatting in the firmware.
+    pub(super) fn of(x: f32) -> Self {
+        Self((x.clamp(-32_767.0, 32_767.0) * 65_536.0) as i32)
+    }
+}
+
 impl core::fmt::Display for Milli {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         let m = (self.0 as i64 * 1000 + (1 << 15)).div_euclid(1 << 16);
@@ -526,8 +534,6 @@ impl<F: NorFlash> Handler<F> {
             }
             Command::Bench(BenchOrder::Stage(v)) if self.kind == BoardKind::Emulated => {
                 if let Err((key, value, (lo, hi))) = v.check() {
-                    // Fixed-point text: no float formatting in the firmware.
-                    let q = |x: f32| Milli((x.clamp(-32_767.0, 32_767.0) * 65_536.0) as i32);
                     let given = if value.is_finite() {
                         ""
                     } else {
@@ -537,9 +543,9 @@ impl<F: NorFlash> Handler<F> {
                         Refusal::BadArgument,
                         format_args!(
                             "stage {key} = {}{given}: outside {}–{}",
-                            q(value),
-                            q(lo),
-                            q(hi)
+                            Milli::of(value),
+                            Milli::of(lo),
+                            Milli::of(hi)
                         ),
                     ));
                 }
@@ -823,15 +829,14 @@ impl<F: NorFlash> Handler<F> {
         if force <= room {
             return Ok(());
         }
-        let bits = |v: f32| (v * 65536.0).clamp(i32::MIN as f32, i32::MAX as f32) as i32;
-        let ms = |t: u32| Milli(bits(t as f32 * 1000.0 / rate));
+        let ms = |t: u32| Milli::of(t as f32 * 1000.0 / rate);
         let mut why = Text::new();
         let _ = write!(
             why,
             "{} µm step in {} ms: {} N of force, {} N of room",
-            Milli(bits(amplitude)),
+            Milli::of(amplitude),
             ms(ticks),
-            Milli(bits(force)),
+            Milli::of(force),
             Milli(s.force_room.to_bits())
         );
         let _ = match shortest_within(amplitude, ticks, rate, mode, shaped, room) {
