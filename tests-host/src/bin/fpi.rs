@@ -565,6 +565,11 @@ struct TuneArgs {
     /// the model's stiffness, coupling and lever; `fpi board autotune` measures it).
     #[arg(long, allow_negative_numbers = true)]
     pub force_gain: Option<f64>,
+    /// σ of the force sensor's noise, N: the damping is lowered until it moves
+    /// the stage at most 0.05 µm RMS at rest (default: not designed for;
+    /// `fpi board autotune` measures it, and this replaces the measurement).
+    #[arg(long, allow_negative_numbers = true)]
+    pub force_noise_n: Option<f64>,
     /// No feedforward (reference shaping) of the damped stage.
     #[arg(long)]
     pub no_feedforward: bool,
@@ -588,6 +593,7 @@ impl TuneArgs {
             damping: !self.no_damping,
             target_damping: self.target_damping,
             force_gain: self.force_gain,
+            force_noise_n: self.force_noise_n,
             feedforward: (!self.no_feedforward).then(fpi_host::method::tune::TimeOptions::default),
             ..Default::default()
         }

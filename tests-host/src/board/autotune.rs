@@ -4,8 +4,9 @@
 //! 1. The board must run the model given (read back and compared byte for
 //!    byte: the tuning is written into that model's file).
 //! 2. Open loop, damping and shaping off, holding mid-stroke: the force
-//!    sensor's noise at rest is measured ([`super::noise`]; named in the
-//!    error where the loop watch trips later and it is high), then the
+//!    sensor's noise at rest is measured ([`super::noise`]: the damping is
+//!    designed for it, and it is named in the error where the loop watch trips
+//!    later on the motion it drives), then the
 //!    board's analyser measures the response from the command to the
 //!    position sensor and to the force channel ([`super::frf`]).
 //! 3. The core's plant model is fitted to it ([`crate::method::tune::frf`]):
@@ -173,12 +174,18 @@ pub fn run(
     })?;
     let fitted = fit::fit(&points, rate, split_rate)?;
     progress(&fit::describe(&fitted));
+    // The damping is designed for the noise measured (or the one given).
+    let o = &TuneOptions {
+        force_noise_n: o.force_noise_n.or(Some(force_noise_n)),
+        ..o.clone()
+    };
     let mut t = tune::tune_measured(fw, fitted.spec, o)?;
     progress("loading the tuned model");
     // The loops run on the stage from here: a tripped watch may be the damping's
     // noise-driven motion.
+    let motion = t.noise_motion_um_per_n * force_noise_n;
     let done = on_board(c, fw, o, settings, store, &mut t, &mut progress)
-        .map_err(|e| noise::explain(c, e, force_noise_n))?;
+        .map_err(|e| noise::explain(c, e, force_noise_n, motion))?;
     Ok(Autotune {
         frf: points,
         fit: fitted,
@@ -384,7 +391,22 @@ pub fn table(a: &Autotune) -> String {
         ),
         (
             "force sensor's noise at rest",
-            format!("σ {:.3} N", a.force_noise_n),
+            format!(
+                "σ {:.3} N: the damping moves the stage {:.3} µm RMS (budget {:.2} µm)",
+                a.force_noise_n,
+                t.noise_motion_um_per_n * a.force_noise_n,
+                tune::NOISE_BUDGET_UM
+            ),
+        ),
+        (
+            "damping target",
+            match t.damping_target {
+                (asked, 0.0) => format!("none (asked {asked:.2}): the noise allows no damping"),
+                (asked, used) if used < asked => {
+                    format!("{used:.2} (asked {asked:.2}; lowered for the noise)")
+                }
+                (asked, _) => format!("{asked:.2}"),
+            },
         ),
         (
             "mode damping (family's least)",

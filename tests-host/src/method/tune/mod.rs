@@ -21,7 +21,14 @@
 //! 1. **Damping** (integral force feedback, [`piezo_fpi::damping`]): the gain that
 //!    gives the family's least-damped mode the most damping (up to
 //!    [`TuneOptions::target_damping`]), with a 6 dB gain margin (the family stays
-//!    stable at twice the gain).
+//!    stable at twice the gain). Where the force sensor's noise is known
+//!    ([`TuneOptions::force_noise_n`]; autotune measures it), the damping also
+//!    keeps the stage's noise-driven motion at rest within [`NOISE_BUDGET_UM`]
+//!    ([`Family::noise_motion_um`]): the damping feeds the sensor's noise to
+//!    the stack, and the loop watch takes a large enough motion for an
+//!    oscillation. Where the asked target's loops would move the stage more,
+//!    the target is lowered (by fifths) until they do not, down to
+//!    [`NOISE_TARGET_MIN`]; below that, no damping.
 //! 2. **Position PI** around the damped stage: the largest integral gain, over a
 //!    grid of proportional gains, whose sensitivity peak `max|1/(1 + L)|` over the
 //!    family stays at or below `max_sensitivity` (1.6: gain margin ≥ 8.5 dB, phase
@@ -80,6 +87,9 @@ pub struct TuneOptions {
     pub feedforward: Option<TimeOptions>,
     /// The damping law's band: its high-pass and its leak, Hz.
     pub damping_band_hz: (f64, f64),
+    /// σ of the force sensor's white noise, N (`None`: not known, not
+    /// designed for).
+    pub force_noise_n: Option<f64>,
 }
 
 impl Default for TuneOptions {
@@ -94,6 +104,7 @@ impl Default for TuneOptions {
             force_gain: None,
             feedforward: Some(TimeOptions::default()),
             damping_band_hz: (DAMPING_HIGHPASS_HZ, DAMPING_LEAK_HZ),
+            force_noise_n: None,
         }
     }
 }
@@ -106,6 +117,16 @@ pub const DAMPING_LEAK_HZ: f64 = 100.0;
 pub const DAMPING_HIGHPASS_HZ: f64 = 100.0;
 /// The least phase margin of the damping loop at the nominal plant, degrees.
 pub const DAMPING_PHASE_MARGIN_DEG: f64 = 45.0;
+/// The stage's RMS motion at rest the damping may make of the force sensor's
+/// noise, µm: a quarter of the swing the loop watch counts
+/// (`fpi_firmware::watch::HALF_SWING`, 0.2 µm), so that the motion's peaks
+/// stay below it at four σ. (On the emulated stage as built, tuned at
+/// ζ 0.5: 0.02 µm at its σ 0.15 N; at σ 1 N, 0.12 µm, and the watch parked
+/// the healthy loop at rest.)
+pub const NOISE_BUDGET_UM: f64 = fpi_firmware::watch::HALF_SWING as f64 / 65_536.0 / 4.0;
+/// The least damping target the noise lowers the design to; below it, no
+/// damping.
+pub const NOISE_TARGET_MIN: f64 = 0.05;
 
 /// What the design chose and what it gives.
 #[derive(Debug, Clone, PartialEq)]
@@ -114,6 +135,10 @@ pub struct Tuning {
     pub dynamics: Option<DynamicsSpec>,
     /// IFF gain, µm of command per N·s (0: no damping).
     pub damping_gain: f64,
+    /// The damping target asked for, and the one the design met or
+    /// approached: the same, or lower for the force sensor's noise (0: no
+    /// damping).
+    pub damping_target: (f64, f64),
     /// The least damping ratio of the family's mode, without and with damping.
     pub mode_damping: (f64, f64),
     /// Margins of the damping loop at the nominal plant, dB and degrees.
@@ -134,6 +159,10 @@ pub struct Tuning {
     pub margins: (f64, f64),
     /// The feedforward (sections, or taps on the preview's line; quantised), if designed.
     pub feedforward: Option<Feedforward>,
+    /// The stage's RMS motion at rest per N RMS of the force sensor's white
+    /// noise, µm/N ([`Family::noise_motion_um`]: the damping feeds the noise
+    /// to the stack; 0 without damping).
+    pub noise_motion_um_per_n: f64,
     /// The lead's baseline (`piezo_fpi::lead`): the ratio the board's fit of
     /// the explained force settles at on the tuned stage. Measured on the board
     /// (`fpi board autotune`); `None` from the design alone.
@@ -275,6 +304,11 @@ fn check_options(fw: &FirmwareModel, o: &TuneOptions) -> Result<()> {
     if !(o.target_damping > 0.0 && o.target_damping <= 1.0) {
         bail!("--target-damping {}: between 0 and 1", o.target_damping);
     }
+    if let Some(n) = o.force_noise_n {
+        if !(0.0..1e3).contains(&n) {
+            bail!("--force-noise-n {n}: a σ in newtons, at least 0");
+        }
+    }
     Ok(())
 }
 
@@ -315,31 +349,39 @@ fn design(
         ..Laws::default()
     };
     let open = fam.mode_damping(&spec, rate, &base);
-    let with_damping = o.damping && dynamics.is_some() && kappa > 0.0;
-    let laws = if with_damping {
-        design_damping(
-            &fam,
-            &spec,
-            rate,
-            base,
-            (o.target_damping, o.damping_band_hz),
-        )?
-    } else {
-        base
-    };
-    let damped = fam.mode_damping(&spec, rate, &laws);
     let cap = match (dynamics, o.bandwidth_hz) {
         (_, Some(b)) => Some(b),
         (None, None) => Some(BLIND_BANDWIDTH_HZ),
         (Some(_), None) => None,
     };
-    let laws = design_pi(
-        &fam,
-        laws,
-        o.max_sensitivity,
-        (cap, o.bandwidth_hz.is_some()),
-        rate,
-    )?;
+    let pi = |l: Laws| {
+        design_pi(
+            &fam,
+            l,
+            o.max_sensitivity,
+            (cap, o.bandwidth_hz.is_some()),
+            rate,
+        )
+    };
+    let damps = o.damping && dynamics.is_some() && kappa > 0.0;
+    let (laws, target) = if damps {
+        design_for_noise(o, |target| {
+            let l = design_damping(&fam, &spec, rate, base, (target, o.damping_band_hz))?;
+            let l = pi(l)?;
+            Ok((l, fam.noise_motion_um(&l, 1.0)))
+        })?
+    } else {
+        (base, 0.0)
+    };
+    let laws = if target > 0.0 { laws } else { pi(base)? };
+    let with_damping = laws.damps();
+    // The damping's own (the PI's poles left out, as before it is designed).
+    let damping_only = Laws {
+        kp: 0.0,
+        ki: 0.0,
+        ..laws
+    };
+    let damped = fam.mode_damping(&spec, rate, &damping_only);
     let feedforward = match (&o.feedforward, dynamics) {
         (Some(ff), Some(_)) => {
             let p = piezo_fpi::stability::Plant::new(&spec, rate, 1.0, None, 1.0);
@@ -354,6 +396,7 @@ fn design(
         } else {
             0.0
         },
+        damping_target: (o.target_damping, target),
         mode_damping: (open, damped),
         damping_margins: if with_damping {
             fam.damping_margins(&laws)
@@ -368,10 +411,35 @@ fn design(
         bandwidth_hz: fam.feedback_bandwidth_hz(&laws),
         margins: fam.margins(&laws),
         feedforward,
+        noise_motion_um_per_n: fam.noise_motion_um(&laws, 1.0),
         lead_baseline: None,
         plant,
         laws,
     })
+}
+
+/// The damped loops `at(target)` gives (with their motion per N of force
+/// noise, µm/N) at `o.target_damping`, or at the highest target a fifth lower
+/// at a time whose noise-driven motion stays within [`NOISE_BUDGET_UM`]
+/// (where [`TuneOptions::force_noise_n`] is known); with the target used, 0
+/// where none down to [`NOISE_TARGET_MIN`] does (the caller designs without
+/// damping).
+fn design_for_noise(
+    o: &TuneOptions,
+    mut at: impl FnMut(f64) -> Result<(Laws, f64)>,
+) -> Result<(Laws, f64)> {
+    let sigma = o.force_noise_n.unwrap_or(0.0);
+    let mut target = o.target_damping;
+    loop {
+        let (laws, per_n) = at(target)?;
+        if per_n * sigma <= NOISE_BUDGET_UM {
+            return Ok((laws, target));
+        }
+        target *= 0.8;
+        if target < NOISE_TARGET_MIN {
+            return Ok((laws, 0.0));
+        }
+    }
 }
 
 /// The damping section's gain `b0`, per second.
@@ -537,6 +605,30 @@ fn design_pi(
 }
 
 impl Tuning {
+    /// What the force sensor's noise `n` (N) made of the damping, one line.
+    fn noise_line(&self, o: &TuneOptions, n: f64) -> String {
+        let motion = self.noise_motion_um_per_n * n;
+        let budget = format!("budget {NOISE_BUDGET_UM:.2} µm");
+        let (asked, used) = self.damping_target;
+        if !o.damping {
+            String::new()
+        } else if used == 0.0 {
+            format!(
+                "no damping: the force sensor's noise (σ {n:.2} N) would move the stage more \
+                 than the {budget} RMS at rest even at a target of {NOISE_TARGET_MIN}\n"
+            )
+        } else if used < asked {
+            format!(
+                "damping target {used:.2}, lowered from {asked:.2} for the force sensor's noise \
+                 (σ {n:.2} N): {motion:.3} µm RMS at rest ({budget})\n"
+            )
+        } else {
+            format!(
+                "the force sensor's noise (σ {n:.2} N): {motion:.3} µm RMS at rest ({budget})\n"
+            )
+        }
+    }
+
     /// One line per loop, for people.
     pub fn summary(&self, o: &TuneOptions) -> String {
         let mut s = format!("plant: {}\n", self.plant);
@@ -552,6 +644,9 @@ impl Tuning {
                 self.damping_margins.0,
                 self.damping_margins.1
             );
+        }
+        if let Some(n) = o.force_noise_n {
+            s += &self.noise_line(o, n);
         }
         s += &format!(
             "position PI: kp {:.3}, ki {:.1}/s; gain spread {:.2}–{:.2}; sensitivity peak {:.2} \
@@ -789,5 +884,79 @@ mod tests {
             let e = tune_measured(&fw, d, &o).unwrap_err().to_string();
             assert!(e.contains(says), "{b} Hz: {e}");
         }
+    }
+
+    /// The noise-driven motion the design predicts (from the loops' frequency
+    /// responses) agrees with the loops simulated tick by tick
+    /// ([`simulate::Loops`]) with white noise of σ 1 N on the force sensor,
+    /// within 5 % over 10 s.
+    #[test]
+    fn the_predicted_noise_motion_matches_the_loops_simulated() {
+        use simulate::{filter, Loops};
+        let (fw, d) = stage_a();
+        let rate = fw.controller.rate_hz;
+        let t = tune_measured(&fw, d, &TuneOptions::default()).unwrap();
+        let p = Plant::new(&d, rate, 1.0, None, 1.0);
+        // Uniform white noise of unit variance (xorshift32).
+        let mut rng = 0x2545_f491_u32;
+        let noise: Vec<f64> = (0..10 * rate as usize)
+            .map(|_| {
+                rng ^= rng << 13;
+                rng ^= rng >> 17;
+                rng ^= rng << 5;
+                (f64::from(rng) / f64::from(u32::MAX) - 0.5) * 12f64.sqrt()
+            })
+            .collect();
+        // The sensor's noise reaches the damping through the split's high-pass,
+        // as the force does: left out of it with the opposite sign.
+        let a = 1.0 - t.laws.split;
+        let through = filter(&[a, -a], &[1.0, -a], &noise);
+        let mut loops = Loops::new(&p, &t.laws);
+        let x: Vec<f64> = through
+            .iter()
+            .map(|n| loops.tick(0.0, 0.0, -n, true))
+            .collect();
+        let tail = &x[rate as usize / 10..];
+        let rms = (tail.iter().map(|v| v * v).sum::<f64>() / tail.len() as f64).sqrt();
+        let predicted = t.noise_motion_um_per_n;
+        println!("σ 1 N: simulated {rms:.4} µm RMS, predicted {predicted:.4}");
+        assert!((rms / predicted - 1.0).abs() < 0.05, "{rms} {predicted}");
+    }
+
+    /// The force sensor's noise lowers the damping until the motion it drives
+    /// stays within the budget (σ 1 N: the default target's loops move the stage
+    /// about 0.12 µm RMS), and takes it off where nothing above the least target
+    /// does (σ 10 N); the stage as built's own σ 0.15 N changes nothing.
+    #[test]
+    fn the_damping_is_designed_for_the_force_sensor_s_noise() {
+        let (fw, d) = stage_a();
+        let with = |n: Option<f64>| {
+            let o = TuneOptions {
+                force_noise_n: n,
+                ..TuneOptions::default()
+            };
+            (tune_measured(&fw, d, &o).unwrap(), o)
+        };
+        let (free, _) = with(None);
+        let (quiet, _) = with(Some(0.15));
+        assert_eq!(quiet.laws, free.laws);
+        assert_eq!(quiet.damping_target, (0.5, 0.5));
+        let (noisy, o) = with(Some(1.0));
+        let (asked, used) = noisy.damping_target;
+        let motion = noisy.noise_motion_um_per_n;
+        println!(
+            "σ 1 N: target {used:.3}, {motion:.4} µm RMS; {}",
+            noisy.summary(&o)
+        );
+        assert!(free.noise_motion_um_per_n > NOISE_BUDGET_UM * 2.0);
+        assert!(used < asked && used >= NOISE_TARGET_MIN, "{used}");
+        assert!(
+            motion <= NOISE_BUDGET_UM && noisy.damping_gain > 0.0,
+            "{motion}"
+        );
+        assert!(noisy.summary(&o).contains("lowered from 0.50"));
+        let (loud, o) = with(Some(10.0));
+        assert_eq!((loud.damping_gain, loud.damping_target.1), (0.0, 0.0));
+        assert!(loud.summary(&o).starts_with("plant") && loud.summary(&o).contains("no damping"));
     }
 }
