@@ -204,10 +204,18 @@ class Board:
         u_max: float = 150.0,
         slew: float = 100.0,
         stroke_voltage: Optional[float] = None,
+        damping: bool = True,
+        target_damping: float = 0.5,
+        force_noise_n: Optional[float] = None,
+        max_sensitivity: float = 1.6,
+        bandwidth_hz: Optional[float] = None,
     ) -> str:
-        """``fpi board autotune`` with its defaults (``trials``: ``--trials``, the
-        feedforward's refinement through the board); writes the tuned model to
-        ``out``; its table."""
+        """``fpi board autotune`` (``trials``: ``--trials``, the feedforward's
+        refinement through the board; ``damping=False``: ``--no-damping``;
+        ``target_damping``, ``force_noise_n`` (the force sensor's σ, N, designed
+        for instead of the one measured), ``max_sensitivity``, ``bandwidth_hz``:
+        the flags of the same names); writes the tuned model to ``out``; its
+        table."""
     def close(self) -> None: ...
     def __enter__(self) -> "Board": ...
     def __exit__(self, *exc: object) -> bool: ...

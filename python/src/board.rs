@@ -576,8 +576,12 @@ impl Board {
     /// board (0: as designed), loads the tuned model (also into flash with
     /// `store`) and verifies it with a step. `model` (and `fem` for a calibrated one) is the
     /// model the board runs, as `load` took it; the tuned firmware model is
-    /// written to `out`. Returns the table `fpi board autotune` prints.
-    #[pyo3(signature = (model, out, fem = None, *, trials = fpi_host::board::autotune::TRIALS, store = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None))]
+    /// written to `out`. The design's options are `fpi board autotune`'s:
+    /// `damping` (`--no-damping` where false), `target_damping`,
+    /// `force_noise_n` (the σ designed for instead of the one measured),
+    /// `max_sensitivity`, `bandwidth_hz`. Returns the table `fpi board
+    /// autotune` prints.
+    #[pyo3(signature = (model, out, fem = None, *, trials = fpi_host::board::autotune::TRIALS, store = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None, damping = true, target_damping = 0.5, force_noise_n = None, max_sensitivity = 1.6, bandwidth_hz = None))]
     #[allow(clippy::too_many_arguments)]
     fn autotune(
         &self,
@@ -591,17 +595,32 @@ impl Board {
         u_max: f64,
         slew: f64,
         stroke_voltage: Option<f64>,
+        damping: bool,
+        target_damping: f64,
+        force_noise_n: Option<f64>,
+        max_sensitivity: f64,
+        bandwidth_hz: Option<f64>,
     ) -> PyResult<String> {
         use fpi_host::board::autotune;
+        use fpi_host::method::tune::TuneOptions;
+        let design = TuneOptions {
+            damping,
+            target_damping,
+            force_noise_n,
+            max_sensitivity,
+            bandwidth_hz,
+            ..TuneOptions::default()
+        };
         let o = export_options(rate, u_max, slew, stroke_voltage);
         let fw = py
             .detach(|| firmware_model(&model, fem.as_deref(), &o))
             .map_err(|e| to_py(py, e, Otherwise::Input))?;
+        fpi_host::method::tune::check_options(&fw, &design).map_err(design_error)?;
         let tuned = self.run(py, |c| {
             autotune::run(
                 c,
                 &fw,
-                &Default::default(),
+                &design,
                 &autotune::Settings {
                     trials,
                     ..Default::default()
@@ -646,6 +665,20 @@ impl Board {
             if self.closed() { ", closed" } else { "" }
         )
     }
+}
+
+/// A design option `fpi_host::method::tune` refused, as a `ValueError` naming
+/// the keyword (`--target-damping 2: …` → `target_damping 2: …`).
+fn design_error(e: anyhow::Error) -> PyErr {
+    let text = format!("{e:#}");
+    let named = match text
+        .strip_prefix("--")
+        .map(|r| r.split_once(' ').unwrap_or((r, "")))
+    {
+        Some((flag, rest)) => format!("{} {rest}", flag.replace('-', "_")),
+        None => text,
+    };
+    pyo3::exceptions::PyValueError::new_err(named)
 }
 
 /// One complex response of a measured frequency, as (real, imaginary).

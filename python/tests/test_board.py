@@ -293,3 +293,19 @@ def test_autotune_refines_the_feedforward_on_trials(tmp_path):
         assert "1 trial(s)" in table, table
         text = (tmp_path / "tuned.toml").read_text()
         assert "taps" in text and "preview_ticks = 5" in text
+        with pytest.raises(ValueError, match="target_damping 2: between 0 and 1"):
+            b.autotune(model, tmp_path / "never.toml", target_damping=2.0)
+
+
+def test_autotune_takes_the_design_options(tmp_path):
+    """The design's options reach autotune: designed for a force sensor's σ
+    of 1 N (the stage's is 0.15 N), the damping target is lowered and the
+    table says so."""
+    model = ROOT / "firmware" / "model" / "stage-a.toml"
+    with pf.Board("virtual:usb") as b:
+        b.bench(stage="built")
+        table = b.autotune(
+            model, tmp_path / "tuned.toml", trials=0, force_noise_n=1.0
+        )
+        assert "lowered for the noise" in table, table
+        assert "(asked 0.50" in table, table

@@ -648,6 +648,43 @@ fn a_noisy_force_sensor_is_measured_and_the_damping_designed_for_it() {
     c.park().unwrap();
 }
 
+/// Design options autotune cannot use are refused before it measures
+/// anything (the damping target was checked only after the sweep).
+#[test]
+fn bad_design_options_are_refused_before_the_stage_is_measured() {
+    let (_e, mut c) = board("bad design options");
+    let fw = factory();
+    load(&mut c, &fw, StageVariant::BUILT);
+    let run = |c: &mut Client, o: TuneOptions| {
+        let mut said = Vec::new();
+        let e = autotune::run(c, &fw, &o, &autotune::Settings::default(), false, |m| {
+            said.push(m.to_string())
+        })
+        .unwrap_err();
+        (format!("{e:#}"), said)
+    };
+    for (o, says) in [
+        (
+            TuneOptions {
+                target_damping: 2.0,
+                ..TuneOptions::default()
+            },
+            "--target-damping 2: between 0 and 1",
+        ),
+        (
+            TuneOptions {
+                force_noise_n: Some(-1.0),
+                ..TuneOptions::default()
+            },
+            "--force-noise-n -1: a σ in newtons, at least 0",
+        ),
+    ] {
+        let (e, said) = run(&mut c, o);
+        assert_eq!(e, says);
+        assert!(said.is_empty(), "{said:?}");
+    }
+}
+
 /// A fault latched before autotune's warm-up (the board then refuses its
 /// sines) is named with its tick, not left as the refusal alone.
 #[test]

@@ -142,6 +142,7 @@ pub fn run(
     store: bool,
     mut progress: impl FnMut(&str),
 ) -> Result<Autotune> {
+    tune::check_options(fw, o)?;
     let image = fw.image().map_err(anyhow::Error::msg)?;
     let running = c.read_model().context("reading the board's model back")?;
     if running != image {

@@ -285,8 +285,9 @@ pub fn tune_measured(fw: &FirmwareModel, spec: DynamicsSpec, o: &TuneOptions) ->
     design(fw, Some((spec, "measured")), o)
 }
 
-/// The option checks [`tune`] and [`tune_measured`] share.
-fn check_options(fw: &FirmwareModel, o: &TuneOptions) -> Result<()> {
+/// The option checks [`tune`] and [`tune_measured`] share (and autotune's,
+/// before it measures anything).
+pub fn check_options(fw: &FirmwareModel, o: &TuneOptions) -> Result<()> {
     if !(o.max_sensitivity > 1.05 && o.max_sensitivity <= 3.0) {
         bail!(
             "--max-sensitivity {}: between 1.05 and 3 (1.6 gives ≥ 8.5 dB and ≥ 36°)",
