@@ -402,6 +402,7 @@ pub fn table(a: &Autotune) -> String {
         (
             "damping target",
             match t.damping_target {
+                (0.0, _) => "none (no damping asked, or nothing to design it on)".into(),
                 (asked, 0.0) => format!("none (asked {asked:.2}): the noise allows no damping"),
                 (asked, used) if used < asked => {
                     format!("{used:.2} (asked {asked:.2}; lowered for the noise)")

@@ -135,9 +135,9 @@ pub struct Tuning {
     pub dynamics: Option<DynamicsSpec>,
     /// IFF gain, µm of command per N·s (0: no damping).
     pub damping_gain: f64,
-    /// The damping target asked for, and the one the design met or
-    /// approached: the same, or lower for the force sensor's noise (0: no
-    /// damping).
+    /// The damping target asked for (0: no damping asked, or no dynamics or
+    /// κ to design it on), and the one the design met or approached: the
+    /// same, or lower for the force sensor's noise (0: no damping).
     pub damping_target: (f64, f64),
     /// The least damping ratio of the family's mode, without and with damping.
     pub mode_damping: (f64, f64),
@@ -397,7 +397,7 @@ fn design(
         } else {
             0.0
         },
-        damping_target: (o.target_damping, target),
+        damping_target: (if damps { o.target_damping } else { 0.0 }, target),
         mode_damping: (open, damped),
         damping_margins: if with_damping {
             fam.damping_margins(&laws)
@@ -607,11 +607,11 @@ fn design_pi(
 
 impl Tuning {
     /// What the force sensor's noise `n` (N) made of the damping, one line.
-    fn noise_line(&self, o: &TuneOptions, n: f64) -> String {
+    fn noise_line(&self, n: f64) -> String {
         let motion = self.noise_motion_um_per_n * n;
         let budget = format!("budget {NOISE_BUDGET_UM:.2} µm");
         let (asked, used) = self.damping_target;
-        if !o.damping {
+        if asked == 0.0 {
             String::new()
         } else if used == 0.0 {
             format!(
@@ -647,7 +647,7 @@ impl Tuning {
             );
         }
         if let Some(n) = o.force_noise_n {
-            s += &self.noise_line(o, n);
+            s += &self.noise_line(n);
         }
         s += &format!(
             "position PI: kp {:.3}, ki {:.1}/s; gain spread {:.2}–{:.2}; sensitivity peak {:.2} \
@@ -959,5 +959,14 @@ mod tests {
         let (loud, o) = with(Some(10.0));
         assert_eq!((loud.damping_gain, loud.damping_target.1), (0.0, 0.0));
         assert!(loud.summary(&o).starts_with("plant") && loud.summary(&o).contains("no damping"));
+        // No damping asked: nothing lowered, nothing said of the noise.
+        let o = TuneOptions {
+            damping: false,
+            force_noise_n: Some(1.0),
+            ..TuneOptions::default()
+        };
+        let none = tune_measured(&fw, d, &o).unwrap();
+        assert_eq!(none.damping_target, (0.0, 0.0));
+        assert!(!none.summary(&o).contains("noise"), "{}", none.summary(&o));
     }
 }
