@@ -117,6 +117,32 @@ fn tune_writes_gains_with_a_stated_margin() {
     assert!(printed.contains("no dynamics"), "{printed}");
     let text = std::fs::read_to_string(&blind).unwrap();
     FirmwareModel::parse(&text, "blind.toml").unwrap();
+    // The damping designed for a noisy force sensor: lowered, and said so.
+    let dynamics = scratch("closed-loop").join("dyn.toml");
+    let noisy = scratch("closed-loop").join("noisy.toml");
+    let tune_noisy = |sigma: &str| {
+        vec![
+            "tune".to_string(),
+            "--firmware".into(),
+            s(&factory).into(),
+            "--dynamics".into(),
+            s(&dynamics).into(),
+            "--force-noise-n".into(),
+            sigma.into(),
+            "--no-feedforward".into(),
+            "--out".into(),
+            s(&noisy).into(),
+        ]
+    };
+    let args = tune_noisy("1");
+    let printed = ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(
+        printed.contains("lowered from 0.50 for the force sensor's noise"),
+        "{printed}"
+    );
+    let args = tune_noisy("-1");
+    let e = common::fails(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(e.contains("--force-noise-n -1"), "{e}");
 }
 
 /// Waits until a fault other than *parked* has latched and the output is safe.
