@@ -238,9 +238,9 @@ impl Family {
         let power: f64 = (0..n)
             .map(|k| {
                 let gh = damping_at(l, z1[k], one);
-                let t =
-                    px[k] * gh / ((one + gh * pr[k]) * (one + position_at(l, z1[k], px[k], pr[k])));
-                t.norm_sqr() * df
+                let damped = one + gh * pr[k];
+                let position = pi_at(l, z1[k]) * px[k] / damped;
+                (px[k] * gh / (damped * (one + position))).norm_sqr() * df
             })
             .sum();
         sigma_n * (2.0 / self.fs * power).sqrt()
