@@ -368,16 +368,19 @@ fn design(
         )
     };
     let damps = o.damping && dynamics.is_some() && kappa > 0.0;
-    let (laws, target) = if damps {
+    let damped = if damps {
         design_for_noise(o, |target| {
             let l = design_damping(&fam, &spec, rate, base, (target, o.damping_band_hz))?;
             let l = pi(l)?;
             Ok((l, fam.noise_motion_um(&l, 1.0)))
         })?
     } else {
-        (base, 0.0)
+        None
     };
-    let laws = if target > 0.0 { laws } else { pi(base)? };
+    let (laws, target) = match damped {
+        Some(d) => d,
+        None => (pi(base)?, 0.0),
+    };
     let with_damping = laws.damps();
     // The damping's own (the PI's poles left out, as before it is designed).
     let damping_only = Laws {
@@ -425,23 +428,23 @@ fn design(
 /// The damped loops `at(target)` gives (with their motion per N of force
 /// noise, µm/N) at `o.target_damping`, or at the highest target a fifth lower
 /// at a time whose noise-driven motion stays within [`NOISE_BUDGET_UM`]
-/// (where [`TuneOptions::force_noise_n`] is known); with the target used, 0
-/// where none down to [`NOISE_TARGET_MIN`] does (the caller designs without
-/// damping).
+/// (where [`TuneOptions::force_noise_n`] is known), with the target used;
+/// `None` where none down to [`NOISE_TARGET_MIN`] does (the caller designs
+/// without damping).
 fn design_for_noise(
     o: &TuneOptions,
     mut at: impl FnMut(f64) -> Result<(Laws, f64)>,
-) -> Result<(Laws, f64)> {
+) -> Result<Option<(Laws, f64)>> {
     let sigma = o.force_noise_n.unwrap_or(0.0);
     let mut target = o.target_damping;
     loop {
         let (laws, per_n) = at(target)?;
         if per_n * sigma <= NOISE_BUDGET_UM {
-            return Ok((laws, target));
+            return Ok(Some((laws, target)));
         }
         target *= 0.8;
         if target < NOISE_TARGET_MIN {
-            return Ok((laws, 0.0));
+            return Ok(None);
         }
     }
 }
