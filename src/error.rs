@@ -154,6 +154,12 @@ pub enum ModelError {
     /// reference's motion explains: it needs active damping and a shaping that
     /// runs ahead.
     LeadWithoutPreview,
+    /// The oscillation watch's half swing on the tracking error is outside
+    /// [`crate::model::WATCH_SWING_MIN`]…[`crate::model::WATCH_SWING_MAX`].
+    WatchSwingOutOfRange,
+    /// The oscillation watch's half swing on the tracking error needs a
+    /// position loop (`[feedback]`).
+    WatchWithoutFeedback,
 }
 
 impl ModelError {
@@ -239,6 +245,12 @@ impl ModelError {
             }
             Self::LeadWithoutPreview => {
                 "a lead baseline needs active damping ([damping]) and a shaping that runs ahead (preview_ticks > 0)"
+            }
+            Self::WatchSwingOutOfRange => {
+                "the oscillation watch's half swing must lie within 0.075…0.2 µm"
+            }
+            Self::WatchWithoutFeedback => {
+                "the oscillation watch's half swing is the tracking error's: it needs position feedback ([feedback])"
             }
         }
     }
@@ -410,6 +422,8 @@ pub enum Field {
     DampingLimit,
     /// Damping: the lead's baseline, the fit's ratio on the tuned stage.
     LeadBaseline,
+    /// Feedback: the oscillation watch's half swing on the tracking error, µm.
+    WatchSwing,
     /// The force channel's split corner.
     ForceSplit,
     /// The force channel's dynamic limit, N.
@@ -465,6 +479,7 @@ impl Field {
             Self::DampingHighpass => "damping.highpass_hz",
             Self::DampingLimit => "damping.limit_um",
             Self::LeadBaseline => "damping.lead_baseline",
+            Self::WatchSwing => "feedback.watch_swing_um",
             Self::ForceSplit => "controller.force_split_hz",
             Self::ForceDynamicLimit => "controller.force_dynamic_limit_n",
             Self::Model => "model",

@@ -116,5 +116,6 @@ pub fn spec<'a>(p: &'a ControllerParts<'static, 3>, creep: &'a [CreepSpec]) -> M
         dynamics: None,
         damping: None,
         lead_baseline: None,
+        watch_swing: None,
     }
 }

@@ -424,7 +424,7 @@ impl Loop {
                 error
             };
             self.watch
-                .update(swing, self.damping_alone, io.x_ref, limited)
+                .update(swing, self.damping_alone, io.x_ref, limited, io.watch_swing)
         } else {
             self.watch.reset();
             None
@@ -534,6 +534,9 @@ pub struct Inputs<'c, 'm> {
     /// Its lead, where the damping leaves the shaped reference's force out
     /// (`Summary::lead`: damping and a preview).
     pub lead: Option<&'c LeadSpec>,
+    /// The oscillation watch's half swing on the tracking error, µm
+    /// (`Summary::watch_swing`).
+    pub watch_swing: Micrometres,
     /// The force channel's dynamic part this tick, N.
     pub dynamic: Newtons,
     /// Its straight-line drive.

@@ -258,6 +258,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             shaping: summary.shaping.as_ref(),
             damping: summary.damping.as_ref(),
             lead: summary.lead.as_ref(),
+            watch_swing: summary.watch_swing,
             dynamic,
             drive: &summary.baseline,
             compensated: self.compensated,

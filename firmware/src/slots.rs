@@ -24,9 +24,9 @@ use piezo_fpi::error::{Field, Invalid, ModelError};
 use piezo_fpi::feedback::FeedbackConfig;
 use piezo_fpi::lead::LeadSpec;
 use piezo_fpi::model::image::CRC32;
-use piezo_fpi::model::Shape;
+use piezo_fpi::model::{Shape, WATCH_SWING_MAX};
 use piezo_fpi::preview::Fir;
-use piezo_fpi::q::{Newtons, Volts};
+use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
 use crate::hardware::{Controller, Store, BOARD, RATE_HZ};
 
@@ -72,6 +72,10 @@ pub struct Summary {
     /// stroke's low end and above it at the high end, and the channel's
     /// dynamic limit ([`force_room`]).
     pub force_room: Newtons,
+    /// The oscillation watch's half swing on the tracking error, µm
+    /// (`crate::watch`): the model's, else
+    /// [`piezo_fpi::model::WATCH_SWING_MAX`].
+    pub watch_swing: Micrometres,
 }
 
 /// The dynamic force a move may ask of the stack of `cfg`, N (see
@@ -155,12 +159,13 @@ impl Spare {
                 .dynamics
                 .filter(|_| preview.is_some() && damping.is_some())
                 .map(|d| LeadSpec::of(&d, RATE_HZ, spec.lead_baseline));
+            let watch_swing = spec.watch_swing.unwrap_or(WATCH_SWING_MAX);
             Ok((
                 cfg,
                 baseline,
                 shape,
                 (feedback, shaping, damping, spec.dynamics, channel),
-                (preview, lead),
+                (preview, lead, watch_swing),
             ))
         });
         match built {
@@ -169,7 +174,7 @@ impl Spare {
                 baseline,
                 shape,
                 (feedback, shaping, damping, dynamics, channel),
-                (preview, lead),
+                (preview, lead, watch_swing),
             )) => Ok(Running {
                 store: ptr,
                 summary: Summary {
@@ -187,6 +192,7 @@ impl Spare {
                     damping,
                     channel,
                     force_room: force_room(&cfg, channel.dynamic_limit),
+                    watch_swing,
                 },
                 cfg,
             }),

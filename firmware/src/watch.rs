@@ -5,11 +5,16 @@
 //! where the position loop is closed, else the damping's correction (µm) —
 //! less its own low-pass (`MEAN_SHIFT`: a one-pole at about 100 Hz at 20 kHz),
 //! is a healthy loop's small, slow residue; an unstable loop makes it swing. A
-//! *half-cycle* ends each time it goes beyond `±HALF_SWING` (0.2 µm) on the
-//! side opposite to its last excursion; its *peak* is the largest swing since
-//! the previous one. It continues the half-cycles before it if it lasted at
-//! most `MAX_HALF_TICKS` (4 ms), or, while the reference holds,
-//! `MAX_HELD_HALF_TICKS` (8 ms): else every count starts again. Each rule
+//! *half-cycle* ends each time it goes beyond the *half swing* on the side
+//! opposite to its last excursion: on the tracking error, the model's
+//! (`feedback.watch_swing_um`, 0.075…0.2 µm: `fpi board autotune` sets it
+//! from the noise the loops leave at rest, so that a quiet stage's unstable
+//! loop is counted while it is a tenth of a micrometre), else, and on the
+//! damping's correction, `HALF_SWING` (0.2 µm). Its *peak* is the largest
+//! swing since the previous one. It continues the half-cycles before it if it
+//! lasted at least `MIN_HALF_TICKS` (two ticks) and at most `MAX_HALF_TICKS`
+//! (4 ms), or, while the reference holds, `MAX_HELD_HALF_TICKS` (8 ms): else
+//! every count starts again. Each rule
 //! counts the half-cycles in a row that meet its condition and trips
 //! [`Fault::Oscillation`] at one count while the reference moves and at a
 //! smaller one where it held through them all (a still reference leaves a
@@ -20,7 +25,7 @@
 //! |---|---|---|---|
 //! | sustained | exceeds ±`SWING` (2.5 µm) | 6 | 4 |
 //! | growing | exceeds ±`GROWTH_SWING` (0.5 µm) and the last peak by 2^-`GROWTH_SHIFT` (6.25 %) | 4 | 3 |
-//! | undecaying | is at least the last peak less 2^-`GROWTH_SHIFT` of it | — | 4 |
+//! | undecaying | continues the ones before (the chain's first aside), and, at this one's end and the last's (`KEPT_PAIRS`), the last two peaks sum to at least the two before less 2^-`DECAY_SHIFT` (a sixteenth) of theirs | — | 4 |
 //!
 //! * **sustained:** a loop in a limit cycle (that stopped growing at a limit):
 //!   three periods of an oscillation above 125 Hz (3.5 ms at 850 Hz, 10 ms at
@@ -31,13 +36,16 @@
 //!   grows beyond 6 % per half-cycle. A ringing that decays (a step's, a
 //!   triangle's corners), however lightly damped, never grows; a wave's forced
 //!   error may swell for two or three half-cycles as the wave starts;
-//! * **undecaying:** an oscillation of a few tenths of a micrometre that
+//! * **undecaying:** an oscillation of a tenth of a micrometre or a few that
 //!   neither decays nor grows fast enough for the growing rule (a loop at the
-//!   edge of stability, slowly growing from its noise): two periods of it. A
-//!   ringing that loses less than 6.25 % per half-cycle (a mode damped below
-//!   ζ ≈ 0.02) for four half-cycles beyond ±0.2 µm is not a loop to keep
-//!   closed. A moving reference's forced error (a fast wave that the loops
-//!   cannot follow) never counts here.
+//!   edge of stability, slowly growing from its noise): two periods of it,
+//!   judged on pairs of peaks (the noise riding on a small oscillation moves
+//!   single peaks by a tenth or more from one half-cycle to the next), once
+//!   four half-cycles in a row ended since the reference last moved. A ringing loses more than a sixteenth over two half-cycles
+//!   unless its mode is damped below ζ ≈ 0.010 (the position loop alone on
+//!   the stage as built rings at about 0.02 after a step). A moving
+//!   reference's forced error (a fast wave that the loops cannot follow)
+//!   never counts here.
 //!
 //! The counts start again when the loop watched changes (the position loop
 //! closed or opened): the damping's correction and the tracking error are
@@ -59,16 +67,30 @@ use piezo_fpi::q::Micrometres;
 pub const SWING: i32 = 5 << 15;
 /// The least peak the growing rule counts, µm (`I16F16` bits: 0.5 µm).
 pub const GROWTH_SWING: i32 = 1 << 15;
-/// The swing that ends a half-cycle, µm (`I16F16` bits: 0.2 µm): well above
-/// the position sensor's noise (the as-built stage's σ is 0.003 µm; it must
-/// stay below about 0.04 µm), below the half micrometre where the growing rule
-/// starts.
-pub const HALF_SWING: i32 = 13_107;
-/// A growing half-cycle's peak exceeds the last one's by at least 2^-GROWTH_SHIFT
-/// of it (6.25 %); an undecaying one is at most that much below it.
+/// The swing that ends a half-cycle of the damping's correction, and of a
+/// tracking error whose model sets none, µm (`I16F16` bits: 0.2 µm;
+/// [`piezo_fpi::model::WATCH_SWING_MAX`]): well above the noise a healthy
+/// loop leaves (on the stage as built, 0.02 µm RMS at rest; the model's half
+/// swing follows it), below the half micrometre where the growing rule starts.
+pub const HALF_SWING: i32 = piezo_fpi::model::WATCH_SWING_MAX.to_bits();
+/// The undecaying rule's loss: the last two peaks sum to at least the two
+/// before less 2^-DECAY_SHIFT (a sixteenth) of theirs.
+pub const DECAY_SHIFT: u32 = 4;
+/// The undecaying rule's pair comparisons in a row, the reference held: one
+/// alone is fooled by the irregular peaks of a transient (a 200 Hz sine's
+/// end on a stage whose mode moved to 700 Hz, ζ 0.015: 0.35, 0.10, 0.56,
+/// 0.20 µm).
+pub const KEPT_PAIRS: u16 = 2;
+/// A growing half-cycle's peak exceeds the last one's by at least
+/// 2^-GROWTH_SHIFT of it (6.25 %).
 pub const GROWTH_SHIFT: u32 = 4;
 /// The low-pass the swing is measured against: `m += (δ − m) >> MEAN_SHIFT`.
 pub const MEAN_SHIFT: u32 = 5;
+/// Shortest half-cycle that continues the ones before it, ticks (100 µs: a
+/// swing across the half swing's band in one tick is a step's jump or a
+/// noise spike, not an oscillation of the loops, whose modes lie below
+/// 2 kHz).
+pub const MIN_HALF_TICKS: u16 = 2;
 /// Longest half-cycle that continues the ones before it, ticks (4 ms).
 pub const MAX_HALF_TICKS: u16 = 80;
 /// Longest half-cycle that continues the ones before it while the reference
@@ -90,7 +112,11 @@ pub struct Rule {
 pub const SUSTAINED: Rule = Rule { moving: 6, held: 4 };
 /// Growing: peaks beyond [`GROWTH_SWING`], each 2^-[`GROWTH_SHIFT`] larger than the last.
 pub const GROWING: Rule = Rule { moving: 4, held: 3 };
-/// Undecaying: peaks at most 2^-[`GROWTH_SHIFT`] smaller than the last.
+/// Undecaying: the last two peaks sum to at least the two before less
+/// 2^-[`DECAY_SHIFT`] of theirs, four half-cycles in a row (`held`) after the
+/// reference last moved; its count is the half-cycles in a row but the
+/// chain's first, at most the ones the reference held through, where the
+/// pairs compare so.
 pub const UNDECAYING: Rule = Rule {
     moving: u16::MAX,
     held: 4,
@@ -105,6 +131,20 @@ impl Rule {
     }
 }
 
+/// A half-cycle that ended at the last tick, for the rules to count at this
+/// one: the tick a half-cycle ends is often one where the command jumps (a
+/// step, a loop closed, a limit met) and the inverse model realigns, the
+/// costliest the control task has; the tick after rarely is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct Ended {
+    /// Its peak (`I16F16` bits, ≥ 0).
+    peak: i32,
+    /// Half-cycles the reference held through before it.
+    held: u16,
+    /// Whether it continues the one before (its length within the bounds).
+    chained: bool,
+}
+
 /// The watch (state).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct LoopWatch {
@@ -117,7 +157,13 @@ pub struct LoopWatch {
     /// Each rule's half-cycles in a row.
     sustained: u16,
     growing: u16,
-    undecaying: u16,
+    /// Half-cycles in a row (chained), the undecaying rule's window.
+    run: u16,
+    /// Half-cycles in a row at whose end the pairs of peaks did not decay.
+    kept: u16,
+    /// The peaks of the two half-cycles before the last one, the latest
+    /// first (`I16F16` bits, ≥ 0).
+    before: [i32; 2],
     /// Half-cycles ended since the reference last changed (the one in
     /// progress then included): the reference held through all but the first.
     still: u16,
@@ -125,6 +171,8 @@ pub struct LoopWatch {
     last_ref: i32,
     since: u16,
     saturated: u16,
+    /// The half-cycle that ended at the last tick, not yet counted.
+    ended: Option<Ended>,
     /// Whether the damping runs alone (else the position loop is closed).
     alone: bool,
     /// An oscillation rule tripped (at a half-cycle's end).
@@ -141,11 +189,14 @@ impl LoopWatch {
             last_peak: 0,
             sustained: 0,
             growing: 0,
-            undecaying: 0,
+            run: 0,
+            kept: 0,
+            before: [0; 2],
             still: 0,
             last_ref: 0,
             since: 0,
             saturated: 0,
+            ended: None,
             alone: false,
             tripped: false,
         }
@@ -158,8 +209,9 @@ impl LoopWatch {
 
     /// Takes this tick's swing `delta` (µm), whether the damping runs
     /// `alone` (else the position loop is closed), the reference the loops
-    /// track and whether the command was held at a limit; the fault, once one
-    /// is seen.
+    /// track, whether the command was held at a limit and the half swing of
+    /// the tracking error (µm: the model's; the damping's correction is
+    /// watched at [`HALF_SWING`]); the fault, once one is seen.
     #[inline]
     pub fn update(
         &mut self,
@@ -167,6 +219,7 @@ impl LoopWatch {
         alone: bool,
         reference: Micrometres,
         limited: bool,
+        half_swing: Micrometres,
     ) -> Option<Fault> {
         if alone != self.alone {
             *self = Self {
@@ -174,6 +227,20 @@ impl LoopWatch {
                 saturated: self.saturated,
                 ..Self::new()
             };
+        }
+        if let Some(e) = self.ended.take() {
+            if e.chained {
+                self.count(e);
+            } else {
+                // It does not continue the one before: every count starts
+                // again, and the next chain's first peaks meet none before.
+                self.before = [0, 0];
+                self.sustained = 0;
+                self.growing = 0;
+                self.run = 0;
+                self.kept = 0;
+                self.last_peak = 0;
+            }
         }
         let r = reference.to_bits();
         if r != self.last_ref {
@@ -183,16 +250,21 @@ impl LoopWatch {
         let d = delta.to_bits();
         let hp = d.saturating_sub(self.mean);
         self.mean = self.mean.saturating_add(hp >> MEAN_SHIFT);
-        let side = if hp > HALF_SWING {
+        let half = if alone {
+            HALF_SWING
+        } else {
+            half_swing.to_bits()
+        };
+        let side = if hp > half {
             1
-        } else if hp < -HALF_SWING {
+        } else if hp < -half {
             -1
         } else {
             0
         };
         self.since = self.since.saturating_add(1);
         if side != 0 && side != self.side {
-            self.half_cycle_ends();
+            self.ended = Some(self.half_cycle_ends());
             self.side = side;
             self.since = 0;
         }
@@ -212,35 +284,56 @@ impl LoopWatch {
     }
 
     /// The half-cycle in progress ended (the swing crossed to the other side):
-    /// counts it for each rule, or starts the counts again.
+    /// what the rules count at the next tick ([`Ended`]).
     #[inline]
-    fn half_cycle_ends(&mut self) {
+    fn half_cycle_ends(&mut self) -> Ended {
         // The reference held through this half-cycle and the `held − 1` before.
         let held = self.still;
-        self.still = self.still.saturating_add(1);
+        self.still = held.saturating_add(1);
         let longest = if held > 0 {
             MAX_HELD_HALF_TICKS
         } else {
             MAX_HALF_TICKS
         };
-        let chained = self.side != 0 && self.since <= longest;
-        let (peak, last) = (self.peak, self.last_peak);
-        let count = |n: u16, holds: bool| {
-            if chained && holds {
-                n.saturating_add(1)
-            } else {
-                0
-            }
-        };
-        self.sustained = count(self.sustained, peak > SWING);
+        let chained = self.side != 0 && self.since >= MIN_HALF_TICKS && self.since <= longest;
+        let peak = self.peak;
+        self.peak = 0;
+        Ended {
+            peak,
+            held,
+            chained,
+        }
+    }
+
+    /// Counts the half-cycle `e`, which continues the one before, for each
+    /// rule. A few dozen instructions, no loop; out of line (the tick's own
+    /// registers stay its own).
+    #[inline(never)]
+    fn count(&mut self, e: Ended) {
+        let (peak, last, held) = (e.peak, self.last_peak, e.held);
+        let [b0, b1] = self.before;
+        self.before = [last, b0];
+        self.last_peak = peak;
         let grew = peak > GROWTH_SWING && peak >= last.saturating_add(last >> GROWTH_SHIFT);
+        // Undecaying: this peak and the last against the two before (the
+        // first two of a chain against none).
+        let earlier = b0.saturating_add(b1);
+        let kept = peak.saturating_add(last) >= earlier - (earlier >> DECAY_SHIFT);
+        let count = |n: u16, holds: bool| if holds { n.saturating_add(1) } else { 0 };
+        self.sustained = count(self.sustained, peak > SWING);
         self.growing = count(self.growing, grew);
-        self.undecaying = count(self.undecaying, peak >= last - (last >> GROWTH_SHIFT));
+        self.run = self.run.saturating_add(1);
+        self.kept = count(self.kept, kept);
+        // The chain's first half-cycle began where the watch did not see (a
+        // step, a close): its peak is left out of the window.
+        let undecaying = if self.kept.min(held) >= KEPT_PAIRS {
+            self.run.saturating_sub(1).min(held)
+        } else {
+            0
+        };
         self.tripped = SUSTAINED.trips(self.sustained, held)
             || GROWING.trips(self.growing, held)
-            || UNDECAYING.trips(self.undecaying, held);
-        self.last_peak = if chained { peak } else { 0 };
-        self.peak = 0;
+            || UNDECAYING.trips(undecaying, held);
     }
 }
 
@@ -249,12 +342,25 @@ mod tests {
     use super::*;
 
     const TAU: f64 = core::f64::consts::TAU;
+    /// The half swing of a model that sets none.
+    const DEFAULT: Micrometres = Micrometres::from_bits(HALF_SWING);
 
     /// Feeds `swing(t)` (µm, `t` in s) as the tracking error, about a reference
     /// that moves every tick (`moving`) or holds at 20 µm, for at most
     /// `ticks`; the tick it trips and the fault.
     fn feed(
         w: &mut LoopWatch,
+        moving: bool,
+        ticks: u32,
+        swing: impl Fn(f64) -> f64,
+    ) -> Option<(u32, Fault)> {
+        feed_at(w, DEFAULT, moving, ticks, swing)
+    }
+
+    /// [`feed`], the tracking error watched at the half swing `half`.
+    fn feed_at(
+        w: &mut LoopWatch,
+        half: Micrometres,
         moving: bool,
         ticks: u32,
         swing: impl Fn(f64) -> f64,
@@ -267,6 +373,7 @@ mod tests {
                 false,
                 Micrometres::from_num(r),
                 false,
+                half,
             )
             .map(|f| (k, f))
         })
@@ -335,9 +442,10 @@ mod tests {
         for k in 0..40_000u32 {
             let t = (k % 100) as f64 / 20_000.0;
             let v = 2.4 * (-0.005 * TAU * 850.0 * t).exp() * (TAU * 850.0 * t).sin();
-            let at = Micrometres::from_num(k / 100 % 1000);
+            // The triangle's reference, moving at every tick.
+            let at = Micrometres::from_bits(k as i32 * 64);
             assert_eq!(
-                w.update(Micrometres::from_num(v), false, at, false),
+                w.update(Micrometres::from_num(v), false, at, false, DEFAULT),
                 None,
                 "tick {k}"
             );
@@ -348,10 +456,10 @@ mod tests {
     fn a_limit_held_for_twenty_ms_trips() {
         let mut w = LoopWatch::new();
         for k in 0..SATURATED_TICKS as u32 {
-            let f = w.update(Micrometres::ZERO, false, Micrometres::ZERO, true);
+            let f = w.update(Micrometres::ZERO, false, Micrometres::ZERO, true, DEFAULT);
             assert_eq!(f.is_some(), k + 1 == SATURATED_TICKS as u32);
         }
-        let f = w.update(Micrometres::ZERO, false, Micrometres::ZERO, false);
+        let f = w.update(Micrometres::ZERO, false, Micrometres::ZERO, false, DEFAULT);
         assert_eq!(f, None);
     }
 
@@ -397,6 +505,13 @@ mod tests {
         assert_eq!(held(850.0, 3.0, d), None);
         // Below ±0.2 µm, nothing counts.
         assert_eq!(held(400.0, 0.18, 1.0), None);
+        // ζ = 0.015 (below the position loop alone's 0.02 on the stage as
+        // built) at 850 Hz from 2 µm, at the least half swing too: 9 % less
+        // over two half-cycles.
+        let d = (-core::f64::consts::PI * 0.015f64).exp();
+        for half in [0.2, 0.075] {
+            assert_eq!(held_at(half, 850.0, 2.0, |n| d.powi(n as i32)), None);
+        }
     }
 
     #[test]
@@ -419,8 +534,79 @@ mod tests {
         let swing = |k: u32| Micrometres::from_num(0.7 * (TAU * 400.0 * k as f64 / 2e4).sin());
         let at = Micrometres::from_num(20);
         let mut w = LoopWatch::new();
-        let tripped = (0..400u32).find(|&k| w.update(swing(k), k < switch, at, false).is_some());
+        let tripped =
+            (0..400u32).find(|&k| w.update(swing(k), k < switch, at, false, DEFAULT).is_some());
         let k = tripped.expect("caught");
         assert!(k > alone + 40, "{k} ticks (alone: {alone})");
+    }
+
+    /// Gaussian samples of deviation `sigma` (a fixed sequence: an LCG and
+    /// Box–Muller).
+    fn gaussian(sigma: f64) -> impl FnMut() -> f64 {
+        let mut state: u64 = 0x2545_f491_4f6c_dd1d;
+        let mut uniform = move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        move || sigma * (-2.0 * uniform().ln()).sqrt() * (TAU * uniform()).cos()
+    }
+
+    /// A sine about a held reference at the half swing `half` (µm), its peaks
+    /// scaled half-cycle by half-cycle by `scale(n)`; the tick it trips.
+    fn held_at(half: f64, f_hz: f64, amp_um: f64, scale: impl Fn(u32) -> f64) -> Option<u32> {
+        let mut w = LoopWatch::new();
+        let swing = |t: f64| {
+            let n = (2.0 * f_hz * t) as u32;
+            amp_um * scale(n) * (TAU * f_hz * t).sin()
+        };
+        feed_at(&mut w, Micrometres::from_num(half), false, 20_000, swing).map(|(k, _)| k)
+    }
+
+    #[test]
+    fn the_model_s_half_swing_counts_a_small_oscillation() {
+        // A steady ±0.12 µm at 400 Hz about a held reference: below the
+        // default half swing, nothing; at 0.075 µm, the undecaying rule within
+        // three periods.
+        assert_eq!(held_at(0.2, 400.0, 0.12, |_| 1.0), None);
+        let k = held_at(0.075, 400.0, 0.12, |_| 1.0).expect("caught");
+        assert!(k < 150, "{k} ticks");
+        // The damping's correction is watched at 0.2 µm whatever the model's.
+        let mut w = LoopWatch::new();
+        let small = Micrometres::from_num(0.075);
+        let at = Micrometres::from_num(20);
+        let tripped = (0..20_000u32).find(|&k| {
+            let v = 0.12 * (TAU * 400.0 * k as f64 / 2e4).sin();
+            w.update(Micrometres::from_num(v), true, at, false, small)
+                .is_some()
+        });
+        assert_eq!(tripped, None);
+    }
+
+    #[test]
+    fn a_small_oscillation_whose_peaks_wander_trips_the_undecaying_rule() {
+        // ±0.12 µm at 400 Hz, each peak off by up to a quarter at random (the
+        // noise on it): judged on pairs of peaks, the undecaying rule trips
+        // within five periods.
+        let wander: Vec<f64> = {
+            let mut g = gaussian(0.12);
+            (0..1000).map(|_| (1.0 + g()).clamp(0.75, 1.25)).collect()
+        };
+        let k = held_at(0.075, 400.0, 0.12, |n| wander[n as usize % 1000]).expect("caught");
+        assert!(k < 250, "{k} ticks");
+        // A ringing that loses a tenth per half-cycle (ζ ≈ 0.034) never does,
+        // nor white noise of σ 0.02 µm (a healthy stage at rest) at 0.075 µm.
+        let d = 0.9f64;
+        assert_eq!(held_at(0.075, 400.0, 3.0, |n| d.powi(n as i32)), None);
+        let mut w = LoopWatch::new();
+        let mut noise = gaussian(0.02);
+        let at = Micrometres::from_num(20);
+        let small = Micrometres::from_num(0.075);
+        let tripped = (0..200_000u32).find(|_| {
+            w.update(Micrometres::from_num(noise()), false, at, false, small)
+                .is_some()
+        });
+        assert_eq!(tripped, None);
     }
 }

@@ -7,7 +7,8 @@
 //! header (16 bytes)  magic "PFPM", u16 version, u16 flags, u32 body length, u32 CRC-32 of the body
 //!                    flags: bit 0 soft dead zone, bit 1 output saturation, bit 2 predicted force,
 //!                    bit 3 position feedback, bit 4 reference shaping, bit 5 stage dynamics,
-//!                    bit 6 active damping, bit 7 reference preview, bit 8 lead baseline
+//!                    bit 6 active damping, bit 7 reference preview, bit 8 lead baseline,
+//!                    bit 9 watch swing
 //! body               u32 rate_hz; i32 w0 (I4F28); i32 input_max (I16F16); u8 operators; u8 creep terms; u16 0
 //!                    operators × (i32 threshold I16F16, i32 weight I4F28)
 //!                    coupling: i32 k0, k_f (I0F32), k_q (I0F32), F_q, compliance (I0F32), F_ref
@@ -24,6 +25,7 @@
 //!                    damping (when flagged): i32 gain (I8F24), high-pass and leak rates (I0F32), limit (I16F16)
 //!                    preview (when flagged, with shaping): u32 ticks the shaping runs ahead, 8 × i32 taps (I8F24)
 //!                    lead baseline (when flagged): i32 α_b (I2F30, `crate::lead`)
+//!                    watch swing (when flagged): i32 the oscillation watch's half swing (I16F16, µm)
 //! ```
 //!
 //! [`encode`] writes a [`ModelSpec`]; [`Reader`] walks an image for
@@ -69,6 +71,11 @@ pub const FLAG_PREVIEW: u16 = 128;
 pub const FLAG_LEAD: u16 = 256;
 /// Bytes of the lead block.
 const LEAD_LEN: usize = 4;
+/// Flag: the model carries the oscillation watch's half swing on the tracking
+/// error (a block after the lead's; version-2 images without it read as before).
+pub const FLAG_WATCH: u16 = 512;
+/// Bytes of the watch block.
+const WATCH_LEN: usize = 4;
 /// Bytes of the preview block.
 const PREVIEW_LEN: usize = 4 + 4 * crate::preview::TAPS;
 /// Bytes of the dynamics block.
@@ -163,6 +170,11 @@ pub fn encoded_len(m: &ModelSpec<'_>) -> usize {
         } else {
             0
         }
+        + if m.watch_swing.is_some() {
+            WATCH_LEN
+        } else {
+            0
+        }
 }
 
 /// Whether `m`'s shaping runs ahead of the reference (the image's preview block).
@@ -182,6 +194,7 @@ pub const fn max_len(operators: usize, creep: usize, intervals: usize) -> usize 
         + DAMPING_LEN
         + PREVIEW_LEN
         + LEAD_LEN
+        + WATCH_LEN
 }
 
 /// Writes the image of a model into `out`; its length. The model should be valid
@@ -268,6 +281,9 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
     if let Some(b) = m.lead_baseline {
         w.i32(b.to_bits())?;
     }
+    if let Some(h) = m.watch_swing {
+        w.i32(h.to_bits())?;
+    }
     let len = w.at;
     let mut flags = 0;
     if m.dead_zone.is_some() {
@@ -296,6 +312,9 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
     }
     if m.lead_baseline.is_some() {
         flags |= FLAG_LEAD;
+    }
+    if m.watch_swing.is_some() {
+        flags |= FLAG_WATCH;
     }
     let out = w.out;
     let body = out.get(HEADER_LEN..len).ok_or_else(truncated)?;

@@ -128,7 +128,24 @@ pub struct ModelSpec<'a> {
     /// mass over the tuned one's, which it learns; `None`: it learns `α` and
     /// does not apply it. Needs damping and a shaping that runs ahead.
     pub lead_baseline: Option<LeadRatio>,
+    /// The oscillation watch's half swing on the tracking error, µm, within
+    /// [`WATCH_SWING_MIN`]…[`WATCH_SWING_MAX`]: a swing beyond it ends a
+    /// half-cycle (the firmware's `watch` module). Set from the noise the
+    /// stage's loops leave at rest (`fpi board autotune` measures it), so that
+    /// a quiet stage's unstable loop is counted while it is small; `None`:
+    /// [`WATCH_SWING_MAX`]. Needs position feedback.
+    pub watch_swing: Option<Micrometres>,
 }
+
+/// The least half swing of the oscillation watch (µm, 0.075; `I16F16`): above
+/// the residue a healthy loop's step leaves for tens of milliseconds on the
+/// emulated stages (up to about 0.05 µm; at 0.04 µm its swings chain into
+/// false trips).
+pub const WATCH_SWING_MIN: Micrometres = Micrometres::from_bits(4915);
+/// The largest, and the default, half swing of the oscillation watch (µm, 0.2;
+/// `I16F16`): well above the as-built stage's noise at rest, below the half
+/// micrometre where the watch's growing rule starts.
+pub const WATCH_SWING_MAX: Micrometres = Micrometres::from_bits(13_107);
 
 /// The shape of a valid model: what the firmware's types are built from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -254,6 +271,9 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
     if let Some(b) = m.lead_baseline {
         check_lead(m, b)?;
     }
+    if let Some(h) = m.watch_swing {
+        check_watch(m, h)?;
+    }
     crate::stability::check(
         m.rate_hz,
         m.dynamics.as_ref(),
@@ -283,6 +303,23 @@ fn check_lead(m: &ModelSpec<'_>, b: LeadRatio) -> Result<(), Invalid> {
         return Err(Invalid::at(
             Field::LeadBaseline,
             ModelError::LeadWithoutPreview,
+        ));
+    }
+    Ok(())
+}
+
+/// The watch's half swing: within its range, with a position loop to watch.
+fn check_watch(m: &ModelSpec<'_>, h: Micrometres) -> Result<(), Invalid> {
+    if h < WATCH_SWING_MIN || h > WATCH_SWING_MAX {
+        return Err(Invalid::at(
+            Field::WatchSwing,
+            ModelError::WatchSwingOutOfRange,
+        ));
+    }
+    if m.feedback.is_none() {
+        return Err(Invalid::at(
+            Field::WatchSwing,
+            ModelError::WatchWithoutFeedback,
         ));
     }
     Ok(())

@@ -14,7 +14,7 @@ use fixed::types::I16F16;
 
 use super::image::{
     Reader, FLAG_DAMPING, FLAG_DEAD_ZONE, FLAG_DYNAMICS, FLAG_FEEDBACK, FLAG_LEAD, FLAG_PREDICTED,
-    FLAG_PREVIEW, FLAG_SATURATION, FLAG_SHAPING,
+    FLAG_PREVIEW, FLAG_SATURATION, FLAG_SHAPING, FLAG_WATCH,
 };
 use super::{validate, CreepSpec, MapSpec, ModelSpec, Shape, TableSpec};
 use crate::biquad::{ShapingSpec, SHAPING_SECTIONS};
@@ -159,6 +159,8 @@ struct Scalars {
     has_damping: bool,
     lead_baseline: LeadRatio,
     has_lead: bool,
+    watch_swing: I16F16,
+    has_watch: bool,
 }
 
 const NO_SCALARS: Scalars = Scalars {
@@ -221,6 +223,8 @@ const NO_SCALARS: Scalars = Scalars {
     has_damping: false,
     lead_baseline: LeadRatio::ZERO,
     has_lead: false,
+    watch_swing: I16F16::ZERO,
+    has_watch: false,
 };
 
 impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
@@ -288,6 +292,7 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             dynamics: b.has_dynamics.then_some(b.dynamics),
             damping: b.has_damping.then_some(b.damping),
             lead_baseline: b.has_lead.then_some(b.lead_baseline),
+            watch_swing: b.has_watch.then_some(b.watch_swing),
         }
     }
 
@@ -425,6 +430,10 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
         b.has_lead = r.flags & FLAG_LEAD != 0;
         if b.has_lead {
             b.lead_baseline = LeadRatio::from_bits(r.i32()?);
+        }
+        b.has_watch = r.flags & FLAG_WATCH != 0;
+        if b.has_watch {
+            b.watch_swing = I16F16::from_bits(r.i32()?);
         }
         if !r.finished() {
             return Err(Invalid::at(Field::Model, ModelError::Truncated));
@@ -704,6 +713,57 @@ mod tests {
         assert_eq!(
             (e.field, e.error),
             (Field::FeedbackKi, ModelError::GainOutOfRange)
+        );
+    }
+
+    /// The watch's half swing travels in its own block (flag bit 9), within
+    /// its range and only with a position loop to watch.
+    #[test]
+    fn the_watch_swing_travels_with_the_image_and_is_validated() {
+        let p = parts();
+        let fb = crate::feedback::FeedbackSpec {
+            kp: LoopGain::from_num(0.25),
+            ki: LoopGain::from_num(0.015),
+            limit: signal(3.0).unwrap(),
+            sensor: Interval {
+                lo: signal(-5.0).unwrap(),
+                hi: signal(50.0).unwrap(),
+            },
+            tolerance: signal(4.0).unwrap(),
+        };
+        let swing = Some(signal(0.1).unwrap());
+        let spec = ModelSpec {
+            feedback: Some(fb),
+            watch_swing: swing,
+            ..testkit::spec(&p, &[])
+        };
+        let img = image(&spec);
+        let mut store = Store::new();
+        store.load(&img, &BOARD).unwrap();
+        assert_eq!(store.spec().watch_swing, swing);
+        assert_eq!(image(&store.spec()), img);
+        let refused = |m: ModelSpec<'_>| {
+            let e = crate::model::validate(&m).unwrap_err();
+            (e.field, e.error)
+        };
+        for h in [0.07, 0.21] {
+            let m = ModelSpec {
+                watch_swing: Some(signal(h).unwrap()),
+                ..spec
+            };
+            assert_eq!(
+                refused(m),
+                (Field::WatchSwing, ModelError::WatchSwingOutOfRange),
+                "{h} µm"
+            );
+        }
+        let m = ModelSpec {
+            feedback: None,
+            ..spec
+        };
+        assert_eq!(
+            refused(m),
+            (Field::WatchSwing, ModelError::WatchWithoutFeedback)
         );
     }
 

@@ -318,6 +318,7 @@ fn feedback_and_shaping_sections_name_their_keys() {
         position_min_um: -9.0,
         position_max_um: 49.0,
         position_tolerance_um: 6.0,
+        watch_swing_um: None,
         notes: String::new(),
     };
     let mut good = m.clone();
@@ -377,14 +378,11 @@ fn feedback_and_shaping_sections_name_their_keys() {
     );
 }
 
-/// The lead's baseline (`damping.lead_baseline`) travels in the model's image
-/// and back; outside [0.5, 2), or without damping and a shaping that runs
-/// ahead, it is refused with its key named.
-#[test]
-fn a_lead_baseline_names_its_key() {
+/// The embedded model with the loops of isr-bench's closed-loop model
+/// (autotune's, stage as built) and their lead's baseline.
+fn with_loops() -> FirmwareModel {
     use piezo_sim::file::{DampingSection, DynamicsSection, FeedbackSection, ShapingSection};
     let mut m = FirmwareModel::parse(&embedded(), "m.toml").unwrap();
-    // The loops of isr-bench's closed-loop model (autotune's, stage as built).
     m.feedback = Some(FeedbackSection {
         kp: 0.75,
         ki_per_s: 1762.6,
@@ -392,6 +390,7 @@ fn a_lead_baseline_names_its_key() {
         position_min_um: -10.0,
         position_max_um: 50.0,
         position_tolerance_um: 6.0,
+        watch_swing_um: None,
         notes: String::new(),
     });
     m.dynamics = Some(DynamicsSection {
@@ -415,6 +414,15 @@ fn a_lead_baseline_names_its_key() {
         taps: vec![1.5, -0.25, -0.25],
         notes: String::new(),
     });
+    m
+}
+
+/// The lead's baseline (`damping.lead_baseline`) travels in the model's image
+/// and back; outside [0.5, 2), or without damping and a shaping that runs
+/// ahead, it is refused with its key named.
+#[test]
+fn a_lead_baseline_names_its_key() {
+    let m = with_loops();
     let text = m.to_toml().unwrap();
     assert!(text.contains("lead_baseline = 0.88"), "{text}");
     let again = FirmwareModel::parse(&text, "again").unwrap();
@@ -442,5 +450,38 @@ fn a_lead_baseline_names_its_key() {
         },
         "damping.lead_baseline = 0.88: a lead baseline needs active damping ([damping]) and a \
          shaping that runs ahead (preview_ticks > 0)",
+    );
+}
+
+/// The oscillation watch's half swing (`feedback.watch_swing_um`) travels in
+/// the model's image and back; outside 0.075…0.2 µm, or without a position
+/// loop, it is refused with its key named.
+#[test]
+fn a_watch_swing_names_its_key() {
+    let mut m = with_loops();
+    m.feedback.as_mut().unwrap().watch_swing_um = Some(0.1);
+    let text = m.to_toml().unwrap();
+    assert!(text.contains("watch_swing_um = 0.1"), "{text}");
+    let again = FirmwareModel::parse(&text, "again").unwrap();
+    assert_eq!(again, m);
+    let with = m.image().unwrap();
+    let mut without = m.clone();
+    without.feedback.as_mut().unwrap().watch_swing_um = None;
+    // One i32 more (the watch block, flag bit 9).
+    assert_eq!(with.len(), without.image().unwrap().len() + 4);
+    assert_eq!(u16::from_le_bytes([with[6], with[7]]) & 512, 512);
+    let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| refused(&m, edit, want);
+    for h in [0.05, 0.25] {
+        check(
+            &|b| b.feedback.as_mut().unwrap().watch_swing_um = Some(h),
+            &format!(
+                "feedback.watch_swing_um = {h}: the oscillation watch's half swing must lie \
+                 within 0.075…0.2 µm"
+            ),
+        );
+    }
+    check(
+        &|b| b.feedback.as_mut().unwrap().watch_swing_um = Some(f64::NAN),
+        "feedback.watch_swing_um = NaN: not a finite value within ±4096 (I16F16 signal range)",
     );
 }

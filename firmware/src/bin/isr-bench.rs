@@ -284,6 +284,7 @@ mod bench {
             dynamics: None,
             damping: None,
             lead_baseline: None,
+            watch_swing: None,
         }
     }
 
@@ -377,6 +378,8 @@ mod bench {
             damping: Some(damping),
             // The lead's learned mass ratio, applied (piezo_fpi::lead).
             lead_baseline: Some(piezo_fpi::q::LeadRatio::from_num(0.88)),
+            // The watch's least half swing (the most half-cycles counted).
+            watch_swing: Some(piezo_fpi::model::WATCH_SWING_MIN),
             ..spec
         };
         let len = match image::encode(&closed, buf) {

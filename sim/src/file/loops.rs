@@ -6,7 +6,7 @@ use piezo_fpi::control::Interval;
 use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
 use piezo_fpi::feedback::FeedbackSpec;
 use piezo_fpi::preview::{PREVIEW_MAX, TAPS};
-use piezo_fpi::q::{self, CreepRate, LeadRatio, LoopGain};
+use piezo_fpi::q::{self, CreepRate, LeadRatio, LoopGain, Micrometres};
 use serde::{Deserialize, Serialize};
 
 use super::sections::{rate_per_tick, signal};
@@ -222,6 +222,11 @@ pub struct FeedbackSection {
     pub position_max_um: f64,
     /// Largest tolerated `|x_sensor − f_K(x̂_pea)|`, µm.
     pub position_tolerance_um: f64,
+    /// The oscillation watch's half swing on the tracking error, µm (0.075…0.2;
+    /// `piezo_fpi::model::WATCH_SWING_MIN`): `fpi board autotune` sets it from
+    /// the noise the loops leave at rest; without it, 0.2 µm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub watch_swing_um: Option<f64>,
     /// How the gains were chosen (what `fpi tune` assumed and the margins it got).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub notes: String,
@@ -249,5 +254,12 @@ impl FeedbackSection {
             },
             tolerance: signal("feedback.position_tolerance_um", self.position_tolerance_um)?,
         })
+    }
+
+    /// The watch's half swing in its format, `I16F16` µm, if the section has one.
+    pub(super) fn watch_swing(&self) -> Result<Option<Micrometres>, String> {
+        self.watch_swing_um
+            .map(|h| signal("feedback.watch_swing_um", h))
+            .transpose()
     }
 }

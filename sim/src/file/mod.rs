@@ -198,6 +198,12 @@ impl FirmwareModel {
                     .map(DampingSection::lead)
                     .transpose()?
                     .flatten(),
+                watch_swing: self
+                    .feedback
+                    .as_ref()
+                    .map(FeedbackSection::watch_swing)
+                    .transpose()?
+                    .flatten(),
             },
             operators: self.pi.operators()?,
             creep: self.creep_terms()?,
@@ -309,6 +315,7 @@ impl FirmwareModel {
             Field::DampingHighpass => self.damping.as_ref().map(|d| d.highpass_hz),
             Field::DampingLimit => self.damping.as_ref().map(|d| d.limit_um),
             Field::LeadBaseline => self.damping.as_ref().and_then(|d| d.lead_baseline),
+            Field::WatchSwing => self.feedback.as_ref().and_then(|f| f.watch_swing_um),
             Field::Operators | Field::Creep | Field::ForceSource | Field::Model => None,
         }
     }

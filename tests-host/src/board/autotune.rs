@@ -19,7 +19,12 @@
 //!    the loops, warms up, runs the step and the triangle at every tick and
 //!    updates the taps from the error the position sensor measured; the taps
 //!    of the round with the least error are kept.
-//! 6. Where the damping leaves the shaped reference's force out (a preview),
+//! 6. The loops closed at rest, the swing the loop watch sees on the tracking
+//!    error is measured ([`noise::tracking_swing`]) and the watch's half
+//!    swing set to [`tune::WATCH_SWING_RMS`] of its RMS (0.075…0.2 µm), so
+//!    that on this stage an unstable loop is counted while it is a tenth of a
+//!    micrometre (`firmware/src/watch.rs`).
+//!    Where the damping leaves the shaped reference's force out (a preview),
 //!    the lead's baseline is measured ([`lead_baseline`]): the ratio the
 //!    board's fit of that force settles at over [`BASELINE_STEPS`] steps on
 //!    this stage, written into the model and loaded, so that on a stage whose
@@ -111,6 +116,10 @@ pub struct Autotune {
     /// The lead's baseline measured, and over how many steps (`None`: the
     /// model leaves no lead out).
     pub baseline: Option<(f64, usize)>,
+    /// The swing the loop watch sees on the tracking error at rest with the
+    /// loops tuned, µm RMS ([`noise::tracking_swing`]): the model's watch
+    /// swing is [`tune::WATCH_SWING_RMS`] of it.
+    pub swing_rms_um: f64,
     /// The verification step, 10 → 20 µm.
     pub step: StepFigures,
 }
@@ -196,6 +205,7 @@ pub fn run(
         rounds: done.rounds,
         kept: done.kept,
         baseline: done.baseline,
+        swing_rms_um: done.swing_rms_um,
         step: done.step,
     })
 }
@@ -206,6 +216,7 @@ struct OnBoard {
     rounds: Vec<Round>,
     kept: usize,
     baseline: Option<(f64, usize)>,
+    swing_rms_um: f64,
     step: StepFigures,
 }
 
@@ -221,7 +232,7 @@ fn on_board(
     t: &mut Tuning,
     progress: &mut impl FnMut(&str),
 ) -> Result<OnBoard> {
-    let mut model = load(c, fw, t, o, false)?;
+    load(c, fw, t, o, false)?;
     let (mut rounds, mut kept) = (Vec::new(), 0);
     if let (Some(Feedforward::Preview { ticks, taps, .. }), 1..) =
         (t.feedforward.clone(), settings.trials)
@@ -233,16 +244,22 @@ fn on_board(
             taps: best,
             trials: kept as u32,
         });
-        model = tune::with_tuning(fw, t, o)?;
         if kept + 1 != rounds.len() {
             load(c, fw, t, o, false)?;
         }
     }
+    progress("measuring the tracking error at rest");
+    let swing_rms_um = noise::tracking_swing(c)?;
+    t.watch_swing_um = Some(tune::watch_swing_um(swing_rms_um));
+    progress(&format!(
+        "  {swing_rms_um:.4} µm RMS: the loop watch's half swing {:.3} µm",
+        t.watch_swing_um.unwrap_or_default()
+    ));
     let baseline = lead_baseline(c, progress)?;
     if let Some((b, _)) = baseline {
         t.lead_baseline = Some(b);
-        model = load(c, fw, t, o, false)?;
     }
+    let model = load(c, fw, t, o, false)?;
     if store {
         load(c, fw, t, o, true)?;
     }
@@ -252,6 +269,7 @@ fn on_board(
         rounds,
         kept,
         baseline,
+        swing_rms_um,
         step,
     })
 }
@@ -435,6 +453,16 @@ pub fn table(a: &Autotune) -> String {
             format!("{:.2}", t.sensitivity_peak),
         ),
         ("feedforward refined through the board", refinement(a)),
+        (
+            "loop watch's half swing",
+            format!(
+                "{:.3} µm: {} × the tracking error's {:.4} µm RMS at rest (within 0.075…0.2 µm)",
+                t.watch_swing_um
+                    .unwrap_or(tune::watch_swing_um(f64::INFINITY)),
+                tune::WATCH_SWING_RMS,
+                a.swing_rms_um
+            ),
+        ),
         (
             "lead baseline (mass ratio learned from it)",
             a.baseline.map_or("— (no lead)".into(), |(b, n)| {

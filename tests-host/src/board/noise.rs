@@ -17,7 +17,8 @@ use fpi_protocol::Command;
 use piezo_fpi::control::Fault;
 
 use super::client::{real, Client};
-use super::follow::Follow;
+use super::follow::{no_fault, Follow};
+use super::warm::close_and_warm_up;
 use crate::method::tune::NOISE_BUDGET_UM;
 
 /// Ticks between the samples measured (a recording every link carries).
@@ -45,6 +46,54 @@ pub fn force_noise(c: &mut Client) -> Result<f64> {
     }
     let squares: f64 = x.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum();
     Ok((squares / (2.0 * (x.len() - 1) as f64)).sqrt())
+}
+
+/// Ticks of the tracking error recorded at rest (0.1 s at 20 kHz).
+pub const SWING_TICKS: u32 = 2000;
+/// Ticks the watch's low-pass takes to settle, left out of the RMS.
+const SWING_SETTLE: u32 = 200;
+
+/// The RMS of the swing the loop watch sees on the tracking error at rest
+/// with the loops the board runs closed at 20 µm, µm: `x_ref − x_sensor` less
+/// its one-pole low-pass (the watch's `MEAN_SHIFT`, about 100 Hz), recorded at
+/// every tick for [`SWING_TICKS`]. The force sensor's noise the damping feeds
+/// back and the position sensor's own both count. The board is left parked.
+pub fn tracking_swing(c: &mut Client) -> Result<f64> {
+    close_and_warm_up(c)?;
+    let mut f = Follow::new(c, signal::X_SENSOR | signal::X_REF);
+    f.record(1)?;
+    f.rec.samples.clear();
+    let t0 = f.c.status()?.tick;
+    f.until_tick(t0 + SWING_TICKS)?;
+    f.c.ack(&Command::RecordStop)?;
+    f.drain()?;
+    no_fault(&f.c.status()?, "the tracking error at rest")?;
+    let mut e: Vec<(u32, f64)> = f
+        .rec
+        .samples
+        .iter()
+        .filter(|s| s.tick >= t0)
+        .map(|s| (s.tick, real(s.x_ref) - real(s.x_sensor)))
+        .collect();
+    e.sort_by_key(|p| p.0);
+    if e.len() < 2 * SWING_TICKS as usize / 3 {
+        bail!(
+            "the tracking error at rest: {} samples of the {SWING_TICKS} recorded reached the host",
+            e.len()
+        );
+    }
+    let alpha = 1.0 / f64::from(1u32 << fpi_firmware::watch::MEAN_SHIFT);
+    let (mut mean, mut sum, mut n) = (e[0].1, 0.0, 0usize);
+    for &(tick, x) in &e {
+        let hp = x - mean;
+        mean += alpha * hp;
+        if tick >= t0 + SWING_SETTLE {
+            sum += hp * hp;
+            n += 1;
+        }
+    }
+    c.park()?;
+    Ok((sum / n.max(1) as f64).sqrt())
 }
 
 /// `e`, with the likely cause, where the board latched `Oscillation` and the

@@ -130,6 +130,25 @@ pub const NOISE_BUDGET_UM: f64 = fpi_firmware::watch::HALF_SWING as f64 / 65_536
 /// the undamped family, at 1.6 N; down to 0.012 it degrades gracefully: 39 Hz
 /// at 2 N, 31 Hz at 3 N, 16 Hz at 6 N, on stage A as built.)
 pub const NOISE_TARGET_MIN: f64 = 0.012;
+/// The loop watch's half swing on the tracking error, in RMS of the swing it
+/// sees at rest with the loops tuned: peaks of noise beyond five σ are rare,
+/// and four half-cycles of them in a row that do not decay (the watch's
+/// undecaying rule) rarer still; a transient's irregular peaks (a wave's end
+/// on a stage whose mode moved) stay below it more often than below four σ.
+pub const WATCH_SWING_RMS: f64 = 5.0;
+
+/// The watch's half swing for a stage whose loops leave `rms_um` (µm RMS) of
+/// swing in the tracking error at rest: [`WATCH_SWING_RMS`] of it, within the
+/// model's range (`piezo_fpi::model::WATCH_SWING_MIN`…`WATCH_SWING_MAX`,
+/// 0.075…0.2 µm), µm.
+pub fn watch_swing_um(rms_um: f64) -> f64 {
+    let um = |m: piezo_fpi::q::Micrometres| m.to_num::<f64>();
+    let (lo, hi) = (
+        um(piezo_fpi::model::WATCH_SWING_MIN),
+        um(piezo_fpi::model::WATCH_SWING_MAX),
+    );
+    (WATCH_SWING_RMS * rms_um).clamp(lo, hi)
+}
 
 /// What the design chose and what it gives.
 #[derive(Debug, Clone, PartialEq)]
@@ -170,6 +189,11 @@ pub struct Tuning {
     /// the explained force settles at on the tuned stage. Measured on the board
     /// (`fpi board autotune`); `None` from the design alone.
     pub lead_baseline: Option<f64>,
+    /// The oscillation watch's half swing on the tracking error, µm
+    /// (`piezo_fpi::model::WATCH_SWING_MIN`…`WATCH_SWING_MAX`): set from the
+    /// noise the loops leave at rest, measured on the board (`fpi board
+    /// autotune`); `None` from the design alone (the board's 0.2 µm).
+    pub watch_swing_um: Option<f64>,
     /// What the plant was taken to be.
     pub plant: String,
     /// The laws' coefficients per tick as designed (the force channel's split,
@@ -420,6 +444,7 @@ fn design(
         feedforward,
         noise_motion_um_per_n: fam.noise_motion_um(&laws, 1.0),
         lead_baseline: None,
+        watch_swing_um: None,
         plant,
         laws,
     })
@@ -704,6 +729,7 @@ pub fn with_tuning(fw: &FirmwareModel, t: &Tuning, o: &TuneOptions) -> Result<Fi
         position_min_um: lo,
         position_max_um: hi,
         position_tolerance_um: o.tolerance_um.unwrap_or(0.15 * span),
+        watch_swing_um: t.watch_swing_um,
         notes: format!("fpi tune: {summary}"),
     });
     if let Some(d) = &t.dynamics {
