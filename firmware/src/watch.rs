@@ -49,7 +49,8 @@
 //!
 //! The counts start again when the loop watched changes (the position loop
 //! closed or opened): the damping's correction and the tracking error are
-//! different swings.
+//! different swings. The rules count a half-cycle at the tick after it ended
+//! (`Ended`): the tick it ends is often the costliest of the control task.
 //!
 //! **Saturation.** The command held at the stroke's edge or the step limited (by
 //! the voltage range or the slew) for `SATURATED_TICKS` ticks in a row trips
@@ -139,9 +140,11 @@ impl Rule {
 struct Ended {
     /// Its peak (`I16F16` bits, ≥ 0).
     peak: i32,
-    /// Half-cycles the reference held through before it.
+    /// The reference held through it and the `held − 1` before (0: it moved
+    /// during it).
     held: u16,
-    /// Whether it continues the one before (its length within the bounds).
+    /// Whether it continues the one before (there was one, and its length is
+    /// within the bounds).
     chained: bool,
 }
 

@@ -674,10 +674,9 @@ mod tests {
         );
     }
 
-    #[test]
-    fn feedback_settings_travel_with_the_image_and_are_validated() {
-        let p = parts();
-        let fb = crate::feedback::FeedbackSpec {
+    /// Position-feedback settings the validator accepts.
+    fn feedback() -> crate::feedback::FeedbackSpec {
+        crate::feedback::FeedbackSpec {
             kp: LoopGain::from_num(0.25),
             ki: LoopGain::from_num(0.015),
             limit: signal(3.0).unwrap(),
@@ -686,7 +685,13 @@ mod tests {
                 hi: signal(50.0).unwrap(),
             },
             tolerance: signal(4.0).unwrap(),
-        };
+        }
+    }
+
+    #[test]
+    fn feedback_settings_travel_with_the_image_and_are_validated() {
+        let p = parts();
+        let fb = feedback();
         let spec = ModelSpec {
             feedback: Some(fb),
             ..testkit::spec(&p, &[])
@@ -721,16 +726,7 @@ mod tests {
     #[test]
     fn the_watch_swing_travels_with_the_image_and_is_validated() {
         let p = parts();
-        let fb = crate::feedback::FeedbackSpec {
-            kp: LoopGain::from_num(0.25),
-            ki: LoopGain::from_num(0.015),
-            limit: signal(3.0).unwrap(),
-            sensor: Interval {
-                lo: signal(-5.0).unwrap(),
-                hi: signal(50.0).unwrap(),
-            },
-            tolerance: signal(4.0).unwrap(),
-        };
+        let fb = feedback();
         let swing = Some(signal(0.1).unwrap());
         let spec = ModelSpec {
             feedback: Some(fb),

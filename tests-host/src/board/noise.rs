@@ -1,5 +1,7 @@
-//! The force sensor's noise at rest, measured through the board: what the
-//! active damping feeds back into the stack and so turns into motion.
+//! The noise at rest, measured through the board: the force sensor's, which
+//! the active damping feeds back into the stack and so turns into motion, and
+//! the swing that motion and the position sensor's own noise leave in the
+//! tracking error, which the loop watch sees.
 //!
 //! On the emulated stage as built (σ 0.15 N) the loops tuned for ζ 0.5 move
 //! the stage 0.02 µm RMS at rest, mostly near 310 Hz; at σ 0.5 N, 0.07 µm; at
@@ -10,6 +12,10 @@
 //! damping for it (`crate::method::tune::NOISE_BUDGET_UM`), and names it
 //! where the watch trips nevertheless ([`explain`]: the loops were designed
 //! for a quieter sensor than the one measured).
+//!
+//! With the loops tuned, autotune then measures the swing the watch sees on
+//! the tracking error at rest ([`tracking_swing`]) and sets the watch's half
+//! swing from it (`crate::method::tune::watch_swing_um`).
 
 use anyhow::{bail, Error, Result};
 use fpi_protocol::record::signal;
