@@ -561,6 +561,54 @@ fn a_quiet_close_on_a_stage_that_changed_is_caught() {
     }
 }
 
+/// The price of a small half swing: the model autotune tuned on the quiet
+/// stage as built, loaded onto one whose position sensor is far noisier
+/// (σ 0.08 µm instead of 0.003), parks at rest with `Oscillation`; the
+/// board's status then names the model's half swing and the remedies.
+#[test]
+fn a_model_tuned_on_a_quiet_stage_says_why_it_parks_on_a_noisier_one() {
+    use fpi_protocol::{Command, LoopMode};
+    let a = tuned();
+    let (_e, mut c) = board("noisier board");
+    let noisy = StageVariant {
+        position_noise_um: Some(0.08),
+        ..StageVariant::BUILT
+    };
+    load(&mut c, &a.model, noisy);
+    c.move_to(20.0, 1000.0).unwrap();
+    Follow::new(&mut c, 0).until_hold().unwrap();
+    let start = c
+        .ack(&Command::Loop {
+            axis: 0,
+            mode: LoopMode::Closed,
+        })
+        .unwrap();
+    let mut f = Follow::new(&mut c, 0);
+    let at = f
+        .until("a fault", |s| {
+            Ok(s.fault.is_some() || s.tick > start + 20_000)
+        })
+        .unwrap();
+    let fault = f.c.status().unwrap().fault;
+    println!(
+        "σ 0.08 µm: {:?} after {:.2} ms",
+        fault.map(|x| x.code),
+        (at - start) as f64 / 20.0
+    );
+    assert_eq!(
+        fault.map(|x| x.code),
+        Some(piezo_fpi::control::Fault::Oscillation as u8)
+    );
+    let text = fpi_host::cli::board::status_text(&mut c).unwrap();
+    println!("{text}");
+    assert!(
+        text.contains("loop watch counts swings beyond") && text.contains("watch_swing_um = 0.2"),
+        "{text}"
+    );
+    c.park().unwrap();
+    c.ack(&Command::ClearFault).ok();
+}
+
 /// The damping alone (open loop) on a stage whose mode moved far below the
 /// one it was designed for: at 300 Hz the damping loop itself oscillates at
 /// about 100 Hz from the move's start and grows once the reference holds.

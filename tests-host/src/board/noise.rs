@@ -102,6 +102,32 @@ pub fn tracking_swing(c: &mut Client) -> Result<f64> {
     Ok((sum / n.max(1) as f64).sqrt())
 }
 
+/// The oscillation watch's half swing on the tracking error of the model
+/// the board runs, µm, where the model sets one below the default 0.2 µm
+/// (autotune sets it from its stage's swing at rest: a noisier board's noise
+/// alone may trip it); `None` otherwise or where the model cannot be read.
+pub fn model_watch_swing(c: &mut Client) -> Option<f64> {
+    let image = c.read_model().ok()?;
+    let mut store = Box::new(fpi_firmware::hardware::Store::new());
+    store.load(&image, &fpi_firmware::hardware::BOARD).ok()?;
+    store
+        .spec()
+        .watch_swing
+        .filter(|&h| h < piezo_fpi::model::WATCH_SWING_MAX)
+        .map(|h| h.to_num::<f64>())
+}
+
+/// What to say beside an `Oscillation` fault on a model whose watch swing is
+/// `swing_um` (µm, [`model_watch_swing`]).
+pub fn watch_hint(swing_um: f64) -> String {
+    format!(
+        "the model's loop watch counts swings beyond ±{swing_um:.3} µm (autotune set it from \
+         its stage's noise at rest): if the stage rests quietly and this board's sensors are \
+         noisier, their noise alone trips it — autotune on this board, or set \
+         feedback.watch_swing_um = 0.2 in the model's file"
+    )
+}
+
 /// `e`, with the likely cause, where the board latched `Oscillation` and the
 /// loops move the stage `motion_um` (µm RMS) at rest with the noise measured,
 /// `noise_n` (N σ), more than the budget they are designed for

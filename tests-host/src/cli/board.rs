@@ -19,7 +19,7 @@ use piezo_sim::file::FirmwareModel;
 use crate::board::budget::Budget;
 use crate::board::client::{real, Client};
 use crate::board::recording::Recording;
-use crate::board::{commands, inprocess};
+use crate::board::{commands, inprocess, noise};
 use crate::data::Quoted;
 use crate::method::export::{self, ExportOptions, LoopSettings};
 use crate::method::model::HostModel;
@@ -239,6 +239,11 @@ pub fn status_text(c: &mut Client) -> Result<String> {
         }
     }
     out.push_str(&state_text(&s, rate));
+    if s.fault.is_some_and(|f| f.code == Fault::Oscillation as u8) {
+        if let Some(h) = noise::model_watch_swing(c) {
+            let _ = writeln!(out, "  {}", noise::watch_hint(h));
+        }
+    }
     let _ = writeln!(
         out,
         "link: {} ({} B/s{}); {} requests, {} refused; {} malformed ({} CRC errors, {} too \
