@@ -136,7 +136,7 @@ impl Rule {
 /// one: the tick a half-cycle ends is often one where the command jumps (a
 /// step, a loop closed, a limit met) and the inverse model realigns, the
 /// costliest the control task has; the tick after rarely is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Ended {
     /// Its peak (`I16F16` bits, ≥ 0).
     peak: i32,

@@ -513,7 +513,7 @@ fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
 /// the stage's noise (0.075…0.2 µm; at 0.2 µm it took 40–50 ms), counts it
 /// while it is small: caught, named, inside the stroke. The latency is
 /// printed; the bound asserted is generous (in-process, 15 runs at 400, 425
-/// and 450 Hz: 8.85–22.05 ms).
+/// and 450 Hz: 11.05–19.85 ms).
 #[test]
 fn a_quiet_close_on_a_stage_that_changed_is_caught() {
     use fpi_protocol::{Command, LoopMode};

@@ -250,10 +250,10 @@ fn on_board(
     }
     progress("measuring the tracking error at rest");
     let swing_rms_um = noise::tracking_swing(c)?;
-    t.watch_swing_um = Some(tune::watch_swing_um(swing_rms_um));
+    let swing_um = tune::watch_swing_um(swing_rms_um);
+    t.watch_swing_um = Some(swing_um);
     progress(&format!(
-        "  {swing_rms_um:.4} µm RMS: the loop watch's half swing {:.3} µm",
-        t.watch_swing_um.unwrap_or_default()
+        "  {swing_rms_um:.4} µm RMS: the loop watch's half swing {swing_um:.3} µm"
     ));
     let baseline = lead_baseline(c, progress)?;
     if let Some((b, _)) = baseline {
@@ -458,7 +458,7 @@ pub fn table(a: &Autotune) -> String {
             format!(
                 "{:.3} µm: {} × the tracking error's {:.4} µm RMS at rest (within 0.075…0.2 µm)",
                 t.watch_swing_um
-                    .unwrap_or(tune::watch_swing_um(f64::INFINITY)),
+                    .unwrap_or(piezo_fpi::model::WATCH_SWING_MAX.to_num::<f64>()),
                 tune::WATCH_SWING_RMS,
                 a.swing_rms_um
             ),
