@@ -113,6 +113,9 @@ pub struct Loop {
     damping_on: bool,
     /// The loops watched for oscillation and saturation.
     watch: LoopWatch,
+    /// The watch saw a tick since it was last reset (no loop runs: reset
+    /// once, not at every tick).
+    watching: bool,
     /// What the watch saw this tick.
     alarm: Option<Fault>,
     damped: Micrometres,
@@ -180,6 +183,7 @@ impl Loop {
             shaping_on: true,
             fresh_shaping: false,
             watch: LoopWatch::new(),
+            watching: false,
             alarm: None,
             damping_alone: false,
             parking: false,
@@ -423,10 +427,14 @@ impl Loop {
             } else {
                 error
             };
+            self.watching = true;
             self.watch
                 .update(swing, self.damping_alone, io.x_ref, limited, io.watch_swing)
         } else {
-            self.watch.reset();
+            if self.watching {
+                self.watch.reset();
+                self.watching = false;
+            }
             None
         };
         let reachable = io.x_ref >= window.lo && io.x_ref <= window.hi;

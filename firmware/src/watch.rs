@@ -49,7 +49,17 @@
 //!
 //! The counts start again when the loop watched changes (the position loop
 //! closed or opened): the damping's correction and the tracking error are
-//! different swings. The rules count a half-cycle at the tick after it ended
+//! different swings. They start again, too, at a half-cycle of the damping's
+//! correction in which the reference turned (moved against the way it last
+//! moved): with the damping alone, a wave the shaping does not explain (a
+//! 200 Hz sine with the shaping off, or on a stage whose mode moved) drives
+//! the correction at its own period, ±3–6 µm, which is the damping at work,
+//! not its oscillation; an oscillation of the damping itself is counted
+//! between the turns (a wave's turns are 2.5 ms apart at 200 Hz, an unstable
+//! loop's half-cycles near the mode under a millisecond) and wherever the
+//! reference holds or moves one way. The tracking error has no such
+//! exception: where the position loop is closed, a wave's forced error is the
+//! loop's own. The rules count a half-cycle at the tick after it ended
 //! (`Ended`): the tick it ends is often the costliest of the control task.
 //!
 //! **Saturation.** The command held at the stroke's edge or the step limited (by
@@ -172,6 +182,9 @@ pub struct LoopWatch {
     still: u16,
     /// The reference of the last tick (`I16F16` bits).
     last_ref: i32,
+    /// Its last change while the damping runs alone (`I16F16` bits; 0: none
+    /// yet).
+    last_step: i32,
     since: u16,
     saturated: u16,
     /// The half-cycle that ended at the last tick, not yet counted.
@@ -197,6 +210,7 @@ impl LoopWatch {
             before: [0; 2],
             still: 0,
             last_ref: 0,
+            last_step: 0,
             since: 0,
             saturated: 0,
             ended: None,
@@ -247,6 +261,17 @@ impl LoopWatch {
         }
         let r = reference.to_bits();
         if r != self.last_ref {
+            if alone {
+                // The reference turned (opposite signs; a first change down
+                // counts as one, a chain broken once, harmlessly): the
+                // damping's half-cycle in progress is the wave's (the module
+                // docs), too long to continue any.
+                let step = r.wrapping_sub(self.last_ref);
+                if (step ^ self.last_step) < 0 {
+                    self.since = u16::MAX;
+                }
+                self.last_step = step;
+            }
             self.last_ref = r;
             self.still = 0;
         }
@@ -515,6 +540,52 @@ mod tests {
         for half in [0.2, 0.075] {
             assert_eq!(held_at(half, 850.0, 2.0, |n| d.powi(n as i32)), None);
         }
+    }
+
+    /// Feeds `swing(t)` (µm, `t` in s) about the reference `reference(t)`
+    /// (µm), watched with the damping alone or the position loop closed; the
+    /// tick it trips.
+    fn feed_about(
+        alone: bool,
+        ticks: u32,
+        reference: impl Fn(f64) -> f64,
+        swing: impl Fn(f64) -> f64,
+    ) -> Option<u32> {
+        let mut w = LoopWatch::new();
+        (0..ticks).find(|&k| {
+            let t = k as f64 / 20_000.0;
+            w.update(
+                Micrometres::from_num(swing(t)),
+                alone,
+                Micrometres::from_num(reference(t)),
+                false,
+                DEFAULT,
+            )
+            .is_some()
+        })
+    }
+
+    #[test]
+    fn a_wave_s_force_in_the_damping_s_correction_does_not_trip() {
+        // A 200 Hz sine, ±5 µm about 20 µm, that the shaping does not explain:
+        // the damping's correction follows it 60° behind, swelling from 1 to
+        // 3.5 µm over its first period (on the emulated stage as built with
+        // the shaping off, ±3.2 µm; on a 700 Hz stage, ±5.6 µm).
+        let f = 200.0;
+        let reference = |t: f64| 20.0 + 5.0 * (TAU * f * t).sin();
+        let swing = |t: f64| (1.0 + 500.0 * t).min(3.5) * (TAU * f * t - 1.05).sin();
+        assert_eq!(feed_about(true, 20_000, reference, swing), None);
+        // The same swing in the tracking error of a closed loop: its own.
+        assert!(feed_about(false, 20_000, reference, swing).is_some());
+    }
+
+    #[test]
+    fn the_damping_s_own_oscillation_during_a_slow_wave_trips() {
+        // ±3 µm at 850 Hz in the damping's correction while a 15 Hz sine runs:
+        // counted between the wave's turns, caught within 10 ms.
+        let reference = |t: f64| 20.0 + 15.0 * (TAU * 15.0 * t).sin();
+        let k = feed_about(true, 20_000, reference, |t| 3.0 * (TAU * 850.0 * t).sin());
+        assert!(k.is_some_and(|k| k < 200), "{k:?}");
     }
 
     #[test]
