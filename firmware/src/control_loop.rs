@@ -563,21 +563,43 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             x.returned = Some(new);
             return Err(Refused::NotAtRest);
         }
-        let (state, reference) = Self::parked(&new, self.force);
-        if new.summary().feedback.is_none() {
+        x.returned = Some(core::mem::replace(&mut self.model, new));
+        self.start_parked();
+        Ok(())
+    }
+
+    /// A new stage attached at rest (the emulated bench swapped it, as a
+    /// power-up with another stage would): if the loop is parked at the safe
+    /// voltage, the running model starts again as after its upload — tared at
+    /// the new stage's force reading, its operators at rest, the learned mass
+    /// ratio forgotten — and `true`; else nothing changes (a stage swapped
+    /// under a running loop keeps the old tare, which the force channel's
+    /// learning then corrects over seconds of motion).
+    pub fn restart_on_new_stage(&mut self) -> bool {
+        if self.state.fault().is_none() || !self.at_safe_voltage() {
+            return false;
+        }
+        self.force = self.hw.sensor.read_force();
+        self.start_parked();
+        true
+    }
+
+    /// The running model starts parked from a fresh state, tared at the last
+    /// force reading, as designed (its damping and shaping on), the feedback's
+    /// memory and the learned mass ratio forgotten.
+    fn start_parked(&mut self) {
+        let (state, reference) = Self::parked(&self.model, self.force);
+        if self.model.summary().feedback.is_none() {
             self.feedback.select(LoopMode::Open);
         }
-        // A new model runs as designed: its damping and shaping on.
         self.feedback.set_damping(true);
         self.feedback.set_shaping(true);
         self.feedback.reset();
         self.feedback.forget_lead();
-        self.x_est = rest_position(new.get(), &state);
-        x.returned = Some(core::mem::replace(&mut self.model, new));
+        self.x_est = rest_position(self.model.get(), &state);
         self.state = state;
         self.reference = reference;
         self.fault_at = Some((Fault::Stopped, self.tick));
         self.safe_at = Some(self.tick);
-        Ok(())
     }
 }

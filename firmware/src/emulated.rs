@@ -147,6 +147,7 @@ impl Bench {
                     force_noise_n: v.force_noise_n,
                 });
                 if let Some(s) = Stage::new(&p, SEED) {
+                    self.force = s.rest_force();
                     self.stage = s;
                     self.x_true = Micrometres::ZERO;
                 }
@@ -228,6 +229,11 @@ pub fn tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
     if let Some((seq, Order::Bench(b))) = x.order {
         x.order = None;
         bench.apply(b, link);
+        if let BenchOrder::Stage(_) = b {
+            // A fresh stage at rest: the board starts on it as at power-up.
+            bench.prime(link);
+            lp.restart_on_new_stage();
+        }
         x.applied = Some(Applied {
             seq,
             tick: lp.next_tick(),
