@@ -147,7 +147,10 @@ impl Bench {
                     force_noise_n: v.force_noise_n,
                 });
                 if let Some(s) = Stage::new(&p, SEED) {
+                    // Its readings at rest, as `new` starts with (what
+                    // `prime` leaves on the link).
                     self.force = s.rest_force();
+                    self.position = 0.0;
                     self.stage = s;
                     self.x_true = Micrometres::ZERO;
                 }
