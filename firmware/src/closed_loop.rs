@@ -412,20 +412,19 @@ impl Loop {
             }
         }
         .saturating_add(self.damped);
-        // Where a loop runs (closed, or damping on), it is watched: on the
-        // tracking error where the position loop is closed (an unstable loop's
-        // clearest sign), else on the damping's correction (in open loop the
-        // tracking error is also the feedforward's, which a fast wave without
-        // the shaping leaves large and periodic).
+        // Where a loop runs (closed, or damping on), it is watched on the
+        // tracking error wherever the model declares the position sensor (an
+        // unstable loop's clearest sign: with the damping alone on a stage
+        // whose mode moved, the stage swings about the reference by several
+        // times the damping's correction), else on the damping's correction.
         let looped = self.mode != LoopMode::Open || self.damped != Micrometres::ZERO;
         self.alarm = if looped {
             let limited = self.clamp != Saturation::Free || self.sat != Saturation::Free;
             self.damping_alone =
                 matches!((self.mode, io.feedback), (LoopMode::Open, _) | (_, None));
-            let swing = if self.damping_alone {
-                wanted.saturating_sub(ff)
-            } else {
-                error
+            let swing = match io.feedback {
+                Some(_) => error,
+                None => wanted.saturating_sub(ff),
             };
             self.watching = true;
             self.watch

@@ -2,19 +2,20 @@
 //! leaves its stroke (a stage that changed, a wrong model), in the control ISR.
 //!
 //! **Oscillation.** The swing watched — the tracking error `x_ref − x_sensor`
-//! where the position loop is closed, else the damping's correction (µm) —
+//! (µm), whether the position loop is closed or the damping runs alone (on a
+//! model that declares no position sensor, the damping's correction) —
 //! less its own low-pass (`MEAN_SHIFT`: a one-pole at about 100 Hz at 20 kHz),
 //! is a healthy loop's small, slow residue; an unstable loop makes it swing. A
 //! *half-cycle* ends each time it goes beyond the *half swing* on the side
 //! opposite to its last excursion: on the tracking error, the model's
 //! (`feedback.watch_swing_um`, 0.075…0.2 µm: `fpi board autotune` sets it
 //! from the noise the loops leave at rest, so that a quiet stage's unstable
-//! loop is counted while it is a tenth of a micrometre), else, and on the
-//! damping's correction, `HALF_SWING` (0.2 µm). Its *peak* is the largest
+//! loop is counted while it is a tenth of a micrometre), else, and with the
+//! damping alone, `HALF_SWING` (0.2 µm). Its *peak* is the largest
 //! swing since the previous one. It continues the half-cycles before it if it
 //! lasted at least `MIN_HALF_TICKS` (two ticks) and at most `MAX_HALF_TICKS`
-//! (4 ms), or, while the reference holds, `MAX_HELD_HALF_TICKS` (8 ms): else
-//! every count starts again. Each rule
+//! (4 ms), or, while the reference holds or the damping runs alone,
+//! `MAX_HELD_HALF_TICKS` (8 ms): else every count starts again. Each rule
 //! counts the half-cycles in a row that meet its condition and trips
 //! [`Fault::Oscillation`] at one count while the reference moves and at a
 //! smaller one where it held through them all (a still reference leaves a
@@ -48,18 +49,22 @@
 //!   never counts here.
 //!
 //! The counts start again when the loop watched changes (the position loop
-//! closed or opened): the damping's correction and the tracking error are
-//! different swings. They start again, too, at a half-cycle of the damping's
-//! correction in which the reference turned (moved against the way it last
-//! moved): with the damping alone, a wave the shaping does not explain (a
-//! 200 Hz sine with the shaping off, or on a stage whose mode moved) drives
-//! the correction at its own period, ±3–6 µm, which is the damping at work,
-//! not its oscillation; an oscillation of the damping itself is counted
-//! between the turns (a wave's turns are 2.5 ms apart at 200 Hz, an unstable
-//! loop's half-cycles near the mode under a millisecond) and wherever the
-//! reference holds or moves one way. The tracking error has no such
-//! exception: where the position loop is closed, a wave's forced error is the
-//! loop's own. The rules count a half-cycle at the tick after it ended
+//! closed or opened): the half swings differ, and so do the rules below. With
+//! the damping alone they start again, too, at a half-cycle in which the
+//! reference turned (moved against the way it last moved): a wave the
+//! shaping does not explain (a 200 Hz sine with the shaping off, or on a
+//! stage whose mode moved) leaves an open loop's error, and the damping's
+//! correction, swinging at the wave's own period, ±3–6 µm: the feedforward's
+//! error and the damping at work, not an oscillation. An oscillation of the
+//! damping itself is counted between the turns (a wave's turns are 2.5 ms
+//! apart at 200 Hz, an unstable loop's half-cycles near the mode under a
+//! millisecond) and wherever the reference holds or moves one way; its
+//! half-cycles may last 8 ms there whether the reference moves or not, so a
+//! damping that oscillates slowly (about 100 Hz on a stage whose mode moved
+//! to 300 Hz) is caught during the move that set it off. A closed loop has
+//! no such exception: a wave's forced error is the loop's own, and a moving
+//! reference's half-cycles last at most 4 ms (a 100 Hz triangle's corners
+//! are 5 ms apart). The rules count a half-cycle at the tick after it ended
 //! (`Ended`): the tick it ends is often the costliest of the control task.
 //!
 //! **Saturation.** The command held at the stroke's edge or the step limited (by
@@ -78,8 +83,8 @@ use piezo_fpi::q::Micrometres;
 pub const SWING: i32 = 5 << 15;
 /// The least peak the growing rule counts, µm (`I16F16` bits: 0.5 µm).
 pub const GROWTH_SWING: i32 = 1 << 15;
-/// The swing that ends a half-cycle of the damping's correction, and of a
-/// tracking error whose model sets none, µm (`I16F16` bits: 0.2 µm;
+/// The swing that ends a half-cycle with the damping alone, and of a closed
+/// loop's tracking error whose model sets none, µm (`I16F16` bits: 0.2 µm;
 /// [`piezo_fpi::model::WATCH_SWING_MAX`]): well above the noise a healthy
 /// loop leaves (on the stage as built, 0.02 µm RMS at rest; the model's half
 /// swing follows it), below the half micrometre where the growing rule starts.
@@ -227,8 +232,9 @@ impl LoopWatch {
     /// Takes this tick's swing `delta` (µm), whether the damping runs
     /// `alone` (else the position loop is closed), the reference the loops
     /// track, whether the command was held at a limit and the half swing of
-    /// the tracking error (µm: the model's; the damping's correction is
-    /// watched at [`HALF_SWING`]); the fault, once one is seen.
+    /// a closed loop's tracking error (µm: the model's; with the damping
+    /// alone the swing is watched at [`HALF_SWING`]); the fault, once one is
+    /// seen.
     #[inline]
     pub fn update(
         &mut self,
@@ -318,7 +324,7 @@ impl LoopWatch {
         // The reference held through this half-cycle and the `held − 1` before.
         let held = self.still;
         self.still = held.saturating_add(1);
-        let longest = if held > 0 {
+        let longest = if held > 0 || self.alone {
             MAX_HELD_HALF_TICKS
         } else {
             MAX_HALF_TICKS
@@ -566,11 +572,12 @@ mod tests {
     }
 
     #[test]
-    fn a_wave_s_force_in_the_damping_s_correction_does_not_trip() {
+    fn a_wave_s_forced_swing_with_the_damping_alone_does_not_trip() {
         // A 200 Hz sine, ±5 µm about 20 µm, that the shaping does not explain:
-        // the damping's correction follows it 60° behind, swelling from 1 to
-        // 3.5 µm over its first period (on the emulated stage as built with
-        // the shaping off, ±3.2 µm; on a 700 Hz stage, ±5.6 µm).
+        // the open loop's error (and the damping's correction) follows it 60°
+        // behind, swelling from 1 to 3.5 µm over its first period (the
+        // correction on the emulated stage as built with the shaping off,
+        // ±3.2 µm; on a 700 Hz stage, ±5.6 µm).
         let f = 200.0;
         let reference = |t: f64| 20.0 + 5.0 * (TAU * f * t).sin();
         let swing = |t: f64| (1.0 + 500.0 * t).min(3.5) * (TAU * f * t - 1.05).sin();
@@ -581,11 +588,27 @@ mod tests {
 
     #[test]
     fn the_damping_s_own_oscillation_during_a_slow_wave_trips() {
-        // ±3 µm at 850 Hz in the damping's correction while a 15 Hz sine runs:
+        // ±3 µm at 850 Hz with the damping alone while a 15 Hz sine runs:
         // counted between the wave's turns, caught within 10 ms.
         let reference = |t: f64| 20.0 + 15.0 * (TAU * 15.0 * t).sin();
         let k = feed_about(true, 20_000, reference, |t| 3.0 * (TAU * 850.0 * t).sin());
         assert!(k.is_some_and(|k| k < 200), "{k:?}");
+    }
+
+    #[test]
+    fn the_damping_s_slow_oscillation_during_a_move_trips_within_twenty_ms() {
+        // The damping alone on a stage whose mode moved to 300 Hz: the stage
+        // swings about a move's ramp (0 → 20 µm in 20 ms) at 100 Hz, ±1
+        // µm growing by a fifth per half-cycle. Its 5 ms half-cycles continue
+        // one another while the reference moves one way: caught in the move.
+        let reference = |t: f64| (t * 1000.0).min(20.0);
+        let swing = |t: f64| 1.2f64.powf(200.0 * t) * (TAU * 100.0 * t).sin();
+        let k = feed_about(true, 20_000, reference, swing);
+        assert!(k.is_some_and(|k| k <= 400), "{k:?}");
+        // A closed loop's error on a moving reference is counted in half-cycles
+        // of 4 ms at most: the same swing is caught once the reference holds.
+        let k = feed_about(false, 20_000, reference, swing);
+        assert!(k.is_some_and(|k| k > 400), "{k:?}");
     }
 
     #[test]
@@ -646,7 +669,7 @@ mod tests {
         assert_eq!(held_at(0.2, 400.0, 0.12, |_| 1.0), None);
         let k = held_at(0.075, 400.0, 0.12, |_| 1.0).expect("caught");
         assert!(k < 150, "{k} ticks");
-        // The damping's correction is watched at 0.2 µm whatever the model's.
+        // With the damping alone, the swing is watched at 0.2 µm whatever the model's.
         let mut w = LoopWatch::new();
         let small = Micrometres::from_num(0.075);
         let at = Micrometres::from_num(20);

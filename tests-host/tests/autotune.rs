@@ -611,10 +611,12 @@ fn a_model_tuned_on_a_quiet_stage_says_why_it_parks_on_a_noisier_one() {
 
 /// The damping alone (open loop) on a stage whose mode moved far below the
 /// one it was designed for: at 300 Hz the damping loop itself oscillates at
-/// about 100 Hz from the move's start and grows once the reference holds.
-/// Caught and named inside the stroke; the figures are printed (not within the
-/// 20 ms the closed loop is caught in: the swing watched, the damping's
-/// correction, stays about ±1 µm while the reference moves).
+/// about 100 Hz from the move's start: the stage swings about the ramp by
+/// ±1 µm and more, in half-cycles of 5 ms. Caught and named during the move
+/// (20 ms), inside the stroke; the figures are printed, a generous bound is
+/// asserted (before the damping alone was watched on the tracking error in
+/// half-cycles of up to 8 ms, it was caught 14–16 ms after the reference
+/// held: 34–46 ms).
 #[test]
 fn the_damping_alone_on_a_stage_that_changed_is_caught() {
     let a = tuned();
@@ -632,9 +634,9 @@ fn the_damping_alone_on_a_stage_that_changed_is_caught() {
         Some(piezo_fpi::control::Fault::Oscillation),
         "{u:?}"
     );
-    // From the park at the stroke's foot (0.03 µm), and at most 60 ms.
+    // From the park at the stroke's foot (0.03 µm), and at most 30 ms.
     assert!(
-        u.ms <= 60.0 && u.before.0 > -0.5 && u.before.1 < 39.9,
+        u.ms <= 30.0 && u.before.0 > -0.5 && u.before.1 < 39.9,
         "{u:?}"
     );
     c.park().unwrap();
