@@ -903,6 +903,18 @@ fn a_step_too_fast_for_the_force_sensor_is_refused_with_the_shortest_that_fits()
         println!("shaping {shaping}: {shortest} ms ran, force {lo:.1}–{hi:.1} N");
         c.park().unwrap();
     }
+    // The damping alone, shaped: 10 → 20 µm in 0.5 ms, 44.1 N for the
+    // stage's mass in the 46.8 N of room, took the reading out of its window
+    // in a sequence of steps (50 N below the preload): refused with the
+    // shaped margin.
+    load(&mut c, &a.model, StageVariant::BUILT);
+    c.move_to(10.0, 1000.0).unwrap();
+    Follow::new(&mut c, 0).until_hold().unwrap();
+    let e = c.step(20.0, 0.5).unwrap_err();
+    let r = refusal(&e).unwrap_or_else(|| panic!("{e:#}"));
+    println!("damping alone, shaped: refused: {}", r.reason);
+    assert!(r.reason.contains("N of room"), "{}", r.reason);
+    c.park().unwrap();
 }
 
 #[test]

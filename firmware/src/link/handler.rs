@@ -802,7 +802,7 @@ impl<F: NorFlash> Handler<F> {
     /// force sensor's window leaves about the preload ([`Summary::force_room`];
     /// [`crate::reference::step_force`]), with the shortest duration that
     /// would not (the reason fits the link's 96 bytes: "25.000 µm step in
-    /// 0.500 ms: 110.322 N of force, 40.125 N of room: 0.850 ms at least"). A
+    /// 0.500 ms: 137.902 N of force, 40.125 N of room: 0.950 ms at least"). A
     /// model without the stage's dynamics or κ is not checked.
     fn within_the_force(
         &self,
