@@ -628,8 +628,10 @@ mod tests {
     #[test]
     fn the_damping_alone_s_ringing_after_steps_one_way_does_not_trip() {
         // A staircase of 2 µm steps up every 5 ms, each leaving a ringing at
-        // 850 Hz from 2.4 µm that the damping takes down at ζ 0.1 (the
-        // reference counts as held throughout: it never turns).
+        // 850 Hz from 2.4 µm that the damping takes down at ζ 0.1. The
+        // reference never turns, but each step starts it again after holding,
+        // which ends the chain: one ringing's tail does not chain into the
+        // next step's larger peaks.
         let reference = |t: f64| 2.0 * (t / 0.005).floor();
         let swing = |t: f64| {
             let s = t % 0.005;
