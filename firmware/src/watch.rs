@@ -53,10 +53,24 @@
 //!   never counts here.
 //!
 //! The counts start again when the loop watched changes (the position loop
-//! closed or opened): the half swings differ, and so do the rules below. With
-//! the damping alone they start again, too, at a half-cycle in which the
-//! reference turned (moved against the way it last moved) or started again
-//! after holding: a wave the
+//! closed or opened): the half swings differ, and so do the rules below.
+//!
+//! **A wave's forced swing.** A half-cycle in which the reference *turned*
+//! (went against the way it last went, or started again after holding or
+//! creeping: a change within ±`TURN_STEP`, 1/16 µm in a tick, goes no way,
+//! so an analog input's noise turns nothing) lasts about the wave's own half
+//! period: it is the wave's. A closed loop's tracking error under a wave too
+//! fast for it (±10 µm at 200 Hz with the shaping off on the stage as built:
+//! ±3.0–3.5 µm, 60° behind) swings so, and the rules leave such half-cycles
+//! out of every count, though one that does not meet a rule's condition
+//! breaks its count (a 100 Hz triangle's corners on a closed loop whose
+//! stage's mode moved to 700 Hz: the corner's half-cycle peaks at 1 µm, the
+//! two between at 2.6 and 3.3 µm). An oscillation of the loop itself shows
+//! in the half-cycles between the turns once it outgrows the forced swing,
+//! and is counted there (growing by 15 % per half-cycle from 0.3 µm to
+//! ±8 µm under that wave: caught at 16.0 ms at 850 Hz and at 37.6 ms at
+//! 425 Hz, 6.3 and 18.2 ms after it outgrew the wave's error). With the damping alone a turn ends
+//! the chain instead: a wave the
 //! shaping does not explain (a 200 Hz sine with the shaping off, or on a
 //! stage whose mode moved) leaves an open loop's error, and the damping's
 //! correction, swinging at the wave's own period, ±3–6 µm: the feedforward's
@@ -70,10 +84,9 @@
 //! half-cycles may last 8 ms there, so a damping that oscillates slowly
 //! (about 100 Hz on a stage whose mode moved to 300 Hz: the stage swings
 //! about the ramp by ±1 µm, growing by a tenth or a fifth per half-cycle) is
-//! caught during the move that set it off. A closed loop has
-//! no such exception: a wave's forced error is the loop's own, and a moving
-//! reference's half-cycles last at most 4 ms (a 100 Hz triangle's corners
-//! are 5 ms apart). The rules count a half-cycle at the tick after it ended
+//! caught during the move that set it off. A closed loop's half-cycles last
+//! at most 4 ms while the reference moves (a 100 Hz triangle's corners are
+//! 5 ms apart). The rules count a half-cycle at the tick after it ended
 //! (`Ended`): the tick it ends is often the costliest of the control task.
 //!
 //! **Saturation.** The command held at the stroke's edge or the step limited (by
@@ -121,6 +134,10 @@ pub const MAX_HALF_TICKS: u16 = 80;
 /// Longest half-cycle that continues the ones before it while the reference
 /// holds, ticks (8 ms: an oscillation down to 62 Hz).
 pub const MAX_HELD_HALF_TICKS: u16 = 160;
+/// The least change of the reference in a tick that goes a way, µm (`I16F16`
+/// bits: 1/16 µm, 1.25 mm/s; an analog input's noise of a few counts does
+/// not, nor a wave slower than ±10 µm at 20 Hz, whose forced error is small).
+pub const TURN_STEP: i32 = 1 << 12;
 /// Ticks in a row at a limit that trip the fault (20 ms at 20 kHz).
 pub const SATURATED_TICKS: u16 = 400;
 
@@ -170,6 +187,10 @@ struct Ended {
     /// Whether it continues the one before (there was one, and its length is
     /// within the bounds).
     chained: bool,
+    /// Whether the reference turned or started again during it: a closed
+    /// loop's half-cycle at the wave's own period, which the sustained rule
+    /// leaves out.
+    turned: bool,
 }
 
 /// The watch (state).
@@ -196,8 +217,12 @@ pub struct LoopWatch {
     still: u16,
     /// The reference of the last tick (`I16F16` bits).
     last_ref: i32,
-    /// Its change at the last tick (`I16F16` bits; 0: it held).
-    last_step: i32,
+    /// The way it went at the last tick: its change if beyond ±[`TURN_STEP`]
+    /// (`I16F16` bits; 0: it held, or crept).
+    way: i32,
+    /// The reference turned or started again during the half-cycle in
+    /// progress.
+    turned: bool,
     since: u16,
     saturated: u16,
     /// The half-cycle that ended at the last tick, not yet counted.
@@ -223,7 +248,8 @@ impl LoopWatch {
             before: [0; 2],
             still: 0,
             last_ref: 0,
-            last_step: 0,
+            way: 0,
+            turned: false,
             since: 0,
             saturated: 0,
             ended: None,
@@ -259,34 +285,32 @@ impl LoopWatch {
                 ..Self::new()
             };
         }
-        if let Some(e) = self.ended.take() {
-            if e.chained {
-                self.count(e);
-            } else {
-                // It does not continue the one before: every count starts
-                // again, and the next chain's first peaks meet none before.
-                self.before = [0, 0];
-                self.sustained = 0;
-                self.growing = 0;
-                self.run = 0;
-                self.kept = 0;
-                self.last_peak = 0;
-            }
+        if self.ended.is_some() {
+            self.count();
         }
         let r = reference.to_bits();
         let step = r.wrapping_sub(self.last_ref);
         if step != 0 {
-            // With the damping alone, a reference that turned (opposite
-            // signs) or started again (it held at the last tick) ends the
-            // chain: the half-cycle in progress is the wave's (the module
-            // docs), too long to continue any.
-            if alone && (self.last_step == 0 || (step ^ self.last_step) < 0) {
-                self.since = u16::MAX;
-            }
             self.still = 0;
             self.last_ref = r;
         }
-        self.last_step = step;
+        // A reference that turned (went the other way) or started again (it
+        // held or crept at the last tick) marks the half-cycle in progress as
+        // the wave's (the module docs); with the damping alone it ends the
+        // chain, too long to continue any. Changes within ±TURN_STEP (an analog
+        // input's noise) go no way.
+        let way = if (step.wrapping_add(TURN_STEP) as u32) > 2 * TURN_STEP as u32 {
+            step
+        } else {
+            0
+        };
+        if way != 0 && (self.way == 0 || (way ^ self.way) < 0) {
+            self.turned = true;
+            if alone {
+                self.since = u16::MAX;
+            }
+        }
+        self.way = way;
         let d = delta.to_bits();
         let hp = d.saturating_sub(self.mean);
         self.mean = self.mean.saturating_add(hp >> MEAN_SHIFT);
@@ -338,18 +362,36 @@ impl LoopWatch {
         let chained = self.side != 0 && self.since >= MIN_HALF_TICKS && self.since <= longest;
         let peak = self.peak;
         self.peak = 0;
+        let turned = self.turned;
+        self.turned = false;
         Ended {
             peak,
             held,
             chained,
+            turned,
         }
     }
 
-    /// Counts the half-cycle `e`, which continues the one before, for each
-    /// rule. A few dozen instructions, no loop; out of line (the tick's own
+    /// Counts the half-cycle that ended at the last tick for each rule, or,
+    /// where it does not continue the one before, starts every count again.
+    /// A few dozen instructions, no loop; out of line (the tick's own
     /// registers stay its own).
     #[inline(never)]
-    fn count(&mut self, e: Ended) {
+    fn count(&mut self) {
+        let Some(e) = self.ended.take() else {
+            return;
+        };
+        if !e.chained {
+            // Every count starts again, and the next chain's first peaks
+            // meet none before.
+            self.before = [0, 0];
+            self.sustained = 0;
+            self.growing = 0;
+            self.run = 0;
+            self.kept = 0;
+            self.last_peak = 0;
+            return;
+        }
         let (peak, last, held) = (e.peak, self.last_peak, e.held);
         let [b0, b1] = self.before;
         self.before = [last, b0];
@@ -359,7 +401,12 @@ impl LoopWatch {
         // first two of a chain against none).
         let earlier = b0.saturating_add(b1);
         let kept = peak.saturating_add(last) >= earlier - (earlier >> DECAY_SHIFT);
-        let count = |n: u16, holds: bool| if holds { n.saturating_add(1) } else { 0 };
+        // A closed loop's half-cycle in which the reference turned is the
+        // wave's forced error (at its period): it adds to no count, but
+        // breaks those it does not meet (with the damping alone it ended the
+        // chain).
+        let step = !e.turned as u16;
+        let count = |n: u16, holds: bool| if holds { n.saturating_add(step) } else { 0 };
         self.sustained = count(self.sustained, peak > SWING);
         self.growing = count(self.growing, grew);
         self.run = self.run.saturating_add(1);
@@ -582,18 +629,65 @@ mod tests {
     }
 
     #[test]
-    fn a_wave_s_forced_swing_with_the_damping_alone_does_not_trip() {
+    fn a_wave_s_forced_swing_does_not_trip() {
         // A 200 Hz sine, ±5 µm about 20 µm, that the shaping does not explain:
         // the open loop's error (and the damping's correction) follows it 60°
         // behind, swelling from 1 to 3.5 µm over its first period (the
         // correction on the emulated stage as built with the shaping off,
-        // ±3.2 µm; on a 700 Hz stage, ±5.6 µm).
+        // ±3.2 µm; on a 700 Hz stage, ±5.6 µm). A closed loop's tracking
+        // error under ±10 µm at 200 Hz, the shaping off, swings ±3.0–3.5 µm
+        // at the wave's period on the stage as built: a wave too fast for the
+        // loop, not an oscillation of it.
         let f = 200.0;
         let reference = |t: f64| 20.0 + 5.0 * (TAU * f * t).sin();
         let swing = |t: f64| (1.0 + 500.0 * t).min(3.5) * (TAU * f * t - 1.05).sin();
-        assert_eq!(feed_about(true, 20_000, reference, swing), None);
-        // The same swing in the tracking error of a closed loop: its own.
-        assert!(feed_about(false, 20_000, reference, swing).is_some());
+        for alone in [true, false] {
+            assert_eq!(
+                feed_about(alone, 20_000, reference, swing),
+                None,
+                "alone {alone}"
+            );
+        }
+    }
+
+    /// A 200 Hz sine of ±10 µm about 20 µm, with the tracking error it forces
+    /// on a closed loop (±3 µm, 60° behind).
+    fn fast_wave(t: f64) -> (f64, f64) {
+        let phase = TAU * 200.0 * t;
+        (20.0 + 10.0 * phase.sin(), 3.0 * (phase - 1.05).sin())
+    }
+
+    #[test]
+    fn a_closed_loop_s_oscillation_during_a_fast_wave_trips() {
+        // An unstable loop growing by 15 % per half-cycle from 0.3 µm, at the
+        // mode or half of it, to a limit cycle of ±8 µm. Its own half-cycles
+        // show once it outgrows the wave's forced error (±3 µm: at 9.7 ms at
+        // 850 Hz, 19.4 ms at 425 Hz), between the wave's turns, and are
+        // counted there: caught within 20 ms of it (at 16.0 and 37.6 ms).
+        for f in [850.0, 425.0] {
+            let swing = |t: f64| {
+                let grown = 0.3 * 1.15f64.powf(2.0 * f * t);
+                fast_wave(t).1 + grown.min(8.0) * (TAU * f * t).sin()
+            };
+            let outgrown = 20_000.0 * 10f64.ln() / (2.0 * f * 1.15f64.ln());
+            let k = feed_about(false, 20_000, |t| fast_wave(t).0, swing);
+            assert!(
+                k.is_some_and(|k| (k as f64) < outgrown + 400.0),
+                "{f} Hz: {k:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn an_analog_reference_s_noise_leaves_the_damping_alone_watched() {
+        // A reference read from the analog input jitters by a count or two
+        // (0.01–0.02 µm over the stroke) at every tick: no wave turns there.
+        let mut jitter = gaussian(0.01);
+        let noisy: Vec<f64> = (0..20_000).map(|_| 20.0 + jitter()).collect();
+        let reference = |t: f64| noisy[((t * 20_000.0).round() as usize).min(19_999)];
+        let swing = |t: f64| 0.6 * 1.2f64.powf(1700.0 * t) * (TAU * 850.0 * t).sin();
+        let k = feed_about(true, 20_000, reference, swing);
+        assert!(k.is_some_and(|k| k < 200), "{k:?}");
     }
 
     #[test]
