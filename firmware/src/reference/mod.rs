@@ -233,11 +233,14 @@ impl Reference {
                 }
             }
             Active::Wave { wave, phase } => {
-                self.x = wave.next(phase);
                 if phase.finished() {
-                    // Back at phase 0: end exactly on the start value.
+                    // The tick after the last cycle's last value: back at
+                    // phase 0, end exactly on the start value (the last
+                    // value is not skipped: no double step at the end).
                     self.x = wave.start_value();
                     self.active = Active::Hold;
+                } else {
+                    self.x = wave.next(phase);
                 }
             }
             Active::Stream { playback, .. } => {
@@ -391,6 +394,32 @@ mod tests {
         );
         assert_eq!(r.kind(), SourceKind::Hold, "finite wave done");
         assert_eq!(r.position(), um(5.0), "ends where it started");
+    }
+
+    #[test]
+    fn a_finite_sine_ends_on_its_start_value_without_a_double_step() {
+        // ±10 µm at 200 Hz about 20 µm: 100 ticks per period, ending at full
+        // speed (0.63 µm per tick). Its last value (phase 99/100, 19.37 µm)
+        // once gave way to the start value, a step of 1.25 µm.
+        let mut r = reference(20.0);
+        let mut p = Points::new();
+        r.select(SourceOrder::Wave(Wave {
+            shape: Shape::Sine,
+            offset: um(20.0),
+            amplitude: um(10.0),
+            phase_step: Wave::phase_step_for(200_000, 20_000),
+            cycles: 2,
+        }));
+        let top = core::f64::consts::TAU * 10.0 / 100.0;
+        // A tick to approach its start (there already), then two periods.
+        let worst = run(&mut r, &mut p, 0, 201);
+        assert!(worst < top * 1.001, "{worst}");
+        assert_eq!(r.kind(), SourceKind::Wave, "its last value");
+        let last = r.position().to_num::<f64>();
+        assert!((last - 19.372).abs() < 1e-3, "{last}");
+        let worst = run(&mut r, &mut p, 0, 1);
+        assert!(worst < top * 1.001, "{worst}");
+        assert_eq!((r.position(), r.kind()), (um(20.0), SourceKind::Hold));
     }
 
     #[test]
