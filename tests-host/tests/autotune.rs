@@ -824,6 +824,14 @@ fn bad_design_options_are_refused_before_the_stage_is_measured() {
             },
             "--force-noise-n -1: a σ in newtons, at least 0",
         ),
+        (
+            TuneOptions {
+                damping_band_hz: (100.0, f64::NAN),
+                ..TuneOptions::default()
+            },
+            "damping_band_hz (100, NaN): the damping's high-pass and leak, each between 0 \
+             and the Nyquist frequency (10000 Hz)",
+        ),
     ] {
         let (e, said) = run(&mut c, o);
         assert_eq!(e, says);

@@ -329,6 +329,13 @@ pub fn check_options(fw: &FirmwareModel, o: &TuneOptions) -> Result<()> {
             );
         }
     }
+    let (highpass, leak) = o.damping_band_hz;
+    if !([highpass, leak].iter().all(|&f| f > 0.0 && f < nyquist)) {
+        bail!(
+            "damping_band_hz ({highpass}, {leak}): the damping's high-pass and leak, each \
+             between 0 and the Nyquist frequency ({nyquist} Hz)"
+        );
+    }
     if !(o.target_damping > 0.0 && o.target_damping <= 1.0) {
         bail!("--target-damping {}: between 0 and 1", o.target_damping);
     }
