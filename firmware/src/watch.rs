@@ -69,9 +69,9 @@
 //! in the half-cycles between the turns once it outgrows the forced swing,
 //! and is counted there (growing by 15 % per half-cycle from 0.3 µm to
 //! ±8 µm under that wave: caught at 16.0 ms at 850 Hz and at 37.6 ms at
-//! 425 Hz, 6.3 and 18.2 ms after it outgrew the wave's error). With the damping alone a turn ends
-//! the chain instead: a wave the
-//! shaping does not explain (a 200 Hz sine with the shaping off, or on a
+//! 425 Hz, 6.3 and 18.2 ms after it outgrew the wave's error). With the
+//! damping alone a turn ends the chain instead: a wave the shaping does not
+//! explain (a 200 Hz sine with the shaping off, or on a
 //! stage whose mode moved) leaves an open loop's error, and the damping's
 //! correction, swinging at the wave's own period, ±3–6 µm: the feedforward's
 //! error and the damping at work, not an oscillation. An oscillation of the
@@ -188,8 +188,8 @@ struct Ended {
     /// within the bounds).
     chained: bool,
     /// Whether the reference turned or started again during it: a closed
-    /// loop's half-cycle at the wave's own period, which the sustained rule
-    /// leaves out.
+    /// loop's half-cycle at the wave's own period, which adds to no count
+    /// (and breaks those it does not meet).
     turned: bool,
 }
 
