@@ -612,34 +612,40 @@ fn a_model_tuned_on_a_quiet_stage_says_why_it_parks_on_a_noisier_one() {
 /// The damping alone (open loop) on a stage whose mode moved far below the
 /// one it was designed for: at 300 Hz the damping loop itself oscillates at
 /// about 100 Hz from the move's start: the stage swings about the ramp by
-/// ±1 µm and more, in half-cycles of 5 ms. Caught and named during the move
-/// (20 ms), inside the stroke; the figures are printed, a generous bound is
-/// asserted (before the damping alone was watched on the tracking error in
-/// half-cycles of up to 8 ms, it was caught 14–16 ms after the reference
-/// held: 34–46 ms).
+/// ±1 µm and more, in half-cycles of 5 ms; at 350 Hz, at about 110 Hz, it
+/// stays about ±1 µm, barely growing (the undecaying rule: the 1 mm/s move
+/// creeps, which holds). Caught and named during the move (20 ms), inside
+/// the stroke; the figures are printed, a generous bound is asserted (before
+/// the damping alone was watched on the tracking error in half-cycles of up
+/// to 8 ms, the 300 Hz case was caught 14–16 ms after the reference held:
+/// 34–46 ms; before a creeping reference held for the rules, the 350 Hz
+/// case was caught at 33.55 ms).
 #[test]
 fn the_damping_alone_on_a_stage_that_changed_is_caught() {
     let a = tuned();
     let (_e, mut c) = board("damping alone");
-    load(&mut c, &a.model, built_with_mode(300.0, 0.01, None));
-    let u = watched(&mut c, |f| f.c.move_to(20.0, 1000.0).unwrap());
-    println!(
-        "300 Hz, ζ 0.01, open loop, move 0 → 20 µm at 1 mm/s: {:?} after {:.2} ms; true \
-         position {:.2}–{:.2} µm until then, {:.2}–{:.2} µm while parking (safe voltage \
-         after {:?} ms)",
-        u.fault, u.ms, u.before.0, u.before.1, u.after.0, u.after.1, u.safe_ms
-    );
-    assert_eq!(
-        u.fault,
-        Some(piezo_fpi::control::Fault::Oscillation),
-        "{u:?}"
-    );
-    // From the park at the stroke's foot (0.03 µm), and at most 30 ms.
-    assert!(
-        u.ms <= 30.0 && u.before.0 > -0.5 && u.before.1 < 39.9,
-        "{u:?}"
-    );
-    c.park().unwrap();
+    for mode_hz in [300.0, 350.0] {
+        load(&mut c, &a.model, built_with_mode(mode_hz, 0.01, None));
+        let u = watched(&mut c, |f| f.c.move_to(20.0, 1000.0).unwrap());
+        println!(
+            "{mode_hz} Hz, ζ 0.01, open loop, move 0 → 20 µm at 1 mm/s: {:?} after {:.2} ms; \
+             true position {:.2}–{:.2} µm until then, {:.2}–{:.2} µm while parking (safe \
+             voltage after {:?} ms)",
+            u.fault, u.ms, u.before.0, u.before.1, u.after.0, u.after.1, u.safe_ms
+        );
+        assert_eq!(
+            u.fault,
+            Some(piezo_fpi::control::Fault::Oscillation),
+            "{mode_hz} Hz: {u:?}"
+        );
+        // From the park at the stroke's foot (0.03 µm), and at most 30 ms.
+        assert!(
+            u.ms <= 30.0 && u.before.0 > -0.5 && u.before.1 < 39.9,
+            "{mode_hz} Hz: {u:?}"
+        );
+        c.park().unwrap();
+        c.ack(&fpi_protocol::Command::ClearFault).ok();
+    }
 }
 
 /// Fast waves the loops cannot follow exactly, the forced error they leave
