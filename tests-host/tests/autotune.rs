@@ -609,6 +609,51 @@ fn a_model_tuned_on_a_quiet_stage_says_why_it_parks_on_a_noisier_one() {
     c.ack(&Command::ClearFault).ok();
 }
 
+/// The same for the force sensor: the model autotune tuned on the stage as
+/// built (force noise σ 0.14 N), loaded onto one whose force sensor reads
+/// σ 3 N, with the damping alone (open loop): the damping, designed for the
+/// quieter sensor, turns the noise into motion that the watch takes for an
+/// oscillation; the board's status then points at the damping's design and
+/// the remedies.
+#[test]
+fn a_model_tuned_with_a_quieter_force_sensor_says_why_it_parks() {
+    use fpi_protocol::Command;
+    let a = tuned();
+    let (_e, mut c) = board("noisier force sensor");
+    let noisy = StageVariant {
+        force_noise_n: Some(3.0),
+        ..StageVariant::BUILT
+    };
+    load(&mut c, &a.model, noisy);
+    let start = c.status().unwrap().tick;
+    // The move may be refused once the board has parked.
+    c.move_to(20.0, 1000.0).ok();
+    let mut f = Follow::new(&mut c, 0);
+    let at = f
+        .until("a fault", |s| {
+            Ok(s.fault.is_some() || s.tick > start + 20_000)
+        })
+        .unwrap();
+    let st = f.c.status().unwrap();
+    println!(
+        "force noise σ 3 N, damping alone: {:?} after {:.2} ms",
+        st.fault.map(|x| x.code),
+        (at - start) as f64 / 20.0
+    );
+    assert_eq!(
+        st.fault.map(|x| x.code),
+        Some(piezo_fpi::control::Fault::Oscillation as u8)
+    );
+    let text = fpi_host::cli::board::status_text(&mut c).unwrap();
+    println!("{text}");
+    assert!(
+        text.contains(fpi_host::board::noise::DAMPING_HINT),
+        "{text}"
+    );
+    c.park().unwrap();
+    c.ack(&Command::ClearFault).ok();
+}
+
 /// The damping alone (open loop) on a stage whose mode moved far below the
 /// one it was designed for: at 300 Hz the damping loop itself oscillates at
 /// about 100 Hz from the move's start: the stage swings about the ramp by

@@ -128,6 +128,14 @@ pub fn watch_hint(swing_um: f64) -> String {
     )
 }
 
+/// What to say beside an `Oscillation` fault on a model with active damping:
+/// the damping turns the force sensor's noise into motion, by as much as its
+/// design allowed for the sensor autotune measured, more on a noisier one.
+pub const DAMPING_HINT: &str = "the model's damping was designed for the force sensor its \
+     tuning measured: a noisier sensor's noise, which the damping turns into motion, may be \
+     what the loop watch took for an oscillation — autotune on this board (it designs the \
+     damping for the noise it measures), or run without it (`fpi board damping off`)";
+
 /// `e`, with the likely cause, where the board latched `Oscillation` and the
 /// loops move the stage `motion_um` (µm RMS) at rest with the noise measured,
 /// `noise_n` (N σ), more than the budget they are designed for
