@@ -240,10 +240,10 @@ pub fn status_text(c: &mut Client) -> Result<String> {
     }
     out.push_str(&state_text(&s, rate));
     if s.fault.is_some_and(|f| f.code == Fault::Oscillation as u8) {
-        // The model's half swing watches a closed loop; the damping alone is
-        // watched at the default.
+        // The model's half swing watches a closed loop (the damping alone is
+        // watched at the default): the model is read only then.
         let closed = s.loop_mode != LoopMode::Open;
-        if let Some(h) = noise::model_watch_swing(c).filter(|_| closed) {
+        if let Some(h) = closed.then(|| noise::model_watch_swing(c)).flatten() {
             let _ = writeln!(out, "  {}", noise::watch_hint(h));
         }
         if s.damping.is_some() {
