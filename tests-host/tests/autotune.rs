@@ -583,30 +583,34 @@ fn a_model_tuned_on_a_quiet_stage_says_why_it_parks_on_a_noisier_one() {
             mode: LoopMode::Closed,
         })
         .unwrap();
-    let mut f = Follow::new(&mut c, 0);
+    let text = parks_oscillating(&mut c, start, "σ 0.08 µm");
+    assert!(
+        text.contains("loop watch counts swings beyond") && text.contains("watch_swing_um = 0.2"),
+        "{text}"
+    );
+}
+
+/// Follows the board from `start` (its tick) until a fault or for 1 s,
+/// prints when, asserts it is `Oscillation`, and parks after it; the board's
+/// status, printed.
+fn parks_oscillating(c: &mut Client, start: u32, what: &str) -> String {
+    let mut f = Follow::new(c, 0);
     let at = f
         .until("a fault", |s| {
             Ok(s.fault.is_some() || s.tick > start + 20_000)
         })
         .unwrap();
-    let fault = f.c.status().unwrap().fault;
+    let fault = f.c.status().unwrap().fault.map(|x| x.code);
     println!(
-        "σ 0.08 µm: {:?} after {:.2} ms",
-        fault.map(|x| x.code),
+        "{what}: {fault:?} after {:.2} ms",
         (at - start) as f64 / 20.0
     );
-    assert_eq!(
-        fault.map(|x| x.code),
-        Some(piezo_fpi::control::Fault::Oscillation as u8)
-    );
-    let text = fpi_host::cli::board::status_text(&mut c).unwrap();
+    assert_eq!(fault, Some(piezo_fpi::control::Fault::Oscillation as u8));
+    let text = fpi_host::cli::board::status_text(c).unwrap();
     println!("{text}");
-    assert!(
-        text.contains("loop watch counts swings beyond") && text.contains("watch_swing_um = 0.2"),
-        "{text}"
-    );
     c.park().unwrap();
-    c.ack(&Command::ClearFault).ok();
+    c.ack(&fpi_protocol::Command::ClearFault).ok();
+    text
 }
 
 /// The same for the force sensor: the model autotune tuned on the stage as
@@ -617,7 +621,6 @@ fn a_model_tuned_on_a_quiet_stage_says_why_it_parks_on_a_noisier_one() {
 /// the remedies.
 #[test]
 fn a_model_tuned_with_a_quieter_force_sensor_says_why_it_parks() {
-    use fpi_protocol::Command;
     let a = tuned();
     let (_e, mut c) = board("noisier force sensor");
     let noisy = StageVariant {
@@ -628,30 +631,11 @@ fn a_model_tuned_with_a_quieter_force_sensor_says_why_it_parks() {
     let start = c.status().unwrap().tick;
     // The move may be refused once the board has parked.
     c.move_to(20.0, 1000.0).ok();
-    let mut f = Follow::new(&mut c, 0);
-    let at = f
-        .until("a fault", |s| {
-            Ok(s.fault.is_some() || s.tick > start + 20_000)
-        })
-        .unwrap();
-    let st = f.c.status().unwrap();
-    println!(
-        "force noise σ 3 N, damping alone: {:?} after {:.2} ms",
-        st.fault.map(|x| x.code),
-        (at - start) as f64 / 20.0
-    );
-    assert_eq!(
-        st.fault.map(|x| x.code),
-        Some(piezo_fpi::control::Fault::Oscillation as u8)
-    );
-    let text = fpi_host::cli::board::status_text(&mut c).unwrap();
-    println!("{text}");
+    let text = parks_oscillating(&mut c, start, "force noise σ 3 N, damping alone");
     assert!(
         text.contains(fpi_host::board::noise::DAMPING_HINT),
         "{text}"
     );
-    c.park().unwrap();
-    c.ack(&Command::ClearFault).ok();
 }
 
 /// The damping alone (open loop) on a stage whose mode moved far below the
