@@ -231,9 +231,13 @@ impl Pi {
     ) -> Micrometres {
         let e = error.to_bits() as i64;
         let (lo, hi) = (wide(range.lo), wide(range.hi));
+        // The sums cannot overflow (plain adds, cheaper than saturating ones):
+        // |kp·e| < 2^59 and |ki·e| < 2^55 (gains validated, `e` an `i32`), and
+        // the integrator stays below 2^55 + 2^59 (within a range of `I16F16`
+        // values, or a preset: an output less kp·e).
         // `max`/`min`, not `clamp`: no panic path for an inverted range.
         let out = (cfg.spec.kp.to_bits() as i64 * e)
-            .saturating_add(self.integral)
+            .wrapping_add(self.integral)
             .max(lo)
             .min(hi);
         let step = cfg.spec.ki.to_bits() as i64 * e;
@@ -243,7 +247,7 @@ impl Pi {
             Saturation::Low => step < 0,
         };
         if !winds {
-            self.integral = self.integral.saturating_add(step).max(lo).min(hi);
+            self.integral = self.integral.wrapping_add(step).max(lo).min(hi);
         }
         Micrometres::from_bits(narrow(out))
     }

@@ -84,7 +84,7 @@
 use crate::error::ModelError;
 use crate::fpi::{CreepMemory, Fpi, Identity, Shape};
 use crate::limits::OutputLimits;
-use crate::play::{PlayBank, Redo, Stepped};
+use crate::play::{PlayBank, Stepped};
 use crate::q::{Micrometres, Newtons, Volts};
 use crate::table::Table;
 
@@ -488,17 +488,10 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             self.f_f.eval(x_pea_ref)
         };
         let terms = self.fpi.force_terms_at(f, st.force_ref);
-        let (want, foot) = if BARE {
-            // Double-buffered: the state before this step stays at hand.
+        // Double-buffered: the state before this step stays at hand.
+        let (want, foot) =
             self.fpi
-                .inverse_as::<_, true>(&mut st.inverse, &st.creep, x_pea_ref, &terms)
-        } else {
-            // In place, at a fixed address (cheaper where the loops are not
-            // unrolled): a state of this configuration is never swapped.
-            let bank = st.inverse.first_mut();
-            self.fpi
-                .inverse_as::<_, false>(bank, &st.creep, x_pea_ref, &terms)
-        };
+                .inverse_as::<_, BARE>(&mut st.inverse, &st.creep, x_pea_ref, &terms);
         let (voltage, limited) = self.limits.apply(st.voltage, want);
         st.voltage = voltage;
         if BARE && !limited {
@@ -518,34 +511,20 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         }
         if BARE {
             // Limited: the forward bank from the state before this step, then
-            // the inverse's step done again with the extension the applied
-            // voltage produces: the inverse then holds that voltage's memory,
-            // as a resync would, for the price of one bank's step.
+            // this one's step (below).
             st.catch_up(&self.fpi, Memory::Before);
-            let x_pea_est =
-                self.fpi
-                    .forward_as::<_, true>(&mut st.forward, &mut st.creep, voltage, &terms);
-            let redo = &mut Redo(&mut st.inverse);
-            self.fpi
-                .inverse_as::<_, true>(redo, &st.creep, x_pea_est, &terms);
-            st.x_pea_est = x_pea_est;
-            st.limited_steps = st.limited_steps.wrapping_add(1);
-            return StepOutput {
-                voltage,
-                x_pea_ref,
-                x_pea_est,
-                limited: true,
-                fault: None,
-            };
         }
-        let x_pea_est =
+        let (x_pea_est, own) =
             self.fpi
-                .forward_as::<_, BARE>(&mut st.forward, &mut st.creep, voltage, &terms);
+                .forward_traced::<_, BARE>(&mut st.forward, &mut st.creep, voltage, &terms);
         st.x_pea_est = x_pea_est;
         if limited || foot {
             // The stack got another drive than the inverse asked for (the limits, or
-            // the foot of a soft dead zone): realign the inverse memory with it.
-            self.fpi.resync(&st.forward, st.inverse.first_mut());
+            // the foot of a soft dead zone): the inverse's step is done again with
+            // the input that drive's forward step matches. The inverse then holds
+            // that drive's memory, as a resync would, for the price of one
+            // bank's step.
+            self.fpi.realign::<_, BARE>(&mut st.inverse, own);
             st.limited_steps = st.limited_steps.wrapping_add(limited as u32);
             return StepOutput {
                 voltage,
