@@ -617,7 +617,8 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
     /// [`inverse`](Self::inverse), also telling whether the effective voltage asked
     /// for lies in the foot of the soft dead zone, below its inverse table: the
     /// voltage returned then drives the stack slightly harder than the inverse
-    /// memory assumes, and the caller should realign it ([`Self::resync`]).
+    /// memory assumes, and the caller should realign it ([`Self::realign`] or
+    /// [`Self::resync`]).
     #[inline(always)]
     pub fn inverse_checked<E: Edge>(
         &self,

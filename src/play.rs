@@ -314,8 +314,10 @@ impl<const N: usize, E: Edge> Bank<N> for PlayBank<N, E> {
 /// ([`before`](Self::before)) at the cost of a buffer swap, not a copy.
 ///
 /// The controller keeps its inverse bank so: when the limiter changes the
-/// drive, the forward memory, which it does not advance while the inverse is
-/// exact, is rebuilt from the inverse memory as it was before the step.
+/// drive, the inverse's step is done again from the state before it ([`Redo`])
+/// with the input the applied voltage matches; on the paper's bare FPI the
+/// forward memory, which it does not advance while the inverse is exact, is
+/// first rebuilt from the inverse memory as it was before the step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Stepped<const N: usize, E: Edge = Top> {
     banks: [PlayBank<N, E>; 2],
@@ -342,14 +344,6 @@ impl<const N: usize, E: Edge> Stepped<N, E> {
     #[inline(always)]
     pub fn now_mut(&mut self) -> &mut PlayBank<N, E> {
         &mut self.banks[self.now & 1]
-    }
-
-    /// The first buffer, at a fixed address: the present state of a bank that
-    /// is only ever advanced in place through it, never through
-    /// [`advance`](Bank::advance) on the pair (which swaps the buffers).
-    #[inline(always)]
-    pub fn first_mut(&mut self) -> &mut PlayBank<N, E> {
-        &mut self.banks[0]
     }
 
     /// The state before the last [`advance`](Bank::advance); after a change
