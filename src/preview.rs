@@ -19,8 +19,8 @@
 //! | quantity | format | range |
 //! |---|---|---|
 //! | references, `S_k` | µm, `I16F16` | input clamped to ±4096 µm, output saturated to ±4096 µm |
-//! | taps `h_j` | `I8F24` | ±128, `Σ h_j = 1` exactly (in raw bits: a held reference is never moved) |
-//! | accumulator | raw `i64`, `I24F40` | `|Σ| ≤ 8·2³¹·2²⁸ = 2⁶²`: no overflow |
+//! | taps `h_j` | `I8F24` | ±128, `Σ h_j = 1` exactly (in raw bits: a held reference is never moved), `Σ |h_j| ≤ 128` |
+//! | accumulator | raw `i64`, `I24F40` | `|Σ| ≤ Σ|h_j|·4096 µm`: at most `2³¹·2²⁸ = 2⁵⁹` raw, no overflow |
 //!
 //! The output is rounded to nearest (±½ LSB, 15 pm); there is no recursion,
 //! so no error accumulates. The delay `n` is `1..=PREVIEW_MAX` ticks.
@@ -29,12 +29,12 @@ use crate::error::{Field, Invalid, ModelError};
 use crate::q::{Micrometres, COEFF_FRAC, SIGNAL_ABS_MAX_BITS};
 
 /// Taps of the feedforward on the line (its length).
-pub const TAPS: usize = 8;
+pub const TAPS: usize = 16;
 
 /// The longest preview the board keeps, ticks.
 pub const PREVIEW_MAX: u8 = 7;
 /// Slots of the delay line (a power of two above [`PREVIEW_MAX`]).
-const SLOTS: usize = 8;
+const SLOTS: usize = 16;
 /// Index mask of the delay line.
 const MASK: u8 = SLOTS as u8 - 1;
 
@@ -47,17 +47,22 @@ pub struct Fir {
 
 impl Fir {
     /// The feedforward running `ticks` ahead with raw `I8F24` `taps` (newest
-    /// first), checked: `1..=PREVIEW_MAX` ticks, `Σ taps = 1` exactly. The one
-    /// check, for the model validator and the firmware.
+    /// first), checked: `1..=PREVIEW_MAX` ticks, `Σ taps = 1` exactly, and
+    /// `Σ |taps| ≤ 128` (the accumulator's bound). The one check, for the
+    /// model validator and the firmware.
     pub const fn new(ticks: u8, taps: [i32; TAPS]) -> Result<Self, Invalid> {
         if ticks == 0 || ticks > PREVIEW_MAX {
             return Err(Invalid::at(Field::Preview, ModelError::OverCapacity));
         }
-        let mut sum = 0i64;
+        let (mut sum, mut abs) = (0i64, 0i64);
         let mut j = 0;
         while j < TAPS {
             sum += taps[j] as i64;
+            abs += (taps[j] as i64).abs();
             j += 1;
+        }
+        if abs > 1i64 << 31 {
+            return Err(Invalid::at(Field::Preview, ModelError::NotRepresentable));
         }
         if sum != 1i64 << COEFF_FRAC {
             return Err(Invalid::at(Field::Preview, ModelError::FilterStaticGain));
@@ -163,13 +168,24 @@ mod tests {
     fn the_feedforward_is_the_taps_over_the_line_against_f64_and_holds_exactly() {
         let one = 1 << COEFF_FRAC;
         // Unit sum exactly; refused otherwise, and a delay of 0 or beyond the line.
-        let taps = [one * 3 / 2, -one / 4, -one / 2, one / 8, one / 8, 0, 0, 0];
+        let taps = padded(&[one * 3 / 2, -one / 4, -one / 2, one / 8, one / 8]);
         let f = Fir::new(4, taps).unwrap();
         let mut off = taps;
-        off[7] += 1;
+        off[TAPS - 1] += 1;
         assert_eq!(
             Fir::new(4, off).unwrap_err().error,
             ModelError::FilterStaticGain
+        );
+        // Taps whose magnitudes sum beyond 128 could overflow the accumulator
+        // at the rails (16 taps of ±127 and 4096 µm: 2⁶³): refused.
+        let mut wild = [0; TAPS];
+        for (j, t) in wild.iter_mut().enumerate() {
+            *t = if j % 2 == 0 { 127 * one } else { -127 * one };
+        }
+        wild[1] += one;
+        assert_eq!(
+            Fir::new(4, wild).unwrap_err().error,
+            ModelError::NotRepresentable
         );
         for t in [0, PREVIEW_MAX + 1] {
             assert_eq!(
@@ -205,11 +221,18 @@ mod tests {
         assert_eq!(p.run(held, &f), (held, held));
         // Rails: saturated, no overflow.
         let mut q = Preview::new();
-        let big = Fir::new(1, [one * 100, -one * 99, 0, 0, 0, 0, 0, 0]).unwrap();
+        let big = Fir::new(1, padded(&[one * 64, -one * 63])).unwrap();
         let (_, y) = q.run(Micrometres::MAX, &big);
         assert_eq!(y.to_bits(), SIGNAL_ABS_MAX_BITS);
         let (_, y) = q.run(Micrometres::MIN, &big);
         assert_eq!(y.to_bits(), -SIGNAL_ABS_MAX_BITS);
+    }
+
+    /// `taps`, then zeros to the line's length.
+    fn padded(taps: &[i32]) -> [i32; TAPS] {
+        let mut out = [0; TAPS];
+        out[..taps.len()].copy_from_slice(taps);
+        out
     }
 
     fn um(v: i32) -> Micrometres {

@@ -44,8 +44,9 @@ use crate::error::{Field, Invalid, ModelError};
 /// The first four bytes of every model image.
 pub const MAGIC: [u8; 4] = *b"PFPM";
 /// The image format this build reads and writes (2: the force channel, the stage
-/// dynamics and damping blocks, `I8F24` shaping coefficients).
-pub const VERSION: u16 = 2;
+/// dynamics and damping blocks, `I8F24` shaping coefficients; 3: sixteen taps
+/// on the preview's delay line, not eight).
+pub const VERSION: u16 = 3;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 16;
 

@@ -640,7 +640,7 @@ mod tests {
                 ..spec
             };
             let img = image(&m);
-            assert_eq!(img.len(), image(&spec).len() + 36);
+            assert_eq!(img.len(), image(&spec).len() + 4 + 4 * crate::preview::TAPS);
             let mut store = Store::new();
             store.load(&img, &BOARD).unwrap();
             assert_eq!(store.spec().shaping, Some(s));

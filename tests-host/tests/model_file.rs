@@ -356,7 +356,7 @@ fn feedback_and_shaping_sections_name_their_keys() {
         &|b| b.shaping.as_mut().unwrap().preview_ticks = 3,
         "shaping.sections: a shaping that runs ahead (preview_ticks > 0) is its taps, not sections",
     );
-    // A shaping that runs ahead: taps summing to 1, at most 8 of them.
+    // A shaping that runs ahead: taps summing to 1, at most 16 of them.
     let mut ahead = good.clone();
     ahead.shaping = Some(ShapingSection {
         sections: Vec::new(),
@@ -373,8 +373,8 @@ fn feedback_and_shaping_sections_name_their_keys() {
         "shaping.taps: a filter section's static gain is not exactly 1",
     );
     check(
-        &|b| b.shaping.as_mut().unwrap().taps = vec![0.125; 9],
-        "shaping.taps has 9 taps: the board runs at most 8",
+        &|b| b.shaping.as_mut().unwrap().taps = vec![0.0625; 17],
+        "shaping.taps has 17 taps: the board runs at most 16",
     );
 }
 

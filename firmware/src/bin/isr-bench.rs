@@ -324,7 +324,7 @@ mod bench {
     /// The embedded model with every loop on, as `fpi tune --dynamics` tunes it for
     /// stage A (its 850.9 Hz mode, ζ 0.0301, the 2027 Hz lag, κ 7.02 N/µm): active
     /// damping (IFF, 1316 µm/(N·s) between 100 Hz corners), the position PI
-    /// (kp 0.75, ki 1762.6/s) and the feedforward of the damped stage (8 taps on the preview's line);
+    /// (kp 0.75, ki 1762.6/s) and the feedforward of the damped stage (16 taps on the preview's line);
     /// its image in `buf`. The validator's loop check runs on it as on any model.
     fn closed_image<'b>(store: &mut Store, buf: &'b mut [u8]) -> Option<&'b [u8]> {
         use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
@@ -363,8 +363,11 @@ mod bench {
         // ahead (the delay line, the taps and the damping's lead force, with
         // its learned mass ratio, run).
         let one = f64::from(1 << piezo_fpi::biquad::COEFF_FRAC);
-        let mut taps =
-            [1.67, -0.08, -0.63, -0.57, -0.7, -0.04, 0.61, 0.74].map(|t| (t * one) as i32);
+        let mut taps = [
+            1.67, -0.08, -0.63, -0.57, -0.7, -0.04, 0.61, 0.74, 0.2, -0.1, -0.15, 0.05, 0.1, -0.05,
+            -0.05, 0.02,
+        ]
+        .map(|t| (t * one) as i32);
         taps[0] += (1 << piezo_fpi::biquad::COEFF_FRAC) - taps.iter().sum::<i32>();
         let shaping = piezo_fpi::biquad::ShapingSpec {
             preview: 4,
@@ -466,7 +469,7 @@ mod bench {
             ("isr_tick_instructions", "isr_tick_stack_bytes")
         };
         let what = if closed {
-            "the board's control task on the runtime embedded model in closed loop (damping from the force sensor, PI on the position sensor, feedforward: 8 taps on the preview's delay line, 4 ticks ahead, with the damping's lead force): order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder"
+            "the board's control task on the runtime embedded model in closed loop (damping from the force sensor, PI on the position sensor, feedforward: 16 taps on the preview's delay line, 4 ticks ahead, with the damping's lead force): order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder"
         } else {
             "the board's control task on the runtime embedded model: order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder"
         };

@@ -139,7 +139,7 @@ pub struct ShapingSection {
     /// `piezo_fpi::preview`).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub preview_ticks: u8,
-    /// The taps on the delay line, newest first (at most 8, summing to 1),
+    /// The taps on the delay line, newest first (at most [`TAPS`], 16, summing to 1),
     /// with `preview_ticks > 0`.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub taps: Vec<f64>,

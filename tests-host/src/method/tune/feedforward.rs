@@ -11,7 +11,7 @@
 //!
 //! **Preview** ([`design_preview`], the default). Where the board's
 //! reference runs [`TimeOptions::preview`] ticks ahead of the one the loops
-//! track (`piezo_fpi::preview`), the feedforward is eight taps on that delay
+//! track (`piezo_fpi::preview`), the feedforward is sixteen taps on that delay
 //! line, so that it inverts the damped stage's lag and delay instead of only
 //! shaping them; where the loops damp, the damping leaves out the force the
 //! shaped reference's own motion explains (`κ·(S_{k−1} − r_k)`), so that the

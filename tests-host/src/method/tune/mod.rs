@@ -824,7 +824,10 @@ mod tests {
         };
         let one = f64::from(1u32 << piezo_fpi::biquad::COEFF_FRAC);
         let raw: i64 = taps.iter().map(|h| (h * one) as i64).sum();
-        assert_eq!((*ticks, taps.len(), raw), (5, 8, 1i64 << 24));
+        assert_eq!(
+            (*ticks, taps.len(), raw),
+            (5, piezo_fpi::preview::TAPS, 1i64 << 24)
+        );
         let p = Plant::new(&d, rate, 1.0, None, 1.0);
         let n = usize::from(*ticks);
         // The board's loops: the shaped reference from the line, the lead force.

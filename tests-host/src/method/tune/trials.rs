@@ -124,6 +124,7 @@ mod tests {
     use super::super::simulate::{respond_led, step, triangle};
     use super::*;
     use piezo_fpi::damping::DynamicsSpec;
+    use piezo_fpi::preview::TAPS;
     use piezo_fpi::q::{CreepRate, Newtons};
 
     fn spec(mode_hz: f64, zeta: f64, lag_hz: f64) -> DynamicsSpec {
@@ -212,17 +213,19 @@ mod tests {
     /// must fill the line.
     #[test]
     fn bad_trials_are_refused() {
-        assert!(Trial::new(vec![0.0; 20], vec![0.0; 19]).is_err());
+        let n = MIN_SAMPLES + 4;
+        assert!(Trial::new(vec![0.0; n], vec![0.0; n - 1]).is_err());
         assert!(Trial::new(vec![0.0; 4], vec![0.0; 4]).is_err());
-        let mut x = vec![0.0; 20];
+        let mut x = vec![0.0; n];
         x[3] = f64::NAN;
-        let e = Trial::new(vec![0.0; 20], x).unwrap_err().to_string();
+        let e = Trial::new(vec![0.0; n], x).unwrap_err().to_string();
         assert!(e.contains("sample 3"), "{e}");
         let p = Plant::new(&spec(850.0, 0.03, 1900.0), 20_000, 1.0, None, 1.0);
         let l = Laws::default();
-        let t = Trial::new(vec![0.0; 20], vec![0.0; 20]).unwrap();
+        let t = Trial::new(vec![0.0; n], vec![0.0; n]).unwrap();
+        let taps = [1.0 / TAPS as f64; TAPS];
         assert!(refine(&p, &l, 5, &[1.0], std::slice::from_ref(&t), 1e-6).is_err());
-        assert!(refine(&p, &l, 9, &[0.125; 8], &[t], 1e-6).is_err());
-        assert!(refine(&p, &l, 5, &[0.125; 8], &[], 1e-6).is_err());
+        assert!(refine(&p, &l, 9, &taps, &[t], 1e-6).is_err());
+        assert!(refine(&p, &l, 5, &taps, &[], 1e-6).is_err());
     }
 }
