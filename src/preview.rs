@@ -33,10 +33,14 @@ pub const TAPS: usize = 16;
 
 /// The longest preview the board keeps, ticks.
 pub const PREVIEW_MAX: u8 = 7;
-/// Slots of the delay line (a power of two above [`PREVIEW_MAX`]).
+/// Slots of the delay line: a power of two (the index is masked), above
+/// [`PREVIEW_MAX`] and holding every tap's reference.
 const SLOTS: usize = 16;
 /// Index mask of the delay line.
 const MASK: u8 = SLOTS as u8 - 1;
+const _: () = assert!(
+    SLOTS.is_power_of_two() && SLOTS > PREVIEW_MAX as usize && SLOTS >= TAPS && SLOTS <= 256
+);
 
 /// The feedforward on the line (configuration): the delay and the taps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

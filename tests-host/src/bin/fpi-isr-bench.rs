@@ -106,14 +106,12 @@ fn over_budget(out: &str) -> Result<Vec<String>> {
             let Some(n) = figure(line) else {
                 bail!("cannot read the figure in `{line}`");
             };
+            let name = line.split(':').next().unwrap_or(line);
             if worst.is_none_or(|(w, _)| n > w) {
-                worst = Some((n, line.split(':').next().unwrap_or(line)));
+                worst = Some((n, name));
             }
             if n > budget {
-                over.push(format!(
-                    "{} = {n} > {budget}",
-                    line.split(':').next().unwrap_or(line)
-                ));
+                over.push(format!("{name} = {n} > {budget}"));
             }
         }
         let Some((n, name)) = worst else {
