@@ -27,6 +27,16 @@ use wave::{Wave, WavePhase};
 
 pub use fpi_protocol::SourceKind;
 
+/// The shortest step the lead's mass ratio learns from, ticks (1.5 ms: the
+/// steps `fpi board autotune` measures the ratio's baseline on). The fit's
+/// ratio depends on the step's speed: on the stage as built, eight 1.0 ms
+/// steps took it from 1 to 1.22 and their settling from 1.45 to 3.8 ms; 2 ms
+/// steps to 0.97 (README, *The learned mass ratio*).
+pub const LEARNING_STEP_TICKS: u32 = 30;
+/// The largest phase advance of a step the ratio learns from, 2⁻³² turns per
+/// tick ([`step_phase_for`] of [`LEARNING_STEP_TICKS`]).
+const LEARNING_PHASE_STEP: u32 = step_phase_for(LEARNING_STEP_TICKS);
+
 /// A new source, as the link task orders it (values already checked against the
 /// model's stroke).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -276,11 +286,12 @@ impl Reference {
         }
     }
 
-    /// A step (the raised cosine of [`SourceOrder::Step`]) is running, not its
-    /// approach: the motion the lead's mass ratio learns from
-    /// (`crate::closed_loop`).
+    /// A step (the raised cosine of [`SourceOrder::Step`]) lasting at least
+    /// [`LEARNING_STEP_TICKS`] is running, not its approach: the motion the
+    /// lead's mass ratio learns from (`crate::closed_loop`).
     pub const fn stepping(&self) -> bool {
-        matches!(self.active, Active::Step { .. }) && !self.approaching
+        matches!(self.active, Active::Step { phase_step, .. } if phase_step <= LEARNING_PHASE_STEP)
+            && !self.approaching
     }
 
     /// Ramping to the new source's entry point.
@@ -353,6 +364,36 @@ mod tests {
             (mid - core::f64::consts::FRAC_PI_2 * 0.5).abs() < 0.01,
             "{mid}"
         );
+    }
+
+    #[test]
+    fn the_mass_ratio_learns_from_steps_as_long_as_autotune_s_only() {
+        // A step of LEARNING_STEP_TICKS or more steps (learns) while its
+        // raised cosine runs; a shorter one, whose fit's ratio differs, never.
+        for (ticks, learns) in [
+            (LEARNING_STEP_TICKS, true),
+            (40, true),
+            (29, false),
+            (20, false),
+        ] {
+            let mut r = reference(10.0);
+            let mut pts = Points::<64>::new();
+            r.select(SourceOrder::Step {
+                target: um(20.0),
+                phase_step: step_phase_for(ticks),
+            });
+            let seen: Vec<bool> = (0..ticks - 1)
+                .map(|_| {
+                    r.next(&mut pts, 0).unwrap();
+                    r.stepping()
+                })
+                .collect();
+            assert!(seen.iter().all(|&s| s == learns), "{ticks}: {seen:?}");
+            // At the target (a tick later where the phase step was rounded
+            // down), it holds.
+            run(&mut r, &mut pts, 0, 2);
+            assert_eq!((r.stepping(), r.kind()), (false, SourceKind::Hold));
+        }
     }
 
     #[test]
