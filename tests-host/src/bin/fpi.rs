@@ -454,7 +454,9 @@ enum BoardCommand {
         /// A second settling band, µm.
         #[arg(long, value_parser = parse_positive, allow_negative_numbers = true)]
         tol: Option<f64>,
-        /// The raised cosine's duration, ms.
+        /// The raised cosine's duration, ms. Only steps of 1.5 ms or longer
+        /// teach the board the stage's mass ratio; on a stage it has learned,
+        /// 1.0 ms settles soonest.
         #[arg(long, default_value_t = 1.5, value_parser = parse_positive, allow_negative_numbers = true)]
         duration_ms: f64,
         /// Keep one tick in this many.
