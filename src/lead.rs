@@ -61,7 +61,8 @@
 //! on the stage as built eight 10 ↔ 20 µm steps of 1.0 ms took `β` to 1.22
 //! and their settling from 1.45 to 3.8 ms, so the board learns only from
 //! steps at least as long as autotune's (`firmware::reference`'s
-//! `LEARNING_STEP_TICKS`); 1.0 ms steps then settle in 1.15–1.30 ms.
+//! `LEARNING_STEP_TICKS`); 1.0 ms steps then settle in 1.15–1.30 ms
+//! in-process, 1.40–3.30 ms in a QEMU run (README).
 //!
 //! A model without a baseline (what autotune loads to measure it) learns `α`
 //! (`α_b = 1`) and does not apply it: its damping gets `r_d − f_m`.
