@@ -1102,8 +1102,9 @@ fn the_watch_on_references_the_loops_cannot_follow() {
 /// `QEMU_SYSTEM_ARM=none`): the tuned model loaded afresh on the stage as
 /// built, then eight 10 ↔ 20 µm steps of 1.0 ms, and again of 2.0 ms; each
 /// step's settling, overshoot and the `β` it left. The fit's ratio depends on
-/// the step's speed, and `α_b` was measured on 1.5 ms steps: a known limit
-/// (README, *The learned mass ratio*). Asserts only that every step settles.
+/// the step's speed and `α_b` was measured on 1.5 ms steps, so the board
+/// learns from steps that long or longer only (README, *The learned mass
+/// ratio*). Asserts only that every step settles.
 #[test]
 #[ignore = "a survey of 16 steps (about half a minute in-process): run by hand"]
 fn the_mass_ratio_under_steps_of_another_speed() {
@@ -1128,11 +1129,7 @@ fn the_mass_ratio_under_steps_of_another_speed() {
                 ..StepSettings::default()
             };
             let (_, fig) = step::run(&mut c, &s).unwrap();
-            let beta = c
-                .status()
-                .unwrap()
-                .lead_ratio
-                .map(|(b, _)| b as f64 / (1u64 << 30) as f64);
+            let beta = lead_ratio(&mut c).map(|(b, _)| b);
             let settle = fig.settle_ms.expect("settled within the record");
             println!(
                 "| {from_um} → {to_um} µm | {duration_ms} ms | {settle:.2} ms | {:.3} µm | {} |",
