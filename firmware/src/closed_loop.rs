@@ -24,7 +24,7 @@
 //! force is scaled by the mass ratio the loop learns (`piezo_fpi::lead`, where
 //! the model carries the lead's baseline) from step commands only: while the
 //! raised cosine of a step at least as long as autotune's runs
-//! (`reference::LEARNING_STEP_TICKS`, 1.5 ms: the fit depends on the step's
+//! ([`crate::reference::LEARNING_STEP_TICKS`], 1.5 ms: the fit depends on the step's
 //! speed) and for [`LEAD_WINDOW`] ticks after. The ratio's
 //! fit depends on the motion (on the stage as built, where steps hold it at
 //! 1, 15 Hz sines took it to 0.92, 100 Hz triangles to 0.74, sines near the
