@@ -1140,3 +1140,66 @@ fn the_mass_ratio_under_steps_of_another_speed() {
         c.park().unwrap();
     }
 }
+
+/// The first step after a tuning is loaded onto a stage whose mode fell 18 %,
+/// over fresh autotunes (printed; run with `--ignored --nocapture`, in-process
+/// with `QEMU_SYSTEM_ARM=none`; `SURVEY_BOARDS` boards, 4 by default): each
+/// board autotunes the stage as built afresh (its own measurement, its own
+/// noise), then the tuning is loaded onto the 700 Hz, ζ 0.015, gain 0.97
+/// variant and stepped 10 → 20 µm three times (autotune's verification, then
+/// two more) while the board learns the variant's mass. The spread of that
+/// first step is what issue 19's robustness target (6 ms) hinges on; this is
+/// the survey to judge a change by (README, *Robustness*). Asserts only that
+/// every step settles.
+#[test]
+#[ignore = "a survey of several autotunes (about 30 s each in-process): run by hand"]
+fn the_first_step_on_a_heavier_stage_over_fresh_autotunes() {
+    let boards: usize = std::env::var("SURVEY_BOARDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(4);
+    let fw = factory();
+    let heavier = built_with_mode(700.0, 0.015, Some(0.97));
+    println!(
+        "| board | as built: autotune's step | 700 Hz: settles ±0.1 µm, steps 1–3 | overshoot | β after |\n|---|---|---|---|---|"
+    );
+    let mut firsts = Vec::new();
+    for b in 0..boards {
+        let (_e, mut c) = board("first step survey");
+        load(&mut c, &fw, StageVariant::BUILT);
+        let a = autotune_as_a_user_would(&mut c, &fw).unwrap_or_else(|e| panic!("{e:#}"));
+        load(&mut c, &a.model, heavier);
+        let mut figs = vec![autotune::verify(&mut c).unwrap()];
+        for _ in 0..2 {
+            figs.push(step::run(&mut c, &StepSettings::default()).unwrap().1);
+        }
+        let settle: Vec<f64> = figs
+            .iter()
+            .map(|f| f.settle_ms.expect("settled within the record"))
+            .collect();
+        firsts.push(settle[0]);
+        let (beta, _) = lead_ratio(&mut c).unwrap();
+        let list = |v: Vec<f64>, unit: &str| {
+            v.iter()
+                .map(|x| format!("{x:.2}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+                + unit
+        };
+        println!(
+            "| {b} | {} | {} | {} | {beta:.3} |",
+            a.step
+                .settle_ms
+                .map_or("—".into(), |v| format!("{v:.2} ms")),
+            list(settle, " ms"),
+            list(figs.iter().map(|f| f.overshoot_um).collect(), " µm"),
+        );
+        c.park().unwrap();
+    }
+    firsts.sort_by(f64::total_cmp);
+    println!(
+        "first step on the 700 Hz variant: {:.2}–{:.2} ms over {boards} autotunes (target 6 ms)",
+        firsts[0],
+        firsts[firsts.len() - 1]
+    );
+}
