@@ -48,7 +48,9 @@
 //! stage's ratio in one step. (On the emulated board a faster update — 2⁻⁷,
 //! or steps up to 2⁻⁵ — learns a 700 Hz stage's ratio in fewer steps but
 //! lets `β` wander on the tuned stage and slows its steps; 2⁻⁹ learns too
-//! slowly for the first step on a changed stage.)
+//! slowly for the first step on a changed stage; a faster rate for the
+//! first step after a load only helps a changed stage by slowing the tuned
+//! one's: README, *Why that first step misses*.)
 //!
 //! **What it learns from.** The fit's ratio depends on the motion, not only
 //! on the stage: on the emulated stage as built, whose steps hold `β` at 1,
@@ -61,8 +63,7 @@
 //! on the stage as built eight 10 ↔ 20 µm steps of 1.0 ms took `β` to 1.22
 //! and their settling from 1.45 to 3.8 ms, so the board learns only from
 //! steps at least as long as autotune's (`firmware::reference`'s
-//! `LEARNING_STEP_TICKS`); 1.0 ms steps then settle in 1.15–1.30 ms
-//! in-process, 1.40–3.30 ms in a QEMU run (README).
+//! `LEARNING_STEP_TICKS`; figures in the README's *The learned mass ratio*).
 //!
 //! A model without a baseline (what autotune loads to measure it) learns `α`
 //! (`α_b = 1`) and does not apply it: its damping gets `r_d − f_m`.

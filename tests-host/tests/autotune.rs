@@ -1149,8 +1149,8 @@ fn the_mass_ratio_under_steps_of_another_speed() {
 /// variant and stepped 10 → 20 µm three times (autotune's verification, then
 /// two more) while the board learns the variant's mass. The spread of that
 /// first step is what issue 19's robustness target (6 ms) hinges on; this is
-/// the survey to judge a change by (README, *Robustness*). Asserts only that
-/// every step settles.
+/// the survey to judge a change by (README, *Why that first step misses*).
+/// Asserts only that every step settles.
 #[test]
 #[ignore = "a survey of several autotunes (about 30 s each in-process): run by hand"]
 fn the_first_step_on_a_heavier_stage_over_fresh_autotunes() {
