@@ -68,6 +68,17 @@ fn built_with_mode(mode_hz: f32, zeta: f32, gain: Option<f32>) -> StageVariant {
     }
 }
 
+/// A freshly loaded tuning's first steps on the board `c` (`name` in a
+/// failure): autotune's verification (the loop closed and warmed up, then the
+/// 10 → 20 µm step), then two more of the same step.
+fn three_steps(c: &mut Client, name: &str) -> Vec<step::StepFigures> {
+    let mut figs = vec![autotune::verify(c).unwrap_or_else(|e| panic!("{name}: {e:#}"))];
+    for _ in 0..2 {
+        figs.push(step::run(c, &StepSettings::default()).unwrap().1);
+    }
+    figs
+}
+
 /// Autotune on the stage as built (once), and the board it ran on.
 fn tuned() -> &'static Autotune {
     static TUNED: OnceLock<Autotune> = OnceLock::new();
@@ -303,11 +314,7 @@ fn the_tuning_holds_on_stage_variants() {
         // The model's shaping is taps on the preview's line: shown, and on.
         assert_eq!(c.status().unwrap().shaping, Some(true));
         let name = format!("{mode_hz} Hz, ζ {zeta}, gain {gain}");
-        let mut figs = vec![autotune::verify(&mut c).unwrap_or_else(|e| panic!("{name}: {e:#}"))];
-        for _ in 0..2 {
-            let (_, fig) = step::run(&mut c, &StepSettings::default()).unwrap();
-            figs.push(fig);
-        }
+        let figs = three_steps(&mut c, &name);
         let (beta, _) = lead_ratio(&mut c).unwrap();
         let truth = (850.0 / f64::from(mode_hz)).powi(2);
         let ms = |f: &step::StepFigures| f.settle_ms.map_or("—".into(), |v| format!("{v:.2}"));
@@ -1157,35 +1164,33 @@ fn the_first_step_on_a_heavier_stage_over_fresh_autotunes() {
     let boards: usize = std::env::var("SURVEY_BOARDS")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or(4);
+        .unwrap_or(4)
+        .max(1);
     let fw = factory();
     let heavier = built_with_mode(700.0, 0.015, Some(0.97));
     println!(
         "| board | as built: autotune's step | 700 Hz: settles ±0.1 µm, steps 1–3 | overshoot | β after |\n|---|---|---|---|---|"
     );
+    let list = |v: Vec<f64>, unit: &str| {
+        v.iter()
+            .map(|x| format!("{x:.2}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+            + unit
+    };
     let mut firsts = Vec::new();
     for b in 0..boards {
         let (_e, mut c) = board("first step survey");
         load(&mut c, &fw, StageVariant::BUILT);
         let a = autotune_as_a_user_would(&mut c, &fw).unwrap_or_else(|e| panic!("{e:#}"));
         load(&mut c, &a.model, heavier);
-        let mut figs = vec![autotune::verify(&mut c).unwrap()];
-        for _ in 0..2 {
-            figs.push(step::run(&mut c, &StepSettings::default()).unwrap().1);
-        }
+        let figs = three_steps(&mut c, "700 Hz variant");
         let settle: Vec<f64> = figs
             .iter()
             .map(|f| f.settle_ms.expect("settled within the record"))
             .collect();
         firsts.push(settle[0]);
         let (beta, _) = lead_ratio(&mut c).unwrap();
-        let list = |v: Vec<f64>, unit: &str| {
-            v.iter()
-                .map(|x| format!("{x:.2}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-                + unit
-        };
         println!(
             "| {b} | {} | {} | {} | {beta:.3} |",
             a.step
