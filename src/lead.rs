@@ -176,6 +176,16 @@ impl LeadGain {
         }
     }
 
+    /// `β` starting at `ratio` (a mass ratio measured before the first step,
+    /// e.g. from the stage's mode), where it lies in `[1/2, 2)`; `None` else.
+    pub const fn starting_at(ratio: LeadRatio) -> Option<Self> {
+        if ratio.to_bits() >= RATIO_MIN.to_bits() {
+            Some(Self { beta: ratio })
+        } else {
+            None
+        }
+    }
+
     /// `β`, the stage's mass over the tuned one's (over the identified one's,
     /// scaled by the fit, where the model has no baseline).
     pub const fn ratio(&self) -> LeadRatio {

@@ -304,6 +304,11 @@ impl Loop {
         self.lead_gain.ratio()
     }
 
+    /// Learns the mass ratio on from `gain` (one measured before the first step).
+    pub fn start_lead(&mut self, gain: LeadGain) {
+        self.lead_gain = gain;
+    }
+
     /// Starts learning the mass ratio again from 1 (a new model: a new stage).
     pub fn forget_lead(&mut self) {
         self.lead_gain = LeadGain::new();

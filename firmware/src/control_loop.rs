@@ -479,6 +479,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 self.feedback.set_shaping(on);
                 Ok(())
             }
+            Order::LeadRatio(gain) => {
+                self.feedback.start_lead(gain);
+                Ok(())
+            }
             Order::Analyse(o) => {
                 let holding = self.state.fault().is_none()
                     && self.reference.kind() == SourceKind::Hold

@@ -9,6 +9,7 @@
 
 use fpi_protocol::BenchOrder;
 use piezo_fpi::control::Fault;
+use piezo_fpi::lead::LeadGain;
 use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
 
 use crate::analyser::{AnalyseOrder, AnalysisSums};
@@ -39,6 +40,9 @@ pub enum Order {
     /// Switch the reference shaping on or off (where the model has it); without a
     /// jump.
     Shaping(bool),
+    /// Learn the lead's mass ratio on from this one (the link has checked that
+    /// the running model applies it).
+    LeadRatio(LeadGain),
     /// Measure the response at one frequency (the stage holding).
     Analyse(AnalyseOrder),
     /// Park the stage: ramp to the safe voltage, amplifier off ([`Fault::Stopped`]).

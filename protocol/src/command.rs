@@ -95,6 +95,8 @@ crate::wire_enum! {
         AnalysisResult = 31,
         /// [`Command::ModelRead`].
         ModelRead = 32,
+        /// [`Command::LeadRatio`].
+        LeadRatio = 33,
     }
 }
 
@@ -295,6 +297,16 @@ pub enum Command<'a> {
         /// The stage.
         axis: u8,
     },
+    /// Start the learned mass ratio `β` (the stage's mass over the tuned
+    /// one's, which scales the lead force) at `ratio` instead of 1; the board
+    /// goes on learning from it. Refused where the running model applies no
+    /// lead, or `ratio` is outside `[1/2, 2)`.
+    LeadRatio {
+        /// The stage.
+        axis: u8,
+        /// `β`, `I2F30` bits, in `[2²⁹, 2³¹)`.
+        ratio: i32,
+    },
     /// A piece of the running model's image, from `offset` →
     /// [`Reply::ModelBytes`](crate::Reply::ModelBytes).
     ModelRead {
@@ -341,6 +353,7 @@ impl Command<'_> {
             Self::Analyse { .. } => K::Analyse,
             Self::AnalysisResult { .. } => K::AnalysisResult,
             Self::ModelRead { .. } => K::ModelRead,
+            Self::LeadRatio { .. } => K::LeadRatio,
         }
     }
 
@@ -362,6 +375,7 @@ impl Command<'_> {
             | Self::Step { axis, .. }
             | Self::Shaping { axis, .. }
             | Self::Analyse { axis, .. }
+            | Self::LeadRatio { axis, .. }
             | Self::AnalysisResult { axis } => Some(axis),
             _ => None,
         }
@@ -437,6 +451,7 @@ impl<'a> Tagged<'a> for Command<'a> {
                 cycles,
             } => put!(t; axis, freq_mhz, amplitude, settle, cycles),
             Self::ModelRead { offset } => put!(t; offset),
+            Self::LeadRatio { axis, ratio } => put!(t; axis, ratio),
         }
         Ok(())
     }
@@ -531,6 +546,10 @@ impl<'a> Tagged<'a> for Command<'a> {
             },
             K::AnalysisResult => Self::AnalysisResult { axis: field(a)? },
             K::ModelRead => Self::ModelRead { offset: field(a)? },
+            K::LeadRatio => Self::LeadRatio {
+                axis: field(a)?,
+                ratio: field(a)?,
+            },
         }))
     }
 }

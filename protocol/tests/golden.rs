@@ -121,6 +121,7 @@ goldens! {
     } => "1e 00 a0 8d 06 80 80 04 05 14";
     command_analysis_result: Command::AnalysisResult { axis: 0 } => "1f 00";
     command_model_read: Command::ModelRead { offset: 512 } => "20 80 04";
+    command_lead_ratio: Command::LeadRatio { axis: 0, ratio: 3 << 29 } => "21 00 80 80 80 80 0c";
 }
 
 fn hello() -> Hello {
@@ -197,7 +198,7 @@ goldens! {
     Reply, all_replies;
     reply_ack: Reply::Ack => "00";
     reply_hello: Reply::Hello(hello())
-        => "01 07 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01";
+        => "01 08 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01";
     reply_status: Reply::Status(status())
         => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 02 f8 ac d1 91 01";
     reply_record: Reply::Record(batch())
@@ -328,7 +329,7 @@ fn a_request_frame_golden() {
         seq: 1,
     };
     let n = frame::encode(&h, &Command::Status { axis: 0 }, &mut scratch, &mut out).unwrap();
-    assert_eq!(hex(&out[..n]), "04 07 01 01 05 d3 bc 4a a4 00");
+    assert_eq!(hex(&out[..n]), "04 08 01 01 05 85 ac 29 fc 00");
 }
 
 /// An unknown kind is told apart from garbage; a known kind with bad fields is
@@ -336,7 +337,7 @@ fn a_request_frame_golden() {
 #[test]
 fn unknown_kinds_and_axes() {
     assert_eq!(
-        frame::body::<Command<'_>>(&[33]),
+        frame::body::<Command<'_>>(&[34]),
         Err(frame::FrameError::UnknownKind)
     );
     assert_eq!(

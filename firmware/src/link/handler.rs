@@ -14,7 +14,8 @@ use core::fmt::Write as _;
 
 use embedded_storage::nor_flash::NorFlash;
 use heapless::Vec;
-use piezo_fpi::q::{Micrometres, Newtons};
+use piezo_fpi::lead::LeadGain;
+use piezo_fpi::q::{LeadRatio, Micrometres, Newtons};
 
 use super::frame::{self, FrameError};
 use super::pace::{reached, Pace};
@@ -71,9 +72,23 @@ pub(super) type Refuse = (Refusal, Text);
 
 pub(super) fn refuse(code: Refusal, args: core::fmt::Arguments<'_>) -> Refuse {
     let mut t = Text::new();
-    // A reason longer than the text is cut; the code still says what happened.
-    let _ = t.write_fmt(args);
+    // A reason longer than the text is cut where it fills it; the code still
+    // says what happened.
+    let _ = Cut(&mut t).write_fmt(args);
     (code, t)
+}
+
+/// Writes into a [`Text`] as many characters as fit (a `heapless::String`
+/// refuses a whole piece that does not fit, which left a long reason empty).
+struct Cut<'a>(&'a mut Text);
+
+impl core::fmt::Write for Cut<'_> {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        for ch in s.chars() {
+            self.0.push(ch).map_err(|_| core::fmt::Error)?;
+        }
+        Ok(())
+    }
 }
 
 /// µm (or V, N) with three decimals, for reasons.
@@ -472,6 +487,10 @@ impl<F: NorFlash> Handler<F> {
                 self.order(board, seq, Order::Damping(on))
             }
             Command::Shaping { on, .. } => self.order(board, seq, Order::Shaping(on)),
+            Command::LeadRatio { ratio, .. } => {
+                let gain = self.lead_start(ratio)?;
+                self.order(board, seq, Order::LeadRatio(gain))
+            }
             Command::Analyse {
                 freq_mhz,
                 amplitude,
@@ -663,6 +682,26 @@ impl<F: NorFlash> Handler<F> {
                         s.dynamics
                             .map_or(0, |d| (((d.mode_mhz as u64) << 16) / 1000) as i32)
                     )
+                ),
+            )
+        })
+    }
+
+    /// The learned mass ratio to start from, `ratio` (`I2F30` bits): the
+    /// running model must apply the lead, and `ratio` lie in `[1/2, 2)`.
+    fn lead_start(&self, ratio: i32) -> Result<LeadGain, Refuse> {
+        if !self.summary.lead.is_some_and(|l| l.applied) {
+            return Err(refuse(
+                Refusal::BadArgument,
+                format_args!("the running model applies no learned mass ratio: load a tuning"),
+            ));
+        }
+        LeadGain::starting_at(LeadRatio::from_bits(ratio)).ok_or_else(|| {
+            refuse(
+                Refusal::BadArgument,
+                format_args!(
+                    "mass ratio {}/1000: from 500/1000 up to 2",
+                    (i64::from(ratio) * 1000) >> 30
                 ),
             )
         })
@@ -1080,4 +1119,17 @@ fn batch(board: &mut impl Board, signals: u8, max: u16) -> Batch {
         waiting: x.recorder.len() as u32,
         values,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_reason_longer_than_the_text_is_cut_not_lost() {
+        let long = "é".repeat(60); // 120 bytes
+        let (code, t) = refuse(Refusal::BadArgument, format_args!("{long}"));
+        assert_eq!(code, Refusal::BadArgument);
+        assert_eq!(t.as_str(), "é".repeat(48));
+    }
 }
