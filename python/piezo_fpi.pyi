@@ -127,13 +127,16 @@ class Board:
         fem: Optional[Path] = None,
         *,
         store: bool = False,
+        match_mass: bool = False,
         rate: int = 20000,
         u_max: float = 150.0,
         slew: float = 100.0,
         stroke_voltage: Optional[float] = None,
     ) -> Dict[str, Any]:
         """Uploads a calibrated model (with the stage's FEM table ``fem``) or a
-        firmware model file; the stage must be parked. ``crc``, ``bytes``, ``tick``."""
+        firmware model file; the stage must be parked. ``crc``, ``bytes``, ``tick``;
+        ``match_mass`` then measures the stage's mode and starts the learned mass
+        ratio there (``stage_mode_hz``, ``mass_ratio``)."""
     def factory(self) -> int:
         """Forgets the stored model and runs the factory default."""
     def safe(self) -> int:

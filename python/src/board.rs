@@ -11,8 +11,9 @@ use anyhow::anyhow;
 use fpi_host::board::client::{real, Client};
 use fpi_host::board::commands::{self, BenchSettings, Streamed};
 use fpi_host::board::frf::FrfSettings;
+use fpi_host::board::mass;
 use fpi_host::board::step::StepSettings;
-use fpi_host::cli::board::{firmware_model, model_image};
+use fpi_host::cli::board::firmware_model;
 use fpi_host::method::export::ExportOptions;
 use pyo3::prelude::*;
 use pyo3::types::{PyComplex, PyDict};
@@ -357,8 +358,10 @@ impl Board {
     /// stage's FEM table `fem` (exported as `fpi export` does, with the loop
     /// settings `rate` Hz, `u_max` V, `slew` V/ms, `stroke_voltage` V), or a
     /// firmware model file. `store` also keeps it in flash. The stage must be
-    /// parked. Returns `crc`, `bytes`, `tick`.
-    #[pyo3(signature = (model, fem = None, *, store = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None))]
+    /// parked. `match_mass` then measures the stage's mode and starts the
+    /// learned mass ratio at what it implies (`fpi board load --match-mass`).
+    /// Returns `crc`, `bytes`, `tick` (and `stage_mode_hz`, `mass_ratio`).
+    #[pyo3(signature = (model, fem = None, *, store = false, match_mass = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None))]
     #[allow(clippy::too_many_arguments)]
     fn load<'py>(
         &self,
@@ -366,23 +369,34 @@ impl Board {
         model: PathBuf,
         fem: Option<PathBuf>,
         store: bool,
+        match_mass: bool,
         rate: u32,
         u_max: f64,
         slew: f64,
         stroke_voltage: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let o = export_options(rate, u_max, slew, stroke_voltage);
-        let image = py
-            .detach(|| model_image(&model, fem.as_deref(), &o))
+        let (fw, image) = py
+            .detach(|| {
+                let fw = firmware_model(&model, fem.as_deref(), &o)?;
+                let image = fw.image().map_err(|e| anyhow!("the model's image: {e}"))?;
+                anyhow::Ok((fw, image))
+            })
             .map_err(|e| to_py(py, e, Otherwise::Input))?;
-        let (tick, crc) = self.run(py, |c| {
+        let (tick, crc, matched) = self.run(py, |c| {
             let tick = c.upload(&image, store, |_| {})?;
-            Ok((tick, c.model()?.crc))
+            let crc = c.model()?.crc;
+            let matched = match_mass.then(|| mass::match_mass(c, &fw)).transpose()?;
+            Ok((tick, crc, matched))
         })?;
         let d = PyDict::new(py);
         d.set_item("crc", format!("{crc:08x}"))?;
         d.set_item("bytes", image.len())?;
         d.set_item("tick", tick)?;
+        if let Some(m) = matched {
+            d.set_item("stage_mode_hz", m.stage_hz)?;
+            d.set_item("mass_ratio", m.ratio)?;
+        }
         Ok(d)
     }
 

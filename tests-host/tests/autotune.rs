@@ -23,6 +23,7 @@ use fpi_host::board::closed_loop::{self, Drive};
 use fpi_host::board::emulator::{self, Emulator};
 use fpi_host::board::follow::Follow;
 use fpi_host::board::frf::{self, FrfSettings};
+use fpi_host::board::mass;
 use fpi_host::board::step::{self, StepSettings};
 use fpi_host::method::tune::TuneOptions;
 use fpi_protocol::{BenchOrder, LinkKind, StageVariant};
@@ -287,19 +288,21 @@ fn lead_ratio(c: &mut Client) -> Option<(f64, bool)> {
     })
 }
 
-/// The tuning loaded unchanged onto variants: each steps three times
-/// (autotune's verification, then two more 10 → 20 µm steps) while the board
-/// learns its mass relative to the stage as built (`piezo_fpi::lead`). The
-/// settling times (the 6 ms target) and the ratios are printed; asserted: every
-/// step settles within the record, a new model starts the ratio at 1, the
-/// ratio moves toward the variant's true mass ratio `(850 Hz/f)²` (1.47 at
-/// 700 Hz, 0.72 at 1000 Hz), and a park keeps it.
+/// The tuning loaded unchanged onto variants as `fpi board load
+/// --match-mass` loads it: the board measures the stage's mode and starts its
+/// mass ratio there (`fpi_host::board::mass`), then steps three times
+/// (autotune's verification, then two more 10 → 20 µm steps) while it learns
+/// the mass on (`piezo_fpi::lead`). The settling times (the 6 ms target) and
+/// the ratios are printed; asserted: every step settles within the record, a
+/// new model starts the ratio at 1, the match finds the variant's mode and its
+/// true mass ratio `(850 Hz/f)²` (1.47 at 700 Hz, 0.72 at 1000 Hz) within 3 %,
+/// the ratio learned on stays within 20 % of it, and a park keeps it.
 #[test]
 fn the_tuning_holds_on_stage_variants() {
     let a = tuned();
     let (_e, mut c) = board("variants");
     println!(
-        "| variant | overshoot (µm) | settles ±0.1 µm (ms) | mass ratio learned (true) |\n|---|---|---|---|"
+        "| variant | mode measured (Hz) | mass ratio set | overshoot (µm) | settles ±0.1 µm (ms) | mass ratio learned (true) |\n|---|---|---|---|---|---|"
     );
     let mut worst: f64 = 0.0;
     for (mode_hz, zeta, gain) in [
@@ -314,12 +317,22 @@ fn the_tuning_holds_on_stage_variants() {
         // The model's shaping is taps on the preview's line: shown, and on.
         assert_eq!(c.status().unwrap().shaping, Some(true));
         let name = format!("{mode_hz} Hz, ζ {zeta}, gain {gain}");
+        let truth = (850.0 / f64::from(mode_hz)).powi(2);
+        let m = mass::match_mass(&mut c, &a.model).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        assert!((m.ratio / truth - 1.0).abs() < 0.03, "{name}: {m:?}");
+        let set = lead_ratio(&mut c).unwrap().0;
+        assert!((set - m.ratio).abs() < 1e-6, "{name}: {set}");
+        // The match leaves the model's damping and shaping on, the loop open.
+        let s = c.status().unwrap();
+        assert_eq!((s.damping, s.shaping), (Some(true), Some(true)));
+        assert_eq!(s.loop_mode, fpi_protocol::LoopMode::Open);
         let figs = three_steps(&mut c, &name);
         let (beta, _) = lead_ratio(&mut c).unwrap();
-        let truth = (850.0 / f64::from(mode_hz)).powi(2);
         let ms = |f: &step::StepFigures| f.settle_ms.map_or("—".into(), |v| format!("{v:.2}"));
         println!(
-            "| {name} | {} | {} | {beta:.3} ({truth:.2}) |",
+            "| {name} | {:.1} | {:.3} | {} | {} | {beta:.3} ({truth:.2}) |",
+            m.stage_hz,
+            m.ratio,
             figs.iter()
                 .map(|f| format!("{:.3}", f.overshoot_um))
                 .collect::<Vec<_>>()
@@ -331,17 +344,50 @@ fn the_tuning_holds_on_stage_variants() {
             let settle = f.settle_ms.unwrap_or_else(|| panic!("{name}: {f:?}"));
             worst = worst.max(settle);
         }
-        // Three steps take the ratio most of the way (generous bounds).
-        if truth > 1.0 {
-            assert!(beta > 1.1 && beta < truth + 0.2, "{name}: {beta}");
-        } else {
-            assert!(beta < 0.92 && beta > truth - 0.2, "{name}: {beta}");
-        }
+        // Learning on from the match keeps the ratio near the true one (on
+        // the 700 Hz ζ 0.015 variant it rises past it, to about 1.7).
+        assert!((beta / truth - 1.0).abs() < 0.2, "{name}: {beta}");
         // A park (a fault) keeps what was learned; the stage is the same.
         c.park().unwrap();
         assert_eq!(lead_ratio(&mut c), Some((beta, true)));
     }
     println!("worst settling over the variants' steps: {worst:.2} ms (target 6 ms)");
+}
+
+/// The mass ratio is set only where the running model applies it, and only
+/// within `[1/2, 2)`: the board refuses anything else with the reason, and
+/// `--match-mass` refuses a model without the lead before it moves the stage.
+#[test]
+fn the_mass_ratio_is_set_only_where_a_model_applies_it() {
+    use fpi_host::board::client::refusal;
+    use fpi_protocol::{Command, Refusal};
+    let set = |c: &mut Client, ratio: f64| {
+        c.ack(&Command::LeadRatio {
+            axis: 0,
+            ratio: (ratio * f64::from(1u32 << 30)) as i32,
+        })
+    };
+    let (_e, mut c) = board("mass ratio");
+    let fw = factory();
+    load(&mut c, &fw, StageVariant::BUILT);
+    let e = mass::match_mass(&mut c, &fw).unwrap_err();
+    assert!(format!("{e:#}").contains("lead_baseline"), "{e:#}");
+    let e = set(&mut c, 1.2).unwrap_err();
+    let r = refusal(&e).unwrap_or_else(|| panic!("{e:#}"));
+    assert_eq!(r.code, Refusal::BadArgument);
+    assert!(r.reason.contains("no learned mass ratio"), "{r:?}");
+    load(&mut c, &tuned().model, StageVariant::BUILT);
+    for bad in [0.25, 0.49, -1.0] {
+        let e = set(&mut c, bad).unwrap_err();
+        let r = refusal(&e).unwrap_or_else(|| panic!("{e:#}"));
+        assert!(r.reason.contains("mass ratio"), "{}", r.reason);
+    }
+    assert_eq!(lead_ratio(&mut c), Some((1.0, true)));
+    set(&mut c, 1.25).unwrap();
+    assert_eq!(lead_ratio(&mut c), Some((1.25, true)));
+    // A new model starts from 1 again.
+    load(&mut c, &tuned().model, StageVariant::BUILT);
+    assert_eq!(lead_ratio(&mut c), Some((1.0, true)));
 }
 
 #[test]
@@ -1154,10 +1200,12 @@ fn the_mass_ratio_under_steps_of_another_speed() {
 /// board autotunes the stage as built afresh (its own measurement, its own
 /// noise), then the tuning is loaded onto the 700 Hz, ζ 0.015, gain 0.97
 /// variant and stepped 10 → 20 µm three times (autotune's verification, then
-/// two more) while the board learns the variant's mass. The spread of that
-/// first step is what issue 19's robustness target (6 ms) hinges on; this is
-/// the survey to judge a change by (README, *Why that first step misses*).
-/// Asserts only that every step settles.
+/// two more) while the board learns the variant's mass — loaded plainly (the
+/// mass ratio starts at 1), then again with the mass matched (`fpi board load
+/// --match-mass`). The spread of that first step is what issue 19's
+/// robustness target (6 ms) hinges on; this is the survey to judge a change
+/// by (README, *Why that first step misses*). Asserts only that every step
+/// settles.
 #[test]
 #[ignore = "a survey of several autotunes (about 30 s each in-process): run by hand"]
 fn the_first_step_on_a_heavier_stage_over_fresh_autotunes() {
@@ -1169,7 +1217,7 @@ fn the_first_step_on_a_heavier_stage_over_fresh_autotunes() {
     let fw = factory();
     let heavier = built_with_mode(700.0, 0.015, Some(0.97));
     println!(
-        "| board | as built: autotune's step | 700 Hz: settles ±0.1 µm, steps 1–3 | overshoot | β after |\n|---|---|---|---|---|"
+        "| board | as built: autotune's step | load | 700 Hz: settles ±0.1 µm, steps 1–3 | overshoot | β after |\n|---|---|---|---|---|---|"
     );
     let list = |v: Vec<f64>, unit: &str| {
         v.iter()
@@ -1178,33 +1226,42 @@ fn the_first_step_on_a_heavier_stage_over_fresh_autotunes() {
             .join(", ")
             + unit
     };
-    let mut firsts = Vec::new();
+    let mut firsts = [Vec::new(), Vec::new()];
     for b in 0..boards {
         let (_e, mut c) = board("first step survey");
         load(&mut c, &fw, StageVariant::BUILT);
         let a = autotune_as_a_user_would(&mut c, &fw).unwrap_or_else(|e| panic!("{e:#}"));
-        load(&mut c, &a.model, heavier);
-        let figs = three_steps(&mut c, "700 Hz variant");
-        let settle: Vec<f64> = figs
-            .iter()
-            .map(|f| f.settle_ms.expect("settled within the record"))
-            .collect();
-        firsts.push(settle[0]);
-        let (beta, _) = lead_ratio(&mut c).unwrap();
-        println!(
-            "| {b} | {} | {} | {} | {beta:.3} |",
-            a.step
-                .settle_ms
-                .map_or("—".into(), |v| format!("{v:.2} ms")),
-            list(settle, " ms"),
-            list(figs.iter().map(|f| f.overshoot_um).collect(), " µm"),
-        );
+        for (matched, firsts) in [false, true].into_iter().zip(&mut firsts) {
+            load(&mut c, &a.model, heavier);
+            if matched {
+                mass::match_mass(&mut c, &a.model).unwrap_or_else(|e| panic!("{e:#}"));
+            }
+            let figs = three_steps(&mut c, "700 Hz variant");
+            let settle: Vec<f64> = figs
+                .iter()
+                .map(|f| f.settle_ms.expect("settled within the record"))
+                .collect();
+            firsts.push(settle[0]);
+            let (beta, _) = lead_ratio(&mut c).unwrap();
+            println!(
+                "| {b} | {} | {} | {} | {} | {beta:.3} |",
+                a.step
+                    .settle_ms
+                    .map_or("—".into(), |v| format!("{v:.2} ms")),
+                if matched { "--match-mass" } else { "plain" },
+                list(settle, " ms"),
+                list(figs.iter().map(|f| f.overshoot_um).collect(), " µm"),
+            );
+        }
         c.park().unwrap();
     }
-    firsts.sort_by(f64::total_cmp);
-    println!(
-        "first step on the 700 Hz variant: {:.2}–{:.2} ms over {boards} autotunes (target 6 ms)",
-        firsts[0],
-        firsts[firsts.len() - 1]
-    );
+    for (how, mut f) in ["plain", "--match-mass"].into_iter().zip(firsts) {
+        f.sort_by(f64::total_cmp);
+        println!(
+            "first step on the 700 Hz variant, loaded {how}: {:.2}–{:.2} ms over {boards} \
+             autotunes (target 6 ms)",
+            f[0],
+            f[f.len() - 1]
+        );
+    }
 }

@@ -381,6 +381,12 @@ enum BoardCommand {
         /// Keep it in the board's flash (it survives a reset).
         #[arg(long)]
         store: bool,
+        /// Then measure the stage's mode (a 0.1 µm sweep around the model's,
+        /// loops open) and start the learned mass ratio at what it implies: a
+        /// tuning loaded onto a heavier or lighter stage (a payload, another
+        /// stage of the design) makes its first step at the stage's mass.
+        #[arg(long)]
+        match_mass: bool,
         #[command(flatten)]
         settings: LoopArgs,
     },
@@ -900,10 +906,11 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             model,
             fem,
             store,
+            match_mass,
             settings,
         } => {
-            let image = b::model_image(&model, fem.as_deref(), &settings.options())?;
-            b::load(&mut c, &image, store)
+            let fw = b::firmware_model(&model, fem.as_deref(), &settings.options())?;
+            b::load(&mut c, &fw, store, match_mass)
         }
         BoardCommand::Factory => b::simple(&mut c, &C::ModelFactory),
         BoardCommand::Safe => b::simple(&mut c, &C::Safe),

@@ -126,7 +126,7 @@ pub struct Autotune {
 
 /// Opens the loop and switches damping and shaping off (a model without them
 /// refuses the switch: nothing to switch).
-fn bare(c: &mut Client) -> Result<()> {
+pub(crate) fn bare(c: &mut Client) -> Result<()> {
     c.ack(&Command::Loop {
         axis: 0,
         mode: LoopMode::Open,

@@ -15,6 +15,7 @@ pub mod emulator;
 pub mod follow;
 pub mod frf;
 pub mod inprocess;
+pub mod mass;
 pub mod noise;
 pub mod port;
 pub mod recording;

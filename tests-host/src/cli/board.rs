@@ -19,7 +19,7 @@ use piezo_sim::file::FirmwareModel;
 use crate::board::budget::Budget;
 use crate::board::client::{real, Client};
 use crate::board::recording::Recording;
-use crate::board::{commands, inprocess, noise};
+use crate::board::{commands, inprocess, mass, noise};
 use crate::data::Quoted;
 use crate::method::export::{self, ExportOptions, LoopSettings};
 use crate::method::model::HostModel;
@@ -127,8 +127,9 @@ fn bar(len: u64, what: &str) -> ProgressBar {
     pb
 }
 
-/// `fpi board load`.
-pub fn load(c: &mut Client, image: &[u8], store: bool) -> Result<()> {
+/// `fpi board load` (`match_mass`: then [`mass::match_mass`]).
+pub fn load(c: &mut Client, fw: &FirmwareModel, store: bool, match_mass: bool) -> Result<()> {
+    let image = &fw.image().map_err(|e| anyhow!("the model's image: {e}"))?;
     let pb = bar(image.len() as u64, "upload");
     let tick = c.upload(image, store, |n| pb.set_position(n as u64))?;
     pb.finish_and_clear();
@@ -142,6 +143,9 @@ pub fn load(c: &mut Client, image: &[u8], store: bool) -> Result<()> {
             _ => String::new(),
         }
     );
+    if match_mass {
+        println!("{}", mass::describe(&mass::match_mass(c, fw)?));
+    }
     Ok(())
 }
 
