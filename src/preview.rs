@@ -114,6 +114,13 @@ impl Preview {
         }
     }
 
+    /// Forgets the line: the next [`push`](Self::push) fills it with its value
+    /// (a reference that started afresh, leaving a park: its past is not the
+    /// one the line holds).
+    pub fn restart(&mut self) {
+        self.ticks = EMPTY;
+    }
+
     /// Takes the newest reference `ahead` (µm) and gives the one `ticks` ticks
     /// older, which the loops track (`ticks` in `0..=PREVIEW_MAX`, as the model
     /// validator ensures; a longer one reads the line modulo its length). The

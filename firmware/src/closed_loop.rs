@@ -304,6 +304,18 @@ impl Loop {
         self.lead_gain.ratio()
     }
 
+    /// The reference starts afresh at `x`, µm (leaving a park, a new model): the
+    /// preview's line refills from its next value, and the lead's memory of
+    /// the shaped and the tracked reference is `x`. Else the reference held
+    /// before the park (20 µm after a sweep) would read as a jump: the lead
+    /// force `κ·(S − x_ref)` of a 20 µm jump, over 100 N, into the damping's
+    /// integral, which threw a lightly damped stage out of its stroke.
+    pub fn restart_reference(&mut self, x: Micrometres) {
+        self.ahead.restart();
+        self.last_ff = x;
+        self.tracked = [x; 2];
+    }
+
     /// Learns the mass ratio on from `gain` (one measured before the first step).
     pub fn start_lead(&mut self, gain: LeadGain) {
         self.lead_gain = gain;

@@ -533,6 +533,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 let rest = rest_position(cfg, &self.state);
                 self.reference
                     .reset(rest, AnalogInput::over(cfg.reference()));
+                self.feedback.restart_reference(rest);
                 self.fault_at = None;
                 self.safe_at = None;
                 Ok(())
@@ -601,6 +602,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         self.feedback.reset();
         self.feedback.forget_lead();
         self.x_est = rest_position(self.model.get(), &state);
+        self.feedback.restart_reference(self.x_est);
         self.state = state;
         self.reference = reference;
         self.fault_at = Some((Fault::Stopped, self.tick));
