@@ -65,6 +65,12 @@
 //! steps at least as long as autotune's (`firmware::reference`'s
 //! `LEARNING_STEP_TICKS`; figures in the README's *The learned mass ratio*).
 //!
+//! **Where it starts.** A new model starts `β` at 1: the first step on a
+//! heavier stage is then made with the tuned mass (README, *Why that first
+//! step misses*). [`LeadGain::starting_at`] starts it at a ratio measured
+//! before that step: `fpi board load --match-mass` measures the stage's mode
+//! and sends `(f_model/f_stage)²` (the board's `LeadRatio` command).
+//!
 //! A model without a baseline (what autotune loads to measure it) learns `α`
 //! (`α_b = 1`) and does not apply it: its damping gets `r_d − f_m`.
 //!

@@ -84,9 +84,8 @@ pub fn match_mass(c: &mut Client, fw: &FirmwareModel) -> Result<MassMatch> {
         ),
     };
     let before = c.status()?;
-    bare(c)?;
-    let points = frf::measure(c, &sweep(model_hz), |_, _| {})
-        .context("--match-mass: measuring the stage's mode")?;
+    let measured = bare(c).and_then(|()| frf::measure(c, &sweep(model_hz), |_, _| {}));
+    // Parked, and the loops as they were, whether the sweep went through or not.
     c.park()?;
     for (was, set) in [
         (
@@ -103,6 +102,7 @@ pub fn match_mass(c: &mut Client, fw: &FirmwareModel) -> Result<MassMatch> {
         axis: 0,
         mode: before.loop_mode,
     })?;
+    let points = measured.context("--match-mass: measuring the stage's mode")?;
     let Some(stage_hz) = peak_hz(&points) else {
         bail!(
             "--match-mass: no peak between {:.0} and {:.0} Hz around the model's mode at \
