@@ -19,6 +19,7 @@ use piezo_sim::file::FirmwareModel;
 
 use super::autotune::bare;
 use super::client::Client;
+use super::commands::BadArgument;
 use super::frf::{self, FrfSettings};
 use crate::method::tune::frf::FrfPoint;
 
@@ -78,10 +79,18 @@ pub fn peak_hz(points: &[FrfPoint]) -> Option<f64> {
 pub fn match_mass(c: &mut Client, fw: &FirmwareModel) -> Result<MassMatch> {
     let model_hz = match (&fw.dynamics, &fw.damping) {
         (Some(d), Some(dm)) if dm.lead_baseline.is_some() => d.mode_hz,
-        _ => bail!(
-            "--match-mass: the model has no learned mass ratio to start (it needs [dynamics] \
-             and [damping] with lead_baseline: a model from `fpi board autotune`)"
-        ),
+        // Refused before anything moves; named as the caller spells it.
+        _ => {
+            return Err(BadArgument {
+                name: "match_mass",
+                cli: "--match-mass",
+                message: "--match-mass: the model has no learned mass ratio to start (it needs \
+                          [dynamics] and [damping] with lead_baseline: a model from `fpi board \
+                          autotune`)"
+                    .into(),
+            }
+            .into())
+        }
     };
     let before = c.status()?;
     let measured = bare(c).and_then(|()| frf::measure(c, &sweep(model_hz), |_, _| {}));
