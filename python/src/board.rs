@@ -13,7 +13,7 @@ use fpi_host::board::commands::{self, BenchSettings, Streamed};
 use fpi_host::board::frf::FrfSettings;
 use fpi_host::board::mass;
 use fpi_host::board::step::StepSettings;
-use fpi_host::cli::board::firmware_model;
+use fpi_host::cli::board::{firmware_model, model_and_image};
 use fpi_host::method::export::ExportOptions;
 use pyo3::prelude::*;
 use pyo3::types::{PyComplex, PyDict};
@@ -377,11 +377,7 @@ impl Board {
     ) -> PyResult<Bound<'py, PyDict>> {
         let o = export_options(rate, u_max, slew, stroke_voltage);
         let (fw, image) = py
-            .detach(|| {
-                let fw = firmware_model(&model, fem.as_deref(), &o)?;
-                let image = fw.image().map_err(|e| anyhow!("the model's image: {e}"))?;
-                anyhow::Ok((fw, image))
-            })
+            .detach(|| model_and_image(&model, fem.as_deref(), &o))
             .map_err(|e| to_py(py, e, Otherwise::Input))?;
         let (tick, crc, matched) = self.run(py, |c| {
             let tick = c.upload(&image, store, |_| {})?;

@@ -909,8 +909,8 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             match_mass,
             settings,
         } => {
-            let fw = b::firmware_model(&model, fem.as_deref(), &settings.options())?;
-            b::load(&mut c, &fw, store, match_mass)
+            let loaded = b::model_and_image(&model, fem.as_deref(), &settings.options())?;
+            b::load(&mut c, &loaded, store, match_mass)
         }
         BoardCommand::Factory => b::simple(&mut c, &C::ModelFactory),
         BoardCommand::Safe => b::simple(&mut c, &C::Safe),

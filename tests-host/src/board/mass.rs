@@ -93,7 +93,8 @@ pub fn match_mass(c: &mut Client, fw: &FirmwareModel) -> Result<MassMatch> {
         }
     };
     let before = c.status()?;
-    let measured = bare(c).and_then(|()| frf::measure(c, &sweep(model_hz), |_, _| {}));
+    let sweep = sweep(model_hz);
+    let measured = bare(c).and_then(|()| frf::measure(c, &sweep, |_, _| {}));
     // Parked, and the loops as they were, whether the sweep went through or not.
     c.park()?;
     for (was, set) in [
@@ -117,8 +118,8 @@ pub fn match_mass(c: &mut Client, fw: &FirmwareModel) -> Result<MassMatch> {
             "--match-mass: no peak between {:.0} and {:.0} Hz around the model's mode at \
              {model_hz:.0} Hz: the stage is not the one this tuning is for (run `fpi board \
              autotune` on it)",
-            0.7 * model_hz,
-            1.45 * model_hz
+            sweep.from_hz,
+            sweep.to_hz
         );
     };
     let ratio = (model_hz / stage_hz).powi(2);

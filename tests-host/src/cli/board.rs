@@ -29,9 +29,22 @@ use crate::method::model::HostModel;
 /// calibrated model (`fpi calibrate`) exported with the stage's FEM tables and the
 /// loop settings, as `fpi export` would.
 pub fn model_image(model: &Path, fem: Option<&Path>, o: &ExportOptions) -> Result<Vec<u8>> {
-    firmware_model(model, fem, o)?
+    model_and_image(model, fem, o).map(|(_, image)| image)
+}
+
+/// The firmware model of a model file ([`firmware_model`]) and its image
+/// ([`model_image`]): what `fpi board load` uploads and, with
+/// `--match-mass`, reads the stage's mode from.
+pub fn model_and_image(
+    model: &Path,
+    fem: Option<&Path>,
+    o: &ExportOptions,
+) -> Result<(FirmwareModel, Vec<u8>)> {
+    let fw = firmware_model(model, fem, o)?;
+    let image = fw
         .image()
-        .map_err(|e| anyhow!("{}: {e}", model.display()))
+        .map_err(|e| anyhow!("{}: {e}", model.display()))?;
+    Ok((fw, image))
 }
 
 /// What a file given as a model is, by its `format` key.
@@ -128,8 +141,12 @@ fn bar(len: u64, what: &str) -> ProgressBar {
 }
 
 /// `fpi board load` (`match_mass`: then [`mass::match_mass`]).
-pub fn load(c: &mut Client, fw: &FirmwareModel, store: bool, match_mass: bool) -> Result<()> {
-    let image = &fw.image().map_err(|e| anyhow!("the model's image: {e}"))?;
+pub fn load(
+    c: &mut Client,
+    (fw, image): &(FirmwareModel, Vec<u8>),
+    store: bool,
+    match_mass: bool,
+) -> Result<()> {
     let pb = bar(image.len() as u64, "upload");
     let tick = c.upload(image, store, |n| pb.set_position(n as u64))?;
     pb.finish_and_clear();
