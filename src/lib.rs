@@ -35,6 +35,7 @@ pub mod damping;
 pub mod error;
 pub mod feedback;
 pub mod fpi;
+pub mod governor;
 pub mod inverse;
 pub mod io;
 pub mod lead;

@@ -85,10 +85,13 @@ impl Fir {
     }
 }
 
-/// The delay line (state): the last `SLOTS` references, µm.
+/// The delay line (state): the last `SLOTS` references, µm, each written
+/// twice (at `i` and `i + SLOTS`), so that the newest `SLOTS` lie in one run
+/// `ring[at + 1 ..= at + SLOTS]` whatever `at` is: the taps read it at fixed
+/// offsets from one base, without wrapping each index.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Preview {
-    ring: [Micrometres; SLOTS],
+    ring: [Micrometres; 2 * SLOTS],
     at: u8,
     /// The delay it was filled for ([`EMPTY`] before the first value): a new
     /// delay refills it.
@@ -108,7 +111,7 @@ impl Preview {
     /// Empty: the first [`push`](Self::push) fills it.
     pub const fn new() -> Self {
         Self {
-            ring: [Micrometres::ZERO; SLOTS],
+            ring: [Micrometres::ZERO; 2 * SLOTS],
             at: 0,
             ticks: EMPTY,
         }
@@ -134,13 +137,14 @@ impl Preview {
         let at = self.at.wrapping_add(1) & MASK;
         self.at = at;
         self.ring[at as usize] = ahead;
+        self.ring[at as usize + SLOTS] = ahead;
         self.ring[(at.wrapping_sub(ticks) & MASK) as usize]
     }
 
     #[cold]
     #[inline(never)]
     fn refill(&mut self, x: Micrometres, ticks: u8) {
-        self.ring = [x; SLOTS];
+        self.ring = [x; 2 * SLOTS];
         self.ticks = ticks;
     }
 
@@ -159,11 +163,12 @@ impl Preview {
             .clamp(-SIGNAL_ABS_MAX_BITS, SIGNAL_ABS_MAX_BITS);
         let tracked = self.push(Micrometres::from_bits(x), f.ticks);
         let mut acc = 1i64 << (COEFF_FRAC - 1);
-        let mut j = 0;
-        while j < TAPS {
-            let slot = (self.at.wrapping_sub(j as u8) & MASK) as usize;
-            acc += f.taps[j] as i64 * self.ring[slot].to_bits() as i64;
-            j += 1;
+        // The newest TAPS values, oldest first, in one run of the mirrored line.
+        let newest = (self.at & MASK) as usize + SLOTS;
+        if let Some(w) = self.ring.get(newest + 1 - TAPS..=newest) {
+            for (h, x) in f.taps.iter().zip(w.iter().rev()) {
+                acc += *h as i64 * x.to_bits() as i64;
+            }
         }
         let y =
             (acc >> COEFF_FRAC).clamp(-(SIGNAL_ABS_MAX_BITS as i64), SIGNAL_ABS_MAX_BITS as i64);

@@ -19,8 +19,11 @@ use piezo_fpi::control::{ControllerState, Fault};
 use piezo_fpi::io::{ForceSensor, Hardware, Setpoint, Tick};
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
+use piezo_fpi::governor::GovernorState;
+
 use crate::analyser::Analyser;
 use crate::closed_loop::{Command, Inputs, Loop, LoopMode};
+use crate::governors::LoopSet;
 use crate::exchange::{Applied, Exchange, Order, Refused, Snapshot};
 use crate::frontend::{AnalogIn, POSITION_ADC};
 use crate::hardware::{Controller, APPROACH_STEP, CREEP_TERMS, OPERATORS, RATE_HZ};
@@ -100,6 +103,15 @@ pub struct ControlLoop<S, A, E, R> {
     late_run: u32,
     force: Newtons,
     analyser: Analyser,
+    /// The reference governor's memory.
+    governor: GovernorState,
+    /// The set of loops in force (which governor runs).
+    loop_set: LoopSet,
+    /// Ticks the governor departed from the source.
+    governed: u32,
+    /// The settings or the fault changed this tick: the snapshot's copy of
+    /// them is refreshed at its end.
+    changed: bool,
 }
 
 /// Where a parked stage rests on the stroke: `f_K` of the estimate, inside the
@@ -140,7 +152,27 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             late_run: 0,
             force,
             analyser: Analyser::new(),
+            governor: GovernorState::at_rest(x_est),
+            loop_set: LoopSet::default(),
+            governed: 0,
+            changed: true,
         }
+        .with_loop_set()
+    }
+
+    /// The loop set of the loops in force (after an order that changes them).
+    fn with_loop_set(mut self) -> Self {
+        self.update_loop_set();
+        self
+    }
+
+    /// Picks the governor of the loops in force: the loop mode, the damping
+    /// and the shaping where they run.
+    fn update_loop_set(&mut self) {
+        let s = self.model.summary();
+        let damping = self.feedback.damping_on() && s.damping.is_some();
+        let shaping = self.feedback.shaping_on() && (s.preview.is_some() || s.shaping.is_some());
+        self.loop_set = LoopSet::of(self.feedback.mode(), damping, shaping);
     }
 
     /// A fresh controller state for `model`, tared and parked, and its reference.
@@ -169,14 +201,29 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         } else {
             0
         };
-        let x_ahead = match self.reference.next(x.points, counts) {
+        let source = match self.reference.next(x.points, counts) {
             Ok(r) => r,
             Err(_) => {
                 self.trip(Fault::ReferenceInput);
                 self.reference.position()
             }
         };
+        // Every source, and the analyser's stimulus on top of a held one,
+        // passes the governor of the loops in force.
+        let asked = self.analyser.excitation();
         let summary = self.model.summary();
+        let governed = summary
+            .governors
+            .get(self.loop_set)
+            .process(&mut self.governor, source.saturating_add(asked));
+        self.governed = self
+            .governed
+            .wrapping_add(self.governor.governed() as u32);
+        let (x_ahead, excitation) = if self.analyser.running() {
+            (source, governed.saturating_sub(source))
+        } else {
+            (governed, Micrometres::ZERO)
+        };
         let stepping = self.reference.stepping();
         let x_ref = self
             .feedback
@@ -187,7 +234,6 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         if self.state.fault().is_some() {
             self.damp_park();
         }
-        let excitation = self.analyser.excitation();
         let cfg = self.model.get();
         let before = self.state.voltage();
         let Tick { out, force } = self.hw.drive(
@@ -208,6 +254,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             ];
             if let Some(r) = self.analyser.take(signals, out.fault.is_some()) {
                 x.analysis = Some(r);
+                self.changed = true;
             }
         }
         self.x_est = cfg.stage_position(out.x_pea_est);
@@ -224,9 +271,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             self.reference.freeze();
             if self.fault_at.is_none() {
                 self.fault_at = Some((f, self.tick));
+                self.changed = true;
             }
             if self.safe_at.is_none() && out.voltage == cfg.safe_voltage() {
                 self.safe_at = Some(self.tick);
+                self.changed = true;
             }
         }
         self.underruns = self
@@ -318,6 +367,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             return;
         }
         self.overruns = self.overruns.wrapping_add(1);
+        self.changed = true;
         self.late_run += 1;
         if self.late_run >= OVERRUN_RUN {
             self.trip(Fault::Overrun);
@@ -374,40 +424,57 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         if self.feedback.mode() != LoopMode::Open {
             s |= status::FEEDBACK;
         }
+        if self.governor.governed() {
+            s |= status::GOVERNED;
+        }
         s
     }
 
-    fn snapshot(&self, s: &mut Snapshot, t: &Telemetry) {
-        *s = Snapshot {
-            tick: t.tick,
-            x_ref: t.x_ref,
-            x_est: t.x_est,
-            voltage: t.voltage,
-            force: t.force,
-            fault: self.state.fault().and(self.fault_at),
-            safe_at: self.safe_at,
-            amplifier_on: t.amplifier_on(),
-            source: self.reference.kind(),
-            approaching: self.reference.approaching(),
-            compensated: self.compensated,
-            timeout_ticks: self.timeout,
-            silent_ticks: self.silent,
-            underruns: self.underruns,
-            limited_steps: self.state.limited_steps(),
-            overruns: self.overruns,
-            x_sensor: t.x_sensor,
-            loop_mode: self.feedback.mode(),
-            damping_on: self.feedback.damping_on(),
-            shaping_on: self.feedback.shaping_on(),
-            lead_ratio: self.feedback.lead_ratio(),
-            analysing: self.analyser.running(),
-        };
+    #[inline(never)]
+    /// Refreshes the link task's snapshot: what changes from tick to tick,
+    /// and the settings and the fault where they changed ([`Self::changed`]).
+    fn snapshot(&mut self, s: &mut Snapshot, t: &Telemetry) {
+        s.tick = t.tick;
+        s.x_ref = t.x_ref;
+        s.x_est = t.x_est;
+        s.voltage = t.voltage;
+        s.force = t.force;
+        s.x_sensor = t.x_sensor;
+        s.amplifier_on = t.amplifier_on();
+        s.source = self.reference.kind();
+        s.approaching = self.reference.approaching();
+        s.silent_ticks = self.silent;
+        s.underruns = self.underruns;
+        s.limited_steps = self.state.limited_steps();
+        s.governed_ticks = self.governed;
+        s.lead_ratio = self.feedback.lead_ratio();
+        if self.changed {
+            self.publish(s);
+        }
+    }
+
+    /// The settings and the fault, into the snapshot (after a tick that
+    /// changed them).
+    #[cold]
+    #[inline(never)]
+    fn publish(&mut self, s: &mut Snapshot) {
+        self.changed = false;
+        s.fault = self.state.fault().and(self.fault_at);
+        s.safe_at = self.safe_at;
+        s.compensated = self.compensated;
+        s.timeout_ticks = self.timeout;
+        s.overruns = self.overruns;
+        s.loop_mode = self.feedback.mode();
+        s.damping_on = self.feedback.damping_on();
+        s.shaping_on = self.feedback.shaping_on();
+        s.analysing = self.analyser.running();
     }
 
     /// Latches `fault` and stops the reference where it is.
     fn trip(&mut self, fault: Fault) {
         self.state.trip(fault);
         self.reference.freeze();
+        self.changed = true;
     }
 
     /// Counts silent ticks; trips [`Fault::LinkLost`] when the host, driving the
@@ -435,6 +502,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
     #[cold]
     fn take_order(&mut self, x: &mut Exchange<'_>) {
         if let Some((seq, order)) = x.order.take() {
+            self.changed = true;
             let result = self.apply(order, x);
             x.applied = Some(Applied {
                 seq,
@@ -469,14 +537,17 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                     return Err(Refused::NoFeedback);
                 }
                 self.feedback.select(mode);
+                self.update_loop_set();
                 Ok(())
             }
             Order::Damping(on) => {
                 self.feedback.set_damping(on);
+                self.update_loop_set();
                 Ok(())
             }
             Order::Shaping(on) => {
                 self.feedback.set_shaping(on);
+                self.update_loop_set();
                 Ok(())
             }
             Order::LeadRatio(gain) => {
@@ -534,6 +605,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 self.reference
                     .reset(rest, AnalogInput::over(cfg.reference()));
                 self.feedback.restart_reference(rest);
+                self.governor = GovernorState::at_rest(rest);
                 self.fault_at = None;
                 self.safe_at = None;
                 Ok(())
@@ -601,8 +673,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         self.feedback.set_shaping(true);
         self.feedback.reset();
         self.feedback.forget_lead();
+        self.changed = true;
         self.x_est = rest_position(self.model.get(), &state);
         self.feedback.restart_reference(self.x_est);
+        self.governor = GovernorState::at_rest(self.x_est);
+        self.update_loop_set();
         self.state = state;
         self.reference = reference;
         self.fault_at = Some((Fault::Stopped, self.tick));

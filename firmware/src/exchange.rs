@@ -131,6 +131,8 @@ pub struct Snapshot {
     pub underruns: u32,
     /// Ticks in which the output limits bit.
     pub limited_steps: u32,
+    /// Ticks in which the reference governor departed from the source.
+    pub governed_ticks: u32,
     /// Ticks that started late.
     pub overruns: u32,
     /// Position sensor reading, µm.
@@ -167,6 +169,7 @@ impl Snapshot {
             silent_ticks: 0,
             underruns: 0,
             limited_steps: 0,
+            governed_ticks: 0,
             overruns: 0,
             x_sensor: Micrometres::ZERO,
             loop_mode: LoopMode::Open,

@@ -6,7 +6,8 @@
 //!   [`closed_loop`] — open loop, or feedback on the position sensor, active
 //!   damping and the feedforward; [`analyser`] — the frequency-response analyser;
 //! * [`reference`](mod@reference) — the reference sources: hold, move, waveform,
-//!   streamed trajectory, analog input;
+//!   streamed trajectory, analog input; [`governors`] — the reference
+//!   governor every source passes, one per set of loops a model runs;
 //! * [`recorder`] — the data recorder's ring;
 //! * [`exchange`] — what the ISR and the link task share;
 //! * [`link`] — the command link: protocol, framing, command handler;
@@ -42,6 +43,7 @@ pub mod converters;
 pub mod emulated;
 pub mod exchange;
 pub mod frontend;
+pub mod governors;
 pub mod hardware;
 pub mod link;
 pub mod model;

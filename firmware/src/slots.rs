@@ -28,6 +28,7 @@ use piezo_fpi::model::{Shape, WATCH_SWING_MAX};
 use piezo_fpi::preview::Fir;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
+use crate::governors::{Governors, Parts};
 use crate::hardware::{Controller, Store, BOARD, RATE_HZ};
 
 pub use fpi_protocol::Origin;
@@ -76,6 +77,20 @@ pub struct Summary {
     /// (`crate::watch`): the model's, else
     /// [`piezo_fpi::model::WATCH_SWING_MAX`].
     pub watch_swing: Micrometres,
+    /// The reference governor of each set of loops ([`crate::governors`]).
+    pub governors: Governors,
+}
+
+/// The fastest reference the amplifier follows, µm/tick: its slew (the
+/// model's largest setpoint step) through the straight-line drive's slope.
+pub fn amplifier_speed(cfg: &Controller<'_>, drive: &LinearDrive) -> f64 {
+    let step = cfg.limits().max_step().to_num::<f64>();
+    let slope = drive.gain.to_num::<f64>().abs();
+    if slope > 0.0 {
+        step / slope
+    } else {
+        piezo_fpi::governor::SPEED_MAX
+    }
 }
 
 /// The dynamic force a move may ask of the stack of `cfg`, N (see
@@ -160,12 +175,26 @@ impl Spare {
                 .filter(|_| preview.is_some() && damping.is_some())
                 .map(|d| LeadSpec::of(&d, RATE_HZ, spec.lead_baseline));
             let watch_swing = spec.watch_swing.unwrap_or(WATCH_SWING_MAX);
+            let room = force_room(&cfg, channel.dynamic_limit);
+            let governors = Governors::of(&Parts {
+                rate_hz: RATE_HZ,
+                window: cfg.reference(),
+                dynamics: spec.dynamics.as_ref(),
+                split: channel.split.to_bits(),
+                damping: damping.as_ref(),
+                feedback: feedback.as_ref(),
+                preview: preview.as_ref(),
+                shaping: shaping.as_ref(),
+                lead_kappa: lead.map(|l| l.force_gain.to_num::<f64>()),
+                force_room: room.to_num::<f64>(),
+                speed: amplifier_speed(&cfg, &baseline),
+            });
             Ok((
                 cfg,
                 baseline,
                 shape,
                 (feedback, shaping, damping, spec.dynamics, channel),
-                (preview, lead, watch_swing),
+                (preview, lead, watch_swing, room, governors),
             ))
         });
         match built {
@@ -174,7 +203,7 @@ impl Spare {
                 baseline,
                 shape,
                 (feedback, shaping, damping, dynamics, channel),
-                (preview, lead, watch_swing),
+                (preview, lead, watch_swing, room, governors),
             )) => Ok(Running {
                 store: ptr,
                 summary: Summary {
@@ -191,8 +220,9 @@ impl Spare {
                     dynamics,
                     damping,
                     channel,
-                    force_room: force_room(&cfg, channel.dynamic_limit),
+                    force_room: room,
                     watch_swing,
+                    governors,
                 },
                 cfg,
             }),

@@ -43,11 +43,12 @@ pub use reply::{
     Refusal, Reply, ReplyHeader, ReplyKind, ResetReason, SlotKind, SlotReport, Status,
 };
 
-/// The protocol version of these messages (8: the learned mass ratio set by
+/// The protocol version of these messages (9: the governed ticks in the
+/// status; 8: the learned mass ratio set by
 /// [`Command::LeadRatio`]; 7: the learned mass ratio in the status; 6: the link in the hello, recordings
 /// sent as differences between samples; 5: explicit wire numbers, an axis in
 /// every command that addresses a stage).
-pub const VERSION: u8 = 8;
+pub const VERSION: u8 = 9;
 /// Axes a board has today: a command for axis `AXES` or beyond is refused
 /// ([`Refusal::Axis`]).
 pub const AXES: u8 = 1;

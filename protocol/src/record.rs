@@ -20,6 +20,9 @@ pub mod status {
     /// The loop is closed on the position sensor (with [`UNCOMPENSATED`]: feedback
     /// alone, else feedback plus the inverse FPI).
     pub const FEEDBACK: u8 = 64;
+    /// The reference governor departed from the source's reference this tick
+    /// (it asked for more than the stage can do within its stroke).
+    pub const GOVERNED: u8 = 128;
 }
 
 /// Which signals a recording sends (bits of a mask, in this order on the wire).

@@ -285,6 +285,9 @@ pub struct Status {
     pub recorder: [u32; 4],
     /// Ticks in which the output limits bit.
     pub limited_steps: u32,
+    /// Ticks in which the reference governor departed from the source's
+    /// reference (it asked for more than the stage can do within its stroke).
+    pub governed_ticks: u32,
     /// Control ticks that started late (after their period), since start-up.
     pub overruns: u32,
     /// CRC-32 of the running model's image.

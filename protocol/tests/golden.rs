@@ -161,6 +161,7 @@ fn status() -> Status {
         stream: [100, 924, 1100, 0],
         recorder: [1, 500, 0, 20],
         limited_steps: 0,
+        governed_ticks: 0,
         overruns: 2,
         model_crc: 0x1234_5678,
     }
@@ -198,9 +199,9 @@ goldens! {
     Reply, all_replies;
     reply_ack: Reply::Ack => "00";
     reply_hello: Reply::Hello(hello())
-        => "01 08 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01";
+        => "01 09 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01";
     reply_status: Reply::Status(status())
-        => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 02 f8 ac d1 91 01";
+        => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 02 f8 ac d1 91 01";
     reply_record: Reply::Record(batch())
         => "03 11 19 01 00 07 06 d0 0f 80 80 08 06 32 00 00";
     reply_model: Reply::Model(model_report())
@@ -329,7 +330,7 @@ fn a_request_frame_golden() {
         seq: 1,
     };
     let n = frame::encode(&h, &Command::Status { axis: 0 }, &mut scratch, &mut out).unwrap();
-    assert_eq!(hex(&out[..n]), "04 08 01 01 05 85 ac 29 fc 00");
+    assert_eq!(hex(&out[..n]), "04 09 01 01 05 e0 cb 95 44 00");
 }
 
 /// An unknown kind is told apart from garbage; a known kind with bad fields is
@@ -375,7 +376,7 @@ fn status_reply_size() {
     println!("status reply: {n} bytes of body, {framed} bytes framed");
     assert_eq!(
         (n, framed),
-        (63, 74),
+        (64, 75),
         "the status reply's size changed: update PROTOCOL.md"
     );
 }

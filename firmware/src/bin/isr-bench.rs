@@ -518,6 +518,7 @@ mod bench {
         if let Some((f, at)) = x.snapshot.fault {
             hprintln!("  fault at tick {}: {}", at, f.message());
         }
+        hprintln!("  governed ticks so far: {}", x.snapshot.governed_ticks);
         hprintln!("{}: {}", stack, depth);
         ok
     }

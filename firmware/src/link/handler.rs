@@ -15,7 +15,7 @@ use core::fmt::Write as _;
 use embedded_storage::nor_flash::NorFlash;
 use heapless::Vec;
 use piezo_fpi::lead::LeadGain;
-use piezo_fpi::q::{LeadRatio, Micrometres, Newtons};
+use piezo_fpi::q::{LeadRatio, Micrometres};
 
 use super::frame::{self, FrameError};
 use super::pace::{reached, Pace};
@@ -434,7 +434,6 @@ impl<F: NorFlash> Handler<F> {
                     ));
                 }
                 let ticks = (duration_us as u64 * RATE_HZ as u64).div_ceil(1_000_000) as u32;
-                self.within_the_force(board, target, ticks)?;
                 let phase_step = crate::reference::step_phase_for(ticks);
                 self.order(
                     board,
@@ -451,8 +450,6 @@ impl<F: NorFlash> Handler<F> {
                 ..
             } => {
                 let wave = self.wave(shape, offset, amplitude, freq_mhz, cycles)?;
-                let damping_on = board.exchange(|x| x.snapshot.damping_on);
-                self.within_the_mode(&wave, freq_mhz, damping_on)?;
                 self.order(board, seq, Order::Source(SourceOrder::Wave(wave)))
             }
             Command::Points { first, points, .. } => self.points(board, first, &points),
@@ -837,96 +834,6 @@ impl<F: NorFlash> Handler<F> {
         })
     }
 
-    /// Refuses a step that would ask the stack for more dynamic force than the
-    /// force sensor's window leaves about the preload ([`Summary::force_room`];
-    /// [`crate::reference::step_force`]), with the shortest duration that
-    /// would not (the reason fits the link's 96 bytes: "25.000 µm step in
-    /// 0.500 ms: 137.902 N of force, 40.125 N of room: 0.950 ms at least"). A
-    /// model without the stage's dynamics or κ is not checked.
-    fn within_the_force(
-        &self,
-        board: &mut impl Board,
-        target: Micrometres,
-        ticks: u32,
-    ) -> Result<(), Refuse> {
-        use crate::reference::step_force::{shortest_within, step_force, Mode};
-        let s = &self.summary;
-        let Some(d) = s.dynamics.filter(|d| d.force_gain > Newtons::ZERO) else {
-            return Ok(());
-        };
-        let (from, shaping_on) = board.exchange(|x| (x.snapshot.x_ref, x.snapshot.shaping_on));
-        let shaped = shaping_on && (s.preview.is_some() || s.shaping.is_some());
-        let amplitude = target.saturating_sub(from).to_num::<f32>();
-        let mode = Mode {
-            hz: d.mode_mhz as f32 / 1000.0,
-            zeta: d.damping.to_num::<f32>(),
-            kappa: d.force_gain.to_num::<f32>(),
-        };
-        let room = s.force_room.to_num::<f32>();
-        let rate = RATE_HZ as f32;
-        let force = step_force(amplitude, ticks, rate, mode, shaped);
-        if force <= room {
-            return Ok(());
-        }
-        let ms = |t: u32| Milli::of(t as f32 * 1000.0 / rate);
-        let mut why = Text::new();
-        let _ = write!(
-            why,
-            "{} µm step in {} ms: {} N of force, {} N of room",
-            Milli::of(amplitude),
-            ms(ticks),
-            Milli::of(force),
-            Milli(s.force_room.to_bits())
-        );
-        let _ = match shortest_within(amplitude, ticks, rate, mode, shaped, room) {
-            Some(t) => write!(why, ": {} ms at least", ms(t)),
-            None => write!(why, ": move there"),
-        };
-        Err(refuse(Refusal::OutOfRange, format_args!("{why}")))
-    }
-
-    /// Refuses a wave whose harmonics the model's first mode would amplify out
-    /// of the stroke ([`crate::reference::wave::mode_swing`]; with the model's
-    /// damping on, the mode is taken as damped to
-    /// [`crate::reference::wave::DAMPED_ZETA`]).
-    fn within_the_mode(&self, w: &Wave, freq_mhz: u32, damping_on: bool) -> Result<(), Refuse> {
-        use crate::reference::wave::{mode_swing, DAMPED_ZETA};
-        let s = &self.summary;
-        let Some(d) = s.dynamics else {
-            return Ok(());
-        };
-        let mode_hz = d.mode_mhz as f32 / 1000.0;
-        let mut zeta = d.damping.to_num::<f32>();
-        if damping_on && s.damping.is_some() && zeta < DAMPED_ZETA {
-            zeta = DAMPED_ZETA;
-        }
-        let swing = mode_swing(
-            w.shape,
-            w.amplitude.to_num::<f32>(),
-            freq_mhz as f32 / 1000.0,
-            (mode_hz, zeta),
-            RATE_HZ as f32 / 2.0,
-        );
-        let bits = (swing * 65536.0).min(i32::MAX as f32) as i32;
-        let (lo, hi) = (
-            w.offset.to_bits().saturating_sub(bits),
-            w.offset.to_bits().saturating_add(bits),
-        );
-        let r = s.reference;
-        if lo < r.lo.to_bits() || hi > r.hi.to_bits() {
-            return Err(refuse(
-                Refusal::OutOfRange,
-                format_args!(
-                    "the {} Hz mode would swing it {}–{} µm, beyond the stroke",
-                    Milli(((d.mode_mhz as i64) << 16).wrapping_div(1000) as i32),
-                    Milli(lo),
-                    Milli(hi)
-                ),
-            ));
-        }
-        Ok(())
-    }
-
     fn points(
         &mut self,
         board: &mut impl Board,
@@ -1083,6 +990,7 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
         stream: [q.len() as u32, q.free() as u32, q.received(), s.underruns],
         recorder: [r.active() as u32, r.kept(), r.dropped(), r.len() as u32],
         limited_steps: s.limited_steps,
+        governed_ticks: s.governed_ticks,
         overruns: s.overruns,
         model_crc: summary.crc,
     }

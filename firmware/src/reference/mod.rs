@@ -11,11 +11,12 @@
 //! ended stream is drained, the source becomes *hold* at that point.
 //!
 //! Everything here runs in the control ISR (integer arithmetic, no division, no
-//! panic, constant time per tick) but the link task's checks of a command
-//! before it is ordered, in `f32`: [`step_force`] and [`wave::mode_swing`].
+//! panic, constant time per tick). What a source may ask of the stage is not
+//! checked here, source by source: every source's reference passes the one
+//! reference governor (`piezo_fpi::governor`, [`crate::governors`]) before
+//! the loops track it.
 
 pub mod analog;
-pub mod step_force;
 pub mod stream;
 pub mod wave;
 

@@ -128,62 +128,6 @@ impl Wave {
     }
 }
 
-/// The damping ratio the board assumes for a mode its active damping runs on
-/// (the design aims the family's least-damped pole at 0.3 or more).
-pub const DAMPED_ZETA: f32 = 0.3;
-
-/// How far the stage swings about a wave's offset, µm, when a mode at
-/// `mode_hz` with damping ratio `zeta` filters the wave (amplitude `amplitude_um`
-/// at `freq_hz`): `Σ a_n·|G(n·f)|` over the wave's harmonics below `nyquist_hz`,
-/// with `G(f) = 1/(1 − r² + 2jζr)`, `r = f/f_mode`, and `a_n` the harmonics'
-/// amplitudes — the fundamental alone for the sine and the raised cosine, `8A/(π²n²)`
-/// at odd `n` for the triangle. An upper bound of the swing (the harmonics' peaks
-/// added as if they coincided). For the link task, not the ISR (`f32`).
-pub fn mode_swing(
-    shape: Shape,
-    amplitude_um: f32,
-    freq_hz: f32,
-    (mode_hz, zeta): (f32, f32),
-    nyquist_hz: f32,
-) -> f32 {
-    let gain = |f: f32| {
-        let r = f / mode_hz;
-        let re = 1.0 - r * r;
-        let im = 2.0 * zeta * r;
-        1.0 / sqrt(re * re + im * im)
-    };
-    match shape {
-        Shape::Sine | Shape::RaisedCosine => amplitude_um * gain(freq_hz),
-        Shape::Triangle => {
-            let pi2 = core::f32::consts::PI * core::f32::consts::PI;
-            let mut sum = 0.0;
-            let mut n = 1u32;
-            while n as f32 * freq_hz < nyquist_hz && n < 400 {
-                let nf = n as f32;
-                sum += 8.0 * amplitude_um / (pi2 * nf * nf) * gain(nf * freq_hz);
-                n += 2;
-            }
-            sum
-        }
-    }
-}
-
-/// `√x` by Newton's method (no `std` here; `x ≥ 0`, a few ulps).
-fn sqrt(x: f32) -> f32 {
-    if x <= 0.0 || x.is_nan() {
-        return 0.0;
-    }
-    let mut y = if x > 1.0 { x } else { 1.0 };
-    for _ in 0..40 {
-        let next = 0.5 * (y + x / y);
-        if next >= y {
-            break;
-        }
-        y = next;
-    }
-    y
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -288,22 +232,5 @@ mod tests {
             w.next(&mut p);
         }
         assert!(!p.finished(), "continuous");
-    }
-
-    #[test]
-    fn a_wave_at_the_mode_swings_far_beyond_its_amplitude() {
-        let modal = (850.0, 0.03);
-        // At the mode, 1/(2ζ): 16.7 times the amplitude.
-        let at = mode_swing(Shape::Sine, 5.0, 850.0, modal, 10_000.0);
-        assert!((at - 5.0 / 0.06).abs() < 0.05, "{at}");
-        // Far below, the amplitude itself.
-        let slow = mode_swing(Shape::Sine, 15.0, 15.0, modal, 10_000.0);
-        assert!((slow - 15.0).abs() < 0.01, "{slow}");
-        // A 283 Hz triangle meets the mode with its third harmonic.
-        let tri = mode_swing(Shape::Triangle, 15.0, 850.0 / 3.0, modal, 10_000.0);
-        assert!(tri > 30.0, "{tri}");
-        // A 100 Hz triangle's harmonics near the mode are small: a little over A.
-        let tri = mode_swing(Shape::Triangle, 15.0, 100.0, modal, 10_000.0);
-        assert!(tri > 15.0 && tri < 17.0, "{tri}");
     }
 }
