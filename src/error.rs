@@ -160,6 +160,18 @@ pub enum ModelError {
     /// The oscillation watch's half swing on the tracking error needs a
     /// position loop (`[feedback]`).
     WatchWithoutFeedback,
+    /// A sensor's window takes in (or passes) a rail of the board's channel
+    /// for it: a broken wire, which reads a rail, would not be seen.
+    OutsideRails,
+    /// A tolerance so wide that its check could never trip: the position's
+    /// beyond a quarter of the reference window, the force's beyond half the
+    /// preload's change over it (a stuck sensor must be seen).
+    ToleranceTooWide,
+    /// The feedforward's taps amplify the reference more than
+    /// [`crate::preview::TAPS_GAIN_MAX`] times (`Σ|h| >` it): no stage's
+    /// inverse needs that much, and what it would ask of the stage is beyond
+    /// what the reference governor can keep in the stroke.
+    FeedforwardTooLarge,
 }
 
 impl ModelError {
@@ -229,7 +241,7 @@ impl ModelError {
                 "a feedback gain is negative or beyond its range (kp 0..=2, ki 0..=0.25 per tick), or both are zero"
             }
             Self::DynamicLimitBelowTolerance => {
-                "the dynamic force limit is below the force tolerance or beyond ±4096 N"
+                "the dynamic force limit is below the force tolerance, or beyond the force window's span (then it could never trip)"
             }
             Self::DampingOutOfRange => {
                 "a damping or stage-dynamics setting is not positive or beyond its range"
@@ -251,6 +263,15 @@ impl ModelError {
             }
             Self::WatchWithoutFeedback => {
                 "the oscillation watch's half swing is the tracking error's: it needs position feedback ([feedback])"
+            }
+            Self::OutsideRails => {
+                "must lie inside the rails of the board's sensor channel (position −10…70 µm, force −5…507 N): a broken wire reads a rail, and a window that takes the rail in cannot see it"
+            }
+            Self::ToleranceTooWide => {
+                "too wide for its check to ever trip: the position tolerance may be at most a quarter of the reference window, the force tolerance at most half the FEM preload's change over it (a stuck sensor must be seen)"
+            }
+            Self::FeedforwardTooLarge => {
+                "the feedforward's taps amplify the reference more than 16 times (the sum of their magnitudes): no stage's inverse needs it"
             }
         }
     }

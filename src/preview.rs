@@ -19,8 +19,8 @@
 //! | quantity | format | range |
 //! |---|---|---|
 //! | references, `S_k` | µm, `I16F16` | input clamped to ±4096 µm, output saturated to ±4096 µm |
-//! | taps `h_j` | `I8F24` | ±128, `Σ h_j = 1` exactly (in raw bits: a held reference is never moved), `Σ |h_j| ≤ 128` |
-//! | accumulator | raw `i64`, `I24F40` | `|Σ| ≤ Σ|h_j|·4096 µm`: at most `2³¹·2²⁸ = 2⁵⁹` raw, no overflow |
+//! | taps `h_j` | `I8F24` | ±16, `Σ h_j = 1` exactly (in raw bits: a held reference is never moved), `Σ |h_j| ≤ 16` ([`TAPS_GAIN_MAX`]) |
+//! | accumulator | raw `i64`, `I24F40` | `|Σ| ≤ Σ|h_j|·4096 µm`: at most `2²⁸·2²⁸ = 2⁵⁶` raw, no overflow |
 //!
 //! The output is rounded to nearest (±½ LSB, 15 pm); there is no recursion,
 //! so no error accumulates. The delay `n` is `1..=PREVIEW_MAX` ticks.
@@ -30,6 +30,12 @@ use crate::q::{Micrometres, COEFF_FRAC, SIGNAL_ABS_MAX_BITS};
 
 /// Taps of the feedforward on the line (its length).
 pub const TAPS: usize = 16;
+
+/// The most the feedforward may amplify the reference: `Σ |h_j|` (an inverse
+/// of a damped stage designed by the host's tools sums to about 6; the
+/// reference governor's envelope of taps beyond this would leave a stage all
+/// but still).
+pub const TAPS_GAIN_MAX: i64 = 16;
 
 /// The longest preview the board keeps, ticks.
 pub const PREVIEW_MAX: u8 = 7;
@@ -52,8 +58,8 @@ pub struct Fir {
 impl Fir {
     /// The feedforward running `ticks` ahead with raw `I8F24` `taps` (newest
     /// first), checked: `1..=PREVIEW_MAX` ticks, `Σ taps = 1` exactly, and
-    /// `Σ |taps| ≤ 128` (the accumulator's bound). The one check, for the
-    /// model validator and the firmware.
+    /// `Σ |taps| ≤` [`TAPS_GAIN_MAX`] (also the accumulator's bound). The one
+    /// check, for the model validator and the firmware.
     pub const fn new(ticks: u8, taps: [i32; TAPS]) -> Result<Self, Invalid> {
         if ticks == 0 || ticks > PREVIEW_MAX {
             return Err(Invalid::at(Field::Preview, ModelError::OverCapacity));
@@ -65,8 +71,8 @@ impl Fir {
             abs += (taps[j] as i64).abs();
             j += 1;
         }
-        if abs > 1i64 << 31 {
-            return Err(Invalid::at(Field::Preview, ModelError::NotRepresentable));
+        if abs > TAPS_GAIN_MAX << COEFF_FRAC {
+            return Err(Invalid::at(Field::Preview, ModelError::FeedforwardTooLarge));
         }
         if sum != 1i64 << COEFF_FRAC {
             return Err(Invalid::at(Field::Preview, ModelError::FilterStaticGain));
@@ -192,17 +198,15 @@ mod tests {
             Fir::new(4, off).unwrap_err().error,
             ModelError::FilterStaticGain
         );
-        // Taps whose magnitudes sum beyond 128 could overflow the accumulator
-        // at the rails (16 taps of ±127 and 4096 µm: 2⁶³): refused.
-        let mut wild = [0; TAPS];
-        for (j, t) in wild.iter_mut().enumerate() {
-            *t = if j % 2 == 0 { 127 * one } else { -127 * one };
-        }
-        wild[1] += one;
+        // Taps that amplify the reference more than 16 times (60 and −59: a
+        // hand-edited model that threw the stage across its stroke): refused.
+        let wild = padded(&[60 * one, -59 * one]);
         assert_eq!(
             Fir::new(4, wild).unwrap_err().error,
-            ModelError::NotRepresentable
+            ModelError::FeedforwardTooLarge
         );
+        let most = padded(&[8 * one + one / 2, -15 * one / 2]);
+        assert!(Fir::new(4, most).is_ok(), "a sum of 16 is allowed");
         for t in [0, PREVIEW_MAX + 1] {
             assert_eq!(
                 Fir::new(t, taps).unwrap_err().error,
@@ -237,7 +241,7 @@ mod tests {
         assert_eq!(p.run(held, &f), (held, held));
         // Rails: saturated, no overflow.
         let mut q = Preview::new();
-        let big = Fir::new(1, padded(&[one * 64, -one * 63])).unwrap();
+        let big = Fir::new(1, padded(&[one * 8, -one * 7])).unwrap();
         let (_, y) = q.run(Micrometres::MAX, &big);
         assert_eq!(y.to_bits(), SIGNAL_ABS_MAX_BITS);
         let (_, y) = q.run(Micrometres::MIN, &big);

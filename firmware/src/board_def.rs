@@ -78,10 +78,13 @@ pub const FRONT_END: FrontEnd = if cfg!(feature = "precision") {
 /// must be this).
 pub const RATE_HZ: u32 = 20_000;
 
-/// The high-voltage amplifier, as far as a model may use it (a model may narrow
-/// these limits, never widen them): 0–150 V, at most 100 V/ms (5 V per control
-/// step: the amplifier's current limit into the stack's capacitance); the safe
-/// voltage within 0–10 V, where the stack is at rest under any preload.
+/// The high-voltage amplifier and the sensor channels, as far as a model may
+/// use them (a model may narrow these limits, never widen them): 0–150 V, at
+/// most 100 V/ms (5 V per control step: the amplifier's current limit into the
+/// stack's capacitance); the safe voltage within 0–10 V, where the stack is at
+/// rest under any preload; the sensor windows strictly inside the channels'
+/// rails ([`POSITION`]: −10…70 µm; the force front ends': −5…506.9 N, the
+/// lower of the two), where a broken wire reads.
 pub const AMPLIFIER: HardwareLimits = HardwareLimits {
     u_min: Volts::ZERO,
     u_max: Volts::from_bits(150 << 16),
@@ -89,6 +92,14 @@ pub const AMPLIFIER: HardwareLimits = HardwareLimits {
     safe: Interval {
         lo: Volts::ZERO,
         hi: Volts::from_bits(10 << 16),
+    },
+    position: Interval {
+        lo: POSITION.offset,
+        hi: Micrometres::from_bits(POSITION.offset.to_bits() + (80 << 16)),
+    },
+    force: Interval {
+        lo: internal::FORCE.offset,
+        hi: Newtons::from_bits(internal::FORCE.offset.to_bits() + (4095 << 13)),
     },
 };
 

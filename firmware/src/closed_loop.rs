@@ -446,8 +446,14 @@ impl Loop {
                 None => wanted.saturating_sub(ff),
             };
             self.watching = true;
-            self.watch
-                .update(swing, self.damping_alone, io.x_ref, limited, io.watch_swing)
+            self.watch.update(
+                swing,
+                self.damping_alone,
+                io.x_ref,
+                limited,
+                io.watch_swing,
+                io.watch_widen,
+            )
         } else {
             if self.watching {
                 self.watch.reset();
@@ -563,6 +569,10 @@ pub struct Inputs<'c, 'm> {
     /// The oscillation watch's half swing on the tracking error, µm
     /// (`Summary::watch_swing`).
     pub watch_swing: Micrometres,
+    /// What the watch's half swings are widened by, µm: three times the
+    /// analyser's stimulus while an analysis runs (its own forced swing is not
+    /// an oscillation), else zero.
+    pub watch_widen: Micrometres,
     /// The force channel's dynamic part this tick, N.
     pub dynamic: Newtons,
     /// Its straight-line drive.

@@ -23,9 +23,9 @@ use piezo_fpi::governor::GovernorState;
 
 use crate::analyser::Analyser;
 use crate::closed_loop::{Command, Inputs, Loop, LoopMode};
-use crate::governors::LoopSet;
 use crate::exchange::{Applied, Exchange, Order, Refused, Snapshot};
 use crate::frontend::{AnalogIn, POSITION_ADC};
+use crate::governors::LoopSet;
 use crate::hardware::{Controller, APPROACH_STEP, CREEP_TERMS, OPERATORS, RATE_HZ};
 
 /// Heartbeat timeout a stream gets when the host has configured none: 0.5 s.
@@ -112,7 +112,20 @@ pub struct ControlLoop<S, A, E, R> {
     /// The settings or the fault changed this tick: the snapshot's copy of
     /// them is refreshed at its end.
     changed: bool,
+    /// The supervision's timeout is a stream's (it switched it on), not the
+    /// host's.
+    stream_supervised: bool,
+    /// What the loop watch's half swings are widened by while an analysis
+    /// runs: [`WATCH_WIDEN`] times its stimulus (else zero), µm.
+    watch_widen: Micrometres,
 }
+
+/// The loop watch's half swings are widened by this many times the
+/// analyser's stimulus while it runs: the stimulus forces a swing of its own
+/// (up to about 1.5 times it through a damped closed loop's sensitivity:
+/// ±0.14 µm for 0.1 µm at 413 Hz on the stage as built), which is not an
+/// oscillation; an unstable loop outgrows it.
+pub const WATCH_WIDEN: i32 = 3;
 
 /// Where a parked stage rests on the stroke: `f_K` of the estimate, inside the
 /// model's reference window.
@@ -156,6 +169,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             loop_set: LoopSet::default(),
             governed: 0,
             changed: true,
+            stream_supervised: false,
+            watch_widen: Micrometres::ZERO,
         }
         .with_loop_set()
     }
@@ -216,9 +231,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             .governors
             .get(self.loop_set)
             .process(&mut self.governor, source.saturating_add(asked));
-        self.governed = self
-            .governed
-            .wrapping_add(self.governor.governed() as u32);
+        self.governed = self.governed.wrapping_add(self.governor.governed() as u32);
         let (x_ahead, excitation) = if self.analyser.running() {
             (source, governed.saturating_sub(source))
         } else {
@@ -255,6 +268,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             if let Some(r) = self.analyser.take(signals, out.fault.is_some()) {
                 x.analysis = Some(r);
                 self.changed = true;
+                self.watch_widen = Micrometres::ZERO;
             }
         }
         self.x_est = cfg.stage_position(out.x_pea_est);
@@ -308,6 +322,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             damping: summary.damping.as_ref(),
             lead: summary.lead.as_ref(),
             watch_swing: summary.watch_swing,
+            watch_widen: self.watch_widen,
             dynamic,
             drive: &summary.baseline,
             compensated: self.compensated,
@@ -492,6 +507,21 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             && self.state.fault().is_none()
             && self.reference.kind() != SourceKind::Analog
         {
+            self.lost();
+        }
+    }
+
+    /// The host has been silent past the timeout: the link is lost, unless
+    /// the timeout was a stream's and the stream is over (the stage holds
+    /// its last point; its client may be gone): the supervision then ends.
+    #[cold]
+    #[inline(never)]
+    fn lost(&mut self) {
+        if self.stream_supervised && self.reference.kind() != SourceKind::Stream {
+            self.stream_supervised = false;
+            self.timeout = 0;
+            self.changed = true;
+        } else {
             self.trip(Fault::LinkLost);
         }
     }
@@ -517,13 +547,17 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             Order::Source(s) => {
                 self.arm()?;
                 self.analyser.abort();
+                self.watch_widen = Micrometres::ZERO;
                 if matches!(s, SourceOrder::Stream { .. }) {
                     self.underruns = 0;
                     // A stream is always supervised.
                     if self.timeout == 0 {
                         self.timeout = STREAM_TIMEOUT_TICKS;
                         self.silent = 0;
+                        self.stream_supervised = true;
                     }
+                } else {
+                    self.end_stream(x);
                 }
                 self.reference.select(s);
                 Ok(())
@@ -563,6 +597,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 }
                 x.analysis = None;
                 self.analyser.start(o);
+                self.watch_widen = o.amplitude.saturating_mul_int(WATCH_WIDEN);
                 Ok(())
             }
             Order::Safe => {
@@ -573,6 +608,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             Order::Supervise { timeout_ticks } => {
                 self.timeout = timeout_ticks;
                 self.silent = 0;
+                self.stream_supervised = false;
                 Ok(())
             }
             Order::Record { decimation } => {
@@ -591,6 +627,23 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
     /// The output is at the safe voltage.
     fn at_safe_voltage(&self) -> bool {
         self.state.voltage() == self.model.get().safe_voltage()
+    }
+
+    /// A motion that is not a stream's ends whatever a stream left: its
+    /// queued points (counted in [`Snapshot::ended_points`]: a client that
+    /// died mid-stream left them, and the next stream would play them) and
+    /// the supervision the stream switched on (the new motion's client may
+    /// not send heartbeats).
+    fn end_stream(&mut self, x: &mut Exchange<'_>) {
+        let queued = x.points.len() as u32;
+        if queued > 0 {
+            x.points.clear();
+            x.snapshot.ended_points = x.snapshot.ended_points.wrapping_add(queued);
+        }
+        if self.stream_supervised {
+            self.stream_supervised = false;
+            self.timeout = 0;
+        }
     }
 
     /// Leaves the parked state for a source order.
@@ -643,6 +696,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         x.returned = Some(core::mem::replace(&mut self.model, new));
         self.start_parked();
         Ok(())
+    }
+
+    /// The stage is parked: stopped at the safe voltage, the amplifier off.
+    pub fn is_parked(&self) -> bool {
+        matches!(self.state.fault(), Some(Fault::Stopped)) && self.at_safe_voltage()
     }
 
     /// A new stage attached at rest (the emulated bench swapped it, as a

@@ -20,7 +20,7 @@ use embedded_storage::nor_flash::NorFlash;
 
 use crate::board_def::{precision, POSITION};
 use crate::control_loop::ControlLoop;
-use crate::exchange::{Applied, Exchange, Order};
+use crate::exchange::{Applied, Exchange, Order, Refused};
 use crate::frontend::AnalogIn;
 use crate::hardware::{Store, IMAGE_BYTES};
 use crate::link::handler::{Board, Handler};
@@ -231,16 +231,22 @@ pub fn tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
 ) -> Sample {
     if let Some((seq, Order::Bench(b))) = x.order {
         x.order = None;
-        bench.apply(b, link);
-        if let BenchOrder::Stage(_) = b {
-            // A fresh stage at rest: the board starts on it as at power-up.
-            bench.prime(link);
-            lp.restart_on_new_stage();
-        }
+        let swap = matches!(b, BenchOrder::Stage(_));
+        let result = if swap && !lp.is_parked() {
+            Err(Refused::StageNotParked)
+        } else {
+            bench.apply(b, link);
+            if swap {
+                // A fresh stage at rest: the board starts on it as at power-up.
+                bench.prime(link);
+                lp.restart_on_new_stage();
+            }
+            Ok(())
+        };
         x.applied = Some(Applied {
             seq,
             tick: lp.next_tick(),
-            result: Ok(()),
+            result,
         });
     }
     // The true position at the instant this tick's sensors are read, like them.

@@ -78,6 +78,10 @@ pub enum Refused {
     StillRamping,
     /// A new model needs the stage parked at the safe voltage.
     NotAtRest,
+    /// The emulated bench swaps its stage only under a board parked at the
+    /// safe voltage (a stage swapped under a running loop meets loops tuned
+    /// for another).
+    StageNotParked,
     /// An analysis needs the stage holding still, armed.
     NotHolding,
     /// Switching the damping off would leave the loop in use unstable on the
@@ -133,6 +137,9 @@ pub struct Snapshot {
     pub limited_steps: u32,
     /// Ticks in which the reference governor departed from the source.
     pub governed_ticks: u32,
+    /// Streamed points a motion dropped when it ended a stream that still
+    /// had them queued (since start-up).
+    pub ended_points: u32,
     /// Ticks that started late.
     pub overruns: u32,
     /// Position sensor reading, µm.
@@ -170,6 +177,7 @@ impl Snapshot {
             underruns: 0,
             limited_steps: 0,
             governed_ticks: 0,
+            ended_points: 0,
             overruns: 0,
             x_sensor: Micrometres::ZERO,
             loop_mode: LoopMode::Open,

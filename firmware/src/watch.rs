@@ -290,6 +290,7 @@ impl LoopWatch {
         reference: Micrometres,
         limited: bool,
         half_swing: Micrometres,
+        widen: Micrometres,
     ) -> Option<Fault> {
         if alone != self.alone {
             // The counts start again: the next half-cycle to end continues
@@ -342,7 +343,8 @@ impl LoopWatch {
             HALF_SWING
         } else {
             half_swing.to_bits()
-        };
+        }
+        .saturating_add(widen.to_bits());
         let side = if hp > half {
             1
         } else if hp < -half {
@@ -497,6 +499,7 @@ mod tests {
                 Micrometres::from_num(r),
                 false,
                 half,
+                Micrometres::ZERO,
             )
             .map(|f| (k, f))
         })
@@ -569,7 +572,14 @@ mod tests {
             let ramp = (k % 100) as f64 * 0.3;
             let at = Micrometres::from_num(5.0 + if k % 200 < 100 { ramp } else { 30.0 - ramp });
             assert_eq!(
-                w.update(Micrometres::from_num(v), false, at, false, DEFAULT),
+                w.update(
+                    Micrometres::from_num(v),
+                    false,
+                    at,
+                    false,
+                    DEFAULT,
+                    Micrometres::ZERO
+                ),
                 None,
                 "tick {k}"
             );
@@ -580,10 +590,24 @@ mod tests {
     fn a_limit_held_for_twenty_ms_trips() {
         let mut w = LoopWatch::new();
         for k in 0..SATURATED_TICKS as u32 {
-            let f = w.update(Micrometres::ZERO, false, Micrometres::ZERO, true, DEFAULT);
+            let f = w.update(
+                Micrometres::ZERO,
+                false,
+                Micrometres::ZERO,
+                true,
+                DEFAULT,
+                Micrometres::ZERO,
+            );
             assert_eq!(f.is_some(), k + 1 == SATURATED_TICKS as u32);
         }
-        let f = w.update(Micrometres::ZERO, false, Micrometres::ZERO, false, DEFAULT);
+        let f = w.update(
+            Micrometres::ZERO,
+            false,
+            Micrometres::ZERO,
+            false,
+            DEFAULT,
+            Micrometres::ZERO,
+        );
         assert_eq!(f, None);
     }
 
@@ -656,6 +680,7 @@ mod tests {
                 Micrometres::from_num(reference(t)),
                 false,
                 DEFAULT,
+                Micrometres::ZERO,
             )
             .is_some()
         })
@@ -781,7 +806,8 @@ mod tests {
                 let t = k as f64 / 2e4;
                 let (r, v) = (reference(t), swing(t));
                 let (r, v) = (Micrometres::from_num(r), Micrometres::from_num(v));
-                w.update(v, false, r, false, small).is_some()
+                w.update(v, false, r, false, small, Micrometres::ZERO)
+                    .is_some()
             });
             assert_eq!(tripped, None, "{f} Hz");
             assert_eq!(feed_about(true, 20_000, reference, swing), None, "{f} Hz");
@@ -857,8 +883,10 @@ mod tests {
         let swing = |k: u32| Micrometres::from_num(sine(k as f64 / 2e4));
         let at = Micrometres::from_num(20);
         let mut w = LoopWatch::new();
-        let tripped =
-            (0..400u32).find(|&k| w.update(swing(k), k < switch, at, false, DEFAULT).is_some());
+        let tripped = (0..400u32).find(|&k| {
+            w.update(swing(k), k < switch, at, false, DEFAULT, Micrometres::ZERO)
+                .is_some()
+        });
         let k = tripped.expect("caught");
         assert!(
             k > switch + closed / 2,
@@ -904,8 +932,15 @@ mod tests {
         let at = Micrometres::from_num(20);
         let tripped = (0..20_000u32).find(|&k| {
             let v = 0.12 * (TAU * 400.0 * k as f64 / 2e4).sin();
-            w.update(Micrometres::from_num(v), true, at, false, small)
-                .is_some()
+            w.update(
+                Micrometres::from_num(v),
+                true,
+                at,
+                false,
+                small,
+                Micrometres::ZERO,
+            )
+            .is_some()
         });
         assert_eq!(tripped, None);
     }
@@ -930,8 +965,15 @@ mod tests {
         let at = Micrometres::from_num(20);
         let small = Micrometres::from_num(0.075);
         let tripped = (0..200_000u32).find(|_| {
-            w.update(Micrometres::from_num(noise()), false, at, false, small)
-                .is_some()
+            w.update(
+                Micrometres::from_num(noise()),
+                false,
+                at,
+                false,
+                small,
+                Micrometres::ZERO,
+            )
+            .is_some()
         });
         assert_eq!(tripped, None);
     }

@@ -43,8 +43,8 @@ pub use reply::{
     Refusal, Reply, ReplyHeader, ReplyKind, ResetReason, SlotKind, SlotReport, Status,
 };
 
-/// The protocol version of these messages (9: the governed ticks in the
-/// status; 8: the learned mass ratio set by
+/// The protocol version of these messages (9: the governed ticks and the
+/// points a motion dropped from a stream in the status; 8: the learned mass ratio set by
 /// [`Command::LeadRatio`]; 7: the learned mass ratio in the status; 6: the link in the hello, recordings
 /// sent as differences between samples; 5: explicit wire numbers, an axis in
 /// every command that addresses a stage).

@@ -288,6 +288,9 @@ pub struct Status {
     /// Ticks in which the reference governor departed from the source's
     /// reference (it asked for more than the stage can do within its stroke).
     pub governed_ticks: u32,
+    /// Streamed points a motion dropped when it ended a stream that still had
+    /// them queued (a client that died mid-stream left them), since start-up.
+    pub ended_points: u32,
     /// Control ticks that started late (after their period), since start-up.
     pub overruns: u32,
     /// CRC-32 of the running model's image.

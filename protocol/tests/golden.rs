@@ -162,6 +162,7 @@ fn status() -> Status {
         recorder: [1, 500, 0, 20],
         limited_steps: 0,
         governed_ticks: 0,
+        ended_points: 0,
         overruns: 2,
         model_crc: 0x1234_5678,
     }
@@ -201,7 +202,7 @@ goldens! {
     reply_hello: Reply::Hello(hello())
         => "01 09 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01";
     reply_status: Reply::Status(status())
-        => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 02 f8 ac d1 91 01";
+        => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 00 02 f8 ac d1 91 01";
     reply_record: Reply::Record(batch())
         => "03 11 19 01 00 07 06 d0 0f 80 80 08 06 32 00 00";
     reply_model: Reply::Model(model_report())
@@ -376,7 +377,7 @@ fn status_reply_size() {
     println!("status reply: {n} bytes of body, {framed} bytes framed");
     assert_eq!(
         (n, framed),
-        (64, 75),
+        (65, 76),
         "the status reply's size changed: update PROTOCOL.md"
     );
 }

@@ -243,7 +243,10 @@ impl GovernorConfig {
             // Brake (or hold): never makes the check's sides grow.
             let a = self.accel as i32;
             let braked = v - v.max(-a).min(a);
-            (braked, gain_mul(self.c_r, braked.wrapping_sub(v).unsigned_abs()))
+            (
+                braked,
+                gain_mul(self.c_r, braked.wrapping_sub(v).unsigned_abs()),
+            )
         };
         st.d = d.saturating_add(ringing);
         st.v = v1;

@@ -92,7 +92,10 @@ fn a_source_within_the_limits_passes_to_the_bit() {
     // A 100 Hz triangle and a 200 Hz sine over 5–35 µm: 0.3 and 0.94 µm/tick.
     for k in 0..4000u32 {
         let t = k as f64 / RATE as f64;
-        let tri = 20.0 + 15.0 * (2.0 / core::f64::consts::PI) * (core::f64::consts::TAU * 100.0 * t).sin().asin();
+        let tri = 20.0
+            + 15.0
+                * (2.0 / core::f64::consts::PI)
+                * (core::f64::consts::TAU * 100.0 * t).sin().asin();
         let sine = 20.0 + 15.0 * (core::f64::consts::TAU * 200.0 * t).sin();
         for r in [tri, sine] {
             let r = um(r);
@@ -121,9 +124,15 @@ fn a_jump_is_limited_in_speed_and_acceleration_and_lands_without_overshoot() {
             governed += st.governed() as u32;
             let (dv, dd) = (g - last[1], g - 2.0 * last[1] + last[0]);
             assert!(dv.abs() <= v + 1e-4, "{from}→{to} tick {k}: speed {dv}");
-            assert!(dd.abs() <= a + 1e-4, "{from}→{to} tick {k}: acceleration {dd}");
+            assert!(
+                dd.abs() <= a + 1e-4,
+                "{from}→{to} tick {k}: acceleration {dd}"
+            );
             let (lo, hi) = (from.min(to), from.max(to));
-            assert!(g >= lo - 1e-4 && g <= hi + 1e-4, "{from}→{to} tick {k}: {g}");
+            assert!(
+                g >= lo - 1e-4 && g <= hi + 1e-4,
+                "{from}→{to} tick {k}: {g}"
+            );
             last = [last[1], g];
         }
         assert_eq!(last[1], um(to).to_num::<f64>(), "{from}→{to}: arrived");

@@ -246,8 +246,10 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
         e => Invalid::at(Field::UMin, e),
     })?;
     check_settings(&limits, &f_k_inv, &m.supervision)?;
+    check_force_tolerances(m, &f_f, &f_k_inv)?;
     if let Some(f) = m.feedback {
         FeedbackConfig::new(f)?;
+        check_position_tolerance(m, &f)?;
     }
     if let Some(s) = m.shaping {
         s.cascade()?;
@@ -288,6 +290,49 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
         saturation: m.saturation.is_some(),
         output_max: sums.output_max,
     })
+}
+
+/// The force checks can trip: the tolerance of the reading against the FEM's
+/// preload at most half the preload's change over the reference window (a
+/// reading stuck anywhere is then seen before the stage has crossed it), the
+/// dynamic limit at most the force window's span.
+fn check_force_tolerances(
+    m: &ModelSpec<'_>,
+    f_f: &Table<'_>,
+    f_k_inv: &Table<'_>,
+) -> Result<(), Invalid> {
+    let s = &m.supervision;
+    let preload = |x| f_f.eval(f_k_inv.eval(x)).to_bits() as i64;
+    let change = (preload(s.reference.hi) - preload(s.reference.lo)).abs();
+    if 2 * s.force_tolerance.to_bits() as i64 > change {
+        return Err(Invalid::at(
+            Field::ForceTolerance,
+            ModelError::ToleranceTooWide,
+        ));
+    }
+    let span = s.force.hi.to_bits() as i64 - s.force.lo.to_bits() as i64;
+    if s.channel.dynamic_limit.to_bits() as i64 > span {
+        return Err(Invalid::at(
+            Field::ForceDynamicLimit,
+            ModelError::DynamicLimitBelowTolerance,
+        ));
+    }
+    Ok(())
+}
+
+/// The position check can trip: its tolerance at most a quarter of the
+/// reference window (a reading stuck anywhere is then seen before the stage
+/// has crossed half of it).
+fn check_position_tolerance(m: &ModelSpec<'_>, f: &FeedbackSpec) -> Result<(), Invalid> {
+    let r = m.supervision.reference;
+    let span = r.hi.to_bits() as i64 - r.lo.to_bits() as i64;
+    if 4 * f.tolerance.to_bits() as i64 > span {
+        return Err(Invalid::at(
+            Field::PositionTolerance,
+            ModelError::ToleranceTooWide,
+        ));
+    }
+    Ok(())
 }
 
 /// The lead's baseline: in `[1/2, 2)`, with damping and a preview to scale.
@@ -634,5 +679,82 @@ mod tests {
             "controller.force_tolerance_n",
             ModelError::NonPositiveTolerance,
         );
+    }
+
+    /// A check a model could switch off by a setting is refused by the
+    /// setting's key: tolerances too wide for their check to trip.
+    #[test]
+    fn settings_that_would_switch_a_check_off_are_refused_by_key() {
+        let o = owned();
+        let base = spec(&o);
+        let check = |m: ModelSpec<'_>, want_key: &str, want: ModelError| {
+            let e = validate(&m).unwrap_err();
+            assert_eq!((key(e).as_str(), e.error), (want_key, want), "{e}");
+        };
+        let s = base.supervision;
+        // The preload changes by 71 N over the 25 µm window: a tolerance of
+        // 40 N (beyond half of it) could never see the reading stuck.
+        check(
+            ModelSpec {
+                supervision: Supervision {
+                    force_tolerance: v(40.0),
+                    channel: crate::control::ForceChannel {
+                        dynamic_limit: v(40.0),
+                        ..s.channel
+                    },
+                    ..s
+                },
+                ..base
+            },
+            "controller.force_tolerance_n",
+            ModelError::ToleranceTooWide,
+        );
+        // A dynamic limit beyond the force window's 180 N could never trip.
+        check(
+            ModelSpec {
+                supervision: Supervision {
+                    channel: crate::control::ForceChannel {
+                        dynamic_limit: v(190.0),
+                        ..s.channel
+                    },
+                    ..s
+                },
+                ..base
+            },
+            "controller.force_dynamic_limit_n",
+            ModelError::DynamicLimitBelowTolerance,
+        );
+        // A position tolerance beyond a quarter of the window (6.25 µm).
+        let feedback = |tolerance: f64| FeedbackSpec {
+            kp: crate::q::LoopGain::from_num(0.5),
+            ki: crate::q::LoopGain::from_num(0.01),
+            limit: v(5.0),
+            sensor: Interval {
+                lo: v(-5.0),
+                hi: v(30.0),
+            },
+            tolerance: v(tolerance),
+        };
+        check(
+            ModelSpec {
+                feedback: Some(feedback(1000.0)),
+                ..base
+            },
+            "feedback.position_tolerance_um",
+            ModelError::ToleranceTooWide,
+        );
+        check(
+            ModelSpec {
+                feedback: Some(feedback(6.5)),
+                ..base
+            },
+            "feedback.position_tolerance_um",
+            ModelError::ToleranceTooWide,
+        );
+        assert!(validate(&ModelSpec {
+            feedback: Some(feedback(6.0)),
+            ..base
+        })
+        .is_ok());
     }
 }

@@ -49,6 +49,11 @@ pub struct HardwareLimits {
     pub max_step: Volts,
     /// The window the safe voltage must lie in (the stack's safe voltages), V.
     pub safe: Interval,
+    /// The position channel's rails, µm: a broken wire reads one, so a
+    /// model's sensor window must lie strictly inside them.
+    pub position: Interval,
+    /// The force channel's rails, N: likewise for the force window.
+    pub force: Interval,
 }
 
 /// The board a model must fit: its control rate and hardware limits.
@@ -81,6 +86,24 @@ impl Board {
         let s = m.supervision.safe_voltage;
         if s < h.safe.lo || s > h.safe.hi {
             return widens(Field::SafeVoltage);
+        }
+        let rails = |w: Interval, rails: Interval, lo, hi| {
+            if w.lo <= rails.lo {
+                Err(Invalid::at(lo, ModelError::OutsideRails))
+            } else if w.hi >= rails.hi {
+                Err(Invalid::at(hi, ModelError::OutsideRails))
+            } else {
+                Ok(())
+            }
+        };
+        rails(
+            m.supervision.force,
+            h.force,
+            Field::ForceMin,
+            Field::ForceMax,
+        )?;
+        if let Some(f) = m.feedback {
+            rails(f.sensor, h.position, Field::PositionMin, Field::PositionMax)?;
         }
         Ok(())
     }
@@ -547,6 +570,14 @@ mod tests {
                 lo: Volts::ZERO,
                 hi: Volts::from_bits(10 << 16),
             },
+            position: Interval {
+                lo: Volts::from_bits(-10 << 16),
+                hi: Volts::from_bits(70 << 16),
+            },
+            force: Interval {
+                lo: Volts::from_bits(-5 << 16),
+                hi: Volts::from_bits(506 << 16),
+            },
         },
     };
 
@@ -826,6 +857,56 @@ mod tests {
             let e = load(s).unwrap_err();
             assert_eq!((e.field, e.error), (field, ModelError::WidensHardwareLimit));
         };
+        // Sensor windows that take a rail of the board's channel in (a
+        // broken wire reads a rail): refused by key.
+        let rails = |s: ModelSpec<'_>, field| {
+            let e = load(s).unwrap_err();
+            assert_eq!((e.field, e.error), (field, ModelError::OutsideRails));
+        };
+        let sup = spec.supervision;
+        rails(
+            ModelSpec {
+                supervision: crate::control::Supervision {
+                    force: Interval {
+                        lo: signal(-5.0).unwrap(),
+                        hi: sup.force.hi,
+                    },
+                    ..sup
+                },
+                ..spec
+            },
+            Field::ForceMin,
+        );
+        let fb = crate::feedback::FeedbackSpec {
+            kp: LoopGain::from_num(0.5),
+            ki: LoopGain::from_num(0.01),
+            limit: signal(5.0).unwrap(),
+            sensor: Interval {
+                lo: signal(-1000.0).unwrap(),
+                hi: signal(1000.0).unwrap(),
+            },
+            tolerance: signal(3.0).unwrap(),
+        };
+        rails(
+            ModelSpec {
+                feedback: Some(fb),
+                ..spec
+            },
+            Field::PositionMin,
+        );
+        rails(
+            ModelSpec {
+                feedback: Some(crate::feedback::FeedbackSpec {
+                    sensor: Interval {
+                        lo: signal(-5.0).unwrap(),
+                        hi: signal(70.0).unwrap(),
+                    },
+                    ..fb
+                }),
+                ..spec
+            },
+            Field::PositionMax,
+        );
         widens(
             ModelSpec {
                 u_max: signal(160.0).unwrap(),

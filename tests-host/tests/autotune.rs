@@ -824,27 +824,51 @@ fn a_fast_wave_s_forced_error_is_not_taken_for_an_oscillation() {
     }
 }
 
+/// A wave at the mode with the damping off (5 µm about 20 µm at 850 Hz:
+/// ±83 µm on the undamped mode) and a triangle whose third harmonic meets it
+/// are no longer refused command by command: the reference governor keeps
+/// what reaches the loops within what the stage can follow in its stroke
+/// (`tests/governor.rs` scores it on the true position). Here: they run, are
+/// governed, and latch nothing.
 #[test]
-fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_refused() {
-    use fpi_host::board::client::refusal;
-    use fpi_protocol::Shape;
+fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_governed() {
+    use fpi_firmware::recorder::{signal, status};
+    use fpi_protocol::{Command, Shape};
     let a = tuned();
     let (_e, mut c) = board("wave at the mode");
-    load(&mut c, &a.model, StageVariant::BUILT);
-    c.move_to(20.0, 1000.0).unwrap();
-    Follow::new(&mut c, 0).until_hold().unwrap();
-    c.damping(false).unwrap();
-    // The case: 5 µm about 20 µm at the 850 Hz mode, undamped (±83 µm).
-    let e = c.wave(Shape::Sine, 5.0, 20.0, 850.0, 0).unwrap_err();
-    let r = refusal(&e).unwrap_or_else(|| panic!("{e:#}"));
-    println!("refused: {}", r.reason);
-    assert!(r.reason.contains("mode"), "{}", r.reason);
-    // A triangle whose third harmonic meets the mode.
-    assert!(c.wave(Shape::Triangle, 15.0, 20.0, 285.0, 0).is_err());
-    // With the damping on, the same small wave stays in the stroke: accepted.
-    c.damping(true).unwrap();
-    c.wave(Shape::Sine, 5.0, 20.0, 850.0, 10).unwrap();
-    c.park().unwrap();
+    for (shape, amplitude, hz) in [(Shape::Sine, 5.0, 850.0), (Shape::Triangle, 15.0, 285.0)] {
+        load(&mut c, &a.model, StageVariant::BUILT);
+        c.move_to(20.0, 1000.0).unwrap();
+        Follow::new(&mut c, 0).until_hold().unwrap();
+        c.damping(false).unwrap();
+        let mut f = Follow::new(&mut c, signal::X_TRUE | signal::STATUS);
+        f.record(1).unwrap();
+        let t0 = f.c.status().unwrap().tick;
+        f.c.wave(shape, amplitude, 20.0, hz, 0).unwrap();
+        f.until_tick(t0 + 2000).unwrap();
+        f.c.ack(&Command::RecordStop).unwrap();
+        f.drain().unwrap();
+        let st = f.c.status().unwrap();
+        let governed = f
+            .rec
+            .samples
+            .iter()
+            .filter(|s| s.status & status::GOVERNED != 0)
+            .count();
+        let (lo, hi) = f
+            .rec
+            .samples
+            .iter()
+            .map(|s| real(s.x_true))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
+                (l.min(x), h.max(x))
+            });
+        println!("{shape:?} ±{amplitude} µm at {hz} Hz, damping off: {governed} ticks governed, true {lo:.2}…{hi:.2} µm");
+        assert_eq!(st.fault, None, "{shape:?} at {hz} Hz");
+        assert!(governed > 0, "{shape:?} at {hz} Hz");
+        assert!(lo > -1.0 && hi < 40.92, "{lo}…{hi}");
+        c.park().unwrap();
+    }
 }
 
 /// The stage's RMS motion at rest (µm, true position, less its 5 ms mean)
@@ -1016,66 +1040,58 @@ fn built_with_force_noise(sigma_n: f32) -> StageVariant {
     }
 }
 
-/// A step the stack cannot push through the force sensor's window (it used to
-/// latch `ForceOutOfRange`): refused with the force, the room and the shortest
-/// duration that fits; that duration runs without a fault, shaped and not.
+/// A step faster than the stage's mass lets the force sensor's window take
+/// (25 µm in 0.5 ms asks about 110 N of the stage as built; its window leaves
+/// about 40 N about the preload) is no longer refused with the shortest that
+/// fits: the governor slows it to the acceleration the force room allows.
+/// Shaped and not, in closed loop, and with the damping alone: no fault, the
+/// force within its window, the step governed.
 #[test]
-fn a_step_too_fast_for_the_force_sensor_is_refused_with_the_shortest_that_fits() {
-    use fpi_firmware::recorder::signal;
-    use fpi_host::board::client::refusal;
+fn a_step_too_fast_for_the_force_sensor_is_governed() {
+    use fpi_firmware::recorder::{signal, status};
     use fpi_protocol::{Command, LoopMode};
     let a = tuned();
     let (_e, mut c) = board("step too fast");
-    for shaping in [true, false] {
+    let cases = [
+        ("closed, shaped", 30.0, 5.0, Some(true)),
+        ("closed, unshaped", 30.0, 5.0, Some(false)),
+        ("damping alone, shaped", 10.0, 20.0, None),
+    ];
+    for (what, from, to, closed_shaping) in cases {
         load(&mut c, &a.model, StageVariant::BUILT);
-        c.move_to(30.0, 1000.0).unwrap();
+        c.move_to(from, 1000.0).unwrap();
         Follow::new(&mut c, 0).until_hold().unwrap();
-        c.ack(&Command::Loop {
-            axis: 0,
-            mode: LoopMode::Closed,
-        })
-        .unwrap();
-        c.shaping(shaping).unwrap();
-        let e = c.step(5.0, 0.5).unwrap_err();
-        let r = refusal(&e).unwrap_or_else(|| panic!("{e:#}"));
-        println!("shaping {shaping}: refused: {}", r.reason);
-        assert!(r.reason.contains("N of room"), "{}", r.reason);
-        let shortest: f64 = r
-            .reason
-            .rsplit(": ")
-            .next()
-            .and_then(|t| t.strip_suffix(" ms at least"))
-            .and_then(|t| t.parse().ok())
-            .unwrap_or_else(|| panic!("{}", r.reason));
-        assert!(shortest > 0.5 && shortest < 3.0, "{shortest} ms");
+        if let Some(shaping) = closed_shaping {
+            c.ack(&Command::Loop {
+                axis: 0,
+                mode: LoopMode::Closed,
+            })
+            .unwrap();
+            c.shaping(shaping).unwrap();
+        }
         let mut f = Follow::new(&mut c, signal::FORCE | signal::STATUS);
         f.record(1).unwrap();
         let t0 = f.c.status().unwrap().tick;
-        f.c.step(5.0, shortest).unwrap();
-        f.until_tick(t0 + 400).unwrap();
+        f.c.step(to, 0.5).unwrap();
+        f.until_tick(t0 + 600).unwrap();
         f.c.ack(&Command::RecordStop).unwrap();
         f.drain().unwrap();
         let st = f.c.status().unwrap();
-        assert_eq!(st.fault, None, "shaping {shaping}: {shortest} ms");
+        assert_eq!(st.fault, None, "{what}");
+        let governed = f
+            .rec
+            .samples
+            .iter()
+            .filter(|s| s.status & status::GOVERNED != 0)
+            .count();
         let force = f.rec.samples.iter().map(|s| real(s.force));
         let (lo, hi) = force.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
             (l.min(v), h.max(v))
         });
-        println!("shaping {shaping}: {shortest} ms ran, force {lo:.1}–{hi:.1} N");
+        println!("{what}: {from} → {to} µm in 0.5 ms: {governed} ticks governed, force {lo:.1}–{hi:.1} N");
+        assert!(governed > 0, "{what}");
         c.park().unwrap();
     }
-    // The damping alone, shaped: 10 → 20 µm in 0.5 ms, 44.1 N for the
-    // stage's mass in the 46.8 N of room, took the reading out of its window
-    // in a sequence of steps (50 N below the preload): refused with the
-    // shaped margin.
-    load(&mut c, &a.model, StageVariant::BUILT);
-    c.move_to(10.0, 1000.0).unwrap();
-    Follow::new(&mut c, 0).until_hold().unwrap();
-    let e = c.step(20.0, 0.5).unwrap_err();
-    let r = refusal(&e).unwrap_or_else(|| panic!("{e:#}"));
-    println!("damping alone, shaped: refused: {}", r.reason);
-    assert!(r.reason.contains("N of room"), "{}", r.reason);
-    c.park().unwrap();
 }
 
 #[test]

@@ -102,13 +102,15 @@ mod bench {
                     lo: Newtons::from_bits(20 << 16),
                     hi: Newtons::from_bits(200 << 16),
                 },
-                force_tolerance: Newtons::from_bits(1000 << 16),
+                // The factory model's tolerances (what the validator lets a
+                // model have: checks that can trip).
+                force_tolerance: Newtons::from_bits(15 << 16),
                 safe_voltage: Volts::ZERO,
                 force_source: ForceSource::Measured,
                 // The channel every exported model has: the default split.
                 channel: ForceChannel {
                     split: split_rate(DEFAULT_SPLIT_HZ, hardware::RATE_HZ),
-                    dynamic_limit: Newtons::from_bits(1000 << 16),
+                    dynamic_limit: Newtons::from_bits(45 << 16),
                 },
             },
         }) {
@@ -339,9 +341,11 @@ mod bench {
             kp: gain(0.75),
             ki: gain(1762.611 / rate),
             limit: um(9.98),
+            // Inside the position channel's rails (−10…70 µm), as the
+            // validator has a sensor window.
             sensor: piezo_fpi::control::Interval {
-                lo: r.lo - um(10.0),
-                hi: r.hi + um(10.0),
+                lo: r.lo - um(9.0),
+                hi: r.hi + um(9.0),
             },
             tolerance: um(6.0),
         };

@@ -942,6 +942,13 @@ pub(super) fn refused(r: Refused) -> Refuse {
             Refusal::NotAtRest,
             format_args!("a new model needs the stage parked: send `safe` first"),
         ),
+        Refused::StageNotParked => refuse(
+            Refusal::NotAtRest,
+            format_args!(
+                "the bench swaps the stage only under a parked board (its loops are tuned for \
+                 the stage they run on): send `safe` first"
+            ),
+        ),
         Refused::NoFeedback => refuse(
             Refusal::BadArgument,
             format_args!("the running model has no [feedback] section: load one from `fpi tune`"),
@@ -991,6 +998,7 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
         recorder: [r.active() as u32, r.kept(), r.dropped(), r.len() as u32],
         limited_steps: s.limited_steps,
         governed_ticks: s.governed_ticks,
+        ended_points: s.ended_points,
         overruns: s.overruns,
         model_crc: summary.crc,
     }
