@@ -1,7 +1,8 @@
 """Closed-loop comparison: on the stage as built (it differs from the model
 the board holds, and rings at 850 Hz), track a 15 Hz sine open loop (inverse
 FPI feedforward only), then tune the loops through the board (`autotune`) and
-track it again closed on the position sensor. Prints both errors and plots them.
+track it again closed on the position sensor. Prints both errors and plots them
+(with matplotlib: `pip install "./python[examples]"`).
 
     python closed_loop.py [PORT] [--out DIR]
 
@@ -13,16 +14,26 @@ import argparse
 import time
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-import piezo_fpi as pf  # noqa: E402
+import piezo_fpi as pf
 
 ROOT = Path(__file__).resolve().parents[2]
 FACTORY = ROOT / "firmware" / "model" / "stage-a.toml"  # the model the firmware embeds
+
+
+def pyplot():
+    """matplotlib's pyplot drawing to files, or None (with a note) where
+    matplotlib is missing: it comes with the package's `examples` extra."""
+    try:
+        import matplotlib
+    except ImportError:
+        print('no plot: matplotlib is not installed (pip install "./python[examples]", or pip install matplotlib)')
+        return None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def parked(b):
@@ -67,6 +78,9 @@ def main() -> None:
         closed, _ = track(b, "closed loop (feedback + inverse FPI)")
         parked(b)
 
+    plt = pyplot()
+    if plt is None:
+        return
     fig, ax = plt.subplots(figsize=(8, 4))
     for rec, label in ((opened, "open loop"), (closed, "closed loop")):
         ax.plot(rec["t_s"] - rec["t_s"][0], (rec["x_fhps_um"] - rec["x_ref_um"]) * 1e3, lw=1, label=label)

@@ -1,6 +1,7 @@
 """Scan and log: move to the start, raster the stroke line by line (one triangle
 sweep per line, each line's centre a step higher), record every line with the
-board's data recorder, log it to CSV and plot it to a PNG.
+board's data recorder, log it to CSV and plot it to a PNG (with matplotlib:
+`pip install "./python[examples]"`; without it, the CSV only).
 
     python scan_and_log.py [PORT] [--out DIR]
 
@@ -11,13 +12,23 @@ PORT: "virtual:usb" (the firmware in this process, its link paced as USB; the de
 import argparse
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import piezo_fpi as pf
 
-import piezo_fpi as pf  # noqa: E402
+
+def pyplot():
+    """matplotlib's pyplot drawing to files, or None (with a note) where
+    matplotlib is missing: it comes with the package's `examples` extra."""
+    try:
+        import matplotlib
+    except ImportError:
+        print('no plot: matplotlib is not installed (pip install "./python[examples]", or pip install matplotlib)')
+        return None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def main() -> None:
@@ -50,7 +61,11 @@ def main() -> None:
     log = {name: np.concatenate([r[name] for r in lines]) for name in lines[0]}
     header = ",".join(log)
     np.savetxt(out / "scan.csv", np.column_stack(list(log.values())), delimiter=",", header=header, comments="", fmt="%.6f")
+    print(f"logged {len(log['t_s'])} samples to {out / 'scan.csv'}")
 
+    plt = pyplot()
+    if plt is None:
+        return
     fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(8, 6))
     t0 = log["t_s"][0]
     top.plot(log["t_s"] - t0, log["x_ref_um"], lw=1, label="reference")
@@ -63,7 +78,7 @@ def main() -> None:
     fig.suptitle(f"raster of {args.lines} lines on {args.port}")
     fig.tight_layout()
     fig.savefig(out / "scan.png", dpi=100)
-    print(f"logged {len(log['t_s'])} samples to {out / 'scan.csv'}, plot {out / 'scan.png'}")
+    print(f"plot: {out / 'scan.png'}")
 
 
 if __name__ == "__main__":

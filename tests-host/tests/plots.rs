@@ -440,3 +440,55 @@ fn degenerate_inputs_do_not_panic() {
         check_svg(&entry.unwrap().path());
     }
 }
+
+#[test]
+fn bode_draws_the_coherence_panel_only_with_a_coherence() {
+    use nalgebra::Complex;
+    use plots::BodeSeries;
+    let dir = out_dir().join("bode");
+    let f: Vec<f64> = (0..40)
+        .map(|k| 20.0 * 200f64.powf(k as f64 / 39.0))
+        .collect();
+    let h: Vec<Complex<f64>> = f
+        .iter()
+        .map(|f| {
+            let s = Complex::new(0.0, f / 850.0);
+            Complex::new(1.0, 0.0) / (s * s + s * 0.06 + 1.0)
+        })
+        .collect();
+    let measured = |name| BodeSeries {
+        name,
+        f_hz: f.clone(),
+        h: h.clone(),
+        fit_f_hz: f.clone(),
+        fit_h: h.clone(),
+        coherence_f_hz: vec![],
+        coherence: vec![],
+    };
+    // The board's analyser: no coherence, one series without a fit.
+    let board = [
+        measured("undamped"),
+        BodeSeries {
+            fit_f_hz: vec![],
+            fit_h: vec![],
+            ..measured("damped (IFF)")
+        },
+    ];
+    let path = dir.join("board.svg");
+    plots::bode(&path, "board", &board).unwrap();
+    check_svg(&path);
+    let svg = std::fs::read_to_string(&path).unwrap();
+    assert!(svg.contains("phase (deg)") && !svg.contains("coherence"));
+    // A chirp's identification: a coherence per frequency.
+    let chirp = [BodeSeries {
+        coherence_f_hz: f.clone(),
+        coherence: f.iter().map(|f| 1.0 - f / 1e4).collect(),
+        ..measured("chirp")
+    }];
+    let path = dir.join("chirp.svg");
+    plots::bode(&path, "chirp", &chirp).unwrap();
+    check_svg(&path);
+    assert!(std::fs::read_to_string(&path)
+        .unwrap()
+        .contains("coherence"));
+}

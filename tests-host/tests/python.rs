@@ -1,15 +1,23 @@
 //! The Python package (`python/`, module `piezo_fpi`) as part of `cargo test`:
-//! builds it with `pip install` into a virtual environment under the target
-//! folder (with the `dev` profile, so it shares this build's compiled crates),
-//! and runs its pytest tests (`python/tests`): the package against the
+//! builds it with `pip install` into a virtual environment of its own under the
+//! target folder (with the `dev` profile, so it shares this build's compiled
+//! crates), and runs its pytest tests (`python/tests`): the package against the
 //! in-process board and the emulated board, the method against this `fpi`
 //! (`FPI_BIN`) on the shared datasets, every error path, and an example.
 //!
-//! Without `python3` (or its `pip` and `venv`), or without maturin, pytest and
-//! numpy where pip cannot install them, it prints a loud `SKIPPED` notice past
-//! the test harness's capture and passes; under CI (`CI=true`) that is a
-//! failure, as CI must run them. `.ci/run` installs what it needs.
+//! It needs only `python3` with its `venv` module (`$PYTHON` names another
+//! Python): everything else — the build backend (maturin), numpy, pytest and
+//! matplotlib, as `python/pyproject.toml` lists them — pip installs into the
+//! environment from PyPI the first time (later runs find them there, offline).
+//! Every tool of the environment runs from its `bin/` (which is put first on
+//! `PATH`: the build backend calls `maturin` by name), never from the system's.
+//!
+//! Without a usable Python, or where pip cannot install what the package needs,
+//! it prints a loud `SKIPPED` notice, naming the fix, past the test harness's
+//! capture and passes; under CI (`CI=true`) that is a failure, as CI must run
+//! them.
 
+use std::ffi::OsString;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -29,7 +37,7 @@ fn skip(why: &str) {
     }
     let notice = format!(
         "\n!!!!! SKIPPED the Python package's tests (python/tests): {why}\n\
-         !!!!! (install python3 with pip and venv; under CI=true this is a failure)\n"
+         !!!!! (under CI=true this is a failure)\n"
     );
     let _ = std::io::stderr().lock().write_all(notice.as_bytes());
 }
@@ -46,60 +54,164 @@ fn text(o: &Output) -> String {
     )
 }
 
-/// The virtual environment's Python, the environment made if need be (with the
-/// system's packages visible: numpy, pytest, maturin where installed).
-fn venv(dir: &Path) -> Result<PathBuf, String> {
-    let bin = if cfg!(windows) {
-        dir.join("Scripts").join("python.exe")
-    } else {
-        dir.join("bin").join("python")
-    };
-    if !bin.is_file() {
-        let o = run(Command::new(python())
-            .args(["-m", "venv", "--system-site-packages"])
-            .arg(dir))
-        .map_err(|e| format!("{} not found ({e})", python()))?;
-        if !o.status.success() {
-            return Err(format!("`{} -m venv` failed:\n{}", python(), text(&o)));
+/// A virtual environment: its folder, its `bin/` (`Scripts\` on Windows) and
+/// its Python.
+struct Venv {
+    dir: PathBuf,
+    bin: PathBuf,
+    python: PathBuf,
+}
+
+impl Venv {
+    fn at(dir: &Path) -> Self {
+        let bin = if cfg!(windows) {
+            dir.join("Scripts")
+        } else {
+            dir.join("bin")
+        };
+        let python = bin.join(if cfg!(windows) {
+            "python.exe"
+        } else {
+            "python"
+        });
+        Venv {
+            dir: dir.to_path_buf(),
+            bin,
+            python,
         }
     }
-    let has = |b: &Path| {
-        run(Command::new(b).args(["-c", "import maturin, pytest, numpy, matplotlib"]))
-            .is_ok_and(|o| o.status.success())
-    };
-    if !has(&bin) {
-        let o = run(Command::new(&bin).args([
-            "-m",
-            "pip",
-            "install",
-            "--quiet",
-            "maturin",
-            "pytest",
-            "numpy",
-            "matplotlib",
-        ]))
-        .map_err(|e| format!("pip: {e}"))?;
-        if !o.status.success() {
-            return Err(format!(
-                "maturin, pytest, numpy and matplotlib are not installed, and pip could not \
-                 install them:\n{}",
-                text(&o)
-            ));
-        }
+
+    /// A command running `program` (a tool of the environment, by name, or any
+    /// path) with the environment's `bin/` first on `PATH`, as its activation
+    /// script would, so that what the build backend calls by name (`maturin`)
+    /// is the environment's.
+    fn command(&self, program: impl AsRef<std::ffi::OsStr>) -> Command {
+        let mut paths = vec![self.bin.clone()];
+        paths.extend(std::env::split_paths(
+            &std::env::var_os("PATH").unwrap_or_default(),
+        ));
+        let path = std::env::join_paths(paths).unwrap_or_else(|_| OsString::from(&self.bin));
+        let mut c = Command::new(program);
+        c.env("PATH", path)
+            .env("VIRTUAL_ENV", &self.dir)
+            .env_remove("PYTHONHOME")
+            .env("PIP_DISABLE_PIP_VERSION_CHECK", "1");
+        c
     }
-    Ok(bin)
+
+    /// Its pip works (a folder left by a `venv` that failed half-way has a
+    /// Python but no pip).
+    fn usable(&self) -> bool {
+        self.python.is_file()
+            && run(self.command(&self.python).args(["-m", "pip", "--version"]))
+                .is_ok_and(|o| o.status.success())
+    }
+}
+
+/// How to get a Python whose `venv` module works, for the messages.
+const VENV_FIX: &str = "install Python 3.9 or later with its venv module (Debian/Ubuntu: \
+    `sudo apt-get install python3-venv`, or python3.X-venv for the python3 in use), or set \
+    PYTHON to such a Python";
+
+/// The environment at `dir`, made (again) if it is missing or broken.
+fn make_venv(dir: &Path) -> Result<Venv, String> {
+    let v = Venv::at(dir);
+    if v.usable() {
+        return Ok(v);
+    }
+    if dir.exists() {
+        std::fs::remove_dir_all(dir)
+            .map_err(|e| format!("removing the broken environment {}: {e}", dir.display()))?;
+    }
+    let o = run(Command::new(python()).args(["-m", "venv"]).arg(dir))
+        .map_err(|e| format!("`{}` not found ({e}): {VENV_FIX}", python()))?;
+    let out = text(&o);
+    if !o.status.success() || !v.usable() {
+        let _ = std::fs::remove_dir_all(dir);
+        let why = if out.contains("ensurepip") {
+            "its venv module has no ensurepip, so the environment has no pip"
+        } else {
+            "the environment it made has no working pip"
+        };
+        return Err(format!(
+            "`{} -m venv {}` failed ({why}): {VENV_FIX}\n{out}",
+            python(),
+            dir.display()
+        ));
+    }
+    Ok(v)
+}
+
+/// What `python/pyproject.toml` says the package needs to be built and tested:
+/// the build system's requirements (maturin), the package's dependencies
+/// (numpy) and its `test` extra (pytest, matplotlib).
+fn requirements(pyproject: &Path) -> Vec<String> {
+    let text = std::fs::read_to_string(pyproject)
+        .unwrap_or_else(|e| panic!("reading {}: {e}", pyproject.display()));
+    let doc: toml::Table = text
+        .parse()
+        .unwrap_or_else(|e| panic!("parsing {}: {e}", pyproject.display()));
+    let list = |v: Option<&toml::Value>| -> Vec<String> {
+        v.and_then(toml::Value::as_array)
+            .map(|a| {
+                a.iter()
+                    .filter_map(|s| s.as_str().map(str::to_string))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let build = doc.get("build-system").and_then(|b| b.get("requires"));
+    let project = doc.get("project");
+    let deps = project.and_then(|p| p.get("dependencies"));
+    let test = project
+        .and_then(|p| p.get("optional-dependencies"))
+        .and_then(|o| o.get("test"));
+    let mut all = list(build);
+    all.extend(list(deps));
+    all.extend(list(test));
+    all
+}
+
+/// The environment for the package: made if need be, with what it needs to be
+/// built and tested installed (pip leaves what is already there).
+fn venv(dir: &Path, pyproject: &Path) -> Result<Venv, String> {
+    let v = make_venv(dir)?;
+    let needs = requirements(pyproject);
+    assert!(
+        needs.iter().any(|r| r.starts_with("maturin")),
+        "{} names no maturin among its requirements: {needs:?}",
+        pyproject.display()
+    );
+    let o = run(v
+        .command(&v.python)
+        .args(["-m", "pip", "install", "--quiet"])
+        .args(&needs))
+    .map_err(|e| format!("running pip: {e}"))?;
+    if !o.status.success() {
+        return Err(format!(
+            "pip could not install {} into the test's environment {} (the first run needs \
+             PyPI, or pip configured for a mirror):\n{}",
+            needs.join(" "),
+            dir.display(),
+            text(&o)
+        ));
+    }
+    Ok(v)
 }
 
 #[test]
 fn the_python_package_builds_and_passes_its_tests() {
     let root = project_root();
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("python-venv");
-    let py = match venv(&dir) {
-        Ok(p) => p,
+    let started = std::time::Instant::now();
+    let v = match venv(&dir, &root.join("python").join("pyproject.toml")) {
+        Ok(v) => v,
         Err(why) => return skip(&why),
     };
+    let ready = started.elapsed().as_secs_f64();
     let started = std::time::Instant::now();
-    let o = run(Command::new(&py)
+    let o = run(v
+        .command(&v.python)
         .args([
             "-m",
             "pip",
@@ -118,7 +230,8 @@ fn the_python_package_builds_and_passes_its_tests() {
         text(&o)
     );
     let built = started.elapsed().as_secs_f64();
-    let o = run(Command::new(&py)
+    let o = run(v
+        .command(&v.python)
         .args(["-m", "pytest", "-q", "-p", "no:cacheprovider", "-rs"])
         .arg(root.join("python").join("tests"))
         .current_dir(root.join("python"))
@@ -134,8 +247,23 @@ fn the_python_package_builds_and_passes_its_tests() {
         .map(|l| format!("!!!!! python/tests: {l}\n"))
         .collect();
     let _ = std::io::stderr().lock().write_all(
-        format!("\npython/tests: built in {built:.0} s; pytest: {summary}\n{skipped}").as_bytes(),
+        format!(
+            "\npython/tests: environment ready in {ready:.0} s, package built in {built:.0} s; \
+             pytest: {summary}\n{skipped}"
+        )
+        .as_bytes(),
     );
     assert!(o.status.success(), "pytest failed:\n{out}");
     assert!(summary.contains(" passed"), "pytest ran no test:\n{out}");
+}
+
+#[test]
+fn the_requirements_come_from_pyproject() {
+    let needs = requirements(&project_root().join("python").join("pyproject.toml"));
+    for name in ["maturin", "numpy", "pytest", "matplotlib"] {
+        assert!(
+            needs.iter().any(|r| r.starts_with(name)),
+            "{name} missing from {needs:?}"
+        );
+    }
 }

@@ -166,16 +166,7 @@ fn print_session(r: &SessionReport) {
         "phase", "rms nm", "max nm", "sensor nm"
     );
     for p in &r.phases {
-        let nm = |x: f64| format!("{:.0}", x * 1e3);
-        let (rms, max, est) = if p.tracking.count() > 0 {
-            (
-                nm(p.tracking.rms()),
-                nm(p.tracking.max_abs()),
-                nm(p.estimate.rms()),
-            )
-        } else {
-            ("-".into(), "-".into(), "-".into())
-        };
+        let [rms, max, est] = p.figures_nm();
         println!(
             "  {:<42} {:>10} {:>10} {:>12}  {}",
             p.name,
@@ -242,13 +233,11 @@ fn append_report(path: &Path, r: &SessionReport, emulated: bool) -> Result<()> {
     );
     let _ = writeln!(md, "|---|---:|---:|---:|---|---|");
     for p in &r.phases {
+        let [rms, max, est] = p.figures_nm();
         let _ = writeln!(
             md,
-            "| {} | {:.0} | {:.0} | {:.0} | {} | {} |",
+            "| {} | {rms} | {max} | {est} | {} | {} |",
             p.name,
-            p.tracking.rms() * 1e3,
-            p.tracking.max_abs() * 1e3,
-            p.estimate.rms() * 1e3,
             if p.pass { "ok" } else { "FAILED" },
             p.note
         );

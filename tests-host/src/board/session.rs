@@ -51,6 +51,23 @@ pub struct PhaseResult {
     pub pass: bool,
 }
 
+impl PhaseResult {
+    /// Its figures as the terminal and the report print them, whole nm: the
+    /// tracking error's RMS and largest value and the virtual sensor's RMS
+    /// error; `-` each for a phase that tracked nothing (a refused reference).
+    pub fn figures_nm(&self) -> [String; 3] {
+        if self.tracking.count() == 0 {
+            return ["-".into(), "-".into(), "-".into()];
+        }
+        let nm = |x: f64| format!("{:.0}", x * 1e3);
+        [
+            nm(self.tracking.rms()),
+            nm(self.tracking.max_abs()),
+            nm(self.estimate.rms()),
+        ]
+    }
+}
+
 /// The whole session.
 #[derive(Debug, Clone)]
 pub struct SessionReport {
@@ -323,4 +340,33 @@ pub fn run(c: &mut Client, image: &[u8]) -> Result<SessionReport> {
         elapsed,
         ticks_per_second: (end - t0) as f64 / elapsed.as_secs_f64(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn phase(errors: &[f64]) -> PhaseResult {
+        let mut tracking = ErrorStats::new();
+        let mut estimate = ErrorStats::new();
+        for e in errors {
+            tracking.add(*e);
+            estimate.add(e / 2.0);
+        }
+        PhaseResult {
+            name: "a phase",
+            from: 0,
+            to: 1,
+            tracking,
+            estimate,
+            note: String::new(),
+            pass: true,
+        }
+    }
+
+    #[test]
+    fn a_phase_that_tracked_nothing_prints_dashes_not_zeros() {
+        assert_eq!(phase(&[]).figures_nm(), ["-", "-", "-"]);
+        assert_eq!(phase(&[0.003, -0.004]).figures_nm(), ["4", "4", "2"]);
+    }
 }

@@ -159,6 +159,8 @@ fn plot(
         h: pts.iter().map(h).collect(),
         fit_f_hz: fit.map_or(Vec::new(), |_| ff.clone()),
         fit_h: fit.map_or(Vec::new(), <[_]>::to_vec),
+        // The board's analyser correlates one sine at a time and measures no
+        // coherence: the figures have magnitude and phase only.
         coherence_f_hz: Vec::new(),
         coherence: Vec::new(),
     };

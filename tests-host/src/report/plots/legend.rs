@@ -11,6 +11,21 @@ use super::style::{text_style, FrameStyle, FONT, LEGEND_SIZE};
 /// One entry of a hand-drawn legend: label and line style.
 pub(super) type LegendEntry = (String, ShapeStyle);
 
+/// The sample a hand-drawn legend shows for a series, as the series is drawn:
+/// a line, dots, or both (a line through a dot).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) enum Mark {
+    /// A line in this style.
+    Line(ShapeStyle),
+    /// A dot in this style.
+    Dot(ShapeStyle),
+    /// A line (first style) through a dot (second style).
+    LineAndDot(ShapeStyle, ShapeStyle),
+}
+
+/// Radius of a legend's dot (px): larger than a plotted point's, to be seen.
+const DOT_RADIUS: i32 = 4;
+
 /// Gap between the legend box and the plotting area's border (px).
 const LEGEND_INSET: i32 = 8;
 
@@ -139,8 +154,17 @@ pub(super) fn draw_legend<'a, 'b: 'a>(
     Ok(())
 }
 
-/// A one-row legend centred in `area`.
+/// A one-row legend centred in `area`, each entry's sample a line.
 pub(super) fn draw_legend_row(area: &Area, entries: &[LegendEntry]) -> Result<()> {
+    let marked: Vec<(String, Mark)> = entries
+        .iter()
+        .map(|(name, style)| (name.clone(), Mark::Line(*style)))
+        .collect();
+    draw_legend_row_marked(area, &marked)
+}
+
+/// A one-row legend centred in `area`, each entry with its sample.
+pub(super) fn draw_legend_row_marked(area: &Area, entries: &[(String, Mark)]) -> Result<()> {
     let font = legend_font();
     let widths: Vec<i32> = entries
         .iter()
@@ -150,10 +174,25 @@ pub(super) fn draw_legend_row(area: &Area, entries: &[LegendEntry]) -> Result<()
     let (aw, ah) = area.dim_in_pixel();
     let mut x = ((aw as i32 - total) / 2).max(4);
     let y = ah as i32 / 2;
-    for ((name, style), w) in entries.iter().zip(widths) {
-        area.draw(&PathElement::new(vec![(x, y), (x + 24, y)], *style))?;
+    for ((name, mark), w) in entries.iter().zip(widths) {
+        draw_mark(area, *mark, x, y)?;
         area.draw_text(name, &font, (x + 30, y))?;
         x += w;
+    }
+    Ok(())
+}
+
+/// A legend sample 24 px wide from `(x, y)` (its left middle).
+fn draw_mark(area: &Area, mark: Mark, x: i32, y: i32) -> Result<()> {
+    let line = |style: ShapeStyle| area.draw(&PathElement::new(vec![(x, y), (x + 24, y)], style));
+    let dot = |style: ShapeStyle| area.draw(&Circle::new((x + 12, y), DOT_RADIUS, style));
+    match mark {
+        Mark::Line(l) => line(l)?,
+        Mark::Dot(d) => dot(d)?,
+        Mark::LineAndDot(l, d) => {
+            line(l)?;
+            dot(d)?;
+        }
     }
     Ok(())
 }
