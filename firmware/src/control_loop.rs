@@ -118,6 +118,8 @@ pub struct ControlLoop<S, A, E, R> {
     /// What the loop watch's half swings are widened by while an analysis
     /// runs: [`WATCH_WIDEN`] times its stimulus (else zero), µm.
     watch_widen: Micrometres,
+    /// The status bits the settings set (uncompensated drive, feedback).
+    status_base: u8,
 }
 
 /// The loop watch's half swings are widened by this many times the
@@ -171,6 +173,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             changed: true,
             stream_supervised: false,
             watch_widen: Micrometres::ZERO,
+            status_base: 0,
         }
         .with_loop_set()
     }
@@ -181,13 +184,20 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         self
     }
 
-    /// Picks the governor of the loops in force: the loop mode, the damping
-    /// and the shaping where they run.
+    /// Picks the governor of the loops in force (the loop mode, the damping
+    /// and the shaping where they run) and the status bits they set.
     fn update_loop_set(&mut self) {
         let s = self.model.summary();
         let damping = self.feedback.damping_on() && s.damping.is_some();
         let shaping = self.feedback.shaping_on() && (s.preview.is_some() || s.shaping.is_some());
         self.loop_set = LoopSet::of(self.feedback.mode(), damping, shaping);
+        self.status_base = 0;
+        if !self.compensated {
+            self.status_base |= status::UNCOMPENSATED;
+        }
+        if self.feedback.mode() != LoopMode::Open {
+            self.status_base |= status::FEEDBACK;
+        }
     }
 
     /// A fresh controller state for `model`, tared and parked, and its reference.
@@ -417,7 +427,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
     }
 
     fn status(&self, limited: bool, fault: Option<Fault>, at_safe: bool) -> u8 {
-        let mut s = 0;
+        let mut s = self.status_base;
         if fault.is_some() {
             s |= status::FAULT;
         }
@@ -430,14 +440,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         if self.reference.underrun() {
             s |= status::UNDERRUN;
         }
-        if !self.compensated {
-            s |= status::UNCOMPENSATED;
-        }
         if self.reference.approaching() {
             s |= status::APPROACHING;
-        }
-        if self.feedback.mode() != LoopMode::Open {
-            s |= status::FEEDBACK;
         }
         if self.governor.governed() {
             s |= status::GOVERNED;
@@ -564,6 +568,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             }
             Order::Drive { compensated } => {
                 self.compensated = compensated;
+                self.update_loop_set();
                 Ok(())
             }
             Order::Loop(mode) => {

@@ -19,8 +19,9 @@ use piezo_fpi::stability::Laws;
 
 use crate::closed_loop::LoopMode;
 
-/// Sets of loops: three modes, damping and shaping each on or off.
-pub const SETS: usize = 12;
+/// Sets of loops: three modes, damping and shaping each on or off (12), in a
+/// table of 16 (the index is masked, not divided).
+pub const SETS: usize = 16;
 
 /// Which set of loops runs: the index of its governor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -42,6 +43,7 @@ impl LoopSet {
         let mode = match i / 4 {
             0 => LoopMode::Open,
             1 => LoopMode::Closed,
+            // 8..=11, and the table's unused 12..=15.
             _ => LoopMode::FeedbackOnly,
         };
         (mode, i & 2 != 0, i & 1 != 0)
@@ -101,8 +103,9 @@ impl Governors {
     /// The governor of `set`.
     #[inline(always)]
     pub fn get(&self, set: LoopSet) -> &GovernorConfig {
-        // `SETS` entries, and a `LoopSet` is below it by construction.
-        &self.0[set.0 as usize % SETS]
+        // `SETS` entries, a power of two, and a `LoopSet` is below it by
+        // construction.
+        &self.0[set.0 as usize & (SETS - 1)]
     }
 }
 
