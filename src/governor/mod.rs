@@ -331,16 +331,16 @@ impl GovernorConfig {
         let speed = v1.unsigned_abs();
         let s = stop_distance(speed, self.inv_2accel)
             .wrapping_add((speed >> (MOTION_FRAC - 16 + 1)) as i32);
-        let bound = d_r
-            .saturating_add(gain_mul(self.c_vr, speed))
-            .min(d_s.saturating_add(gain_distance(self.c_s, s)));
         let g1 = g.wrapping_add(v1 >> (MOTION_FRAC - 16));
         let (ahead, behind) = if v1 >= 0 {
             (self.hi_m.wrapping_sub(g1), g1.wrapping_sub(self.lo_m))
         } else {
             (g1.wrapping_sub(self.lo_m), self.hi_m.wrapping_sub(g1))
         };
-        bound <= behind && s.saturating_add(bound) <= ahead
+        let fits = |bound: i32| bound <= behind && s.saturating_add(bound) <= ahead;
+        // The ramp bound first: it is the small one for motion.
+        fits(d_r.saturating_add(gain_mul(self.c_vr, speed)))
+            || fits(d_s.saturating_add(gain_distance(self.c_s, s)))
     }
 }
 
