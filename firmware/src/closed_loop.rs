@@ -451,8 +451,7 @@ impl Loop {
                 self.damping_alone,
                 io.x_ref,
                 limited,
-                io.watch_swing,
-                io.watch_widen,
+                io.watch_halves,
             )
         } else {
             if self.watching {
@@ -566,13 +565,11 @@ pub struct Inputs<'c, 'm> {
     /// Its lead, where the damping leaves the shaped reference's force out
     /// (`Summary::lead`: damping and a preview).
     pub lead: Option<&'c LeadSpec>,
-    /// The oscillation watch's half swing on the tracking error, µm
-    /// (`Summary::watch_swing`).
-    pub watch_swing: Micrometres,
-    /// What the watch's half swings are widened by, µm: three times the
-    /// analyser's stimulus while an analysis runs (its own forced swing is not
-    /// an oscillation), else zero.
-    pub watch_widen: Micrometres,
+    /// The oscillation watch's half swings, µm: on a closed loop's tracking
+    /// error (`Summary::watch_swing`) and with the damping alone
+    /// ([`crate::watch::HALF_SWING`]), widened while an analysis runs (its
+    /// stimulus's own forced swing is not an oscillation).
+    pub watch_halves: &'c [Micrometres; 2],
     /// The force channel's dynamic part this tick, N.
     pub dynamic: Newtons,
     /// Its straight-line drive.

@@ -115,9 +115,10 @@ pub struct ControlLoop<S, A, E, R> {
     /// The supervision's timeout is a stream's (it switched it on), not the
     /// host's.
     stream_supervised: bool,
-    /// What the loop watch's half swings are widened by while an analysis
-    /// runs: [`WATCH_WIDEN`] times its stimulus (else zero), µm.
-    watch_widen: Micrometres,
+    /// The loop watch's half swings (a closed loop's, the damping alone's),
+    /// widened by [`WATCH_WIDEN`] times the analyser's stimulus while it runs,
+    /// µm.
+    watch_halves: [Micrometres; 2],
     /// The status bits the settings set (uncompensated drive, feedback).
     status_base: u8,
 }
@@ -128,6 +129,13 @@ pub struct ControlLoop<S, A, E, R> {
 /// ±0.14 µm for 0.1 µm at 413 Hz on the stage as built), which is not an
 /// oscillation; an unstable loop outgrows it.
 pub const WATCH_WIDEN: i32 = 3;
+
+/// The loop watch's half swings for a model (a closed loop's tracking
+/// error's, the damping alone's), widened by `by`, µm.
+fn watch_halves(s: &crate::slots::Summary, by: Micrometres) -> [Micrometres; 2] {
+    let alone = Micrometres::from_bits(crate::watch::HALF_SWING);
+    [s.watch_swing.saturating_add(by), alone.saturating_add(by)]
+}
 
 /// Where a parked stage rests on the stroke: `f_K` of the estimate, inside the
 /// model's reference window.
@@ -172,7 +180,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             governed: 0,
             changed: true,
             stream_supervised: false,
-            watch_widen: Micrometres::ZERO,
+            watch_halves: [Micrometres::ZERO; 2],
             status_base: 0,
         }
         .with_loop_set()
@@ -184,9 +192,17 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         self
     }
 
+    /// The loop watch's half swings, widened by `by` (µm).
+    fn widen_watch(&mut self, by: Micrometres) {
+        self.watch_halves = watch_halves(self.model.summary(), by);
+    }
+
     /// Picks the governor of the loops in force (the loop mode, the damping
     /// and the shaping where they run) and the status bits they set.
     fn update_loop_set(&mut self) {
+        if !self.analyser.running() {
+            self.widen_watch(Micrometres::ZERO);
+        }
         let s = self.model.summary();
         let damping = self.feedback.damping_on() && s.damping.is_some();
         let shaping = self.feedback.shaping_on() && (s.preview.is_some() || s.shaping.is_some());
@@ -278,7 +294,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             if let Some(r) = self.analyser.take(signals, out.fault.is_some()) {
                 x.analysis = Some(r);
                 self.changed = true;
-                self.watch_widen = Micrometres::ZERO;
+                self.watch_halves = watch_halves(self.model.summary(), Micrometres::ZERO);
             }
         }
         self.x_est = cfg.stage_position(out.x_pea_est);
@@ -331,8 +347,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             shaping: summary.shaping.as_ref(),
             damping: summary.damping.as_ref(),
             lead: summary.lead.as_ref(),
-            watch_swing: summary.watch_swing,
-            watch_widen: self.watch_widen,
+            watch_halves: &self.watch_halves,
             dynamic,
             drive: &summary.baseline,
             compensated: self.compensated,
@@ -551,7 +566,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             Order::Source(s) => {
                 self.arm()?;
                 self.analyser.abort();
-                self.watch_widen = Micrometres::ZERO;
+                self.widen_watch(Micrometres::ZERO);
                 if matches!(s, SourceOrder::Stream { .. }) {
                     self.underruns = 0;
                     // A stream is always supervised.
@@ -602,7 +617,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 }
                 x.analysis = None;
                 self.analyser.start(o);
-                self.watch_widen = o.amplitude.saturating_mul_int(WATCH_WIDEN);
+                self.widen_watch(o.amplitude.saturating_mul_int(WATCH_WIDEN));
                 Ok(())
             }
             Order::Safe => {

@@ -278,10 +278,10 @@ impl LoopWatch {
 
     /// Takes this tick's swing `delta` (µm), whether the damping runs
     /// `alone` (else the position loop is closed), the reference the loops
-    /// track, whether the command was held at a limit and the half swing of
-    /// a closed loop's tracking error (µm: the model's; with the damping
-    /// alone the swing is watched at [`HALF_SWING`]); the fault, once one is
-    /// seen.
+    /// track, whether the command was held at a limit and the half swings:
+    /// of a closed loop's tracking error (µm: the model's) and of the damping
+    /// alone's (µm: [`HALF_SWING`]), each widened while an analysis runs
+    /// (`crate::control_loop`'s `WATCH_WIDEN`); the fault, once one is seen.
     #[inline]
     pub fn update(
         &mut self,
@@ -289,8 +289,7 @@ impl LoopWatch {
         alone: bool,
         reference: Micrometres,
         limited: bool,
-        half_swing: Micrometres,
-        widen: Micrometres,
+        halves: &[Micrometres; 2],
     ) -> Option<Fault> {
         if alone != self.alone {
             // The counts start again: the next half-cycle to end continues
@@ -339,12 +338,7 @@ impl LoopWatch {
         let d = delta.to_bits();
         let hp = d.saturating_sub(self.mean);
         self.mean = self.mean.saturating_add(hp >> MEAN_SHIFT);
-        let half = if alone {
-            HALF_SWING
-        } else {
-            half_swing.to_bits()
-        }
-        .saturating_add(widen.to_bits());
+        let half = halves[alone as usize].to_bits();
         let side = if hp > half {
             1
         } else if hp < -half {
@@ -466,6 +460,12 @@ impl LoopWatch {
 mod tests {
     use super::*;
 
+    /// The half swings of [`LoopWatch::update`] for a closed loop's
+    /// tracking error `closed` (and the damping alone's [`HALF_SWING`]).
+    fn halves(closed: Micrometres) -> [Micrometres; 2] {
+        [closed, Micrometres::from_bits(HALF_SWING)]
+    }
+
     const TAU: f64 = core::f64::consts::TAU;
     /// The half swing of a model that sets none.
     const DEFAULT: Micrometres = Micrometres::from_bits(HALF_SWING);
@@ -498,9 +498,7 @@ mod tests {
                 false,
                 Micrometres::from_num(r),
                 false,
-                half,
-                Micrometres::ZERO,
-            )
+                &halves(half))
             .map(|f| (k, f))
         })
     }
@@ -577,9 +575,7 @@ mod tests {
                     false,
                     at,
                     false,
-                    DEFAULT,
-                    Micrometres::ZERO
-                ),
+                    &halves(DEFAULT)),
                 None,
                 "tick {k}"
             );
@@ -595,9 +591,7 @@ mod tests {
                 false,
                 Micrometres::ZERO,
                 true,
-                DEFAULT,
-                Micrometres::ZERO,
-            );
+                &halves(DEFAULT));
             assert_eq!(f.is_some(), k + 1 == SATURATED_TICKS as u32);
         }
         let f = w.update(
@@ -605,9 +599,7 @@ mod tests {
             false,
             Micrometres::ZERO,
             false,
-            DEFAULT,
-            Micrometres::ZERO,
-        );
+            &halves(DEFAULT));
         assert_eq!(f, None);
     }
 
@@ -679,9 +671,7 @@ mod tests {
                 alone,
                 Micrometres::from_num(reference(t)),
                 false,
-                DEFAULT,
-                Micrometres::ZERO,
-            )
+                &halves(DEFAULT))
             .is_some()
         })
     }
@@ -806,7 +796,7 @@ mod tests {
                 let t = k as f64 / 2e4;
                 let (r, v) = (reference(t), swing(t));
                 let (r, v) = (Micrometres::from_num(r), Micrometres::from_num(v));
-                w.update(v, false, r, false, small, Micrometres::ZERO)
+                w.update(v, false, r, false, &halves(small))
                     .is_some()
             });
             assert_eq!(tripped, None, "{f} Hz");
@@ -884,7 +874,7 @@ mod tests {
         let at = Micrometres::from_num(20);
         let mut w = LoopWatch::new();
         let tripped = (0..400u32).find(|&k| {
-            w.update(swing(k), k < switch, at, false, DEFAULT, Micrometres::ZERO)
+            w.update(swing(k), k < switch, at, false, &halves(DEFAULT))
                 .is_some()
         });
         let k = tripped.expect("caught");
@@ -937,9 +927,7 @@ mod tests {
                 true,
                 at,
                 false,
-                small,
-                Micrometres::ZERO,
-            )
+                &halves(small))
             .is_some()
         });
         assert_eq!(tripped, None);
@@ -970,9 +958,7 @@ mod tests {
                 false,
                 at,
                 false,
-                small,
-                Micrometres::ZERO,
-            )
+                &halves(small))
             .is_some()
         });
         assert_eq!(tripped, None);
