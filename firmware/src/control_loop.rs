@@ -17,12 +17,13 @@
 use embedded_hal::digital::OutputPin;
 use piezo_fpi::control::{ControllerState, Fault};
 use piezo_fpi::io::{ForceSensor, Hardware, Setpoint, Tick};
-use piezo_fpi::q::{Micrometres, Newtons, Volts};
+use piezo_fpi::q::{Micrometres, Newtons};
 
 use piezo_fpi::governor::GovernorState;
 
 use crate::analyser::Analyser;
 use crate::closed_loop::{Command, Inputs, Loop, LoopMode};
+pub use crate::exchange::Telemetry;
 use crate::exchange::{Applied, Exchange, Order, Refused, Snapshot};
 use crate::frontend::{AnalogIn, POSITION_ADC};
 use crate::governors::LoopSet;
@@ -33,52 +34,10 @@ pub const STREAM_TIMEOUT_TICKS: u32 = RATE_HZ / 2;
 /// Late ticks in a row that latch [`Fault::Overrun`]: 1 ms of a loop that cannot
 /// keep its rate (a single late tick is counted, not a fault).
 pub const OVERRUN_RUN: u32 = RATE_HZ / 1000;
-use crate::recorder::{status, Sample, NO_TRUE_POSITION};
+use crate::recorder::{status, Sample};
 use crate::reference::analog::AnalogInput;
 use crate::reference::{Reference, SourceKind, SourceOrder};
 use crate::slots::Running;
-
-/// What one tick did (for the recorder and the emulated board's virtual stage).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Telemetry {
-    /// Tick number since start-up.
-    pub tick: u32,
-    /// Reference, µm.
-    pub x_ref: Micrometres,
-    /// Setpoint written, V.
-    pub voltage: Volts,
-    /// Force read, N.
-    pub force: Newtons,
-    /// Estimated stage position, µm.
-    pub x_est: Micrometres,
-    /// Position sensor reading, µm.
-    pub x_sensor: Micrometres,
-    /// [`status`] bits.
-    pub status: u8,
-}
-
-impl Telemetry {
-    /// The amplifier is enabled after this tick.
-    pub const fn amplifier_on(&self) -> bool {
-        self.status & status::AMPLIFIER_ON != 0
-    }
-
-    /// The recorder's sample of this tick, with the stage's true position where the
-    /// board knows it (the emulated board's virtual stage).
-    #[inline]
-    pub fn sample(&self, x_true: Option<Micrometres>) -> Sample {
-        Sample {
-            tick: self.tick,
-            x_ref: self.x_ref.to_bits(),
-            voltage: self.voltage.to_bits(),
-            force: self.force.to_bits(),
-            x_est: self.x_est.to_bits(),
-            x_true: x_true.map_or(NO_TRUE_POSITION, |v| v.to_bits()),
-            x_sensor: self.x_sensor.to_bits(),
-            status: self.status,
-        }
-    }
-}
 
 /// The control ISR's state (one per stage channel); `S`, `A`, `E`, `R`: the force
 /// sensor, the amplifier, its enable line and the analog reference input.
@@ -253,10 +212,12 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         // passes the governor of the loops in force.
         let asked = self.analyser.excitation();
         let summary = self.model.summary();
-        let governed = summary
-            .governors
-            .get(self.loop_set)
-            .process(&mut self.governor, source.saturating_add(asked));
+        let g = self.model.governors();
+        let governed = g.limits(self.loop_set).process(
+            &g.window,
+            &mut self.governor,
+            source.saturating_add(asked),
+        );
         self.governed = self.governed.wrapping_add(self.governor.governed() as u32);
         let (x_ahead, excitation) = if self.analyser.running() {
             (source, governed.saturating_sub(source))
@@ -468,13 +429,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
     /// Refreshes the link task's snapshot: what changes from tick to tick,
     /// and the settings and the fault where they changed ([`Self::changed`]).
     fn snapshot(&mut self, s: &mut Snapshot, t: &Telemetry) {
-        s.tick = t.tick;
-        s.x_ref = t.x_ref;
-        s.x_est = t.x_est;
-        s.voltage = t.voltage;
-        s.force = t.force;
-        s.x_sensor = t.x_sensor;
-        s.amplifier_on = t.amplifier_on();
+        s.now = *t;
         s.source = self.reference.kind();
         s.approaching = self.reference.approaching();
         s.silent_ticks = self.silent;

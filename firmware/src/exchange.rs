@@ -15,7 +15,7 @@ use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
 use crate::analyser::{AnalyseOrder, AnalysisSums};
 use crate::closed_loop::LoopMode;
 use crate::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
-use crate::recorder::Recorder;
+use crate::recorder::{status, Recorder, Sample, NO_TRUE_POSITION};
 use crate::reference::stream::Points;
 use crate::reference::{SourceKind, SourceOrder};
 use crate::slots::Running;
@@ -102,25 +102,58 @@ pub struct Applied {
     pub result: Result<(), Refused>,
 }
 
-/// The loop's state, refreshed by the ISR every tick.
+/// What one tick did (for the recorder and the emulated board's virtual stage).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Snapshot {
-    /// Ticks since start-up.
+pub struct Telemetry {
+    /// Tick number since start-up.
     pub tick: u32,
     /// Reference, µm.
     pub x_ref: Micrometres,
+    /// Setpoint written, V.
+    pub voltage: Volts,
+    /// Force read, N.
+    pub force: Newtons,
     /// Estimated stage position, µm.
     pub x_est: Micrometres,
-    /// Setpoint, V.
-    pub voltage: Volts,
-    /// Force reading, N.
-    pub force: Newtons,
+    /// Position sensor reading, µm.
+    pub x_sensor: Micrometres,
+    /// [`status`] bits.
+    pub status: u8,
+}
+
+impl Telemetry {
+    /// The amplifier is enabled after this tick.
+    pub const fn amplifier_on(&self) -> bool {
+        self.status & status::AMPLIFIER_ON != 0
+    }
+
+    /// The recorder's sample of this tick, with the stage's true position where the
+    /// board knows it (the emulated board's virtual stage).
+    #[inline]
+    pub fn sample(&self, x_true: Option<Micrometres>) -> Sample {
+        Sample {
+            tick: self.tick,
+            x_ref: self.x_ref.to_bits(),
+            voltage: self.voltage.to_bits(),
+            force: self.force.to_bits(),
+            x_est: self.x_est.to_bits(),
+            x_true: x_true.map_or(NO_TRUE_POSITION, |v| v.to_bits()),
+            x_sensor: self.x_sensor.to_bits(),
+            status: self.status,
+        }
+    }
+}
+
+/// The loop's state, refreshed by the ISR every tick (its settings and
+/// fault where they change).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Snapshot {
+    /// The last tick: its number, the signals and the status bits.
+    pub now: Telemetry,
     /// The latched fault, with the tick it latched at.
     pub fault: Option<(Fault, u32)>,
     /// Tick at which the output reached the safe voltage after the fault.
     pub safe_at: Option<u32>,
-    /// Amplifier enabled.
-    pub amplifier_on: bool,
     /// The reference's source.
     pub source: SourceKind,
     /// The reference is ramping to a new source's entry point.
@@ -142,8 +175,6 @@ pub struct Snapshot {
     pub ended_points: u32,
     /// Ticks that started late.
     pub overruns: u32,
-    /// Position sensor reading, µm.
-    pub x_sensor: Micrometres,
     /// Open or closed loop.
     pub loop_mode: LoopMode,
     /// Active damping switched on (it runs where the model has it).
@@ -161,14 +192,17 @@ impl Snapshot {
     /// exchange costs no flash for its initial value).
     pub const fn new() -> Self {
         Self {
-            tick: 0,
-            x_ref: Micrometres::ZERO,
-            x_est: Micrometres::ZERO,
-            voltage: Volts::ZERO,
-            force: Newtons::ZERO,
+            now: Telemetry {
+                tick: 0,
+                x_ref: Micrometres::ZERO,
+                voltage: Volts::ZERO,
+                force: Newtons::ZERO,
+                x_est: Micrometres::ZERO,
+                x_sensor: Micrometres::ZERO,
+                status: 0,
+            },
             fault: None,
             safe_at: None,
-            amplifier_on: false,
             source: SourceKind::Hold,
             approaching: false,
             compensated: false,
@@ -179,7 +213,6 @@ impl Snapshot {
             governed_ticks: 0,
             ended_points: 0,
             overruns: 0,
-            x_sensor: Micrometres::ZERO,
             loop_mode: LoopMode::Open,
             damping_on: false,
             shaping_on: false,

@@ -13,15 +13,14 @@ use piezo_fpi::control::Interval;
 use piezo_fpi::damping::{DampingConfig, DynamicsSpec};
 use piezo_fpi::feedback::FeedbackConfig;
 use piezo_fpi::governor::analysis::{Feedforward, Loops, Tracking};
-use piezo_fpi::governor::GovernorConfig;
+use piezo_fpi::governor::{GovernorLimits, GovernorWindow};
 use piezo_fpi::preview::Fir;
 use piezo_fpi::stability::Laws;
 
 use crate::closed_loop::LoopMode;
 
-/// Sets of loops: three modes, damping and shaping each on or off (12), in a
-/// table of 16 (the index is masked, not divided).
-pub const SETS: usize = 16;
+/// Sets of loops: three modes, damping and shaping each on or off.
+pub const SETS: usize = 12;
 
 /// Which set of loops runs: the index of its governor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -76,36 +75,44 @@ pub struct Parts<'a> {
     pub speed: f64,
 }
 
-/// A governor for each set of loops (configuration).
+/// The model's governor: its window, and the limits of each set of loops
+/// (configuration).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Governors([GovernorConfig; SETS]);
+pub struct Governors {
+    /// The windows (the model's reference window, and it widened by the
+    /// margin).
+    pub window: GovernorWindow,
+    sets: [GovernorLimits; SETS],
+}
 
 impl Governors {
     /// Measures each set the model can run (a set whose parts the model lacks
     /// is the set without them).
     pub fn of(p: &Parts<'_>) -> Self {
-        let mut built: [Option<GovernorConfig>; SETS] = [None; SETS];
-        let mut out = [GovernorConfig::new(p.window, &limits(p, 0)); SETS];
-        for (i, slot) in out.iter_mut().enumerate() {
+        let mut built: [Option<GovernorLimits>; SETS] = [None; SETS];
+        let mut sets = [GovernorLimits::new(&limits(p, 0)); SETS];
+        for (i, slot) in sets.iter_mut().enumerate() {
             let real = real_set(p, i);
             *slot = match built[real] {
                 Some(g) => g,
                 None => {
-                    let g = GovernorConfig::new(p.window, &limits(p, real));
+                    let g = GovernorLimits::new(&limits(p, real));
                     built[real] = Some(g);
                     g
                 }
             };
         }
-        Self(out)
+        Self {
+            window: GovernorWindow::new(p.window),
+            sets,
+        }
     }
 
-    /// The governor of `set`.
+    /// The limits of `set`.
     #[inline(always)]
-    pub fn get(&self, set: LoopSet) -> &GovernorConfig {
-        // `SETS` entries, a power of two, and a `LoopSet` is below it by
-        // construction.
-        &self.0[set.0 as usize & (SETS - 1)]
+    pub fn limits(&self, set: LoopSet) -> &GovernorLimits {
+        // A `LoopSet` is below `SETS` by construction.
+        self.sets.get(set.0 as usize).unwrap_or(&self.sets[0])
     }
 }
 

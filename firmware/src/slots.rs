@@ -77,8 +77,6 @@ pub struct Summary {
     /// (`crate::watch`): the model's, else
     /// [`piezo_fpi::model::WATCH_SWING_MAX`].
     pub watch_swing: Micrometres,
-    /// The reference governor of each set of loops ([`crate::governors`]).
-    pub governors: Governors,
 }
 
 /// The fastest reference the amplifier follows, µm/tick: its slew (the
@@ -118,6 +116,9 @@ pub struct Running {
     store: NonNull<Store>,
     cfg: Controller<'static>,
     summary: Summary,
+    /// The reference governor of each set of loops ([`crate::governors`]):
+    /// the ISR's alone, not the link task's summary's.
+    governors: Governors,
 }
 
 // SAFETY: a `Running` is the unique owner of its store (it was made from the
@@ -222,8 +223,8 @@ impl Spare {
                     channel,
                     force_room: room,
                     watch_swing,
-                    governors,
                 },
+                governors,
                 cfg,
             }),
             // SAFETY: `shared` and `built` are gone; the store is exclusive again.
@@ -248,6 +249,12 @@ impl Running {
     /// What the link task keeps about the model.
     pub const fn summary(&self) -> &Summary {
         &self.summary
+    }
+
+    /// Its reference governor.
+    #[inline(always)]
+    pub const fn governors(&self) -> &Governors {
+        &self.governors
     }
 
     /// Gives the store back to be filled again.

@@ -498,7 +498,8 @@ mod tests {
                 false,
                 Micrometres::from_num(r),
                 false,
-                &halves(half))
+                &halves(half),
+            )
             .map(|f| (k, f))
         })
     }
@@ -570,12 +571,7 @@ mod tests {
             let ramp = (k % 100) as f64 * 0.3;
             let at = Micrometres::from_num(5.0 + if k % 200 < 100 { ramp } else { 30.0 - ramp });
             assert_eq!(
-                w.update(
-                    Micrometres::from_num(v),
-                    false,
-                    at,
-                    false,
-                    &halves(DEFAULT)),
+                w.update(Micrometres::from_num(v), false, at, false, &halves(DEFAULT)),
                 None,
                 "tick {k}"
             );
@@ -591,7 +587,8 @@ mod tests {
                 false,
                 Micrometres::ZERO,
                 true,
-                &halves(DEFAULT));
+                &halves(DEFAULT),
+            );
             assert_eq!(f.is_some(), k + 1 == SATURATED_TICKS as u32);
         }
         let f = w.update(
@@ -599,7 +596,8 @@ mod tests {
             false,
             Micrometres::ZERO,
             false,
-            &halves(DEFAULT));
+            &halves(DEFAULT),
+        );
         assert_eq!(f, None);
     }
 
@@ -671,7 +669,8 @@ mod tests {
                 alone,
                 Micrometres::from_num(reference(t)),
                 false,
-                &halves(DEFAULT))
+                &halves(DEFAULT),
+            )
             .is_some()
         })
     }
@@ -796,8 +795,7 @@ mod tests {
                 let t = k as f64 / 2e4;
                 let (r, v) = (reference(t), swing(t));
                 let (r, v) = (Micrometres::from_num(r), Micrometres::from_num(v));
-                w.update(v, false, r, false, &halves(small))
-                    .is_some()
+                w.update(v, false, r, false, &halves(small)).is_some()
             });
             assert_eq!(tripped, None, "{f} Hz");
             assert_eq!(feed_about(true, 20_000, reference, swing), None, "{f} Hz");
@@ -922,13 +920,8 @@ mod tests {
         let at = Micrometres::from_num(20);
         let tripped = (0..20_000u32).find(|&k| {
             let v = 0.12 * (TAU * 400.0 * k as f64 / 2e4).sin();
-            w.update(
-                Micrometres::from_num(v),
-                true,
-                at,
-                false,
-                &halves(small))
-            .is_some()
+            w.update(Micrometres::from_num(v), true, at, false, &halves(small))
+                .is_some()
         });
         assert_eq!(tripped, None);
     }
@@ -958,7 +951,8 @@ mod tests {
                 false,
                 at,
                 false,
-                &halves(small))
+                &halves(small),
+            )
             .is_some()
         });
         assert_eq!(tripped, None);

@@ -324,7 +324,8 @@ impl Track {
         }
     }
 
-    /// Takes `|x(n)|` for the next `n`.
+    /// Takes `|x(n)|` for the next `n`. Out of line: one copy (flash).
+    #[inline(never)]
     fn see(&mut self, x: f64, c: &mut Candidates) {
         for ((inv, f), stage) in self.inv.iter_mut().zip(&self.factor).zip(&mut c.stage) {
             if x > 0.0 {
@@ -389,6 +390,8 @@ impl<'a> Sim<'a> {
     }
 
     /// One tick: the deviation `x − g` read at its start, then the command.
+    /// Out of line: one copy (flash).
+    #[inline(never)]
     fn tick(&mut self) -> f32 {
         let l = self.l;
         let x_ref = self.g(l.delay as usize);

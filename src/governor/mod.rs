@@ -97,17 +97,47 @@ pub const MARGIN_UM: f64 = 0.5;
 /// The largest envelope gain (`I12F20` bits of 2047).
 const GAIN_BITS_MAX: f64 = (2047u64 << GAIN_FRAC) as f64;
 
+/// Where the governor keeps the reference and the stage (configuration, one
+/// per model): the reference window, and the window the stage's position
+/// must stay in, widened by [`MARGIN_UM`], µm (`I16F16` bits).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GovernorWindow {
+    lo: i32,
+    hi: i32,
+    lo_m: i32,
+    hi_m: i32,
+}
+
+impl GovernorWindow {
+    /// The governor's windows about the reference window `w`.
+    pub fn new(w: Interval) -> Self {
+        let margin = bits(MARGIN_UM, 16, 0.0, 1.0) as i32;
+        Self {
+            lo: w.lo.to_bits(),
+            hi: w.hi.to_bits(),
+            lo_m: w.lo.to_bits().saturating_sub(margin),
+            hi_m: w.hi.to_bits().saturating_add(margin),
+        }
+    }
+
+    /// The reference window it keeps the governed reference in.
+    pub fn reference(&self) -> Interval {
+        Interval {
+            lo: Micrometres::from_bits(self.lo),
+            hi: Micrometres::from_bits(self.hi),
+        }
+    }
+}
+
 /// What the governor allows (configuration, one per set of loops in force):
-/// the limits and the envelope's constants ([`analysis`] computes them from a
+/// the limits and the envelopes' constants ([`analysis`] computes them from a
 /// model; the link task installs them with the model).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct GovernorConfig {
+pub struct GovernorLimits {
     /// Largest acceleration `A`, µm/tick², `I4F28`.
     accel: u32,
     /// Largest speed, µm/tick, `I4F28`.
     speed: u32,
-    /// Largest speed, µm/tick, `I16F16`.
-    speed16: u32,
     /// `1/(2A)`, tick²/µm, `I8F24`.
     inv_2accel: u32,
     /// The step envelope's decay per tick, `I0F32`.
@@ -125,12 +155,42 @@ pub struct GovernorConfig {
     /// `1/(3 + 2c_r + 2(c_v⁺ + c_r))`, `I0F32`: a move that would not pass
     /// the check at the full acceleration still creeps there.
     creep: u32,
-    /// The window the stage's position must stay in: the reference window
-    /// widened by [`MARGIN_UM`], µm (`I16F16` bits).
-    lo_m: i32,
-    hi_m: i32,
-    /// The reference window itself (the governed reference stays in it).
-    window: Interval,
+}
+
+/// A governor: its window and its limits (configuration).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GovernorConfig {
+    /// The windows.
+    pub window: GovernorWindow,
+    /// The limits.
+    pub limits: GovernorLimits,
+}
+
+impl GovernorConfig {
+    /// The governor for the reference window `window` with `limits`
+    /// ([`GovernorLimits::new`]).
+    pub fn new(window: Interval, l: &Limits) -> Self {
+        Self {
+            window: GovernorWindow::new(window),
+            limits: GovernorLimits::new(l),
+        }
+    }
+
+    /// Largest acceleration, µm/tick².
+    pub fn accel(&self) -> f64 {
+        self.limits.accel()
+    }
+
+    /// Largest speed, µm/tick.
+    pub fn speed(&self) -> f64 {
+        self.limits.speed()
+    }
+
+    /// One tick ([`GovernorLimits::process`]).
+    #[inline]
+    pub fn process(&self, st: &mut GovernorState, r: Micrometres) -> Micrometres {
+        self.limits.process(&self.window, st, r)
+    }
 }
 
 /// The governor's constants as numbers (what [`analysis`] finds), before they
@@ -185,22 +245,20 @@ fn gain_bits(c: f64) -> u32 {
     ceil(c * (1u64 << GAIN_FRAC) as f64).min(GAIN_BITS_MAX) as u32
 }
 
-impl GovernorConfig {
-    /// The governor for `window` with `limits`, quantised: each gain rounded
-    /// up, the limits held to their formats' ranges ([`ACCEL_MIN`]…[`ACCEL_MAX`],
+impl GovernorLimits {
+    /// The limits of `l`, quantised: each gain rounded up, the limits held to
+    /// their formats' ranges ([`ACCEL_MIN`]…[`ACCEL_MAX`],
     /// [`SPEED_MIN`]…[`SPEED_MAX`]).
-    pub fn new(window: Interval, l: &Limits) -> Self {
+    pub fn new(l: &Limits) -> Self {
         let accel = bits(l.accel, MOTION_FRAC, ACCEL_MIN, ACCEL_MAX) as u32;
         let a = accel as f64 / (1u64 << MOTION_FRAC) as f64;
         let speed = bits(l.speed, MOTION_FRAC, SPEED_MIN, SPEED_MAX) as u32;
         let c_r = gain_bits(l.ramp.1);
         let c_vr = gain_bits(l.lead.max(0.0)).saturating_add(c_r);
         let gain = |c: u32| c as f64 / (1u64 << GAIN_FRAC) as f64;
-        let margin = bits(MARGIN_UM, 16, 0.0, 1.0) as i32;
         Self {
             accel,
             speed,
-            speed16: speed >> (MOTION_FRAC - 16),
             inv_2accel: ceil(0.5 / a * (1u64 << INV_ACCEL_FRAC) as f64) as u32,
             rho_s: decay_bits(l.step.0),
             c_s: gain_bits(l.step.1),
@@ -208,15 +266,7 @@ impl GovernorConfig {
             c_r,
             c_vr,
             creep: (4_294_967_296.0 / (3.0 + 2.0 * gain(c_r) + 2.0 * gain(c_vr))) as u32,
-            lo_m: window.lo.to_bits().saturating_sub(margin),
-            hi_m: window.hi.to_bits().saturating_add(margin),
-            window,
         }
-    }
-
-    /// The reference window it keeps the governed reference in.
-    pub const fn window(&self) -> Interval {
-        self.window
     }
 
     /// Largest acceleration, µm/tick².
@@ -234,7 +284,12 @@ impl GovernorConfig {
     /// reference (µm, within the window); [`GovernorState::governed`] says
     /// whether it departed from `r`.
     #[inline]
-    pub fn process(&self, st: &mut GovernorState, r: Micrometres) -> Micrometres {
+    pub fn process(
+        &self,
+        w: &GovernorWindow,
+        st: &mut GovernorState,
+        r: Micrometres,
+    ) -> Micrometres {
         let r16 = r.to_bits();
         let v = st.v;
         // Landing on `r` this tick: the speed that does it. While governed,
@@ -242,12 +297,12 @@ impl GovernorConfig {
         // landing would not pass).
         let want16 = r16.wrapping_sub(st.g);
         let want = want16.wrapping_shl(MOTION_FRAC - 16);
-        let lands = want16.unsigned_abs() <= self.speed16
+        let lands = want16.unsigned_abs() <= self.speed >> (MOTION_FRAC - 16)
             && want.wrapping_sub(v).unsigned_abs() <= self.accel;
         let v1 = if lands && !st.governed {
             want
         } else {
-            self.toward(st, r16, lands.then_some(want))
+            self.toward(w, st, r16, lands.then_some(want))
         };
         st.r_prev = r16;
         let d = decay(self.rho, st.d);
@@ -255,7 +310,7 @@ impl GovernorConfig {
         let ringing = gain_mul(self.c_r, v1.wrapping_sub(v).unsigned_abs());
         let stepped = gain_mul(self.c_s, v1.unsigned_abs());
         let now = (d.saturating_add(ringing), d_s.saturating_add(stepped));
-        let (v1, ringing, stepped) = if self.admits(st.g, now, v1) {
+        let (v1, ringing, stepped) = if self.admits(w, st.g, now, v1) {
             (v1, ringing, stepped)
         } else {
             // Brake (or hold): never makes the check's sides grow.
@@ -281,13 +336,13 @@ impl GovernorConfig {
     /// than a tick's acceleration), at most a share of the room to the
     /// window's nearer edge ([`Self::creep`]).
     #[inline(never)]
-    fn toward(&self, st: &GovernorState, r16: i32, land: Option<i32>) -> i32 {
+    fn toward(&self, w: &GovernorWindow, st: &GovernorState, r16: i32, land: Option<i32>) -> i32 {
         let v = st.v;
         let (a, speed) = (self.accel as i32, self.speed as i32);
         let v1 = match land {
             Some(want) => want,
             None => {
-                let limit = self.speed16 as i32;
+                let limit = (self.speed >> (MOTION_FRAC - 16)) as i32;
                 let dr = r16.wrapping_sub(st.r_prev).max(-limit).min(limit);
                 // The gap if we coast one tick, and our speed relative to the
                 // source.
@@ -299,8 +354,8 @@ impl GovernorConfig {
                 let brake = closing && stop >= gap.unsigned_abs() as i32;
                 let acc = if brake == up { -a } else { a };
                 // Within the speed, and not past the window's edge.
-                let lo = self.window.lo.to_bits().wrapping_sub(st.g);
-                let hi = self.window.hi.to_bits().wrapping_sub(st.g);
+                let lo = w.lo.wrapping_sub(st.g);
+                let hi = w.hi.wrapping_sub(st.g);
                 v.wrapping_add(acc)
                     .max(-speed)
                     .min(speed)
@@ -312,10 +367,10 @@ impl GovernorConfig {
             return v1;
         }
         // The room on either side: the stage may swing both ways.
-        let room = self
+        let room = w
             .hi_m
             .saturating_sub(st.g)
-            .min(st.g.saturating_sub(self.lo_m))
+            .min(st.g.saturating_sub(w.lo_m))
             .saturating_sub(st.d.min(st.d_s));
         // A share of it, as a speed (I16F16 µm per tick to I4F28).
         let share16 = ((room.max(0) as u64 * self.creep as u64) >> 32) as i32;
@@ -327,15 +382,15 @@ impl GovernorConfig {
     /// after this tick) keeps the stage in the window with the margin,
     /// braking from then on.
     #[inline(always)]
-    fn admits(&self, g: i32, (d_r, d_s): (i32, i32), v1: i32) -> bool {
+    fn admits(&self, w: &GovernorWindow, g: i32, (d_r, d_s): (i32, i32), v1: i32) -> bool {
         let speed = v1.unsigned_abs();
         let s = stop_distance(speed, self.inv_2accel)
             .wrapping_add((speed >> (MOTION_FRAC - 16 + 1)) as i32);
         let g1 = g.wrapping_add(v1 >> (MOTION_FRAC - 16));
         let (ahead, behind) = if v1 >= 0 {
-            (self.hi_m.wrapping_sub(g1), g1.wrapping_sub(self.lo_m))
+            (w.hi_m.wrapping_sub(g1), g1.wrapping_sub(w.lo_m))
         } else {
-            (g1.wrapping_sub(self.lo_m), self.hi_m.wrapping_sub(g1))
+            (g1.wrapping_sub(w.lo_m), w.hi_m.wrapping_sub(g1))
         };
         let fits = |bound: i32| bound <= behind && s.saturating_add(bound) <= ahead;
         // The ramp bound first: it is the small one for motion.

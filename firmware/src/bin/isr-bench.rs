@@ -545,7 +545,7 @@ mod bench {
             while x.recorder.take().is_some() {}
             let f = CONTROLLER.f_f().eval(lp.state().x_pea_est());
             LINK.set_force(f.to_num::<f32>());
-            LINK.set_position(x.snapshot.x_est.to_num::<f32>());
+            LINK.set_position(x.snapshot.now.x_est.to_num::<f32>());
         }
         let ok = x.snapshot.fault.is_none() && x.recorder.kept() >= kept + STEPS;
         (c, ok, depth_below(sp, PAINT))

@@ -57,7 +57,7 @@ pub trait Board {
 
 /// Waits until the board's tick reaches `due`.
 fn wait_until(board: &mut impl Board, due: u32) {
-    while !reached(board.exchange(|x| x.snapshot.tick), due) {
+    while !reached(board.exchange(|x| x.snapshot.now.tick), due) {
         board.wait();
     }
 }
@@ -285,7 +285,7 @@ impl<F: NorFlash> Handler<F> {
     ) -> usize {
         self.tick = None;
         if self.pace.paced() {
-            let now = board.exchange(|x| x.snapshot.tick);
+            let now = board.exchange(|x| x.snapshot.now.tick);
             // Framed: a delimiter and about one COBS byte per 254.
             let due = self.pace.received(now, request.len() + 2);
             wait_until(board, due);
@@ -319,7 +319,7 @@ impl<F: NorFlash> Handler<F> {
         });
         let tick = match self.tick {
             Some(t) => t,
-            None => board.exchange(|x| x.snapshot.tick.wrapping_add(1)),
+            None => board.exchange(|x| x.snapshot.now.tick.wrapping_add(1)),
         };
         let header = ReplyHeader {
             version: VERSION,
@@ -328,7 +328,7 @@ impl<F: NorFlash> Handler<F> {
         };
         let n = frame::encode(&header, &reply, scratch, out).unwrap_or(0);
         if self.pace.paced() {
-            let now = board.exchange(|x| x.snapshot.tick);
+            let now = board.exchange(|x| x.snapshot.now.tick);
             let due = self.pace.sent(now, n);
             wait_until(board, due);
         }
@@ -366,7 +366,7 @@ impl<F: NorFlash> Handler<F> {
     fn locked<R>(&mut self, board: &mut impl Board, f: impl FnOnce(&mut Exchange<'_>) -> R) -> R {
         let (r, tick) = board.exchange(|x| {
             x.heartbeats = x.heartbeats.wrapping_add(1);
-            (f(x), x.snapshot.tick.wrapping_add(1))
+            (f(x), x.snapshot.now.tick.wrapping_add(1))
         });
         self.tick = Some(tick);
         r
@@ -734,7 +734,7 @@ impl<F: NorFlash> Handler<F> {
                 format_args!("an analysis correlates at least one period"),
             ));
         }
-        let at = board.exchange(|x| x.snapshot.x_ref);
+        let at = board.exchange(|x| x.snapshot.now.x_ref);
         self.in_stroke(
             "excitation's low point",
             at.to_bits().saturating_sub(amplitude),
@@ -970,20 +970,20 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
     let (q, r) = (&x.points, &x.recorder);
     Status {
         axis,
-        tick: s.tick,
+        tick: s.now.tick,
         signals: [
-            s.x_ref.to_bits(),
-            s.x_est.to_bits(),
-            s.voltage.to_bits(),
-            s.force.to_bits(),
-            s.x_sensor.to_bits(),
+            s.now.x_ref.to_bits(),
+            s.now.x_est.to_bits(),
+            s.now.voltage.to_bits(),
+            s.now.force.to_bits(),
+            s.now.x_sensor.to_bits(),
         ],
         fault: s.fault.map(|(f, at)| FaultReport {
             code: f as u8,
             at,
             safe_at: s.safe_at,
         }),
-        amplifier_on: s.amplifier_on,
+        amplifier_on: s.now.amplifier_on(),
         source: s.source,
         approaching: s.approaching,
         compensated: s.compensated,

@@ -112,7 +112,7 @@ impl<F: NorFlash> Handler<F> {
 
     /// The parked stage's check before a model change.
     fn parked(&self, board: &mut impl Board) -> Result<(), Refuse> {
-        let (fault, voltage) = board.exchange(|x| (x.snapshot.fault, x.snapshot.voltage));
+        let (fault, voltage) = board.exchange(|x| (x.snapshot.fault, x.snapshot.now.voltage));
         match fault {
             Some(_) if voltage == self.summary.safe_voltage => Ok(()),
             Some(_) => Err(refuse(
