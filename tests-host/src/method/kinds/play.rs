@@ -134,6 +134,24 @@ impl<R: Recipe> ModelKind for R {
 /// The creep time constants of the extended models, s.
 pub const CREEP_TAUS_S: [f64; 4] = [0.01, 0.03, 0.3, 3.0];
 
+/// The fewest sample periods a creep lag's time constant may span to be fitted
+/// ([`resolved_lags`]).
+pub const MIN_LAG_SAMPLES: f64 = 10.0;
+
+/// The creep time constants `taus` (s) that span at least [`MIN_LAG_SAMPLES`]
+/// sample periods of every recording. A faster lag follows the voltage within a
+/// few samples: in the least squares its column is the effective voltage's
+/// own (`w0`'s), and the non-negative fit may give it the whole immediate slope,
+/// leaving `w0 = 0` and a model without an inverse (the micromanipulator's
+/// 200 Hz cycle and the 10 ms lag: two samples).
+pub fn resolved_lags(taus: &[f64], data: &[CalibData]) -> Vec<f64> {
+    let dt = data.iter().map(|d| d.dt).fold(0.0, f64::max);
+    taus.iter()
+        .copied()
+        .filter(|&t| t >= MIN_LAG_SAMPLES * dt)
+        .collect()
+}
+
 /// The weights alone, for no nonlinear parameters (pi, ldpi).
 pub fn weights_alone(pr: &Problem<'_>) -> Result<(Nonlinear, Fit, String)> {
     let p = Nonlinear::default();
