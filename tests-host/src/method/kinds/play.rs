@@ -6,11 +6,12 @@
 //! alike.
 
 use anyhow::{bail, Result};
-use piezo_fpi::q::COUPLING_ABS_MAX;
+use piezo_fpi::q::{COUPLING_ABS_MAX, SIGNAL_ABS_MAX};
 use piezo_sim::model::MAX_CREEP;
 use piezo_sim::play::MAX_OPERATORS;
 
 use crate::data::fem::FemMaps;
+use crate::data::Num;
 use crate::method::fit::{self, Fit, Layout, Nonlinear, Problem};
 use crate::method::invert::{self, Inverse};
 use crate::method::model::{is_no_pi, Calibration, HostModel, ModelKind, Options, OutputMap};
@@ -228,22 +229,29 @@ fn pi(m: &HostModel) -> Result<()> {
     finite("pi.w0_um_per_v", p.w0_um_per_v)?;
     finite("pi.input_max_v", p.input_max_v)?;
     if p.input_max_v <= 0.0 {
-        bail!("pi.input_max_v = {}: must be > 0", p.input_max_v);
+        bail!("pi.input_max_v = {}: must be > 0", Num(p.input_max_v));
     }
     let mut prev = 0.0;
     for (i, (&r, &w)) in p.thresholds_v.iter().zip(&p.weights_um_per_v).enumerate() {
         finite(&format!("pi.thresholds_v[{i}]"), r)?;
         finite(&format!("pi.weights_um_per_v[{i}]"), w)?;
         if r < 0.0 {
-            bail!("pi.thresholds_v[{i}] = {r}: thresholds are voltages ≥ 0 V");
+            bail!(
+                "pi.thresholds_v[{i}] = {}: thresholds are voltages ≥ 0 V",
+                Num(r)
+            );
         }
         if r < prev {
-            bail!("pi.thresholds_v[{i}] = {r}: thresholds must be sorted");
+            bail!(
+                "pi.thresholds_v[{i}] = {}: thresholds must be sorted",
+                Num(r)
+            );
         }
         if r > p.input_max_v {
             bail!(
-                "pi.thresholds_v[{i}] = {r}: above pi.input_max_v = {} (the operator never moves)",
-                p.input_max_v
+                "pi.thresholds_v[{i}] = {}: above pi.input_max_v = {} (the operator never moves)",
+                Num(r),
+                Num(p.input_max_v)
             );
         }
         prev = r;
@@ -251,9 +259,9 @@ fn pi(m: &HostModel) -> Result<()> {
     Ok(())
 }
 
-/// The model can produce motion and, where it is inverted in closed form, has an
-/// inverse: `w0 > 0` and every partial sum `S_j = w0 + w_1 + … + w_j > 0` (its
-/// output rises with the voltage).
+/// The model can produce motion, within the signal range, and, where it is
+/// inverted in closed form, has an inverse: `w0 > 0` and every partial sum
+/// `S_j = w0 + w_1 + … + w_j > 0` (its output rises with the voltage).
 fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
     let p = &m.pi;
     let slopes = m.ldpi.as_ref();
@@ -267,6 +275,7 @@ fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
              constant voltage?)"
         );
     }
+    output_range(m)?;
     if inverse == Inverse::Search {
         return Ok(());
     }
@@ -274,7 +283,7 @@ fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
         bail!(
             "pi.w0_um_per_v = {}: must be > 0 µm/V (the model's slope at rest; without it \
              the model has no inverse)",
-            p.w0_um_per_v
+            Num(p.w0_um_per_v)
         );
     }
     let mut sum = p.w0_um_per_v;
@@ -287,12 +296,54 @@ fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
                 format!("w0 + w_1 + … + w_{}", j + 1)
             };
             bail!(
-                "pi.weights_um_per_v[{j}] = {w}: the slope {terms} = {sum} µm/V is not \
-                 positive (the output would fall as the voltage rises; no inverse)"
+                "pi.weights_um_per_v[{j}] = {}: the slope {terms} = {} µm/V is not \
+                 positive (the output would fall as the voltage rises; no inverse)",
+                Num(w),
+                Num(sum)
             );
         }
     }
     Ok(())
+}
+
+/// The model's output stays within the signal range over its input range: the
+/// weights' and creep gains' magnitudes times `pi.input_max_v` within ±4096 µm
+/// (a weight of `1e308` µm/V is refused by its key, not predicted from). The
+/// largest term is named.
+fn output_range(m: &HostModel) -> Result<()> {
+    let p = &m.pi;
+    let terms = std::iter::once(("pi.w0_um_per_v".to_string(), p.w0_um_per_v))
+        .chain(
+            p.weights_um_per_v
+                .iter()
+                .enumerate()
+                .map(|(i, &w)| (format!("pi.weights_um_per_v[{i}]"), w)),
+        )
+        .chain(
+            m.creep
+                .iter()
+                .enumerate()
+                .map(|(j, c)| (format!("creep[{j}].gain_um_per_v"), c.gain_um_per_v)),
+        );
+    let (mut top, mut largest) = (0.0, (String::new(), 0.0_f64));
+    for (key, w) in terms {
+        top += w.abs() * p.input_max_v;
+        if w.abs() >= largest.1.abs() {
+            largest = (key, w);
+        }
+    }
+    if top <= SIGNAL_ABS_MAX {
+        return Ok(());
+    }
+    bail!(
+        "{} = {}: the model's output over its input range (the magnitudes of its weights and \
+         creep gains times pi.input_max_v = {} V) reaches {} µm, beyond the ±{SIGNAL_ABS_MAX} \
+         µm the fit, the FEM tables and the firmware work in",
+        largest.0,
+        Num(largest.1),
+        Num(p.input_max_v),
+        Num(top)
+    )
 }
 
 /// The coupling: finite, and a stack compliance within `[0, 0.5)` µm/N (a stack
@@ -312,7 +363,7 @@ fn coupling(m: &HostModel) -> Result<()> {
         bail!(
             "coupling.compliance_um_per_n = {}: must be within 0–{COUPLING_ABS_MAX} µm/N (a \
              stack yields under load, by 0.005–0.1 µm/N; the firmware holds less than 0.5)",
-            c.compliance_um_per_n
+            Num(c.compliance_um_per_n)
         );
     }
     Ok(())
@@ -323,7 +374,10 @@ fn maps(m: &HostModel) -> Result<()> {
     let s = m.dead_zone_softness_v;
     finite("dead_zone_softness_v", s)?;
     if s < 0.0 {
-        bail!("dead_zone_softness_v = {s}: must be ≥ 0 V (0: the hard dead zone)");
+        bail!(
+            "dead_zone_softness_v = {}: must be ≥ 0 V (0: the hard dead zone)",
+            Num(s)
+        );
     }
     finite("offset_um", m.offset_um)?;
     match m.output {
@@ -333,8 +387,10 @@ fn maps(m: &HostModel) -> Result<()> {
             let top = m.model().pi.output_max();
             if 1.0 + 4.0 * b * top <= 0.0 {
                 bail!(
-                    "output.beta_per_um = {b}: the saturation folds over below the model's \
-                     largest output {top} µm"
+                    "output.beta_per_um = {}: the saturation folds over below the model's \
+                     largest output {} µm",
+                    Num(b),
+                    Num(top)
                 );
             }
             Ok(())
