@@ -656,11 +656,24 @@ pub fn step(c: &mut Client, s: &crate::board::step::StepSettings, out: &Path) ->
 
 /// `fpi board frf`: the frequency response measured through the board, to `out`.
 pub fn frf(c: &mut Client, s: &crate::board::frf::FrfSettings, out: &Path) -> Result<()> {
+    let conditions = crate::board::frf::conditions(c)?;
     let points = crate::board::frf::measure(c, s, |k, p| {
         eprintln!("  {:>3}: {:8.1} Hz  |x/u| {:.4}", k + 1, p.f_hz, p.x.norm())
     })?;
-    crate::method::tune::frf::write_csv(out, &points)?;
-    println!("{} frequencies written to {}", points.len(), out.display());
+    crate::method::tune::frf::write_csv(out, &points, &conditions)?;
+    println!(
+        "{} frequencies written to {}, {}",
+        points.len(),
+        out.display(),
+        conditions.header().trim_start_matches("# ")
+    );
+    if !conditions.is_plant() {
+        eprintln!(
+            "warning: measured with the loops acting (the damping on or the loop closed): the \
+             damped stage's response, not the stage's own; `fpi tune --frf` refuses it as a \
+             plant"
+        );
+    }
     Ok(())
 }
 
