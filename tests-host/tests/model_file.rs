@@ -249,11 +249,11 @@ fn host_models_that_cannot_move_or_invert_name_their_key() {
             ("w0_um_per_v = 0.0645", "w0_um_per_v = 1e308"),
             "pi.w0_um_per_v = 1e308: the model's output over its input range (the magnitudes \
              of its weights and creep gains times pi.input_max_v = 150 V) reaches inf µm, \
-             beyond the ±4096 µm",
+             beyond 1000000 µm (a metre: no piezo stage's motion)",
         ),
         (
-            ("0.01, 0.005]", "30.0, 0.005]"),
-            "pi.weights_um_per_v[1] = 30: the model's output over its input range",
+            ("0.01, 0.005]", "1e4, 0.005]"),
+            "pi.weights_um_per_v[1] = 10000: the model's output over its input range",
         ),
         (
             ("w0_um_per_v = 0.0645", "w0_um_per_v = -1e308"),

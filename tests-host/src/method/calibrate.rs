@@ -284,7 +284,7 @@ fn why_no_model(m: &HostModel, data: &[CalibData]) -> String {
         );
     }
     format!(
-        "the recordings ({}) do not determine a {} model within its limits",
+        "the recordings ({}) give no {} model within its limits",
         data.iter()
             .map(|d| d.name.as_str())
             .collect::<Vec<_>>()

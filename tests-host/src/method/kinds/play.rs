@@ -6,7 +6,7 @@
 //! alike.
 
 use anyhow::{bail, Result};
-use piezo_fpi::q::{COUPLING_ABS_MAX, SIGNAL_ABS_MAX};
+use piezo_fpi::q::COUPLING_ABS_MAX;
 use piezo_sim::model::MAX_CREEP;
 use piezo_sim::play::MAX_OPERATORS;
 
@@ -306,10 +306,15 @@ fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
     Ok(())
 }
 
-/// The model's output stays within the signal range over its input range: the
-/// weights' and creep gains' magnitudes times `pi.input_max_v` within ±4096 µm
-/// (a weight of `1e308` µm/V is refused by its key, not predicted from). The
-/// largest term is named.
+/// The most a model's output may reach over its input range, µm: a metre, far
+/// beyond any piezo stage's stroke (a model calibrated on 0–3.6 V keeps the
+/// amplifier's 150 V as its input range, so its bound is no stroke).
+pub const MAX_OUTPUT_UM: f64 = 1e6;
+
+/// The model's output stays within [`MAX_OUTPUT_UM`] over its input range: the
+/// weights' and creep gains' magnitudes times `pi.input_max_v` (a weight of
+/// `1e308` µm/V is refused by its key, not predicted from). The largest term is
+/// named.
 fn output_range(m: &HostModel) -> Result<()> {
     let p = &m.pi;
     let terms = std::iter::once(("pi.w0_um_per_v".to_string(), p.w0_um_per_v))
@@ -332,17 +337,18 @@ fn output_range(m: &HostModel) -> Result<()> {
             largest = (key, w);
         }
     }
-    if top <= SIGNAL_ABS_MAX {
+    if top <= MAX_OUTPUT_UM {
         return Ok(());
     }
     bail!(
         "{} = {}: the model's output over its input range (the magnitudes of its weights and \
-         creep gains times pi.input_max_v = {} V) reaches {} µm, beyond the ±{SIGNAL_ABS_MAX} \
-         µm the fit, the FEM tables and the firmware work in",
+         creep gains times pi.input_max_v = {} V) reaches {} µm, beyond {} µm (a metre: no \
+         piezo stage's motion)",
         largest.0,
         Num(largest.1),
         Num(p.input_max_v),
-        Num(top)
+        Num(top),
+        Num(MAX_OUTPUT_UM)
     )
 }
 
