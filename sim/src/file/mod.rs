@@ -386,7 +386,7 @@ impl FirmwareModel {
                     .table(id)
                     .and_then(|t| t.values.get((index as usize).wrapping_sub(1)))
                 {
-                    let _ = write!(s, " (previous knot {prev})");
+                    let _ = write!(s, " (previous knot {})", Num(*prev));
                 }
             }
             (ModelError::LimitsInverted, lower) => {
