@@ -1,6 +1,7 @@
 //! What an error message quotes of a file's text: at most [`QUOTE_CHARS`]
 //! characters of a value, then `…`, so that a 10 MB cell or a line of 200 000
-//! brackets does not come back whole; and a TOML parse error as
+//! brackets does not come back whole; a number as a file gave it ([`Num`]:
+//! `1e308`, not 309 digits); and a TOML parse error as
 //! `FILE:LINE:COLUMN: not a WHAT: message`, without the source excerpt the
 //! parser prints.
 
@@ -75,6 +76,23 @@ fn clip_to(s: &str) -> String {
     match head(s, 4 * QUOTE_CHARS) {
         (all, false) => all.into(),
         (kept, true) => format!("{kept}…"),
+    }
+}
+
+/// A number for a message: as Rust writes it (`0.25`, `150`) within
+/// `1e-4 ≤ |v| < 1e9`, else in scientific notation (`1e308`, not 309 digits):
+/// the value a file gave, as it gave it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+impl fmt::Display for Num {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let a = self.0.abs();
+        if a == 0.0 || !a.is_finite() || (1e-4..1e9).contains(&a) {
+            write!(f, "{}", self.0)
+        } else {
+            write!(f, "{:e}", self.0)
+        }
     }
 }
 

@@ -525,12 +525,18 @@ pub fn export(
 }
 
 /// `fpi tune`: the position loop's gains, written into the firmware model.
+///
+/// With `frf`, the plant fitted to a measured response: one that is not the
+/// stage's own (measured with the damping on or the loop closed) or that the fit
+/// misses ([`tune::frf::problems`](crate::method::tune::frf::problems)) is
+/// refused, or with `accept_misfit` written with a warning for each problem.
 pub fn tune(
     firmware: &Path,
     dynamics: Option<&Path>,
     frf: Option<&Path>,
     out: &Path,
     o: &crate::method::tune::TuneOptions,
+    accept_misfit: bool,
 ) -> Result<()> {
     use crate::method::tune;
     let mut inputs = vec![("--firmware", firmware)];
@@ -550,14 +556,38 @@ pub fn tune(
         .transpose()?;
     let t = match frf {
         Some(path) => {
-            let points = tune::frf::read_csv(path)?;
+            let measured = tune::frf::read_csv(path)?;
             let rate = fw.controller.rate_hz;
             let split = fw
                 .controller
                 .force_split_hz
                 .unwrap_or(piezo_fpi::control::DEFAULT_SPLIT_HZ as f64);
-            let fit = tune::frf::fit(&points, rate, tune::split_rate_f64(split, rate))?;
+            let fit = tune::frf::fit(&measured.points, rate, tune::split_rate_f64(split, rate))?;
             println!("{}", tune::frf::describe(&fit));
+            let shown = path.display();
+            if measured.conditions.is_none() {
+                eprintln!(
+                    "note: {shown} does not say how it was measured (no \"# measured with:\" \
+                     line; `fpi board frf` writes one): a plant fit needs the stage's own \
+                     response, with the damping off and the loop open"
+                );
+            }
+            let problems = tune::frf::problems(&fit, measured.conditions.as_ref());
+            if !problems.is_empty() && !accept_misfit {
+                bail!(
+                    "{shown}: no plant to design the loops on: {}; {}; nothing is written \
+                     (--accept-misfit writes the model anyway)",
+                    problems.join("; "),
+                    tune::frf::REMEASURE
+                );
+            }
+            if !problems.is_empty() {
+                eprintln!(
+                    "warning: {shown}: {}; the loops are designed on this fit as \
+                     --accept-misfit asks: check them with `fpi board step` before use",
+                    problems.join("; ")
+                );
+            }
             tune::tune_measured(&fw, fit.spec, o)?
         }
         None => tune::tune(&fw, dyn_model.as_ref(), o)?,

@@ -287,6 +287,77 @@ fn the_micromanipulator_window_is_selectable() {
     assert!(err.contains("outside the recording's 8027 rows"), "{err}");
 }
 
+/// The authors' identification cycle (rows 3152–3351 of `Model_Vi_Do.dat`)
+/// cut to a rig CSV — force 0, displacement from the cycle's first row — as a
+/// user without the `.dat` reader would: `t_s,voltage_V,force_N,displacement_um`,
+/// the displacement times `sign`.
+fn micromanipulator_cycle_csv(path: &Path, sign: f64) {
+    let m = fpi_host::data::read_micromanipulator(Path::new(
+        "data/real/micromanipulator/Model_Vi_Do.dat.gz",
+    ))
+    .unwrap();
+    let (u, x) = (&m.u[3151..3351], &m.sensor[3151..3351]);
+    let mut text = String::from("t_s,voltage_V,force_N,displacement_um\n");
+    for k in 0..u.len() {
+        text += &format!("{},{},0,{}\n", k as f64 / 200.0, u[k], sign * (x[k] - x[0]));
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+/// The cycle cut to a CSV gives a valid model as `--rows` does (it gave one with
+/// `w0 = 0`, which its own check refused: a 10 ms creep lag is two samples at
+/// 200 Hz and took the immediate slope). Both fits run with the same options
+/// (the zero force column is no force channel: an offset; the lags the 200 Hz
+/// samples resolve); they differ only by the operators' history before the
+/// cycle, which `--rows` keeps. The same cycle with its sign flipped is refused
+/// in terms of the data.
+#[test]
+fn the_micromanipulator_cycle_cut_to_a_csv_gives_a_valid_model() {
+    use fpi_host::method::model::HostModel;
+    let d = tmp();
+    let csv = d.join("cycle.csv");
+    micromanipulator_cycle_csv(&csv, 1.0);
+    let (from_csv, from_rows) = (d.join("cycle-epi.toml"), d.join("rows-epi.toml"));
+    let text = ok(&["calibrate", "--rig", s(&csv), "--out", s(&from_csv)]);
+    assert!(text.contains("model written to"), "{text}");
+    ok(&[
+        "calibrate",
+        "--rig",
+        "data/real/micromanipulator/Model_Vi_Do.dat.gz",
+        "--rows",
+        "3152-3351",
+        "--out",
+        s(&from_rows),
+    ]);
+    let (a, b) = (
+        HostModel::read(&from_csv).unwrap(),
+        HostModel::read(&from_rows).unwrap(),
+    );
+    for m in [&a, &b] {
+        m.validate().unwrap();
+        assert_eq!(m.kind.name(), "epi");
+        assert!(m.pi.w0_um_per_v > 0.5, "{:?}", m.pi);
+        // Within 0.5 % of the cycle's 45 µm (measured 0.123 and 0.064 µm).
+        assert!(m.calibration.rmse_um < 0.2, "{}", m.calibration.rmse_um);
+        let taus: Vec<f64> = m.creep.iter().map(|c| c.tau_s).collect();
+        assert_eq!(taus, [0.3], "the lags 200 Hz resolves within the cycle");
+        assert!(
+            m.offset_um != 0.0,
+            "an offset, as for a recording without force"
+        );
+    }
+    micromanipulator_cycle_csv(&csv, -1.0);
+    let err = fails(&["calibrate", "--rig", s(&csv), "--out", s(&from_csv)]);
+    assert!(
+        err.contains(
+            "the recordings give no valid epi model: the displacement of cycle.csv \
+             does not rise with the voltage over its fitted rows (a straight line through them \
+             goes -12.35 µm/V)"
+        ) && err.contains("needs its sign flipped; nothing is written"),
+        "{err}"
+    );
+}
+
 /// `fpi board …` against the emulated board, as a user without a board runs it:
 /// load a model (a calibrated model with the stage's FEM tables, as `fpi export`
 /// takes them), move, run a wave, record it to a CSV that `fpi compare` reads as a

@@ -96,7 +96,7 @@ fn malformed_models_name_their_key() {
     );
     check(
         &|b| b.creep[1].tau_s = 1e-5,
-        "creep[1].tau_s = 0.00001: creep time constant not longer than T_s / ln 2",
+        "creep[1].tau_s = 1e-5: creep time constant not longer than T_s / ln 2",
     );
     check(
         &|b| b.tables.f_k.values[7] = 0.0,
@@ -237,11 +237,31 @@ fn host_models_that_cannot_move_or_invert_name_their_key() {
         ),
         (
             ("compliance_um_per_n = 0.0", "compliance_um_per_n = 1e9"),
-            "coupling.compliance_um_per_n = 1000000000: must be within 0–0.499999 µm/N",
+            "coupling.compliance_um_per_n = 1e9: must be within 0–0.499999 µm/N",
         ),
         (
             ("thresholds_v = [10.0,", "thresholds_v = [-10.0,"),
             "pi.thresholds_v[0] = -10: thresholds are voltages ≥ 0 V",
+        ),
+        // A weight of 1e308 µm/V was predicted from (x_pea at the FEM table's
+        // end) and named only by export, in 309 digits.
+        (
+            ("w0_um_per_v = 0.0645", "w0_um_per_v = 1e308"),
+            "pi.w0_um_per_v = 1e308: the model's output over its input range (the magnitudes \
+             of its weights and creep gains times pi.input_max_v = 150 V) reaches inf µm, \
+             beyond 1000000 µm (a metre: no piezo stage's motion)",
+        ),
+        (
+            ("0.01, 0.005]", "1e4, 0.005]"),
+            "pi.weights_um_per_v[1] = 10000: the model's output over its input range",
+        ),
+        (
+            ("w0_um_per_v = 0.0645", "w0_um_per_v = -1e308"),
+            "pi.w0_um_per_v = -1e308: the model's output",
+        ),
+        (
+            ("w0_um_per_v = 0.0645", "w0_um_per_v = nan"),
+            "pi.w0_um_per_v = NaN: not finite",
         ),
     ];
     for ((from, to), want) in cases {
@@ -301,7 +321,7 @@ fn the_current_limit_bounds_the_slew_per_tick() {
             b.controller.current_limit_ma = Some(-1.0);
             b.controller.capacitance_uf = Some(2.0);
         },
-        "controller.current_limit_ma = -1: not a positive current",
+        "controller.current_limit_ma = -1: not a positive finite current, mA",
     );
 }
 
@@ -483,5 +503,173 @@ fn a_watch_swing_names_its_key() {
     check(
         &|b| b.feedback.as_mut().unwrap().watch_swing_um = Some(f64::NAN),
         "feedback.watch_swing_um = NaN: not a finite value within ±4096 (I16F16 signal range)",
+    );
+}
+
+/// [`with_loops`] with every optional number of `[controller]` given too.
+fn with_every_key() -> FirmwareModel {
+    let mut m = with_loops();
+    let k = &mut m.controller;
+    k.force_split_hz = Some(10.0);
+    k.force_dynamic_limit_n = Some(4.0 * k.force_tolerance_n);
+    k.current_limit_ma = Some(10_000.0);
+    k.capacitance_uf = Some(2.0);
+    m.feedback.as_mut().unwrap().watch_swing_um = Some(0.1);
+    m
+}
+
+/// The text of `m` with the number at `key` (`pi.weights_um_per_v[2]`,
+/// `creep[1].tau_s`) set to `v`.
+fn with_number(m: &FirmwareModel, key: &str, v: f64) -> String {
+    let mut doc: toml::Value = toml::from_str(&m.to_toml().unwrap()).unwrap();
+    let mut at = &mut doc;
+    for part in key.split('.') {
+        let mut pieces = part.split('[');
+        at = &mut at[pieces.next().unwrap()];
+        for index in pieces {
+            at = &mut at[index.trim_end_matches(']').parse::<usize>().unwrap()];
+        }
+    }
+    assert!(at.is_float() || at.is_integer(), "{key}: {at:?}");
+    *at = toml::Value::Float(v);
+    toml::to_string(&doc).unwrap()
+}
+
+/// Every number of a firmware model file, given as a huge, infinite or
+/// not-a-number value (and, where the rule wants it positive, as -1), is refused
+/// with the file, the key, the value as the file gives it (`1e308`, not 309
+/// digits) and the rule it breaks.
+#[test]
+fn every_number_out_of_its_range_names_file_key_value_and_rule() {
+    use piezo_sim::quote::Num;
+    let m = with_every_key();
+    FirmwareModel::parse(&m.to_toml().unwrap(), "m.toml").unwrap();
+    // (key, refused at -1 too)
+    let keys: &[(&str, bool)] = &[
+        ("pi.w0_um_per_v", true),
+        ("pi.thresholds_v[2]", true),
+        ("pi.weights_um_per_v[2]", false),
+        ("pi.input_max_v", true),
+        ("coupling.offset_v", false),
+        ("coupling.k_f_v_per_n", false),
+        ("coupling.k_q_v_per_n2", false),
+        ("coupling.force_q_n", false),
+        ("coupling.compliance_um_per_n", false),
+        ("coupling.force_ref_n", false),
+        ("dead_zone.forward.x0", false),
+        ("dead_zone.forward.values[3]", false),
+        ("dead_zone.inverse.values[3]", false),
+        ("saturation.forward.values[3]", false),
+        ("saturation.inverse.x0", false),
+        ("creep[1].tau_s", true),
+        ("creep[1].gain_um_per_v", false),
+        ("controller.u_min_v", false),
+        ("controller.u_max_v", true),
+        ("controller.slew_v_per_ms", true),
+        ("controller.reference_min_um", false),
+        ("controller.reference_max_um", false),
+        ("controller.force_min_n", false),
+        ("controller.force_max_n", false),
+        ("controller.force_tolerance_n", true),
+        ("controller.safe_voltage_v", true),
+        ("controller.current_limit_ma", true),
+        ("controller.capacitance_uf", true),
+        ("controller.force_split_hz", true),
+        ("controller.force_dynamic_limit_n", true),
+        ("tables.f_f.x0", false),
+        ("tables.f_f.values[3]", false),
+        ("tables.f_k.values[3]", false),
+        ("tables.f_k_inv.x0", false),
+        ("tables.f_k_inv.values[3]", false),
+        ("feedback.kp", true),
+        ("feedback.ki_per_s", true),
+        ("feedback.limit_um", true),
+        ("feedback.position_min_um", false),
+        ("feedback.position_max_um", false),
+        ("feedback.position_tolerance_um", true),
+        ("feedback.watch_swing_um", true),
+        ("dynamics.mode_hz", true),
+        ("dynamics.damping_ratio", true),
+        ("dynamics.lag_hz", true),
+        ("dynamics.force_gain_n_per_um", true),
+        ("damping.gain_um_per_n_s", true),
+        ("damping.highpass_hz", true),
+        ("damping.leak_hz", true),
+        ("damping.limit_um", true),
+        ("damping.lead_baseline", true),
+        ("shaping.taps[0]", false),
+    ];
+    let mut wrong = Vec::new();
+    for &(key, negative) in keys {
+        let values = [
+            1e308,
+            -1e308,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            -1.0,
+        ];
+        // A huge current limit limits nothing: the slew is the model's.
+        let huge = key != "controller.current_limit_ma";
+        let wanted = |v: f64| (v != -1.0 || negative) && (v != 1e308 || huge);
+        for v in values.into_iter().filter(|&v| wanted(v)) {
+            let text = with_number(&m, key, v);
+            // The key and the value, as the first key of the message or as the
+            // bound it is compared with (`u_min_v = 0: … (controller.u_max_v = -1)`).
+            let given = format!("{key} = {}", Num(v));
+            match FirmwareModel::parse(&text, "m.toml") {
+                Ok(_) => wrong.push(format!("{key} = {v}: accepted")),
+                Err(e) if !(e.starts_with("m.toml: ") && e.contains(&given)) => {
+                    wrong.push(format!("{key} = {v}: {e}"))
+                }
+                // The rule after the first value: a sentence, not just the value.
+                Err(e) => {
+                    let rule = e.split_once(": ").and_then(|(_, r)| r.split_once(": "));
+                    if rule.is_none_or(|(_, r)| r.len() < 15) {
+                        wrong.push(format!("{key} = {v}: no rule: {e}"));
+                    }
+                }
+            }
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+    // The integers are refused by the TOML reader, at their line (which names
+    // the key).
+    let text = m.to_toml().unwrap();
+    for key in ["rate_hz", "step_log2", "preview_ticks"] {
+        let at = text.find(&format!("\n{key} = ")).unwrap() + 1;
+        let end = at + text[at..].find('\n').unwrap();
+        let bad = format!("{}{key} = 1e308{}", &text[..at], &text[end..]);
+        let line = text[..at].lines().count() + 1;
+        let e = FirmwareModel::parse(&bad, "m.toml").unwrap_err();
+        assert!(
+            e.starts_with(&format!("m.toml:{line}:"))
+                && e.contains(&format!("(in \"{key} = 1e308\")")),
+            "{e}"
+        );
+    }
+}
+
+/// A lag below the mode is refused naming both keys, their values and the rule
+/// (it blamed the lag alone with the dynamics' general range message).
+#[test]
+fn a_lag_below_the_mode_names_both() {
+    let m = with_loops();
+    refused(
+        &m,
+        &|b| b.dynamics.as_mut().unwrap().lag_hz = Some(300.0),
+        "m.toml: dynamics.lag_hz = 300: must be above dynamics.mode_hz = 850.852 (the lag's \
+         corner lies above the mode; no lag: leave lag_hz out)",
+    );
+    refused(
+        &m,
+        &|b| b.dynamics.as_mut().unwrap().mode_hz = 3000.0,
+        "dynamics.lag_hz = 2026.966: must be above dynamics.mode_hz = 3000",
+    );
+    refused(
+        &m,
+        &|b| b.dynamics.as_mut().unwrap().mode_hz = 12_000.0,
+        "dynamics.mode_hz = 12000: the mode must lie from 1 Hz up to below the Nyquist \
+         frequency, 10000 Hz at controller.rate_hz = 20000",
     );
 }

@@ -10,6 +10,7 @@ use piezo_fpi::q::{self, CreepRate, LeadRatio, LoopGain, Micrometres};
 use serde::{Deserialize, Serialize};
 
 use super::sections::{rate_per_tick, signal};
+use crate::quote::Num;
 
 /// The stage's first mode as the loops see it from the command (µm in, the
 /// position sensor and the force channel's dynamic part out).
@@ -38,13 +39,18 @@ impl DynamicsSection {
             if v.is_finite() && v > 0.0 && v < 4.0e6 {
                 Ok((v * 1000.0).round() as u32)
             } else {
-                Err(format!("{key} = {v}: not a positive frequency below 4 MHz"))
+                Err(format!(
+                    "{key} = {}: not a positive frequency below 4 MHz",
+                    Num(v)
+                ))
             }
         };
         let ratio = |key: &str, v: f64| {
             q::quantize(v, q::COUPLING_FRAC, q::COUPLING_ABS_MAX)
                 .map(CreepRate::from_bits)
-                .ok_or_else(|| format!("{key} = {v}: not a finite value within ±0.5 (I0F32)"))
+                .ok_or_else(|| {
+                    format!("{key} = {}: not a finite value within ±0.5 (I0F32)", Num(v))
+                })
         };
         Ok(DynamicsSpec {
             mode_mhz: mhz("dynamics.mode_hz", self.mode_hz)?,
@@ -95,8 +101,10 @@ impl DampingSection {
             .map(LoopGain::from_bits)
             .ok_or_else(|| {
                 format!(
-                    "damping.gain_um_per_n_s = {}: not a finite value within ±128 µm/N per tick (I8F24)",
-                    self.gain_um_per_n_s
+                    "damping.gain_um_per_n_s = {}: not a finite value within ±{} µm/(N·s) \
+                     (±128 µm/N per control tick at controller.rate_hz = {rate_hz}, I8F24)",
+                    Num(self.gain_um_per_n_s),
+                    Num(128.0 * fs)
                 )
             })?;
         Ok(DampingSpec {
@@ -115,7 +123,8 @@ impl DampingSection {
                     Ok(LeadRatio::from_num(b))
                 } else {
                     Err(format!(
-                        "damping.lead_baseline = {b}: not a ratio within [0.5, 2) (I2F30)"
+                        "damping.lead_baseline = {}: not a ratio within [0.5, 2) (I2F30)",
+                        Num(b)
                     ))
                 }
             })
@@ -185,7 +194,10 @@ impl ShapingSection {
         }
         for (j, (&v, o)) in self.taps.iter().zip(out.taps.iter_mut()).enumerate() {
             *o = q::quantize(v, COEFF_FRAC, COEFF_ABS_MAX).ok_or_else(|| {
-                format!("shaping.taps[{j}] = {v}: not a finite value within ±128 (I8F24)")
+                format!(
+                    "shaping.taps[{j}] = {}: not a finite value within ±128 (I8F24)",
+                    Num(v)
+                )
             })?;
         }
         for (i, (s, o)) in self
@@ -197,7 +209,8 @@ impl ShapingSection {
             for (j, (&v, o)) in s.iter().zip(o.iter_mut()).enumerate() {
                 *o = q::quantize(v, COEFF_FRAC, COEFF_ABS_MAX).ok_or_else(|| {
                     format!(
-                        "shaping.sections[{i}][{j}] = {v}: not a finite value within ±128 (I8F24)"
+                        "shaping.sections[{i}][{j}] = {}: not a finite value within ±128 (I8F24)",
+                        Num(v)
                     )
                 })?;
             }
@@ -236,17 +249,23 @@ impl FeedbackSection {
     /// The settings in the core's formats at `rate_hz` (ranges only; the core's
     /// validator checks the rest).
     pub(super) fn quantize(&self, rate_hz: u32) -> Result<FeedbackSpec, String> {
-        let loop_gain = |key: &str, v: f64| {
-            q::quantize(v, q::LOOP_GAIN_FRAC, 127.9)
-                .map(LoopGain::from_bits)
-                .ok_or_else(|| format!("{key} = {v}: not a finite value within ±128 (I8F24)"))
-        };
+        let fs = rate_hz.max(1) as f64;
+        let loop_gain = |v: f64| q::quantize(v, q::LOOP_GAIN_FRAC, 127.9).map(LoopGain::from_bits);
         Ok(FeedbackSpec {
-            kp: loop_gain("feedback.kp", self.kp)?,
-            ki: loop_gain(
-                "feedback.ki_per_s (per control step)",
-                self.ki_per_s / rate_hz.max(1) as f64,
-            )?,
+            kp: loop_gain(self.kp).ok_or_else(|| {
+                format!(
+                    "feedback.kp = {}: not a finite value within ±128 (I8F24)",
+                    Num(self.kp)
+                )
+            })?,
+            ki: loop_gain(self.ki_per_s / fs).ok_or_else(|| {
+                format!(
+                    "feedback.ki_per_s = {}: not a finite value within ±{} /s (±128 per control \
+                     tick at controller.rate_hz = {rate_hz}, I8F24)",
+                    Num(self.ki_per_s),
+                    Num(128.0 * fs)
+                )
+            })?,
             limit: signal("feedback.limit_um", self.limit_um)?,
             sensor: Interval {
                 lo: signal("feedback.position_min_um", self.position_min_um)?,

@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 use crate::control::Controller;
 use crate::model::{lag_rate, Coupling, Creep, DeadZone, Model, Output};
 use crate::play::Pi;
-use crate::quote::toml_error;
+use crate::quote::{toml_error, Num};
 
 /// The default dynamic force limit, in force tolerances
 /// (`controller.force_dynamic_limit_n`).
@@ -86,7 +86,7 @@ pub struct FirmwareModel {
 mod loops;
 mod sections;
 
-use sections::{coupling, gain, quantize_map, quantize_table, signal};
+use sections::{gain, quantize_map, quantize_table, signal};
 
 pub use loops::{DampingSection, DynamicsSection, FeedbackSection, ShapingSection};
 pub use sections::{
@@ -167,10 +167,7 @@ impl FirmwareModel {
                 f_k_inv: empty,
                 u_min: signal("controller.u_min_v", k.u_min_v)?,
                 u_max: signal("controller.u_max_v", k.u_max_v)?,
-                max_step: signal(
-                    "controller.slew_v_per_ms (per control step)",
-                    k.slew_per_step_v()?,
-                )?,
+                max_step: k.max_step()?,
                 supervision: k.supervision()?,
                 feedback: self
                     .feedback
@@ -217,17 +214,36 @@ impl FirmwareModel {
         })
     }
 
-    /// The creep terms at the control rate (a rate outside `(0, 0.5)` is passed
-    /// on as 0, which the validator refuses by name).
+    /// The creep terms at the control rate: a time constant that is not a
+    /// positive finite number, or too long for its rate's format, is named here;
+    /// one too short (a rate of 0.5 or more per tick) is passed on as 0, which
+    /// the validator refuses by name.
     fn creep_terms(&self) -> Result<Vec<CreepSpec>, String> {
         let dt = 1.0 / self.controller.rate_hz as f64;
         self.creep
             .iter()
             .enumerate()
             .map(|(j, cr)| {
+                let key = format!("creep[{j}].tau_s");
+                if !(cr.tau_s.is_finite() && cr.tau_s > 0.0) {
+                    return Err(format!(
+                        "{key} = {}: not a positive finite time constant, s",
+                        Num(cr.tau_s)
+                    ));
+                }
                 let r = lag_rate(dt, cr.tau_s);
                 let rate = if r > 0.0 && r < 0.5 {
-                    coupling(&format!("creep[{j}].tau_s"), r)?
+                    piezo_fpi::q::coupling(r)
+                        .filter(|q| *q > CreepRate::ZERO)
+                        .ok_or_else(|| {
+                            format!(
+                                "{key} = {}: longer than its rate per control tick holds \
+                                 (I0F32: at most about {} s at controller.rate_hz = {})",
+                                Num(cr.tau_s),
+                                Num((dt * 2f64.powi(32)).round()),
+                                self.controller.rate_hz
+                            )
+                        })?
                 } else {
                     CreepRate::ZERO
                 };
@@ -320,15 +336,41 @@ impl FirmwareModel {
         }
     }
 
+    /// The rule a validator's error `e` says the value breaks, with the file's
+    /// values it is checked against where the core's message is general (the
+    /// stage's dynamics: one error for all of their ranges).
+    fn rule(&self, e: Invalid) -> String {
+        let rate = self.controller.rate_hz;
+        match (e.error, e.field, &self.dynamics) {
+            (ModelError::DampingOutOfRange, Field::DynamicsLagHz, Some(d)) => format!(
+                "must be above dynamics.mode_hz = {} (the lag's corner lies above the mode; \
+                 no lag: leave lag_hz out)",
+                Num(d.mode_hz)
+            ),
+            (ModelError::DampingOutOfRange, Field::DynamicsModeHz, _) => format!(
+                "the mode must lie from 1 Hz up to below the Nyquist frequency, {} Hz at \
+                 controller.rate_hz = {rate}",
+                Num(rate as f64 / 2.0)
+            ),
+            (ModelError::DampingOutOfRange, Field::DynamicsDamping, _) => {
+                "the damping ratio must lie within (0, 0.5)".to_string()
+            }
+            (ModelError::DampingOutOfRange, Field::DynamicsForceGain, _) => {
+                "κ, the dynamic force per µm of command, must not be negative".to_string()
+            }
+            _ => e.error.message().to_string(),
+        }
+    }
+
     /// A validator's error as the file's user reads it: the key, the value there,
     /// the problem, and for a partial sum or a table what it is compared with.
     pub fn describe(&self, e: Invalid) -> String {
         let mut s = String::new();
         let _ = e.write_key(&mut s);
         if let Some(v) = self.value_at(e.field, e.index) {
-            let _ = write!(s, " = {v}");
+            let _ = write!(s, " = {}", Num(v));
         }
-        let _ = write!(s, ": {}", e.error.message());
+        let _ = write!(s, ": {}", self.rule(e));
         match (e.error, e.field) {
             (ModelError::NonPositiveSlope { index }, _) => {
                 let p = &self.pi;
@@ -344,7 +386,19 @@ impl FirmwareModel {
                     .table(id)
                     .and_then(|t| t.values.get((index as usize).wrapping_sub(1)))
                 {
-                    let _ = write!(s, " (previous knot {prev})");
+                    let _ = write!(s, " (previous knot {})", Num(*prev));
+                }
+            }
+            (ModelError::LimitsInverted, lower) => {
+                let upper = match lower {
+                    Field::UMin => Some(Field::UMax),
+                    Field::ReferenceMin => Some(Field::ReferenceMax),
+                    Field::ForceMin => Some(Field::ForceMax),
+                    Field::PositionMin => Some(Field::PositionMax),
+                    _ => None,
+                };
+                if let Some((f, v)) = upper.and_then(|f| Some((f, self.value_at(f, None)?))) {
+                    let _ = write!(s, " ({} = {})", f.key(), Num(v));
                 }
             }
             (ModelError::ReferenceOutsideTable, _) => {

@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use super::DYNAMIC_LIMIT_FACTOR;
 use crate::curve::Curve;
 use crate::maps::TableMap;
+use crate::quote::Num;
 
 /// Provenance of a model file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -139,19 +140,23 @@ impl ControllerSection {
     /// The slew the loop enforces, V/ms: `slew_v_per_ms`, or `I_max / C` (mA/µF =
     /// V/ms) where the amplifier's current limit and the stack's capacitance are
     /// given and it is lower. An `I_max` or `C` that is not positive and finite is
-    /// refused, naming its key.
+    /// refused, naming its key (a huge current limit limits nothing; a huge
+    /// capacitance, a slew below the smallest step, is refused by
+    /// [`max_step`](Self::max_step)).
     pub fn slew_limit_v_per_ms(&self) -> Result<f64, String> {
         match (self.current_limit_ma, self.capacitance_uf) {
             (None, None) => Ok(self.slew_v_per_ms),
             (Some(i), Some(c)) => {
                 if !(i > 0.0 && i.is_finite()) {
                     return Err(format!(
-                        "controller.current_limit_ma = {i}: not a positive current"
+                        "controller.current_limit_ma = {}: not a positive finite current, mA",
+                        Num(i)
                     ));
                 }
                 if !(c > 0.0 && c.is_finite()) {
                     return Err(format!(
-                        "controller.capacitance_uf = {c}: not a positive capacitance"
+                        "controller.capacitance_uf = {}: not a positive finite capacitance, µF",
+                        Num(c)
                     ));
                 }
                 Ok(self.slew_v_per_ms.min(i / c))
@@ -168,6 +173,44 @@ impl ControllerSection {
     /// per control step at `rate_hz`, V.
     pub fn slew_per_step_v(&self) -> Result<f64, String> {
         Ok(self.slew_limit_v_per_ms()? * 1e3 / self.rate_hz as f64)
+    }
+
+    /// The slew per control step ([`slew_per_step_v`](Self::slew_per_step_v)) in
+    /// its format, `I16F16` V. A slew whose step does not fit is named by its key,
+    /// as the file gives it, with the range in V/ms at the file's rate; a current
+    /// limit over a capacitance whose slew is below the smallest step, by both
+    /// keys. (At a rate outside the validator's range, 0: the validator names the
+    /// rate.)
+    pub(super) fn max_step(&self) -> Result<I16F16, String> {
+        if !(100..=200_000).contains(&self.rate_hz) {
+            return Ok(I16F16::ZERO);
+        }
+        let rate = self.rate_hz as f64;
+        let per_ms = |v_per_step: f64| Num(v_per_step * rate / 1e3);
+        if q::signal(self.slew_v_per_ms * 1e3 / rate).is_none() {
+            return Err(format!(
+                "controller.slew_v_per_ms = {}: not a finite value within ±{} V/ms (±{} V per \
+                 control step at controller.rate_hz = {}, I16F16)",
+                Num(self.slew_v_per_ms),
+                per_ms(q::SIGNAL_ABS_MAX),
+                q::SIGNAL_ABS_MAX,
+                self.rate_hz
+            ));
+        }
+        let step = q::signal(self.slew_per_step_v()?).unwrap_or(I16F16::ZERO);
+        match (self.current_limit_ma, self.capacitance_uf) {
+            (Some(i), Some(c)) if step <= I16F16::ZERO && self.slew_v_per_ms > 0.0 => Err(format!(
+                "controller.current_limit_ma = {} over controller.capacitance_uf = {}: a \
+                     slew of {} V/ms, below the smallest the loop holds ({} V/ms, 2^-16 V per \
+                     control step at controller.rate_hz = {})",
+                Num(i),
+                Num(c),
+                Num(i / c),
+                per_ms(I16F16::DELTA.to_num::<f64>()),
+                self.rate_hz
+            )),
+            _ => Ok(step),
+        }
     }
 }
 
@@ -258,20 +301,28 @@ impl Quantized {
 pub(super) fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, String> {
     if !(f_hz.is_finite() && f_hz >= 0.0 && f_hz * 64.0 <= fs) {
         return Err(format!(
-            "{key} = {f_hz}: not a corner between 0 and f_s/64 = {} Hz",
-            fs / 64.0
+            "{key} = {}: not a corner between 0 and f_s/64 = {} Hz (controller.rate_hz = {})",
+            Num(f_hz),
+            Num(fs / 64.0),
+            Num(fs)
         ));
     }
     let a = -(-2.0 * std::f64::consts::PI * f_hz / fs).exp_m1();
     q::quantize(a, q::COUPLING_FRAC, q::COUPLING_ABS_MAX)
         .map(CreepRate::from_bits)
-        .ok_or_else(|| format!("{key} = {f_hz}: does not fit its Q format"))
+        .ok_or_else(|| {
+            format!(
+                "{key} = {}: its rate per control tick does not fit I0F32",
+                Num(f_hz)
+            )
+        })
 }
 
 pub(super) fn signal(key: &str, v: f64) -> Result<I16F16, String> {
     q::signal(v).ok_or_else(|| {
         format!(
-            "{key} = {v}: not a finite value within ±{} (I16F16 signal range)",
+            "{key} = {}: not a finite value within ±{} (I16F16 signal range)",
+            Num(v),
             q::SIGNAL_ABS_MAX
         )
     })
@@ -280,7 +331,8 @@ pub(super) fn signal(key: &str, v: f64) -> Result<I16F16, String> {
 pub(super) fn gain(key: &str, v: f64) -> Result<UmPerVolt, String> {
     q::gain(v).ok_or_else(|| {
         format!(
-            "{key} = {v}: not a finite value within ±{} (I4F28 gain range)",
+            "{key} = {}: not a finite value within ±{} (I4F28 gain range)",
+            Num(v),
             q::GAIN_ABS_MAX
         )
     })
@@ -289,7 +341,8 @@ pub(super) fn gain(key: &str, v: f64) -> Result<UmPerVolt, String> {
 pub(super) fn coupling(key: &str, v: f64) -> Result<VoltsPerNewton, String> {
     q::coupling(v).ok_or_else(|| {
         format!(
-            "{key} = {v}: not a finite value within ±{} (I0F32 coupling range)",
+            "{key} = {}: not a finite value within ±{} (I0F32 coupling range)",
+            Num(v),
             q::COUPLING_ABS_MAX
         )
     })
@@ -364,10 +417,18 @@ impl ControllerSection {
             split: rate_per_tick("controller.force_split_hz", split_hz, self.rate_hz as f64)?,
             dynamic_limit: match self.force_dynamic_limit_n {
                 Some(v) => signal("controller.force_dynamic_limit_n", v)?,
-                None => signal(
-                    "controller.force_tolerance_n (times the default dynamic-limit factor)",
-                    DYNAMIC_LIMIT_FACTOR * self.force_tolerance_n,
-                )?,
+                None => {
+                    signal("controller.force_tolerance_n", self.force_tolerance_n)?;
+                    q::signal(DYNAMIC_LIMIT_FACTOR * self.force_tolerance_n).ok_or_else(|| {
+                        format!(
+                            "controller.force_tolerance_n = {}: {DYNAMIC_LIMIT_FACTOR} times it, \
+                             the default controller.force_dynamic_limit_n, is not within ±{} N \
+                             (I16F16 signal range): give controller.force_dynamic_limit_n",
+                            Num(self.force_tolerance_n),
+                            q::SIGNAL_ABS_MAX
+                        )
+                    })?
+                }
             },
         };
         Ok(Supervision {

@@ -7,7 +7,7 @@
 //! fpi invert    --model MODEL.toml --fem FEM.csv --target TARGET.csv --out DRIVE.csv
 //! fpi refine    --model MODEL.toml --fem FEM.csv --run RUN.csv... --out REFINED.toml
 //! fpi export    --model MODEL.toml --fem FEM.csv [--dynamics DYN.toml] --out FIRMWARE.toml
-//! fpi tune      --firmware FIRMWARE.toml [--dynamics DYN.toml] --out TUNED.toml
+//! fpi tune      --firmware FIRMWARE.toml [--dynamics DYN.toml | --frf FRF.csv [--accept-misfit]] --out TUNED.toml
 //! fpi demo      [--out DIR]
 //! fpi bench
 //! fpi identify  --chirp FILE.csv... --out DYN.toml [--plots DIR] [--min-hz F]
@@ -150,6 +150,12 @@ enum Command {
         /// instead of --dynamics: the dynamics and κ are fitted to it.
         #[arg(long, conflicts_with = "dynamics")]
         frf: Option<PathBuf>,
+        /// With --frf: write the model even if the response was measured with
+        /// the loops acting (damping on, loop closed) or the fitted plant misses
+        /// it by more than a fit of the stage's own response leaves (30 %
+        /// position, 60 % force, RMS); a warning says so.
+        #[arg(long, requires = "frf")]
+        accept_misfit: bool,
         #[command(flatten)]
         loops: TuneArgs,
         /// Where to write the tuned firmware model.
@@ -795,6 +801,7 @@ fn run(args: Args) -> Result<()> {
             firmware,
             dynamics,
             frf,
+            accept_misfit,
             loops,
             out,
         } => cli::tune(
@@ -803,6 +810,7 @@ fn run(args: Args) -> Result<()> {
             frf.as_deref(),
             &out,
             &loops.options(),
+            accept_misfit,
         ),
         Command::Export {
             model,

@@ -47,7 +47,7 @@ use super::step::{self, StepFigures, StepSettings};
 use super::trial;
 use super::warm::close_and_warm_up;
 use crate::method::tune::feedforward::Feedforward;
-use crate::method::tune::frf::{self as fit, FrfFit, FrfPoint};
+use crate::method::tune::frf::{self as fit, FrfConditions, FrfFit, FrfPoint};
 use crate::method::tune::trials;
 use crate::method::tune::{self, TuneOptions, Tuning};
 
@@ -100,6 +100,9 @@ impl Round {
 pub struct Autotune {
     /// The measured response.
     pub frf: Vec<FrfPoint>,
+    /// What the board ran while it measured it (the loop open, damping and
+    /// shaping off).
+    pub frf_conditions: FrfConditions,
     /// The plant fitted to it.
     pub fit: FrfFit,
     /// The force sensor's noise at rest, N (σ; [`noise::force_noise`]).
@@ -174,6 +177,7 @@ pub fn run(
         "the force sensor's noise at rest: σ {force_noise_n:.3} N"
     ));
     progress("measuring the frequency response through the board");
+    let frf_conditions = frf::conditions(c)?;
     let points = frf::measure(c, &settings.sweep, |k, p| {
         progress(&format!(
             "  {:>2}: {:7.1} Hz  |x/u| {:.3}",
@@ -184,6 +188,10 @@ pub fn run(
     })?;
     let fitted = fit::fit(&points, rate, split_rate)?;
     progress(&fit::describe(&fitted));
+    let problems = fit::problems(&fitted, Some(&frf_conditions));
+    if !problems.is_empty() {
+        progress(&format!("warning: {}", problems.join("; ")));
+    }
     // The damping is designed for the noise measured (or the one given).
     let o = &TuneOptions {
         force_noise_n: o.force_noise_n.or(Some(force_noise_n)),
@@ -198,6 +206,7 @@ pub fn run(
         .map_err(|e| noise::explain(c, e, force_noise_n, motion))?;
     Ok(Autotune {
         frf: points,
+        frf_conditions,
         fit: fitted,
         force_noise_n,
         tuning: t,
@@ -504,7 +513,7 @@ pub fn write(a: &Autotune, out: &Path, frf_out: Option<&Path>) -> Result<()> {
     let text = a.model.to_toml().map_err(anyhow::Error::msg)?;
     crate::output::write_atomic(out, text.as_bytes())?;
     if let Some(p) = frf_out {
-        fit::write_csv(p, &a.frf)?;
+        fit::write_csv(p, &a.frf, &a.frf_conditions)?;
     }
     Ok(())
 }

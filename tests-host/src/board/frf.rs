@@ -17,7 +17,7 @@ use piezo_fpi::control::Fault;
 
 use super::client::{bits, Client};
 use super::follow::Follow;
-use crate::method::tune::frf::FrfPoint;
+use crate::method::tune::frf::{FrfConditions, FrfPoint};
 
 /// How the response is measured.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -100,6 +100,18 @@ fn point(a: &Analysis, amplitude_um: f64) -> FrfPoint {
         excitation_um: amplitude_um,
         ticks: a.ticks,
     }
+}
+
+/// What the board `c` runs (loop, damping, shaping, drive): the conditions a
+/// response measured now is measured under, which its file records.
+pub fn conditions(c: &mut Client) -> Result<FrfConditions> {
+    let s = c.status()?;
+    Ok(FrfConditions {
+        loop_mode: s.loop_mode,
+        damping: s.damping,
+        shaping: s.shaping,
+        compensated: s.compensated,
+    })
 }
 
 /// Measures the response of the board `c` (which must be able to move: not

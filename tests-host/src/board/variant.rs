@@ -20,21 +20,22 @@ use std::path::Path;
 
 use anyhow::{anyhow, bail, Result};
 use fpi_protocol::StageVariant;
-use piezo_sim::quote::{toml_error, Quoted};
+use piezo_sim::quote::{toml_error, Num, Quoted};
 use serde::Deserialize;
 
-/// The file's form.
+/// The file's form (its numbers as the file gives them: the board's `f32`
+/// would make `1e308` an infinity).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct VariantFile {
     base: String,
-    mode_hz: Option<f32>,
-    mode_damping: Option<f32>,
-    output_gain: Option<f32>,
-    force_scale: Option<f32>,
-    creep_scale: Option<f32>,
-    position_noise_um: Option<f32>,
-    force_noise_n: Option<f32>,
+    mode_hz: Option<f64>,
+    mode_damping: Option<f64>,
+    output_gain: Option<f64>,
+    force_scale: Option<f64>,
+    creep_scale: Option<f64>,
+    position_noise_um: Option<f64>,
+    force_noise_n: Option<f64>,
 }
 
 /// The base named `name` (`nominal` or `built`).
@@ -73,18 +74,32 @@ pub fn from_toml(text: &str, name: &str) -> Result<StageVariant> {
             Quoted(&f.base)
         )
     })?;
+    let narrow = |v: Option<f64>| v.map(|v| v as f32);
     let v = StageVariant {
         built: b.built,
-        mode_hz: f.mode_hz,
-        mode_damping: f.mode_damping,
-        output_gain: f.output_gain,
-        force_scale: f.force_scale,
-        creep_scale: f.creep_scale,
-        position_noise_um: f.position_noise_um,
-        force_noise_n: f.force_noise_n,
+        mode_hz: narrow(f.mode_hz),
+        mode_damping: narrow(f.mode_damping),
+        output_gain: narrow(f.output_gain),
+        force_scale: narrow(f.force_scale),
+        creep_scale: narrow(f.creep_scale),
+        position_noise_um: narrow(f.position_noise_um),
+        force_noise_n: narrow(f.force_noise_n),
     };
     if let Err((key, value, (lo, hi))) = v.check() {
-        bail!("{name}: {key} = {value}: must lie in [{lo}, {hi}]");
+        let given = [
+            ("mode_hz", f.mode_hz),
+            ("mode_damping", f.mode_damping),
+            ("output_gain", f.output_gain),
+            ("force_scale", f.force_scale),
+            ("creep_scale", f.creep_scale),
+            ("position_noise_um", f.position_noise_um),
+            ("force_noise_n", f.force_noise_n),
+        ]
+        .into_iter()
+        .find(|(k, _)| *k == key)
+        .and_then(|(_, v)| v)
+        .unwrap_or(value as f64);
+        bail!("{name}: {key} = {}: must lie in [{lo}, {hi}]", Num(given));
     }
     Ok(v)
 }
@@ -137,6 +152,17 @@ mod tests {
         let e = from_toml("base = \"built\"\nmode_damping = 0.9\n", "v.toml").unwrap_err();
         let s = format!("{e:#}");
         assert!(s.contains("mode_damping") && s.contains("0.5"), "{s}");
+        // As given, not as the board's f32 holds it (an infinity).
+        let e = from_toml("base = \"built\"\nmode_hz = 1e308\n", "v.toml").unwrap_err();
+        assert_eq!(
+            format!("{e:#}"),
+            "v.toml: mode_hz = 1e308: must lie in [100, 5000]"
+        );
+        let e = from_toml("base = \"built\"\nforce_noise_n = nan\n", "v.toml").unwrap_err();
+        assert_eq!(
+            format!("{e:#}"),
+            "v.toml: force_noise_n = NaN: must lie in [0, 10]"
+        );
         let e = from_toml("base = \"stage B\"\n", "v.toml").unwrap_err();
         assert!(format!("{e:#}").contains("base"), "{e:#}");
     }

@@ -57,8 +57,10 @@ pub enum ModelFile {
 }
 
 /// What the file `shown` with text `text` is ([`ModelFile`]), or why it is no
-/// model file these tools read: not TOML (a CSV table, e.g. an FEM export), no
-/// `format` key, or a format of another version or of another file.
+/// model file these tools read: not TOML (a CSV table, e.g. an FEM export, by
+/// its first line that is not a `#` comment; any other file that does not parse
+/// is reported by the TOML error, with its line and column), no `format` key,
+/// or a format of another version or of another file.
 pub fn model_file(text: &str, shown: &str) -> Result<ModelFile> {
     let both = format!(
         "a model file is a calibrated model (`fpi calibrate`, format = {:?}) or a firmware \
@@ -67,8 +69,14 @@ pub fn model_file(text: &str, shown: &str) -> Result<ModelFile> {
         piezo_sim::file::FORMAT
     );
     let table: toml::Table = toml::from_str(text).map_err(|e| {
-        let first = text.lines().next().unwrap_or("").trim();
-        if first.contains(',') && !first.contains('=') {
+        // A model's header comment may hold commas: the first line of content
+        // tells a table from TOML.
+        let first = text
+            .lines()
+            .map(str::trim)
+            .find(|l| !l.is_empty() && !l.starts_with('#'))
+            .unwrap_or("");
+        if first.contains(',') && !first.contains('=') && !first.starts_with('[') {
             anyhow!(
                 "{shown}: a CSV table (header {}), not a model: {both}; an FEM table goes with \
                  --fem",
@@ -648,11 +656,24 @@ pub fn step(c: &mut Client, s: &crate::board::step::StepSettings, out: &Path) ->
 
 /// `fpi board frf`: the frequency response measured through the board, to `out`.
 pub fn frf(c: &mut Client, s: &crate::board::frf::FrfSettings, out: &Path) -> Result<()> {
+    let conditions = crate::board::frf::conditions(c)?;
     let points = crate::board::frf::measure(c, s, |k, p| {
         eprintln!("  {:>3}: {:8.1} Hz  |x/u| {:.4}", k + 1, p.f_hz, p.x.norm())
     })?;
-    crate::method::tune::frf::write_csv(out, &points)?;
-    println!("{} frequencies written to {}", points.len(), out.display());
+    crate::method::tune::frf::write_csv(out, &points, &conditions)?;
+    println!(
+        "{} frequencies written to {}, {}",
+        points.len(),
+        out.display(),
+        conditions.header().trim_start_matches("# ")
+    );
+    if !conditions.is_plant() {
+        eprintln!(
+            "warning: measured with the loops acting (the damping on or the loop closed): the \
+             damped stage's response, not the stage's own; `fpi tune --frf` refuses it as a \
+             plant"
+        );
+    }
     Ok(())
 }
 

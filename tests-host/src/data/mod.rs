@@ -69,21 +69,7 @@ impl fmt::Display for DataError {
 
 impl std::error::Error for DataError {}
 
-/// A number for a message: as Rust writes it (`0.25`, `150`) within
-/// `1e-4 ≤ |v| < 1e9`, else in scientific notation (`1e300`, not 301 digits).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Num(pub f64);
-
-impl fmt::Display for Num {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let a = self.0.abs();
-        if a == 0.0 || !a.is_finite() || (1e-4..1e9).contains(&a) {
-            write!(f, "{}", self.0)
-        } else {
-            write!(f, "{:e}", self.0)
-        }
-    }
-}
+pub use piezo_sim::quote::Num;
 
 /// The project's root (the `piezo-fpi` package, above `tests-host/`).
 pub fn project_root() -> PathBuf {

@@ -127,8 +127,8 @@ fn prepare(
 /// default for the recordings ([`kinds::default_for`], with a note when it
 /// falls back), `operators` and `compliance` if given (compliance only for the
 /// kinds that take one), `rows` long enough for the operators
-/// ([`min_fit_rows`]), and an offset for recordings without force. The options
-/// and the note.
+/// ([`min_fit_rows`]), and an offset for recordings without force (no force
+/// channel, or a force column of zeros). The options and the note.
 pub fn settle(
     data: &[CalibData],
     kind: Option<Kind>,
@@ -136,7 +136,12 @@ pub fn settle(
     compliance: Option<f64>,
     rows: Option<(usize, usize)>,
 ) -> Result<(Options, Option<String>)> {
-    let has_force = data.iter().all(|d| d.has_force);
+    // A force column of zeros is a recording without force written in the rig's
+    // columns (e.g. the micromanipulator's cycle cut to a CSV): it is fitted as
+    // the recording itself would be, with an offset.
+    let has_force = data
+        .iter()
+        .all(|d| d.has_force && d.f.iter().any(|&f| f != 0.0));
     let (kind, note) = match kind {
         Some(k) => (k, None),
         None => kinds::default_for(data),
@@ -202,9 +207,103 @@ pub fn calibrate(data: &[CalibData], opt: &Options) -> Result<HostModel> {
         bail!("--operators {}: must be 1..=32", opt.operators);
     }
     let m = opt.kind.calibrate(data, opt, warnings)?;
-    m.validate()?;
+    if let Err(e) = m.validate() {
+        bail!(
+            "the recordings give no valid {} model: {}; nothing is written (the fitted \
+             model fails its check: {e:#})",
+            m.kind,
+            why_no_model(&m, data)
+        );
+    }
     plausible(&m, data)?;
     Ok(m)
+}
+
+/// Why `data` gave the model `m` that fails its check, in terms of the
+/// recordings: a voltage that does not move, a displacement that does not move
+/// or does not rise with the voltage, or one that does not rise with it at the
+/// bottom of the drive (which leaves the model no slope at rest, `w0`).
+fn why_no_model(m: &HostModel, data: &[CalibData]) -> String {
+    use crate::data::Num;
+    let round = |v: f64| Num((v * 1000.0).round() / 1000.0);
+    for d in data {
+        let (u, x) = (&d.u[d.fit.0..d.fit.1], &d.x[d.fit.0..d.fit.1]);
+        let span = |v: &[f64]| {
+            let (lo, hi) = v
+                .iter()
+                .fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+            (lo, hi - lo)
+        };
+        let ((u_lo, u_span), (_, x_span)) = (span(u), span(x));
+        let name = &d.name;
+        if u_span <= 1e-9 {
+            return format!(
+                "the voltage of {name} does not change over its fitted rows ({} V throughout)",
+                round(u_lo)
+            );
+        }
+        if x_span <= 1e-9 {
+            return format!(
+                "the displacement of {name} does not change over its fitted rows while the \
+                 voltage spans {} V",
+                round(u_span)
+            );
+        }
+        let all = slope(u, x, |_| true);
+        if all.is_nan() || all <= 0.0 {
+            return format!(
+                "the displacement of {name} does not rise with the voltage over its fitted \
+                 rows (a straight line through them goes {} µm/V): a sensor that reads lower \
+                 as the stage extends needs its sign flipped",
+                round(all)
+            );
+        }
+        // The bottom tenth of the drive, where the voltage rises.
+        let top = u_lo + 0.1 * u_span;
+        let rising = |k: usize| k > 0 && u[k] > u[k - 1] && u[k] <= top;
+        let bottom = slope(u, x, rising);
+        if m.pi.w0_um_per_v <= 0.0 && bottom.is_finite() && bottom <= 0.1 * all {
+            return format!(
+                "at the bottom of the drive ({}–{} V) the displacement of {name} rises by {} \
+                 µm/V where the voltage rises, against {} µm/V over the whole drive: the \
+                 model gets no slope at rest (w0) and so no inverse; a recording that moves \
+                 from its lowest voltage on can give one",
+                round(u_lo),
+                round(top),
+                round(bottom),
+                round(all)
+            );
+        }
+    }
+    if m.pi.w0_um_per_v <= 0.0 {
+        return format!(
+            "the fit gives the displacement's immediate rise with the voltage to other terms \
+             than the slope at rest (w0 = {}), so the model has no inverse; more rows or fewer \
+             operators (--operators) can give one",
+            Num(m.pi.w0_um_per_v)
+        );
+    }
+    format!(
+        "the recordings ({}) give no {} model within its limits",
+        data.iter()
+            .map(|d| d.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", "),
+        m.kind
+    )
+}
+
+/// The least-squares slope of `x` on `u` over the samples `k` that `take`.
+fn slope(u: &[f64], x: &[f64], take: impl Fn(usize) -> bool) -> f64 {
+    let ks: Vec<usize> = (0..u.len()).filter(|&k| take(k)).collect();
+    let n = ks.len() as f64;
+    let (mu, mx) = ks
+        .iter()
+        .fold((0.0, 0.0), |(a, b), &k| (a + u[k] / n, b + x[k] / n));
+    let (sux, suu) = ks.iter().fold((0.0, 0.0), |(a, b), &k| {
+        (a + (u[k] - mu) * (x[k] - mx), b + (u[k] - mu) * (u[k] - mu))
+    });
+    sux / suu
 }
 
 /// The largest share of the recordings' motion a fit's RMSE may reach: a fit
@@ -397,5 +496,45 @@ mod tests {
         // No motion at all: nothing to compare with (the model's own checks
         // refuse a model that cannot move).
         assert!(plausible(&fitted(Kind::Pi, 1.0, 0.0), &[spanning(0.0)]).is_ok());
+    }
+
+    /// A fit that fails its check is explained by the recording: one that does
+    /// not rise with the voltage, one that does not move at the bottom of the
+    /// drive (no slope at rest), one whose voltage does not move.
+    #[test]
+    fn a_fit_without_a_valid_model_is_explained_by_the_data() {
+        let mut m = fitted(Kind::Pi, 0.1, 0.0);
+        m.pi.w0_um_per_v = 0.0;
+        let mut d = spanning(40.0);
+        let why = why_no_model(&m, &[d.clone()]);
+        assert!(why.contains("the fit gives"), "{why}");
+        d.x.iter_mut().for_each(|x| *x = -*x);
+        let why = why_no_model(&m, &[d.clone()]);
+        assert!(
+            why.starts_with(
+                "the displacement of r.csv does not rise with the voltage over its \
+                 fitted rows (a straight line through them goes -0.1 µm/V)"
+            ),
+            "{why}"
+        );
+        // Up and down 0–100 V; the displacement moves from 20 V on only.
+        d.u = (0..100)
+            .map(|k| 100.0 - (k as f64 - 50.0).abs() * 2.0)
+            .collect();
+        d.x = d.u.iter().map(|u| (u - 20.0).max(0.0) * 0.1).collect();
+        let why = why_no_model(&m, &[d.clone()]);
+        assert!(
+            why.starts_with(
+                "at the bottom of the drive (0–10 V) the displacement of r.csv rises \
+                 by 0 µm/V where the voltage rises, against 0.09 µm/V over the whole drive"
+            ),
+            "{why}"
+        );
+        d.u = vec![5.0; 100];
+        let why = why_no_model(&m, &[d]);
+        assert_eq!(
+            why,
+            "the voltage of r.csv does not change over its fitted rows (5 V throughout)"
+        );
     }
 }

@@ -417,8 +417,12 @@ pub fn export(
         dynamics: None,
         damping: None,
     };
-    fm.check()
-        .map_err(|e| anyhow::anyhow!("the export does not meet the firmware's formats: {e}"))?;
+    fm.check().map_err(|e| {
+        anyhow::anyhow!(
+            "{}: its export does not meet the firmware's formats: {e}",
+            model_path.display()
+        )
+    })?;
     Ok(Export {
         model: fm,
         tables: reports,

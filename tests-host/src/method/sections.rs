@@ -14,7 +14,7 @@ pub(crate) fn finite(key: &str, v: f64) -> Result<()> {
     if v.is_finite() {
         Ok(())
     } else {
-        bail!("{key} = {v}: not finite")
+        bail!("{key} = {}: not finite", crate::data::Num(v))
     }
 }
 
@@ -254,7 +254,7 @@ impl BranchSection {
             }
             for (i, &v) in c.iter().enumerate() {
                 if !v.is_finite() {
-                    bail!("{key}[{i}] = {v}: not finite");
+                    bail!("{key}[{i}] = {}: not finite", crate::data::Num(v));
                 }
             }
             if c.iter().all(|&v| v == 0.0) {

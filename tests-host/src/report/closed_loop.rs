@@ -23,7 +23,8 @@ use crate::board::client::Client;
 use crate::board::closed_loop::{self, Comparison, Drive};
 use crate::board::follow::Follow;
 use crate::board::frf::{self, FrfSettings};
-use crate::method::tune::{self, frf::FrfPoint, loops::responses, TuneOptions};
+use crate::method::tune::frf::{FrfConditions, FrfPoint};
+use crate::method::tune::{self, loops::responses, TuneOptions};
 use crate::report::plots::{bode, BodeSeries};
 
 /// What the closed-loop demo printed and whether its checks passed.
@@ -75,8 +76,8 @@ pub fn run(out: &Path, exported: &Path, port: &str) -> Result<LoopDemo> {
     let pi = tune::with_tuning(&fw, &t, &pi_only)?
         .image()
         .map_err(anyhow::Error::msg)?;
-    let damped = damped_frf(&mut c, &tuned)?;
-    tune::frf::write_csv(&out.join("frf-damped.csv"), &damped)?;
+    let (damped, conditions) = damped_frf(&mut c, &tuned)?;
+    tune::frf::write_csv(&out.join("frf-damped.csv"), &damped, &conditions)?;
     let cmp = closed_loop::run(&mut c, &pi, &tuned).context("the comparison of the drives")?;
     let ok = passes(&cmp);
     let fronts = closed_loop::front_ends(&mut c, &tuned, StageVariant::BUILT)
@@ -95,8 +96,9 @@ pub fn run(out: &Path, exported: &Path, port: &str) -> Result<LoopDemo> {
     Ok(LoopDemo { lines, ok })
 }
 
-/// The stage's response with the tuned model's damping on, loop open.
-fn damped_frf(c: &mut Client, image: &[u8]) -> Result<Vec<FrfPoint>> {
+/// The stage's response with the tuned model's damping on, loop open, and
+/// what the board ran meanwhile.
+fn damped_frf(c: &mut Client, image: &[u8]) -> Result<(Vec<FrfPoint>, FrfConditions)> {
     c.park()?;
     c.upload(image, false, |_| {})?;
     c.bench(BenchOrder::Stage(StageVariant::BUILT))?;
@@ -111,9 +113,10 @@ fn damped_frf(c: &mut Client, image: &[u8]) -> Result<Vec<FrfPoint>> {
         zoom_points: 0,
         ..FrfSettings::default()
     };
+    let conditions = frf::conditions(c)?;
     let points = frf::measure(c, &s, |_, _| {})?;
     c.park()?;
-    Ok(points)
+    Ok((points, conditions))
 }
 
 /// The checks: damping + PI + feedforward beats the PI alone on the triangle

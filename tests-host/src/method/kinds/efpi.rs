@@ -5,13 +5,14 @@
 //! creep gains and `β` linear, `(k_f, k_q, k0, s)` by Nelder–Mead from the fpi
 //! fit; the compliance is the datasheet's (the rig cannot identify it: there the
 //! force rises in proportion to the extension, so compliance only rescales the
-//! weights), the creep time constants fixed (10 ms, 30 ms, 0.3 s, 3 s), the
-//! curvature of `U_p` centred on the data's mean preload.
+//! weights), the creep time constants fixed (10 ms, 30 ms, 0.3 s, 3 s; those
+//! shorter than ten sample periods dropped: [`resolved_lags`]), the curvature of
+//! `U_p` centred on the data's mean preload.
 
 use anyhow::Result;
 
 use crate::method::fit::{golden, nelder_mead, Fit, Input, Layout, MapFit, Nonlinear, Problem};
-use crate::method::kinds::play::{coupling_line, Recipe, CREEP_TAUS_S};
+use crate::method::kinds::play::{coupling_line, resolved_lags, Recipe, CREEP_TAUS_S};
 use crate::method::model::{HostModel, Kind, Options};
 use crate::method::series::CalibData;
 
@@ -43,7 +44,7 @@ impl Recipe for Efpi {
     fn layout(&self, opt: &Options, data: &[CalibData]) -> Layout {
         Layout {
             input: Input::Extended,
-            creep: opt.creep_taus.clone(),
+            creep: resolved_lags(&opt.creep_taus, data),
             map: MapFit::Saturation,
             compliance: opt.compliance,
             ..Layout::plain(opt, data)

@@ -5,13 +5,14 @@
 //! (and an offset, for recordings not zeroed at rest). Fitted: weights, creep
 //! gains and `β` linear, `(k0, s)` by Nelder–Mead. Its creep lags are `efpi`'s,
 //! but for those slower than the fitted rows last: over a shorter window a lag is
-//! a drift, and the offset absorbs it. The firmware runs it (with `k_f = 0`) when
+//! a drift, and the offset absorbs it (and, as for `efpi`, those faster than ten
+//! sample periods: [`resolved_lags`]). The firmware runs it (with `k_f = 0`) when
 //! it has no offset.
 
 use anyhow::Result;
 
 use crate::method::fit::{nelder_mead, Fit, Input, Layout, MapFit, Nonlinear, Problem};
-use crate::method::kinds::play::{Recipe, CREEP_TAUS_S};
+use crate::method::kinds::play::{resolved_lags, Recipe, CREEP_TAUS_S};
 use crate::method::model::{HostModel, Kind, Options};
 use crate::method::series::CalibData;
 
@@ -40,7 +41,7 @@ impl Recipe for Epi {
     fn layout(&self, opt: &Options, data: &[CalibData]) -> Layout {
         Layout {
             input: Input::Extended,
-            creep: within_rows(&opt.creep_taus, data),
+            creep: within_rows(&resolved_lags(&opt.creep_taus, data), data),
             map: MapFit::Saturation,
             ..Layout::plain(opt, data)
         }

@@ -11,6 +11,7 @@ use piezo_sim::model::MAX_CREEP;
 use piezo_sim::play::MAX_OPERATORS;
 
 use crate::data::fem::FemMaps;
+use crate::data::Num;
 use crate::method::fit::{self, Fit, Layout, Nonlinear, Problem};
 use crate::method::invert::{self, Inverse};
 use crate::method::model::{is_no_pi, Calibration, HostModel, ModelKind, Options, OutputMap};
@@ -134,6 +135,24 @@ impl<R: Recipe> ModelKind for R {
 /// The creep time constants of the extended models, s.
 pub const CREEP_TAUS_S: [f64; 4] = [0.01, 0.03, 0.3, 3.0];
 
+/// The fewest sample periods a creep lag's time constant may span to be fitted
+/// ([`resolved_lags`]).
+pub const MIN_LAG_SAMPLES: f64 = 10.0;
+
+/// The creep time constants `taus` (s) that span at least [`MIN_LAG_SAMPLES`]
+/// sample periods of every recording. A faster lag follows the voltage within a
+/// few samples: in the least squares its column is the effective voltage's
+/// own (`w0`'s), and the non-negative fit may give it the whole immediate slope,
+/// leaving `w0 = 0` and a model without an inverse (the micromanipulator's
+/// 200 Hz cycle and the 10 ms lag: two samples).
+pub fn resolved_lags(taus: &[f64], data: &[CalibData]) -> Vec<f64> {
+    let dt = data.iter().map(|d| d.dt).fold(0.0, f64::max);
+    taus.iter()
+        .copied()
+        .filter(|&t| t >= MIN_LAG_SAMPLES * dt)
+        .collect()
+}
+
 /// The weights alone, for no nonlinear parameters (pi, ldpi).
 pub fn weights_alone(pr: &Problem<'_>) -> Result<(Nonlinear, Fit, String)> {
     let p = Nonlinear::default();
@@ -210,22 +229,29 @@ fn pi(m: &HostModel) -> Result<()> {
     finite("pi.w0_um_per_v", p.w0_um_per_v)?;
     finite("pi.input_max_v", p.input_max_v)?;
     if p.input_max_v <= 0.0 {
-        bail!("pi.input_max_v = {}: must be > 0", p.input_max_v);
+        bail!("pi.input_max_v = {}: must be > 0", Num(p.input_max_v));
     }
     let mut prev = 0.0;
     for (i, (&r, &w)) in p.thresholds_v.iter().zip(&p.weights_um_per_v).enumerate() {
         finite(&format!("pi.thresholds_v[{i}]"), r)?;
         finite(&format!("pi.weights_um_per_v[{i}]"), w)?;
         if r < 0.0 {
-            bail!("pi.thresholds_v[{i}] = {r}: thresholds are voltages ≥ 0 V");
+            bail!(
+                "pi.thresholds_v[{i}] = {}: thresholds are voltages ≥ 0 V",
+                Num(r)
+            );
         }
         if r < prev {
-            bail!("pi.thresholds_v[{i}] = {r}: thresholds must be sorted");
+            bail!(
+                "pi.thresholds_v[{i}] = {}: thresholds must be sorted",
+                Num(r)
+            );
         }
         if r > p.input_max_v {
             bail!(
-                "pi.thresholds_v[{i}] = {r}: above pi.input_max_v = {} (the operator never moves)",
-                p.input_max_v
+                "pi.thresholds_v[{i}] = {}: above pi.input_max_v = {} (the operator never moves)",
+                Num(r),
+                Num(p.input_max_v)
             );
         }
         prev = r;
@@ -233,9 +259,9 @@ fn pi(m: &HostModel) -> Result<()> {
     Ok(())
 }
 
-/// The model can produce motion and, where it is inverted in closed form, has an
-/// inverse: `w0 > 0` and every partial sum `S_j = w0 + w_1 + … + w_j > 0` (its
-/// output rises with the voltage).
+/// The model can produce motion, within the signal range, and, where it is
+/// inverted in closed form, has an inverse: `w0 > 0` and every partial sum
+/// `S_j = w0 + w_1 + … + w_j > 0` (its output rises with the voltage).
 fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
     let p = &m.pi;
     let slopes = m.ldpi.as_ref();
@@ -249,6 +275,7 @@ fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
              constant voltage?)"
         );
     }
+    output_range(m)?;
     if inverse == Inverse::Search {
         return Ok(());
     }
@@ -256,7 +283,7 @@ fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
         bail!(
             "pi.w0_um_per_v = {}: must be > 0 µm/V (the model's slope at rest; without it \
              the model has no inverse)",
-            p.w0_um_per_v
+            Num(p.w0_um_per_v)
         );
     }
     let mut sum = p.w0_um_per_v;
@@ -269,12 +296,60 @@ fn motion(m: &HostModel, inverse: Inverse) -> Result<()> {
                 format!("w0 + w_1 + … + w_{}", j + 1)
             };
             bail!(
-                "pi.weights_um_per_v[{j}] = {w}: the slope {terms} = {sum} µm/V is not \
-                 positive (the output would fall as the voltage rises; no inverse)"
+                "pi.weights_um_per_v[{j}] = {}: the slope {terms} = {} µm/V is not \
+                 positive (the output would fall as the voltage rises; no inverse)",
+                Num(w),
+                Num(sum)
             );
         }
     }
     Ok(())
+}
+
+/// The most a model's output may reach over its input range, µm: a metre, far
+/// beyond any piezo stage's stroke (a model calibrated on 0–3.6 V keeps the
+/// amplifier's 150 V as its input range, so its bound is no stroke).
+pub const MAX_OUTPUT_UM: f64 = 1e6;
+
+/// The model's output stays within [`MAX_OUTPUT_UM`] over its input range: the
+/// weights' and creep gains' magnitudes times `pi.input_max_v` (a weight of
+/// `1e308` µm/V is refused by its key, not predicted from). The largest term is
+/// named.
+fn output_range(m: &HostModel) -> Result<()> {
+    let p = &m.pi;
+    let terms = std::iter::once(("pi.w0_um_per_v".to_string(), p.w0_um_per_v))
+        .chain(
+            p.weights_um_per_v
+                .iter()
+                .enumerate()
+                .map(|(i, &w)| (format!("pi.weights_um_per_v[{i}]"), w)),
+        )
+        .chain(
+            m.creep
+                .iter()
+                .enumerate()
+                .map(|(j, c)| (format!("creep[{j}].gain_um_per_v"), c.gain_um_per_v)),
+        );
+    let (mut top, mut largest) = (0.0, (String::new(), 0.0_f64));
+    for (key, w) in terms {
+        top += w.abs() * p.input_max_v;
+        if w.abs() >= largest.1.abs() {
+            largest = (key, w);
+        }
+    }
+    if top <= MAX_OUTPUT_UM {
+        return Ok(());
+    }
+    bail!(
+        "{} = {}: the model's output over its input range (the magnitudes of its weights and \
+         creep gains times pi.input_max_v = {} V) reaches {} µm, beyond {} µm (a metre: no \
+         piezo stage's motion)",
+        largest.0,
+        Num(largest.1),
+        Num(p.input_max_v),
+        Num(top),
+        Num(MAX_OUTPUT_UM)
+    )
 }
 
 /// The coupling: finite, and a stack compliance within `[0, 0.5)` µm/N (a stack
@@ -294,7 +369,7 @@ fn coupling(m: &HostModel) -> Result<()> {
         bail!(
             "coupling.compliance_um_per_n = {}: must be within 0–{COUPLING_ABS_MAX} µm/N (a \
              stack yields under load, by 0.005–0.1 µm/N; the firmware holds less than 0.5)",
-            c.compliance_um_per_n
+            Num(c.compliance_um_per_n)
         );
     }
     Ok(())
@@ -305,7 +380,10 @@ fn maps(m: &HostModel) -> Result<()> {
     let s = m.dead_zone_softness_v;
     finite("dead_zone_softness_v", s)?;
     if s < 0.0 {
-        bail!("dead_zone_softness_v = {s}: must be ≥ 0 V (0: the hard dead zone)");
+        bail!(
+            "dead_zone_softness_v = {}: must be ≥ 0 V (0: the hard dead zone)",
+            Num(s)
+        );
     }
     finite("offset_um", m.offset_um)?;
     match m.output {
@@ -315,8 +393,10 @@ fn maps(m: &HostModel) -> Result<()> {
             let top = m.model().pi.output_max();
             if 1.0 + 4.0 * b * top <= 0.0 {
                 bail!(
-                    "output.beta_per_um = {b}: the saturation folds over below the model's \
-                     largest output {top} µm"
+                    "output.beta_per_um = {}: the saturation folds over below the model's \
+                     largest output {} µm",
+                    Num(b),
+                    Num(top)
                 );
             }
             Ok(())

@@ -11,7 +11,18 @@
 //! `force_re, force_im` (command → force reading, N/µm), `dynamic_re,
 //! dynamic_im` (command → the force channel's dynamic part, N/µm), `x_per_v_re,
 //! x_per_v_im` (setpoint → position sensor, µm/V) — and `excitation_um`, `ticks`
-//! (how it was measured).
+//! (how it was measured). Its first line, a comment, says what the board ran
+//! while it measured ([`FrfConditions`]):
+//!
+//! ```text
+//! # measured with: loop=open damping=off shaping=none drive=compensated
+//! ```
+//!
+//! A plant fit needs the stage's own response: the loop open and the damping
+//! off. One measured with the loops acting is the damped stage's, which the
+//! plant model cannot follow (a fitted ζ of 0.36 on a stage of 0.03): `fpi tune
+//! --frf` refuses it, and a fit that misses the response by more than
+//! [`MAX_POSITION_MISFIT`] or [`MAX_FORCE_MISFIT`] ([`problems`]).
 //!
 //! # The fit
 //!
@@ -27,6 +38,7 @@ use std::f64::consts::TAU;
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
+use fpi_protocol::LoopMode;
 use nalgebra::Complex;
 use piezo_fpi::damping::DynamicsSpec;
 use piezo_fpi::q::{CreepRate, Newtons};
@@ -34,6 +46,7 @@ use piezo_fpi::stability::Plant;
 use serde::{Deserialize, Serialize};
 
 use super::loops::responses;
+use crate::data::{Num, Quoted};
 
 /// One measured frequency.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -70,37 +83,162 @@ struct Row {
     ticks: u32,
 }
 
-/// Writes `points` as `FRF.csv`.
-pub fn write_csv(path: &Path, points: &[FrfPoint]) -> Result<()> {
-    let mut w =
-        csv::Writer::from_path(path).with_context(|| format!("writing {}", path.display()))?;
-    for p in points {
-        w.serialize(Row {
-            freq_hz: p.f_hz,
-            x_re: p.x.re,
-            x_im: p.x.im,
-            force_re: p.force.re,
-            force_im: p.force.im,
-            dynamic_re: p.dynamic.re,
-            dynamic_im: p.dynamic.im,
-            x_per_v_re: p.x_per_v.re,
-            x_per_v_im: p.x_per_v.im,
-            excitation_um: p.excitation_um,
-            ticks: p.ticks,
-        })?;
-    }
-    w.flush()?;
-    Ok(())
+/// What the board ran while it measured a response (its status then).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrfConditions {
+    /// The loop: open, closed (feedback and feedforward) or feedback alone.
+    pub loop_mode: LoopMode,
+    /// The active damping: on, off, or `None` where the model has none.
+    pub damping: Option<bool>,
+    /// The reference shaping: on, off, or `None` where the model has none.
+    pub shaping: Option<bool>,
+    /// The compensated (inverse FPI) drive, else the straight line.
+    pub compensated: bool,
 }
 
-/// Reads `FRF.csv`; a bad row is named by its line and the field at fault.
-pub fn read_csv(path: &Path) -> Result<Vec<FrfPoint>> {
+/// What the file's first line starts with.
+const CONDITIONS: &str = "# measured with:";
+
+impl FrfConditions {
+    /// The file's first line: `# measured with: loop=open damping=off
+    /// shaping=none drive=compensated`.
+    pub fn header(&self) -> String {
+        let state = |v: Option<bool>| match v {
+            Some(true) => "on",
+            Some(false) => "off",
+            None => "none",
+        };
+        format!(
+            "{CONDITIONS} loop={} damping={} shaping={} drive={}",
+            match self.loop_mode {
+                LoopMode::Open => "open",
+                LoopMode::Closed => "closed",
+                LoopMode::FeedbackOnly => "feedback",
+            },
+            state(self.damping),
+            state(self.shaping),
+            if self.compensated {
+                "compensated"
+            } else {
+                "uncompensated"
+            }
+        )
+    }
+
+    /// The conditions of a first line [`header`](Self::header) wrote; `None`
+    /// for another line; an error naming the field for one it cannot read.
+    pub fn parse(line: &str) -> Result<Option<Self>, String> {
+        let Some(rest) = line.trim().strip_prefix(CONDITIONS) else {
+            return Ok(None);
+        };
+        let mut c = FrfConditions {
+            loop_mode: LoopMode::Open,
+            damping: None,
+            shaping: None,
+            compensated: true,
+        };
+        let mut seen = 0;
+        for field in rest.split_whitespace() {
+            let (key, value) = field.split_once('=').unwrap_or((field, ""));
+            let state = |v: &str| match v {
+                "on" => Ok(Some(true)),
+                "off" => Ok(Some(false)),
+                "none" => Ok(None),
+                _ => Err(format!("{key}={v}: on, off or none")),
+            };
+            match key {
+                "loop" => {
+                    c.loop_mode = match value {
+                        "open" => LoopMode::Open,
+                        "closed" => LoopMode::Closed,
+                        "feedback" => LoopMode::FeedbackOnly,
+                        v => return Err(format!("loop={v}: open, closed or feedback")),
+                    }
+                }
+                "damping" => c.damping = state(value)?,
+                "shaping" => c.shaping = state(value)?,
+                "drive" => {
+                    c.compensated = match value {
+                        "compensated" => true,
+                        "uncompensated" => false,
+                        v => return Err(format!("drive={v}: compensated or uncompensated")),
+                    }
+                }
+                _ => return Err(format!("{field}: not loop=, damping=, shaping= or drive=")),
+            }
+            seen += 1;
+        }
+        if seen < 4 {
+            return Err("it needs loop=, damping=, shaping= and drive=".into());
+        }
+        Ok(Some(c))
+    }
+
+    /// Whether the response is the stage's own: the loop open, no damping
+    /// acting.
+    pub fn is_plant(&self) -> bool {
+        self.loop_mode == LoopMode::Open && self.damping != Some(true)
+    }
+}
+
+/// A response read from a file: its points and, where the file says them, the
+/// conditions it was measured under.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeasuredFrf {
+    /// The frequencies, as measured.
+    pub points: Vec<FrfPoint>,
+    /// What the board ran meanwhile (`None`: a file without the header line).
+    pub conditions: Option<FrfConditions>,
+}
+
+/// Writes `points` measured under `conditions` as `FRF.csv` (atomically).
+pub fn write_csv(path: &Path, points: &[FrfPoint], conditions: &FrfConditions) -> Result<()> {
+    crate::output::write_atomic_with(path, |out| {
+        writeln!(out, "{}", conditions.header())?;
+        let mut w = csv::Writer::from_writer(out);
+        for p in points {
+            w.serialize(Row {
+                freq_hz: p.f_hz,
+                x_re: p.x.re,
+                x_im: p.x.im,
+                force_re: p.force.re,
+                force_im: p.force.im,
+                dynamic_re: p.dynamic.re,
+                dynamic_im: p.dynamic.im,
+                x_per_v_re: p.x_per_v.re,
+                x_per_v_im: p.x_per_v.im,
+                excitation_um: p.excitation_um,
+                ticks: p.ticks,
+            })
+            .map_err(std::io::Error::other)?;
+        }
+        w.flush()
+    })
+}
+
+/// Reads `FRF.csv` ([`write_csv`]); a bad row is named by its line and the
+/// field at fault, a first line of conditions it cannot read by its field.
+pub fn read_csv(path: &Path) -> Result<MeasuredFrf> {
     let shown = path.display();
-    let mut r = csv::Reader::from_path(path).with_context(|| format!("reading {shown}"))?;
+    let bytes = crate::data::read_bytes(path)?;
+    let text = String::from_utf8_lossy(&bytes);
+    let first = text.lines().next().unwrap_or("");
+    let conditions = FrfConditions::parse(first)
+        .map_err(|e| anyhow::anyhow!("{shown}:1: {}: {e}", Quoted(first)))?;
+    let mut r = csv::ReaderBuilder::new()
+        .comment(Some(b'#'))
+        .from_reader(text.as_bytes());
+    let headers = r
+        .headers()
+        .with_context(|| format!("reading {shown}"))?
+        .clone();
     let mut out = Vec::new();
-    for (i, row) in r.deserialize::<Row>().enumerate() {
-        let line = i + 2;
-        let row = row.with_context(|| format!("{shown}:{line}"))?;
+    for record in r.records() {
+        let record = record.with_context(|| format!("reading {shown}"))?;
+        let line = record.position().map_or(0, |p| p.line());
+        let row: Row = record
+            .deserialize(Some(&headers))
+            .with_context(|| format!("{shown}:{line}"))?;
         let values = [
             ("freq_hz", row.freq_hz),
             ("x_re", row.x_re),
@@ -114,7 +252,7 @@ pub fn read_csv(path: &Path) -> Result<Vec<FrfPoint>> {
         if row.freq_hz.is_nan() || row.freq_hz <= 0.0 {
             bail!(
                 "{shown}:{line}: freq_hz = {}: must be positive",
-                row.freq_hz
+                Num(row.freq_hz)
             );
         }
         out.push(FrfPoint {
@@ -133,8 +271,76 @@ pub fn read_csv(path: &Path) -> Result<Vec<FrfPoint>> {
             out.len()
         );
     }
-    Ok(out)
+    Ok(MeasuredFrf {
+        points: out,
+        conditions,
+    })
 }
+
+/// The largest RMS relative misfit of the position response a plant fit may
+/// leave: on the emulated stage as built the fit leaves 4–11 % (26–28 % with a
+/// position sensor as noisy as a quarter of the excitation); measured with the
+/// damping on it leaves 41–64 %, with the loop closed 90 %.
+pub const MAX_POSITION_MISFIT: f64 = 0.30;
+
+/// The largest RMS relative misfit of the dynamic-force response a plant fit
+/// may leave: as built 15–22 % (35 % with a force sensor of σ 1 N); with the
+/// damping on 86–98 %, with the loop closed 77 % (a force sensor of σ 3 N: 70 %,
+/// and κ then is half the stage's).
+pub const MAX_FORCE_MISFIT: f64 = 0.60;
+
+/// Why the fit `f` of a response measured under `conditions` (`None`: not
+/// said) is no plant to design loops on, each reason a sentence: measured with
+/// the damping on or the loop closed, or missing the response by more than
+/// [`MAX_POSITION_MISFIT`] or [`MAX_FORCE_MISFIT`]. Empty: a plant.
+pub fn problems(f: &FrfFit, conditions: Option<&FrfConditions>) -> Vec<String> {
+    let mut out = Vec::new();
+    if let Some(c) = conditions.filter(|c| !c.is_plant()) {
+        let mut acting = Vec::new();
+        if c.damping == Some(true) {
+            acting.push("the damping on");
+        }
+        if c.loop_mode != LoopMode::Open {
+            acting.push("the loop closed");
+        }
+        out.push(format!(
+            "it was measured with {} ({}): that is the response of the stage with its loops \
+             acting, not the stage's own, which the plant model needs",
+            acting.join(" and "),
+            c.header().trim_start_matches(CONDITIONS).trim()
+        ));
+    }
+    let misses = [
+        ("position", f.x_misfit, MAX_POSITION_MISFIT, 5),
+        ("force", f.force_misfit, MAX_FORCE_MISFIT, 17),
+    ];
+    let mut missed = false;
+    for (what, misfit, most, built) in misses {
+        if misfit.is_nan() || misfit > most {
+            missed = true;
+            out.push(format!(
+                "the fitted plant misses the measured {what} response by {:.1} % RMS, more \
+                 than the {:.0} % a fit of the stage's own response may leave (the emulated \
+                 stage as built: about {built} %)",
+                100.0 * misfit,
+                100.0 * most
+            ));
+        }
+    }
+    if missed {
+        out.push(
+            "a response measured with the damping on or the loop closed is missed by 40–100 %, \
+             as is a stage without a mode in the sweep or one measured through a noisy sensor"
+                .into(),
+        );
+    }
+    out
+}
+
+/// What a user does about [`problems`]: measure the stage's own response.
+pub const REMEASURE: &str = "measure the stage's own response with the damping off and the loop \
+     open (`fpi board damping off`, `fpi board loop open`, then `fpi board frf`); a noisy \
+     sensor wants a larger --amplitude-um";
 
 /// What the fit found.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -290,6 +496,79 @@ pub fn fit(points: &[FrfPoint], rate_hz: u32, split: f64) -> Result<FrfFit> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The conditions line reads back as written; one it cannot read is named
+    /// by its field; another first line (an old file's header) is no conditions.
+    #[test]
+    fn the_conditions_line_round_trips() {
+        let c = FrfConditions {
+            loop_mode: LoopMode::Closed,
+            damping: Some(true),
+            shaping: None,
+            compensated: false,
+        };
+        assert_eq!(
+            c.header(),
+            "# measured with: loop=closed damping=on shaping=none drive=uncompensated"
+        );
+        assert_eq!(FrfConditions::parse(&c.header()), Ok(Some(c)));
+        assert!(!c.is_plant());
+        assert_eq!(FrfConditions::parse("freq_hz,x_re"), Ok(None));
+        assert_eq!(
+            FrfConditions::parse(
+                "# measured with: loop=ajar damping=off shaping=off drive=compensated"
+            ),
+            Err("loop=ajar: open, closed or feedback".to_string())
+        );
+        assert_eq!(
+            FrfConditions::parse("# measured with: loop=open"),
+            Err("it needs loop=, damping=, shaping= and drive=".to_string())
+        );
+    }
+
+    /// A fit of a response measured with the loops acting, or one it misses, is
+    /// no plant; the stage's own response fitted well is.
+    #[test]
+    fn the_problems_of_a_fit_name_the_conditions_and_the_misfit() {
+        let good = FrfFit {
+            spec: spec(850.0, 0.03, 2000.0, 7.0),
+            gain: 1.0,
+            x_misfit: 0.05,
+            force_misfit: 0.17,
+        };
+        let open = FrfConditions {
+            loop_mode: LoopMode::Open,
+            damping: Some(false),
+            shaping: Some(false),
+            compensated: true,
+        };
+        assert!(problems(&good, Some(&open)).is_empty());
+        assert!(problems(&good, None).is_empty());
+        let damped = FrfConditions {
+            damping: Some(true),
+            ..open
+        };
+        let p = problems(&good, Some(&damped));
+        assert_eq!(p.len(), 1);
+        assert!(
+            p[0].starts_with("it was measured with the damping on (loop=open damping=on"),
+            "{p:?}"
+        );
+        let missed = FrfFit {
+            x_misfit: 0.626,
+            force_misfit: f64::NAN,
+            ..good
+        };
+        let p = problems(&missed, None);
+        assert!(
+            p[0].starts_with(
+                "the fitted plant misses the measured position response by 62.6 % RMS, more \
+                 than the 30 %"
+            ) && p[1].contains("force response by NaN %")
+                && p[2].starts_with("a response measured with the damping on"),
+            "{p:?}"
+        );
+    }
 
     /// Points of the core's own plant (with a gain) are fitted back.
     #[test]
