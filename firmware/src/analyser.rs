@@ -65,6 +65,10 @@ pub struct AnalysisSums {
     pub sums: [[i64; 2]; SIGNALS],
     /// A fault latched while it ran.
     pub faulted: bool,
+    /// Correlated ticks in which the reference governor departed from the
+    /// stimulus asked (the stage could not take it there): the response is
+    /// then the one to a stimulus that was not the sine.
+    pub governed: u32,
 }
 
 /// The analyser (state): idle, or running one order.
@@ -76,6 +80,7 @@ pub struct Analyser {
     sums: [[i64; 2]; SIGNALS],
     base: [i32; SIGNALS],
     faulted: bool,
+    governed: u32,
 }
 
 impl Analyser {
@@ -88,6 +93,7 @@ impl Analyser {
             sums: [[0; 2]; SIGNALS],
             base: [0; SIGNALS],
             faulted: false,
+            governed: 0,
         }
     }
 
@@ -123,17 +129,24 @@ impl Analyser {
         }
     }
 
-    /// Takes this tick's signals (`I16F16` bits, in [`SIGNALS`] order) and
-    /// whether a fault is latched; advances the phase; the result once the last
-    /// period has been correlated (the analyser is then idle).
+    /// Takes this tick's signals (`I16F16` bits, in [`SIGNALS`] order),
+    /// whether a fault is latched and whether the governor departed from the
+    /// stimulus; advances the phase; the result once the last period has been
+    /// correlated (the analyser is then idle).
     #[inline]
-    pub fn take(&mut self, signals: [i32; SIGNALS], fault: bool) -> Option<AnalysisSums> {
+    pub fn take(
+        &mut self,
+        signals: [i32; SIGNALS],
+        fault: bool,
+        governed: bool,
+    ) -> Option<AnalysisSums> {
         let o = self.order?;
         self.faulted |= fault;
         if self.tick == o.settle_ticks {
             self.base = signals;
         }
         if self.tick >= o.settle_ticks {
+            self.governed += governed as u32;
             let (s, c) = (sin_turns(self.phase) as i64, cos_turns(self.phase) as i64);
             for ((acc, v), b) in self.sums.iter_mut().zip(signals).zip(self.base) {
                 let v = (v as i64 - b as i64).clamp(-DIFF_MAX, DIFF_MAX);
@@ -152,6 +165,7 @@ impl Analyser {
             ticks: self.tick.saturating_sub(o.settle_ticks),
             sums: self.sums,
             faulted: self.faulted,
+            governed: self.governed,
         })
     }
 }
@@ -187,7 +201,7 @@ mod tests {
             let phi = (k as f64) * step as f64 / 4_294_967_296.0 * core::f64::consts::TAU;
             let x = 2.0 * (phi - theta).sin();
             let bits = |v: f64| Micrometres::from_num(v).to_bits();
-            if let Some(r) = an.take([bits(x), 0, 0, 0, bits(e)], false) {
+            if let Some(r) = an.take([bits(x), 0, 0, 0, bits(e)], false, false) {
                 break r;
             }
             k += 1;

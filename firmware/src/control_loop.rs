@@ -252,7 +252,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 out.voltage.to_bits(),
                 excitation.to_bits(),
             ];
-            if let Some(r) = self.analyser.take(signals, out.fault.is_some()) {
+            let governed = self.governor.governed();
+            if let Some(r) = self.analyser.take(signals, out.fault.is_some(), governed) {
                 x.analysis = Some(r);
                 self.changed = true;
                 self.watch_halves = watch_halves(self.model.summary(), Micrometres::ZERO);

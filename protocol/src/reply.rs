@@ -386,6 +386,10 @@ pub struct Analysis {
     pub sums: [[i64; 2]; 5],
     /// A fault latched while it ran (the result is then void).
     pub faulted: bool,
+    /// Ticks in which the reference governor departed from the stimulus
+    /// asked (the response is then to another stimulus: measure again with
+    /// less).
+    pub governed: u32,
 }
 
 crate::wire_enum! {

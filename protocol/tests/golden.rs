@@ -222,7 +222,8 @@ goldens! {
         ticks: 4000,
         sums: [[1, -1], [0, 0], [2, -2], [0, 1 << 40], [-3, 3]],
         faulted: false,
-    })) => "06 01 a0 8d 06 a0 1f 02 01 00 00 04 03 00 80 80 80 80 80 40 05 06 00";
+        governed: 3,
+    })) => "06 01 a0 8d 06 a0 1f 02 01 00 00 04 03 00 80 80 80 80 80 40 05 06 00 03";
     reply_model_bytes: Reply::ModelBytes {
         total: 1000,
         offset: 768,

@@ -505,6 +505,7 @@ impl<F: NorFlash> Handler<F> {
                     ticks: a.ticks,
                     sums: a.sums,
                     faulted: a.faulted,
+                    governed: a.governed,
                 })))
             }
             Command::ModelRead { offset } => self.model_bytes(board, offset),

@@ -157,8 +157,33 @@ pub fn measure(
     Ok(out)
 }
 
-/// One frequency's analysis on `c`.
+/// Halvings of the stimulus a frequency is measured again with where the
+/// board's reference governor departed from it (the stage could not take it
+/// there: near a stroke's end, or at a mode the model does not rule out).
+pub const HALVINGS: u32 = 6;
+
+/// One frequency's analysis on `c`: at `amplitude_um`, or at the largest of
+/// its halvings the reference governor lets through unchanged (a governed
+/// stimulus is not the sine the response is measured against).
 fn analyse(c: &mut Client, f: f64, amplitude_um: f64) -> Result<FrfPoint> {
+    let mut a_um = amplitude_um;
+    for _ in 0..=HALVINGS {
+        let (a, p) = analyse_at(c, f, a_um)?;
+        if a.governed == 0 {
+            return Ok(p);
+        }
+        a_um /= 2.0;
+    }
+    bail!(
+        "the analysis at {f:.1} Hz: the board's reference governor limits even a {:.4} µm \
+         stimulus there (the stage may ring out of its stroke): measure further from the \
+         stroke's ends, or with a model that declares the stage's dynamics",
+        2.0 * a_um
+    )
+}
+
+/// One frequency's analysis on `c` at `amplitude_um`, and its point.
+fn analyse_at(c: &mut Client, f: f64, amplitude_um: f64) -> Result<(Analysis, FrfPoint)> {
     {
         let freq_mhz = (f * 1000.0).round() as u32;
         c.ack(&Command::Analyse {
@@ -177,7 +202,8 @@ fn analyse(c: &mut Client, f: f64, amplitude_um: f64) -> Result<FrfPoint> {
                 .map_or("a fault", |f| f.message());
             bail!("the analysis at {f:.1} Hz was stopped by {why}");
         }
-        Ok(point(&a, amplitude_um))
+        let p = point(&a, amplitude_um);
+        Ok((a, p))
     }
 }
 
