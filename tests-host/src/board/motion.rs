@@ -96,12 +96,17 @@ pub fn record<T>(
     };
     let budget = Budget::new(c.hello(), signal::ALL, 1, seconds + 0.005);
     if !budget.fits() {
-        bail!(
-            "--record: {what}'s recording at every tick would drop samples: {} (a recording at \
-             every tick needs the USB link: `fpi board emulate --link usb`, its default, or the \
-             in-process board as `--port virtual:usb`)",
-            budget.describe(c.hello().rate_hz)
-        );
+        return Err(BadArgument {
+            name: "record",
+            cli: "--record",
+            message: format!(
+                "--record: {what}'s recording at every tick would drop samples: {} (a \
+                 recording at every tick needs the USB link: `fpi board emulate --link usb`, its \
+                 default, or the in-process board as `--port virtual:usb`)",
+                budget.describe(c.hello().rate_hz)
+            ),
+        }
+        .into());
     }
     c.ack(&Command::Record {
         decimation: 1,
