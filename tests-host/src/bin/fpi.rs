@@ -545,11 +545,14 @@ enum BoardCommand {
     },
 }
 
+/// Files a command names, each with the option (or argument) that names it.
+type Files<'a> = Vec<(&'static str, &'a Path)>;
+
 impl BoardCommand {
     /// The files the command writes once it has worked on the board, with
     /// the options that name them, and the files it reads: checked before it
     /// starts ([`fpi_host::output::check_outputs`]).
-    fn files(&self) -> (Vec<(&'static str, &Path)>, Vec<(&'static str, &Path)>) {
+    fn files(&self) -> (Files<'_>, Files<'_>) {
         match self {
             Self::Record { out, .. } | Self::Step { out, .. } | Self::Frf { out, .. } => {
                 (vec![("--out", out.as_path())], vec![])

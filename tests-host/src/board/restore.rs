@@ -71,12 +71,12 @@ impl Before {
         c: &mut Client,
         f: impl FnOnce(&mut Client) -> Result<T>,
     ) -> Result<T> {
-        f(c).or_else(|e| match self.restore(c) {
-            Ok(()) => Err(e),
-            Err(r) => Err(e.context(format!(
+        f(c).map_err(|e| match self.restore(c) {
+            Ok(()) => e,
+            Err(r) => e.context(format!(
                 "the board could not be put back as it was after this failure ({r:#}; check it \
                  with `fpi board status`)"
-            ))),
+            )),
         })
     }
 }
