@@ -489,7 +489,7 @@ pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Resu
         seconds,
         decimation,
         |done, _| pb.set_position(u64::from(done)),
-        || CTRL_C.load(Ordering::SeqCst),
+        stop_asked,
     )?;
     pb.finish_and_clear();
     let rec = r.recording;
@@ -529,7 +529,7 @@ pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Resu
 pub fn stream(c: &mut Client, points: &[f64], interval: u16, record: Option<&Path>) -> Result<()> {
     catch_ctrl_c()?;
     let pb = bar(points.len() as u64, "stream");
-    let stop = || CTRL_C.load(Ordering::SeqCst);
+    let stop = stop_asked;
     let r = match record {
         None => commands::stream(c, points, interval, |n| pb.set_position(n as u64), stop)?,
         Some(out) => {
@@ -631,7 +631,7 @@ pub fn move_to(c: &mut Client, um: f64, speed: f64, record: Option<&Path>) -> Re
         motion::move_seconds(from, um, speed),
         Until::Rest,
         |c, _| Ok((c.ack(&cmd)?, ())),
-        || CTRL_C.load(Ordering::SeqCst),
+        stop_asked,
     )?;
     println!("moved to {um} µm at {speed} µm/s from tick {}", m.start);
     recorded(m, out).map(|_| ())
@@ -678,7 +678,7 @@ pub fn wave(
         expected,
         until,
         |c, _| Ok((c.ack(&cmd)?, ())),
-        || CTRL_C.load(Ordering::SeqCst),
+        stop_asked,
     )?;
     println!(
         "{shape_name} wave from tick {} (after an approach to its start)",
@@ -702,7 +702,7 @@ fn recorded<T>(m: motion::Motion<T>, out: &Path) -> Result<T> {
     );
     if m.stopped {
         return Err(Interrupted {
-            kept: format!("{what}; the recorder is stopped, the motion left as it goes on"),
+            kept: format!("{what}; the recorder is stopped; the motion goes on"),
         }
         .into());
     }
