@@ -100,10 +100,14 @@ pub fn record<T>(
             name: "record",
             cli: "--record",
             message: format!(
-                "--record: {what}'s recording at every tick would drop samples: {} (a \
-                 recording at every tick needs the USB link: `fpi board emulate --link usb`, its \
+                "--record: {what}'s recording at every tick needs about {:.0} kB/s, more than \
+                 the {} link carries ({:.0} kB/s), and more than the board's ring holds \
+                 ({} samples): it needs the USB link (`fpi board emulate --link usb`, its \
                  default, or the in-process board as `--port virtual:usb`)",
-                budget.describe(c.hello().rate_hz)
+                budget.needed() / 1e3,
+                budget.link.name(),
+                budget.carried() / 1e3,
+                budget.ring
             ),
         }
         .into());
