@@ -7,7 +7,7 @@ frequencies in Hz, unless a name says otherwise (``_ms``, ``_um`` …).
 """
 
 from os import PathLike
-from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple, TypedDict, Union, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -17,6 +17,14 @@ __version__: str
 ArrayLike = Union[Sequence[float], npt.NDArray[np.float64]]
 Columns = Dict[str, npt.NDArray[np.float64]]
 Path = Union[str, PathLike]
+
+class Recorded(TypedDict):
+    """A motion recorded at every tick (``move``/``wave`` with ``record=True``)."""
+
+    tick: int
+    """The tick the board took the command on (the recording's first)."""
+    recording: Columns
+    """Every tick, as ``Board.record``'s columns."""
 
 class BoardError(Exception):
     """The board refused a command, or took it and faulted on it."""
@@ -99,8 +107,16 @@ class Board:
         """Running, the reference held, the position within ``tolerance_um`` of it (PI: ``ONT?``)."""
     def wait_on_target(self, timeout: float = 5.0, tolerance_um: float = 0.1) -> float:
         """Waits up to ``timeout`` s until on target; the position, µm. ``TimeoutError`` otherwise."""
-    def move(self, target_um: float, speed: float = 1000.0) -> int:
-        """Ramps to ``target_um`` at ``speed`` µm/s and holds it (PI: ``MOV``)."""
+    @overload
+    def move(self, target_um: float, speed: float = 1000.0, *, record: Literal[False] = False) -> int:
+        """Ramps to ``target_um`` at ``speed`` µm/s and holds it (PI: ``MOV``); the tick it started."""
+    @overload
+    def move(self, target_um: float, speed: float = 1000.0, *, record: Literal[True]) -> Recorded:
+        """The move, recorded at every tick (every column of ``record``, ``x_fhps_um``
+        the true position on the emulated board) until it holds the target and 50 ms
+        more: ``tick`` and ``recording``. A fault meanwhile: ``BoardError``. Ctrl-C:
+        ``Interrupted`` with the recording so far (the move goes on)."""
+    @overload
     def wave(
         self,
         shape: str = "sine",
@@ -109,13 +125,33 @@ class Board:
         offset_um: float,
         freq_hz: float,
         cycles: int = 0,
+        record: Literal[False] = False,
     ) -> int:
         """The waveform generator (PI: ``WAV`` + ``WGO``): ``sine``, ``triangle`` or
         ``cosine``; half-swing ``amplitude_um`` about ``offset_um``; ``cycles`` 0 runs
         until the next command."""
-    def stream(self, points_um: ArrayLike, interval: int = 20) -> Dict[str, int]:
+    @overload
+    def wave(
+        self,
+        shape: str = "sine",
+        *,
+        amplitude_um: float,
+        offset_um: float,
+        freq_hz: float,
+        cycles: int = 0,
+        record: Literal[True],
+        seconds: Optional[float] = None,
+    ) -> Recorded:
+        """The wave, recorded at every tick from its approach for ``seconds`` (needed
+        where ``cycles`` is 0), or until a finite wave has ended and 50 ms more:
+        ``tick`` and ``recording``, as ``move(record=True)``."""
+    def stream(
+        self, points_um: ArrayLike, interval: int = 20, *, record: bool = False
+    ) -> Dict[str, Any]:
         """Streams a trajectory (µm), one point every ``interval`` control ticks;
-        ``points``, ``started_tick``, ``underrun_ticks``. Ctrl-C: ``Interrupted``, board holding."""
+        ``points``, ``started_tick``, ``underrun_ticks`` (and with ``record`` the
+        ``recording`` of every tick until the board holds the last point, and 50 ms
+        more). Ctrl-C: ``Interrupted``, board holding."""
     def record(self, seconds: float, decimation: int = 20) -> Columns:
         """The data recorder (PI: ``DRC``/``DRR?``): every ``decimation``-th tick for
         ``seconds`` of board time, as the recording's CSV columns (``t_s``,
@@ -182,7 +218,8 @@ class Board:
         decimation: int = 1,
     ) -> Dict[str, Any]:
         """A scored step: ``rise_ms``, ``overshoot_um``, ``settle_ms``,
-        ``settle_tol_ms``, ``final_error_um``, ``recording``."""
+        ``settle_tol_ms``, ``final_error_um``, ``recording``. A failure parks the
+        board with its loop mode, damping and shaping as they were."""
     def frf(
         self,
         *,
@@ -218,7 +255,10 @@ class Board:
         ``target_damping``, ``force_noise_n`` (the force sensor's σ, N, designed
         for instead of the one measured), ``max_sensitivity``, ``bandwidth_hz``:
         the flags of the same names); writes the tuned model to ``out``; its
-        table."""
+        table. ``out`` is checked before the board is measured, and written
+        before the tuned model runs for good; a failure once the board was
+        changed puts it back (parked, the model, loop mode, damping and shaping
+        it ran)."""
     def close(self) -> None: ...
     def __enter__(self) -> "Board": ...
     def __exit__(self, *exc: object) -> bool: ...

@@ -12,6 +12,8 @@ use fpi_host::board::client::{real, Client};
 use fpi_host::board::commands::{self, BenchSettings, Streamed};
 use fpi_host::board::frf::FrfSettings;
 use fpi_host::board::mass;
+use fpi_host::board::motion::{self, Until};
+use fpi_host::board::restore::or_restore;
 use fpi_host::board::step::StepSettings;
 use fpi_host::cli::board::{firmware_model, model_and_image};
 use fpi_host::method::export::ExportOptions;
@@ -262,10 +264,40 @@ impl Board {
         })
     }
 
-    /// Ramps to `target_um` (µm) at `speed` (µm/s) and holds it (PI's `MOV`).
-    #[pyo3(signature = (target_um, speed = 1000.0))]
-    fn r#move(&self, py: Python<'_>, target_um: f64, speed: f64) -> PyResult<u32> {
-        self.run(py, |c| commands::move_to(c, target_um, speed))
+    /// Ramps to `target_um` (µm) at `speed` (µm/s) and holds it (PI's `MOV`);
+    /// the tick it started. With `record`, records every tick of the move
+    /// (until it holds the target, and 50 ms more) and returns `tick` and the
+    /// `recording` (a dict of arrays, as `record` gives, `x_fhps_um` the true
+    /// position on the emulated board) once it has ended; a fault meanwhile
+    /// raises `BoardError`. Ctrl-C stops the recording (not the move):
+    /// `Interrupted`, whose `done` is the recording so far.
+    #[pyo3(signature = (target_um, speed = 1000.0, *, record = false))]
+    fn r#move<'py>(
+        &self,
+        py: Python<'py>,
+        target_um: f64,
+        speed: f64,
+        record: bool,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        if !record {
+            let t = self.run(py, |c| commands::move_to(c, target_um, speed))?;
+            return Ok(t.into_pyobject(py)?.into_any());
+        }
+        let cmd =
+            commands::move_command(target_um, speed).map_err(|e| to_py(py, e, Otherwise::Link))?;
+        let mut caught = None;
+        let m = self.run(py, |c| {
+            let from = real(c.status()?.signals[0]);
+            motion::record(
+                c,
+                "the move",
+                motion::move_seconds(from, target_um, speed),
+                Until::Rest,
+                |c, _| Ok((c.ack(&cmd)?, ())),
+                || signalled(&mut caught),
+            )
+        })?;
+        recorded(py, m, caught, "move")
     }
 
     /// Runs the waveform generator (PI's `WAV`/`WGO`): `shape` `sine`,
@@ -273,39 +305,115 @@ impl Board {
     /// half-swing `amplitude_um` about `offset_um` (µm), at `freq_hz` (Hz), for
     /// `cycles` periods (0: until the next command). It starts with an approach
     /// to its first point.
-    #[pyo3(signature = (shape = "sine", *, amplitude_um, offset_um, freq_hz, cycles = 0))]
-    fn wave(
+    ///
+    /// With `record`, records every tick of it (its approach included) for
+    /// `seconds` of board time (needed where `cycles` is 0), or until a
+    /// finite wave has ended and 50 ms more, and returns `tick` and the
+    /// `recording` (as `move` does).
+    #[pyo3(signature = (shape = "sine", *, amplitude_um, offset_um, freq_hz, cycles = 0, record = false, seconds = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn wave<'py>(
         &self,
-        py: Python<'_>,
+        py: Python<'py>,
         shape: &str,
         amplitude_um: f64,
         offset_um: f64,
         freq_hz: f64,
         cycles: u32,
-    ) -> PyResult<u32> {
-        self.run(py, |c| {
-            commands::wave(c, shape, amplitude_um, offset_um, freq_hz, cycles)
-        })
+        record: bool,
+        seconds: Option<f64>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        if !record {
+            if seconds.is_some() {
+                return Err(pyo3::exceptions::PyValueError::new_err(
+                    "seconds: how long to record; it goes with record=True",
+                ));
+            }
+            let t = self.run(py, |c| {
+                commands::wave(c, shape, amplitude_um, offset_um, freq_hz, cycles)
+            })?;
+            return Ok(t.into_pyobject(py)?.into_any());
+        }
+        let until = match (seconds, cycles) {
+            (Some(s), _) => Until::seconds(s).map_err(|e| to_py(py, e, Otherwise::Link))?,
+            (None, 0) => {
+                return Err(pyo3::exceptions::PyValueError::new_err(
+                    "seconds: how long to record a wave that runs until the next command \
+                     (cycles 0); or give cycles",
+                ))
+            }
+            (None, _) => Until::Rest,
+        };
+        let mut caught = None;
+        let m = self.run(py, |c| {
+            let cmd = commands::wave_command(c, shape, amplitude_um, offset_um, freq_hz, cycles)?;
+            motion::record(
+                c,
+                "the wave",
+                f64::from(cycles) / freq_hz + 0.1,
+                until,
+                |c, _| Ok((c.ack(&cmd)?, ())),
+                || signalled(&mut caught),
+            )
+        })?;
+        recorded(py, m, caught, "wave")
     }
 
     /// Streams a trajectory (µm, an array), one point every `interval` control
     /// ticks (20 = 1 kHz at 20 kHz), interpolated on the board; the board
     /// supervises the host meanwhile. Returns `points`, `started_tick`,
     /// `underrun_ticks`. Ctrl-C stops it with the board holding (raises
-    /// `Interrupted`, whose `done` gives the points sent).
-    #[pyo3(signature = (points_um, interval = 20))]
+    /// `Interrupted`, whose `done` gives the points sent). With `record`, every
+    /// tick of it is recorded (until the board holds its last point, and 50 ms
+    /// more) and returned as `recording` (a dict of arrays, as `record` gives).
+    #[pyo3(signature = (points_um, interval = 20, *, record = false))]
     fn stream<'py>(
         &self,
         py: Python<'py>,
         points_um: &Bound<'py, PyAny>,
         interval: u16,
+        record: bool,
     ) -> PyResult<Bound<'py, PyDict>> {
         let points = floats(points_um, "points_um")?;
         let mut caught = None;
-        let r = self.run(py, |c| {
-            commands::stream(c, &points, interval, |_| {}, || signalled(&mut caught))
+        let (r, rec) = self.run(py, |c| {
+            if !record {
+                let r = commands::stream(c, &points, interval, |_| {}, || signalled(&mut caught))?;
+                return Ok((r, None));
+            }
+            let seconds = points.len() as f64 * f64::from(interval) / c.rate_hz();
+            let m = motion::record(
+                c,
+                "the stream",
+                seconds,
+                Until::Rest,
+                |c, read| {
+                    let armed = c.last_tick().unwrap_or(0);
+                    let r = commands::stream_with(
+                        c,
+                        &points,
+                        interval,
+                        |_| {},
+                        || signalled(&mut caught),
+                        read,
+                    )?;
+                    let start = match r {
+                        Streamed::Played(p) => p.started,
+                        Streamed::Stopped { .. } => armed,
+                    };
+                    Ok((start, r))
+                },
+                || false,
+            )?;
+            if let (Some(e), Streamed::Played(_)) = (m.fault, &m.result) {
+                return Err(e);
+            }
+            Ok((m.result, Some(m.recording)))
         })?;
         let d = PyDict::new(py);
+        if let Some(rec) = rec {
+            d.set_item("recording", columns_dict(py, rec.columns())?)?;
+        }
         match r {
             Streamed::Played(r) => {
                 d.set_item("points", r.points)?;
@@ -520,7 +628,7 @@ impl Board {
             duration_ms,
             decimation,
         };
-        let (rec, fig) = self.run(py, |c| fpi_host::board::step::run(c, &s))?;
+        let (rec, fig) = self.run(py, |c| or_restore(c, |c| fpi_host::board::step::run(c, &s)))?;
         let d = PyDict::new(py);
         d.set_item("rise_ms", fig.rise_ms)?;
         d.set_item("overshoot_um", fig.overshoot_um)?;
@@ -558,7 +666,9 @@ impl Board {
             at_um,
             zoom_points,
         };
-        let pts = self.run(py, |c| fpi_host::board::frf::measure(c, &s, |_, _| {}))?;
+        let pts = self.run(py, |c| {
+            or_restore(c, |c| fpi_host::board::frf::measure(c, &s, |_, _| {}))
+        })?;
         let d = columns_dict(py, vec![("f_hz", pts.iter().map(|p| p.f_hz).collect())])?;
         let j = PyComplex::from_doubles(py, 0.0, 1.0);
         let parts: [(&str, Part); 4] = [
@@ -626,8 +736,15 @@ impl Board {
             .detach(|| firmware_model(&model, fem.as_deref(), &o))
             .map_err(|e| to_py(py, e, Otherwise::Input))?;
         fpi_host::method::tune::check_options(&fw, &design).map_err(design_error)?;
+        // `out` must take the file before the board is measured; the model is
+        // written before it runs for good (if it cannot be, the board is put
+        // back to the model it ran).
+        let mut inputs = vec![("model", model.as_path())];
+        inputs.extend(fem.as_deref().map(|f| ("fem", f)));
+        py.detach(|| fpi_host::output::check_outputs(&[("out", out.as_path())], &inputs))
+            .map_err(|e| to_py(py, e, Otherwise::Input))?;
         let tuned = self.run(py, |c| {
-            autotune::run(
+            autotune::run_keeping(
                 c,
                 &fw,
                 &design,
@@ -636,11 +753,10 @@ impl Board {
                     ..Default::default()
                 },
                 store,
+                &mut |m| autotune::write_model(m, &out),
                 |_| {},
             )
         })?;
-        py.detach(|| autotune::write(&tuned, &out, None))
-            .map_err(|e| to_py(py, e, Otherwise::Input))?;
         Ok(autotune::table(&tuned))
     }
 
@@ -725,6 +841,37 @@ fn stopped(py: Python<'_>, caught: Option<PyErr>, what: &str, done: Py<PyAny>) -
         Some(e) => e,
         None => interrupted(py, format!("{what} stopped"), done),
     }
+}
+
+/// What a recorded motion returns: `tick` and the `recording`; or the
+/// exception for a recording that Ctrl-C stopped (its `done` the recording),
+/// a fault the board latched meanwhile, or samples the board dropped.
+fn recorded<'py>(
+    py: Python<'py>,
+    m: motion::Motion<()>,
+    caught: Option<PyErr>,
+    what: &str,
+) -> PyResult<Bound<'py, PyAny>> {
+    let rec = columns_dict(py, m.recording.columns())?;
+    if m.stopped {
+        return Err(stopped(py, caught, what, rec.into_any().unbind()));
+    }
+    if let Some(e) = m.fault {
+        return Err(to_py(py, e, Otherwise::Link));
+    }
+    if m.recording.dropped > 0 {
+        warn(
+            py,
+            &format!(
+                "the board dropped {} samples of the {what}'s recording (the link could not keep up)",
+                m.recording.dropped
+            ),
+        )?;
+    }
+    let d = PyDict::new(py);
+    d.set_item("tick", m.start)?;
+    d.set_item("recording", rec)?;
+    Ok(d.into_any())
 }
 
 /// `warnings.warn(message)`.

@@ -309,3 +309,35 @@ def test_autotune_takes_the_design_options(tmp_path):
         )
         assert "lowered for the noise" in table, table
         assert "(asked 0.50" in table, table
+
+
+def test_motions_record_every_tick_of_what_they_do(board):
+    """`move`, `wave` and `stream` with `record=True`: every tick from the
+    command's, the true position included; a link that cannot carry every
+    tick (the UART) is refused before anything moves."""
+    if board.info()["link"] != "usb":
+        with pytest.raises(ValueError, match="record"):
+            board.move(10.0, record=True)
+        assert board.status()["state"] == "parked"
+        return
+    def every_tick(rec):
+        assert list(rec) == COLUMNS
+        assert len(rec["t_s"]) > 100
+        assert np.allclose(np.diff(rec["t_s"]), 1 / 20000.0)
+        assert np.all(np.isfinite(rec["x_fhps_um"]))
+
+    m = board.move(10.0, speed=2000.0, record=True)
+    every_tick(m["recording"])
+    assert m["recording"]["t_s"][0] == pytest.approx(m["tick"] / 20000.0)
+    assert m["recording"]["x_ref_um"][-1] == pytest.approx(10.0, abs=1e-3)
+    w = board.wave("sine", amplitude_um=2, offset_um=12, freq_hz=40, record=True, seconds=0.1)
+    every_tick(w["recording"])
+    assert len(w["recording"]["t_s"]) == 2000
+    board.hold()
+    with pytest.raises(ValueError, match="seconds"):
+        board.wave("sine", amplitude_um=2, offset_um=12, freq_hz=40, record=True)
+    x = 12.0 + 3.0 * np.sin(np.linspace(0, 2 * np.pi, 150))
+    r = board.stream(x, interval=20, record=True)
+    assert r["points"] == 150
+    every_tick(r["recording"])
+    assert len(r["recording"]["t_s"]) >= 3000 + 1000

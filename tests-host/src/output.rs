@@ -135,6 +135,25 @@ pub fn prepare(path: &Path) -> Result<PathBuf> {
     Ok(folder)
 }
 
+/// The checks a command that writes files after it has worked (measured a
+/// board, fitted a model) runs on its outputs before it starts: each output
+/// (with the option that gave it, e.g. `--out`) is no input of the command and
+/// no other output, and takes a file ([`prepare`]; nothing is left behind).
+/// Errors name the option and the path.
+pub fn check_outputs(outputs: &[(&str, &Path)], inputs: &[(&str, &Path)]) -> Result<()> {
+    for (k, (option, out)) in outputs.iter().enumerate() {
+        not_an_input(option, out, inputs)?;
+        if let Some((other, _)) = outputs[..k].iter().find(|(_, o)| same_file(o, out)) {
+            bail!(
+                "{option} {} is also {other}: give each output its own file",
+                out.display()
+            );
+        }
+        prepare(out).map_err(|e| anyhow!("{option} {e:#}"))?;
+    }
+    Ok(())
+}
+
 /// Checks that the folder `dir` exists (it is created if missing) and takes new
 /// files. Errors name `dir`.
 pub fn prepare_folder(dir: &Path) -> Result<()> {
@@ -324,5 +343,39 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("--runs"), "{e}");
+    }
+
+    #[test]
+    fn outputs_are_checked_by_option_and_leave_nothing_behind() {
+        let d = dir("check-outputs");
+        let file = d.join("a-file");
+        fs::write(&file, "x").unwrap();
+        let under = file.join("model.toml");
+        let e = check_outputs(&[("--out", &under)], &[])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("--out ") && e.contains("a-file/model.toml") && e.contains("is a file"),
+            "{e}"
+        );
+        let e = check_outputs(&[("--out", &d)], &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("--out ") && e.contains("is a folder"), "{e}");
+        let out = d.join("out.csv");
+        let e = check_outputs(&[("--out", &out), ("--frf-out", &out)], &[])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("--frf-out") && e.contains("is also --out"),
+            "{e}"
+        );
+        let e = check_outputs(&[("--out", &file)], &[("the model", &file)])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("the model"), "{e}");
+        check_outputs(&[("--out", &out)], &[("the model", &file)]).unwrap();
+        assert!(!out.exists(), "the check leaves no file");
+        assert_eq!(fs::read_dir(&d).unwrap().count(), 1, "no temporary left");
     }
 }

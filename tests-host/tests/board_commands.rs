@@ -339,3 +339,664 @@ fn the_skip_notice_is_seen_without_nocapture() {
         String::from_utf8_lossy(&o.stdout)
     );
 }
+
+// ---------------------------------------------------------------------------
+// The safety issue's items 7, 8, 13 and 15 and the motions' `--record`.
+
+/// An emulated board paced as USB (every tick can be recorded), and its port.
+fn usb_board(test: &str) -> Option<(Emulator, String)> {
+    if !emulator::available_for(test) {
+        return None;
+    }
+    let e = Emulator::start(None).unwrap_or_else(|e| panic!("{e:#}"));
+    e.pace_as(fpi_protocol::LinkKind::Usb)
+        .unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
+    let port = e.port().to_string();
+    Some((e, port))
+}
+
+/// The line of `status` that starts with `head`.
+fn line<'a>(status: &'a str, head: &str) -> &'a str {
+    status
+        .lines()
+        .find(|l| l.starts_with(head))
+        .unwrap_or_else(|| panic!("no line {head:?} in:\n{status}"))
+}
+
+/// The factory model's file, as `fpi` (run in `tests-host/`) names it.
+const FACTORY: &str = "../firmware/model/stage-a.toml";
+
+/// Item 7: `autotune --out /a/file/under/a/file.toml` measured for 47 s,
+/// loaded the new model, then failed to write it; `step`, `frf`, `record`
+/// and the motions' `--record` likewise checked their output only after the
+/// board had worked. Now every output is checked before the board is touched:
+/// the command fails at once, naming the option, and the board runs the model
+/// it ran, parked as it was.
+#[test]
+fn outputs_that_cannot_be_written_are_refused_before_the_board_is_touched() {
+    let Some((_e, port)) = usb_board("outputs_refused_before_the_board_is_touched") else {
+        return;
+    };
+    let d = tmp().join("outputs");
+    std::fs::create_dir_all(&d).unwrap();
+    let blocker = d.join("a-file");
+    std::fs::write(&blocker, "in the way").unwrap();
+    let bad = blocker.join("under-a-file.toml");
+    let good = d.join("good.toml");
+    let points = d.join("points.csv");
+    std::fs::write(&points, "x_ref_um\n10\n11\n").unwrap();
+    let before = ok(&board(&port, &["status"]));
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (vec!["autotune", FACTORY, "--out", s(&bad)], "--out"),
+        (
+            vec!["autotune", FACTORY, "--out", s(&good), "--frf-out", s(&bad)],
+            "--frf-out",
+        ),
+        (
+            vec!["autotune", FACTORY, "--out", FACTORY],
+            "is the input the model",
+        ),
+        (
+            vec!["step", "--from", "10", "--to", "20", "--out", s(&bad)],
+            "--out",
+        ),
+        (vec!["frf", "--out", s(&bad)], "--out"),
+        (vec!["record", "--seconds", "1", "--out", s(&bad)], "--out"),
+        (vec!["move", "10", "--record", s(&bad)], "--record"),
+        (
+            vec![
+                "wave",
+                "--amplitude-um",
+                "2",
+                "--offset-um",
+                "12",
+                "--freq-hz",
+                "10",
+                "--record",
+                s(&bad),
+                "--seconds",
+                "1",
+            ],
+            "--record",
+        ),
+        (vec!["stream", s(&points), "--record", s(&bad)], "--record"),
+    ];
+    for (args, named) in cases {
+        let start = Instant::now();
+        let err = fails(&board(&port, &args));
+        println!("{args:?}: {err}");
+        assert!(
+            start.elapsed() < Duration::from_secs(5),
+            "{args:?} took {:?}",
+            start.elapsed()
+        );
+        assert!(err.contains(named), "{args:?}: {named:?} not in {err}");
+        if named != "is the input the model" {
+            assert!(
+                err.contains("under-a-file.toml") && err.contains("is a file"),
+                "{err}"
+            );
+        }
+    }
+    assert_eq!(std::fs::read_to_string(&blocker).unwrap(), "in the way");
+    assert!(!good.exists(), "no empty file left behind");
+    let after = ok(&board(&port, &["status"]));
+    assert_eq!(line(&before, "model:"), line(&after, "model:"));
+    assert!(after.contains("state: parked"), "{after}");
+    assert!(after.contains("recorder: idle"), "{after}");
+}
+
+/// Item 7, the write failing anyway at the end (the folder checked at the
+/// start replaced by a file while the board is measured): the board does not
+/// keep a model nobody has a copy of; it runs the model it ran, parked, and
+/// the next `autotune` finds it.
+#[test]
+fn an_autotune_whose_model_cannot_be_written_puts_the_board_back() {
+    let Some((e, port)) = usb_board("autotune_whose_model_cannot_be_written") else {
+        return;
+    };
+    let d = tmp().join("autotune-unwritable");
+    let _ = std::fs::remove_dir_all(&d);
+    let folder = d.join("models");
+    let out = folder.join("tuned.toml");
+    // The stage as built (a mode autotune can fit).
+    ok(&board(&port, &["bench", "--stage", "built"]));
+    let before = ok(&board(&port, &["status"]));
+    let args = board(
+        &port,
+        &["autotune", FACTORY, "--trials", "0", "--out", s(&out)],
+    );
+    let mut child = Command::new(env!("CARGO_BIN_EXE_fpi"))
+        .args(&args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        use std::io::BufRead;
+        let mut all = String::new();
+        for l in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(|l| l.ok())
+        {
+            if l.contains("measuring the frequency response") {
+                let _ = tx.send(());
+            }
+            all.push_str(&l);
+            all.push('\n');
+        }
+        all
+    });
+    rx.recv_timeout(Duration::from_secs(120))
+        .unwrap_or_else(|_| panic!("autotune did not start measuring\n{}", e.output()));
+    // The folder it checked is gone, a file in its place.
+    assert!(folder.is_dir(), "the check made the folder");
+    std::fs::remove_dir_all(&folder).unwrap();
+    std::fs::write(&folder, "in the way").unwrap();
+    let status = child.wait().unwrap();
+    let err = reader.join().unwrap();
+    println!("{err}");
+    assert!(!status.success(), "{err}");
+    assert!(
+        err.contains("tuned.toml") && err.contains("is a file"),
+        "the write failed: {err}"
+    );
+    let after = ok(&board(&port, &["status"]));
+    // The same model (its CRC), loaded again over the link.
+    let crc = |s: &str| line(s, "model:").split(',').next().unwrap().to_string();
+    assert_eq!(crc(&before), crc(&after), "{after}");
+    assert!(after.contains("state: parked"), "{after}");
+    // Byte for byte the model autotune was given (the next autotune finds it).
+    let path = fpi_host::data::project_root().join("firmware/model/stage-a.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let image = FirmwareModel::parse(&text, "stage-a.toml")
+        .unwrap()
+        .image()
+        .unwrap();
+    let mut c = fpi_host::board::client::Client::open(&port).unwrap();
+    assert!(
+        c.read_model().unwrap() == image,
+        "the board runs another model"
+    );
+}
+
+/// Item 8: an autotune that failed (a latched fault) left the loop open and
+/// damping and shaping off. Now the loop mode, the damping and the shaping are
+/// as they were (the board parked, the fault still latched: it says why).
+#[test]
+fn a_failed_autotune_leaves_the_loops_as_they_were() {
+    let Some((e, port)) = usb_board("a_failed_autotune_leaves_the_loops") else {
+        return;
+    };
+    let run = |args: &[&str]| ok(&board(&port, args));
+    let d = tmp().join("failed-autotune");
+    std::fs::create_dir_all(&d).unwrap();
+    let dynamics = d.join("dyn.toml");
+    ok(&[
+        "identify",
+        "--chirp",
+        "data/stage-a/chirp_small_1Hz-3kHz.csv.gz",
+        "--out",
+        s(&dynamics),
+    ]);
+    let tuned = d.join("tuned.toml");
+    ok(&[
+        "tune",
+        "--firmware",
+        FACTORY,
+        "--dynamics",
+        s(&dynamics),
+        "--out",
+        s(&tuned),
+    ]);
+    run(&["load", s(&tuned)]);
+    run(&["loop", "closed"]);
+    run(&["shaping", "off"]);
+    run(&["move", "20"]);
+    run(&["bench", "--sensor", "open"]);
+    let start = Instant::now();
+    while !run(&["status"]).contains("FAULT") {
+        assert!(start.elapsed() < Duration::from_secs(10), "{}", e.output());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    run(&["bench", "--sensor", "ok"]);
+    let before = run(&["status"]);
+    println!("before:\n{before}");
+    let loops = line(&before, "damping ");
+    assert!(loops.contains("damping on, shaping off"), "{before}");
+    let never = d.join("never.toml");
+    let err = fails(&board(&port, &["autotune", s(&tuned), "--out", s(&never)]));
+    println!("{err}");
+    assert!(!never.exists());
+    let after = run(&["status"]);
+    println!("after:\n{after}");
+    assert_eq!(line(&after, "damping "), loops);
+    let mode = |s: &str| line(s, "source: ").split(", ").nth(1).unwrap().to_string();
+    assert_eq!(mode(&after), mode(&before));
+    assert!(mode(&after).starts_with("closed loop"), "{after}");
+    assert_eq!(line(&before, "model:"), line(&after, "model:"));
+    assert!(after.contains("state: FAULT"), "{after}");
+}
+
+/// Runs `fpi` with `args` until `stop` after starting it, then sends it
+/// `signal`; its exit code, stdout and stderr.
+#[cfg(unix)]
+fn signalled(args: &[&str], stop: Duration, signal: i32) -> (Option<i32>, String, String) {
+    let child = Command::new(env!("CARGO_BIN_EXE_fpi"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(stop);
+    // SAFETY: sends a signal to a child process of ours that has not been waited for.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, signal);
+    }
+    let o = child.wait_with_output().unwrap();
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stdout).to_string(),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    )
+}
+
+/// The rows of a CSV by column: its header and its values.
+fn csv_columns(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let head: Vec<String> = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let mut cols = vec![Vec::new(); head.len()];
+    for l in lines {
+        for (k, v) in l.split(',').enumerate() {
+            cols[k].push(v.parse::<f64>().unwrap());
+        }
+    }
+    (head, cols)
+}
+
+/// Item 13: SIGTERM during `record` wrote nothing and left the recorder
+/// running. Now it keeps what was recorded, as Ctrl-C does. SIGKILL cannot be
+/// caught: the recorder is left running, and the next `record` restarts it
+/// afresh (every sample of its own, none of the old run's).
+#[cfg(unix)]
+#[test]
+fn sigterm_during_record_keeps_what_was_recorded_and_sigkill_is_recovered() {
+    let Some((_e, port)) = usb_board("sigterm_during_record") else {
+        return;
+    };
+    let run = |args: &[&str]| ok(&board(&port, args));
+    let d = tmp().join("sigterm");
+    std::fs::create_dir_all(&d).unwrap();
+    run(&["move", "10"]);
+    let rec = d.join("terminated.csv");
+    let args = board(
+        &port,
+        &[
+            "record",
+            "--seconds",
+            "3600",
+            "--decimation",
+            "20",
+            "--out",
+            s(&rec),
+        ],
+    );
+    let (code, _, err) = signalled(&args, Duration::from_secs(4), libc::SIGTERM);
+    assert_eq!(code, Some(130), "{err}");
+    assert!(
+        err.contains("interrupted:") && err.contains("written to"),
+        "{err}"
+    );
+    let (_, cols) = csv_columns(&rec);
+    assert!(cols[0].len() > 10, "{} samples", cols[0].len());
+    assert!(run(&["status"]).contains("recorder: idle"));
+    // SIGKILL: nothing written, the recorder left running.
+    let killed = d.join("killed.csv");
+    let args = board(
+        &port,
+        &[
+            "record",
+            "--seconds",
+            "3600",
+            "--decimation",
+            "20",
+            "--out",
+            s(&killed),
+        ],
+    );
+    let (code, _, _) = signalled(&args, Duration::from_secs(4), libc::SIGKILL);
+    assert_eq!(code, None, "killed by the signal");
+    assert!(!killed.exists());
+    assert!(run(&["status"]).contains("recorder: recording"));
+    // The next record restarts it afresh.
+    let again = d.join("again.csv");
+    run(&[
+        "record",
+        "--seconds",
+        "0.2",
+        "--decimation",
+        "20",
+        "--out",
+        s(&again),
+    ]);
+    let (_, cols) = csv_columns(&again);
+    assert_eq!(cols[0].len(), 200, "0.2 s at 1 kHz");
+    for w in cols[0].windows(2) {
+        assert!((w[1] - w[0] - 0.001).abs() < 1e-7, "{w:?}");
+    }
+    assert!(run(&["status"]).contains("recorder: idle"));
+}
+
+/// Every row of a `--record` CSV: one per tick from the first, consecutive,
+/// with a finite true position; the columns of `fpi board record`.
+fn every_tick(path: &Path) -> Vec<Vec<f64>> {
+    let (head, cols) = csv_columns(path);
+    assert_eq!(
+        head.join(","),
+        "t_s,voltage_V,force_N,x_ref_um,x_est_um,status,x_fhps_um,x_sensor_um"
+    );
+    let t = &cols[0];
+    assert!(t.len() > 100, "{} rows", t.len());
+    for w in t.windows(2) {
+        assert!(
+            (w[1] - w[0] - 5e-5).abs() < 2e-6,
+            "ticks not consecutive: {w:?}"
+        );
+    }
+    assert!(cols[6].iter().all(|x| x.is_finite()), "x_fhps_um");
+    cols
+}
+
+/// Item "every motion can record itself": `move`, `wave` and `stream` with
+/// `--record` record every tick of what they do, the true position included,
+/// from the tick the board takes the command; a wave without --cycles needs
+/// --seconds; a link that cannot carry every tick is refused before anything
+/// moves.
+#[test]
+fn motions_record_every_tick_of_what_they_do() {
+    let Some((e, port)) = usb_board("motions_record_every_tick") else {
+        return;
+    };
+    let run = |args: &[&str]| ok(&board(&port, args));
+    let d = tmp().join("motions");
+    std::fs::create_dir_all(&d).unwrap();
+    // A move: from the park to 10 µm, until it holds there, and 50 ms more.
+    let m = d.join("move.csv");
+    let out = run(&["move", "10", "--speed", "2000", "--record", s(&m)]);
+    assert!(out.contains("recorded to"), "{out}");
+    let cols = every_tick(&m);
+    let x_ref = &cols[3];
+    assert!(
+        (x_ref.last().unwrap() - 10.0).abs() < 1e-3,
+        "{:?}",
+        x_ref.last()
+    );
+    assert!(
+        (cols[6].last().unwrap() - 10.0).abs() < 0.5,
+        "true position"
+    );
+    assert!(
+        x_ref.len() >= 1000,
+        "50 ms at rest at least: {}",
+        x_ref.len()
+    );
+    // A finite wave: its approach, two periods at 40 Hz (50 ms), 50 ms more.
+    let w = d.join("wave.csv");
+    run(&[
+        "wave",
+        "--amplitude-um",
+        "2",
+        "--offset-um",
+        "12",
+        "--freq-hz",
+        "40",
+        "--cycles",
+        "2",
+        "--record",
+        s(&w),
+    ]);
+    let cols = every_tick(&w);
+    assert!(cols[0].len() >= 2000, "{} rows", cols[0].len());
+    let top = cols[3].iter().cloned().fold(f64::MIN, f64::max);
+    assert!((top - 14.0).abs() < 0.01, "the wave's top {top}");
+    // A wave until the next command: for --seconds exactly.
+    let w2 = d.join("endless.csv");
+    run(&[
+        "wave",
+        "--amplitude-um",
+        "2",
+        "--offset-um",
+        "12",
+        "--freq-hz",
+        "40",
+        "--record",
+        s(&w2),
+        "--seconds",
+        "0.1",
+    ]);
+    assert_eq!(every_tick(&w2)[0].len(), 2000);
+    run(&["hold"]);
+    refused(
+        &board(
+            &port,
+            &[
+                "wave",
+                "--amplitude-um",
+                "2",
+                "--offset-um",
+                "12",
+                "--freq-hz",
+                "40",
+                "--record",
+                s(&w2),
+            ],
+        ),
+        &["--seconds", "--cycles 0"],
+    );
+    // A stream of 150 points, one every 20 ticks: 3 000 ticks and the rest
+    // (short: the link has little to spare at every tick while the stage
+    // moves, and the board's ring absorbs a loaded host's pauses).
+    let points = d.join("points.csv");
+    let mut csv = String::from("x_ref_um\n");
+    for k in 0..150 {
+        csv.push_str(&format!("{}\n", 12.0 + 3.0 * (k as f64 / 50.0).sin()));
+    }
+    std::fs::write(&points, csv).unwrap();
+    let st = d.join("stream.csv");
+    run(&["stream", s(&points), "--record", s(&st)]);
+    let cols = every_tick(&st);
+    assert!(cols[0].len() >= 3000 + 1000, "{} rows", cols[0].len());
+    assert!(run(&["status"]).contains("recorder: idle"));
+    // The UART cannot carry every tick: refused before the board moves.
+    e.pace_as(fpi_protocol::LinkKind::Uart).unwrap();
+    let before = run(&["status"]);
+    let err = refused(
+        &board(&port, &["move", "20", "--record", s(&d.join("uart.csv"))]),
+        &["--record", "USB"],
+    );
+    println!("{err}");
+    let after = run(&["status"]);
+    assert_eq!(
+        line(&before, "tick ")
+            .split(", estimate")
+            .next()
+            .unwrap()
+            .split("reference")
+            .nth(1),
+        line(&after, "tick ")
+            .split(", estimate")
+            .next()
+            .unwrap()
+            .split("reference")
+            .nth(1),
+        "the reference did not move"
+    );
+}
+
+/// A free TCP port on the loopback interface.
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// The pids of the processes whose parent is `pid` (Linux, from `/proc`).
+#[cfg(target_os = "linux")]
+fn children(pid: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    for p in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(stat) = std::fs::read_to_string(p.path().join("stat")) else {
+            continue;
+        };
+        // pid (comm) state ppid …: the comm may hold spaces.
+        let after = &stat[stat.rfind(')').unwrap_or(0) + 1..];
+        let f: Vec<&str> = after.split_whitespace().collect();
+        if f.get(1).and_then(|s| s.parse().ok()) == Some(pid) {
+            if let Ok(k) = p.file_name().to_string_lossy().parse() {
+                out.push(k);
+            }
+        }
+    }
+    out
+}
+
+/// Whether process `pid` runs (neither gone nor a zombie).
+#[cfg(target_os = "linux")]
+fn running(pid: u32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        Ok(stat) => {
+            let after = &stat[stat.rfind(')').unwrap_or(0) + 1..];
+            !after.trim_start().starts_with('Z')
+        }
+        Err(_) => false,
+    }
+}
+
+/// Whether something listens on the loopback port `port`.
+fn listening(port: u16) -> bool {
+    std::net::TcpStream::connect(("127.0.0.1", port)).is_ok()
+}
+
+/// Item 15: `kill -INT` of `fpi board emulate` (its process, not its group)
+/// ended `fpi` but left its QEMU running and listening; so did SIGTERM and
+/// SIGKILL. Now QEMU ends with `fpi` however `fpi` ends, and the port is free.
+#[cfg(target_os = "linux")]
+#[test]
+fn the_emulator_s_qemu_ends_with_fpi_however_fpi_ends() {
+    if !emulator::available_for("the_emulator_s_qemu_ends_with_fpi") {
+        return;
+    }
+    let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
+    for signal in [libc::SIGINT, libc::SIGTERM, libc::SIGKILL] {
+        let port = free_port();
+        let listen = format!("127.0.0.1:{port}");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_fpi"))
+            .args([
+                "board",
+                "emulate",
+                "--listen",
+                &listen,
+                "--firmware",
+                s(&elf),
+            ])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut stdout = child.stdout.take().unwrap();
+        let mut first = [0u8; 24];
+        stdout.read_exact(&mut first).unwrap();
+        assert!(
+            String::from_utf8_lossy(&first).starts_with("emulated board running"),
+            "{}",
+            String::from_utf8_lossy(&first)
+        );
+        let qemu = children(child.id());
+        assert_eq!(qemu.len(), 1, "one QEMU: {qemu:?}");
+        let qemu = qemu[0];
+        assert!(listening(port) && running(qemu));
+        // SAFETY: a signal to our child, not yet waited for.
+        unsafe {
+            libc::kill(child.id() as libc::pid_t, signal);
+        }
+        child.wait().unwrap();
+        let start = Instant::now();
+        while running(qemu) || listening(port) {
+            assert!(
+                start.elapsed() < Duration::from_secs(5),
+                "signal {signal}: QEMU (pid {qemu}) still runs, the port {}",
+                if listening(port) { "listening" } else { "free" }
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+/// Item 14: with a wrong firmware under QEMU, `emulate` said "the port is
+/// busy, most likely". Now it says the firmware did not answer on the link;
+/// a port another program listens on is named busy, with who holds it; and
+/// no QEMU is left behind.
+#[test]
+fn emulate_tells_a_wrong_firmware_from_a_busy_port() {
+    if !emulator::available_for("emulate_tells_a_wrong_firmware_from_a_busy_port") {
+        return;
+    }
+    let d = tmp();
+    // A vector table whose reset handler loops for ever (`b .`): QEMU runs it,
+    // and nothing answers on the link.
+    let bad = d.join("not-the-firmware.bin");
+    let mut image = Vec::new();
+    image.extend_from_slice(&0x2000_1000u32.to_le_bytes());
+    image.extend_from_slice(&0x0000_0009u32.to_le_bytes());
+    image.extend_from_slice(&[0xFE, 0xE7]);
+    std::fs::write(&bad, image).unwrap();
+    let port = free_port();
+    let listen = format!("127.0.0.1:{port}");
+    let err = fails(&[
+        "board",
+        "emulate",
+        "--listen",
+        &listen,
+        "--firmware",
+        s(&bad),
+    ]);
+    println!("{err}");
+    assert!(
+        err.contains("did not answer on its link") && err.contains("not-the-firmware.bin"),
+        "{err}"
+    );
+    assert!(!err.contains("busy"), "{err}");
+    assert!(!listening(port), "QEMU stopped with fpi");
+    // A port that another program listens on.
+    let taken = std::net::TcpListener::bind(("127.0.0.1", 0)).unwrap();
+    let listen = format!("127.0.0.1:{}", taken.local_addr().unwrap().port());
+    let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
+    let err = fails(&[
+        "board",
+        "emulate",
+        "--listen",
+        &listen,
+        "--firmware",
+        s(&elf),
+    ]);
+    println!("{err}");
+    assert!(err.contains("the port is busy"), "{err}");
+    #[cfg(target_os = "linux")]
+    assert!(
+        err.contains(&format!("(pid {})", std::process::id())),
+        "{err}"
+    );
+}

@@ -19,7 +19,7 @@
 //!
 //! Run from `tests-host/` as `cargo run --release --bin fpi -- …`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, Result};
@@ -321,6 +321,10 @@ enum BoardCommand {
         /// the ADC's transition noise). A reset returns to `internal`.
         #[arg(long, default_value = "internal", value_parser = parse_front_end)]
         frontend: fpi_protocol::FrontEndKind,
+        /// The firmware image QEMU runs (default: the emulated board's
+        /// firmware, `fpi-firmware` with --features qemu, built if needed).
+        #[arg(long, value_name = "ELF")]
+        firmware: Option<PathBuf>,
     },
     /// The board, its model and the loop's state.
     Status,
@@ -333,6 +337,13 @@ enum BoardCommand {
         #[arg(long, default_value_t = 1000.0, value_parser = parse_positive,
               allow_negative_numbers = true)]
         speed: f64,
+        /// Record every tick of the move into this CSV (the columns of `fpi
+        /// board record`, the true position `x_fhps_um` on the emulated
+        /// board), from the tick the board takes it until it holds the target
+        /// and 50 ms more; the command then returns when the move has ended.
+        /// Needs a link that carries every tick (USB).
+        #[arg(long, value_name = "OUT.csv")]
+        record: Option<PathBuf>,
     },
     /// Run the waveform generator.
     Wave {
@@ -351,6 +362,17 @@ enum BoardCommand {
         /// Periods to run (default: until another command).
         #[arg(long, default_value_t = 0)]
         cycles: u32,
+        /// Record every tick of the wave (its approach included) into this CSV
+        /// (the columns of `fpi board record`, the true position `x_fhps_um`
+        /// on the emulated board): for --seconds, or until a wave of --cycles
+        /// has ended and 50 ms more. Needs a link that carries every tick (USB).
+        #[arg(long, value_name = "OUT.csv")]
+        record: Option<PathBuf>,
+        /// With --record: board time to record from the wave's start, s
+        /// (0 < S ≤ 3600; needed for a wave without --cycles).
+        #[arg(long, requires = "record", value_parser = parse_record_seconds,
+              allow_negative_numbers = true)]
+        seconds: Option<f64>,
     },
     /// Stream a trajectory: column `x_ref_um` of a CSV.
     ///
@@ -361,6 +383,12 @@ enum BoardCommand {
         /// Control ticks per point (20 = 1 kHz at 20 kHz; ≥ 1).
         #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u16).range(1..))]
         interval: u16,
+        /// Record every tick of the stream into this CSV (the columns of `fpi
+        /// board record`, the true position `x_fhps_um` on the emulated
+        /// board), until the board holds its last point and 50 ms more. Needs
+        /// a link that carries every tick (USB).
+        #[arg(long, value_name = "OUT.csv")]
+        record: Option<PathBuf>,
     },
     /// Record what the stage does into a CSV (the datasets' columns).
     Record {
@@ -521,6 +549,50 @@ enum BoardCommand {
         #[arg(long)]
         out: PathBuf,
     },
+}
+
+/// Files a command names, each with the option (or argument) that names it.
+type Files<'a> = Vec<(&'static str, &'a Path)>;
+
+impl BoardCommand {
+    /// The files the command writes once it has worked on the board, with
+    /// the options that name them, and the files it reads: checked before it
+    /// starts ([`fpi_host::output::check_outputs`]).
+    fn files(&self) -> (Files<'_>, Files<'_>) {
+        match self {
+            Self::Record { out, .. } | Self::Step { out, .. } | Self::Frf { out, .. } => {
+                (vec![("--out", out.as_path())], vec![])
+            }
+            Self::Move {
+                record: Some(r), ..
+            }
+            | Self::Wave {
+                record: Some(r), ..
+            } => (vec![("--record", r.as_path())], vec![]),
+            Self::Stream {
+                file,
+                record: Some(r),
+                ..
+            } => (
+                vec![("--record", r.as_path())],
+                vec![("the trajectory", file.as_path())],
+            ),
+            Self::Autotune {
+                model,
+                fem,
+                out,
+                frf_out,
+                ..
+            } => {
+                let mut outputs = vec![("--out", out.as_path())];
+                outputs.extend(frf_out.as_deref().map(|f| ("--frf-out", f)));
+                let mut inputs = vec![("the model", model.as_path())];
+                inputs.extend(fem.as_deref().map(|f| ("--fem", f)));
+                (outputs, inputs)
+            }
+            _ => (vec![], vec![]),
+        }
+    }
 }
 
 /// The sweep of `fpi board frf` and `fpi board autotune`.
@@ -867,9 +939,20 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
         listen,
         link,
         frontend,
+        firmware,
     } = &command
     {
-        let e = Emulator::start(Some(listen))?;
+        // Ctrl-C, SIGTERM or SIGHUP stop QEMU with `fpi`; so does any other end
+        // of `fpi` on Linux (QEMU's parent-death signal, `Emulator`).
+        b::catch_ctrl_c()?;
+        let elf = match firmware {
+            Some(f) if !f.is_file() => {
+                anyhow::bail!("--firmware {}: no such file", f.display())
+            }
+            Some(f) => f.clone(),
+            None => Emulator::firmware()?,
+        };
+        let e = Emulator::start_elf(&elf, Some(listen))?;
         e.pace_as(*link)?;
         e.front_end(*frontend)?;
         println!(
@@ -880,30 +963,48 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
             frontend.name(),
             e.port()
         );
-        return e.wait();
+        if e.wait_until(b::stop_asked)? {
+            println!("emulated board stopped");
+        }
+        return Ok(());
     }
     let Some(port) = port else {
         anyhow::bail!("which board? --port /dev/ttyUSB0 (or COM3), or --port tcp:127.0.0.1:4545 for `fpi board emulate`");
     };
-    if let BoardCommand::Record { out, .. } = &command {
-        // The output must take a file before the board records anything.
-        fpi_host::output::prepare(out)?;
-    }
+    // The outputs must take their files before the board does anything.
+    let (outputs, inputs) = command.files();
+    fpi_host::output::check_outputs(&outputs, &inputs)?;
     let mut c = b::open(&port)?;
     match command {
         BoardCommand::Emulate { .. } => Ok(()),
         BoardCommand::Status => b::status(&mut c),
-        BoardCommand::Move { um, speed } => b::move_to(&mut c, um, speed),
+        BoardCommand::Move { um, speed, record } => {
+            b::move_to(&mut c, um, speed, record.as_deref())
+        }
         BoardCommand::Wave {
             shape,
             amplitude_um,
             offset_um,
             freq_hz,
             cycles,
-        } => b::wave(&mut c, &shape, amplitude_um, offset_um, freq_hz, cycles),
-        BoardCommand::Stream { file, interval } => {
+            record,
+            seconds,
+        } => b::wave(
+            &mut c,
+            &shape,
+            amplitude_um,
+            offset_um,
+            freq_hz,
+            cycles,
+            record.as_deref().map(|r| (r, seconds)),
+        ),
+        BoardCommand::Stream {
+            file,
+            interval,
+            record,
+        } => {
             let points = fpi_host::data::read_points(&file)?;
-            b::stream(&mut c, &points, interval)
+            b::stream(&mut c, &points, interval, record.as_deref())
         }
         BoardCommand::Record {
             seconds,

@@ -43,6 +43,7 @@ use piezo_sim::file::FirmwareModel;
 use super::client::{refusal, Client};
 use super::frf::{self, FrfSettings};
 use super::noise;
+use super::restore::Before;
 use super::step::{self, StepFigures, StepSettings};
 use super::trial;
 use super::warm::close_and_warm_up;
@@ -152,7 +153,24 @@ pub fn run(
     o: &TuneOptions,
     settings: &Settings,
     store: bool,
-    mut progress: impl FnMut(&str),
+    progress: impl FnMut(&str),
+) -> Result<Autotune> {
+    run_keeping(c, fw, o, settings, store, &mut |_| Ok(()), progress)
+}
+
+/// [`run`], and `keep` hears the tuned model before it is loaded for good
+/// (and stored): where it fails (the file it writes cannot be written), as
+/// where anything else fails once autotune has changed the board, the board
+/// is put back as it was found ([`Before`]: parked, running `fw` with its
+/// loop mode, damping and shaping), so it never runs a model nobody has.
+pub fn run_keeping(
+    c: &mut Client,
+    fw: &FirmwareModel,
+    o: &TuneOptions,
+    settings: &Settings,
+    store: bool,
+    keep: &mut dyn FnMut(&FirmwareModel) -> Result<()>,
+    progress: impl FnMut(&str),
 ) -> Result<Autotune> {
     tune::check_options(fw, o)?;
     let image = fw.image().map_err(anyhow::Error::msg)?;
@@ -165,6 +183,21 @@ pub fn run(
             image.len()
         );
     }
+    let before = Before::capture(c)?.with_model(c, image)?;
+    before.on_failure(c, |c| tune_on(c, fw, o, settings, store, keep, progress))
+}
+
+/// Steps 2–7 of the module docs on the board `c`, which runs `fw` (see
+/// [`run_keeping`]).
+fn tune_on(
+    c: &mut Client,
+    fw: &FirmwareModel,
+    o: &TuneOptions,
+    settings: &Settings,
+    store: bool,
+    keep: &mut dyn FnMut(&FirmwareModel) -> Result<()>,
+    mut progress: impl FnMut(&str),
+) -> Result<Autotune> {
     let rate = fw.controller.rate_hz;
     let split = fw
         .controller
@@ -202,7 +235,7 @@ pub fn run(
     // The loops run on the stage from here: a tripped watch may be the damping's
     // noise-driven motion.
     let motion = t.noise_motion_um_per_n * force_noise_n;
-    let done = on_board(c, fw, o, settings, store, &mut t, &mut progress)
+    let done = on_board(c, fw, o, (settings, store), &mut t, keep, &mut progress)
         .map_err(|e| noise::explain(c, e, force_noise_n, motion))?;
     Ok(Autotune {
         frf: points,
@@ -236,9 +269,9 @@ fn on_board(
     c: &mut Client,
     fw: &FirmwareModel,
     o: &TuneOptions,
-    settings: &Settings,
-    store: bool,
+    (settings, store): (&Settings, bool),
     t: &mut Tuning,
+    keep: &mut dyn FnMut(&FirmwareModel) -> Result<()>,
     progress: &mut impl FnMut(&str),
 ) -> Result<OnBoard> {
     load(c, fw, t, o, false)?;
@@ -268,6 +301,8 @@ fn on_board(
     if let Some((b, _)) = baseline {
         t.lead_baseline = Some(b);
     }
+    // Kept (its file written) before it runs for good.
+    keep(&tune::with_tuning(fw, t, o)?)?;
     let model = load(c, fw, t, o, false)?;
     if store {
         load(c, fw, t, o, true)?;
@@ -510,10 +545,16 @@ fn refinement(a: &Autotune) -> String {
 
 /// Writes the tuned model and the measured response next to it.
 pub fn write(a: &Autotune, out: &Path, frf_out: Option<&Path>) -> Result<()> {
-    let text = a.model.to_toml().map_err(anyhow::Error::msg)?;
-    crate::output::write_atomic(out, text.as_bytes())?;
+    write_model(&a.model, out)?;
     if let Some(p) = frf_out {
         fit::write_csv(p, &a.frf, &a.frf_conditions)?;
     }
     Ok(())
+}
+
+/// Writes a tuned model to `out` (atomically): what [`run_keeping`] is given
+/// to keep it before it is loaded for good.
+pub fn write_model(model: &FirmwareModel, out: &Path) -> Result<()> {
+    let text = model.to_toml().map_err(anyhow::Error::msg)?;
+    crate::output::write_atomic(out, text.as_bytes())
 }

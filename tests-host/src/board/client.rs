@@ -632,8 +632,9 @@ impl Client {
     /// Streams `points_um` (one every `interval` ticks): fills the board's
     /// buffer, starts the stream, keeps the buffer topped up, ends the stream and
     /// waits until the last point has been played. `progress` gets the number of
-    /// points sent; `idle` runs while the host waits for room (e.g. to read the
-    /// recorder). The board supervises the host while it streams (500 ms unless
+    /// points sent; `idle` runs after each batch of points sent and while the
+    /// host waits for room (e.g. to read the recorder, whose ring fills in
+    /// 26 ms at every tick). The board supervises the host while it streams (500 ms unless
     /// `supervise` set a timeout); supervision the stream switched on is switched
     /// off again when it ends.
     pub fn stream(
@@ -650,6 +651,7 @@ impl Client {
         while sent < points_um.len() && sent + MAX_POINTS <= capacity {
             sent += self.send_points(sent, points_um)?;
             progress(sent);
+            idle(self)?;
         }
         let started = self.ack(&Command::Stream { axis: 0, interval })?;
         loop {
@@ -662,6 +664,7 @@ impl Client {
             if free >= MAX_POINTS.min(points_um.len() - sent) {
                 sent += self.send_points(sent, points_um)?;
                 progress(sent);
+                idle(self)?;
             } else {
                 idle(self)?;
                 std::thread::sleep(Duration::from_millis(5));

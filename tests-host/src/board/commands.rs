@@ -106,6 +106,11 @@ fn on_off(name: &'static str, cli: &'static str, s: &str) -> Result<bool> {
 
 /// Ramps to `um` (µm) at `speed` µm/s and holds it; the tick it started.
 pub fn move_to(c: &mut Client, um: f64, speed: f64) -> Result<u32> {
+    c.order(&move_command(um, speed)?)
+}
+
+/// The command of [`move_to`], its arguments checked.
+pub fn move_command(um: f64, speed: f64) -> Result<Command<'static>> {
     let target = link_value("target_um", "the target", um, "µm")?;
     if speed.is_nan() || speed <= 0.0 {
         return Err(bad(
@@ -115,7 +120,7 @@ pub fn move_to(c: &mut Client, um: f64, speed: f64) -> Result<u32> {
         ));
     }
     let speed = link_value("speed", "--speed", speed, "µm/s")?;
-    c.order(&Command::Move {
+    Ok(Command::Move {
         axis: 0,
         target,
         speed,
@@ -137,6 +142,19 @@ pub fn wave(
     freq_hz: f64,
     cycles: u32,
 ) -> Result<u32> {
+    let cmd = wave_command(c, shape_name, amplitude_um, offset_um, freq_hz, cycles)?;
+    c.order(&cmd)
+}
+
+/// The command of [`wave`], its arguments checked (against the board's rate).
+pub fn wave_command(
+    c: &Client,
+    shape_name: &str,
+    amplitude_um: f64,
+    offset_um: f64,
+    freq_hz: f64,
+    cycles: u32,
+) -> Result<Command<'static>> {
     let shape = shape(shape_name)?;
     let top = c.rate_hz() / 2.0;
     if freq_hz.is_nan() || freq_hz >= top {
@@ -167,7 +185,7 @@ pub fn wave(
             format!("--amplitude-um {} µm: must be above 0", Num(amplitude_um)),
         ));
     }
-    c.order(&Command::Wave {
+    Ok(Command::Wave {
         axis: 0,
         shape,
         offset: link_value("offset_um", "--offset-um", offset_um, "µm")?,
@@ -496,7 +514,20 @@ pub fn stream(
     points_um: &[f64],
     interval: u16,
     progress: impl FnMut(usize),
+    stop: impl FnMut() -> bool,
+) -> Result<Streamed> {
+    stream_with(c, points_um, interval, progress, stop, |_| Ok(()))
+}
+
+/// [`stream`], and `idle` run on the board between the host's requests
+/// (every few milliseconds: what reads a recording made meanwhile).
+pub fn stream_with(
+    c: &mut Client,
+    points_um: &[f64],
+    interval: u16,
+    progress: impl FnMut(usize),
     mut stop: impl FnMut() -> bool,
+    mut idle: impl FnMut(&mut Client) -> Result<()>,
 ) -> Result<Streamed> {
     if points_um.is_empty() {
         return Err(bad(
@@ -536,11 +567,11 @@ pub fn stream(
             sent = n;
             progress(n);
         },
-        |_| {
+        |c| {
             if stop() {
                 Err(StopAsked.into())
             } else {
-                Ok(())
+                idle(c)
             }
         },
     );

@@ -50,11 +50,79 @@ pub fn flash_file(path: &Path, images: &[&[u8]], damage: &[usize]) -> Result<()>
 /// QEMU's virtual clock for the instrument: see the module docs.
 pub const ICOUNT_INSTRUMENT: &str = "shift=0,align=off,sleep=on";
 
-/// A running emulated board. Dropping it stops QEMU.
+/// A running emulated board. Dropping it stops QEMU; so does the end of the
+/// process that started it from its main thread, however it ends (on Linux:
+/// QEMU gets `SIGKILL` when its parent dies, `PR_SET_PDEATHSIG`), so that no
+/// QEMU is left listening on the port of an `fpi board emulate` that was
+/// killed.
 pub struct Emulator {
     child: Child,
     port: String,
     output: Arc<Mutex<String>>,
+    elf: PathBuf,
+}
+
+/// How long [`Client::open`](super::client::Client::open) waits for the
+/// board's hello, s (five tries of 0.8 s).
+pub const HELLO_WAIT_S: f64 = 4.0;
+
+/// Has QEMU, spawned by `cmd`, end with this process: on Linux, where the
+/// thread that spawns it is the process's main thread (the parent-death
+/// signal follows the spawning thread: one spawned by a test's thread, which
+/// ends before its board is dropped elsewhere, is left to `Drop`).
+fn ends_with_this_process(cmd: &mut std::process::Command) {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        // SAFETY: plain system calls; the main thread's id is the process's.
+        let main_thread = unsafe { libc::gettid() == libc::getpid() };
+        if !main_thread {
+            return;
+        }
+        let parent = std::process::id();
+        // SAFETY: the closure runs in the forked child before exec and calls
+        // only async-signal-safe functions (prctl, getppid, raise).
+        unsafe {
+            cmd.pre_exec(move || {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                // The parent died before the prctl: the signal will not come.
+                if libc::getppid() as u32 != parent {
+                    libc::raise(libc::SIGKILL);
+                }
+                Ok(())
+            });
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = cmd;
+}
+
+/// Refuses a listening address that another program holds, before QEMU is
+/// started on it (QEMU would fail to bind, or the tools would reach the other
+/// program's board).
+fn port_free(addr: &str) -> Result<()> {
+    match TcpListener::bind(addr) {
+        Ok(_) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::AddrInUse => {
+            let port = addr
+                .rsplit_once(':')
+                .and_then(|(_, p)| p.parse().ok())
+                .unwrap_or(0);
+            let by = super::port::listeners(port);
+            bail!(
+                "--listen {addr}: the port is busy: another program listens there{} (another \
+                 `fpi board emulate`?); stop it or choose another port",
+                if by.is_empty() {
+                    String::new()
+                } else {
+                    format!(" ({})", by.join(", "))
+                }
+            )
+        }
+        Err(e) => Err(e).with_context(|| format!("--listen {addr}: cannot listen there")),
+    }
 }
 
 /// A free TCP port on the loopback interface.
@@ -95,6 +163,9 @@ impl Emulator {
             }
             None => format!("127.0.0.1:{}", free_port()?),
         };
+        if listen.is_some() {
+            port_free(&addr)?;
+        }
         let qemu = qemu()?;
         let serial = format!("tcp:{addr},server=on,wait=off,nodelay=on");
         let mut cmd = qemu_command(&qemu, elf, ICOUNT_INSTRUMENT);
@@ -106,6 +177,7 @@ impl Emulator {
             );
             cmd.args(["-device", &loader]);
         }
+        ends_with_this_process(&mut cmd);
         let mut child = cmd
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -141,6 +213,7 @@ impl Emulator {
             child,
             port: format!("tcp:{addr}"),
             output,
+            elf: elf.to_path_buf(),
         };
         if let Some(st) = e.child.try_wait()? {
             bail!("QEMU stopped at once ({st}):\n{}", e.output());
@@ -151,13 +224,54 @@ impl Emulator {
 
     /// Has the board pace its link as `link` (it starts paced as the UART).
     pub fn pace_as(&self, link: fpi_protocol::LinkKind) -> Result<()> {
-        super::client::Client::open(&self.port)?.pace_as(link)
+        self.client()?.pace_as(link)
     }
 
     /// Has the board convert with the `kind` front end (it starts with the
     /// internal one).
     pub fn front_end(&self, kind: fpi_protocol::FrontEndKind) -> Result<()> {
-        super::client::Client::open(&self.port)?.front_end(kind)
+        self.client()?.front_end(kind)
+    }
+
+    /// A client of the board; where the firmware does not answer on the link
+    /// (QEMU runs, but not the emulated board's firmware), an error that says
+    /// so.
+    pub fn client(&self) -> Result<super::client::Client> {
+        super::client::Client::open(&self.port).map_err(|e| {
+            let out = self.output();
+            e.context(format!(
+                "the emulated board did not answer on its link {} within {HELLO_WAIT_S} s: QEMU \
+                 runs {}, which is not the emulated board's firmware, most likely (a wrong \
+                 firmware: `fpi-firmware` built with --features qemu is){}",
+                self.port,
+                self.elf.display(),
+                if out.trim().is_empty() {
+                    String::new()
+                } else {
+                    format!("; QEMU said:\n{}", out.trim())
+                }
+            ))
+        })
+    }
+
+    /// Runs until QEMU exits or `stop` says so (polled every 50 ms; QEMU is
+    /// then stopped): whether `stop` ended it.
+    pub fn wait_until(mut self, stop: impl Fn() -> bool) -> Result<bool> {
+        loop {
+            if let Some(st) = self.child.try_wait()? {
+                if stop() {
+                    return Ok(true);
+                }
+                if !st.success() {
+                    bail!("QEMU exited with {st}:\n{}", self.output());
+                }
+                return Ok(false);
+            }
+            if stop() {
+                return Ok(true); // dropping it stops QEMU
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
 
     /// The port to open: `tcp:HOST:PORT`.

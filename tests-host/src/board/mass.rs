@@ -21,6 +21,7 @@ use super::autotune::bare;
 use super::client::Client;
 use super::commands::BadArgument;
 use super::frf::{self, FrfSettings};
+use super::restore::Before;
 use crate::method::tune::frf::FrfPoint;
 
 /// What the match measured and set.
@@ -92,26 +93,11 @@ pub fn match_mass(c: &mut Client, fw: &FirmwareModel) -> Result<MassMatch> {
             .into())
         }
     };
-    let before = c.status()?;
+    let before = Before::capture(c)?;
     let sweep = sweep(model_hz);
     let measured = bare(c).and_then(|()| frf::measure(c, &sweep, |_, _| {}));
     // Parked, and the loops as they were, whether the sweep went through or not.
-    c.park()?;
-    for (was, set) in [
-        (
-            before.damping,
-            Client::damping as fn(&mut Client, bool) -> Result<u32>,
-        ),
-        (before.shaping, Client::shaping),
-    ] {
-        if let Some(on) = was {
-            set(c, on)?;
-        }
-    }
-    c.ack(&Command::Loop {
-        axis: 0,
-        mode: before.loop_mode,
-    })?;
+    before.restore(c)?;
     let points = measured.context("--match-mass: measuring the stage's mode")?;
     let Some(stage_hz) = peak_hz(&points) else {
         bail!(

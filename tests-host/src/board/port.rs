@@ -38,15 +38,26 @@ impl Port for Tcp {
         let peer = self.0.peer_addr().ok()?;
         let mine = self.0.local_addr().ok()?;
         let by = holders(peer.port(), mine.port());
-        Some(format!(
-            "{peer} took the connection but nothing answers: the port is busy, most likely \
-             (the emulated board serves one client at a time, and another holds it{})",
-            if by.is_empty() {
-                String::new()
-            } else {
-                format!(": {}", by.join(", "))
-            }
-        ))
+        let told = std::path::Path::new("/proc/net/tcp").exists();
+        Some(if by.is_empty() && !told {
+            format!(
+                "{peer} took the connection but nothing answers: the port is busy (the emulated \
+                 board serves one client at a time, and another may hold it), or what listens \
+                 there does not speak the board's link (a wrong firmware)"
+            )
+        } else if by.is_empty() {
+            format!(
+                "{peer} took the connection but nothing answers, and no other client holds it: \
+                 what listens there does not speak the board's link (the emulated board running \
+                 a wrong firmware, or no board at all)"
+            )
+        } else {
+            format!(
+                "{peer} took the connection but nothing answers: the port is busy (the emulated \
+                 board serves one client at a time, and another holds it: {})",
+                by.join(", ")
+            )
+        })
     }
 
     fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
@@ -107,6 +118,21 @@ impl Port for Serial {
 /// other than from the local port `mine`, as `NAME (pid N)` (Linux: from
 /// `/proc`; elsewhere, or where `/proc` does not tell, none).
 pub fn holders(port: u16, mine: u16) -> Vec<String> {
+    processes_with(|local, remote, state| {
+        state == "01" && remote == Some(port) && local != Some(mine)
+    })
+}
+
+/// The processes of this machine listening on the TCP port `port`, as
+/// [`holders`] names them.
+pub fn listeners(port: u16) -> Vec<String> {
+    processes_with(|local, _, state| state == "0A" && local == Some(port))
+}
+
+/// The processes holding a TCP socket for which `wanted(local port, remote
+/// port, state)` (the state as `/proc/net/tcp` writes it: `01` established,
+/// `0A` listening).
+fn processes_with(wanted: impl Fn(Option<u16>, Option<u16>, &str) -> bool) -> Vec<String> {
     let mut inodes = Vec::new();
     for table in ["/proc/net/tcp", "/proc/net/tcp6"] {
         let text = std::fs::read_to_string(table).unwrap_or_default();
@@ -122,13 +148,15 @@ pub fn holders(port: u16, mine: u16) -> Vec<String> {
             else {
                 continue;
             };
-            let established = *state == "01";
-            if established && port_of(remote) == Some(port) && port_of(local) != Some(mine) {
+            if wanted(port_of(local), port_of(remote), state) {
                 inodes.push(format!("socket:[{inode}]"));
             }
         }
     }
     let mut found = Vec::new();
+    if inodes.is_empty() {
+        return found;
+    }
     for proc in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
         let fds = std::fs::read_dir(proc.path().join("fd"))
             .into_iter()

@@ -18,7 +18,9 @@ use piezo_sim::file::FirmwareModel;
 
 use crate::board::budget::Budget;
 use crate::board::client::{real, Client};
+use crate::board::motion::{self, Until};
 use crate::board::recording::Recording;
+use crate::board::restore::or_restore;
 use crate::board::{commands, inprocess, mass, noise};
 use crate::data::Quoted;
 use crate::method::export::{self, ExportOptions, LoopSettings};
@@ -427,7 +429,8 @@ pub fn state_text(s: &Status, rate: f64) -> String {
     out
 }
 
-/// `fpi board record` or `fpi board stream` was stopped by Ctrl-C: what was
+/// `fpi board record` or `fpi board stream` was stopped by Ctrl-C (or
+/// `SIGTERM`, [`catch_ctrl_c`]): what was
 /// recorded is written, the board's recorder stopped, the stage left as it was;
 /// or the stream ended with the board holding. The binary exits with
 /// status 130, as a shell does for an interrupted command.
@@ -445,18 +448,34 @@ impl std::fmt::Display for Interrupted {
 
 impl std::error::Error for Interrupted {}
 
-/// Set by Ctrl-C (SIGINT) once [`catch_ctrl_c`] has run.
+/// Set by Ctrl-C (SIGINT), `SIGTERM` or `SIGHUP` once [`catch_ctrl_c`] has run.
 static CTRL_C: AtomicBool = AtomicBool::new(false);
 
-/// From now on Ctrl-C sets [`CTRL_C`] instead of ending the process; a second
-/// Ctrl-C ends it (status 130).
-fn catch_ctrl_c() -> Result<()> {
-    ctrlc::set_handler(|| {
-        if CTRL_C.swap(true, Ordering::SeqCst) {
-            std::process::exit(130);
-        }
-    })
-    .context("catching Ctrl-C")
+/// From now on Ctrl-C (SIGINT), `SIGTERM` (`kill`, a service manager) and
+/// `SIGHUP` (the terminal closed) set [`CTRL_C`] instead of ending the
+/// process, so that the command stops the board's side in order and keeps
+/// what it recorded; a second one ends it (status 130). (`SIGKILL` cannot be
+/// caught: a `record` killed so leaves the board's recorder running, and the
+/// next command that records restarts it afresh.) Installed once per process.
+pub fn catch_ctrl_c() -> Result<()> {
+    static INSTALLED: std::sync::OnceLock<std::result::Result<(), String>> =
+        std::sync::OnceLock::new();
+    INSTALLED
+        .get_or_init(|| {
+            ctrlc::set_handler(|| {
+                if CTRL_C.swap(true, Ordering::SeqCst) {
+                    std::process::exit(130);
+                }
+            })
+            .map_err(|e| e.to_string())
+        })
+        .clone()
+        .map_err(|e| anyhow!("catching Ctrl-C and SIGTERM: {e}"))
+}
+
+/// Whether Ctrl-C, `SIGTERM` or `SIGHUP` came since [`catch_ctrl_c`].
+pub fn stop_asked() -> bool {
+    CTRL_C.load(Ordering::SeqCst)
 }
 
 /// `fpi board record`: records every `decimation`-th tick for `seconds` of board
@@ -478,7 +497,7 @@ pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Resu
         seconds,
         decimation,
         |done, _| pb.set_position(u64::from(done)),
-        || CTRL_C.load(Ordering::SeqCst),
+        stop_asked,
     )?;
     pb.finish_and_clear();
     let rec = r.recording;
@@ -511,19 +530,59 @@ pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Resu
     Ok(rec)
 }
 
-/// `fpi board stream` ([`commands::stream`]). Ctrl-C stops it with the board
-/// holding where the reference was (and the host supervision the stream
+/// `fpi board stream` ([`commands::stream`]); with `record`, records every
+/// tick of it into that CSV ([`motion::record`]). Ctrl-C stops it with the
+/// board holding where the reference was (and the host supervision the stream
 /// switched on off again); the error is then [`Interrupted`].
-pub fn stream(c: &mut Client, points: &[f64], interval: u16) -> Result<()> {
+pub fn stream(c: &mut Client, points: &[f64], interval: u16, record: Option<&Path>) -> Result<()> {
     catch_ctrl_c()?;
     let pb = bar(points.len() as u64, "stream");
-    let r = commands::stream(
-        c,
-        points,
-        interval,
-        |n| pb.set_position(n as u64),
-        || CTRL_C.load(Ordering::SeqCst),
-    )?;
+    let stop = stop_asked;
+    let r = match record {
+        None => commands::stream(c, points, interval, |n| pb.set_position(n as u64), stop)?,
+        Some(out) => {
+            let seconds = points.len() as f64 * f64::from(interval) / c.rate_hz();
+            let m = motion::record(
+                c,
+                "the stream",
+                seconds,
+                Until::Rest,
+                |c, read| {
+                    let armed = c.last_tick().unwrap_or(0);
+                    let r = commands::stream_with(
+                        c,
+                        points,
+                        interval,
+                        |n| pb.set_position(n as u64),
+                        stop,
+                        read,
+                    )?;
+                    match r {
+                        commands::Streamed::Played(p) => Ok((p.started, r)),
+                        commands::Streamed::Stopped { .. } => Ok((armed, r)),
+                    }
+                },
+                // The stream stops itself on Ctrl-C; the recording goes on
+                // until the board holds.
+                || false,
+            )?;
+            pb.finish_and_clear();
+            if let commands::Streamed::Stopped { sent, held_at } = m.result {
+                m.recording.write_csv(out)?;
+                return Err(Interrupted {
+                    kept: format!(
+                        "{sent} of {} points sent; the board holds from tick {held_at}; {} ticks \
+                         recorded to {}",
+                        points.len(),
+                        m.recording.samples.len(),
+                        out.display()
+                    ),
+                }
+                .into());
+            }
+            recorded(m, out)?
+        }
+    };
     pb.finish_and_clear();
     match r {
         commands::Streamed::Played(r) => {
@@ -563,14 +622,32 @@ pub fn open(port: &str) -> Result<Client> {
     Client::open(port).with_context(|| format!("--port {}", Quoted(port)))
 }
 
-/// `fpi board move`: ramps to `um` at `speed` µm/s and holds it.
-pub fn move_to(c: &mut Client, um: f64, speed: f64) -> Result<()> {
-    let t = commands::move_to(c, um, speed)?;
-    println!("moving to {um} µm at {speed} µm/s from tick {t}");
-    Ok(())
+/// `fpi board move`: ramps to `um` at `speed` µm/s and holds it; with
+/// `record`, records every tick of it into that CSV ([`motion::record`]).
+pub fn move_to(c: &mut Client, um: f64, speed: f64, record: Option<&Path>) -> Result<()> {
+    let Some(out) = record else {
+        let t = commands::move_to(c, um, speed)?;
+        println!("moving to {um} µm at {speed} µm/s from tick {t}");
+        return Ok(());
+    };
+    let cmd = commands::move_command(um, speed)?;
+    let from = real(c.status()?.signals[0]);
+    catch_ctrl_c()?;
+    let m = motion::record(
+        c,
+        "the move",
+        motion::move_seconds(from, um, speed),
+        Until::Rest,
+        |c, _| Ok((c.ack(&cmd)?, ())),
+        stop_asked,
+    )?;
+    println!("moved to {um} µm at {speed} µm/s from tick {}", m.start);
+    recorded(m, out).map(|_| ())
 }
 
-/// `fpi board wave`: the waveform generator (`cycles` 0: until the next command).
+/// `fpi board wave`: the waveform generator (`cycles` 0: until the next
+/// command); with `record`, records every tick of it into that CSV for
+/// `seconds` (default: until a finite wave has ended).
 pub fn wave(
     c: &mut Client,
     shape_name: &str,
@@ -578,10 +655,76 @@ pub fn wave(
     offset_um: f64,
     freq_hz: f64,
     cycles: u32,
+    record: Option<(&Path, Option<f64>)>,
 ) -> Result<()> {
-    let t = commands::wave(c, shape_name, amplitude_um, offset_um, freq_hz, cycles)?;
-    println!("{shape_name} wave from tick {t} (after an approach to its start)");
-    Ok(())
+    let Some((out, seconds)) = record else {
+        let t = commands::wave(c, shape_name, amplitude_um, offset_um, freq_hz, cycles)?;
+        println!("{shape_name} wave from tick {t} (after an approach to its start)");
+        return Ok(());
+    };
+    let cmd = commands::wave_command(c, shape_name, amplitude_um, offset_um, freq_hz, cycles)?;
+    let until = match (seconds, cycles) {
+        (Some(s), _) => Until::seconds(s)?,
+        (None, 0) => {
+            return Err(commands::BadArgument {
+                name: "seconds",
+                cli: "--seconds",
+                message: "--seconds: how long to record a wave that runs until the next command \
+                          (--cycles 0); or give --cycles"
+                    .into(),
+            }
+            .into())
+        }
+        (None, _) => Until::Rest,
+    };
+    // The approach to the wave's start takes a few milliseconds.
+    let expected = f64::from(cycles) / freq_hz + 0.1;
+    catch_ctrl_c()?;
+    let m = motion::record(
+        c,
+        "the wave",
+        expected,
+        until,
+        |c, _| Ok((c.ack(&cmd)?, ())),
+        stop_asked,
+    )?;
+    println!(
+        "{shape_name} wave from tick {} (after an approach to its start)",
+        m.start
+    );
+    recorded(m, out).map(|_| ())
+}
+
+/// Writes the recording of a motion to `out` and says so; then the motion's
+/// result, or [`Interrupted`] where Ctrl-C ended the recording, the fault the
+/// board latched meanwhile, or the samples the board dropped.
+fn recorded<T>(m: motion::Motion<T>, out: &Path) -> Result<T> {
+    let rec = &m.recording;
+    rec.write_csv(out)?;
+    let seconds = rec.samples.len() as f64 / rec.rate_hz;
+    let what = format!(
+        "{} ticks ({seconds:.3} s from tick {}, every tick) recorded to {}",
+        rec.samples.len(),
+        m.start,
+        out.display()
+    );
+    if m.stopped {
+        return Err(Interrupted {
+            kept: format!("{what}; the recorder is stopped; the motion goes on"),
+        }
+        .into());
+    }
+    if let Some(e) = m.fault {
+        return Err(e.context(what));
+    }
+    if rec.dropped > 0 {
+        bail!(
+            "{what}, but the board dropped {} samples of it (the link could not keep up)",
+            rec.dropped
+        );
+    }
+    println!("{what}");
+    Ok(m.result)
 }
 
 /// `fpi board safe|clear-fault|hold|analog|factory`: the command, checked for its
@@ -641,7 +784,7 @@ pub fn reset(c: &mut Client) -> Result<()> {
 /// `fpi board step`: steps the reference, records and scores the response into
 /// `out`.
 pub fn step(c: &mut Client, s: &crate::board::step::StepSettings, out: &Path) -> Result<()> {
-    let (rec, fig) = crate::board::step::run(c, s)?;
+    let (rec, fig) = or_restore(c, |c| crate::board::step::run(c, s))?;
     rec.write_csv(out)?;
     println!(
         "step {} → {} µm over {} ms, recorded to {}:",
@@ -657,8 +800,10 @@ pub fn step(c: &mut Client, s: &crate::board::step::StepSettings, out: &Path) ->
 /// `fpi board frf`: the frequency response measured through the board, to `out`.
 pub fn frf(c: &mut Client, s: &crate::board::frf::FrfSettings, out: &Path) -> Result<()> {
     let conditions = crate::board::frf::conditions(c)?;
-    let points = crate::board::frf::measure(c, s, |k, p| {
-        eprintln!("  {:>3}: {:8.1} Hz  |x/u| {:.4}", k + 1, p.f_hz, p.x.norm())
+    let points = or_restore(c, |c| {
+        crate::board::frf::measure(c, s, |k, p| {
+            eprintln!("  {:>3}: {:8.1} Hz  |x/u| {:.4}", k + 1, p.f_hz, p.x.norm())
+        })
     })?;
     crate::method::tune::frf::write_csv(out, &points, &conditions)?;
     println!(
@@ -698,8 +843,20 @@ pub struct AutotuneArgs<'a> {
 pub fn autotune(c: &mut Client, a: &AutotuneArgs<'_>) -> Result<()> {
     use crate::board::autotune;
     let fw = firmware_model(a.model.0, a.model.1, &a.export)?;
-    let tuned = autotune::run(c, &fw, &a.tune, &a.settings, a.store, |m| eprintln!("{m}"))?;
-    autotune::write(&tuned, a.out.0, a.out.1)?;
+    // The model is written before it runs for good: if it cannot be, the board
+    // is put back to the model it ran.
+    let tuned = autotune::run_keeping(
+        c,
+        &fw,
+        &a.tune,
+        &a.settings,
+        a.store,
+        &mut |m| autotune::write_model(m, a.out.0),
+        |m| eprintln!("{m}"),
+    )?;
+    if let Some(p) = a.out.1 {
+        crate::method::tune::frf::write_csv(p, &tuned.frf, &tuned.frf_conditions)?;
+    }
     println!(
         "tuned model written to {} and running on the board",
         a.out.0.display()
