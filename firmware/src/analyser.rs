@@ -233,8 +233,8 @@ mod tests {
             settle_ticks: 10,
             measure_ticks: 1000,
         });
-        assert_eq!(an.take([0; SIGNALS], false), None);
-        let r = an.take([0; SIGNALS], true).unwrap();
+        assert_eq!(an.take([0; SIGNALS], false, false), None);
+        let r = an.take([0; SIGNALS], true, false).unwrap();
         assert!(r.faulted && !an.running());
         assert_eq!(an.excitation(), Micrometres::ZERO);
     }

@@ -216,7 +216,7 @@ fn source(case: u32, rng: &mut Rng, mode_hz: f64, n: usize) -> Vec<f64> {
     (0..n)
         .map(|k| {
             let t = k as f64 / RATE as f64;
-            let x = match case % 6 {
+            match case % 6 {
                 0 => {
                     if (k / 400) % 2 == 0 {
                         0.0
@@ -235,8 +235,7 @@ fn source(case: u32, rng: &mut Rng, mode_hz: f64, n: usize) -> Vec<f64> {
                         f64::NAN
                     }
                 }
-            };
-            x
+            }
         })
         .scan(20.0, |held, x| {
             if x.is_finite() {

@@ -140,7 +140,7 @@ fn set_up(c: &mut Client, loops: Loops, v: StageVariant, at_um: f64) -> (f64, f6
 /// force (its true position, µm): the stroke the cases are held to. Leaves
 /// the stage resting at 20 µm.
 fn rest_stroke(c: &mut Client) -> (f64, f64) {
-    let mut at = |c: &mut Client, um: f64| {
+    let at = |c: &mut Client, um: f64| {
         c.move_to(um, 1000.0).unwrap();
         let t = Follow::new(c, 0).until_hold().unwrap();
         let rec = watched(c, 200, |_, _| {});
