@@ -595,7 +595,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 x.recorder.stop();
                 Ok(())
             }
-            Order::Swap(new) => self.swap(new, x),
+            Order::Swap => self.swap(x),
             Order::Bench(_) => Ok(()),
         }
     }
@@ -661,15 +661,19 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         Ok(())
     }
 
-    /// Runs `new` from this tick on if the stage is parked at the safe voltage;
-    /// the model it replaces (or `new`, refused) goes back to the link task.
+    /// Runs the model the link task handed over ([`Exchange::model`]) from
+    /// this tick on if the stage is parked at the safe voltage; the model it
+    /// replaces (or the new one, refused) goes back to the link task in the
+    /// same slot.
     #[inline(never)]
-    fn swap(&mut self, new: Running, x: &mut Exchange<'_>) -> Result<(), Refused> {
+    fn swap(&mut self, x: &mut Exchange<'_>) -> Result<(), Refused> {
         if self.state.fault().is_none() || !self.at_safe_voltage() {
-            x.returned = Some(new);
             return Err(Refused::NotAtRest);
         }
-        x.returned = Some(core::mem::replace(&mut self.model, new));
+        let Some(new) = x.model.take() else {
+            return Err(Refused::NotAtRest);
+        };
+        x.model = Some(core::mem::replace(&mut self.model, new));
         self.start_parked();
         Ok(())
     }

@@ -21,9 +21,6 @@ use crate::reference::{SourceKind, SourceOrder};
 use crate::slots::Running;
 
 /// What the link task asks of the control ISR; applied at the start of a tick.
-// A model swap carries a whole controller; there is no heap to box it in, and one
-// order is moved once.
-#[allow(clippy::large_enum_variant)]
 pub enum Order {
     /// Switch the reference source (re-arms a stage parked by [`Fault::Stopped`]).
     Source(SourceOrder),
@@ -62,8 +59,10 @@ pub enum Order {
     },
     /// Stop recording.
     StopRecording,
-    /// Run this model from now on (only with the stage at rest in its safe state).
-    Swap(Running),
+    /// Run the model in [`Exchange::model`] from now on (only with the stage
+    /// at rest in its safe state); the one it replaces (or the new one,
+    /// refused) is left there.
+    Swap,
     /// An order for the emulated board's virtual bench (taken by the emulated
     /// board before the loop sees it; the loop ignores it).
     Bench(BenchOrder),
@@ -235,9 +234,11 @@ pub struct Exchange<'a> {
     pub order: Option<(u16, Order)>,
     /// The outcome of the last order (ISR → link).
     pub applied: Option<Applied>,
-    /// A model the ISR is done with: the one it ran before a swap, or a new one it
-    /// would not take (ISR → link).
-    pub returned: Option<Running>,
+    /// The models' hand-over: a new model for [`Order::Swap`] (link → ISR),
+    /// then the one the ISR ran before, or the new one it would not take
+    /// (ISR → link). One slot both ways: a model (its controller, its
+    /// governor) is large, and the board's RAM holds one spare copy only.
+    pub model: Option<Running>,
     /// Heartbeats the link task has counted (every valid request is one).
     pub heartbeats: u32,
 
@@ -260,7 +261,7 @@ impl<'a> Exchange<'a> {
         Self {
             order: None,
             applied: None,
-            returned: None,
+            model: None,
             heartbeats: 0,
             snapshot: Snapshot::new(),
             recorder,

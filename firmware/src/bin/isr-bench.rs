@@ -432,7 +432,8 @@ mod bench {
         for _ in 0..200 {
             lp.tick(&mut x);
         }
-        x.order = Some((5, Order::Swap(closed)));
+        x.model = Some(closed);
+        x.order = Some((5, Order::Swap));
         lp.tick(&mut x);
         let swapped = matches!(x.applied, Some(a) if a.result.is_ok());
         // A step command over the stroke, as long as the phase, running when

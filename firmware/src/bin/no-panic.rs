@@ -66,7 +66,7 @@ mod proof {
             }
             let t = lp.tick(&mut x);
             black_box(lp.record(&mut x, &t, None));
-            if let Some(back) = x.returned.take() {
+            if let Some(back) = x.model.take() {
                 black_box(back.retire());
             }
         }

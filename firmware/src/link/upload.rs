@@ -202,8 +202,10 @@ impl<F: NorFlash> Handler<F> {
         running: Running,
     ) -> Result<Reply, Refuse> {
         let summary = *running.summary();
-        let result = self.post(board, seq, Order::Swap(running));
-        if let Some(back) = board.exchange(|x| x.returned.take()) {
+        let mut running = Some(running);
+        board.exchange(|x| x.model = running.take());
+        let result = self.post(board, seq, Order::Swap);
+        if let Some(back) = board.exchange(|x| x.model.take()) {
             self.spare = Some(back.retire());
         }
         result?;
