@@ -9,9 +9,8 @@
 //! Their deviation `e(n) = x(n) − g(n)` after a unit step of the governed
 //! reference `g` at `n = 0` is `P(n)`; after a unit ramp, `T(n) = Σ_{i≤n} P(i)`,
 //! which settles at the loops' lead `c_v` (negative: a lag). The governor's
-//! envelopes are the least `c` with `|P(n)| ≤ c·ρⁿ` and `|T(n) − c_v| ≤ c·ρⁿ`,
-//! each for the `ρ` (from `1 − 2⁻²` to `1 − 2⁻¹⁶`) that makes `c/(1 − ρ)`
-//! least.
+//! envelope is the least `c` with `|T(n) − c_v| ≤ c·ρⁿ`, for the `ρ` (from
+//! `1 − 2⁻²` to `1 − 2⁻¹⁶`) that makes `c/(1 − ρ)` least.
 //!
 //! **Which stages.** A model describes the stage it was identified on; the one
 //! it runs may differ (a payload, a variant of the design). So each envelope is
@@ -106,12 +105,10 @@ pub struct Loops<'a> {
     pub lead: f64,
 }
 
-/// The responses' envelopes and the loops' lead (what [`Limits`] carries
+/// The response's envelope and the loops' lead (what [`Limits`] carries
 /// besides the acceleration and the speed).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Envelopes {
-    /// The step response: decay per tick, gain.
-    pub step: (f64, f64),
     /// The ramp's transient: decay per tick, gain.
     pub ramp: (f64, f64),
     /// The lead on a ramp (the largest over the stages covered), ticks.
@@ -129,7 +126,6 @@ impl Envelopes {
     /// largest the governor holds, which leaves the reference almost still
     /// (the link refuses to run such loops in the first place).
     pub const UNSETTLED: Self = Self {
-        step: (1.0 - 1.0 / 65536.0, 2047.0),
         ramp: (1.0 - 1.0 / 65536.0, 2047.0),
         lead: 2047.0,
         horizon: HORIZON_MAX,
@@ -173,7 +169,6 @@ impl Loops<'_> {
         let floor = floor(self.rate_hz);
         let d = self.dynamics.unwrap_or(&floor);
         let (stages, n) = stages(self.dynamics);
-        let mut step = Candidates::new();
         let mut ramp = Candidates::new();
         let mut lead = f64::NEG_INFINITY;
         let mut horizon = 0;
@@ -192,11 +187,9 @@ impl Loops<'_> {
             let mut peak = 0.0f32;
             let mut recent = [0.0f32; 2];
             let mut n_ticks = 0;
-            let mut st = Track::new();
             for k in 0..HORIZON_MAX {
                 let p = sim.tick();
                 sum += p as f64;
-                st.see(p.abs() as f64, &mut step);
                 peak = peak.max(p.abs());
                 let w = (k / WINDOW) & 1;
                 recent[w] = recent[w].max(p.abs());
@@ -214,7 +207,6 @@ impl Loops<'_> {
                     return Envelopes::UNSETTLED;
                 }
                 unsettled += 1;
-                step.drop_stage();
                 continue;
             }
             let c_v = sum;
@@ -228,11 +220,9 @@ impl Loops<'_> {
                 t += sim.tick() as f64;
                 st.see((t - c_v).abs(), &mut ramp);
             }
-            step.next_stage();
             ramp.next_stage();
         }
         Envelopes {
-            step: step.best(),
             ramp: ramp.best(),
             lead,
             horizon,
@@ -258,7 +248,6 @@ impl Loops<'_> {
         Limits {
             accel,
             speed,
-            step: e.step,
             ramp: e.ramp,
             lead: e.lead,
         }
@@ -278,11 +267,6 @@ impl Candidates {
             gains: [0.0; N_DECAYS],
             stage: [0.0; N_DECAYS],
         }
-    }
-
-    /// Forgets the stage seen since the last [`Self::next_stage`].
-    fn drop_stage(&mut self) {
-        self.stage = [0.0; N_DECAYS];
     }
 
     fn next_stage(&mut self) {

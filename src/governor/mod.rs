@@ -8,22 +8,21 @@
 //! Their deviation `e = x − g` is a linear response of `g`'s history, which
 //! [`analysis`] measures on the model's dynamics (and on stages whose mode is
 //! 20 % lower or 25 % higher with half the damping, or on a conservative floor
-//! where the model declares no dynamics). After a unit step of `g` it decays
-//! within an exponential envelope `c_s·ρ_sⁿ`; after a unit ramp it settles at
-//! the loops' lead `c_v` (negative: a lag), and what is left decays within
-//! `c_r·ρ_rⁿ`. So, whatever `g` does, both of these hold:
+//! where the model declares no dynamics): after a unit ramp of `g` it settles
+//! at the loops' lead `c_v` (negative: a lag), and what is left decays within
+//! an exponential envelope `c_r·ρⁿ`. So, whatever `g` does,
 //!
 //! ```text
-//! |e(k)| ≤ D_s(k),                    D_s ← ρ_s·D_s + c_s·|Δg|        (steps)
-//! |e(k)| ≤ c_v⁺·|Δg(k)| + D_r(k),     D_r ← ρ_r·D_r + c_r·|Δ²g|       (ramps)
+//! |e(k)| ≤ c_v⁺·|Δg(k)| + D(k),     D ← ρ·D + c_r·|Δ²g|
 //! ```
 //!
-//! whatever the phase of the content: a wave at the mode builds them up as
-//! fast as it can build the stage's swing up, so the mode's own content is
-//! what they limit. The ramp bound is the tight one for motion (a slow scan
-//! asks almost no acceleration and leaves `D_r` near zero), the step bound for
-//! small fast content (the analyser's stimulus above the mode asks large
-//! accelerations of small steps).
+//! whatever the phase of its content: a wave at the mode builds `D` up as fast
+//! as it can build the stage's swing up, so the mode's own content is what the
+//! bound limits, while a slow scan, which asks almost no acceleration, leaves
+//! it near zero. (An envelope of the step response would bound small fast
+//! content more tightly — the analyser's stimulus above the mode — but its
+//! upkeep did not fit the tick's budget: the host measures such a frequency
+//! again with a smaller stimulus where the governor departs from it.)
 //!
 //! **What it does.** Each tick it takes the source's value `r` and moves `g`
 //! toward it with at most [`GovernorConfig`]'s acceleration and speed (the
@@ -34,14 +33,13 @@
 //! `g` braked from now on:
 //!
 //! ```text
-//! F = min(D_s + c_s·s(v),  D_r + (c_v⁺ + c_r)·|v|)           the deviation while braking
+//! F = D + (c_v⁺ + c_r)·|v|                                  the deviation while braking
 //! g + s(v) + F ≤ hi + m   and   g − F ≥ lo − m              moving up
 //! s(v) = v²/(2A) + |v|/2                                    the stop distance
 //! ```
 //!
-//! (braking from `v` adds at most `c_s·s` to `D_s`, its steps summing to the
-//! stop distance, and `c_r·|v|` to `D_r`, its accelerations summing to `|v|`)
-//! and, where it would not, brakes instead. Braking never makes either
+//! (braking from `v` adds at most `c_r·|v|` to `D`: its accelerations sum to
+//! `|v|`) and, where it would not, brakes instead. Braking never makes either
 //! side of the check grow, so a state that passed it once passes it for ever:
 //! the stage's position is bounded by the window and the margin whatever the
 //! source (within the dynamics the analysis covered). From rest, a move toward
@@ -55,8 +53,7 @@
 //! |---|---|---|---|
 //! | `g`, `D`, distances (state) | µm | `I16F16` | the window; 0…32768 (saturated) |
 //! | `v`, `Δv`, `A` | µm/tick, µm/tick² | `I4F28` | ±[`SPEED_MAX`], magnitudes below 8 |
-//! | `ρ_s`, `ρ_r` | 1 per tick | `I0F32` (raw `u32`) | [0, 1) |
-//! | `c_s` | µm/µm | `I12F20` (raw `u32`) | 0…2047 |
+//! | `ρ` | 1 per tick | `I0F32` (raw `u32`) | [0, 1) |
 //! | `c_r`, `c_v⁺ + c_r` | µm per µm/tick | `I12F20` (raw `u32`) | 0…2047 |
 //! | `1/(2A)` | tick²/µm | `I8F24` (raw `u32`) | up to 1/(2·[`ACCEL_MIN`]) = 127 |
 //!
@@ -140,13 +137,9 @@ pub struct GovernorLimits {
     speed: u32,
     /// `1/(2A)`, tick²/µm, `I8F24`.
     inv_2accel: u32,
-    /// The step envelope's decay per tick, `I0F32`.
-    rho_s: u32,
-    /// The step envelope's gain, µm per µm of step, `I12F20`.
-    c_s: u32,
-    /// The ramp envelope's decay per tick, `I0F32`.
+    /// The envelope's decay per tick, `I0F32`.
     rho: u32,
-    /// The ramp envelope's gain, µm per µm/tick of speed change, `I12F20`.
+    /// The envelope's gain, µm per µm/tick of speed change, `I12F20`.
     c_r: u32,
     /// The loops' lead on a ramp (0 where they lag) plus `c_r`, `I12F20`: what
     /// braking from a speed adds to the bound, per µm/tick.
@@ -201,8 +194,6 @@ pub struct Limits {
     pub accel: f64,
     /// Largest speed, µm/tick.
     pub speed: f64,
-    /// The envelope of the step response: decay per tick and gain (µm/µm).
-    pub step: (f64, f64),
     /// The envelope of the ramp's transient: decay per tick and gain (µm per
     /// µm/tick).
     pub ramp: (f64, f64),
@@ -260,8 +251,6 @@ impl GovernorLimits {
             accel,
             speed,
             inv_2accel: ceil(0.5 / a * (1u64 << INV_ACCEL_FRAC) as f64) as u32,
-            rho_s: decay_bits(l.step.0),
-            c_s: gain_bits(l.step.1),
             rho: decay_bits(l.ramp.0),
             c_r,
             c_vr,
@@ -306,12 +295,9 @@ impl GovernorLimits {
         };
         st.r_prev = r16;
         let d = decay(self.rho, st.d);
-        let d_s = decay(self.rho_s, st.d_s);
         let ringing = gain_mul(self.c_r, v1.wrapping_sub(v).unsigned_abs());
-        let stepped = gain_mul(self.c_s, v1.unsigned_abs());
-        let now = (d.saturating_add(ringing), d_s.saturating_add(stepped));
-        let (v1, ringing, stepped) = if self.admits(w, st.g, now, v1) {
-            (v1, ringing, stepped)
+        let (v1, ringing) = if self.admits(w, st.g, d.saturating_add(ringing), v1) {
+            (v1, ringing)
         } else {
             // Brake (or hold): never makes the check's sides grow.
             let a = self.accel as i32;
@@ -319,11 +305,9 @@ impl GovernorLimits {
             (
                 braked,
                 gain_mul(self.c_r, braked.wrapping_sub(v).unsigned_abs()),
-                gain_mul(self.c_s, braked.unsigned_abs()),
             )
         };
         st.d = d.saturating_add(ringing);
-        st.d_s = d_s.saturating_add(stepped);
         st.v = v1;
         st.g = st.g.wrapping_add(v1 >> (MOTION_FRAC - 16));
         st.governed = st.g != r16;
@@ -371,18 +355,18 @@ impl GovernorLimits {
             .hi_m
             .saturating_sub(st.g)
             .min(st.g.saturating_sub(w.lo_m))
-            .saturating_sub(st.d.min(st.d_s));
+            .saturating_sub(st.d);
         // A share of it, as a speed (I16F16 µm per tick to I4F28).
         let share16 = ((room.max(0) as u64 * self.creep as u64) >> 32) as i32;
         let share = share16.saturating_mul(1 << (MOTION_FRAC - 16)).max(1);
         v1.max(-share).min(share)
     }
 
-    /// Whether moving at `v1` from `g` (the ramp and step envelopes `d`
-    /// after this tick) keeps the stage in the window with the margin,
+    /// Whether moving at `v1` from `g` (the envelope `d` after this tick's
+    /// change of speed) keeps the stage in the window with the margin,
     /// braking from then on.
     #[inline(always)]
-    fn admits(&self, w: &GovernorWindow, g: i32, (d_r, d_s): (i32, i32), v1: i32) -> bool {
+    fn admits(&self, w: &GovernorWindow, g: i32, d: i32, v1: i32) -> bool {
         let speed = v1.unsigned_abs();
         let s = stop_distance(speed, self.inv_2accel)
             .wrapping_add((speed >> (MOTION_FRAC - 16 + 1)) as i32);
@@ -392,10 +376,8 @@ impl GovernorLimits {
         } else {
             (g1.wrapping_sub(w.lo_m), w.hi_m.wrapping_sub(g1))
         };
-        let fits = |bound: i32| bound <= behind && s.saturating_add(bound) <= ahead;
-        // The ramp bound first: it is the small one for motion.
-        fits(d_r.saturating_add(gain_mul(self.c_vr, speed)))
-            || fits(d_s.saturating_add(gain_distance(self.c_s, s)))
+        let bound = d.saturating_add(gain_mul(self.c_vr, speed));
+        bound <= behind && s.saturating_add(bound) <= ahead
     }
 }
 
@@ -410,13 +392,6 @@ fn decay(rho: u32, d: i32) -> i32 {
 #[inline(always)]
 fn gain_mul(c: u32, x: u32) -> i32 {
     ((c as u64 * x as u64) >> 32) as i32
-}
-
-/// A gain (`I12F20`, ≤ 2047) times a distance (`I16F16`, ≥ 0, below 2¹³
-/// µm): µm, `I16F16`, held to 2¹⁴ µm.
-#[inline(always)]
-fn gain_distance(c: u32, d: i32) -> i32 {
-    ((c as u64 * d as u32 as u64) >> GAIN_FRAC).min(1 << 30) as i32
 }
 
 /// `v²/(2A)` for a speed `v` (`I4F28`, below 4 µm/tick) and `1/(2A)`
@@ -436,10 +411,8 @@ pub struct GovernorState {
     g: i32,
     /// Its speed, µm/tick, `I4F28`.
     v: i32,
-    /// The ramp envelope after the last tick, µm (`I16F16`).
+    /// The envelope after the last tick, µm (`I16F16`).
     d: i32,
-    /// The step envelope after the last tick, µm (`I16F16`).
-    d_s: i32,
     /// The source's last value (`I16F16` bits).
     r_prev: i32,
     /// The last tick departed from the source.
@@ -453,7 +426,6 @@ impl GovernorState {
             g: x.to_bits(),
             v: 0,
             d: 0,
-            d_s: 0,
             r_prev: x.to_bits(),
             governed: false,
         }
@@ -474,9 +446,9 @@ impl GovernorState {
         self.v as f64 / (1u64 << MOTION_FRAC) as f64
     }
 
-    /// The deviation bound the envelopes keep now, µm: the lesser.
+    /// The deviation bound the envelope keeps now, µm.
     pub fn bound(&self) -> f64 {
-        self.d.min(self.d_s) as f64 / 65536.0
+        self.d as f64 / 65536.0
     }
 }
 

@@ -24,7 +24,6 @@ fn generous() -> GovernorConfig {
         &Limits {
             accel: 1.0,
             speed: 2.0,
-            step: (0.5, 1e-6),
             ramp: (0.5, 1e-6),
             lead: 0.0,
         },
