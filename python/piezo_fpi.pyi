@@ -218,7 +218,7 @@ class Board:
         decimation: int = 1,
     ) -> Dict[str, Any]:
         """A scored step: ``rise_ms``, ``overshoot_um``, ``settle_ms``,
-        ``settle_tol_ms``, ``final_error_um``, ``recording``. A failure parks the
+        ``settle_tol_ms``, ``final_error_um``, ``governed_ticks``, ``recording``. A failure parks the
         board with its loop mode, damping and shaping as they were."""
     def frf(
         self,

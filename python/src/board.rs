@@ -192,6 +192,8 @@ impl Board {
         d.set_item("lead_applied", s.lead_ratio.map(|(_, a)| a))?;
         d.set_item("supervision_ms", f64::from(s.supervision[0]) / rate * 1e3)?;
         d.set_item("late_ticks", s.overruns)?;
+        d.set_item("governed_ticks", s.governed_ticks)?;
+        d.set_item("ended_points", s.ended_points)?;
         let model = PyDict::new(py);
         model.set_item("crc", format!("{:08x}", m.crc))?;
         model.set_item("origin", format!("{:?}", m.origin))?;
@@ -606,7 +608,8 @@ impl Board {
     /// Steps the reference from `from_um` to `to_um` along a raised cosine of
     /// `duration_ms`, records `seconds` of board time (one tick in
     /// `decimation`) and scores the response: `rise_ms`, `overshoot_um`,
-    /// `settle_ms` (±0.1 µm), `settle_tol_ms` (±`tol_um`), `final_error_um`, and
+    /// `settle_ms` (±0.1 µm), `settle_tol_ms` (±`tol_um`), `final_error_um`,
+    /// `governed_ticks` (the ticks the board's reference governor slowed) and
     /// the `recording` (a dict of arrays, as `record` gives).
     #[pyo3(signature = (from_um, to_um, *, seconds = 0.05, tol_um = None, duration_ms = 1.5, decimation = 1))]
     #[allow(clippy::too_many_arguments)]
@@ -636,6 +639,7 @@ impl Board {
         d.set_item("settle_tol_ms", fig.settle_tol_ms)?;
         d.set_item("final_error_um", fig.final_error_um)?;
         d.set_item("true_position", fig.true_position)?;
+        d.set_item("governed_ticks", fig.governed_ticks)?;
         d.set_item("recording", columns_dict(py, rec.columns())?)?;
         Ok(d)
     }

@@ -934,7 +934,6 @@ fn parse_front_end(s: &str) -> Result<fpi_protocol::FrontEndKind, String> {
 fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
     use fpi_host::board::emulator::Emulator;
     use fpi_host::cli::board as b;
-    use fpi_protocol::Command as C;
     if let BoardCommand::Emulate {
         listen,
         link,
@@ -975,6 +974,34 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
     let (outputs, inputs) = command.files();
     fpi_host::output::check_outputs(&outputs, &inputs)?;
     let mut c = b::open(&port)?;
+    // A motion ends whatever stream a previous client left (its points and
+    // its supervision): say so.
+    let motion = matches!(
+        command,
+        BoardCommand::Move { .. }
+            | BoardCommand::Wave { .. }
+            | BoardCommand::Stream { .. }
+            | BoardCommand::Hold
+            | BoardCommand::Analog
+            | BoardCommand::Step { .. }
+    );
+    let ended_before = if motion {
+        Some(c.status()?.ended_points)
+    } else {
+        None
+    };
+    let done = board_command(&mut c, command);
+    if let Some(before) = ended_before {
+        b::say_ended_stream(&mut c, before);
+    }
+    done
+}
+
+/// Runs a board command on the open board `c`.
+fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand) -> Result<()> {
+    use fpi_host::cli::board as b;
+    use fpi_protocol::Command as C;
+    let mut c = c;
     match command {
         BoardCommand::Emulate { .. } => Ok(()),
         BoardCommand::Status => b::status(&mut c),

@@ -68,6 +68,10 @@ pub struct StepFigures {
     pub final_error_um: f64,
     /// Whether the figures are on the true position (else the sensor's).
     pub true_position: bool,
+    /// Recorded ticks in which the board's reference governor departed from
+    /// the step (it asked for more than the stage can take within its stroke
+    /// and its force room): the step the stage made was slower.
+    pub governed_ticks: usize,
 }
 
 /// Scores the recorded step `a → b` started at tick `from` (see [`StepFigures`]).
@@ -114,6 +118,11 @@ pub fn figures(rec: &Recording, from: u32, (a, b): (f64, f64), tol_um: Option<f6
         settle_tol_ms: tol_um.and_then(settle),
         final_error_um: tail.iter().sum::<f64>() / tail.len().max(1) as f64,
         true_position,
+        governed_ticks: rec
+            .samples
+            .iter()
+            .filter(|s| s.status & fpi_firmware::recorder::status::GOVERNED != 0)
+            .count(),
     }
 }
 
@@ -177,5 +186,12 @@ pub fn describe(fig: &StepFigures, tol_um: Option<f64>) -> String {
             "position sensor"
         }
     ));
+    if fig.governed_ticks > 0 {
+        t.push_str(&format!(
+            "; the board's reference governor slowed {} ticks of it (the stage cannot take \
+             that step so fast within its stroke and force room)",
+            fig.governed_ticks
+        ));
+    }
     t
 }

@@ -426,6 +426,12 @@ pub fn state_text(s: &Status, rate: f64) -> String {
         s.recorder[3],
         s.overruns
     );
+    let _ = writeln!(
+        out,
+        "reference governor: {} ticks governed since start-up (the sources asked for more than \
+         the stage can take within its stroke); {} stale streamed points dropped by a motion",
+        s.governed_ticks, s.ended_points
+    );
     out
 }
 
@@ -772,6 +778,21 @@ pub fn supervise(c: &mut Client, ms: u32) -> Result<()> {
         println!("the stage parks if the host is silent for {ms} ms while it drives it");
     }
     Ok(())
+}
+
+/// Says so where the motion just ordered ended a stream a previous client
+/// left (the board dropped its queued points, `ended_points` above `before`,
+/// and the supervision it had switched on).
+pub fn say_ended_stream(c: &mut Client, before: u32) {
+    if let Ok(s) = c.status() {
+        let dropped = s.ended_points.wrapping_sub(before);
+        if dropped > 0 {
+            eprintln!(
+                "note: this motion ended a stream a previous client left: {dropped} queued points \
+                 dropped, and its host supervision switched off"
+            );
+        }
+    }
 }
 
 /// `fpi board reset`.
