@@ -163,14 +163,13 @@ pub enum ModelError {
     /// A sensor's window takes in (or passes) a rail of the board's channel
     /// for it: a broken wire, which reads a rail, would not be seen.
     OutsideRails,
-    /// A tolerance so wide that its check could never trip: the position's
-    /// beyond a quarter of the reference window, the force's beyond half the
-    /// preload's change over it (a stuck sensor must be seen).
+    /// A tolerance so wide that its check could never trip: beyond a quarter
+    /// of the sensor's window (a reading that disagrees with the model by
+    /// more than a quarter of all it may read is seen).
     ToleranceTooWide,
     /// The feedforward's taps amplify the reference more than
     /// [`crate::preview::TAPS_GAIN_MAX`] times (`Σ|h| >` it): no stage's
-    /// inverse needs that much, and what it would ask of the stage is beyond
-    /// what the reference governor can keep in the stroke.
+    /// inverse needs that much.
     FeedforwardTooLarge,
 }
 
@@ -268,10 +267,10 @@ impl ModelError {
                 "must lie inside the rails of the board's sensor channel (position −10…70 µm, force −5…507 N): a broken wire reads a rail, and a window that takes the rail in cannot see it"
             }
             Self::ToleranceTooWide => {
-                "too wide for its check to ever trip: the position tolerance may be at most a quarter of the reference window, the force tolerance at most half the FEM preload's change over it (a stuck sensor must be seen)"
+                "too wide for its check to trip: a tolerance may be at most a quarter of its sensor's window (position_min_um…position_max_um, force_min_n…force_max_n)"
             }
             Self::FeedforwardTooLarge => {
-                "the feedforward's taps amplify the reference more than 16 times (the sum of their magnitudes): no stage's inverse needs it"
+                "the feedforward's taps amplify the reference more than 32 times (the sum of their magnitudes): no stage's inverse needs it"
             }
         }
     }

@@ -19,8 +19,8 @@
 //! | quantity | format | range |
 //! |---|---|---|
 //! | references, `S_k` | µm, `I16F16` | input clamped to ±4096 µm, output saturated to ±4096 µm |
-//! | taps `h_j` | `I8F24` | ±16, `Σ h_j = 1` exactly (in raw bits: a held reference is never moved), `Σ |h_j| ≤ 16` ([`TAPS_GAIN_MAX`]) |
-//! | accumulator | raw `i64`, `I24F40` | `|Σ| ≤ Σ|h_j|·4096 µm`: at most `2²⁸·2²⁸ = 2⁵⁶` raw, no overflow |
+//! | taps `h_j` | `I8F24` | ±32, `Σ h_j = 1` exactly (in raw bits: a held reference is never moved), `Σ |h_j| ≤ 32` ([`TAPS_GAIN_MAX`]) |
+//! | accumulator | raw `i64`, `I24F40` | `|Σ| ≤ Σ|h_j|·4096 µm`: at most `2²⁹·2²⁸ = 2⁵⁷` raw, no overflow |
 //!
 //! The output is rounded to nearest (±½ LSB, 15 pm); there is no recursion,
 //! so no error accumulates. The delay `n` is `1..=PREVIEW_MAX` ticks.
@@ -32,10 +32,10 @@ use crate::q::{Micrometres, COEFF_FRAC, SIGNAL_ABS_MAX_BITS};
 pub const TAPS: usize = 16;
 
 /// The most the feedforward may amplify the reference: `Σ |h_j|` (an inverse
-/// of a damped stage designed by the host's tools sums to about 6; the
-/// reference governor's envelope of taps beyond this would leave a stage all
-/// but still).
-pub const TAPS_GAIN_MAX: i64 = 16;
+/// of a damped stage designed by the host's tools sums to about 6, and up to
+/// 20 for a stage with a noisy force sensor; the reference governor's envelope
+/// of taps far beyond would leave a stage all but still).
+pub const TAPS_GAIN_MAX: i64 = 32;
 
 /// The longest preview the board keeps, ticks.
 pub const PREVIEW_MAX: u8 = 7;
@@ -198,15 +198,15 @@ mod tests {
             Fir::new(4, off).unwrap_err().error,
             ModelError::FilterStaticGain
         );
-        // Taps that amplify the reference more than 16 times (60 and −59: a
+        // Taps that amplify the reference more than 32 times (60 and −59: a
         // hand-edited model that threw the stage across its stroke): refused.
         let wild = padded(&[60 * one, -59 * one]);
         assert_eq!(
             Fir::new(4, wild).unwrap_err().error,
             ModelError::FeedforwardTooLarge
         );
-        let most = padded(&[8 * one + one / 2, -15 * one / 2]);
-        assert!(Fir::new(4, most).is_ok(), "a sum of 16 is allowed");
+        let most = padded(&[16 * one + one / 2, -31 * one / 2]);
+        assert!(Fir::new(4, most).is_ok(), "a sum of 32 is allowed");
         for t in [0, PREVIEW_MAX + 1] {
             assert_eq!(
                 Fir::new(t, taps).unwrap_err().error,

@@ -19,7 +19,8 @@
 //! model that declares no dynamics gets the floor stage ([`FLOOR_MODE_HZ`],
 //! [`FLOOR_DAMPING`]): the governor then assumes the slowest, least damped mode
 //! a stage this board drives is built with, and limits every source as it would
-//! for such a mode — conservative, never off.
+//! for such a mode — conservative, never off (a stage below the floor needs
+//! its dynamics declared: `fpi board autotune` measures them).
 //!
 //! The simulation is `f32` (the Cortex-M4F's floating point, about 60
 //! operations a tick, until the responses have decayed to 10⁻⁴ of their peak
@@ -40,8 +41,11 @@ pub const MODE_SCALES: [f64; 3] = [0.8, 1.0, 1.25];
 pub const DAMPING_SCALE: f64 = 0.5;
 /// The floor stage's mode, Hz: where a model declares no dynamics.
 pub const FLOOR_MODE_HZ: f64 = 500.0;
-/// The floor stage's damping ratio.
-pub const FLOOR_DAMPING: f64 = 0.01;
+/// The floor stage's damping ratio. With the mode's floor it covers stage A's
+/// family (its first mode 680–1000 Hz, damped 0.015–0.05: a higher mode
+/// less damped bounds lower); at ζ 0.01 the floor governed a 15 Hz sine over
+/// the stroke through most of its ticks, which a 500 Hz mode does not need.
+pub const FLOOR_DAMPING: f64 = 0.02;
 /// The longest simulation, ticks.
 pub const HORIZON_MAX: usize = 24_000;
 /// The shortest simulation, ticks.

@@ -84,12 +84,24 @@ pub const ACCEL_MAX: f64 = 3.9;
 /// The least acceleration a configuration may have, µm/tick² (`1/(2A)` then
 /// fits its format).
 pub const ACCEL_MIN: f64 = 1.0 / 254.0;
+/// The least acceleration toward a governed source, µm/tick² (`1/(2A_g)` then
+/// fits its format).
+pub const ACCEL_GOV_MIN: f64 = 1.0 / 4094.0;
+/// Fractional bits of `1/(2A_g)` (`I12F20`).
+pub const INV_ACCEL_GOV_FRAC: u32 = 20;
 /// The least speed a configuration may have, µm/tick.
 pub const SPEED_MIN: f64 = 1.0 / 254.0;
 /// The margin the stage may leave the reference window by, µm: the bound the
 /// governor keeps the true position in (half of the one micrometre the
 /// stroke's tests allow, the rest for what the analysis does not cover).
 pub const MARGIN_UM: f64 = 0.5;
+/// What the governor's own motion toward a source it governs may build the
+/// envelope up to, µm: its acceleration then is at most `M·(1 − ρ)/c_r`, so
+/// that governing a source does not itself fill the room it needs (a bang-bang
+/// at a large acceleration would keep the envelope high and the source
+/// governed; on the floor stage, a 15 Hz sine over the stroke was governed
+/// for 57 % of its ticks at the full acceleration).
+pub const GOVERNING_ENVELOPE_UM: f64 = 2.0;
 
 /// The largest envelope gain (`I12F20` bits of 2047).
 const GAIN_BITS_MAX: f64 = (2047u64 << GAIN_FRAC) as f64;
@@ -133,10 +145,17 @@ impl GovernorWindow {
 pub struct GovernorLimits {
     /// Largest acceleration `A`, µm/tick², `I4F28`.
     accel: u32,
+    /// The acceleration toward a governed source, µm/tick², `I4F28`: `A` or
+    /// less ([`GOVERNING_ENVELOPE_UM`]).
+    accel_gov: u32,
     /// Largest speed, µm/tick, `I4F28`.
     speed: u32,
-    /// `1/(2A)`, tick²/µm, `I8F24`.
+    /// `1/(2A)`, tick²/µm, `I8F24`: the stop distance braking at `A` (what
+    /// the check assumes: the governor brakes at `A`).
     inv_2accel: u32,
+    /// `1/(2A_g)`, tick²/µm, `I12F20`: the stop distance toward a governed
+    /// source ([`Self::accel_gov`]).
+    inv_2accel_gov: u32,
     /// The envelope's decay per tick, `I0F32`.
     rho: u32,
     /// The envelope's gain, µm per µm/tick of speed change, `I12F20`.
@@ -242,15 +261,20 @@ impl GovernorLimits {
     /// [`SPEED_MIN`]…[`SPEED_MAX`]).
     pub fn new(l: &Limits) -> Self {
         let accel = bits(l.accel, MOTION_FRAC, ACCEL_MIN, ACCEL_MAX) as u32;
-        let a = accel as f64 / (1u64 << MOTION_FRAC) as f64;
-        let speed = bits(l.speed, MOTION_FRAC, SPEED_MIN, SPEED_MAX) as u32;
         let c_r = gain_bits(l.ramp.1);
+        let quiet = GOVERNING_ENVELOPE_UM * (1.0 - l.ramp.0) / l.ramp.1.max(1e-9);
+        let accel_gov = (bits(quiet, MOTION_FRAC, ACCEL_GOV_MIN, ACCEL_MAX) as u32).min(accel);
+        let a = accel as f64 / (1u64 << MOTION_FRAC) as f64;
+        let a_gov = accel_gov as f64 / (1u64 << MOTION_FRAC) as f64;
+        let speed = bits(l.speed, MOTION_FRAC, SPEED_MIN, SPEED_MAX) as u32;
         let c_vr = gain_bits(l.lead.max(0.0)).saturating_add(c_r);
         let gain = |c: u32| c as f64 / (1u64 << GAIN_FRAC) as f64;
         Self {
             accel,
+            accel_gov,
             speed,
             inv_2accel: ceil(0.5 / a * (1u64 << INV_ACCEL_FRAC) as f64) as u32,
+            inv_2accel_gov: ceil(0.5 / a_gov * (1u64 << INV_ACCEL_GOV_FRAC) as f64) as u32,
             rho: decay_bits(l.ramp.0),
             c_r,
             c_vr,
@@ -322,7 +346,7 @@ impl GovernorLimits {
     #[inline(never)]
     fn toward(&self, w: &GovernorWindow, st: &GovernorState, r16: i32, land: Option<i32>) -> i32 {
         let v = st.v;
-        let (a, speed) = (self.accel as i32, self.speed as i32);
+        let (a, speed) = (self.accel_gov as i32, self.speed as i32);
         let v1 = match land {
             Some(want) => want,
             None => {
@@ -334,7 +358,7 @@ impl GovernorLimits {
                 let q = v.wrapping_sub(dr << (MOTION_FRAC - 16));
                 let up = gap >= 0;
                 let closing = if up { q > 0 } else { q < 0 };
-                let stop = stop_distance(q.unsigned_abs(), self.inv_2accel);
+                let stop = stop_distance_gov(q.unsigned_abs(), self.inv_2accel_gov);
                 let brake = closing && stop >= gap.unsigned_abs() as i32;
                 let acc = if brake == up { -a } else { a };
                 // Within the speed, and not past the window's edge.
@@ -347,7 +371,7 @@ impl GovernorLimits {
                     .min(hi.saturating_mul(1 << (MOTION_FRAC - 16)))
             }
         };
-        if v.unsigned_abs() > self.accel {
+        if v.unsigned_abs() > self.accel_gov {
             return v1;
         }
         // The room on either side: the stage may swing both ways.
@@ -401,6 +425,14 @@ fn gain_mul(c: u32, x: u32) -> i32 {
 fn stop_distance(v: u32, inv_2accel: u32) -> i32 {
     let v2 = ((v as u64 * v as u64) >> 32) as u32;
     ((v2 as u64 * inv_2accel as u64) >> 32) as i32
+}
+
+/// `v²/(2A_g)` for a speed `v` (`I4F28`, below 8 µm/tick) and `1/(2A_g)`
+/// (`I12F20`, at most 2047): µm, `I16F16`, held to 2¹⁴ µm (toward a governed
+/// source only: not the tick's common path).
+fn stop_distance_gov(v: u32, inv: u32) -> i32 {
+    let v2 = ((v as u64 * v as u64) >> 32) as u32;
+    ((v2 as u64 * inv as u64) >> 28).min(1 << 30) as i32
 }
 
 /// The governor's memory (state): where the governed reference is and how it

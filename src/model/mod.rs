@@ -246,10 +246,10 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
         e => Invalid::at(Field::UMin, e),
     })?;
     check_settings(&limits, &f_k_inv, &m.supervision)?;
-    check_force_tolerances(m, &f_f, &f_k_inv)?;
+    check_force_tolerances(m)?;
     if let Some(f) = m.feedback {
         FeedbackConfig::new(f)?;
-        check_position_tolerance(m, &f)?;
+        check_position_tolerance(&f)?;
     }
     if let Some(s) = m.shaping {
         s.cascade()?;
@@ -293,24 +293,17 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
 }
 
 /// The force checks can trip: the tolerance of the reading against the FEM's
-/// preload at most half the preload's change over the reference window (a
-/// reading stuck anywhere is then seen before the stage has crossed it), the
-/// dynamic limit at most the force window's span.
-fn check_force_tolerances(
-    m: &ModelSpec<'_>,
-    f_f: &Table<'_>,
-    f_k_inv: &Table<'_>,
-) -> Result<(), Invalid> {
+/// preload at most a quarter of the force window's span, the dynamic limit at
+/// most the span.
+fn check_force_tolerances(m: &ModelSpec<'_>) -> Result<(), Invalid> {
     let s = &m.supervision;
-    let preload = |x| f_f.eval(f_k_inv.eval(x)).to_bits() as i64;
-    let change = (preload(s.reference.hi) - preload(s.reference.lo)).abs();
-    if 2 * s.force_tolerance.to_bits() as i64 > change {
+    let span = s.force.hi.to_bits() as i64 - s.force.lo.to_bits() as i64;
+    if 4 * s.force_tolerance.to_bits() as i64 > span {
         return Err(Invalid::at(
             Field::ForceTolerance,
             ModelError::ToleranceTooWide,
         ));
     }
-    let span = s.force.hi.to_bits() as i64 - s.force.lo.to_bits() as i64;
     if s.channel.dynamic_limit.to_bits() as i64 > span {
         return Err(Invalid::at(
             Field::ForceDynamicLimit,
@@ -321,10 +314,9 @@ fn check_force_tolerances(
 }
 
 /// The position check can trip: its tolerance at most a quarter of the
-/// reference window (a reading stuck anywhere is then seen before the stage
-/// has crossed half of it).
-fn check_position_tolerance(m: &ModelSpec<'_>, f: &FeedbackSpec) -> Result<(), Invalid> {
-    let r = m.supervision.reference;
+/// sensor window's span.
+fn check_position_tolerance(f: &FeedbackSpec) -> Result<(), Invalid> {
+    let r = f.sensor;
     let span = r.hi.to_bits() as i64 - r.lo.to_bits() as i64;
     if 4 * f.tolerance.to_bits() as i64 > span {
         return Err(Invalid::at(
@@ -692,14 +684,13 @@ mod tests {
             assert_eq!((key(e).as_str(), e.error), (want_key, want), "{e}");
         };
         let s = base.supervision;
-        // The preload changes by 71 N over the 25 µm window: a tolerance of
-        // 40 N (beyond half of it) could never see the reading stuck.
+        // A force tolerance beyond a quarter of the 20–200 N window (45 N).
         check(
             ModelSpec {
                 supervision: Supervision {
-                    force_tolerance: v(40.0),
+                    force_tolerance: v(46.0),
                     channel: crate::control::ForceChannel {
-                        dynamic_limit: v(40.0),
+                        dynamic_limit: v(46.0),
                         ..s.channel
                     },
                     ..s
@@ -724,7 +715,8 @@ mod tests {
             "controller.force_dynamic_limit_n",
             ModelError::DynamicLimitBelowTolerance,
         );
-        // A position tolerance beyond a quarter of the window (6.25 µm).
+        // A position tolerance beyond a quarter of the −5…30 µm sensor
+        // window (8.75 µm).
         let feedback = |tolerance: f64| FeedbackSpec {
             kp: crate::q::LoopGain::from_num(0.5),
             ki: crate::q::LoopGain::from_num(0.01),
@@ -745,14 +737,14 @@ mod tests {
         );
         check(
             ModelSpec {
-                feedback: Some(feedback(6.5)),
+                feedback: Some(feedback(9.0)),
                 ..base
             },
             "feedback.position_tolerance_um",
             ModelError::ToleranceTooWide,
         );
         assert!(validate(&ModelSpec {
-            feedback: Some(feedback(6.0)),
+            feedback: Some(feedback(8.5)),
             ..base
         })
         .is_ok());

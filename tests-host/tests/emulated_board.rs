@@ -364,9 +364,11 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
 /// 768 KiB of program flash; 128 KiB of RAM, of which the stack needs ~12 KiB
 /// (the emulated board reports its high-water mark over the link). 160 KiB of
 /// flash until the damping, the analyser and the loops' stability check (f64, in
-/// software) came: 168 KiB then.
+/// software) came: 168 KiB then; 191 KiB before the reference governor, whose
+/// analysis of a model's loops (their simulation, the envelopes' fit, the
+/// limits of each set of loops) took it to 204 KiB: a budget of 216 KiB.
 fn budget(f: &board::Footprint) {
-    assert!(f.flash <= 192 * 1024, "flash budget 192 KiB");
+    assert!(f.flash <= 216 * 1024, "flash budget 216 KiB");
     assert!(
         f.ram <= 100 * 1024,
         "static RAM budget 100 KiB (28 KiB left for the stack)"
