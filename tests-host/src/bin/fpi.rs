@@ -1001,13 +1001,10 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
 fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand) -> Result<()> {
     use fpi_host::cli::board as b;
     use fpi_protocol::Command as C;
-    let mut c = c;
     match command {
         BoardCommand::Emulate { .. } => Ok(()),
-        BoardCommand::Status => b::status(&mut c),
-        BoardCommand::Move { um, speed, record } => {
-            b::move_to(&mut c, um, speed, record.as_deref())
-        }
+        BoardCommand::Status => b::status(c),
+        BoardCommand::Move { um, speed, record } => b::move_to(c, um, speed, record.as_deref()),
         BoardCommand::Wave {
             shape,
             amplitude_um,
@@ -1017,7 +1014,7 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             record,
             seconds,
         } => b::wave(
-            &mut c,
+            c,
             &shape,
             amplitude_um,
             offset_um,
@@ -1031,13 +1028,13 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             record,
         } => {
             let points = fpi_host::data::read_points(&file)?;
-            b::stream(&mut c, &points, interval, record.as_deref())
+            b::stream(c, &points, interval, record.as_deref())
         }
         BoardCommand::Record {
             seconds,
             out,
             decimation,
-        } => b::record(&mut c, seconds, decimation, &out).map(|_| ()),
+        } => b::record(c, seconds, decimation, &out).map(|_| ()),
         BoardCommand::Load {
             model,
             fem,
@@ -1046,19 +1043,19 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             settings,
         } => {
             let loaded = b::model_and_image(&model, fem.as_deref(), &settings.options())?;
-            b::load(&mut c, &loaded, store, match_mass)
+            b::load(c, &loaded, store, match_mass)
         }
-        BoardCommand::Factory => b::simple(&mut c, &C::ModelFactory),
-        BoardCommand::Safe => b::simple(&mut c, &C::Safe),
-        BoardCommand::ClearFault => b::simple(&mut c, &C::ClearFault),
-        BoardCommand::Hold => b::simple(&mut c, &C::Hold { axis: 0 }),
-        BoardCommand::Analog => b::simple(&mut c, &C::Analog { axis: 0 }),
-        BoardCommand::Drive { mode } => b::drive(&mut c, &mode),
-        BoardCommand::Reset => b::reset(&mut c),
-        BoardCommand::Bench { settings } => b::bench(&mut c, &settings),
-        BoardCommand::Loop { mode } => b::set_loop(&mut c, &mode),
-        BoardCommand::Damping { state } => b::damping(&mut c, &state),
-        BoardCommand::Shaping { state } => b::shaping(&mut c, &state),
+        BoardCommand::Factory => b::simple(c, &C::ModelFactory),
+        BoardCommand::Safe => b::simple(c, &C::Safe),
+        BoardCommand::ClearFault => b::simple(c, &C::ClearFault),
+        BoardCommand::Hold => b::simple(c, &C::Hold { axis: 0 }),
+        BoardCommand::Analog => b::simple(c, &C::Analog { axis: 0 }),
+        BoardCommand::Drive { mode } => b::drive(c, &mode),
+        BoardCommand::Reset => b::reset(c),
+        BoardCommand::Bench { settings } => b::bench(c, &settings),
+        BoardCommand::Loop { mode } => b::set_loop(c, &mode),
+        BoardCommand::Damping { state } => b::damping(c, &state),
+        BoardCommand::Shaping { state } => b::shaping(c, &state),
         BoardCommand::Step {
             from,
             to,
@@ -1076,9 +1073,9 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
                 duration_ms,
                 decimation,
             };
-            b::step(&mut c, &s, &out)
+            b::step(c, &s, &out)
         }
-        BoardCommand::Frf { sweep, out } => b::frf(&mut c, &sweep.settings(), &out),
+        BoardCommand::Frf { sweep, out } => b::frf(c, &sweep.settings(), &out),
         BoardCommand::Autotune {
             model,
             fem,
@@ -1101,8 +1098,8 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
                 store,
                 out: (&out, frf_out.as_deref()),
             };
-            b::autotune(&mut c, &a)
+            b::autotune(c, &a)
         }
-        BoardCommand::Supervise { ms } => b::supervise(&mut c, ms),
+        BoardCommand::Supervise { ms } => b::supervise(c, ms),
     }
 }

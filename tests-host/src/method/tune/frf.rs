@@ -409,7 +409,14 @@ fn spec(f_hz: f64, zeta: f64, lag_hz: f64, kappa: f64) -> DynamicsSpec {
 /// split rate `split` (per tick).
 pub fn fit(points: &[FrfPoint], rate_hz: u32, split: f64) -> Result<FrfFit> {
     let fs = rate_hz as f64;
-    let pts: Vec<&FrfPoint> = points.iter().filter(|p| p.f_hz < 0.45 * fs).collect();
+    // Points measured with less than an eighth of the sweep's stimulus (the
+    // board's governor let no more through there) have a response near the
+    // sensors' noise: left out.
+    let most = points.iter().map(|p| p.excitation_um).fold(0.0, f64::max);
+    let pts: Vec<&FrfPoint> = points
+        .iter()
+        .filter(|p| p.f_hz < 0.45 * fs && p.excitation_um >= most / 8.0)
+        .collect();
     if pts.len() < 8 {
         bail!(
             "{} frequencies below 0.45·f_s: at least 8 are needed",
