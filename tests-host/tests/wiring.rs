@@ -1,6 +1,7 @@
-//! The README's wiring table names the same pins, for the same front ends, in the
-//! same order, as the board definition's (`firmware/src/board_def.rs`), and the
-//! board definition's code takes every pin its table names and no other.
+//! The book's wiring table (`docs/src/flashing.md`, *Flashing a real board*) names
+//! the same pins, for the same front ends, in the same order, as the board
+//! definition's (`firmware/src/board_def.rs`), and the board definition's code
+//! takes every pin its table names and no other.
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -57,20 +58,20 @@ fn pins_in_code(text: &str) -> BTreeSet<String> {
 }
 
 #[test]
-fn the_readme_wiring_table_names_the_board_definitions_pins() {
+fn the_book_s_wiring_table_names_the_board_definitions_pins() {
     let top = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let def = std::fs::read_to_string(top.join("firmware/src/board_def.rs")).unwrap();
-    let readme = std::fs::read_to_string(top.join("README.md")).unwrap();
+    let page = std::fs::read_to_string(top.join("docs/src/flashing.md")).unwrap();
     let from_def = rows(&def, "//! | signal | pin | peripheral | front end |", "//!");
-    let from_readme = rows(&readme, "## Flashing a real board", "");
+    let from_page = rows(&page, "# Flashing a real board", "");
     assert!(from_def.len() >= 20, "{from_def:?}");
     let def_cells: Vec<(String, String)> =
         from_def.iter().map(|r| (pin(r), r[4].clone())).collect();
-    let readme_cells: Vec<(String, String)> =
-        from_readme.iter().map(|r| (pin(r), r[3].clone())).collect();
+    let page_cells: Vec<(String, String)> =
+        from_page.iter().map(|r| (pin(r), r[3].clone())).collect();
     assert_eq!(
-        readme_cells, def_cells,
-        "README wiring table (pin, front end) against board_def.rs"
+        page_cells, def_cells,
+        "docs/src/flashing.md wiring table (pin, front end) against board_def.rs"
     );
     for (_, front) in &def_cells {
         assert!(["internal", "precision", "both"].contains(&front.as_str()));
