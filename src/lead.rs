@@ -50,7 +50,8 @@
 //! lets `β` wander on the tuned stage and slows its steps; 2⁻⁹ learns too
 //! slowly for the first step on a changed stage; a faster rate for the
 //! first step after a load only helps a changed stage by slowing the tuned
-//! one's: README, *Why that first step misses*.)
+//! one's: book, `docs/src/mass-ratio.md`, *Why the first step on a heavier
+//! stage misses*.)
 //!
 //! **What it learns from.** The fit's ratio depends on the motion, not only
 //! on the stage: on the emulated stage as built, whose steps hold `β` at 1,
@@ -63,13 +64,14 @@
 //! on the stage as built eight 10 ↔ 20 µm steps of 1.0 ms took `β` to 1.22
 //! and their settling from 1.45 to 3.8 ms, so the board learns only from
 //! steps at least as long as autotune's (`firmware::reference`'s
-//! `LEARNING_STEP_TICKS`; figures in the README's *The learned mass ratio*).
+//! `LEARNING_STEP_TICKS`; figures in the book's `docs/src/measured-figures.md`).
 //!
 //! **Where it starts.** A new model starts `β` at 1: the first step on a
-//! heavier stage is then made with the tuned mass (README, *Why that first
-//! step misses*). [`LeadGain::starting_at`] starts it at a ratio measured
-//! before that step: `fpi board load --match-mass` measures the stage's mode
-//! and sends `(f_model/f_stage)²` (the board's `LeadRatio` command).
+//! heavier stage is then made with the tuned mass (book,
+//! `docs/src/mass-ratio.md`, *Why the first step on a heavier stage misses*).
+//! [`LeadGain::starting_at`] starts it at a ratio measured before that step:
+//! `fpi board load --match-mass` measures the stage's mode and sends
+//! `(f_model/f_stage)²` (the board's `LeadRatio` command).
 //!
 //! A model without a baseline (what autotune loads to measure it) learns `α`
 //! (`α_b = 1`) and does not apply it: its damping gets `r_d − f_m`.

@@ -17,9 +17,9 @@
 //! has, and the board needs no extra parts to start. The emulated board runs
 //! either front end's scaling (the bench order `FrontEnd`).
 //!
-//! **Wiring** (the README's table is checked against this one and this one
-//! against `pins::take` by `tests-host/tests/wiring.rs`; the last column says
-//! which front end uses the pin):
+//! **Wiring** (the book's table, `docs/src/flashing.md`, is checked against
+//! this one and this one against `pins::take` by `tests-host/tests/wiring.rs`;
+//! the last column says which front end uses the pin):
 //!
 //! | signal | pin | peripheral | front end |
 //! |---|---|---|---|

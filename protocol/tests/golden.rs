@@ -363,8 +363,8 @@ fn unknown_kinds_and_axes() {
     assert_eq!(Command::Safe.axis(), None);
 }
 
-/// The size of the replies the host polls most, bytes of body (the status
-/// reply's figure is in the README).
+/// The size of the replies the host polls most, bytes of body (the test
+/// prints the status reply's figure with `--nocapture`).
 #[test]
 fn status_reply_size() {
     let n = encoded(&Reply::Status(status())).len();

@@ -185,7 +185,8 @@ fn autotune_fits_the_stage_and_its_loops_settle_a_step() {
     assert!(a.kept == 0 || notes.contains("trial"), "{notes}");
     // The lead's baseline was measured on the board and written into the
     // model: the fit's ratio on the stage as built (0.86–0.89 in the runs
-    // recorded in the README), settled within the steps allowed.
+    // recorded in the book, `docs/src/autotune.md`), settled within the steps
+    // allowed.
     let (b, steps) = a.baseline.expect("a lead baseline");
     assert!(b > 0.7 && b < 1.0, "{b}");
     assert!(steps <= autotune::BASELINE_STEPS.1, "{steps}");
@@ -1223,8 +1224,8 @@ fn the_watch_on_references_the_loops_cannot_follow() {
 /// built, then eight 10 ↔ 20 µm steps of 1.0 ms, and again of 2.0 ms; each
 /// step's settling, overshoot and the `β` it left. The fit's ratio depends on
 /// the step's speed and `α_b` was measured on 1.5 ms steps, so the board
-/// learns from steps that long or longer only (README, *The learned mass
-/// ratio*). Asserts only that every step settles.
+/// learns from steps that long or longer only (book, `docs/src/mass-ratio.md`,
+/// *The learned mass ratio*). Asserts only that every step settles.
 #[test]
 #[ignore = "a survey of 16 steps (about half a minute in-process): run by hand"]
 fn the_mass_ratio_under_steps_of_another_speed() {
@@ -1271,8 +1272,8 @@ fn the_mass_ratio_under_steps_of_another_speed() {
 /// mass ratio starts at 1), then again with the mass matched (`fpi board load
 /// --match-mass`). The spread of that first step is what issue 19's
 /// robustness target (6 ms) hinges on; this is the survey to judge a change
-/// by (README, *Why that first step misses*). Asserts only that every step
-/// settles.
+/// by (book, `docs/src/mass-ratio.md`, *Why the first step on a heavier stage
+/// misses*). Asserts only that every step settles.
 #[test]
 #[ignore = "a survey of several autotunes (about 30 s each in-process): run by hand"]
 fn the_first_step_on_a_heavier_stage_over_fresh_autotunes() {

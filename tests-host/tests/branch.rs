@@ -401,7 +401,7 @@ fn the_firmware_export_refuses_a_branch_model() {
 }
 
 // ---------------------------------------------------------------------------
-// The README's figures (slow in a debug build: run with
+// The book's figures (`docs/src/measured-figures.md`; slow in a debug build: run with
 // `cargo test --release -p fpi-host --test branch -- --ignored --nocapture`).
 
 #[test]

@@ -32,7 +32,7 @@ pub use fpi_protocol::SourceKind;
 /// steps `fpi board autotune` measures the ratio's baseline on). The fit's
 /// ratio depends on the step's speed: on the stage as built, eight 1.0 ms
 /// steps took it from 1 to 1.22 and their settling from 1.45 to 3.8 ms; 2 ms
-/// steps to about 0.98 (README, *The learned mass ratio*).
+/// steps to about 0.98 (book: `docs/src/mass-ratio.md`, *The learned mass ratio*).
 pub const LEARNING_STEP_TICKS: u32 = 30;
 /// The largest phase advance of a step the ratio learns from, 2⁻³² turns per
 /// tick ([`step_phase_for`] of [`LEARNING_STEP_TICKS`]).

@@ -6,7 +6,8 @@
 //! to that one, `β`, from its steps (`piezo_fpi::lead`). It starts at 1, so
 //! the first step on a heavier stage (a payload, a mode that moved from 856 to
 //! 700 Hz) is made with the wrong mass: it overshoots by about 1 µm and rings
-//! for 4–7 ms (README, *Why that first step misses*).
+//! for 4–7 ms (book, `docs/src/mass-ratio.md`, *Why the first step on a
+//! heavier stage misses*).
 //!
 //! Here the host measures the stage's mode through the board — the loops open,
 //! damping and shaping off, a sweep of 0.1 µm around the model's mode

@@ -253,8 +253,8 @@ impl Dynamics {
     /// amplifier's lag). The rate-independent model was calibrated on rig
     /// recordings made through the same amplifier, and its hysteresis absorbed
     /// part of that delay as a phase: on slow drives the two together lag the
-    /// stage slightly (see the README's figures), on fast ones the delay is what
-    /// the stage does.
+    /// stage slightly (see the book's `docs/src/measured-figures.md`), on fast
+    /// ones the delay is what the stage does.
     pub fn apply(&self, x: &[f64], dt_s: f64) -> Result<Vec<f64>> {
         Ok(self.discretise(dt_s)?.filter(x))
     }

@@ -66,7 +66,7 @@ pub const MIN_DYNAMICS_HZ: f64 = 20.0;
 /// gain.
 const GAIN_POINTS: usize = 5;
 
-/// The order criterion, as stated in the file and the README.
+/// The order criterion, as stated in the file and the book (`docs/src/dynamics.md`).
 pub const CRITERION: &str = "fewest parameters within 10 % of the best weighted RMS \
                              relative error (0-3 modes, with or without a real pole)";
 
