@@ -21,6 +21,15 @@ fn book_src() -> PathBuf {
     top().join("docs").join("src")
 }
 
+/// `path` as the repository names it (`docs/src/x.md`, `README.md`).
+fn shown(path: &Path) -> String {
+    let top = top();
+    path.strip_prefix(&top)
+        .unwrap_or(path)
+        .display()
+        .to_string()
+}
+
 fn read(path: &Path) -> String {
     std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
@@ -166,9 +175,9 @@ fn broken_links(file: &Path) -> Vec<String> {
             } else {
                 dir.join(path)
             };
-            let at = format!("{}:{number}: {link}", file.display());
+            let at = format!("{}:{number}: {link}", shown(file));
             if !target.exists() {
-                broken.push(format!("{at}: no such file {}", target.display()));
+                broken.push(format!("{at}: no such file {}", shown(&target)));
                 continue;
             }
             let Some(fragment) = fragment else { continue };
@@ -177,7 +186,7 @@ fn broken_links(file: &Path) -> Vec<String> {
             } else if !heading_ids(&read(&target)).contains(fragment) {
                 broken.push(format!(
                     "{at}: no heading of {} has the id {fragment:?}",
-                    target.display()
+                    shown(&target)
                 ));
             }
         }
