@@ -210,6 +210,12 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         };
         // Every source, and the analyser's stimulus on top of a held one,
         // passes the governor of the loops in force.
+        // A source beyond the window (a stream's points queued for a wider
+        // model, say) asks for what the model cannot reach: named, parked.
+        // The governor would hold the stage at the window's edge meanwhile.
+        if !self.model.governors().window.holds(source) && self.state.fault().is_none() {
+            self.trip(Fault::ReferenceUnreachable);
+        }
         let asked = self.analyser.excitation();
         let summary = self.model.summary();
         let g = self.model.governors();

@@ -257,7 +257,8 @@ pub struct Status {
     pub amplifier_on: bool,
     /// Reference source.
     pub source: SourceKind,
-    /// Approaching a new source's entry point.
+    /// Approaching a new source's entry point, or, the source holding, the
+    /// governed reference not yet where it holds (a governed move's end).
     pub approaching: bool,
     /// Inverse FPI drive (else the straight-line baseline).
     pub compensated: bool,

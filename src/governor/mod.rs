@@ -103,6 +103,12 @@ pub const MARGIN_UM: f64 = 0.5;
 /// for 57 % of its ticks at the full acceleration).
 pub const GOVERNING_ENVELOPE_UM: f64 = 2.0;
 
+/// How far past a governed source the gentle braking may carry the
+/// governed reference before it brakes at `A` instead, µm.
+pub const OVERSHOOT_UM: f64 = 1.0;
+/// [`OVERSHOOT_UM`] as `I16F16` bits.
+const OVERSHOOT_BITS: i32 = 1 << 16;
+
 /// The largest envelope gain (`I12F20` bits of 2047).
 const GAIN_BITS_MAX: f64 = (2047u64 << GAIN_FRAC) as f64;
 
@@ -127,6 +133,14 @@ impl GovernorWindow {
             lo_m: w.lo.to_bits().saturating_sub(margin),
             hi_m: w.hi.to_bits().saturating_add(margin),
         }
+    }
+
+    /// Whether a source's value `r` lies in the reference window (a source
+    /// beyond it asks for what the model says the stage cannot reach).
+    #[inline(always)]
+    pub fn holds(&self, r: Micrometres) -> bool {
+        let r = r.to_bits();
+        r >= self.lo && r <= self.hi
     }
 
     /// The reference window it keeps the governed reference in.
@@ -339,27 +353,45 @@ impl GovernorLimits {
     }
 
     /// The next speed toward `r16` (`I16F16` bits), `I4F28`: landing on it
-    /// where it is in reach (`land`), else bang-bang, braking where the stop
-    /// distance relative to the source reaches the gap; from rest (or slower
+    /// where it is in reach (`land`), else bang-bang at `A_g`, braking where
+    /// the stop distance relative to the source reaches the gap (at `A` where
+    /// it would pass the source by more than [`OVERSHOOT_UM`]); from rest (or slower
     /// than a tick's acceleration), at most a share of the room to the
     /// window's nearer edge ([`Self::creep`]).
     #[inline(never)]
     fn toward(&self, w: &GovernorWindow, st: &GovernorState, r16: i32, land: Option<i32>) -> i32 {
         let v = st.v;
         let (a, speed) = (self.accel_gov as i32, self.speed as i32);
+        let limit = (self.speed >> (MOTION_FRAC - 16)) as i32;
+        let dr = r16.wrapping_sub(st.r_prev).max(-limit).min(limit);
         let v1 = match land {
-            Some(want) => want,
-            None => {
-                let limit = (self.speed >> (MOTION_FRAC - 16)) as i32;
-                let dr = r16.wrapping_sub(st.r_prev).max(-limit).min(limit);
+            // Landing only where the source's own speed is within a tick's
+            // acceleration of the landing speed: else the next tick could not
+            // follow the source and would swing past it.
+            Some(want)
+                if want.wrapping_sub(dr << (MOTION_FRAC - 16)).unsigned_abs() <= self.accel =>
+            {
+                want
+            }
+            _ => {
                 // The gap if we coast one tick, and our speed relative to the
                 // source.
                 let gap = r16.wrapping_sub(st.g).wrapping_sub(v >> (MOTION_FRAC - 16));
                 let q = v.wrapping_sub(dr << (MOTION_FRAC - 16));
                 let up = gap >= 0;
                 let closing = if up { q > 0 } else { q < 0 };
+                let room = gap.unsigned_abs() as i32;
+                // Brake gently where the gentle stop reaches the gap, and at
+                // `A` where it would pass the source by more than
+                // [`OVERSHOOT_UM`] (a source that passed at `A`, or the
+                // brake, hands over a speed that `A_g` cannot take off in
+                // time: braking at `A_g` alone swung past the source by tens
+                // of micrometres, and back; braking at `A` wherever the
+                // gentle stop fell short rang an undamped stage's mode).
                 let stop = stop_distance_gov(q.unsigned_abs(), self.inv_2accel_gov);
-                let brake = closing && stop >= gap.unsigned_abs() as i32;
+                let brake = closing && stop >= room;
+                let hard = closing && stop.saturating_sub(room) > OVERSHOOT_BITS;
+                let a = if hard { self.accel as i32 } else { a };
                 let acc = if brake == up { -a } else { a };
                 // Within the speed, and not past the window's edge.
                 let lo = w.lo.wrapping_sub(st.g);
@@ -418,8 +450,8 @@ fn gain_mul(c: u32, x: u32) -> i32 {
     ((c as u64 * x as u64) >> 32) as i32
 }
 
-/// `v²/(2A)` for a speed `v` (`I4F28`, below 4 µm/tick) and `1/(2A)`
-/// (`I8F24`, at most 127): µm, `I16F16` (below 2¹¹ µm). `v²` is the high
+/// `v²/(2A)` for a speed `v` (`I4F28`, below 8 µm/tick) and `1/(2A)`
+/// (`I8F24`, at most 127): µm, `I16F16` (below 2¹³ µm). `v²` is the high
 /// word of its square (`I8F24`), the distance the high word of their product.
 #[inline(always)]
 fn stop_distance(v: u32, inv_2accel: u32) -> i32 {

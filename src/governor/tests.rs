@@ -354,3 +354,93 @@ fn the_limits_of_a_tuned_model_s_loop_sets() {
         assert!(e.unsettled == 0 || name == "closed, feedforward", "{name}");
     }
 }
+
+/// The open loop of a tuned model (slow decay, a large ramp gain): the
+/// acceleration toward a governed source is a small fraction of `A`.
+fn slow_envelope() -> GovernorConfig {
+    GovernorConfig::new(
+        window(),
+        &Limits {
+            accel: 0.1738,
+            speed: 1.0,
+            ramp: (0.998_047, 5.212),
+            lead: -6.161,
+        },
+    )
+}
+
+/// A source that jumps, or ramps faster than the governor lets it, and then
+/// holds is reached without swinging past it (further than the ramp's stop
+/// distance at `A` and [`OVERSHOOT_UM`]), and landed on to the bit: the
+/// speed a source handed over at `A` is taken off at up to `A` (a bang-bang
+/// at the gentle acceleration alone swung ±12 µm about it for ever).
+#[test]
+fn a_governed_source_is_reached_without_swinging_past_it() {
+    let cfg = slow_envelope();
+    assert!(cfg.limits.accel_gov * 50 < cfg.limits.accel);
+    let hold = |from: f64, to: f64, ramp: usize| {
+        let mut s = vec![from; 10];
+        s.extend((1..=ramp).map(|k| from + (to - from) * k as f64 / ramp as f64));
+        s.extend(std::iter::repeat_n(to, 8000));
+        s
+    };
+    for (from, to, ramp) in [
+        (20.0, 10.0, 1),
+        (20.0, 10.0, 30),
+        (10.0, 20.0, 40),
+        (5.0, 35.0, 60),
+    ] {
+        let mut st = GovernorState::at_rest(um(from));
+        // A source that stops dead hands over its speed: braking it off at
+        // `A` passes the source's end by its stop distance at most.
+        let v = ((to - from) / ramp as f64).abs().min(1.0);
+        let past = v * v / (2.0 * cfg.accel()) + v + OVERSHOOT_UM;
+        let (lo, hi) = (from.min(to) - past, from.max(to) + past);
+        let mut landed = None;
+        for (i, &r) in hold(from, to, ramp).iter().enumerate() {
+            let g = cfg.process(&mut st, um(r)).to_num::<f64>();
+            assert!(g >= lo && g <= hi, "{from}→{to} over {ramp}: {g} at {i}");
+            if landed.is_none() && i > 10 + ramp && !st.governed() {
+                landed = Some(i);
+            }
+            if let Some(at) = landed {
+                assert!(
+                    !st.governed() && g == um(to).to_num::<f64>(),
+                    "{from}→{to}: left {to} at {i} (landed at {at})"
+                );
+            }
+        }
+        assert!(landed.is_some(), "{from}→{to} over {ramp}: never landed");
+    }
+}
+
+/// A full-stroke wave started away from where the stage rests (at the
+/// window's edge) on the floor governor: the governed reference catches up
+/// with it within its first cycle and passes it from then on (chasing it at
+/// its own speed, a jump's difference taken for a speed, kept it governed
+/// for ever).
+#[test]
+fn a_governed_wave_is_caught_up_with() {
+    let (lo_edge, _) = (window().lo.to_num::<f64>(), ());
+    let cfg = GovernorConfig::new(window(), &analysis_floor_limits());
+    let mut st = GovernorState::at_rest(um(lo_edge));
+    let mut last_governed = 0;
+    for k in 0..8000 {
+        let r = 20.0 - 18.0 * (2.0 * std::f64::consts::PI * 5.0 * k as f64 / RATE as f64).cos();
+        cfg.process(&mut st, um(r));
+        if st.governed() {
+            last_governed = k;
+        }
+    }
+    assert!(last_governed < 4000, "governed until tick {last_governed}");
+}
+
+/// The floor's limits (as the floor governor test prints them).
+fn analysis_floor_limits() -> Limits {
+    Limits {
+        accel: 1.0,
+        speed: 1.0,
+        ramp: (0.998_046_875, 6.284),
+        lead: -0.755,
+    }
+}

@@ -153,7 +153,11 @@ fn autotune_fits_the_stage_and_its_loops_settle_a_step() {
         "{d:?}"
     );
     assert!(d.force_gain.to_num::<f64>() > 3.0, "{d:?}");
-    assert!(a.fit.x_misfit < 0.15, "{:?}", a.fit);
+    // The position misfit: 7 % in-process; 23 % in one QEMU run, where the
+    // governor halved the stimulus at frequencies about the mode and the
+    // response there was measured with less signal over the same noise.
+    // Within `fpi tune --frf`'s 30 % warning either way.
+    assert!(a.fit.x_misfit < 0.25, "{:?}", a.fit);
     // The loops: damped, with margin, fast.
     let t = &a.tuning;
     assert!(t.mode_damping.1 > 0.2, "{:?}", t.mode_damping);
@@ -748,8 +752,8 @@ fn a_model_tuned_with_a_quieter_force_sensor_says_why_it_parks() {
 /// about 100 Hz from the move's start: the stage swings about the ramp by
 /// ±1 µm and more, in half-cycles of 5 ms; at 350 Hz, at about 110 Hz, it
 /// stays about ±1 µm, barely growing (the undecaying rule: the 1 mm/s move
-/// creeps, which holds). Caught and named during the move (20 ms), inside
-/// the stroke; the figures are printed, a generous bound is asserted (before
+/// creeps, which holds). Caught and named during the move (20 ms, about
+/// 60 ms as the governor takes it out of the park), inside the stroke; the figures are printed, a generous bound is asserted (before
 /// the damping alone was watched on the tracking error in half-cycles of up
 /// to 8 ms, the 300 Hz case was caught 14–16 ms after the reference held:
 /// 34–46 ms; before a creeping reference held for the rules, the 350 Hz
@@ -772,9 +776,12 @@ fn the_damping_alone_on_a_stage_that_changed_is_caught() {
             Some(piezo_fpi::control::Fault::Oscillation),
             "{mode_hz} Hz: {u:?}"
         );
-        // From the park at the stroke's foot (0.03 µm), and at most 30 ms.
+        // From the park at the stroke's foot (0.03 µm), during the move: the
+        // governor takes a move that leaves the park at the window's edge
+        // out slowly (its envelope's room there is the 0.5 µm margin), so
+        // the 20 ms move takes about 60 ms; caught within 45 ms.
         assert!(
-            u.ms <= 30.0 && u.before.0 > -0.5 && u.before.1 < 39.9,
+            u.ms <= 45.0 && u.before.0 > -0.5 && u.before.1 < 39.9,
             "{mode_hz} Hz: {u:?}"
         );
         c.park().unwrap();

@@ -66,9 +66,11 @@ fn board(test: &str) -> (Option<Emulator>, Client) {
     }
 }
 
-/// `fw` loaded onto a parked board with the stage `v`.
+/// `fw` loaded onto a parked board with the stage `v` (a fault a previous
+/// case latched cleared: it was that case's finding).
 fn load(c: &mut Client, fw: &FirmwareModel, v: StageVariant) {
     c.park().unwrap();
+    c.ack(&Command::ClearFault).ok();
     c.upload(&fw.image().unwrap(), false, |_| {}).unwrap();
     c.bench(BenchOrder::Stage(v)).unwrap();
 }
@@ -130,29 +132,51 @@ fn set_up(c: &mut Client, loops: Loops, v: StageVariant, at_um: f64) -> (f64, f6
     // Settled after the switch.
     let t = c.status().unwrap().tick;
     Follow::new(c, 0).until_tick(t + 400).unwrap();
-    let stroke = rest_stroke(c);
+    // The closed loop rests where the reference is (at the window's ends it
+    // may saturate: a named fault, not a place to rest).
+    let stroke = if loops == Loops::TunedClosed {
+        STROKE
+    } else {
+        rest_stroke(c)
+    };
     c.move_to(at_um, 1000.0).unwrap();
     Follow::new(c, 0).until_hold().unwrap();
     stroke
 }
 
 /// Where the stage rests at the reference window's ends with the loops in
-/// force (its true position, µm): the stroke the cases are held to. Leaves
+/// force (its true position, µm), reached slowly and by a step of two ticks
+/// from 20 µm: the stroke the cases are held to (in open loop, the model's
+/// static error is the stage's: the factory model rests the stage as built
+/// at about 42.0 µm for the window's top, 39.9 µm; the governor bounds the
+/// dynamics about where the model puts the stage, not that error). Leaves
 /// the stage resting at 20 µm.
 fn rest_stroke(c: &mut Client) -> (f64, f64) {
-    let at = |c: &mut Client, um: f64| {
-        c.move_to(um, 1000.0).unwrap();
-        let t = Follow::new(c, 0).until_hold().unwrap();
-        let rec = watched(c, 200, |_, _| {});
-        let _ = t;
+    let tail_mean = |rec: &[Sample]| {
         let tail = &rec[rec.len().saturating_sub(100)..];
         tail.iter().map(|s| real(s.x_true)).sum::<f64>() / tail.len().max(1) as f64
     };
-    let lo = at(c, STROKE.0);
-    let hi = at(c, STROKE.1);
+    let mut at = |um: f64| {
+        c.move_to(um, 1000.0).unwrap();
+        Follow::new(c, 0).until_hold().unwrap();
+        let slow = tail_mean(&watched(c, 200, |_, _| {}));
+        c.move_to(20.0, 1000.0).unwrap();
+        Follow::new(c, 0).until_hold().unwrap();
+        let step: Vec<f64> = (0..2000)
+            .map(|k| if k == 0 { 20.0 + (um - 20.0) / 2.0 } else { um })
+            .collect();
+        let fast = tail_mean(&stream(c, &step, 1));
+        (slow, fast)
+    };
+    let lo = at(STROKE.0);
+    let hi = at(STROKE.1);
+    println!(
+        "rests: bottom {:.2} (slowly) {:.2} (a fast step), top {:.2} / {:.2} µm",
+        lo.0, lo.1, hi.0, hi.1
+    );
     c.move_to(20.0, 1000.0).unwrap();
     Follow::new(c, 0).until_hold().unwrap();
-    (lo.min(STROKE.0), hi.max(STROKE.1))
+    (lo.0.min(lo.1).min(STROKE.0), hi.0.max(hi.1).max(STROKE.1))
 }
 
 /// What a case did to the stage: its true position's extent, the ticks
@@ -379,8 +403,10 @@ fn a_new_client_s_motion_ends_a_dead_client_s_stream() {
         a.move_to(10.0, 1000.0).unwrap();
         Follow::new(&mut a, 0).until_hold().unwrap();
         let points: Vec<f64> = (0..1000).map(|k| 10.0 + 10.0 * k as f64 / 1000.0).collect();
-        a.points(0, &points[..200]).unwrap();
-        a.points(200, &points[200..400]).unwrap();
+        for (k, chunk) in points[..384].chunks(fpi_protocol::MAX_POINTS).enumerate() {
+            a.points((k * fpi_protocol::MAX_POINTS) as u32, chunk)
+                .unwrap();
+        }
         a.ack(&Command::Stream {
             axis: 0,
             interval: 100,
@@ -389,15 +415,17 @@ fn a_new_client_s_motion_ends_a_dead_client_s_stream() {
         // The client dies here: no StreamEnd, no heartbeat.
     }
     // Its supervision parks the stage (the stream was still running).
+    // (The new client asks at longer intervals than the supervision's
+    // timeout: each of its requests would otherwise keep the link alive.)
     let mut b = Client::open(e.port()).unwrap();
     let start = Instant::now();
     let lost = loop {
+        std::thread::sleep(Duration::from_millis(1500));
         let s = b.status().unwrap();
         if let Some(f) = s.fault.filter(|f| f.code == Fault::LinkLost as u8) {
             break f;
         }
         assert!(start.elapsed() < Duration::from_secs(20), "{s:?}");
-        std::thread::sleep(Duration::from_millis(20));
     };
     println!("the dead client's stream parked the stage: {lost:?}");
     // The new client clears the fault and moves: the move ends the stream.
@@ -555,19 +583,24 @@ fn random_references_stay_in_the_stroke() {
                     ));
                     cases += 1;
                 }
-                // Analog noise: the input jumps anywhere in its range about
-                // every millisecond.
+                // Analog noise: the input walks its range in jumps of up to
+                // 250 counts about every millisecond.
                 set_up(&mut c, loops, v, 20.0);
                 let rec = watched(&mut c, 400, |c, samples| {
                     c.bench(BenchOrder::Analog(2048)).unwrap();
                     c.ack(&Command::Analog { axis: 0 }).unwrap();
                     let until = Instant::now() + Duration::from_millis(300);
+                    let mut counts = 2048.0;
                     while Instant::now() < until {
-                        let counts = rng.within(0.0, 4095.0) as u16;
-                        c.bench(BenchOrder::Analog(counts)).unwrap();
+                        // Within the input's plausible jump (256 counts): a
+                        // larger one is the analog fault, not a reference.
+                        counts = (counts + rng.within(-250.0, 250.0)).clamp(0.0, 4095.0);
+                        c.bench(BenchOrder::Analog(counts as u16)).unwrap();
                         samples.extend(c.drain().unwrap().0);
                     }
-                    c.ack(&Command::Hold { axis: 0 }).unwrap();
+                    // (A fault latched meanwhile refuses the hold: the
+                    // record says what happened.)
+                    c.ack(&Command::Hold { axis: 0 }).ok();
                 });
                 Seen::of(&rec, &mut c, stroke)
                     .check(&format!("seed {seed}, {name}, {loops:?}, analog noise"));

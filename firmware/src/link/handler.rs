@@ -986,7 +986,12 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
         }),
         amplifier_on: s.now.amplifier_on(),
         source: s.source,
-        approaching: s.approaching,
+        // The source holding while the governed reference has not reached
+        // it yet (a governed move's end) is still on its way: a client
+        // waiting for the hold waits for the stage.
+        approaching: s.approaching
+            || (s.source == fpi_protocol::SourceKind::Hold
+                && s.now.status & crate::recorder::status::GOVERNED != 0),
         compensated: s.compensated,
         loop_mode: s.loop_mode,
         damping: summary.damping.map(|_| s.damping_on),

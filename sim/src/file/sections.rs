@@ -142,7 +142,7 @@ impl ControllerSection {
     /// given and it is lower. An `I_max` or `C` that is not positive and finite is
     /// refused, naming its key (a huge current limit limits nothing; a huge
     /// capacitance, a slew below the smallest step, is refused by
-    /// [`max_step`](Self::max_step)).
+    /// `max_step`).
     pub fn slew_limit_v_per_ms(&self) -> Result<f64, String> {
         match (self.current_limit_ma, self.capacitance_uf) {
             (None, None) => Ok(self.slew_v_per_ms),

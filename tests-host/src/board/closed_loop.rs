@@ -165,9 +165,11 @@ fn wave(
         no_fault(s, "the wave")?;
         Ok(!s.approaching && s.source == SourceKind::Wave)
     })?;
+    // The end: the source holds and the governed reference has arrived
+    // (the next measurement starts from rest).
     f.until("the wave's end", |s| {
         no_fault(s, "the wave")?;
-        Ok(s.source == SourceKind::Hold)
+        Ok(s.source == SourceKind::Hold && !s.approaching)
     })?;
     f.c.ack(&Command::RecordStop)?;
     f.drain()?;

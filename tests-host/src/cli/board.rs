@@ -458,7 +458,7 @@ impl std::error::Error for Interrupted {}
 static CTRL_C: AtomicBool = AtomicBool::new(false);
 
 /// From now on Ctrl-C (SIGINT), `SIGTERM` (`kill`, a service manager) and
-/// `SIGHUP` (the terminal closed) set [`CTRL_C`] instead of ending the
+/// `SIGHUP` (the terminal closed) set the `CTRL_C` flag instead of ending the
 /// process, so that the command stops the board's side in order and keeps
 /// what it recorded; a second one ends it (status 130). (`SIGKILL` cannot be
 /// caught: a `record` killed so leaves the board's recorder running, and the
