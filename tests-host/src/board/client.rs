@@ -657,6 +657,18 @@ impl Client {
         loop {
             let s = self.status()?;
             let free = s.stream[1] as usize;
+            // A fault (or anything else) that ended the stream: no more
+            // room will come.
+            if let Some(f) = s.fault {
+                bail!(
+                    "the stream ended with {} of the {} points sent still queued: fault {} ({}) at tick {}",
+                    s.stream[0],
+                    sent,
+                    f.code,
+                    Fault::from_code(f.code).map_or("an unknown fault", |f| f.message()),
+                    f.at
+                );
+            }
             if sent == points_um.len() {
                 self.ack(&Command::StreamEnd { axis: 0 })?;
                 break;

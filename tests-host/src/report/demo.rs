@@ -695,7 +695,7 @@ impl<'o> Chain<'o> {
             if same {
                 "identical to the model the firmware embeds (firmware/model/stage-a.toml)"
             } else {
-                "DIFFERS from firmware/model/stage-a.toml — regenerate it with `fpi export` (README)"
+                "DIFFERS from firmware/model/stage-a.toml — regenerate it with `fpi export` (docs/src/data.md)"
             }
         ));
         let md = &mut self.md;
