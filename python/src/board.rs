@@ -383,30 +383,7 @@ impl Board {
                 let r = commands::stream(c, &points, interval, |_| {}, || signalled(&mut caught))?;
                 return Ok((r, None));
             }
-            let seconds = points.len() as f64 * f64::from(interval) / c.rate_hz();
-            let m = motion::record(
-                c,
-                "the stream",
-                seconds,
-                Until::Rest,
-                |c, read| {
-                    let armed = c.last_tick().unwrap_or(0);
-                    let r = commands::stream_with(
-                        c,
-                        &points,
-                        interval,
-                        |_| {},
-                        || signalled(&mut caught),
-                        read,
-                    )?;
-                    let start = match r {
-                        Streamed::Played(p) => p.started,
-                        Streamed::Stopped { .. } => armed,
-                    };
-                    Ok((start, r))
-                },
-                || false,
-            )?;
+            let m = motion::record_stream(c, &points, interval, |_| {}, || signalled(&mut caught))?;
             if let (Some(e), Streamed::Played(_)) = (m.fault, &m.result) {
                 return Err(e);
             }

@@ -21,7 +21,7 @@ use piezo_fpi::control::Fault;
 
 use super::budget::Budget;
 use super::client::{Client, Faulted};
-use super::commands::BadArgument;
+use super::commands::{self, BadArgument, Streamed};
 use super::recording::Recording;
 use crate::data::Num;
 
@@ -215,6 +215,37 @@ fn follow<T>(
         std::thread::sleep(Duration::from_millis(1));
     }
     Ok((result, start, end, false))
+}
+
+/// A stream of `points` (µm) at `interval` ticks with every tick of it
+/// recorded ([`record`] until the board holds): `progress` hears the points
+/// sent, `stop` ends the stream early (the recording goes on until the
+/// board holds). What `fpi board stream --record` and Python's
+/// `stream(record=True)` run.
+pub fn record_stream(
+    c: &mut Client,
+    points: &[f64],
+    interval: u16,
+    progress: impl FnMut(usize),
+    stop: impl FnMut() -> bool,
+) -> Result<Motion<Streamed>> {
+    let seconds = points.len() as f64 * f64::from(interval) / c.rate_hz();
+    record(
+        c,
+        "the stream",
+        seconds,
+        Until::Rest,
+        |c, read| {
+            let armed = c.last_tick().unwrap_or(0);
+            let r = commands::stream_with(c, points, interval, progress, stop, read)?;
+            let start = match r {
+                Streamed::Played(p) => p.started,
+                Streamed::Stopped { .. } => armed,
+            };
+            Ok((start, r))
+        },
+        || false,
+    )
 }
 
 /// How long a move from `from_um` to `to_um` at `speed` µm/s lasts, s.

@@ -547,31 +547,10 @@ pub fn stream(c: &mut Client, points: &[f64], interval: u16, record: Option<&Pat
     let r = match record {
         None => commands::stream(c, points, interval, |n| pb.set_position(n as u64), stop)?,
         Some(out) => {
-            let seconds = points.len() as f64 * f64::from(interval) / c.rate_hz();
-            let m = motion::record(
-                c,
-                "the stream",
-                seconds,
-                Until::Rest,
-                |c, read| {
-                    let armed = c.last_tick().unwrap_or(0);
-                    let r = commands::stream_with(
-                        c,
-                        points,
-                        interval,
-                        |n| pb.set_position(n as u64),
-                        stop,
-                        read,
-                    )?;
-                    match r {
-                        commands::Streamed::Played(p) => Ok((p.started, r)),
-                        commands::Streamed::Stopped { .. } => Ok((armed, r)),
-                    }
-                },
-                // The stream stops itself on Ctrl-C; the recording goes on
-                // until the board holds.
-                || false,
-            )?;
+            // The stream stops itself on Ctrl-C; the recording goes on until
+            // the board holds.
+            let m =
+                motion::record_stream(c, points, interval, |n| pb.set_position(n as u64), stop)?;
             pb.finish_and_clear();
             if let commands::Streamed::Stopped { sent, held_at } = m.result {
                 m.recording.write_csv(out)?;
