@@ -475,9 +475,8 @@ mod tests {
             speed: um(1000.0),
         });
         assert!(t0 > 0);
-        // The governor takes a move out of the park (at the window's foot,
-        // where its room is the margin) in about 1200 ticks.
-        h.run(2000);
+        // The 20 ms move, and time to settle.
+        h.run(1000);
         let s = h.status();
         assert_eq!(s.fault, None, "armed by the move");
         assert_eq!(s.signals[0], um(20.0));
@@ -936,9 +935,8 @@ mod tests {
             target: um(20.0),
             speed: um(1000.0),
         });
-        // The governor takes a move out of the park (at the window's foot,
-        // where its room is the margin) in about 1200 ticks.
-        h.run(2000);
+        // The 20 ms move, and time to settle.
+        h.run(1000);
         let s = h.status();
         assert_eq!(s.fault, None);
         assert!((s.signals[1] - um(20.0)).abs() < um(0.05), "{s:?}");

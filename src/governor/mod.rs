@@ -369,7 +369,8 @@ impl GovernorLimits {
             // acceleration of the landing speed: else the next tick could not
             // follow the source and would swing past it.
             Some(want)
-                if want.wrapping_sub(dr << (MOTION_FRAC - 16)).unsigned_abs() <= self.accel =>
+                if want.wrapping_sub(dr << (MOTION_FRAC - 16)).unsigned_abs() <= self.accel
+                    && want.wrapping_sub(v).unsigned_abs() <= self.accel_gov =>
             {
                 want
             }

@@ -444,3 +444,25 @@ fn analysis_floor_limits() -> Limits {
         lead: -0.755,
     }
 }
+
+/// A move out of the park at the window's foot (1 mm/s, 0 → 20 µm) on the
+/// floor's limits: the governor leaves the edge gently and catches up with
+/// the move, which then ends on time (it once tried to land on the source
+/// at each tick, failed the check and braked to a stop, and crept for 50 ms).
+#[test]
+fn a_move_out_of_the_park_catches_up_with_its_source() {
+    let cfg = GovernorConfig::new(window(), &analysis_floor_limits());
+    let mut st = GovernorState::at_rest(um(0.0));
+    let mut last_governed = 0;
+    for k in 0..2000u32 {
+        let r = (f64::from(k) * 0.05).min(20.0);
+        cfg.process(&mut st, um(r));
+        if st.governed() {
+            last_governed = k;
+        }
+        assert!(st.bound() < 1.0, "tick {k}: the envelope {}", st.bound());
+    }
+    println!("governed until tick {last_governed} of the move's 400");
+    assert!(last_governed < 250, "governed until tick {last_governed}");
+    assert_eq!(st.position(), um(20.0));
+}
