@@ -366,11 +366,22 @@ impl GovernorLimits {
         let dr = r16.wrapping_sub(st.r_prev).max(-limit).min(limit);
         let v1 = match land {
             // Landing only where the source's own speed is within a tick's
-            // acceleration of the landing speed: else the next tick could not
-            // follow the source and would swing past it.
+            // acceleration of the landing speed (else the next tick could not
+            // follow the source and would swing past it), and where the check
+            // admits it: a landing it refuses would brake, and next to the
+            // window's edge a governed move out of the park braked to a stop at
+            // every tick and filled the envelope with the braking.
             Some(want)
                 if want.wrapping_sub(dr << (MOTION_FRAC - 16)).unsigned_abs() <= self.accel
-                    && want.wrapping_sub(v).unsigned_abs() <= self.accel_gov =>
+                    && self.admits(
+                        w,
+                        st.g,
+                        decay(self.rho, st.d).saturating_add(gain_mul(
+                            self.c_r,
+                            want.wrapping_sub(v).unsigned_abs(),
+                        )),
+                        want,
+                    ) =>
             {
                 want
             }
@@ -400,8 +411,8 @@ impl GovernorLimits {
                 v.wrapping_add(acc)
                     .max(-speed)
                     .min(speed)
-                    .max(lo.saturating_mul(1 << (MOTION_FRAC - 16)))
-                    .min(hi.saturating_mul(1 << (MOTION_FRAC - 16)))
+                    .max(lo.max(-limit) << (MOTION_FRAC - 16))
+                    .min(hi.min(limit) << (MOTION_FRAC - 16))
             }
         };
         if v.unsigned_abs() > self.accel_gov {
@@ -415,7 +426,7 @@ impl GovernorLimits {
             .saturating_sub(st.d);
         // A share of it, as a speed (I16F16 µm per tick to I4F28).
         let share16 = ((room.max(0) as u64 * self.creep as u64) >> 32) as i32;
-        let share = share16.saturating_mul(1 << (MOTION_FRAC - 16)).max(1);
+        let share = (share16.min(limit) << (MOTION_FRAC - 16)).max(1);
         v1.max(-share).min(share)
     }
 
