@@ -148,6 +148,12 @@ mod bench {
             self.sum += c as u64;
             self.n += 1;
         }
+        fn merge(&mut self, o: &Self) {
+            self.min = self.min.min(o.min);
+            self.max = self.max.max(o.max);
+            self.sum += o.sum;
+            self.n += o.n;
+        }
         fn mean_x10(&self) -> u32 {
             (self.sum * 10 / self.n.max(1) as u64) as u32
         }
@@ -449,7 +455,8 @@ mod bench {
         lp.tick(&mut x);
         let stepping_ok = swapped && stepping_phase(&mut lp, &mut x, baseline);
         let closed_ok = stepping_ok && tick_phase(&mut lp, &mut x, baseline, true);
-        open_ok && closed_ok && stepping_ok
+        let governed_ok = closed_ok && governed_phase(&mut lp, &mut x, baseline);
+        open_ok && closed_ok && stepping_ok && governed_ok
     }
 
     /// The benchmark's control loop (its I/O is the simulated link).
@@ -478,6 +485,32 @@ mod bench {
         } else {
             "the board's control task on the runtime embedded model: order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder"
         };
+        print_phase(x, names, what, &c, ok, depth)
+    }
+
+    /// In closed loop, a move ordered at 2 µm a tick (40 m/s), which the
+    /// reference governor takes at its own limits back and forth across the
+    /// stroke: the governed ticks' counts.
+    fn governed_phase(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32) -> bool {
+        let mut c = Counts::new();
+        let (mut ok, mut depth) = (true, 0);
+        for (seq, target) in [(8, 5), (9, 35)] {
+            let fast = SourceOrder::Move {
+                target: Micrometres::from_num(target),
+                step: Micrometres::from_num(2),
+            };
+            x.order = Some((seq, Order::Source(fast)));
+            lp.tick(x);
+            let (part, part_ok, part_depth) = run_ticks(lp, x, baseline);
+            c.merge(&part);
+            ok &= part_ok;
+            depth = depth.max(part_depth);
+        }
+        let names = (
+            "isr_tick_closed_loop_governed_instructions",
+            "isr_tick_closed_loop_governed_stack_bytes",
+        );
+        let what = "the same in closed loop, moves ordered at 2 µm a tick that the reference governor takes at its limits";
         print_phase(x, names, what, &c, ok, depth)
     }
 
