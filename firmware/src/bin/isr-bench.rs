@@ -25,19 +25,19 @@ mod bench {
     use cortex_m_rt::entry;
     use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
     use cortex_m_semihosting::hprintln;
-    use fpi_firmware::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
-    use fpi_firmware::closed_loop::LoopMode;
-    use fpi_firmware::control_loop::ControlLoop;
-    use fpi_firmware::exchange::{Exchange, Order};
-    use fpi_firmware::hardware::{self, Store, BOARD};
-    use fpi_firmware::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
-    use fpi_firmware::model::{self, CONTROLLER, MODEL_IMAGE};
-    use fpi_firmware::recorder::Recorder;
-    use fpi_firmware::reference::stream::Points;
-    use fpi_firmware::reference::wave::{Shape as WaveShape, Wave, WavePhase};
-    use fpi_firmware::reference::SourceOrder;
-    use fpi_firmware::sim_io::SimLink;
-    use fpi_firmware::slots::{Origin, Running, Spare};
+    use fpi_firmware::board::capacity::{self, Store, BOARD};
+    use fpi_firmware::board::capacity::{RECORDER_SAMPLES, STREAM_POINTS};
+    use fpi_firmware::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
+    use fpi_firmware::board::factory_model::{self, CONTROLLER, MODEL_IMAGE};
+    use fpi_firmware::control::exchange::{Exchange, Order};
+    use fpi_firmware::control::recorder::Recorder;
+    use fpi_firmware::control::reference::stream::Points;
+    use fpi_firmware::control::reference::wave::{Shape as WaveShape, Wave, WavePhase};
+    use fpi_firmware::control::reference::SourceOrder;
+    use fpi_firmware::control::slots::{Origin, Running, Spare};
+    use fpi_firmware::control::task::ControlLoop;
+    use fpi_firmware::control::tracking::LoopMode;
+    use fpi_firmware::emulation::virtual_io::SimLink;
     use piezo_fpi::control::{
         split_rate, ControllerConfig, ControllerParts, ForceChannel, ForceSource, Interval,
         Supervision, DEFAULT_SPLIT_HZ,
@@ -441,7 +441,7 @@ mod bench {
         // only) learns at every tick, the loop's transfer included.
         let up = SourceOrder::Step {
             target: Micrometres::from_num(38),
-            phase_step: fpi_firmware::reference::step_phase_for(STEPS + 20),
+            phase_step: fpi_firmware::control::reference::step_phase_for(STEPS + 20),
         };
         x.order = Some((6, Order::Source(up)));
         lp.tick(&mut x);
@@ -454,10 +454,10 @@ mod bench {
 
     /// The benchmark's control loop (its I/O is the simulated link).
     type Loop = ControlLoop<
-        fpi_firmware::sim_io::SimSensor<'static>,
-        fpi_firmware::sim_io::SimAmplifier<'static>,
-        fpi_firmware::sim_io::SimEnable<'static>,
-        fpi_firmware::sim_io::SimAnalog<'static>,
+        fpi_firmware::emulation::virtual_io::SimSensor<'static>,
+        fpi_firmware::emulation::virtual_io::SimAmplifier<'static>,
+        fpi_firmware::emulation::virtual_io::SimEnable<'static>,
+        fpi_firmware::emulation::virtual_io::SimAnalog<'static>,
     >;
 
     /// Runs a 5 Hz full stroke from where the loop is and prints its counts.
@@ -591,7 +591,7 @@ mod bench {
         use super::{full_stroke, instructions, ticks, Counts, STEPS};
         use core::hint::black_box;
         use cortex_m_semihosting::hprintln;
-        use fpi_firmware::reference::wave::WavePhase;
+        use fpi_firmware::control::reference::wave::WavePhase;
         use piezo_fpi::biquad::{Biquad, BiquadState, Cascade, CascadeState};
         use piezo_fpi::q::Volts;
 
@@ -670,14 +670,20 @@ mod bench {
     /// `converter_tick_instructions`.
     fn converter_report(baseline: u32) {
         use fpi_firmware::converters::{bench, tick_frames};
-        let mut fe = bench::front_end();
+        let mut fe = bench::front_end(fpi_firmware::board::definition::precision::DAC);
         let wave = full_stroke(5.0);
-        let mut w = fpi_firmware::reference::wave::WavePhase::default();
+        let mut w = fpi_firmware::control::reference::wave::WavePhase::default();
         let mut c = Counts::new();
         for _ in 0..STEPS {
             let u = black_box(Volts::from_bits(wave.next(&mut w).to_bits() << 2));
             c.add(instructions(
-                ticks(|| tick_frames(&mut fe, &fpi_firmware::board_def::precision::FRONT_END, u)),
+                ticks(|| {
+                    tick_frames(
+                        &mut fe,
+                        &fpi_firmware::board::definition::precision::FRONT_END,
+                        u,
+                    )
+                }),
                 baseline,
             ));
         }

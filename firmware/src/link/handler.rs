@@ -24,19 +24,20 @@ use super::protocol::{
     LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES,
     MAX_BATCH_BYTES, MAX_FRAME, MAX_MODEL_BYTES, MAX_VALUES, NO_SEQ, VERSION,
 };
+use super::refusal::{refuse, Refuse};
 use super::upload::Upload;
-use crate::analyser::AnalyseOrder;
-use crate::closed_loop::LoopMode;
-use crate::exchange::{Exchange, Order, Refused};
-use crate::hardware::{
+use crate::board::capacity::{
     BOARD, CREEP_TERMS, IMAGE_BYTES, OPERATORS, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS,
     TABLE_INTERVALS,
 };
-use crate::recorder::{signal, wire_len, Sample};
-use crate::reference::wave::Wave;
-use crate::reference::SourceOrder;
-use crate::slots::{Origin, Running, Spare, Summary};
-use crate::storage::{ModelFlash, Slot, Stored};
+use crate::board::storage::{ModelFlash, Slot, Stored};
+use crate::control::analyser::AnalyseOrder;
+use crate::control::exchange::{Exchange, Order, Refused};
+use crate::control::recorder::{signal, wire_len, Sample};
+use crate::control::reference::wave::Wave;
+use crate::control::reference::SourceOrder;
+use crate::control::slots::{Origin, Running, Spare, Summary};
+use crate::control::tracking::LoopMode;
 
 /// What the handler needs from the board it runs on.
 pub trait Board {
@@ -66,30 +67,6 @@ fn wait_until(board: &mut impl Board, due: u32) {
 const APPLY_TIMEOUT_WAITS: u32 = 100_000;
 /// Fastest move, µm/s (a 40 µm stroke in 1.3 ms; the top of the `I16F16` range).
 const MAX_SPEED_UM_S: i64 = 30_000;
-
-/// A request refused: its code and reason.
-pub(super) type Refuse = (Refusal, Text);
-
-pub(super) fn refuse(code: Refusal, args: core::fmt::Arguments<'_>) -> Refuse {
-    let mut t = Text::new();
-    // A reason longer than the text is cut where it fills it; the code still
-    // says what happened.
-    let _ = Cut(&mut t).write_fmt(args);
-    (code, t)
-}
-
-/// Writes into a [`Text`] as many characters as fit (a `heapless::String`
-/// refuses a whole piece that does not fit, which left a long reason empty).
-struct Cut<'a>(&'a mut Text);
-
-impl core::fmt::Write for Cut<'_> {
-    fn write_str(&mut self, s: &str) -> core::fmt::Result {
-        for ch in s.chars() {
-            self.0.push(ch).map_err(|_| core::fmt::Error)?;
-        }
-        Ok(())
-    }
-}
 
 /// µm (or V, N) with three decimals, for reasons.
 pub(super) struct Milli(pub(super) i32);
@@ -434,7 +411,7 @@ impl<F: NorFlash> Handler<F> {
                     ));
                 }
                 let ticks = (duration_us as u64 * RATE_HZ as u64).div_ceil(1_000_000) as u32;
-                let phase_step = crate::reference::step_phase_for(ticks);
+                let phase_step = crate::control::reference::step_phase_for(ticks);
                 self.order(
                     board,
                     seq,
@@ -707,7 +684,7 @@ impl<F: NorFlash> Handler<F> {
 
     /// An analysis order, checked: a frequency below a quarter of the control
     /// rate, an excitation of at most 5 µm that keeps the stage in its stroke, and
-    /// at most [`crate::analyser::MAX_TICKS`] correlated.
+    /// at most [`crate::control::analyser::MAX_TICKS`] correlated.
     fn analyse_order(
         &mut self,
         board: &mut impl Board,
@@ -748,12 +725,12 @@ impl<F: NorFlash> Handler<F> {
         let period = (1u64 << 32).div_ceil(phase_step.max(1) as u64);
         let ticks = |n: u16| (n as u64 * period).min(u32::MAX as u64) as u32;
         let measure_ticks = ticks(cycles);
-        if measure_ticks > crate::analyser::MAX_TICKS {
+        if measure_ticks > crate::control::analyser::MAX_TICKS {
             return Err(refuse(
                 Refusal::BadArgument,
                 format_args!(
                     "{cycles} periods at {freq_mhz} mHz: more than {} ticks",
-                    crate::analyser::MAX_TICKS
+                    crate::control::analyser::MAX_TICKS
                 ),
             ));
         }
@@ -770,7 +747,7 @@ impl<F: NorFlash> Handler<F> {
     /// buffer while it still holds the running model's.
     fn model_bytes(&mut self, board: &mut impl Board, offset: u32) -> Result<Reply, Refuse> {
         let image: &[u8] = match (self.summary.origin, self.image_len) {
-            (Origin::Factory, _) => crate::model::MODEL_IMAGE,
+            (Origin::Factory, _) => crate::board::factory_model::MODEL_IMAGE,
             (_, Some(n)) if self.upload.expected.is_none() => {
                 self.upload.image.get(..n).unwrap_or(&[])
             }
@@ -805,7 +782,7 @@ impl<F: NorFlash> Handler<F> {
 
     fn wave(
         &self,
-        shape: crate::reference::wave::Shape,
+        shape: crate::control::reference::wave::Shape,
         offset: i32,
         amplitude: i32,
         freq_mhz: u32,
@@ -991,7 +968,7 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
         // waiting for the hold waits for the stage.
         approaching: s.approaching
             || (s.source == fpi_protocol::SourceKind::Hold
-                && s.now.status & crate::recorder::status::GOVERNED != 0),
+                && s.now.status & crate::control::recorder::status::GOVERNED != 0),
         compensated: s.compensated,
         loop_mode: s.loop_mode,
         damping: summary.damping.map(|_| s.damping_on),
@@ -1041,6 +1018,177 @@ fn batch(board: &mut impl Board, signals: u8, max: u16) -> Batch {
         waiting: x.recorder.len() as u32,
         values,
     })
+}
+
+impl<F: NorFlash> Handler<F> {
+    pub(super) fn model_report(&self) -> ModelReport {
+        let s = &self.summary;
+        ModelReport {
+            crc: s.crc,
+            origin: s.origin,
+            size: [s.shape.operators as u8, s.shape.creep_terms as u8],
+            maps: [s.shape.dead_zone, s.shape.saturation],
+            window: [
+                s.reference.lo.to_bits(),
+                s.reference.hi.to_bits(),
+                s.safe_voltage.to_bits(),
+            ],
+            stored: self.stored.map(|st| (st.generation, st.crc)),
+            slots: self.slots,
+            feedback: s.feedback.map(|f| {
+                let f = f.spec();
+                [
+                    f.kp.to_bits(),
+                    f.ki.to_bits(),
+                    f.limit.to_bits(),
+                    f.sensor.lo.to_bits(),
+                    f.sensor.hi.to_bits(),
+                    f.tolerance.to_bits(),
+                ]
+            }),
+            dynamics: s.dynamics.map(|d| {
+                [
+                    d.mode_mhz as i32,
+                    d.damping.to_bits(),
+                    d.lag_mhz as i32,
+                    d.force_gain.to_bits(),
+                ]
+            }),
+            damping: s.damping.map(|d| {
+                let d = d.spec();
+                [d.gain.to_bits(), d.leak.to_bits(), d.limit.to_bits()]
+            }),
+            force_channel: [s.channel.split.to_bits(), s.channel.dynamic_limit.to_bits()],
+        }
+    }
+
+    pub(super) fn begin(
+        &mut self,
+        board: &mut impl Board,
+        len: u32,
+        crc: u32,
+    ) -> Result<Reply, Refuse> {
+        self.upload.begin(len, crc)?;
+        // The buffer no longer holds the running model's image.
+        self.image_len = None;
+        self.ack(board)
+    }
+
+    pub(super) fn chunk(
+        &mut self,
+        board: &mut impl Board,
+        offset: u32,
+        data: &[u8],
+    ) -> Result<Reply, Refuse> {
+        self.upload.chunk(offset, data)?;
+        self.ack(board)
+    }
+
+    /// The parked stage's check before a model change.
+    fn parked(&self, board: &mut impl Board) -> Result<(), Refuse> {
+        let (fault, voltage) = board.exchange(|x| (x.snapshot.fault, x.snapshot.now.voltage));
+        match fault {
+            Some(_) if voltage == self.summary.safe_voltage => Ok(()),
+            Some(_) => Err(refuse(
+                Refusal::StillRamping,
+                format_args!("the output is still ramping to the safe voltage"),
+            )),
+            None => Err(refuse(
+                Refusal::NotAtRest,
+                format_args!("a new model needs the stage parked: send `safe` first"),
+            )),
+        }
+    }
+
+    pub(super) fn commit(
+        &mut self,
+        board: &mut impl Board,
+        seq: u16,
+        store: bool,
+    ) -> Result<Reply, Refuse> {
+        let len = self.upload.complete()?;
+        self.parked(board)?;
+        let running = self.activate(Origin::Received, len)?;
+        if store {
+            let image = self.upload.image.get(..len).unwrap_or(&[]);
+            board.long_operation(true);
+            let stored = self.flash.store(image);
+            board.long_operation(false);
+            match stored {
+                Ok(s) => self.stored = Some(s),
+                Err(e) => {
+                    self.spare = Some(running.retire());
+                    return Err(refuse(
+                        Refusal::Storage,
+                        format_args!("{}; the board keeps its model", e.message()),
+                    ));
+                }
+            }
+        }
+        self.upload.done();
+        let result = self.swap(board, seq, running);
+        if result.is_ok() {
+            self.image_len = Some(len);
+        }
+        result
+    }
+
+    /// Loads the first `len` bytes of the upload buffer into the spare store and
+    /// activates it.
+    fn activate(&mut self, origin: Origin, len: usize) -> Result<Running, Refuse> {
+        let Some(mut spare) = self.spare.take() else {
+            return Err(refuse(Refusal::Model, format_args!("no free model store")));
+        };
+        let image = self.upload.image.get(..len).unwrap_or(&[]);
+        if let Err(e) = spare.load(image) {
+            self.spare = Some(spare);
+            return Err(refuse(Refusal::Model, format_args!("{e}")));
+        }
+        match spare.activate(image, origin) {
+            Ok(r) => Ok(r),
+            Err((back, e)) => {
+                self.spare = Some(back);
+                Err(refuse(Refusal::Model, format_args!("{e}")))
+            }
+        }
+    }
+
+    /// Hands `running` to the ISR and takes back the model it replaces.
+    fn swap(
+        &mut self,
+        board: &mut impl Board,
+        seq: u16,
+        running: Running,
+    ) -> Result<Reply, Refuse> {
+        let summary = *running.summary();
+        let mut running = Some(running);
+        board.exchange(|x| x.model = running.take());
+        let result = self.post(board, seq, Order::Swap);
+        if let Some(back) = board.exchange(|x| x.model.take()) {
+            self.spare = Some(back.retire());
+        }
+        result?;
+        self.summary = summary;
+        Ok(Reply::Ack)
+    }
+
+    pub(super) fn factory(&mut self, board: &mut impl Board, seq: u16) -> Result<Reply, Refuse> {
+        self.parked(board)?;
+        board.long_operation(true);
+        let erased = self.flash.erase_all();
+        board.long_operation(false);
+        if let Err(e) = erased {
+            return Err(refuse(Refusal::Storage, format_args!("{}", e.message())));
+        }
+        self.stored = None;
+        let n = self.upload.hold(crate::board::factory_model::MODEL_IMAGE);
+        let running = self.activate(Origin::Factory, n)?;
+        let result = self.swap(board, seq, running);
+        if result.is_ok() {
+            self.image_len = Some(n);
+        }
+        result
+    }
 }
 
 #[cfg(test)]
