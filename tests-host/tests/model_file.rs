@@ -4,7 +4,7 @@
 //! refuses models that cannot move or invert, by key and value, when reading and
 //! before writing.
 
-use fpi_firmware::model;
+use fpi_firmware::board::factory_model;
 use fpi_host::model_file::FirmwareModel;
 
 fn embedded() -> String {

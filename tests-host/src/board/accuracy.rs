@@ -18,7 +18,7 @@
 
 use std::path::{Path, PathBuf};
 
-use fpi_firmware::model::{self, CREEP_TERMS, OPERATORS};
+use fpi_firmware::board::factory_model::{self, CREEP_TERMS, OPERATORS};
 use piezo_fpi::control::{ControllerConfig, ControllerParts, ForceChannel, Interval, Supervision};
 use piezo_fpi::fpi::CreepMemory;
 use piezo_fpi::play::PlayBank;
