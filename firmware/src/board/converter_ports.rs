@@ -26,7 +26,7 @@ use crate::board::analog_in::AnalogIn;
 use crate::converters::front_end::{Driving, FrontEndConfig, Sensing};
 use crate::converters::{Device, Error};
 use core::sync::atomic::{AtomicU32, AtomicU8, Ordering};
-use embedded_hal::digital::{InputPin, OutputPin};
+use embedded_hal::digital::InputPin;
 use embedded_hal::spi::SpiDevice;
 use piezo_fpi::control::Fault;
 use piezo_fpi::io::{ForceSensor, Setpoint};

@@ -21,8 +21,8 @@ use super::frame::{self, FrameError};
 use super::pace::{reached, Pace};
 use super::protocol::{
     Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, Header, Hello,
-    LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES,
-    MAX_BATCH_BYTES, MAX_FRAME, MAX_MODEL_BYTES, MAX_VALUES, NO_SEQ, VERSION,
+    LinkKind, ModelReport, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text,
+    AXES, MAX_BATCH_BYTES, MAX_FRAME, MAX_MODEL_BYTES, MAX_VALUES, NO_SEQ, VERSION,
 };
 use super::refusal::{refuse, Refuse};
 use super::upload::Upload;

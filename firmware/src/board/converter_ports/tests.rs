@@ -16,6 +16,7 @@ use crate::converters::ad579x::Ad579x;
 use crate::converters::ad7606::Ad7606;
 use crate::converters::bench::Canned;
 use core::convert::Infallible;
+use embedded_hal::digital::OutputPin;
 use embedded_hal::{digital, spi};
 use piezo_fpi::io::Hardware;
 use std::cell::Cell;
