@@ -109,7 +109,7 @@ mod bench {
                 force_source: ForceSource::Measured,
                 // The channel every exported model has: the default split.
                 channel: ForceChannel {
-                    split: split_rate(DEFAULT_SPLIT_HZ, hardware::RATE_HZ),
+                    split: split_rate(DEFAULT_SPLIT_HZ, capacity::RATE_HZ),
                     dynamic_limit: Newtons::from_bits(45 << 16),
                 },
             },
@@ -266,7 +266,7 @@ mod bench {
     fn spec_of_c10() -> ModelSpec<'static> {
         let (fpi, sup) = (C10.fpi(), C10.supervision());
         ModelSpec {
-            rate_hz: hardware::RATE_HZ,
+            rate_hz: capacity::RATE_HZ,
             w0: fpi.pi().w0(),
             operators: fpi.pi().operators(),
             input_max: fpi.pi().input_max(),
@@ -316,7 +316,7 @@ mod bench {
             shape.creep_terms,
             if shape.dead_zone { "soft" } else { "hard" },
             if shape.saturation { "yes" } else { "no" },
-            hardware::OPERATORS,
+            capacity::OPERATORS,
             c.max
         );
         detail(what, shape.operators, &c, &l, &start);
@@ -336,7 +336,7 @@ mod bench {
         let um = |x: f64| piezo_fpi::q::signal(x).unwrap_or(Micrometres::ZERO);
         let gain = |x: f64| LoopGain::from_num(x);
         let r = spec.supervision.reference;
-        let rate = hardware::RATE_HZ as f64;
+        let rate = capacity::RATE_HZ as f64;
         let feedback = piezo_fpi::feedback::FeedbackSpec {
             kp: gain(0.75),
             ki: gain(1762.611 / rate),
@@ -508,7 +508,7 @@ mod bench {
         hprintln!(
             "{} n={}: {} ({}; min {} mean {}.{}){}",
             instructions,
-            model::OPERATORS,
+            factory_model::OPERATORS,
             c.max,
             what,
             c.min,
@@ -733,8 +733,8 @@ mod bench {
         let (_, l) = measure(&CONTROLLER, baseline, 500.0);
         hprintln!(
             "embedded_model_step_instructions n={} creep={} dead_zone={} saturation={}: {}",
-            model::OPERATORS,
-            model::CREEP_TERMS,
+            factory_model::OPERATORS,
+            factory_model::CREEP_TERMS,
             if CONTROLLER.fpi().dead_zone().is_some() {
                 "soft"
             } else {
@@ -747,13 +747,13 @@ mod bench {
             },
             c.max
         );
-        detail("embedded model", model::OPERATORS, &c, &l, &start);
+        detail("embedded model", factory_model::OPERATORS, &c, &l, &start);
 
         // Models received at run time (the board's RAM store).
         let mut runtime_ok = false;
         let mut store = cortex_m::singleton!(: Store = Store::new());
         let mut buf =
-            cortex_m::singleton!(: [u8; hardware::IMAGE_BYTES] = [0; hardware::IMAGE_BYTES]);
+            cortex_m::singleton!(: [u8; capacity::IMAGE_BYTES] = [0; capacity::IMAGE_BYTES]);
         if let (Some(store), Some(buf)) = (store.as_deref_mut(), buf.as_deref_mut()) {
             runtime_ok =
                 match image::encode(&spec_of_c10(), buf) {

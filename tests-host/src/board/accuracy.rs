@@ -58,7 +58,7 @@ pub struct FileAccuracy {
 pub fn embedded_model() -> &'static FirmwareModel {
     static MODEL: std::sync::OnceLock<FirmwareModel> = std::sync::OnceLock::new();
     MODEL.get_or_init(
-        || match FirmwareModel::parse(model::MODEL_TOML, model::MODEL_FILE) {
+        || match FirmwareModel::parse(factory_model::MODEL_TOML, factory_model::MODEL_FILE) {
             Ok(m) => m,
             Err(e) => panic!("the embedded model was validated by build.rs: {e}"),
         },
@@ -70,8 +70,8 @@ pub fn embedded_model() -> &'static FirmwareModel {
 /// (which include a 3 kHz chirp where the stage's dynamics pull the force far
 /// from the static FEM map) exercise the arithmetic rather than the safe state;
 /// and its f64 twin with the same settings.
-pub fn controllers() -> (model::Controller, Controller<'static, f64>) {
-    let c = &model::CONTROLLER;
+pub fn controllers() -> (factory_model::Controller, Controller<'static, f64>) {
+    let c = &factory_model::CONTROLLER;
     let reference = Interval {
         lo: c.f_k_inv().x_min(),
         hi: c.f_k_inv().x_max(),
