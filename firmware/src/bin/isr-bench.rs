@@ -92,10 +92,10 @@ mod bench {
     const fn config<const N: usize>(fpi: Fpi<'static, N>) -> ControllerConfig<'static, N> {
         match ControllerConfig::new(ControllerParts {
             fpi,
-            f_f: model::F_F,
-            f_k: model::F_K,
-            f_k_inv: model::F_K_INV,
-            limits: model::LIMITS,
+            f_f: factory_model::F_F,
+            f_k: factory_model::F_K,
+            f_k_inv: factory_model::F_K_INV,
+            limits: factory_model::LIMITS,
             supervision: Supervision {
                 reference: CONTROLLER.reference(),
                 force: Interval {

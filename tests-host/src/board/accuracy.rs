@@ -57,12 +57,12 @@ pub struct FileAccuracy {
 /// The embedded model, parsed for the f64 side (once).
 pub fn embedded_model() -> &'static FirmwareModel {
     static MODEL: std::sync::OnceLock<FirmwareModel> = std::sync::OnceLock::new();
-    MODEL.get_or_init(
-        || match FirmwareModel::parse(factory_model::MODEL_TOML, factory_model::MODEL_FILE) {
+    MODEL.get_or_init(|| {
+        match FirmwareModel::parse(factory_model::MODEL_TOML, factory_model::MODEL_FILE) {
             Ok(m) => m,
             Err(e) => panic!("the embedded model was validated by build.rs: {e}"),
-        },
-    )
+        }
+    })
 }
 
 /// The embedded controller with its supervision widened — the reference range to
