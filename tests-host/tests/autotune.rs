@@ -495,7 +495,7 @@ fn unstable_run(c: &mut Client, a: &Autotune, v: StageVariant) -> Unstable {
 /// or after the fault that latched: the fault, how soon, and the true
 /// position's range up to it and after it (the park).
 fn watched(c: &mut Client, start: impl FnOnce(&mut Follow) -> u32) -> Unstable {
-    use fpi_firmware::recorder::signal;
+    use fpi_firmware::control::recorder::signal;
     use fpi_host::board::client::real;
     use fpi_protocol::Command;
     let mut f = Follow::new(c, signal::X_TRUE | signal::X_REF | signal::STATUS);
@@ -833,7 +833,7 @@ fn a_fast_wave_s_forced_error_is_not_taken_for_an_oscillation() {
 /// governed, and latch nothing.
 #[test]
 fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_governed() {
-    use fpi_firmware::recorder::{signal, status};
+    use fpi_firmware::control::recorder::{signal, status};
     use fpi_protocol::{Command, Shape};
     let a = tuned();
     let (_e, mut c) = board("wave at the mode");
@@ -875,7 +875,7 @@ fn a_wave_the_mode_would_amplify_out_of_the_stroke_is_governed() {
 /// The stage's RMS motion at rest (µm, true position, less its 5 ms mean)
 /// over 0.3 s with the loops closed at 20 µm, and the fault latched meanwhile.
 fn motion_at_rest(c: &mut Client) -> (f64, Option<u8>) {
-    use fpi_firmware::recorder::signal;
+    use fpi_firmware::control::recorder::signal;
     use fpi_protocol::{Command, LoopMode};
     c.move_to(20.0, 1000.0).unwrap();
     Follow::new(c, 0).until_hold().unwrap();
@@ -1049,7 +1049,7 @@ fn built_with_force_noise(sigma_n: f32) -> StageVariant {
 /// force within its window, the step governed.
 #[test]
 fn a_step_too_fast_for_the_force_sensor_is_governed() {
-    use fpi_firmware::recorder::{signal, status};
+    use fpi_firmware::control::recorder::{signal, status};
     use fpi_protocol::{Command, LoopMode};
     let a = tuned();
     let (_e, mut c) = board("step too fast");

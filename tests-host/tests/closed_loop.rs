@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use fpi_firmware::recorder::{signal, status};
+use fpi_firmware::control::recorder::{signal, status};
 use fpi_host::board::client::{real, refusal, Client};
 use fpi_host::board::emulator::{self, Emulator};
 use fpi_protocol::LoopMode;

@@ -23,7 +23,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use fpi_firmware::recorder::{signal, status};
+use fpi_firmware::control::recorder::{signal, status};
 use fpi_host::board::client::{self, refusal, Client};
 use fpi_host::board::emulator::Emulator;
 use fpi_host::board::recording::Recording;
@@ -179,7 +179,7 @@ fn bad_model_uploads_are_refused_with_reasons_and_the_old_model_kept() {
     ) {
         return;
     }
-    let good = fpi_firmware::model::MODEL_IMAGE.to_vec();
+    let good = fpi_firmware::board::factory_model::MODEL_IMAGE.to_vec();
     let (e, mut c) = start();
     let before = c.model().unwrap();
     let check = |c: &mut Client, what: &str, result: anyhow::Result<u32>, want: Refusal| {

@@ -258,7 +258,7 @@ fn a_damaged_stored_model_is_refused_at_start_up_and_resets_are_told() {
     }
     let dir = std::env::temp_dir().join(format!("fpi-faults-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let good = fpi_firmware::model::MODEL_IMAGE;
+    let good = fpi_firmware::board::factory_model::MODEL_IMAGE;
     // Generation 1 intact, generation 2 damaged: the board starts with generation 1.
     let two = dir.join("two.flash");
     flash_file(&two, &[good, good], &[1]).unwrap();

@@ -27,8 +27,8 @@
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use fpi_firmware::recorder::Sample;
-use fpi_firmware::recorder::{signal, status};
+use fpi_firmware::control::recorder::Sample;
+use fpi_firmware::control::recorder::{signal, status};
 use fpi_host::board::autotune::{self, Autotune};
 use fpi_host::board::client::{real, refusal, Client};
 use fpi_host::board::emulator::{self, Emulator};

@@ -4,11 +4,11 @@
 //! refuses models that cannot move or invert, by key and value, when reading and
 //! before writing.
 
-use fpi_firmware::model;
+use fpi_firmware::board::factory_model;
 use fpi_host::model_file::FirmwareModel;
 
 fn embedded() -> String {
-    model::MODEL_TOML.to_string()
+    factory_model::MODEL_TOML.to_string()
 }
 
 fn error_of(text: &str) -> String {
@@ -25,8 +25,8 @@ fn refused(m: &FirmwareModel, edit: &dyn Fn(&mut FirmwareModel), want: &str) {
 
 #[test]
 fn the_embedded_model_is_valid_and_round_trips() {
-    let m = FirmwareModel::parse(&embedded(), model::MODEL_FILE).unwrap();
-    assert_eq!(m.pi.thresholds_v.len(), model::OPERATORS);
+    let m = FirmwareModel::parse(&embedded(), factory_model::MODEL_FILE).unwrap();
+    assert_eq!(m.pi.thresholds_v.len(), factory_model::OPERATORS);
     let again = FirmwareModel::parse(&m.to_toml().unwrap(), "again").unwrap();
     assert_eq!(again, m);
 }

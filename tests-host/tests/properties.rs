@@ -7,7 +7,7 @@
 //!   arbitrary `I16F16` references and forces, including the extremes.
 
 use fixed::types::I16F16;
-use fpi_firmware::model::{CONTROLLER, CREEP_TERMS, OPERATORS};
+use fpi_firmware::board::factory_model::{CONTROLLER, CREEP_TERMS, OPERATORS};
 use fpi_host::board::accuracy::{BOUND_U_V, BOUND_X_UM};
 use piezo_fpi::fpi::CreepMemory;
 use piezo_fpi::inverse::InversePi;

@@ -1,6 +1,6 @@
 //! The book's wiring table (`docs/src/flashing.md`, *Flashing a real board*) names
 //! the same pins, for the same front ends, in the same order, as the board
-//! definition's (`firmware/src/board_def.rs`), and the board definition's code
+//! definition's (`firmware/src/board/definition.rs`), and the board definition's code
 //! takes every pin its table names and no other.
 
 use std::collections::BTreeSet;
@@ -60,7 +60,7 @@ fn pins_in_code(text: &str) -> BTreeSet<String> {
 #[test]
 fn the_book_s_wiring_table_names_the_board_definitions_pins() {
     let top = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let def = std::fs::read_to_string(top.join("firmware/src/board_def.rs")).unwrap();
+    let def = std::fs::read_to_string(top.join("firmware/src/board/definition.rs")).unwrap();
     let page = std::fs::read_to_string(top.join("docs/src/flashing.md")).unwrap();
     let from_def = rows(&def, "//! | signal | pin | peripheral | front end |", "//!");
     let from_page = rows(&page, "# Flashing a real board", "");
@@ -81,7 +81,7 @@ fn the_book_s_wiring_table_names_the_board_definitions_pins() {
 #[test]
 fn the_board_definition_takes_the_pins_its_table_names() {
     let top = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let def = std::fs::read_to_string(top.join("firmware/src/board_def.rs")).unwrap();
+    let def = std::fs::read_to_string(top.join("firmware/src/board/definition.rs")).unwrap();
     let named: BTreeSet<String> =
         rows(&def, "//! | signal | pin | peripheral | front end |", "//!")
             .iter()

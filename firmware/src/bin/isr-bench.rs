@@ -25,19 +25,19 @@ mod bench {
     use cortex_m_rt::entry;
     use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
     use cortex_m_semihosting::hprintln;
-    use fpi_firmware::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
-    use fpi_firmware::closed_loop::LoopMode;
-    use fpi_firmware::control_loop::ControlLoop;
-    use fpi_firmware::exchange::{Exchange, Order};
-    use fpi_firmware::hardware::{self, Store, BOARD};
-    use fpi_firmware::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
-    use fpi_firmware::model::{self, CONTROLLER, MODEL_IMAGE};
-    use fpi_firmware::recorder::Recorder;
-    use fpi_firmware::reference::stream::Points;
-    use fpi_firmware::reference::wave::{Shape as WaveShape, Wave, WavePhase};
-    use fpi_firmware::reference::SourceOrder;
-    use fpi_firmware::sim_io::SimLink;
-    use fpi_firmware::slots::{Origin, Running, Spare};
+    use fpi_firmware::board::capacity::{self, Store, BOARD};
+    use fpi_firmware::board::capacity::{RECORDER_SAMPLES, STREAM_POINTS};
+    use fpi_firmware::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
+    use fpi_firmware::board::factory_model::{self, CONTROLLER, MODEL_IMAGE};
+    use fpi_firmware::control::exchange::{Exchange, Order};
+    use fpi_firmware::control::recorder::Recorder;
+    use fpi_firmware::control::reference::stream::Points;
+    use fpi_firmware::control::reference::wave::{Shape as WaveShape, Wave, WavePhase};
+    use fpi_firmware::control::reference::SourceOrder;
+    use fpi_firmware::control::slots::{Origin, Running, Spare};
+    use fpi_firmware::control::task::ControlLoop;
+    use fpi_firmware::control::tracking::LoopMode;
+    use fpi_firmware::emulation::virtual_io::SimLink;
     use piezo_fpi::control::{
         split_rate, ControllerConfig, ControllerParts, ForceChannel, ForceSource, Interval,
         Supervision, DEFAULT_SPLIT_HZ,
@@ -92,10 +92,10 @@ mod bench {
     const fn config<const N: usize>(fpi: Fpi<'static, N>) -> ControllerConfig<'static, N> {
         match ControllerConfig::new(ControllerParts {
             fpi,
-            f_f: model::F_F,
-            f_k: model::F_K,
-            f_k_inv: model::F_K_INV,
-            limits: model::LIMITS,
+            f_f: factory_model::F_F,
+            f_k: factory_model::F_K,
+            f_k_inv: factory_model::F_K_INV,
+            limits: factory_model::LIMITS,
             supervision: Supervision {
                 reference: CONTROLLER.reference(),
                 force: Interval {
@@ -109,7 +109,7 @@ mod bench {
                 force_source: ForceSource::Measured,
                 // The channel every exported model has: the default split.
                 channel: ForceChannel {
-                    split: split_rate(DEFAULT_SPLIT_HZ, hardware::RATE_HZ),
+                    split: split_rate(DEFAULT_SPLIT_HZ, capacity::RATE_HZ),
                     dynamic_limit: Newtons::from_bits(45 << 16),
                 },
             },
@@ -272,7 +272,7 @@ mod bench {
     fn spec_of_c10() -> ModelSpec<'static> {
         let (fpi, sup) = (C10.fpi(), C10.supervision());
         ModelSpec {
-            rate_hz: hardware::RATE_HZ,
+            rate_hz: capacity::RATE_HZ,
             w0: fpi.pi().w0(),
             operators: fpi.pi().operators(),
             input_max: fpi.pi().input_max(),
@@ -322,7 +322,7 @@ mod bench {
             shape.creep_terms,
             if shape.dead_zone { "soft" } else { "hard" },
             if shape.saturation { "yes" } else { "no" },
-            hardware::OPERATORS,
+            capacity::OPERATORS,
             c.max
         );
         detail(what, shape.operators, &c, &l, &start);
@@ -342,7 +342,7 @@ mod bench {
         let um = |x: f64| piezo_fpi::q::signal(x).unwrap_or(Micrometres::ZERO);
         let gain = |x: f64| LoopGain::from_num(x);
         let r = spec.supervision.reference;
-        let rate = hardware::RATE_HZ as f64;
+        let rate = capacity::RATE_HZ as f64;
         let feedback = piezo_fpi::feedback::FeedbackSpec {
             kp: gain(0.75),
             ki: gain(1762.611 / rate),
@@ -447,7 +447,7 @@ mod bench {
         // only) learns at every tick, the loop's transfer included.
         let up = SourceOrder::Step {
             target: Micrometres::from_num(38),
-            phase_step: fpi_firmware::reference::step_phase_for(STEPS + 20),
+            phase_step: fpi_firmware::control::reference::step_phase_for(STEPS + 20),
         };
         x.order = Some((6, Order::Source(up)));
         lp.tick(&mut x);
@@ -461,10 +461,10 @@ mod bench {
 
     /// The benchmark's control loop (its I/O is the simulated link).
     type Loop = ControlLoop<
-        fpi_firmware::sim_io::SimSensor<'static>,
-        fpi_firmware::sim_io::SimAmplifier<'static>,
-        fpi_firmware::sim_io::SimEnable<'static>,
-        fpi_firmware::sim_io::SimAnalog<'static>,
+        fpi_firmware::emulation::virtual_io::SimSensor<'static>,
+        fpi_firmware::emulation::virtual_io::SimAmplifier<'static>,
+        fpi_firmware::emulation::virtual_io::SimEnable<'static>,
+        fpi_firmware::emulation::virtual_io::SimAnalog<'static>,
     >;
 
     /// Runs a 5 Hz full stroke from where the loop is and prints its counts.
@@ -541,7 +541,7 @@ mod bench {
         hprintln!(
             "{} n={}: {} ({}; min {} mean {}.{}){}",
             instructions,
-            model::OPERATORS,
+            factory_model::OPERATORS,
             c.max,
             what,
             c.min,
@@ -624,7 +624,7 @@ mod bench {
         use super::{full_stroke, instructions, ticks, Counts, STEPS};
         use core::hint::black_box;
         use cortex_m_semihosting::hprintln;
-        use fpi_firmware::reference::wave::WavePhase;
+        use fpi_firmware::control::reference::wave::WavePhase;
         use piezo_fpi::biquad::{Biquad, BiquadState, Cascade, CascadeState};
         use piezo_fpi::q::Volts;
 
@@ -703,14 +703,20 @@ mod bench {
     /// `converter_tick_instructions`.
     fn converter_report(baseline: u32) {
         use fpi_firmware::converters::{bench, tick_frames};
-        let mut fe = bench::front_end();
+        let mut fe = bench::front_end(fpi_firmware::board::definition::precision::DAC);
         let wave = full_stroke(5.0);
-        let mut w = fpi_firmware::reference::wave::WavePhase::default();
+        let mut w = fpi_firmware::control::reference::wave::WavePhase::default();
         let mut c = Counts::new();
         for _ in 0..STEPS {
             let u = black_box(Volts::from_bits(wave.next(&mut w).to_bits() << 2));
             c.add(instructions(
-                ticks(|| tick_frames(&mut fe, &fpi_firmware::board_def::precision::FRONT_END, u)),
+                ticks(|| {
+                    tick_frames(
+                        &mut fe,
+                        &fpi_firmware::board::definition::precision::FRONT_END,
+                        u,
+                    )
+                }),
                 baseline,
             ));
         }
@@ -760,8 +766,8 @@ mod bench {
         let (_, l) = measure(&CONTROLLER, baseline, 500.0);
         hprintln!(
             "embedded_model_step_instructions n={} creep={} dead_zone={} saturation={}: {}",
-            model::OPERATORS,
-            model::CREEP_TERMS,
+            factory_model::OPERATORS,
+            factory_model::CREEP_TERMS,
             if CONTROLLER.fpi().dead_zone().is_some() {
                 "soft"
             } else {
@@ -774,13 +780,13 @@ mod bench {
             },
             c.max
         );
-        detail("embedded model", model::OPERATORS, &c, &l, &start);
+        detail("embedded model", factory_model::OPERATORS, &c, &l, &start);
 
         // Models received at run time (the board's RAM store).
         let mut runtime_ok = false;
         let mut store = cortex_m::singleton!(: Store = Store::new());
         let mut buf =
-            cortex_m::singleton!(: [u8; hardware::IMAGE_BYTES] = [0; hardware::IMAGE_BYTES]);
+            cortex_m::singleton!(: [u8; capacity::IMAGE_BYTES] = [0; capacity::IMAGE_BYTES]);
         if let (Some(store), Some(buf)) = (store.as_deref_mut(), buf.as_deref_mut()) {
             runtime_ok =
                 match image::encode(&spec_of_c10(), buf) {

@@ -16,16 +16,16 @@
 mod proof {
     use core::hint::black_box;
     use cortex_m_rt::entry;
-    use fpi_firmware::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
-    use fpi_firmware::control_loop::ControlLoop;
-    use fpi_firmware::exchange::{Exchange, Order};
-    use fpi_firmware::hardware::{Store, RECORDER_SAMPLES, STREAM_POINTS};
-    use fpi_firmware::model::{CONTROLLER, MODEL_IMAGE};
-    use fpi_firmware::recorder::Recorder;
-    use fpi_firmware::reference::stream::Points;
-    use fpi_firmware::reference::SourceOrder;
-    use fpi_firmware::sim_io::SimLink;
-    use fpi_firmware::slots::{Origin, Spare};
+    use fpi_firmware::board::capacity::{Store, RECORDER_SAMPLES, STREAM_POINTS};
+    use fpi_firmware::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
+    use fpi_firmware::board::factory_model::{CONTROLLER, MODEL_IMAGE};
+    use fpi_firmware::control::exchange::{Exchange, Order};
+    use fpi_firmware::control::recorder::Recorder;
+    use fpi_firmware::control::reference::stream::Points;
+    use fpi_firmware::control::reference::SourceOrder;
+    use fpi_firmware::control::slots::{Origin, Spare};
+    use fpi_firmware::control::task::ControlLoop;
+    use fpi_firmware::emulation::virtual_io::SimLink;
     use piezo_fpi::q::{Micrometres, Newtons};
     use stm32f4xx_hal as _;
 

@@ -4,10 +4,9 @@
 //! goes through [`black_box`], so the optimiser keeps the frames' encoding and
 //! decoding.
 
-use super::ad579x::Ad579x;
+use super::ad579x::{self, Ad579x};
 use super::ad7606::Ad7606;
 use super::front_end::FrontEnd;
-use crate::board_def::precision::DAC;
 use core::convert::Infallible;
 use core::hint::black_box;
 use embedded_hal::digital::{self, InputPin};
@@ -81,11 +80,12 @@ impl InputPin for Busy {
 /// The front end the benchmark drives.
 pub type BenchFrontEnd = FrontEnd<Canned, Busy, Canned>;
 
-/// The board's front end on canned devices, BUSY low (every conversion ready).
-pub const fn front_end() -> BenchFrontEnd {
+/// A front end on canned devices, BUSY low (every conversion ready), its DAC
+/// configured as `dac` (the board's, from the board definition).
+pub const fn front_end(dac: ad579x::Config) -> BenchFrontEnd {
     FrontEnd::new(
         Ad7606::new(Canned::ADC, Busy(false)),
-        Ad579x::new(Canned::DAC, DAC),
+        Ad579x::new(Canned::DAC, dac),
         [0, 0],
     )
 }
@@ -93,13 +93,13 @@ pub const fn front_end() -> BenchFrontEnd {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::board_def::precision::FRONT_END as BOARD;
+    use crate::board::definition::precision::{DAC, FRONT_END as BOARD};
     use crate::converters::tick_frames;
     use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
     #[test]
     fn the_bench_front_end_reads_its_canned_sample() {
-        let mut fe = front_end();
+        let mut fe = front_end(DAC);
         let s = tick_frames(&mut fe, &BOARD, Volts::from_num(75)).unwrap();
         assert_eq!(s.force, Newtons::from_num(60));
         assert_eq!(s.position, Micrometres::from_num(20));

@@ -33,7 +33,7 @@ pub struct Sensed {
     /// The force, N (`I16F16`).
     pub force: Newtons,
     /// The position channel's offset-binary code (what
-    /// [`crate::frontend::AnalogIn::read_position`] returns).
+    /// [`crate::board::analog_in::AnalogIn::read_position`] returns).
     pub position_code: u16,
     /// The position, µm (`I16F16`).
     pub position: Micrometres,

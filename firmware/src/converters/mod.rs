@@ -1,4 +1,4 @@
-//! Precision converters on SPI: an 18/20-bit DAC for the amplifier setpoint and a
+//! The precision converters' drivers on SPI: an 18/20-bit DAC for the amplifier setpoint and a
 //! 16-bit simultaneous-sampling ADC for the force and position sensors, and the
 //! schedule that keeps the control tick deterministic around them.
 //!
@@ -9,19 +9,20 @@
 //!   that is not ready does;
 //! * [`front_end`] — both parts as the control ISR uses them, and [`tick_frames`],
 //!   one tick's converter work (for `cargo isr-bench`);
-//! * [`ports`] — the two as the core's force sensor and setpoint and the loop's
-//!   position channel, and the converter fault they raise;
 //! * [`bench`](mod@bench) — SPI devices that answer at once, for counting that work.
 //!
 //! The drivers are generic over embedded-hal 1.0's [`SpiDevice`] (it frames each
 //! transaction with the part's chip select) and [`InputPin`]/[`OutputPin`]. They
-//! allocate nothing and have no panic path; each error is an [`Error`].
+//! allocate nothing and have no panic path; each error is an [`Error`]. They
+//! import nothing of the application, nor of the board: the board definition
+//! configures them, and the board's ports ([`crate::board::converter_ports`])
+//! put them behind the core's force sensor and setpoint.
 //! Each part's module lists the data-sheet facts it relies on, marking the ones
 //! that could not be checked against the data sheet.
 //!
 //! # One control tick
 //!
-//! Timer phases within the 50 µs period (the board's values, [`crate::board_def::precision::TIMING`]):
+//! Timer phases within the 50 µs period (the board's values, [`crate::board::definition::precision::TIMING`]):
 //!
 //! ```text
 //! phase  0 µs   timer update: the control ISR starts; LDAC̅ pulse (optional, timer
@@ -43,7 +44,7 @@
 //!
 //! On the bus (blocking SPI): the ADC frame is 32 SCLK, 3.05 µs at 10.5 MHz; the DAC
 //! frame is 24 SCLK, 1.14 µs at 21 MHz (2.29 µs at 10.5 MHz); with the board's
-//! 10.5 MHz on both buses ([`crate::board_def::precision`]) and chip-select
+//! 10.5 MHz on both buses ([`crate::board::definition::precision`]) and chip-select
 //! edges, about 5.6 µs of the 50 µs period. The processor's share (framing,
 //! decoding, scaling) is what `cargo isr-bench` counts through [`tick_frames`] on
 //! the [`bench`](mod@bench) devices: `converter_tick_instructions` 150 on the
@@ -59,7 +60,6 @@ pub mod ad579x;
 pub mod ad7606;
 pub mod bench;
 pub mod front_end;
-pub mod ports;
 pub mod scale;
 pub mod schedule;
 #[cfg(test)]

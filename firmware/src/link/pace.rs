@@ -12,7 +12,7 @@
 
 use fpi_protocol::LinkKind;
 
-use crate::hardware::RATE_HZ;
+use crate::board::capacity::RATE_HZ;
 
 /// Board ticks, Q16.16, modulo 2⁴⁸.
 type Time = u64;

@@ -1,16 +1,15 @@
-//! The link task's model upload: the image arrives in chunks into a buffer, is
-//! checked (its CRC, the validator, the board's capacity and hardware limits),
-//! written to flash if asked, and handed to the control ISR between two ticks —
-//! only with the stage parked. On any failure the running model stays.
+//! The link task's model upload buffer: the image arrives in chunks, in order, and
+//! is complete when all its bytes are in and match its CRC. The command handler
+//! ([`super::handler`]) then checks it further (the validator, the board's
+//! capacity and hardware limits), writes it to flash if asked and hands it to the
+//! control ISR between two ticks — only with the stage parked. On any failure the
+//! running model stays.
 
-use embedded_storage::nor_flash::NorFlash;
 use piezo_fpi::model::image::CRC32;
 
-use super::handler::{refuse, Board, Handler, Refuse};
-use super::protocol::{ModelReport, Refusal, Reply};
-use crate::exchange::Order;
-use crate::hardware::IMAGE_BYTES;
-use crate::slots::{Origin, Running};
+use super::protocol::Refusal;
+use super::refusal::{refuse, Refuse};
+use crate::board::capacity::IMAGE_BYTES;
 
 /// A model being received.
 pub(super) struct Upload {
@@ -19,85 +18,33 @@ pub(super) struct Upload {
     pub(super) received: usize,
 }
 
-impl<F: NorFlash> Handler<F> {
-    pub(super) fn model_report(&self) -> ModelReport {
-        let s = &self.summary;
-        ModelReport {
-            crc: s.crc,
-            origin: s.origin,
-            size: [s.shape.operators as u8, s.shape.creep_terms as u8],
-            maps: [s.shape.dead_zone, s.shape.saturation],
-            window: [
-                s.reference.lo.to_bits(),
-                s.reference.hi.to_bits(),
-                s.safe_voltage.to_bits(),
-            ],
-            stored: self.stored.map(|st| (st.generation, st.crc)),
-            slots: self.slots,
-            feedback: s.feedback.map(|f| {
-                let f = f.spec();
-                [
-                    f.kp.to_bits(),
-                    f.ki.to_bits(),
-                    f.limit.to_bits(),
-                    f.sensor.lo.to_bits(),
-                    f.sensor.hi.to_bits(),
-                    f.tolerance.to_bits(),
-                ]
-            }),
-            dynamics: s.dynamics.map(|d| {
-                [
-                    d.mode_mhz as i32,
-                    d.damping.to_bits(),
-                    d.lag_mhz as i32,
-                    d.force_gain.to_bits(),
-                ]
-            }),
-            damping: s.damping.map(|d| {
-                let d = d.spec();
-                [d.gain.to_bits(), d.leak.to_bits(), d.limit.to_bits()]
-            }),
-            force_channel: [s.channel.split.to_bits(), s.channel.dynamic_limit.to_bits()],
-        }
-    }
-
-    pub(super) fn begin(
-        &mut self,
-        board: &mut impl Board,
-        len: u32,
-        crc: u32,
-    ) -> Result<Reply, Refuse> {
+impl Upload {
+    /// An image of `len` bytes whose CRC is `crc` begins.
+    pub(super) fn begin(&mut self, len: u32, crc: u32) -> Result<(), Refuse> {
         if len == 0 || len as usize > IMAGE_BYTES {
             return Err(refuse(
                 Refusal::BadArgument,
                 format_args!("image of {len} bytes: this board takes 1–{IMAGE_BYTES}"),
             ));
         }
-        self.upload.expected = Some((len as usize, crc));
-        self.upload.received = 0;
-        // The buffer no longer holds the running model's image.
-        self.image_len = None;
-        self.ack(board)
+        self.expected = Some((len as usize, crc));
+        self.received = 0;
+        Ok(())
     }
 
-    pub(super) fn chunk(
-        &mut self,
-        board: &mut impl Board,
-        offset: u32,
-        data: &[u8],
-    ) -> Result<Reply, Refuse> {
-        let u = &mut self.upload;
-        let Some((len, _)) = u.expected else {
+    /// The image's bytes from `offset` on.
+    pub(super) fn chunk(&mut self, offset: u32, data: &[u8]) -> Result<(), Refuse> {
+        let Some((len, _)) = self.expected else {
             return Err(refuse(Refusal::Upload, format_args!("no upload begun")));
         };
-        if offset as usize != u.received {
+        if offset as usize != self.received {
             return Err(refuse(
                 Refusal::Upload,
-                format_args!("bytes from {offset} sent, from {} expected", u.received),
+                format_args!("bytes from {offset} sent, from {} expected", self.received),
             ));
         }
-        let end = u.received + data.len();
-        match u.image.get_mut(u.received..end) {
+        let end = self.received + data.len();
+        match self.image.get_mut(self.received..end) {
             Some(dst) if end <= len => dst.copy_from_slice(data),
             _ => {
                 return Err(refuse(
@@ -106,133 +53,44 @@ impl<F: NorFlash> Handler<F> {
                 ))
             }
         }
-        u.received = end;
-        self.ack(board)
+        self.received = end;
+        Ok(())
     }
 
-    /// The parked stage's check before a model change.
-    fn parked(&self, board: &mut impl Board) -> Result<(), Refuse> {
-        let (fault, voltage) = board.exchange(|x| (x.snapshot.fault, x.snapshot.now.voltage));
-        match fault {
-            Some(_) if voltage == self.summary.safe_voltage => Ok(()),
-            Some(_) => Err(refuse(
-                Refusal::StillRamping,
-                format_args!("the output is still ramping to the safe voltage"),
-            )),
-            None => Err(refuse(
-                Refusal::NotAtRest,
-                format_args!("a new model needs the stage parked: send `safe` first"),
-            )),
-        }
-    }
-
-    pub(super) fn commit(
-        &mut self,
-        board: &mut impl Board,
-        seq: u16,
-        store: bool,
-    ) -> Result<Reply, Refuse> {
-        let Some((len, crc)) = self.upload.expected else {
+    /// The image's length, once all its bytes are in and match its CRC.
+    pub(super) fn complete(&self) -> Result<usize, Refuse> {
+        let Some((len, crc)) = self.expected else {
             return Err(refuse(Refusal::Upload, format_args!("no upload begun")));
         };
-        if self.upload.received != len {
+        if self.received != len {
             return Err(refuse(
                 Refusal::Upload,
-                format_args!("{} of {len} bytes received", self.upload.received),
+                format_args!("{} of {len} bytes received", self.received),
             ));
         }
-        let image = self.upload.image.get(..len).unwrap_or(&[]);
+        let image = self.image.get(..len).unwrap_or(&[]);
         if CRC32.checksum(image) != crc {
             return Err(refuse(
                 Refusal::Model,
                 format_args!("the received image does not match its CRC"),
             ));
         }
-        self.parked(board)?;
-        let running = self.activate(Origin::Received, len)?;
-        if store {
-            let image = self.upload.image.get(..len).unwrap_or(&[]);
-            board.long_operation(true);
-            let stored = self.flash.store(image);
-            board.long_operation(false);
-            match stored {
-                Ok(s) => self.stored = Some(s),
-                Err(e) => {
-                    self.spare = Some(running.retire());
-                    return Err(refuse(
-                        Refusal::Storage,
-                        format_args!("{}; the board keeps its model", e.message()),
-                    ));
-                }
-            }
-        }
-        self.upload.expected = None;
-        let result = self.swap(board, seq, running);
-        if result.is_ok() {
-            self.image_len = Some(len);
-        }
-        result
+        Ok(len)
     }
 
-    /// Loads the first `len` bytes of the upload buffer into the spare store and
-    /// activates it.
-    fn activate(&mut self, origin: Origin, len: usize) -> Result<Running, Refuse> {
-        let Some(mut spare) = self.spare.take() else {
-            return Err(refuse(Refusal::Model, format_args!("no free model store")));
-        };
-        let image = self.upload.image.get(..len).unwrap_or(&[]);
-        if let Err(e) = spare.load(image) {
-            self.spare = Some(spare);
-            return Err(refuse(Refusal::Model, format_args!("{e}")));
-        }
-        match spare.activate(image, origin) {
-            Ok(r) => Ok(r),
-            Err((back, e)) => {
-                self.spare = Some(back);
-                Err(refuse(Refusal::Model, format_args!("{e}")))
-            }
-        }
-    }
-
-    /// Hands `running` to the ISR and takes back the model it replaces.
-    fn swap(
-        &mut self,
-        board: &mut impl Board,
-        seq: u16,
-        running: Running,
-    ) -> Result<Reply, Refuse> {
-        let summary = *running.summary();
-        let mut running = Some(running);
-        board.exchange(|x| x.model = running.take());
-        let result = self.post(board, seq, Order::Swap);
-        if let Some(back) = board.exchange(|x| x.model.take()) {
-            self.spare = Some(back.retire());
-        }
-        result?;
-        self.summary = summary;
-        Ok(Reply::Ack)
-    }
-
-    pub(super) fn factory(&mut self, board: &mut impl Board, seq: u16) -> Result<Reply, Refuse> {
-        self.parked(board)?;
-        board.long_operation(true);
-        let erased = self.flash.erase_all();
-        board.long_operation(false);
-        if let Err(e) = erased {
-            return Err(refuse(Refusal::Storage, format_args!("{}", e.message())));
-        }
-        self.stored = None;
-        let factory = crate::model::MODEL_IMAGE;
-        let n = factory.len().min(IMAGE_BYTES);
-        if let (Some(dst), Some(src)) = (self.upload.image.get_mut(..n), factory.get(..n)) {
+    /// Copies `image` (the factory image) into the buffer, in place of any
+    /// upload; returns the bytes copied.
+    pub(super) fn hold(&mut self, image: &[u8]) -> usize {
+        let n = image.len().min(IMAGE_BYTES);
+        if let (Some(dst), Some(src)) = (self.image.get_mut(..n), image.get(..n)) {
             dst.copy_from_slice(src);
         }
-        self.upload.expected = None;
-        let running = self.activate(Origin::Factory, n)?;
-        let result = self.swap(board, seq, running);
-        if result.is_ok() {
-            self.image_len = Some(n);
-        }
-        result
+        self.expected = None;
+        n
+    }
+
+    /// The upload is over (its image taken, or replaced).
+    pub(super) fn done(&mut self) {
+        self.expected = None;
     }
 }

@@ -13,8 +13,8 @@ use std::path::{Path, PathBuf};
 
 use fpi_firmware::link::frame;
 use fpi_firmware::link::protocol::{BenchOrder, Command, Header, MAX_FRAME, VERSION};
-use fpi_firmware::model::MODEL_IMAGE;
-use fpi_firmware::reference::wave::Shape;
+use fpi_firmware::board::factory_model::MODEL_IMAGE;
+use fpi_firmware::control::reference::wave::Shape;
 use fpi_fuzz::image::EDIT;
 use fpi_host::data::{dataset, read_bytes};
 use piezo_sim::file::{FirmwareModel, TableSection};

@@ -3,7 +3,7 @@
 //! * [`raw`]: arbitrary bytes as an image (`ModelStore::load` with the board's
 //!   capacity and limits): the header, CRC and length checks, then, for the rare
 //!   input that passes them, the reader and the validator.
-//! * [`edited`]: the factory image (`fpi_firmware::model::MODEL_IMAGE`) changed by
+//! * [`edited`]: the factory image (`fpi_firmware::board::factory_model::MODEL_IMAGE`) changed by
 //!   an edit script ([`edit`]), its header's body length and CRC recomputed, so the
 //!   reader and the validator see every change.
 //!
@@ -13,8 +13,8 @@
 //! forces. The step must respect the output limits.
 
 use fixed::types::I16F16;
-use fpi_firmware::hardware::{Store, BOARD};
-use fpi_firmware::model::MODEL_IMAGE;
+use fpi_firmware::board::capacity::{Store, BOARD};
+use fpi_firmware::board::factory_model::MODEL_IMAGE;
 use piezo_fpi::model::image::{encode, encoded_len, CRC32, HEADER_LEN};
 
 /// Bytes per edit: op, offset (u16 LE), value (4 bytes).

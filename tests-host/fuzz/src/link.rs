@@ -1,6 +1,6 @@
 //! The board's link on arbitrary input: bytes into the firmware's `FrameReader`,
 //! every completed frame into the link handler of an emulated board
-//! (`fpi_firmware::emulated::Virtual`: control loop, virtual stage, recorder,
+//! (`fpi_firmware::emulation::virtual_bench::Virtual`: control loop, virtual stage, recorder,
 //! stream buffer, model stores and flash, on the fuzzer's thread), every reply
 //! checked.
 //!
@@ -28,20 +28,20 @@
 
 use std::sync::Mutex;
 
-use fpi_firmware::emulated::{EmulatedFlash, Virtual, FLASH_SLOTS};
-use fpi_firmware::exchange::Exchange;
-use fpi_firmware::frontend::{FORCE_ADC, SETPOINT_DAC};
-use fpi_firmware::hardware::{Store, IMAGE_BYTES};
+use fpi_firmware::emulation::virtual_bench::{EmulatedFlash, Virtual, FLASH_SLOTS};
+use fpi_firmware::control::exchange::Exchange;
+use fpi_firmware::board::analog_in::{FORCE_ADC, SETPOINT_DAC};
+use fpi_firmware::board::capacity::{Store, IMAGE_BYTES};
 use fpi_firmware::link::frame::{self, FrameReader, Push};
 use fpi_firmware::link::handler::{Board, Handler};
 use fpi_firmware::link::protocol::{
     Command, Header, Refusal, Reply, ReplyHeader, MAX_CHUNK, MAX_FRAME, NO_SEQ, VERSION,
 };
-use fpi_firmware::model::MODEL_IMAGE;
-use fpi_firmware::recorder::Recorder;
-use fpi_firmware::reference::stream::Points;
-use fpi_firmware::sim_io::SimLink;
-use fpi_firmware::storage::ModelFlash;
+use fpi_firmware::board::factory_model::MODEL_IMAGE;
+use fpi_firmware::control::recorder::Recorder;
+use fpi_firmware::control::reference::stream::Points;
+use fpi_firmware::emulation::virtual_io::SimLink;
+use fpi_firmware::board::storage::ModelFlash;
 use piezo_fpi::model::image::CRC32;
 
 /// Control ticks one request may take (an order is taken at the next tick).

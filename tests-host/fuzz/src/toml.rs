@@ -9,7 +9,7 @@
 //!   limits refuse it (the same validator ran on the host), and must hold the same
 //!   model; the loaded model's controller and the float controller are stepped.
 
-use fpi_firmware::hardware::{Store, BOARD};
+use fpi_firmware::board::capacity::{Store, BOARD};
 use fpi_host::method::model::HostModel;
 use piezo_fpi::error::ModelError;
 use piezo_sim::file::FirmwareModel;

@@ -62,7 +62,7 @@ fn link_frames() {
 /// fuzzer starts from the deep paths, not only from refusals).
 #[test]
 fn real_seeds_are_accepted() {
-    use fpi_firmware::hardware::{Store, BOARD};
+    use fpi_firmware::board::capacity::{Store, BOARD};
     use fpi_host::method::model::HostModel;
     use piezo_sim::file::FirmwareModel;
 

@@ -18,7 +18,7 @@
 
 use std::path::{Path, PathBuf};
 
-use fpi_firmware::model::{self, CREEP_TERMS, OPERATORS};
+use fpi_firmware::board::factory_model::{self, CREEP_TERMS, OPERATORS};
 use piezo_fpi::control::{ControllerConfig, ControllerParts, ForceChannel, Interval, Supervision};
 use piezo_fpi::fpi::CreepMemory;
 use piezo_fpi::play::PlayBank;
@@ -57,12 +57,12 @@ pub struct FileAccuracy {
 /// The embedded model, parsed for the f64 side (once).
 pub fn embedded_model() -> &'static FirmwareModel {
     static MODEL: std::sync::OnceLock<FirmwareModel> = std::sync::OnceLock::new();
-    MODEL.get_or_init(
-        || match FirmwareModel::parse(model::MODEL_TOML, model::MODEL_FILE) {
+    MODEL.get_or_init(|| {
+        match FirmwareModel::parse(factory_model::MODEL_TOML, factory_model::MODEL_FILE) {
             Ok(m) => m,
             Err(e) => panic!("the embedded model was validated by build.rs: {e}"),
-        },
-    )
+        }
+    })
 }
 
 /// The embedded controller with its supervision widened — the reference range to
@@ -70,8 +70,8 @@ pub fn embedded_model() -> &'static FirmwareModel {
 /// (which include a 3 kHz chirp where the stage's dynamics pull the force far
 /// from the static FEM map) exercise the arithmetic rather than the safe state;
 /// and its f64 twin with the same settings.
-pub fn controllers() -> (model::Controller, Controller<'static, f64>) {
-    let c = &model::CONTROLLER;
+pub fn controllers() -> (factory_model::Controller, Controller<'static, f64>) {
+    let c = &factory_model::CONTROLLER;
     let reference = Interval {
         lo: c.f_k_inv().x_min(),
         hi: c.f_k_inv().x_max(),

@@ -23,7 +23,7 @@
 //!    error is measured ([`noise::tracking_swing`]) and the watch's half
 //!    swing set to [`tune::WATCH_SWING_RMS`] of its RMS (0.075…0.2 µm), so
 //!    that on this stage an unstable loop is counted while it is a tenth of a
-//!    micrometre (`firmware/src/watch.rs`).
+//!    micrometre (`firmware/src/control/watch.rs`).
 //!    Where the damping leaves the shaped reference's force out (a preview),
 //!    the lead's baseline is measured ([`lead_baseline`]): the ratio the
 //!    board's fit of that force settles at over [`BASELINE_STEPS`] steps on

@@ -18,7 +18,7 @@ use nalgebra::{Complex, DMatrix, DVector};
 
 use super::client::{real, Client};
 use super::follow::{no_fault, Capture, Follow};
-use fpi_firmware::recorder::signal;
+use fpi_firmware::control::recorder::signal;
 
 /// What a sine records.
 const SIGNALS: u8 = signal::X_REF | signal::X_TRUE | signal::STATUS;

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
 use fixed::types::I16F16;
-use fpi_firmware::recorder::Sample;
+use fpi_firmware::control::recorder::Sample;
 use fpi_protocol::frame::{self, FrameReader, Push};
 use fpi_protocol::FrontEndKind;
 use fpi_protocol::LoopMode;

@@ -21,7 +21,7 @@
 //! periods.
 
 use anyhow::{Context, Result};
-use fpi_firmware::recorder::{signal, status};
+use fpi_firmware::control::recorder::{signal, status};
 use fpi_protocol::LoopMode;
 use fpi_protocol::Shape;
 use fpi_protocol::SourceKind;

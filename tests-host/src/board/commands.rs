@@ -11,7 +11,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
-use fpi_firmware::recorder::{signal, Sample};
+use fpi_firmware::control::recorder::{signal, Sample};
 use fpi_protocol::{BenchOrder, Command, LoopMode, Shape, SourceKind};
 
 use super::budget::Budget;
@@ -289,7 +289,7 @@ pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<Vec<String>> {
                 format!("--analog-v {v}: the input spans 0–3.3 V"),
             ));
         }
-        let counts = (v / 3.3 * fpi_firmware::frontend::ADC_MAX as f64).round() as u16;
+        let counts = (v / 3.3 * fpi_firmware::board::analog_in::ADC_MAX as f64).round() as u16;
         c.bench(BenchOrder::Analog(counts))?;
         done.push(format!("analog input at {v} V ({counts} counts)"));
     }

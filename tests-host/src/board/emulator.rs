@@ -30,8 +30,8 @@ pub const FLASH_SEED: u32 = 0x080C_0000;
 /// afterwards (a byte cleared in the middle, as a flash fault would): for starting
 /// the emulated board with models in its flash ([`Emulator::start_with_flash`]).
 pub fn flash_file(path: &Path, images: &[&[u8]], damage: &[usize]) -> Result<()> {
-    use fpi_firmware::emulated::{EmulatedFlash, FLASH_SLOTS};
-    use fpi_firmware::storage::ModelFlash;
+    use fpi_firmware::board::storage::ModelFlash;
+    use fpi_firmware::emulation::virtual_bench::{EmulatedFlash, FLASH_SLOTS};
     let mut flash = Box::new(EmulatedFlash::new());
     let mut f = ModelFlash::new(&mut *flash, FLASH_SLOTS);
     let mut stored = Vec::new();

@@ -1,6 +1,6 @@
 //! `fpi board frf`: the stage's frequency response measured through the board
 //! by its own analyser (a sine added to the command, the sensors correlated with
-//! it in the ISR: [`fpi_firmware::analyser`]), one frequency at a time, holding
+//! it in the ISR: [`fpi_firmware::control::analyser`]), one frequency at a time, holding
 //! at a position.
 //!
 //! What the board measures is what the loops see: from the command to the

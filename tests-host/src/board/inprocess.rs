@@ -1,6 +1,6 @@
 //! The emulated board's firmware compiled for the host and run in this process:
 //! the control loop, the virtual stage and the link handler
-//! ([`fpi_firmware::emulated::Virtual`]) in a thread that keeps board time with
+//! ([`fpi_firmware::emulation::virtual_bench::Virtual`]) in a thread that keeps board time with
 //! wall-clock time (20 000 ticks per second), behind a [`Port`].
 //!
 //! It is what `cargo demo` drives where `qemu-system-arm` is not installed, and
@@ -15,15 +15,15 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Result};
-use fpi_firmware::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
-use fpi_firmware::emulated::{EmulatedFlash, Virtual, FLASH_SLOTS};
-use fpi_firmware::exchange::Exchange;
-use fpi_firmware::hardware::{Store, IMAGE_BYTES, RATE_HZ};
+use fpi_firmware::board::capacity::{Store, IMAGE_BYTES, RATE_HZ};
+use fpi_firmware::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
+use fpi_firmware::board::storage::ModelFlash;
+use fpi_firmware::control::exchange::Exchange;
+use fpi_firmware::control::recorder::Recorder;
+use fpi_firmware::control::reference::stream::Points;
+use fpi_firmware::emulation::virtual_bench::{EmulatedFlash, Virtual, FLASH_SLOTS};
+use fpi_firmware::emulation::virtual_io::SimLink;
 use fpi_firmware::link::handler::Handler;
-use fpi_firmware::recorder::Recorder;
-use fpi_firmware::reference::stream::Points;
-use fpi_firmware::sim_io::SimLink;
-use fpi_firmware::storage::ModelFlash;
 use fpi_protocol::frame::{FrameReader, Push};
 use fpi_protocol::MAX_FRAME;
 

@@ -13,7 +13,7 @@
 //! and is reported with the recording, as [`Client::order`] reports it.
 
 use anyhow::{bail, Result};
-use fpi_firmware::recorder::{signal, Sample};
+use fpi_firmware::control::recorder::{signal, Sample};
 use std::time::{Duration, Instant};
 
 use fpi_protocol::{Command, SourceKind};

@@ -5,7 +5,7 @@
 //!
 //! On the emulated stage as built (σ 0.15 N) the loops tuned for ζ 0.5 move
 //! the stage 0.02 µm RMS at rest, mostly near 310 Hz; at σ 0.5 N, 0.07 µm; at
-//! σ 0.8 N, 0.10 µm, and the loop watch (`firmware/src/watch.rs`), which
+//! σ 0.8 N, 0.10 µm, and the loop watch (`firmware/src/control/watch.rs`), which
 //! counts swings beyond ±0.2 µm, took that motion for an oscillation after
 //! 1.3 s at rest (after 30 ms at σ 0.9 N; nothing in 3 s at σ 0.7 N). So
 //! autotune measures the noise before it tunes, prints it, designs the
@@ -88,7 +88,7 @@ pub fn tracking_swing(c: &mut Client) -> Result<f64> {
             e.len()
         );
     }
-    let alpha = 1.0 / f64::from(1u32 << fpi_firmware::watch::MEAN_SHIFT);
+    let alpha = 1.0 / f64::from(1u32 << fpi_firmware::control::watch::MEAN_SHIFT);
     let (mut mean, mut sum, mut n) = (e[0].1, 0.0, 0usize);
     for &(tick, x) in &e {
         let hp = x - mean;
@@ -108,8 +108,10 @@ pub fn tracking_swing(c: &mut Client) -> Result<f64> {
 /// alone may trip it); `None` otherwise or where the model cannot be read.
 pub fn model_watch_swing(c: &mut Client) -> Option<f64> {
     let image = c.read_model().ok()?;
-    let mut store = Box::new(fpi_firmware::hardware::Store::new());
-    store.load(&image, &fpi_firmware::hardware::BOARD).ok()?;
+    let mut store = Box::new(fpi_firmware::board::capacity::Store::new());
+    store
+        .load(&image, &fpi_firmware::board::capacity::BOARD)
+        .ok()?;
     store
         .spec()
         .watch_swing

@@ -11,7 +11,7 @@ use std::io::Write;
 use std::path::Path;
 
 use anyhow::Result;
-use fpi_firmware::recorder::{signal, status, Sample};
+use fpi_firmware::control::recorder::{signal, status, Sample};
 use piezo_sim::stats::ErrorStats;
 
 use super::client::real;
@@ -21,7 +21,7 @@ use super::client::real;
 pub struct Recording {
     /// The board's control rate, Hz (tick → seconds).
     pub rate_hz: f64,
-    /// The signals recorded (`fpi_firmware::recorder::signal` bits).
+    /// The signals recorded (`fpi_firmware::control::recorder::signal` bits).
     pub signals: u8,
     /// The samples, in tick order.
     pub samples: Vec<Sample>,

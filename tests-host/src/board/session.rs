@@ -12,7 +12,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use fpi_firmware::recorder::{signal, status};
+use fpi_firmware::control::recorder::{signal, status};
 use fpi_protocol::Shape;
 use fpi_protocol::{BenchOrder, Command, Counters, FaultReport, Refusal, Reply};
 use piezo_fpi::control::Fault;

@@ -9,7 +9,7 @@
 //! figure is timed from the tick the step starts.
 
 use anyhow::{bail, Result};
-use fpi_firmware::recorder::signal;
+use fpi_firmware::control::recorder::signal;
 
 use super::client::{real, Client};
 use super::follow::{no_fault, Capture, Follow};
@@ -80,7 +80,7 @@ pub fn figures(rec: &Recording, from: u32, (a, b): (f64, f64), tol_um: Option<f6
         && rec
             .samples
             .iter()
-            .any(|s| s.x_true != fpi_firmware::recorder::NO_TRUE_POSITION);
+            .any(|s| s.x_true != fpi_firmware::control::recorder::NO_TRUE_POSITION);
     let pts: Vec<(f64, f64)> = rec
         .samples
         .iter()
@@ -121,7 +121,7 @@ pub fn figures(rec: &Recording, from: u32, (a, b): (f64, f64), tol_um: Option<f6
         governed_ticks: rec
             .samples
             .iter()
-            .filter(|s| s.status & fpi_firmware::recorder::status::GOVERNED != 0)
+            .filter(|s| s.status & fpi_firmware::control::recorder::status::GOVERNED != 0)
             .count(),
     }
 }

@@ -1,5 +1,5 @@
 //! The emulated board's twin on the host: the firmware's control loop, virtual
-//! stage and link handler in one thread ([`fpi_firmware::emulated::Virtual`]),
+//! stage and link handler in one thread ([`fpi_firmware::emulation::virtual_bench::Virtual`]),
 //! fed the requests the real run received at the ticks their replies named.
 //!
 //! Both sides run the same code on the same inputs: the fixed-point core, the
@@ -8,10 +8,10 @@
 //! sample the board recorded; [`compare`] says by how much it does not.
 
 use anyhow::Result;
-use fpi_firmware::emulated::Virtual;
-use fpi_firmware::exchange::Exchange;
+use fpi_firmware::control::exchange::Exchange;
+use fpi_firmware::control::recorder::{signal, Sample};
+use fpi_firmware::emulation::virtual_bench::Virtual;
 use fpi_firmware::link::handler::Board;
-use fpi_firmware::recorder::{signal, Sample};
 use fpi_protocol::MAX_FRAME;
 
 use super::client::{real, Logged};

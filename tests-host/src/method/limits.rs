@@ -1,12 +1,12 @@
 //! What the board and its amplifier allow, in engineering units: the one place the
-//! host tools take them from (the firmware's [`fpi_firmware::hardware::BOARD`]),
+//! host tools take them from (the firmware's [`fpi_firmware::board::capacity::BOARD`]),
 //! and the check of an option against such a limit.
 
 use anyhow::{bail, Result};
 use fixed::types::I16F16;
 use piezo_fpi::q::SIGNAL_FRAC;
 
-use fpi_firmware::hardware::{BOARD, RATE_HZ};
+use fpi_firmware::board::capacity::{BOARD, RATE_HZ};
 
 use crate::data::Num;
 

@@ -682,8 +682,8 @@ impl<'o> Chain<'o> {
         let text = ex.model.to_toml().map_err(|e| anyhow::anyhow!(e))?;
         crate::output::write_atomic(&self.out.join("firmware-stage-a.toml"), text.as_bytes())?;
         let mut embedded = FirmwareModel::parse(
-            fpi_firmware::model::MODEL_TOML,
-            fpi_firmware::model::MODEL_FILE,
+            fpi_firmware::board::factory_model::MODEL_TOML,
+            fpi_firmware::board::factory_model::MODEL_FILE,
         )
         .map_err(|e| anyhow::anyhow!(e))?;
         embedded.provenance = ex.model.provenance.clone();

@@ -14,12 +14,12 @@
 //! The control task and the link task share one [`Exchange`], which the control
 //! task reaches without a lock (it is the highest-priority user) and the link
 //! task locks briefly; a new model reaches the control task by value
-//! ([`fpi_firmware::slots`]). So parsing, validation and flash writes never delay
+//! ([`fpi_firmware::control::slots`]). So parsing, validation and flash writes never delay
 //! a tick, as in quartiq's Stabilizer, where settings are rebuilt at low priority
 //! and swapped in.
 //!
 //! * Board build (`cargo fw`): the board definition's
-//!   ([`fpi_firmware::board_def`]) clock (168 MHz from the 8 MHz HSE crystal),
+//!   ([`fpi_firmware::board::definition`]) clock (168 MHz from the 8 MHz HSE crystal),
 //!   front end (the STM32's 12-bit ADCs and DAC; with `--features precision` an
 //!   AD7606 and an AD5791 on SPI), pins and link (USB CDC-ACM on OTG_FS and, as
 //!   the fallback, USART1 at 115 200 Bd); stored model in flash sectors 10/11,
@@ -29,12 +29,12 @@
 //!   bridged to a TCP port (QEMU has no OTG model: its USB never connects; the
 //!   link is paced as the one it emulates, see `fpi_firmware::link::pace`). QEMU models no PLL, DAC, analog world or flash
 //!   programming, so the clock stays on the 16 MHz HSI, the ADCs and DAC are the
-//!   virtual stage's ([`fpi_firmware::emulated`]) and the model store is
+//!   virtual stage's ([`fpi_firmware::emulation::virtual_bench`]) and the model store is
 //!   RAM-backed.
 //!
 //! On the host this binary only explains how to build it.
 //!
-//! [`Exchange`]: fpi_firmware::exchange::Exchange
+//! [`Exchange`]: fpi_firmware::control::exchange::Exchange
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]
@@ -50,9 +50,9 @@ mod board;
 use board as io;
 
 #[cfg(all(target_os = "none", feature = "qemu"))]
-mod emulated;
+mod qemu_board;
 #[cfg(all(target_os = "none", feature = "qemu"))]
-use emulated as io;
+use qemu_board as io;
 
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true)]
@@ -61,15 +61,17 @@ mod app {
     use cortex_m::peripheral::syst::SystClkSource;
     use embedded_hal_nb::serial::Read as _;
     use embedded_io::Write as _;
-    use fpi_firmware::exchange::Exchange;
-    use fpi_firmware::hardware::{Store, IMAGE_BYTES, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS};
+    use fpi_firmware::board::capacity::{
+        Store, IMAGE_BYTES, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS,
+    };
+    use fpi_firmware::board::factory_model::MODEL_IMAGE;
+    use fpi_firmware::control::exchange::Exchange;
+    use fpi_firmware::control::recorder::Recorder;
+    use fpi_firmware::control::reference::stream::Points;
+    use fpi_firmware::control::slots::Spare;
     use fpi_firmware::link::frame::{FrameReader, Push};
     use fpi_firmware::link::handler::{Board, Handler};
     use fpi_firmware::link::protocol::{LinkKind, MAX_FRAME};
-    use fpi_firmware::model::MODEL_IMAGE;
-    use fpi_firmware::recorder::Recorder;
-    use fpi_firmware::reference::stream::Points;
-    use fpi_firmware::slots::Spare;
     use heapless::spsc::{Consumer, Producer, Queue};
     use rtic::Mutex;
     use stm32f4xx_hal::pac::USART1;

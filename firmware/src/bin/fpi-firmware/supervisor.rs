@@ -11,9 +11,9 @@ use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embedded_hal::digital::OutputPin;
-use fpi_firmware::control_loop::ControlLoop;
-use fpi_firmware::frontend::AnalogIn;
-use fpi_firmware::watchdog::{Liveness, Watchdog, LONG_PERIOD_MS, PERIOD_MS};
+use fpi_firmware::board::analog_in::AnalogIn;
+use fpi_firmware::board::watchdog::{Liveness, Watchdog, LONG_PERIOD_MS, PERIOD_MS};
+use fpi_firmware::control::task::ControlLoop;
 use piezo_fpi::io::{ForceSensor, Setpoint};
 
 /// The link task's loop passes.

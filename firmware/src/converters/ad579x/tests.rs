@@ -3,7 +3,7 @@
 //! control register's bits (Table 11) and the chip-select framing.
 
 use super::*;
-use crate::board_def::precision::DAC as BOARD;
+use crate::board::definition::precision::DAC as BOARD;
 use crate::converters::testkit::{self, Broken};
 use embedded_hal::spi::ErrorKind;
 use embedded_hal_mock::eh1::spi::{Mock, Transaction};

@@ -3,7 +3,7 @@
 //! the configuration pins.
 
 use super::*;
-use crate::board_def::precision::ADC as BOARD;
+use crate::board::definition::precision::ADC as BOARD;
 use crate::converters::testkit::{self, Broken};
 use embedded_hal::spi::ErrorKind;
 use embedded_hal_mock::eh1::delay::{CheckedDelay, Transaction as Wait};

@@ -2,7 +2,7 @@
 //! scaled sample, and a stalled ADC.
 
 use super::*;
-use crate::board_def::precision::{DAC, FRONT_END as BOARD};
+use crate::board::definition::precision::{DAC, FRONT_END as BOARD};
 use crate::converters::testkit;
 use embedded_hal_mock::eh1::digital::{Mock as Pin, State, Transaction as Level};
 use embedded_hal_mock::eh1::spi::{Mock, Transaction};

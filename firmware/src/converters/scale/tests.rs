@@ -1,8 +1,8 @@
 //! The scalings at the ends of their ranges and at mid-scale.
 
 use super::*;
-use crate::board_def::precision::{FORCE, SETPOINT as SETPOINT_20};
-use crate::board_def::POSITION;
+use crate::board::definition::precision::{FORCE, SETPOINT as SETPOINT_20};
+use crate::board::definition::POSITION;
 use crate::converters::ad579x::Part;
 use piezo_fpi::q::{Micrometres, Newtons};
 

@@ -1,7 +1,7 @@
 //! The tick's timing rules and the handling of missed conversions.
 
 use super::*;
-use crate::board_def::precision::TIMING as BOARD;
+use crate::board::definition::precision::TIMING as BOARD;
 use crate::converters::ad7606::Oversampling;
 use crate::converters::Device;
 use embedded_hal::spi::ErrorKind;

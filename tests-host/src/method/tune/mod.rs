@@ -119,11 +119,11 @@ pub const DAMPING_HIGHPASS_HZ: f64 = 100.0;
 pub const DAMPING_PHASE_MARGIN_DEG: f64 = 45.0;
 /// The stage's RMS motion at rest the damping may make of the force sensor's
 /// noise, µm: a quarter of the swing the loop watch counts
-/// (`fpi_firmware::watch::HALF_SWING`, 0.2 µm), so that the motion's peaks
+/// (`fpi_firmware::control::watch::HALF_SWING`, 0.2 µm), so that the motion's peaks
 /// stay below it at four σ. (On the emulated stage as built, tuned at
 /// ζ 0.5: 0.02 µm at its σ 0.15 N; at σ 1 N, 0.12 µm, and the watch parked
 /// the healthy loop at rest.)
-pub const NOISE_BUDGET_UM: f64 = fpi_firmware::watch::HALF_SWING as f64 / 65_536.0 / 4.0;
+pub const NOISE_BUDGET_UM: f64 = fpi_firmware::control::watch::HALF_SWING as f64 / 65_536.0 / 4.0;
 /// The least damping target the noise lowers the design to, just above the
 /// family's least-damped member's own 0.01; below it, no damping. (At 0.05
 /// the design fell from a 64 Hz bandwidth at σ 1.3 N to 5 Hz, the PI alone on
@@ -718,12 +718,12 @@ pub fn with_tuning(fw: &FirmwareModel, t: &Tuning, o: &TuneOptions) -> Result<Fi
     if span.is_nan() || span <= 0.0 {
         bail!("the model's stroke is empty: controller.reference_min_um ≥ reference_max_um");
     }
-    let channel = fpi_firmware::frontend::POSITION_ADC;
+    let channel = fpi_firmware::board::analog_in::POSITION_ADC;
     let (chan_lo, lsb) = (
         channel.offset.to_num::<f64>(),
         channel.per_count.to_num::<f64>(),
     );
-    let chan_hi = chan_lo + lsb * fpi_firmware::frontend::POSITION_MAX as f64;
+    let chan_hi = chan_lo + lsb * fpi_firmware::board::analog_in::POSITION_MAX as f64;
     // Inside the rails, so that a broken wire (a rail) is out of range.
     let lo = (k.reference_min_um - 0.25 * span).max(chan_lo + 16.0 * lsb);
     let hi = (k.reference_max_um + 0.25 * span).min(chan_hi - 16.0 * lsb);

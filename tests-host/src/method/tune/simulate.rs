@@ -32,7 +32,7 @@ impl<'a> Loops<'a> {
     /// One tick: the position read this tick, then the command `u_ff + PI(r − x)
     /// − damping` drives the plant to the next; the damping leaves `lead` (N)
     /// out of the dynamic force it damps (the shaped reference's own force,
-    /// see `fpi_firmware::closed_loop`). `pi_on`: whether the PI runs.
+    /// see `fpi_firmware::control::tracking`). `pi_on`: whether the PI runs.
     pub fn tick(&mut self, r: f64, u_ff: f64, lead: f64, pi_on: bool) -> f64 {
         let (p, l) = (self.p, &self.l);
         let x = self.y[1];

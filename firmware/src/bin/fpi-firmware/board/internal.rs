@@ -1,17 +1,17 @@
 //! The internal front end: the force sensor on ADC1, the position sensor on
 //! ADC3 and the amplifier setpoint on the 12-bit DAC, as the board definition
-//! places and scales them ([`fpi_firmware::board_def::internal`]).
+//! places and scales them ([`fpi_firmware::board::definition::internal`]).
 //!
 //! The ADC conversions for tick k+1 are started at the end of tick k, so the ISR
 //! reads finished results (3.4 µs conversions in a 50 µs period) instead of
 //! waiting.
 
 use super::{start_single, take_single, Enable, ReferenceAdc};
-use fpi_firmware::board_def::internal::{FORCE, FORCE_CHANNEL, POSITION_CHANNEL, SETPOINT};
-use fpi_firmware::board_def::pins::{ForceAdc, Internal, PositionAdc};
-use fpi_firmware::control_loop::ControlLoop;
-use fpi_firmware::converters::ports::ReferenceIn;
-use fpi_firmware::frontend::AnalogIn;
+use fpi_firmware::board::analog_in::AnalogIn;
+use fpi_firmware::board::converter_ports::ReferenceIn;
+use fpi_firmware::board::definition::internal::{FORCE, FORCE_CHANNEL, POSITION_CHANNEL, SETPOINT};
+use fpi_firmware::board::definition::pins::{ForceAdc, Internal, PositionAdc};
+use fpi_firmware::control::task::ControlLoop;
 use piezo_fpi::io::{ForceSensor, Hardware, Setpoint};
 use piezo_fpi::q::{Newtons, Volts};
 use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime, Sequence};

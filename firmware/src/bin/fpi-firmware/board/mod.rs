@@ -1,5 +1,5 @@
 //! The STM32F405 driver board: the board definition's
-//! ([`fpi_firmware::board_def`]) clock, pins, converters and link brought up, and
+//! ([`fpi_firmware::board::definition`]) clock, pins, converters and link brought up, and
 //! the control task's hardware.
 //!
 //! The front end is the board definition's: [`internal`] (the STM32's 12-bit
@@ -19,15 +19,17 @@ mod precision;
 use precision as front;
 
 use defmt_rtt as _;
-use fpi_firmware::board_def::pins::{self, ReferenceAdc as Adc2};
-use fpi_firmware::board_def::{internal::REFERENCE_CHANNEL, UART_BAUD, USB_STRINGS, USB_VID_PID};
-use fpi_firmware::converters::ports::ReferenceIn;
-use fpi_firmware::exchange::Exchange;
+use fpi_firmware::board::converter_ports::ReferenceIn;
+use fpi_firmware::board::definition::pins::{self, ReferenceAdc as Adc2};
+use fpi_firmware::board::definition::{
+    internal::REFERENCE_CHANNEL, UART_BAUD, USB_STRINGS, USB_VID_PID,
+};
+use fpi_firmware::board::storage::{ModelFlash, BOARD_SLOTS};
+use fpi_firmware::board::watchdog::{Watchdog, PERIOD_MS};
+use fpi_firmware::control::exchange::Exchange;
+use fpi_firmware::control::slots::Running;
 use fpi_firmware::link::protocol::BoardKind;
 use fpi_firmware::link::protocol::ResetReason;
-use fpi_firmware::slots::Running;
-use fpi_firmware::storage::{ModelFlash, BOARD_SLOTS};
-use fpi_firmware::watchdog::{Watchdog, PERIOD_MS};
 use stm32f4xx_hal::watchdog::IndependentWatchdog;
 
 use crate::supervisor::{was_reset_by_command, Supervisor};
@@ -53,7 +55,7 @@ use usbd_serial::SerialPort;
 /// Which board this is.
 pub const KIND: BoardKind = BoardKind::Driver;
 /// The core clock SysTick counts, Hz.
-pub const CORE_HZ: u32 = fpi_firmware::board_def::CORE_HZ;
+pub const CORE_HZ: u32 = fpi_firmware::board::definition::CORE_HZ;
 
 /// The analog reference input on ADC2, driven through its registers: the HAL's
 /// `Adc::new` only takes ADC1 (its calibration needs ADC1's VREF channel).

@@ -2,7 +2,7 @@
 //! the AD5791 (setpoint) on SPI2, each an embedded-hal `SpiDevice` through
 //! `embedded-hal-bus`'s `ExclusiveDevice` (the bus and its chip select), as the
 //! board definition places, straps and scales them
-//! ([`fpi_firmware::board_def::precision`]).
+//! ([`fpi_firmware::board::definition::precision`]).
 //!
 //! **Timing** ([`fpi_firmware::converters::schedule`]): TIM4 runs the control
 //! period from the same clock as SysTick (84 MHz timer clock, 4 200 counts per
@@ -19,23 +19,23 @@
 //! The ISR reads the ADC at its start (one 32-bit frame, BUSY checked once,
 //! never waited for) and writes the DAC after the step (one 24-bit frame); a
 //! stalled ADC or a failed transaction latches `Fault::Converter`
-//! ([`fpi_firmware::converters::ports`]).
+//! ([`fpi_firmware::board::converter_ports`]).
 
 use super::{Enable, ReferenceAdc};
 use core::sync::atomic::{AtomicBool, Ordering};
 use embedded_hal::delay::DelayNs;
 use embedded_hal_bus::spi::ExclusiveDevice;
-use fpi_firmware::board_def::pins::{AdcSpi, ConvTimer, DacSpi, Precision};
-use fpi_firmware::board_def::precision::{
+use fpi_firmware::board::capacity::RATE_HZ;
+use fpi_firmware::board::converter_ports::{self, Health};
+use fpi_firmware::board::definition::pins::{AdcSpi, ConvTimer, DacSpi, Precision};
+use fpi_firmware::board::definition::precision::{
     ADC, ADC_SCLK_HZ, DAC, DAC_SCLK_HZ, FRONT_END, LDAC_PULSE_NS, TIMING,
 };
-use fpi_firmware::board_def::CORE_HZ;
-use fpi_firmware::control_loop::ControlLoop;
+use fpi_firmware::board::definition::CORE_HZ;
+use fpi_firmware::control::task::ControlLoop;
 use fpi_firmware::converters::ad579x::{self, Ad579x};
 use fpi_firmware::converters::ad7606::{self, Ad7606};
 use fpi_firmware::converters::front_end::{Driving, Sensing};
-use fpi_firmware::converters::ports::{self, Health};
-use fpi_firmware::hardware::RATE_HZ;
 use piezo_fpi::io::Hardware;
 use piezo_fpi::q::{Newtons, Volts};
 use stm32f4xx_hal::gpio::{AnyPin, Input, Output};
@@ -59,11 +59,11 @@ pub type AdcDevice = ExclusiveDevice<Spi<AdcSpi>, AnyPin<Output>, Spin>;
 /// The AD5791 as an `SpiDevice`.
 pub type DacDevice = ExclusiveDevice<Spi<DacSpi>, AnyPin<Output>, Spin>;
 /// The force sensor: the AD7606's V1.
-pub type Sensor = ports::Force<'static, AdcDevice, AnyPin<Input>>;
+pub type Sensor = converter_ports::Force<'static, AdcDevice, AnyPin<Input>>;
 /// The amplifier setpoint: the AD5791.
-pub type Amplifier = ports::Amplifier<'static, DacDevice>;
+pub type Amplifier = converter_ports::Amplifier<'static, DacDevice>;
 /// The position (the AD7606's V2) and the analog reference input (ADC2).
-pub type Analog = ports::Analog<'static, ReferenceAdc>;
+pub type Analog = converter_ports::Analog<'static, ReferenceAdc>;
 /// The control loop on this front end.
 pub type Control = ControlLoop<Sensor, Amplifier, Enable, Analog>;
 
@@ -87,7 +87,7 @@ pub fn before_tick() {
 /// After a tick: a converter that failed latches `Fault::Converter`.
 #[inline(always)]
 pub fn after_tick(control: &mut Control) {
-    let _ = ports::latch(control, &HEALTH);
+    let _ = converter_ports::latch(&HEALTH, |f| control.fail(f));
 }
 
 /// Both converters set up (the DAC at code 0 with its output on, the ADC strapped
@@ -128,11 +128,11 @@ pub fn init(
     start_timer(&tim, rcc);
     let sensing = Sensing::new(Ad7606::new(adc, pins.busy), [0, 0]);
     let hw = Hardware {
-        sensor: ports::Force::new(sensing, &FRONT_END, &HEALTH, Newtons::ZERO),
-        amplifier: ports::Amplifier::new(Driving::new(dac), &FRONT_END, &HEALTH),
+        sensor: converter_ports::Force::new(sensing, &FRONT_END, &HEALTH, Newtons::ZERO),
+        amplifier: converter_ports::Amplifier::new(Driving::new(dac), &FRONT_END, &HEALTH),
         enable,
     };
-    (hw, ports::Analog::new(reference, &HEALTH))
+    (hw, converter_ports::Analog::new(reference, &HEALTH))
 }
 
 /// TIM4 at the control rate: channel 1 (CONVST) high from [`TIMING`]'s

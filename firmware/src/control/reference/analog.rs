@@ -17,7 +17,7 @@ use fixed::types::I4F28;
 use piezo_fpi::control::Interval;
 use piezo_fpi::q::Micrometres;
 
-use crate::frontend::ADC_MAX;
+use crate::board::analog_in::ADC_MAX;
 
 /// Readings this close to a rail are out of range, ADC counts.
 pub const RAIL_COUNTS: u16 = 16;

@@ -1,5 +1,6 @@
-//! When the independent watchdog may be fed: only while the control task and the
-//! link task are both alive.
+//! When the board's independent (hardware) watchdog may be fed: only while the
+//! control task and the link task are both alive. (Not the loop watch, which
+//! catches an oscillating loop: that is [`crate::control::watch`].)
 //!
 //! The control task runs the rule every tick ([`Liveness::tick`]); being called at
 //! all shows the control task is alive. The link task shows it is alive by
@@ -23,7 +24,7 @@ pub const LONG_PERIOD_MS: u32 = 4000;
 
 // The period leaves room for several feeding windows, and the long one for a
 // sector erase (up to 2 s on the STM32F405).
-const _: () = assert!(PERIOD_MS * crate::hardware::RATE_HZ / 1000 >= 4 * WINDOW_TICKS);
+const _: () = assert!(PERIOD_MS * crate::board::capacity::RATE_HZ / 1000 >= 4 * WINDOW_TICKS);
 const _: () = assert!(LONG_PERIOD_MS > 2000);
 
 /// A watchdog the control task feeds.

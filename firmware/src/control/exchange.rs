@@ -12,13 +12,13 @@ use piezo_fpi::control::Fault;
 use piezo_fpi::lead::LeadGain;
 use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
 
-use crate::analyser::{AnalyseOrder, AnalysisSums};
-use crate::closed_loop::LoopMode;
-use crate::hardware::{RECORDER_SAMPLES, STREAM_POINTS};
-use crate::recorder::{status, Recorder, Sample, NO_TRUE_POSITION};
-use crate::reference::stream::Points;
-use crate::reference::{SourceKind, SourceOrder};
-use crate::slots::Running;
+use crate::board::capacity::{RECORDER_SAMPLES, STREAM_POINTS};
+use crate::control::analyser::{AnalyseOrder, AnalysisSums};
+use crate::control::recorder::{status, Recorder, Sample, NO_TRUE_POSITION};
+use crate::control::reference::stream::Points;
+use crate::control::reference::{SourceKind, SourceOrder};
+use crate::control::slots::Running;
+use crate::control::tracking::LoopMode;
 
 /// What the link task asks of the control ISR; applied at the start of a tick.
 pub enum Order {

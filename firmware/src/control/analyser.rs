@@ -29,7 +29,7 @@
 
 use piezo_fpi::q::Micrometres;
 
-use crate::reference::wave::cos_turns;
+use crate::control::cosine::cos_turns;
 
 /// Signals correlated, in order: position sensor, force, dynamic force,
 /// setpoint, excitation.
@@ -179,7 +179,7 @@ fn sin_turns(phase: u32) -> i32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::reference::wave::Wave;
+    use crate::control::reference::wave::Wave;
 
     /// A signal `a·sin(φ − θ)` (lagging by `θ`) correlates to the phasor
     /// `a·e^{−jθ}` times the excitation's: the response's gain `a/A`, phase `−θ`.

@@ -3,7 +3,7 @@
 //!
 //! * Control rate 20 kHz (SysTick on both boards).
 //! * Amplifier and safe voltage: the board definition's
-//!   ([`crate::board_def::AMPLIFIER`]).
+//!   ([`crate::board::definition::AMPLIFIER`]).
 //! * Capacity: 10 play operators, 4 creep terms, 3 072 table intervals (24 KiB of
 //!   RAM per model; the board holds two, the running one and the one it receives).
 
@@ -28,12 +28,12 @@ pub const STREAM_POINTS: usize = 1024;
 /// at 20 kHz; a 40 µm stroke in 40 ms).
 pub const APPROACH_STEP: Micrometres = Micrometres::from_bits(3277);
 
-pub use crate::board_def::RATE_HZ;
+pub use crate::board::definition::RATE_HZ;
 
 /// The board: its rate and hardware limits.
 pub const BOARD: Board = Board {
     rate_hz: RATE_HZ,
-    limits: crate::board_def::AMPLIFIER,
+    limits: crate::board::definition::AMPLIFIER,
 };
 
 /// A model in the board's RAM.

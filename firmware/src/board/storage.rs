@@ -97,7 +97,7 @@ pub const BOARD_SLOTS: Slots = Slots {
 };
 
 // The board's slots hold the largest model it can run.
-const _: () = assert!(BOARD_SLOTS.capacity() >= crate::hardware::IMAGE_BYTES);
+const _: () = assert!(BOARD_SLOTS.capacity() >= crate::board::capacity::IMAGE_BYTES);
 
 /// A valid image found in a slot.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -923,6 +923,6 @@ mod tests {
         assert_eq!(BOARD_SLOTS.a, 0x000C_0000);
         assert_eq!(BOARD_SLOTS.b, BOARD_SLOTS.a + BOARD_SLOTS.len);
         assert_eq!(BOARD_SLOTS.len, 128 * 1024);
-        assert!(BOARD_SLOTS.capacity() >= crate::hardware::IMAGE_BYTES);
+        assert!(BOARD_SLOTS.capacity() >= crate::board::capacity::IMAGE_BYTES);
     }
 }

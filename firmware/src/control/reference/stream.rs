@@ -3,7 +3,7 @@
 //!
 //! [`Points`] is a ring of `N` (a power of two) positions in µm (`I16F16`), filled
 //! by the link task and emptied by the control ISR (shared under a lock that costs
-//! the ISR nothing: see `crate::exchange`). [`Playback`] is the ISR's side: when
+//! the ISR nothing: see `crate::control::exchange`). [`Playback`] is the ISR's side: when
 //! the next point is missing (the host fell behind) it holds the last one, raises
 //! the underrun flag and counts; when the host has said the stream ends, the last
 //! point is held without a flag.

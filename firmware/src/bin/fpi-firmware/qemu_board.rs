@@ -1,7 +1,7 @@
 //! The emulated board (QEMU `netduinoplus2`): the virtual stage stands in for the
 //! analog world and RAM for the model's flash sectors.
 //!
-//! The control task runs [`fpi_firmware::emulated::tick`]: the same control loop as
+//! The control task runs [`fpi_firmware::emulation::virtual_bench::tick`]: the same control loop as
 //! the board's, then one step of the virtual stage, whose force reading the next
 //! tick reads. QEMU ignores the clock tree, so SysTick counts QEMU's 168 MHz core
 //! clock whatever the RCC says; the firmware stays on the 16 MHz HSI (no PLL to
@@ -10,15 +10,15 @@
 //! does.
 
 use cortex_m_semihosting::debug::{self, EXIT_FAILURE};
-use fpi_firmware::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
-use fpi_firmware::emulated::{tick, Bench, EmulatedFlash, Loop, FLASH_SLOTS};
-use fpi_firmware::exchange::Exchange;
+use fpi_firmware::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
+use fpi_firmware::board::storage::ModelFlash;
+use fpi_firmware::board::watchdog::Watchdog;
+use fpi_firmware::control::exchange::Exchange;
+use fpi_firmware::control::slots::Running;
+use fpi_firmware::emulation::virtual_bench::{tick, Bench, EmulatedFlash, Loop, FLASH_SLOTS};
+use fpi_firmware::emulation::virtual_io::SimLink;
 use fpi_firmware::link::protocol::BoardKind;
 use fpi_firmware::link::protocol::ResetReason;
-use fpi_firmware::sim_io::SimLink;
-use fpi_firmware::slots::Running;
-use fpi_firmware::storage::ModelFlash;
-use fpi_firmware::watchdog::Watchdog;
 
 use crate::supervisor::{was_reset_by_command, Supervisor};
 use core::mem::MaybeUninit;

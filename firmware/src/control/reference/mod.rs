@@ -13,7 +13,7 @@
 //! Everything here runs in the control ISR (integer arithmetic, no division, no
 //! panic, constant time per tick). What a source may ask of the stage is not
 //! checked here, source by source: every source's reference passes the one
-//! reference governor (`piezo_fpi::governor`, [`crate::governors`]) before
+//! reference governor (`piezo_fpi::governor`, [`crate::control::governors`]) before
 //! the loops track it.
 
 pub mod analog;
@@ -132,7 +132,7 @@ const HALF_TURN: u32 = 1 << 31;
 #[inline]
 fn raised_cosine(from: Micrometres, to: Micrometres, phase: u32) -> Micrometres {
     // (1 − cos)/2 in I2F30, from the shared cosine table.
-    let s = ((1i64 << 30) - wave::cos_turns(phase) as i64) >> 1;
+    let s = ((1i64 << 30) - crate::control::cosine::cos_turns(phase) as i64) >> 1;
     let d = to.to_bits() as i64 - from.to_bits() as i64;
     Micrometres::from_bits((from.to_bits() as i64 + ((d * s + (1 << 29)) >> 30)) as i32)
 }
@@ -289,7 +289,7 @@ impl Reference {
 
     /// A step (the raised cosine of [`SourceOrder::Step`]) lasting at least
     /// [`LEARNING_STEP_TICKS`] is running, not its approach: the motion the
-    /// lead's mass ratio learns from (`crate::closed_loop`).
+    /// lead's mass ratio learns from (`crate::control::tracking`).
     pub const fn stepping(&self) -> bool {
         matches!(self.active, Active::Step { phase_step, .. } if phase_step <= LEARNING_PHASE_STEP)
             && !self.approaching

@@ -1,5 +1,6 @@
 //! The loops watched: an oscillating or saturating loop caught before the stage
 //! leaves its stroke (a stage that changed, a wrong model), in the control ISR.
+//! (Not the board's independent watchdog: that is [`crate::board::watchdog`].)
 //!
 //! **Oscillation.** The swing watched — the tracking error `x_ref − x_sensor`
 //! (µm), whether the position loop is closed or the damping runs alone (on a
@@ -281,7 +282,7 @@ impl LoopWatch {
     /// track, whether the command was held at a limit and the half swings:
     /// of a closed loop's tracking error (µm: the model's) and of the damping
     /// alone's (µm: [`HALF_SWING`]), each widened while an analysis runs
-    /// (`crate::control_loop`'s `WATCH_WIDEN`); the fault, once one is seen.
+    /// (`crate::control::task`'s `WATCH_WIDEN`); the fault, once one is seen.
     #[inline]
     pub fn update(
         &mut self,

@@ -24,19 +24,22 @@ use super::protocol::{
     LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES,
     MAX_BATCH_BYTES, MAX_FRAME, MAX_MODEL_BYTES, MAX_VALUES, NO_SEQ, VERSION,
 };
+use super::refusal::{refuse, Refuse};
 use super::upload::Upload;
-use crate::analyser::AnalyseOrder;
-use crate::closed_loop::LoopMode;
-use crate::exchange::{Exchange, Order, Refused};
-use crate::hardware::{
+use crate::board::capacity::{
     BOARD, CREEP_TERMS, IMAGE_BYTES, OPERATORS, RATE_HZ, RECORDER_SAMPLES, STREAM_POINTS,
     TABLE_INTERVALS,
 };
-use crate::recorder::{signal, wire_len, Sample};
-use crate::reference::wave::Wave;
-use crate::reference::SourceOrder;
-use crate::slots::{Origin, Running, Spare, Summary};
-use crate::storage::{ModelFlash, Slot, Stored};
+use crate::board::storage::{ModelFlash, Slot, Stored};
+use crate::control::analyser::AnalyseOrder;
+use crate::control::exchange::{Exchange, Order, Refused};
+use crate::control::recorder::{signal, wire_len, Sample};
+use crate::control::reference::wave::Wave;
+use crate::control::reference::SourceOrder;
+use crate::control::slots::{Origin, Running, Spare, Summary};
+use crate::control::tracking::LoopMode;
+
+mod models;
 
 /// What the handler needs from the board it runs on.
 pub trait Board {
@@ -66,30 +69,6 @@ fn wait_until(board: &mut impl Board, due: u32) {
 const APPLY_TIMEOUT_WAITS: u32 = 100_000;
 /// Fastest move, µm/s (a 40 µm stroke in 1.3 ms; the top of the `I16F16` range).
 const MAX_SPEED_UM_S: i64 = 30_000;
-
-/// A request refused: its code and reason.
-pub(super) type Refuse = (Refusal, Text);
-
-pub(super) fn refuse(code: Refusal, args: core::fmt::Arguments<'_>) -> Refuse {
-    let mut t = Text::new();
-    // A reason longer than the text is cut where it fills it; the code still
-    // says what happened.
-    let _ = Cut(&mut t).write_fmt(args);
-    (code, t)
-}
-
-/// Writes into a [`Text`] as many characters as fit (a `heapless::String`
-/// refuses a whole piece that does not fit, which left a long reason empty).
-struct Cut<'a>(&'a mut Text);
-
-impl core::fmt::Write for Cut<'_> {
-    fn write_str(&mut self, s: &str) -> core::fmt::Result {
-        for ch in s.chars() {
-            self.0.push(ch).map_err(|_| core::fmt::Error)?;
-        }
-        Ok(())
-    }
-}
 
 /// µm (or V, N) with three decimals, for reasons.
 pub(super) struct Milli(pub(super) i32);
@@ -434,7 +413,7 @@ impl<F: NorFlash> Handler<F> {
                     ));
                 }
                 let ticks = (duration_us as u64 * RATE_HZ as u64).div_ceil(1_000_000) as u32;
-                let phase_step = crate::reference::step_phase_for(ticks);
+                let phase_step = crate::control::reference::step_phase_for(ticks);
                 self.order(
                     board,
                     seq,
@@ -707,7 +686,7 @@ impl<F: NorFlash> Handler<F> {
 
     /// An analysis order, checked: a frequency below a quarter of the control
     /// rate, an excitation of at most 5 µm that keeps the stage in its stroke, and
-    /// at most [`crate::analyser::MAX_TICKS`] correlated.
+    /// at most [`crate::control::analyser::MAX_TICKS`] correlated.
     fn analyse_order(
         &mut self,
         board: &mut impl Board,
@@ -748,12 +727,12 @@ impl<F: NorFlash> Handler<F> {
         let period = (1u64 << 32).div_ceil(phase_step.max(1) as u64);
         let ticks = |n: u16| (n as u64 * period).min(u32::MAX as u64) as u32;
         let measure_ticks = ticks(cycles);
-        if measure_ticks > crate::analyser::MAX_TICKS {
+        if measure_ticks > crate::control::analyser::MAX_TICKS {
             return Err(refuse(
                 Refusal::BadArgument,
                 format_args!(
                     "{cycles} periods at {freq_mhz} mHz: more than {} ticks",
-                    crate::analyser::MAX_TICKS
+                    crate::control::analyser::MAX_TICKS
                 ),
             ));
         }
@@ -770,7 +749,7 @@ impl<F: NorFlash> Handler<F> {
     /// buffer while it still holds the running model's.
     fn model_bytes(&mut self, board: &mut impl Board, offset: u32) -> Result<Reply, Refuse> {
         let image: &[u8] = match (self.summary.origin, self.image_len) {
-            (Origin::Factory, _) => crate::model::MODEL_IMAGE,
+            (Origin::Factory, _) => crate::board::factory_model::MODEL_IMAGE,
             (_, Some(n)) if self.upload.expected.is_none() => {
                 self.upload.image.get(..n).unwrap_or(&[])
             }
@@ -805,7 +784,7 @@ impl<F: NorFlash> Handler<F> {
 
     fn wave(
         &self,
-        shape: crate::reference::wave::Shape,
+        shape: crate::control::reference::wave::Shape,
         offset: i32,
         amplitude: i32,
         freq_mhz: u32,
@@ -991,7 +970,7 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
         // waiting for the hold waits for the stage.
         approaching: s.approaching
             || (s.source == fpi_protocol::SourceKind::Hold
-                && s.now.status & crate::recorder::status::GOVERNED != 0),
+                && s.now.status & crate::control::recorder::status::GOVERNED != 0),
         compensated: s.compensated,
         loop_mode: s.loop_mode,
         damping: summary.damping.map(|_| s.damping_on),

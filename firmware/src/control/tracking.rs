@@ -24,7 +24,7 @@
 //! force is scaled by the mass ratio the loop learns (`piezo_fpi::lead`, where
 //! the model carries the lead's baseline) from step commands only: while the
 //! raised cosine of a step at least as long as autotune's runs
-//! ([`crate::reference::LEARNING_STEP_TICKS`], 1.5 ms: the fit depends on the step's
+//! ([`crate::control::reference::LEARNING_STEP_TICKS`], 1.5 ms: the fit depends on the step's
 //! speed) and for [`LEAD_WINDOW`] ticks after. The ratio's
 //! fit depends on the motion (on the stage as built, where steps hold it at
 //! 1, 15 Hz sines took it to 0.92, 100 Hz triangles to 0.74, sines near the
@@ -68,7 +68,7 @@
 //! [`IMPLAUSIBLE_RUN`] ticks in a row, trips a fault: the output ramps to the safe
 //! voltage like for any other fault.
 
-use crate::watch::LoopWatch;
+use crate::control::watch::LoopWatch;
 use piezo_fpi::biquad::{Cascade, CascadeState, SHAPING_SECTIONS};
 use piezo_fpi::control::{Fault, Interval, LinearDrive, Mode, StepOutput};
 use piezo_fpi::damping::{Damping, DampingConfig};
@@ -77,7 +77,7 @@ use piezo_fpi::lead::{LeadGain, LeadSpec};
 use piezo_fpi::preview::{Fir, Preview, PREVIEW_MAX};
 use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
 
-use crate::hardware::{Controller, APPROACH_STEP, RATE_HZ};
+use crate::board::capacity::{Controller, APPROACH_STEP, RATE_HZ};
 
 pub use fpi_protocol::LoopMode;
 
@@ -367,7 +367,7 @@ impl Loop {
     }
 
     /// What the loop watch saw in the last [`Loop::command`]
-    /// ([`crate::watch`]): an oscillating or saturating loop.
+    /// ([`crate::control::watch`]): an oscillating or saturating loop.
     pub const fn alarm(&self) -> Option<Fault> {
         self.alarm
     }
@@ -567,7 +567,7 @@ pub struct Inputs<'c, 'm> {
     pub lead: Option<&'c LeadSpec>,
     /// The oscillation watch's half swings, µm: on a closed loop's tracking
     /// error (`Summary::watch_swing`) and with the damping alone
-    /// ([`crate::watch::HALF_SWING`]), widened while an analysis runs (its
+    /// ([`crate::control::watch::HALF_SWING`]), widened while an analysis runs (its
     /// stimulus's own forced swing is not an oscillation).
     pub watch_halves: &'c [Micrometres; 2],
     /// The force channel's dynamic part this tick, N.

@@ -21,23 +21,23 @@ use piezo_fpi::q::{Micrometres, Newtons};
 
 use piezo_fpi::governor::GovernorState;
 
-use crate::analyser::Analyser;
-use crate::closed_loop::{Command, Inputs, Loop, LoopMode};
-pub use crate::exchange::Telemetry;
-use crate::exchange::{Applied, Exchange, Order, Refused, Snapshot};
-use crate::frontend::{AnalogIn, POSITION_ADC};
-use crate::governors::LoopSet;
-use crate::hardware::{Controller, APPROACH_STEP, CREEP_TERMS, OPERATORS, RATE_HZ};
+use crate::board::analog_in::{AnalogIn, POSITION_ADC};
+use crate::board::capacity::{Controller, APPROACH_STEP, CREEP_TERMS, OPERATORS, RATE_HZ};
+use crate::control::analyser::Analyser;
+pub use crate::control::exchange::Telemetry;
+use crate::control::exchange::{Applied, Exchange, Order, Refused, Snapshot};
+use crate::control::governors::LoopSet;
+use crate::control::tracking::{Command, Inputs, Loop, LoopMode};
 
 /// Heartbeat timeout a stream gets when the host has configured none: 0.5 s.
 pub const STREAM_TIMEOUT_TICKS: u32 = RATE_HZ / 2;
 /// Late ticks in a row that latch [`Fault::Overrun`]: 1 ms of a loop that cannot
 /// keep its rate (a single late tick is counted, not a fault).
 pub const OVERRUN_RUN: u32 = RATE_HZ / 1000;
-use crate::recorder::{status, Sample};
-use crate::reference::analog::AnalogInput;
-use crate::reference::{Reference, SourceKind, SourceOrder};
-use crate::slots::Running;
+use crate::control::recorder::{status, Sample};
+use crate::control::reference::analog::AnalogInput;
+use crate::control::reference::{Reference, SourceKind, SourceOrder};
+use crate::control::slots::Running;
 
 /// The control ISR's state (one per stage channel); `S`, `A`, `E`, `R`: the force
 /// sensor, the amplifier, its enable line and the analog reference input.
@@ -91,8 +91,8 @@ pub const WATCH_WIDEN: i32 = 3;
 
 /// The loop watch's half swings for a model (a closed loop's tracking
 /// error's, the damping alone's), widened by `by`, µm.
-fn watch_halves(s: &crate::slots::Summary, by: Micrometres) -> [Micrometres; 2] {
-    let alone = Micrometres::from_bits(crate::watch::HALF_SWING);
+fn watch_halves(s: &crate::control::slots::Summary, by: Micrometres) -> [Micrometres; 2] {
+    let alone = Micrometres::from_bits(crate::control::watch::HALF_SWING);
     [s.watch_swing.saturating_add(by), alone.saturating_add(by)]
 }
 

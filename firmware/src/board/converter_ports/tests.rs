@@ -3,19 +3,20 @@
 //! output parks.
 
 use super::*;
-use crate::board_def::precision::{DAC, FRONT_END};
-use crate::control_loop::ControlLoop;
+use crate::board::capacity::Store;
+use crate::board::definition::precision::{DAC, FRONT_END};
+use crate::board::factory_model::MODEL_IMAGE;
+use crate::control::exchange::{Exchange, Order};
+use crate::control::recorder::Recorder;
+use crate::control::reference::stream::Points;
+use crate::control::reference::SourceOrder;
+use crate::control::slots::{Origin, Spare};
+use crate::control::task::ControlLoop;
 use crate::converters::ad579x::Ad579x;
 use crate::converters::ad7606::Ad7606;
 use crate::converters::bench::Canned;
-use crate::exchange::{Exchange, Order};
-use crate::hardware::Store;
-use crate::model::MODEL_IMAGE;
-use crate::recorder::Recorder;
-use crate::reference::stream::Points;
-use crate::reference::SourceOrder;
-use crate::slots::{Origin, Spare};
 use core::convert::Infallible;
+use embedded_hal::digital::OutputPin;
 use embedded_hal::{digital, spi};
 use piezo_fpi::io::Hardware;
 use std::cell::Cell;
@@ -131,7 +132,7 @@ impl Rig {
     /// One tick as the board runs it: the loop, then the converters' health.
     fn tick(&mut self) -> Option<(Device, u8)> {
         self.lp.tick(&mut self.x);
-        latch(&mut self.lp, self.health)
+        latch(self.health, |f| self.lp.fail(f))
     }
 
     fn fault(&self) -> Option<Fault> {

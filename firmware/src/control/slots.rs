@@ -28,8 +28,8 @@ use piezo_fpi::model::{Shape, WATCH_SWING_MAX};
 use piezo_fpi::preview::Fir;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
-use crate::governors::{Governors, Parts};
-use crate::hardware::{Controller, Store, BOARD, RATE_HZ};
+use crate::board::capacity::{Controller, Store, BOARD, RATE_HZ};
+use crate::control::governors::{Governors, Parts};
 
 pub use fpi_protocol::Origin;
 
@@ -60,7 +60,7 @@ pub struct Summary {
     /// The lead (κ, the learning's rate, the baseline; `piezo_fpi::lead`)
     /// where the shaping runs ahead and the model damps: the damping then
     /// leaves out the force the shaped reference's motion explains
-    /// (`crate::closed_loop`).
+    /// (`crate::control::tracking`).
     pub lead: Option<LeadSpec>,
     /// The stage's dynamics, if the model declares them.
     pub dynamics: Option<DynamicsSpec>,
@@ -74,7 +74,7 @@ pub struct Summary {
     /// dynamic limit ([`force_room`]).
     pub force_room: Newtons,
     /// The oscillation watch's half swing on the tracking error, µm
-    /// (`crate::watch`): the model's, else
+    /// (`crate::control::watch`): the model's, else
     /// [`piezo_fpi::model::WATCH_SWING_MAX`].
     pub watch_swing: Micrometres,
 }
@@ -116,7 +116,7 @@ pub struct Running {
     store: NonNull<Store>,
     cfg: Controller<'static>,
     summary: Summary,
-    /// The reference governor of each set of loops ([`crate::governors`]):
+    /// The reference governor of each set of loops ([`crate::control::governors`]):
     /// the ISR's alone, not the link task's summary's.
     governors: Governors,
 }
@@ -157,7 +157,7 @@ impl Spare {
         let shared: &'static Store = unsafe { ptr.as_ref() };
         let built = shared.controller().and_then(|cfg| {
             let shape = shape.ok_or(Invalid::at(Field::Model, ModelError::Truncated))?;
-            let baseline = crate::baseline::drive(&cfg)?;
+            let baseline = crate::control::baseline::drive(&cfg)?;
             let spec = shared.spec();
             let feedback = spec.feedback.map(FeedbackConfig::new).transpose()?;
             let preview = spec.shaping.map(|s| s.fir()).transpose()?.flatten();
@@ -272,7 +272,7 @@ impl Running {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::MODEL_IMAGE;
+    use crate::board::factory_model::MODEL_IMAGE;
 
     fn spare() -> Spare {
         Spare::new(Box::leak(Box::new(Store::new())))

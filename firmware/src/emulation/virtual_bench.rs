@@ -3,7 +3,7 @@
 //! fault injection a test needs (an open or stuck force sensor, the analog input's
 //! reading), and the analog front end it converts with (`BenchOrder::FrontEnd`:
 //! the [`SimLink`]'s converters and, for the precision front end, the ADC's
-//! transition noise, [`crate::sim_io::PRECISION_ADC_NOISE_LSB`]).
+//! transition noise, [`crate::emulation::virtual_io::PRECISION_ADC_NOISE_LSB`]).
 //!
 //! [`tick`] is one period of the emulated board: bench orders, the control loop,
 //! the virtual stage, the recorder. The QEMU firmware's control task calls it; the
@@ -18,20 +18,20 @@ use piezo_sim::stage::{stage_a, Overrides, Stage};
 
 use embedded_storage::nor_flash::NorFlash;
 
-use crate::board_def::{precision, POSITION};
-use crate::control_loop::ControlLoop;
-use crate::exchange::{Applied, Exchange, Order, Refused};
-use crate::frontend::AnalogIn;
-use crate::hardware::{Store, IMAGE_BYTES};
-use crate::link::handler::{Board, Handler};
-use crate::link::protocol::{BenchOrder, BoardKind, FrontEndKind, ResetReason};
-use crate::model::MODEL_IMAGE;
-use crate::recorder::Sample;
-use crate::sim_io::{
+use crate::board::analog_in::AnalogIn;
+use crate::board::capacity::{Store, IMAGE_BYTES};
+use crate::board::definition::{precision, POSITION};
+use crate::board::factory_model::MODEL_IMAGE;
+use crate::board::storage::{ModelFlash, RamFlash, Slots};
+use crate::control::exchange::{Applied, Exchange, Order, Refused};
+use crate::control::recorder::Sample;
+use crate::control::slots::Spare;
+use crate::control::task::ControlLoop;
+use crate::emulation::virtual_io::{
     SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor, PRECISION_ADC_NOISE_LSB,
 };
-use crate::slots::Spare;
-use crate::storage::{ModelFlash, RamFlash, Slots};
+use crate::link::handler::{Board, Handler};
+use crate::link::protocol::{BenchOrder, BoardKind, FrontEndKind, ResetReason};
 
 /// Sensor reading of a broken wire: the ADC's top rail through the board's scale (N).
 pub const BROKEN_WIRE_N: f32 = 500.0;
@@ -332,16 +332,16 @@ impl Board for Virtual {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::board_def::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
-    use crate::hardware::RATE_HZ;
+    use crate::board::capacity::RATE_HZ;
+    use crate::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
+    use crate::control::recorder::{signal, Recorder, Sample};
+    use crate::control::reference::stream::Points;
+    use crate::control::reference::wave::Shape;
     use crate::link::frame;
     use crate::link::protocol::{
         Command, Header, LinkKind, Refusal, Reply, ReplyHeader, SlotReport, Status, MAX_CHUNK,
         MAX_FRAME, NO_SEQ, VERSION,
     };
-    use crate::recorder::{signal, Recorder, Sample};
-    use crate::reference::stream::Points;
-    use crate::reference::wave::Shape;
     use piezo_fpi::control::Fault;
 
     type Flash = EmulatedFlash;
@@ -529,14 +529,17 @@ mod tests {
             Command::Hold { axis: 255 },
             Command::Loop {
                 axis: 1,
-                mode: crate::closed_loop::LoopMode::Open,
+                mode: crate::control::tracking::LoopMode::Open,
             },
         ];
         for c in commands {
             assert_eq!(h.refused(c), Refusal::Axis);
         }
         // Nothing moved, and axis 0 still answers.
-        assert_eq!(h.status().source, crate::reference::SourceKind::Hold);
+        assert_eq!(
+            h.status().source,
+            crate::control::reference::SourceKind::Hold
+        );
         assert_eq!(h.status().axis, 0);
     }
 
@@ -596,7 +599,7 @@ mod tests {
         match h.send(Command::ModelInfo) {
             Reply::Model(m) => {
                 assert_eq!(m.crc, piezo_fpi::model::image::CRC32.checksum(MODEL_IMAGE));
-                assert_eq!(m.origin, crate::slots::Origin::Received);
+                assert_eq!(m.origin, crate::control::slots::Origin::Received);
                 assert_eq!(m.stored.map(|s| s.0), Some(1));
             }
             r => panic!("{r:?}"),
@@ -716,9 +719,12 @@ mod tests {
             "every 4th tick, none lost"
         );
         // Not read for long enough, the ring fills and the rest is counted as dropped.
-        h.run(4 * crate::hardware::RECORDER_SAMPLES as u32 + 400);
+        h.run(4 * crate::board::capacity::RECORDER_SAMPLES as u32 + 400);
         let s = h.status();
-        assert_eq!(s.recorder[3], crate::hardware::RECORDER_SAMPLES as u32);
+        assert_eq!(
+            s.recorder[3],
+            crate::board::capacity::RECORDER_SAMPLES as u32
+        );
         assert!(s.recorder[2] >= 90, "dropped: {:?}", s.recorder);
     }
 
@@ -855,7 +861,7 @@ mod tests {
 
     #[test]
     fn late_ticks_are_counted_and_a_run_of_them_parks_the_stage() {
-        use crate::control_loop::OVERRUN_RUN;
+        use crate::control::task::OVERRUN_RUN;
         let mut h = host();
         h.ack(Command::Move {
             axis: 0,
@@ -898,7 +904,7 @@ mod tests {
         let mut h = host_with(flash.into_inner());
         match h.send(Command::ModelInfo) {
             Reply::Model(m) => {
-                assert_eq!(m.origin, crate::slots::Origin::Stored(1));
+                assert_eq!(m.origin, crate::control::slots::Origin::Stored(1));
                 assert!(m.slots.contains(&SlotReport::Damaged), "{:?}", m.slots);
                 assert!(m.slots.contains(&SlotReport::Valid(1)), "{:?}", m.slots);
             }
@@ -913,7 +919,7 @@ mod tests {
         let mut h = host_with(flash.into_inner());
         match h.send(Command::ModelInfo) {
             Reply::Model(m) => {
-                assert_eq!(m.origin, crate::slots::Origin::Factory);
+                assert_eq!(m.origin, crate::control::slots::Origin::Factory);
                 assert_eq!(m.slots, [SlotReport::Damaged; 2]);
             }
             r => panic!("{r:?}"),

@@ -17,7 +17,7 @@ use piezo_fpi::governor::{GovernorLimits, GovernorWindow};
 use piezo_fpi::preview::Fir;
 use piezo_fpi::stability::Laws;
 
-use crate::closed_loop::LoopMode;
+use crate::control::tracking::LoopMode;
 
 /// Sets of loops: three modes, damping and shaping each on or off.
 pub const SETS: usize = 12;

@@ -7,13 +7,13 @@
 //! amplifier's voltage go through, and the scale the ISR converts codes with,
 //! switch together.
 //!
-//! * [`FrontEndKind::Internal`] (at start): force [`FORCE_ADC`](crate::board_def::internal::FORCE)-style 12-bit
+//! * [`FrontEndKind::Internal`] (at start): force [`FORCE_ADC`](crate::board::definition::internal::FORCE)-style 12-bit
 //!   counts (`SimLink::adc`, 0.125 N a count), setpoint `SimLink::dac` (the
 //!   12-bit DAC: 36.6 mV a code, about 10 nm of stage), position [`POSITION_ADC`]
 //!   (16-bit code, 1.22 nm). No converter noise is added: the behaviour of before
 //!   the front end could be chosen, bit for bit.
 //! * [`FrontEndKind::Precision`]: force [`precision::FORCE`] (AD7606, 16 bits over
-//!   −5…507 N, 7.8 mN a code), position [`crate::board_def::POSITION`] (the same 16-bit code
+//!   −5…507 N, 7.8 mN a code), position [`crate::board::definition::POSITION`] (the same 16-bit code
 //!   as [`POSITION_ADC`]), setpoint [`precision::SETPOINT`] (AD5791, 20 bits over
 //!   0–150 V, 143 µV a code, about 0.04 nm of stage). The ADC's transition noise is
 //!   added by the bench (`emulated::Bench`), [`PRECISION_ADC_NOISE_LSB`].
@@ -27,8 +27,8 @@ use embedded_hal::digital::{ErrorType, OutputPin};
 use piezo_fpi::io::{AdcScale, DacScale, ForceSensor, Hardware, Setpoint};
 use piezo_fpi::q::{Newtons, Volts};
 
-use crate::board_def::precision;
-use crate::frontend::{AnalogIn, ADC_MAX, POSITION_ADC, POSITION_MAX};
+use crate::board::analog_in::{AnalogIn, ADC_MAX, POSITION_ADC, POSITION_MAX};
+use crate::board::definition::precision;
 use crate::link::protocol::FrontEndKind;
 
 /// The AD7606's transition noise the precision front end adds to each of its

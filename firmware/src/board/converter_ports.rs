@@ -22,12 +22,11 @@
 //! write, so a host can clear the fault once the converter works again; while it
 //! fails, every tick latches the fault anew.
 
-use super::front_end::{Driving, FrontEndConfig, Sensing};
-use super::{Device, Error};
-use crate::control_loop::ControlLoop;
-use crate::frontend::AnalogIn;
+use crate::board::analog_in::AnalogIn;
+use crate::converters::front_end::{Driving, FrontEndConfig, Sensing};
+use crate::converters::{Device, Error};
 use core::sync::atomic::{AtomicU32, AtomicU8, Ordering};
-use embedded_hal::digital::{InputPin, OutputPin};
+use embedded_hal::digital::InputPin;
 use embedded_hal::spi::SpiDevice;
 use piezo_fpi::control::Fault;
 use piezo_fpi::io::{ForceSensor, Setpoint};
@@ -187,16 +186,14 @@ impl<R: ReferenceIn> AnalogIn for Analog<'_, R> {
     }
 }
 
-/// After a tick: a converter failing now latches [`Fault::Converter`] (unless a
-/// fault is latched already). Returns the failure.
+/// After a tick: a converter failing now latches [`Fault::Converter`] through
+/// `fail` (the control loop's own latch, which keeps a fault latched already).
+/// Returns the failure.
 #[inline]
-pub fn latch<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
-    lp: &mut ControlLoop<S, A, E, R>,
-    health: &Health,
-) -> Option<(Device, u8)> {
+pub fn latch(health: &Health, fail: impl FnOnce(Fault)) -> Option<(Device, u8)> {
     let failure = health.failure();
     if failure.is_some() {
-        lp.fail(Fault::Converter);
+        fail(Fault::Converter);
     }
     failure
 }
