@@ -104,7 +104,7 @@ use crate::method::sections::{finite, pooled_rmse, MAX_DEGREE};
 use crate::method::series::{file_fit, CalibData, Inversion, Prediction};
 
 mod calibrate;
-use calibrate::{calibrate};
+use calibrate::calibrate;
 
 /// The `branch` kind.
 pub struct Branch;
