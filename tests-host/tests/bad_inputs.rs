@@ -599,7 +599,8 @@ fn a_full_disk_leaves_the_old_file_and_names_it() {
         s(&out)
     );
     let o = Command::new("sh")
-        .args(["-c", &script, env!("CARGO_BIN_EXE_fpi")])
+        .args(["-c", &script])
+        .arg(fpi_tests::fpi_bin())
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();

@@ -182,7 +182,7 @@ fn listen_is_host_and_port_and_nothing_else() {
 /// (Ctrl-C); its exit code, stdout and stderr.
 #[cfg(unix)]
 fn interrupted(args: &[&str], stop: Duration) -> (Option<i32>, String, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_fpi"))
+    let mut child = Command::new(fpi_tests::fpi_bin())
         .args(args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .stdout(Stdio::piped())
@@ -466,7 +466,7 @@ fn an_autotune_whose_model_cannot_be_written_puts_the_board_back() {
         &port,
         &["autotune", FACTORY, "--trials", "0", "--out", s(&out)],
     );
-    let mut child = Command::new(env!("CARGO_BIN_EXE_fpi"))
+    let mut child = Command::new(fpi_tests::fpi_bin())
         .args(&args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .stdout(Stdio::piped())
@@ -585,7 +585,7 @@ fn a_failed_autotune_leaves_the_loops_as_they_were() {
 /// `signal`; its exit code, stdout and stderr.
 #[cfg(unix)]
 fn signalled(args: &[&str], stop: Duration, signal: i32) -> (Option<i32>, String, String) {
-    let child = Command::new(env!("CARGO_BIN_EXE_fpi"))
+    let child = Command::new(fpi_tests::fpi_bin())
         .args(args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .stdout(Stdio::piped())
@@ -902,7 +902,7 @@ fn the_emulator_s_qemu_ends_with_fpi_however_fpi_ends() {
     for signal in [libc::SIGINT, libc::SIGTERM, libc::SIGKILL] {
         let port = free_port();
         let listen = format!("127.0.0.1:{port}");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_fpi"))
+        let mut child = Command::new(fpi_tests::fpi_bin())
             .args([
                 "board",
                 "emulate",

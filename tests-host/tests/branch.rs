@@ -402,7 +402,7 @@ fn the_firmware_export_refuses_a_branch_model() {
 
 // ---------------------------------------------------------------------------
 // The book's figures (`docs/src/measured-figures.md`; slow in a debug build: run with
-// `cargo test --release -p fpi-host --test branch -- --ignored --nocapture`).
+// `cargo test --release -p fpi-tests --test branch -- --ignored --nocapture`).
 
 #[test]
 #[ignore = "measurement: every rig recording, both memories, several degrees"]

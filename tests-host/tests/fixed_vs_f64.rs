@@ -2,7 +2,7 @@
 //! `pea-rig/` and `stage-a/` (see `fpi_host::board::accuracy` for the contract): stack
 //! extension within 1 nm; effective voltage within one LSB of a 16-bit DAC over
 //! 0–150 V, and the setpoint too wherever the stack responds. Prints the measured
-//! worst cases (`cargo test -p fpi-host --test fixed_vs_f64 -- --nocapture`).
+//! worst cases (`cargo test -p fpi-tests --test fixed_vs_f64 -- --nocapture`).
 
 use fpi_host::board::accuracy::{self, BOUND_U_V, BOUND_X_UM};
 

@@ -235,7 +235,7 @@ fn the_python_package_builds_and_passes_its_tests() {
         .args(["-m", "pytest", "-q", "-p", "no:cacheprovider", "-rs"])
         .arg(root.join("python").join("tests"))
         .current_dir(root.join("python"))
-        .env("FPI_BIN", env!("CARGO_BIN_EXE_fpi"))
+        .env("FPI_BIN", fpi_tests::fpi_bin())
         .env("MPLBACKEND", "Agg"))
     .expect("running pytest");
     let out = text(&o);

@@ -4,7 +4,7 @@
 //! ignored:
 //!
 //! ```sh
-//! cargo test --release -p fpi-host --test scaling -- --ignored --nocapture
+//! cargo test --release -p fpi-tests --test scaling -- --ignored --nocapture
 //! ```
 //!
 //! The bounds are asserted in release builds only (a debug build is an order of

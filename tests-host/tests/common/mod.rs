@@ -1,4 +1,5 @@
-//! What the command-line tests share: running the built `fpi` binary from
+//! What the command-line tests share: running the `fpi` binary
+//! ([`fpi_tests::fpi_bin`], built once per test file) from
 //! `tests-host/` and checking how it ended, and a scratch folder per test file.
 
 #![allow(dead_code)] // each test file uses its own part
@@ -8,7 +9,7 @@ use std::process::{Command, Output};
 
 /// Runs the built `fpi` with `args` in `tests-host/`.
 pub fn fpi(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fpi"))
+    Command::new(fpi_tests::fpi_bin())
         .args(args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()

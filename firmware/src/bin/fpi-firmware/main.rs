@@ -313,7 +313,7 @@ fn main() {
         "fpi-firmware runs on the STM32F405 driver board or on the emulated board:\n  \
          cargo fw                  build and flash the board (probe-rs)\n  \
          fpi board emulate         run it on QEMU's netduinoplus2, link on a TCP port\n\
-         The host tools live in tests-host (cargo run -p fpi-host --bin fpi)."
+         The host tools live in host/ (cargo run -p fpi-host --bin fpi)."
     );
     std::process::exit(2);
 }

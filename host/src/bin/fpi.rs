@@ -17,7 +17,8 @@
 //!                       load MODEL.toml [--fem FEM.csv] | safe | clear-fault | hold | analog | drive … | supervise MS
 //! ```
 //!
-//! Run from `tests-host/` as `cargo run --release --bin fpi -- …`.
+//! Run from `tests-host/` (where the datasets are `data/…`) as `cargo fpi …`, the
+//! alias of `cargo run --release -p fpi-host --bin fpi -- …`.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

@@ -71,7 +71,7 @@ impl std::error::Error for DataError {}
 
 pub use piezo_sim::quote::Num;
 
-/// The project's root (the `piezo-fpi` package, above `tests-host/`).
+/// The project's root (the `piezo-fpi` package, above `host/`).
 pub fn project_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .parent()
@@ -96,9 +96,10 @@ pub fn project_relative(p: &Path) -> String {
     }
 }
 
-/// Where the project's copies of the datasets live (`tests-host/data`).
+/// Where the project's copies of the datasets live (`tests-host/data`, with the
+/// harness that runs the core against them; their provenance in its README).
 pub fn data_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data")
+    project_root().join("tests-host").join("data")
 }
 
 /// A dataset file by its path under `data/` without `.gz` (`"stage-a/fem.csv"`).
