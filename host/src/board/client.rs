@@ -29,8 +29,11 @@ use crate::data::Num;
 
 /// How long a reply may take (a model commit with a flash write: much longer).
 pub const REPLY_TIMEOUT: Duration = Duration::from_secs(3);
-/// How long a commit that stores the model in flash may take (the board erases a
-/// 128 KiB sector: up to 2 s).
+/// How long a model's commit may take: it validates the model and builds its
+/// tables before it replies, and one that stores the model in flash erases a
+/// 128 KiB sector (up to 2 s on a board; the emulated board validates at a
+/// fifth of real time, and slower on a loaded host: a commit without the store
+/// once took over 3 s there).
 pub const STORE_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// A request the board read, with the first tick that saw it.
@@ -272,7 +275,7 @@ impl Client {
     /// Sends a request and waits for its reply: the reply's tick and the reply.
     pub fn request(&mut self, cmd: &Command<'_>) -> Result<(u32, Reply)> {
         let timeout = match cmd {
-            Command::ModelCommit { store: true } | Command::ModelFactory => STORE_TIMEOUT,
+            Command::ModelCommit { .. } | Command::ModelFactory => STORE_TIMEOUT,
             _ => REPLY_TIMEOUT,
         };
         self.request_within(cmd, timeout)
