@@ -284,3 +284,52 @@ fn the_readme_stays_short() {
         "README.md has {lines} lines, more than {README_MAX_LINES}: move the detail into the book (docs/src/)"
     );
 }
+
+/// The page of measured figures is its template (`docs/figures/page.md`)
+/// with each command's output after it, as `docs/figures/regenerate` writes
+/// it: no figure on it is copied by hand, and every command has an output.
+#[test]
+fn the_figures_page_is_its_template_with_the_commands_output() {
+    let template = read(&top().join("docs").join("figures").join("page.md"));
+    let page = read(&book_src().join("measured-figures.md"));
+    let (mut text, mut block, mut problems) = (Vec::new(), None::<(usize, usize)>, Vec::new());
+    for (n, line) in page.lines().enumerate() {
+        match &mut block {
+            Some((start, lines)) if line == "<!-- end run -->" => {
+                // The opening and closing fences hold at least one line.
+                if *lines < 3 {
+                    problems.push(format!(
+                        "docs/src/measured-figures.md:{}: the command has no output",
+                        *start + 1
+                    ));
+                }
+                block = None;
+            }
+            Some((_, lines)) => *lines += 1,
+            None => {
+                text.push(line);
+                if line.starts_with("<!-- run: ") {
+                    block = Some((n, 0));
+                }
+            }
+        }
+    }
+    if let Some((start, _)) = block {
+        problems.push(format!(
+            "docs/src/measured-figures.md:{}: the output is not closed by <!-- end run -->",
+            start + 1
+        ));
+    }
+    let expected: Vec<&str> = template.lines().collect();
+    if let Some(n) = (0..text.len().max(expected.len())).find(|&i| text.get(i) != expected.get(i)) {
+        problems.push(format!(
+            "docs/src/measured-figures.md differs from docs/figures/page.md outside the \
+             commands' output at the template's line {}: {:?} against {:?} \
+             (edit the template and run docs/figures/regenerate)",
+            n + 1,
+            text.get(n),
+            expected.get(n)
+        ));
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
