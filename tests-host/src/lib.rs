@@ -36,7 +36,7 @@ pub fn fpi_bin() -> &'static Path {
     BIN.get_or_init(|| {
         let root = fpi_host::data::project_root();
         let release = !cfg!(debug_assertions);
-        let mut build = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+        let mut build = Command::new(fpi_host::board::cargo());
         build
             .current_dir(&root)
             .args(["build", "-p", "fpi-host", "--bin", "fpi"]);
@@ -45,10 +45,7 @@ pub fn fpi_bin() -> &'static Path {
         }
         let status = build.status().expect("running cargo build for fpi");
         assert!(status.success(), "building the fpi binary failed");
-        let target_dir = std::env::var_os("CARGO_TARGET_DIR")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| root.join("target"));
-        let bin = target_dir
+        let bin = fpi_host::board::target_dir()
             .join(if release { "release" } else { "debug" })
             .join(format!("fpi{}", std::env::consts::EXE_SUFFIX));
         assert!(

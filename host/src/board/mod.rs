@@ -48,8 +48,17 @@ pub const ICOUNT_BENCH: &str = "shift=10,align=off,sleep=off";
 
 pub use crate::data::project_root;
 
-fn cargo() -> String {
+/// The cargo that runs us (`$CARGO`), else `cargo` from the path.
+pub fn cargo() -> String {
     std::env::var("CARGO").unwrap_or_else(|_| "cargo".into())
+}
+
+/// Where cargo writes the project's builds: `$CARGO_TARGET_DIR`, else
+/// `target/` under the project's root.
+pub fn target_dir() -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| project_root().join("target"))
 }
 
 /// Makes sure the Cortex-M target's standard library is installed (installing it
@@ -148,10 +157,7 @@ pub fn build(bin: &str, features: &str) -> Result<PathBuf> {
     if !status.success() {
         bail!("building `{bin}` (features {features}) for {TARGET} failed");
     }
-    let target_dir = std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root.join("target"));
-    let elf = target_dir.join(TARGET).join(PROFILE).join(bin);
+    let elf = target_dir().join(TARGET).join(PROFILE).join(bin);
     if !elf.is_file() {
         bail!(
             "the build reported success but {} is missing",
