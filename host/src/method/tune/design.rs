@@ -182,8 +182,14 @@ fn design_damping(
     (target, band): (f64, (f64, f64)),
 ) -> Result<Laws> {
     let mut best: Option<(f64, Laws)> = None;
+    // The largest gain the board takes (`[damping]`'s validator), µm/(N·s):
+    // a plant with a tiny κ asks for more, and a design above it would be refused.
+    let most = piezo_fpi::damping::GAIN_MAX.to_num::<f64>() * rate as f64;
     for k in 0..60 {
         let g = 20.0 * (1e5_f64 / 20.0).powf(k as f64 / 59.0);
+        if g > most {
+            break;
+        }
         let Some(laws) = damping_laws(base, g, rate, band) else {
             break;
         };

@@ -222,3 +222,29 @@ fn the_damping_is_designed_for_the_force_sensor_s_noise() {
     assert_eq!(none.damping_target, (0.0, 0.0));
     assert!(!none.summary(&o).contains("noise"), "{}", none.summary(&o));
 }
+
+/// A plant with a tiny force gain (the fit of a response measured with the
+/// damping on: 757 Hz, ζ 0.45, a 4.2 kHz lag, κ 0.05 N/µm) asks for more
+/// damping than the board takes: the design stops at the board's largest gain
+/// and the model it writes passes the board's validator (it once designed
+/// 100 000 µm/(N·s) and `fpi tune --accept-misfit` failed on its own output).
+#[test]
+fn the_damping_designed_on_a_tiny_force_gain_is_one_the_board_takes() {
+    let (fw, _) = stage_a();
+    let d = DynamicsSpec {
+        mode_mhz: 756_600,
+        damping: CreepRate::from_num(0.45),
+        lag_mhz: 4_171_000,
+        force_gain: Newtons::from_num(0.05),
+    };
+    let o = TuneOptions::default();
+    let t = tune_measured(&fw, d, &o).unwrap();
+    let most = piezo_fpi::damping::GAIN_MAX.to_num::<f64>() * fw.controller.rate_hz as f64;
+    assert!(
+        t.damping_gain > 0.0 && t.damping_gain <= most,
+        "{}",
+        t.damping_gain
+    );
+    let model = with_tuning(&fw, &t, &o).unwrap();
+    assert_eq!(model.damping.unwrap().gain_um_per_n_s, t.damping_gain);
+}
