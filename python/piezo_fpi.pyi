@@ -82,6 +82,10 @@ class Board:
     @property
     def port(self) -> str: ...
     @property
+    def settings(self) -> "Settings":
+        """The board's runtime settings by key path, a mapping:
+        ``board.settings["stage/0/damping"] = False``."""
+    @property
     def rate_hz(self) -> float:
         """The control rate, Hz."""
     @property
@@ -262,6 +266,26 @@ class Board:
     def close(self) -> None: ...
     def __enter__(self) -> "Board": ...
     def __exit__(self, *exc: object) -> bool: ...
+
+class Settings:
+    """The board's runtime settings by key path (the book's reference lists
+    them): ``settings[key]`` reads one, ``settings[key] = value`` changes it as
+    its named method would, with the board's checks (a refusal raises
+    ``BoardError``). Keys use slashes or dots (``"stage/0/loop_mode"``,
+    ``"stage.0.loop_mode"``); a key that is no setting raises ``KeyError``.
+    Values are JSON's: ``bool``, ``int``, ``str`` (``"closed"``)."""
+
+    def __getitem__(self, key: str) -> Any: ...
+    def __setitem__(self, key: str, value: Any) -> None: ...
+    def __contains__(self, key: str) -> bool: ...
+    def __len__(self) -> int: ...
+    def __iter__(self) -> Any: ...
+    def keys(self) -> List[str]:
+        """Every key, in the tree's order."""
+    def to_dict(self) -> Dict[str, Any]:
+        """Every setting's value (``None`` where the running model has no such section)."""
+    def describe(self, key: str) -> Dict[str, Optional[str]]:
+        """The declaration: ``doc``, ``range``, ``unit``, ``default``."""
 
 class Model:
     """A calibrated model (``fpi calibrate``'s file)."""

@@ -97,6 +97,10 @@ crate::wire_enum! {
         ModelRead = 32,
         /// [`Command::LeadRatio`].
         LeadRatio = 33,
+        /// [`Command::SettingGet`].
+        SettingGet = 34,
+        /// [`Command::SettingSet`].
+        SettingSet = 35,
     }
 }
 
@@ -313,6 +317,24 @@ pub enum Command<'a> {
         /// Where in the image.
         offset: u32,
     },
+    /// One runtime setting's value, by key path (`/stage/0/damping`, see
+    /// [`Settings`](crate::Settings)) → [`Reply::Setting`](crate::Reply::Setting)
+    /// (its value as JSON).
+    SettingGet {
+        /// The key path, UTF-8 (at most [`MAX_PATH`](crate::settings::MAX_PATH) bytes).
+        path: &'a [u8],
+    },
+    /// Change one runtime setting, by key path, to `value` (JSON): carried out
+    /// as the named command that makes the change (`Loop`, `Damping`, …), with
+    /// its checks → `Ack`; a key the board does not have, a value of the wrong
+    /// type or a setting the running model lacks is refused
+    /// ([`Refusal::Setting`](crate::Refusal::Setting)).
+    SettingSet {
+        /// The key path, UTF-8.
+        path: &'a [u8],
+        /// The value, JSON (at most [`MAX_VALUE`](crate::settings::MAX_VALUE) bytes).
+        value: &'a [u8],
+    },
 }
 
 impl Command<'_> {
@@ -354,6 +376,8 @@ impl Command<'_> {
             Self::AnalysisResult { .. } => K::AnalysisResult,
             Self::ModelRead { .. } => K::ModelRead,
             Self::LeadRatio { .. } => K::LeadRatio,
+            Self::SettingGet { .. } => K::SettingGet,
+            Self::SettingSet { .. } => K::SettingSet,
         }
     }
 
@@ -452,6 +476,8 @@ impl<'a> Tagged<'a> for Command<'a> {
             } => put!(t; axis, freq_mhz, amplitude, settle, cycles),
             Self::ModelRead { offset } => put!(t; offset),
             Self::LeadRatio { axis, ratio } => put!(t; axis, ratio),
+            Self::SettingGet { path } => put!(t; path),
+            Self::SettingSet { path, value } => put!(t; path, value),
         }
         Ok(())
     }
@@ -549,6 +575,11 @@ impl<'a> Tagged<'a> for Command<'a> {
             K::LeadRatio => Self::LeadRatio {
                 axis: field(a)?,
                 ratio: field(a)?,
+            },
+            K::SettingGet => Self::SettingGet { path: field(a)? },
+            K::SettingSet => Self::SettingSet {
+                path: field(a)?,
+                value: field(a)?,
             },
         }))
     }

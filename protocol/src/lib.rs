@@ -14,6 +14,7 @@
 //! * [`command`] — the requests; [`reply`] — the replies and refusals;
 //! * [`modes`] — the loop's modes and sources the messages name; [`bench`](mod@bench) —
 //!   the emulated board's bench orders; [`record`] — a recording's signals;
+//! * [`settings`] — the runtime settings tree, addressed by key path;
 //! * [`frame`] — COBS framing with a CRC-32; [`link`] — the links and their rates.
 //!
 //! `no_std`, no allocation; decoding never panics (the firmware's no-panic proof
@@ -29,8 +30,11 @@ pub mod link;
 pub mod modes;
 pub mod record;
 pub mod reply;
+pub mod settings;
 pub mod wire;
 
+/// The settings tree's crate, for the tools that walk or serialize [`Settings`].
+pub use miniconf;
 #[doc(hidden)]
 pub use serde;
 
@@ -42,13 +46,15 @@ pub use reply::{
     Analysis, Batch, BoardKind, Counters, FaultReport, Hello, ModelReport, Origin, OriginKind,
     Refusal, Reply, ReplyHeader, ReplyKind, ResetReason, SlotKind, SlotReport, Status,
 };
+pub use settings::{Settings, StageSettings};
 
-/// The protocol version of these messages (9: the governed ticks and the
+/// The protocol version of these messages (10: the runtime settings by key
+/// path, [`Command::SettingGet`] and [`Command::SettingSet`]; 9: the governed ticks and the
 /// points a motion dropped from a stream in the status; 8: the learned mass ratio set by
 /// [`Command::LeadRatio`]; 7: the learned mass ratio in the status; 6: the link in the hello, recordings
 /// sent as differences between samples; 5: explicit wire numbers, an axis in
 /// every command that addresses a stage).
-pub const VERSION: u8 = 9;
+pub const VERSION: u8 = 10;
 /// Axes a board has today: a command for axis `AXES` or beyond is refused
 /// ([`Refusal::Axis`]).
 pub const AXES: u8 = 1;

@@ -30,11 +30,11 @@ crate::wire_enum! {
     #[cfg_attr(feature = "defmt", derive(defmt::Format))]
     pub enum LoopMode {
         /// Feedforward only: the reference through the inverse FPI (or the straight line).
-        Open = 0,
+        Open = 0 as "open",
         /// PI feedback on the position sensor plus the inverse FPI as feedforward.
-        Closed = 1,
+        Closed = 1 as "closed",
         /// PI feedback alone, its output through the straight-line drive (no model).
-        FeedbackOnly = 2,
+        FeedbackOnly = 2 as "feedback",
     }
 }
 

@@ -56,6 +56,9 @@ crate::wire_enum! {
         Stream = 12,
         /// The command addresses an axis this board does not have.
         Axis = 13,
+        /// A setting the board does not have (or the running model lacks), or
+        /// a value that is not of its type.
+        Setting = 14,
     }
 }
 
@@ -414,6 +417,8 @@ crate::wire_enum! {
         ModelBytes = 7,
         /// [`Reply::Refused`].
         Refused = 8,
+        /// [`Reply::Setting`].
+        Setting = 9,
     }
 }
 
@@ -444,6 +449,8 @@ pub enum Reply {
         /// The bytes.
         data: Vec<u8, MAX_MODEL_BYTES>,
     },
+    /// One runtime setting's value, JSON.
+    Setting(Vec<u8, { crate::settings::MAX_VALUE }>),
     /// Not done, and why.
     Refused {
         /// The kind of refusal.
@@ -466,6 +473,7 @@ impl Reply {
             Self::Analysis(_) => ReplyKind::Analysis,
             Self::ModelBytes { .. } => ReplyKind::ModelBytes,
             Self::Refused { .. } => ReplyKind::Refused,
+            Self::Setting(_) => ReplyKind::Setting,
         }
     }
 }
@@ -492,6 +500,7 @@ impl<'de> Tagged<'de> for Reply {
                 data,
             } => put!(t; total, offset, data),
             Self::Refused { code, reason } => put!(t; code, reason),
+            Self::Setting(v) => put!(t; v),
         }
         Ok(())
     }
@@ -517,6 +526,7 @@ impl<'de> Tagged<'de> for Reply {
                 code: field(a)?,
                 reason: field(a)?,
             },
+            ReplyKind::Setting => Self::Setting(field(a)?),
         }))
     }
 }

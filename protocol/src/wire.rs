@@ -28,7 +28,7 @@ macro_rules! wire_enum {
     (
         $(#[$meta:meta])*
         pub enum $name:ident {
-            $($(#[$vmeta:meta])* $variant:ident = $n:literal,)+
+            $($(#[$vmeta:meta])* $variant:ident = $n:literal $(as $label:literal)?,)+
         }
     ) => {
         $(#[$meta])*
@@ -54,16 +54,38 @@ macro_rules! wire_enum {
             pub const fn to_u8(self) -> u8 {
                 self as u8
             }
+
+            /// Its name in a human-readable format (JSON, the settings tree),
+            /// where the declaration gives one (`Variant = n as "name"`).
+            pub const fn label(self) -> Option<&'static str> {
+                match self {
+                    $(Self::$variant => $crate::wire::label(&[$($label)?]),)+
+                }
+            }
+
+            /// The variant named `name` (see [`Self::label`]).
+            pub fn from_label(name: &str) -> Option<Self> {
+                Self::ALL.iter().copied().find(|v| v.label() == Some(name))
+            }
         }
 
         impl $crate::serde::Serialize for $name {
             fn serialize<S: $crate::serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-                s.serialize_u8(self.to_u8())
+                match self.label() {
+                    Some(name) if s.is_human_readable() => s.serialize_str(name),
+                    _ => s.serialize_u8(self.to_u8()),
+                }
             }
         }
 
         impl<'de> $crate::serde::Deserialize<'de> for $name {
             fn deserialize<D: $crate::serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+                if d.is_human_readable() && Self::ALL.iter().any(|v| v.label().is_some()) {
+                    return d.deserialize_str($crate::wire::LabelVisitor::<Self>::new(
+                        stringify!($name),
+                        Self::from_label,
+                    ));
+                }
                 let byte = <u8 as $crate::serde::Deserialize>::deserialize(d)?;
                 Self::from_u8(byte).ok_or_else(|| {
                     <D::Error as $crate::serde::de::Error>::invalid_value(
@@ -74,6 +96,41 @@ macro_rules! wire_enum {
             }
         }
     };
+}
+
+/// The label a `wire_enum!` variant declares (`as "name"`), if any.
+#[doc(hidden)]
+pub const fn label(declared: &[&'static str]) -> Option<&'static str> {
+    match declared {
+        [name] => Some(name),
+        _ => None,
+    }
+}
+
+/// Reads a labelled `wire_enum!` from its name (a human-readable format).
+#[doc(hidden)]
+pub struct LabelVisitor<T> {
+    name: &'static str,
+    parse: fn(&str) -> Option<T>,
+}
+
+impl<T> LabelVisitor<T> {
+    /// For the enum `name`, its variants found by `parse`.
+    pub const fn new(name: &'static str, parse: fn(&str) -> Option<T>) -> Self {
+        Self { name, parse }
+    }
+}
+
+impl<'de, T> Visitor<'de> for LabelVisitor<T> {
+    type Value = T;
+
+    fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "the name of a {}", self.name)
+    }
+
+    fn visit_str<E: de::Error>(self, v: &str) -> Result<T, E> {
+        (self.parse)(v).ok_or_else(|| E::invalid_value(de::Unexpected::Str(v), &self))
+    }
 }
 
 /// Most fields a tagged variant has, its kind byte included (a bound for the

@@ -122,6 +122,10 @@ goldens! {
     command_analysis_result: Command::AnalysisResult { axis: 0 } => "1f 00";
     command_model_read: Command::ModelRead { offset: 512 } => "20 80 04";
     command_lead_ratio: Command::LeadRatio { axis: 0, ratio: 3 << 29 } => "21 00 80 80 80 80 0c";
+    command_setting_get: Command::SettingGet { path: b"/supervise_ms" }
+        => "22 0d 2f 73 75 70 65 72 76 69 73 65 5f 6d 73";
+    command_setting_set: Command::SettingSet { path: b"/stage/0/damping", value: b"false" }
+        => "23 10 2f 73 74 61 67 65 2f 30 2f 64 61 6d 70 69 6e 67 05 66 61 6c 73 65";
 }
 
 fn hello() -> Hello {
@@ -200,7 +204,7 @@ goldens! {
     Reply, all_replies;
     reply_ack: Reply::Ack => "00";
     reply_hello: Reply::Hello(hello())
-        => "01 09 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01";
+        => "01 0a 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01";
     reply_status: Reply::Status(status())
         => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 00 02 f8 ac d1 91 01";
     reply_record: Reply::Record(batch())
@@ -231,6 +235,8 @@ goldens! {
     } => "07 e8 07 80 06 03 46 50 49";
     reply_refused: Reply::Refused { code: Refusal::Axis, reason: text("axis 1") }
         => "08 0d 06 61 78 69 73 20 31";
+    reply_setting: Reply::Setting(heapless::Vec::from_slice(b"\"open\"").unwrap())
+        => "09 06 22 6f 70 65 6e 22";
 }
 
 #[test]
@@ -272,7 +278,8 @@ fn wire_numbers_are_pinned() {
         "Open=0 Closed=1 FeedbackOnly=2",
         "Hold=0 Move=1 Wave=2 Stream=3 Analog=4",
         "Malformed=0 Version=1 Unknown=2 Fault=3 NotAtRest=4 StillRamping=5 OutOfRange=6 \
-         BadArgument=7 Model=8 Upload=9 Storage=10 NotEmulated=11 Stream=12 Axis=13",
+         BadArgument=7 Model=8 Upload=9 Storage=10 NotEmulated=11 Stream=12 Axis=13 \
+         Setting=14",
         "Driver=0 Emulated=1",
         "PowerOn=0 Pin=1 Command=2 Watchdog=3 BrownOut=4 Unknown=5",
         "Empty=0 Valid=1 Damaged=2 Refused=3",
@@ -332,7 +339,7 @@ fn a_request_frame_golden() {
         seq: 1,
     };
     let n = frame::encode(&h, &Command::Status { axis: 0 }, &mut scratch, &mut out).unwrap();
-    assert_eq!(hex(&out[..n]), "04 09 01 01 05 e0 cb 95 44 00");
+    assert_eq!(hex(&out[..n]), "04 0a 01 01 05 0e 64 20 56 00");
 }
 
 /// An unknown kind is told apart from garbage; a known kind with bad fields is
@@ -340,7 +347,7 @@ fn a_request_frame_golden() {
 #[test]
 fn unknown_kinds_and_axes() {
     assert_eq!(
-        frame::body::<Command<'_>>(&[34]),
+        frame::body::<Command<'_>>(&[36]),
         Err(frame::FrameError::UnknownKind)
     );
     assert_eq!(
@@ -348,7 +355,7 @@ fn unknown_kinds_and_axes() {
         Err(frame::FrameError::Encoding)
     );
     assert_eq!(
-        frame::body::<Reply>(&[9]),
+        frame::body::<Reply>(&[10]),
         Err(frame::FrameError::UnknownKind)
     );
     assert_eq!(

@@ -47,7 +47,7 @@ pub struct Board {
 
 impl Board {
     /// Runs `f` on the open client with the GIL released.
-    fn run<R: Send>(
+    pub(crate) fn run<R: Send>(
         &self,
         py: Python<'_>,
         f: impl FnOnce(&mut Client) -> anyhow::Result<R> + Send,
@@ -94,6 +94,13 @@ impl Board {
             client: Mutex::new(Some(c)),
             port: port.to_string(),
         })
+    }
+
+    /// The board's runtime settings by key path, a mapping
+    /// (`board.settings["stage/0/damping"] = False`; see `Settings`).
+    #[getter]
+    fn settings(slf: Py<Self>) -> crate::settings::Settings {
+        crate::settings::Settings::of(slf)
     }
 
     /// The port it was opened on.

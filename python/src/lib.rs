@@ -13,6 +13,7 @@ mod board;
 mod emulator;
 mod errors;
 mod model;
+mod settings;
 
 use pyo3::prelude::*;
 
@@ -25,6 +26,7 @@ fn piezo_fpi(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("LinkError", py.get_type::<errors::LinkError>())?;
     m.add("Interrupted", py.get_type::<errors::Interrupted>())?;
     m.add_class::<board::Board>()?;
+    m.add_class::<settings::Settings>()?;
     m.add_class::<emulator::Emulator>()?;
     m.add_class::<model::Model>()?;
     m.add_function(wrap_pyfunction!(model::calibrate, m)?)?;

@@ -178,6 +178,43 @@ def test_load_a_firmware_model_when_parked(board):
     assert s["model"]["crc"] == r["crc"]
 
 
+def test_settings_by_key(board):
+    st = board.settings
+    assert st.keys() == [
+        "stage/0/loop_mode",
+        "stage/0/damping",
+        "stage/0/shaping",
+        "stage/0/compensated",
+        "supervise_ms",
+    ]
+    assert "stage.0.loop_mode" in st and "stage/0/lop" not in st
+    # The factory model has no damping and no shaping.
+    assert st.to_dict() == {
+        "stage/0/loop_mode": "open",
+        "stage/0/damping": None,
+        "stage/0/shaping": None,
+        "stage/0/compensated": True,
+        "supervise_ms": 0,
+    }
+    st["stage.0.compensated"] = False
+    assert board.status()["compensated"] is False
+    st["stage/0/compensated"] = True
+    assert st["stage/0/compensated"] is True
+    st["supervise_ms"] = 250
+    assert st["supervise_ms"] == 250
+    st["supervise_ms"] = 0
+    # The named method's check: no [feedback], no closed loop.
+    with pytest.raises(pf.BoardError, match="no \\[feedback\\] section"):
+        st["stage/0/loop_mode"] = "closed"
+    with pytest.raises(pf.BoardError, match="no such section"):
+        st["stage/0/damping"] = False
+    with pytest.raises(pf.BoardError, match="not a value of this setting's type"):
+        st["stage/0/compensated"] = "yes"
+    with pytest.raises(KeyError, match="no setting"):
+        st["stage/0/lop"]
+    assert st.describe("supervise_ms")["unit"] == "ms"
+
+
 def test_load_errors(board):
     with pytest.raises(FileNotFoundError):
         board.load("no-such-model.toml")

@@ -333,3 +333,34 @@ fn the_figures_page_is_its_template_with_the_commands_output() {
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
+
+/// The reference pages generated from a declaration are what their command
+/// prints now: the runtime settings (`fpi reference settings`, from
+/// `fpi_protocol::Settings`) and the command line (`fpi reference cli`, from
+/// clap's declaration). A setting or an option added without regenerating
+/// the page fails here, with the command that regenerates it.
+#[test]
+fn the_generated_reference_pages_are_their_declarations() {
+    let mut problems = Vec::new();
+    for page in ["settings", "cli"] {
+        let out = std::process::Command::new(fpi_tests::fpi_bin())
+            .args(["reference", page])
+            .output()
+            .expect("running fpi reference");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let path = book_src().join("reference").join(format!("{page}.md"));
+        if read(&path) != String::from_utf8_lossy(&out.stdout) {
+            problems.push(format!(
+                "{} is not what `fpi reference {page}` prints: run \
+                 `cargo run --release -p fpi-host --bin fpi -- reference {page} > {}`",
+                shown(&path),
+                shown(&path)
+            ));
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}

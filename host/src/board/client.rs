@@ -164,6 +164,14 @@ pub fn to_link(what: &str, x: f64, unit: &str) -> Result<i32> {
 
 /// A command's name for messages.
 fn name_of(c: &Command<'_>) -> String {
+    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+    match c {
+        Command::SettingGet { path } => return format!("get {}", text(path)),
+        Command::SettingSet { path, value } => {
+            return format!("set {} = {}", text(path), text(value))
+        }
+        _ => {}
+    }
     let dbg = format!("{c:?}");
     let end = dbg.find([' ', '(', '{']).unwrap_or(dbg.len());
     dbg[..end].to_string()
@@ -446,6 +454,34 @@ impl Client {
             (_, Reply::Model(m)) => Ok(m),
             (_, r) => bail!("unexpected reply to model info: {r:?}"),
         }
+    }
+
+    /// One runtime setting's value, JSON, by key path (`/stage/0/damping`; see
+    /// [`fpi_protocol::Settings`] and [`super::settings`]).
+    pub fn setting(&mut self, path: &str) -> Result<String> {
+        let cmd = Command::SettingGet {
+            path: path.as_bytes(),
+        };
+        match self.request(&cmd)? {
+            (_, Reply::Setting(v)) => Ok(String::from_utf8_lossy(&v).into_owned()),
+            (_, Reply::Refused { code, reason }) => Err(Refused {
+                what: name_of(&cmd),
+                code,
+                reason: reason.to_string(),
+            }
+            .into()),
+            (_, r) => bail!("unexpected reply to a setting's get: {r:?}"),
+        }
+    }
+
+    /// Sets one runtime setting to `value` (JSON): the board carries it out as
+    /// the named command that makes the change, with its checks, and watches
+    /// its effect as [`Self::order`] does; the tick.
+    pub fn set_setting(&mut self, path: &str, value: &str) -> Result<u32> {
+        self.order(&Command::SettingSet {
+            path: path.as_bytes(),
+            value: value.as_bytes(),
+        })
     }
 
     /// The link's counters.

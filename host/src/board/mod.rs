@@ -22,6 +22,7 @@ pub mod port;
 pub mod recording;
 pub mod restore;
 pub mod session;
+pub mod settings;
 pub mod step;
 pub mod trial;
 pub mod twin;

@@ -741,6 +741,30 @@ pub fn damping(c: &mut Client, state: &str) -> Result<()> {
     Ok(())
 }
 
+/// `fpi board get [KEY]`: one setting's value, or every setting's.
+pub fn get(c: &mut Client, key: Option<&str>) -> Result<()> {
+    use crate::board::settings;
+    match key {
+        Some(k) => println!("{}", c.setting(&settings::path(k)?)?),
+        None => {
+            for (path, value) in settings::read_all(c)? {
+                let v = value.unwrap_or_else(|| "(the running model has none)".into());
+                println!("{:<22} {v}", &path[1..]);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `fpi board set KEY VALUE`.
+pub fn set(c: &mut Client, key: &str, value: &str) -> Result<()> {
+    use crate::board::settings;
+    let path = settings::path(key)?;
+    let t = c.set_setting(&path, &settings::json(value))?;
+    println!("{} = {} from tick {t}", &path[1..], c.setting(&path)?);
+    Ok(())
+}
+
 /// `fpi board shaping on|off`.
 pub fn shaping(c: &mut Client, state: &str) -> Result<()> {
     let t = commands::shaping(c, state)?;

@@ -40,6 +40,7 @@ use crate::control::slots::{Origin, Running, Spare, Summary};
 use crate::control::tracking::LoopMode;
 
 mod models;
+mod settings;
 
 /// What the handler needs from the board it runs on.
 pub trait Board {
@@ -488,6 +489,8 @@ impl<F: NorFlash> Handler<F> {
                 })))
             }
             Command::ModelRead { offset } => self.model_bytes(board, offset),
+            Command::SettingGet { path } => self.setting_get(board, path),
+            Command::SettingSet { path, value } => self.setting_set(board, seq, path, value),
             Command::Supervise { timeout_ms } => {
                 self.timeout_ms = timeout_ms;
                 self.supervise(board, seq, timeout_ms)
