@@ -365,12 +365,24 @@ impl<F: NorFlash> Handler<F> {
         refuse(e.refusal(), format_args!("{}", e.message()))
     }
 
+    // Out of line: one copy of the dispatch, wherever the frame came from.
+    #[inline(never)]
     fn command(
         &mut self,
         board: &mut impl Board,
         seq: u16,
         cmd: Command<'_>,
     ) -> Result<Reply, Refuse> {
+        // A setting's change is the named command that makes it, handled below
+        // with that command's checks (translated first: no recursion, so the
+        // handler stays one inlined function).
+        let cmd = match cmd {
+            Command::SettingSet { path, value } => match self.setting_change(board, path, value)? {
+                Some(named) => named,
+                None => return self.ack(board),
+            },
+            cmd => cmd,
+        };
         if let Some(axis) = cmd.axis().filter(|&a| a >= AXES) {
             return Err(refuse(
                 Refusal::Axis,
@@ -490,7 +502,8 @@ impl<F: NorFlash> Handler<F> {
             }
             Command::ModelRead { offset } => self.model_bytes(board, offset),
             Command::SettingGet { path } => self.setting_get(board, path),
-            Command::SettingSet { path, value } => self.setting_set(board, seq, path, value),
+            // Translated into its named command above.
+            Command::SettingSet { .. } => self.ack(board),
             Command::Supervise { timeout_ms } => {
                 self.timeout_ms = timeout_ms;
                 self.supervise(board, seq, timeout_ms)

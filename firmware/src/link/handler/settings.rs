@@ -10,7 +10,7 @@ use heapless::Vec;
 
 use super::{Board, Handler};
 use crate::link::protocol::settings::{StageSettings, MAX_PATH, MAX_VALUE, STAGES};
-use crate::link::protocol::{Refusal, Reply, Settings};
+use crate::link::protocol::{Command, Refusal, Reply, Settings};
 use crate::link::refusal::{refuse, Refuse};
 
 impl<F: NorFlash> Handler<F> {
@@ -55,24 +55,21 @@ impl<F: NorFlash> Handler<F> {
         }
     }
 
-    /// Sets `path` to `value` (JSON) through the named command it stands for.
-    pub(super) fn setting_set(
+    /// The named command that sets `path` to `value` (JSON), `None` where
+    /// nothing changes.
+    pub(super) fn setting_change(
         &mut self,
         board: &mut impl Board,
-        seq: u16,
         path: &[u8],
         value: &[u8],
-    ) -> Result<Reply, Refuse> {
+    ) -> Result<Option<Command<'static>>, Refuse> {
         let path = key(path)?;
         let now = self.settings(board);
         let mut next = now;
         if let Err(e) = json_core::set(&mut next, path, value) {
             return Err(not_set(path, Some(value), e.into()));
         }
-        match now.command_to(&next) {
-            Some(cmd) => self.command(board, seq, cmd),
-            None => self.ack(board),
-        }
+        Ok(now.command_to(&next))
     }
 }
 
