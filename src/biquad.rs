@@ -59,6 +59,7 @@ use core::fmt;
 use fixed::types::{I16F16, I8F24};
 
 use crate::error::{Field, Invalid, ModelError};
+use crate::process::SplitProcess;
 use crate::q::{SIGNAL_ABS_MAX, SIGNAL_ABS_MAX_BITS};
 
 /// A biquad coefficient, dimensionless, `I8F24`: range ±128, resolution 2⁻²⁴.
@@ -258,18 +259,6 @@ impl Biquad {
         (num / one) / (den / one)
     }
 
-    /// One sample through the section: `x` (clamped to ±4096) in, `y` out, both
-    /// `I16F16`; 7 exact 32 × 32 → 64-bit products (5 taps, 2 residual
-    /// corrections), one rounding shift, one saturation. No division, no panic.
-    #[inline]
-    pub fn update(&self, state: &mut BiquadState, x: I16F16) -> I16F16 {
-        let x = clamp_bits(x.to_bits() as i64, -LIM, LIM);
-        let y = self.section(x, state.x, state.y, &mut state.e);
-        state.x = [x, state.x[0]];
-        state.y = [y, state.y[0]];
-        I16F16::from_bits(y)
-    }
-
     /// The section's arithmetic on raw bits: input `x`, input history `xh`, output
     /// history `yh` with its residuals `eh` (updated); returns the saturated output.
     #[inline(always)]
@@ -284,6 +273,20 @@ impl Biquad {
             + RESIDUAL_HALF;
         *eh = [((acc & RESIDUAL_MASK) - RESIDUAL_HALF) as i32, eh[0]];
         clamp_bits(acc >> COEFF_FRAC, self.min, self.max)
+    }
+}
+
+/// One sample through the section: `x` (clamped to ±4096) in, `y` out, both
+/// `I16F16`; 7 exact 32 × 32 → 64-bit products (5 taps, 2 residual
+/// corrections), one rounding shift, one saturation. No division, no panic.
+impl SplitProcess<I16F16, I16F16, BiquadState> for Biquad {
+    #[inline]
+    fn process(&self, state: &mut BiquadState, x: I16F16) -> I16F16 {
+        let x = clamp_bits(x.to_bits() as i64, -LIM, LIM);
+        let y = self.section(x, state.x, state.y, &mut state.e);
+        state.x = [x, state.x[0]];
+        state.y = [y, state.y[0]];
+        I16F16::from_bits(y)
     }
 }
 
@@ -361,13 +364,15 @@ impl<const M: usize> Cascade<M> {
     pub fn dc_gain(&self) -> f64 {
         self.sections.iter().map(Biquad::dc_gain).product()
     }
+}
 
+impl<const M: usize> SplitProcess<I16F16, I16F16, CascadeState<M>> for Cascade<M> {
     /// One sample through every section: `x` (`I16F16`, clamped to ±4096) in, the
     /// last section's output out. Consecutive sections share their histories (the
     /// output history of section `k` is the input history of section `k + 1`), so
     /// the state holds `2(M + 1)` signals. No division, no panic.
     #[inline]
-    pub fn update(&self, state: &mut CascadeState<M>, x: I16F16) -> I16F16 {
+    fn process(&self, state: &mut CascadeState<M>, x: I16F16) -> I16F16 {
         let mut u = clamp_bits(x.to_bits() as i64, -LIM, LIM);
         let mut xh = state.x;
         state.x = [u, xh[0]];
@@ -453,11 +458,11 @@ mod tests {
     fn identity_passes_signals_through() {
         let mut s = BiquadState::new();
         for x in [0.0, 1.5, -3.25, 4000.0, 150.0] {
-            assert_eq!(Biquad::IDENTITY.update(&mut s, v(x)), v(x));
+            assert_eq!(Biquad::IDENTITY.process(&mut s, v(x)), v(x));
         }
         let c = Cascade::<2>::IDENTITY;
         let mut st = c.initial_state();
-        assert_eq!(c.update(&mut st, v(12.5)), v(12.5));
+        assert_eq!(c.process(&mut st, v(12.5)), v(12.5));
         assert_eq!(st.output(), v(12.5));
     }
 
@@ -509,7 +514,7 @@ mod tests {
         let mut s = BiquadState::new();
         for n in 0..10_000 {
             let x = if n % 7 < 3 { I16F16::MAX } else { I16F16::MIN };
-            let y = q.update(&mut s, x);
+            let y = q.process(&mut s, x);
             assert!(y >= v(-100.0) && y <= v(100.0));
         }
     }

@@ -37,6 +37,7 @@
 use crate::biquad::{Biquad, BiquadState, Coefficient, COEFF_FRAC};
 use crate::control::ForceChannel;
 use crate::error::{Field, Invalid, ModelError};
+use crate::process::SplitProcess;
 use crate::q::{CreepRate, LoopGain, Micrometres, Newtons, LOOP_GAIN_FRAC, SIGNAL_ABS_MAX_BITS};
 
 /// Largest IFF gain, µm of command per N of dynamic force per tick.
@@ -239,6 +240,16 @@ impl DampingConfig {
     }
 }
 
+/// One step of the law with the dynamic force `r_d` (N): the correction (µm),
+/// `−C(z)·r_d`, held to `±limit`.
+impl SplitProcess<Newtons, Micrometres, Damping> for DampingConfig {
+    #[inline]
+    fn process(&self, d: &mut Damping, dynamic: Newtons) -> Micrometres {
+        let y = self.section.process(&mut d.state, dynamic);
+        Micrometres::from_bits(y.to_bits().wrapping_neg())
+    }
+}
+
 /// The damping law's memory: its section's (state).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Damping {
@@ -251,14 +262,6 @@ impl Damping {
         Self {
             state: BiquadState::new(),
         }
-    }
-
-    /// One step of the law with the dynamic force `r_d` (N): the correction (µm),
-    /// `−C(z)·r_d`, held to `±limit`.
-    #[inline]
-    pub fn update(&mut self, cfg: &DampingConfig, dynamic: Newtons) -> Micrometres {
-        let y = cfg.section.update(&mut self.state, dynamic);
-        Micrometres::from_bits(y.to_bits().wrapping_neg())
     }
 
     /// The correction it adds now, µm.
@@ -329,10 +332,10 @@ mod tests {
         let c = cfg(0.01, 100);
         assert_eq!(c.section().dc_gain(), 0.0);
         let mut d = Damping::new();
-        let first = d.update(&c, Newtons::from_num(1));
+        let first = c.process(&mut d, Newtons::from_num(1));
         assert!((first.to_num::<f64>() + 0.01).abs() < 1e-4, "{first}");
         for _ in 0..20_000 {
-            d.update(&c, Newtons::from_num(1));
+            c.process(&mut d, Newtons::from_num(1));
         }
         assert!(
             d.correction().to_num::<f64>().abs() < 1e-4,
@@ -343,7 +346,11 @@ mod tests {
         let mut peak = 0.0f64;
         for k in 0..20_000 {
             let f = 100.0 * (k as f64 * core::f64::consts::TAU * 100.0 / 20_000.0).sin();
-            peak = peak.max(d.update(&c, Newtons::from_num(f)).to_num::<f64>().abs());
+            peak = peak.max(
+                c.process(&mut d, Newtons::from_num(f))
+                    .to_num::<f64>()
+                    .abs(),
+            );
         }
         assert_eq!(peak, 4.0);
         d.reset();

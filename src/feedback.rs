@@ -34,6 +34,7 @@
 
 use crate::control::{Fault, Interval, Window};
 use crate::error::{Field, Invalid, ModelError};
+use crate::process::SplitProcess;
 use crate::q::{LoopGain, Micrometres, Volts, INTEGRAL_FRAC, LOOP_GAIN_FRAC, SIGNAL_ABS_MAX_BITS};
 
 /// Largest proportional gain, µm/µm.
@@ -212,22 +213,24 @@ impl Pi {
         Micrometres::from_bits(narrow(self.integral))
     }
 
-    /// Sets the integrator so that [`update`](Self::update) with `error` returns
+    /// Sets the integrator so that the law's next step with `error` returns
     /// `output` (bumpless transfer); `output` within `[lo, hi]`.
     pub fn preset(&mut self, cfg: &FeedbackConfig, output: Micrometres, error: Micrometres) {
         self.integral = wide(output) - cfg.spec.kp.to_bits() as i64 * error.to_bits() as i64;
     }
+}
 
-    /// One step of the law: the output `kp·e + I` clamped to `[lo, hi]` (µm), then
+/// The position PI: error, saturation and output range in, µm out.
+impl SplitProcess<(Micrometres, Saturation, Interval), Micrometres, Pi> for FeedbackConfig {
+    /// One step of the law on the error `e` (µm): the output `kp·e + I` clamped
+    /// to the output range `[lo, hi]` (µm), then
     /// the integrator advanced by `ki·e` unless `sat` says the last step was held
     /// in that direction. Bounded time, no division, no panic.
     #[inline]
-    pub fn update(
-        &mut self,
-        cfg: &FeedbackConfig,
-        error: Micrometres,
-        sat: Saturation,
-        range: Interval,
+    fn process(
+        &self,
+        pi: &mut Pi,
+        (error, sat, range): (Micrometres, Saturation, Interval),
     ) -> Micrometres {
         let e = error.to_bits() as i64;
         let (lo, hi) = (wide(range.lo), wide(range.hi));
@@ -236,18 +239,18 @@ impl Pi {
         // the integrator stays below 2^55 + 2^59 (within a range of `I16F16`
         // values, or a preset: an output less kp·e).
         // `max`/`min`, not `clamp`: no panic path for an inverted range.
-        let out = (cfg.spec.kp.to_bits() as i64 * e)
-            .wrapping_add(self.integral)
+        let out = (self.spec.kp.to_bits() as i64 * e)
+            .wrapping_add(pi.integral)
             .max(lo)
             .min(hi);
-        let step = cfg.spec.ki.to_bits() as i64 * e;
+        let step = self.spec.ki.to_bits() as i64 * e;
         let winds = match sat {
             Saturation::Free => false,
             Saturation::High => step > 0,
             Saturation::Low => step < 0,
         };
         if !winds {
-            self.integral = self.integral.wrapping_add(step).max(lo).min(hi);
+            pi.integral = pi.integral.wrapping_add(step).max(lo).min(hi);
         }
         Micrometres::from_bits(narrow(out))
     }
@@ -345,7 +348,7 @@ mod tests {
         let mut pi = Pi::new();
         let (mut x, r) = (0.0, 20.0);
         for _ in 0..2000 {
-            let d = pi.update(&c, um(r - x), Saturation::Free, c.correction());
+            let d = c.process(&mut pi, (um(r - x), Saturation::Free, c.correction()));
             x = 0.9 * (r + d.to_num::<f64>()) + 1.0;
         }
         assert!((x - r).abs() < 1e-4, "{x}");
@@ -361,7 +364,7 @@ mod tests {
         // 1 nm × 0.02 per tick is 0.3 LSB of I16F16: it must not be lost.
         let e = um(0.001);
         for _ in 0..10_000 {
-            pi.update(&c, e, Saturation::Free, c.correction());
+            c.process(&mut pi, (e, Saturation::Free, c.correction()));
         }
         let want = 10_000.0 * c.spec().ki.to_num::<f64>() * e.to_num::<f64>();
         let i = pi.integral().to_num::<f64>();
@@ -373,19 +376,19 @@ mod tests {
         let c = cfg();
         let mut pi = Pi::new();
         for _ in 0..100 {
-            pi.update(&c, um(1.0), Saturation::High, c.correction());
+            c.process(&mut pi, (um(1.0), Saturation::High, c.correction()));
         }
         assert_eq!(pi.integral(), Micrometres::ZERO, "held while saturated");
         for _ in 0..10 {
-            pi.update(&c, um(-1.0), Saturation::High, c.correction());
+            c.process(&mut pi, (um(-1.0), Saturation::High, c.correction()));
         }
         assert!(pi.integral() < Micrometres::ZERO, "unwinds");
         // Free: it integrates, clamped to the range.
         for _ in 0..10_000 {
-            pi.update(&c, um(50.0), Saturation::Free, c.correction());
+            c.process(&mut pi, (um(50.0), Saturation::Free, c.correction()));
         }
         assert_eq!(pi.integral(), um(4.0));
-        let out = pi.update(&c, um(50.0), Saturation::Free, c.correction());
+        let out = c.process(&mut pi, (um(50.0), Saturation::Free, c.correction()));
         assert_eq!(out, um(4.0), "the output is clamped");
     }
 
@@ -394,7 +397,7 @@ mod tests {
         let c = cfg();
         let mut pi = Pi::new();
         pi.preset(&c, um(1.25), um(0.7));
-        let out = pi.update(&c, um(0.7), Saturation::Free, c.correction());
+        let out = c.process(&mut pi, (um(0.7), Saturation::Free, c.correction()));
         assert_eq!(out, um(1.25));
     }
 

@@ -40,6 +40,7 @@ use crate::error::{Field, Invalid, ModelError};
 use crate::inverse::InversePi;
 use crate::pi::PiModel;
 use crate::play::{Bank, Edge, PlayBank, Redo, Stepped};
+use crate::process::SplitProcess;
 use crate::q::{
     coupling_mul, quad_mul, within, CreepRate, GainAcc, Micrometres, Newtons, UmPerNewton,
     UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2, GAIN_FRAC, MAX_CREEP_TERMS, QUAD_MAX_BITS,
@@ -642,7 +643,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
     ) -> (Volts, bool) {
         let z = x_pea + t.compression;
         if BARE {
-            let e = self.inverse.apply(bank, z);
+            let e = self.inverse.process(bank, z);
             return (t.preload_offset.saturating_add(e), false);
         }
         let mut v = self.saturation.invert(z);
@@ -653,7 +654,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
                 .sum();
             v -= narrow(held);
         }
-        let uh = self.inverse.apply(bank, v);
+        let uh = self.inverse.process(bank, v);
         let (e, foot) = (self.dead_zone.invert(uh), self.dead_zone.below_inverse(uh));
         (t.preload_offset.saturating_add(e), foot)
     }
@@ -678,7 +679,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
                 .wrapping_sub(self.pi.w0().to_bits())
         };
         let x = crate::q::narrow_gain_biased(own.acc + dw0 as i64 * own.uh.to_bits() as i64);
-        self.inverse.apply(&mut Redo(inverse), x);
+        self.inverse.process(&mut Redo(inverse), x);
     }
 
     /// Realigns the inverse bank with the forward bank (see [`InversePi::resync`]).

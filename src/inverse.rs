@@ -21,6 +21,7 @@
 use crate::error::ModelError;
 use crate::pi::PiModel;
 use crate::play::{Bank, Edge, Operator, Operators, PlayBank, Weight};
+use crate::process::SplitProcess;
 use crate::q::{
     narrow_inv_gain_biased, within, Micrometres, UmPerVolt, Volts, VoltsPerUm, GAIN_FRAC,
     INV_GAIN_FRAC, INV_GAIN_ROUND, SIGNAL_ABS_MAX_BITS, SIGNAL_FRAC,
@@ -176,19 +177,8 @@ impl<const N: usize> InversePi<N> {
         })
     }
 
-    /// One sample: advances the inverse operators with the desired output `x` (µm)
-    /// and returns the input `u` (V) that produces it.
-    ///
-    /// `x` is clamped to `[0, input_max]`; `u` then lies in `[0, output_max]` up to
-    /// rounding (a few LSB; the caller's actuator limits bound it). No division, no panic.
-    #[inline(always)]
-    pub fn apply<B: Bank<N>>(&self, state: &mut B, x: Micrometres) -> Volts {
-        let x = within(x, Micrometres::ZERO, self.input_max);
-        narrow_inv_gain_biased(state.advance(&self.ops, x))
-    }
-
     /// Sets the inverse operators to the state that matches a forward bank:
-    /// `z_j = S_j·y_j + Σ_{i>j} w_i·y_i` (µm), so that the next [`apply`](Self::apply)
+    /// `z_j = S_j·y_j + Σ_{i>j} w_i·y_i` (µm), so that the next sample
     /// continues from the voltage history actually applied.
     ///
     /// Called when the output limiter changed the voltage; `fwd` must be the model
@@ -293,6 +283,19 @@ fn mirror<W: Weight, V: Copy, const FRAC: u32, const N: usize, E: Edge, F: Edge>
 
 const _: () = assert!(SIGNAL_FRAC + GAIN_FRAC < 63);
 
+impl<const N: usize, B: Bank<N>> SplitProcess<Micrometres, Volts, B> for InversePi<N> {
+    /// One sample: advances the inverse operators with the desired output `x` (µm)
+    /// and returns the input `u` (V) that produces it.
+    ///
+    /// `x` is clamped to `[0, input_max]`; `u` then lies in `[0, output_max]` up to
+    /// rounding (a few LSB; the caller's actuator limits bound it). No division, no panic.
+    #[inline(always)]
+    fn process(&self, state: &mut B, x: Micrometres) -> Volts {
+        let x = within(x, Micrometres::ZERO, self.input_max);
+        narrow_inv_gain_biased(state.advance(&self.ops, x))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -331,8 +334,8 @@ mod tests {
             // A decaying, wandering drive with many reversals.
             u = (u + 13.7 * ((k as f64) * 0.37).sin() * (1.0 - k as f64 / 2500.0))
                 .clamp(0.0, 150.0);
-            let x = f.apply(&mut fs, Volts::from_num(u));
-            let back = i.apply(&mut is, x).to_num::<f64>();
+            let x = f.process(&mut fs, Volts::from_num(u));
+            let back = i.process(&mut is, x).to_num::<f64>();
             worst = worst.max((back - u).abs());
         }
         // A few LSB of x (15 pm) times |dU/dx| <= 1/w0.
@@ -344,8 +347,8 @@ mod tests {
         let (f, i) = pair();
         let (mut fs, mut is) = (PlayBank::new(), PlayBank::new());
         for u in [30.0, 120.0, 60.0, 90.0, 10.0, 140.0, 75.0] {
-            let x = f.apply(&mut fs, Volts::from_num(u));
-            i.apply(&mut is, x);
+            let x = f.process(&mut fs, Volts::from_num(u));
+            i.process(&mut is, x);
             let mut synced = PlayBank::new();
             i.resync(&f, &fs, &mut synced);
             let (a, b) = (synced.outputs(i.bank()), is.outputs(i.bank()));
@@ -366,8 +369,8 @@ mod tests {
         let (mut fs, mut is) = (PlayBank::<4, Bottom>::at_rest(f.bank()), PlayBank::new());
         let mut worst = 0.0f64;
         for x in [3.0, 9.5, 6.0, 8.0, 0.5, 11.0, 7.25, 7.5, 2.0] {
-            let u = i.apply(&mut is, Micrometres::from_num(x));
-            f.apply(&mut fs, u);
+            let u = i.process(&mut is, Micrometres::from_num(x));
+            f.process(&mut fs, u);
             let mut rebuilt = PlayBank::<4, Bottom>::at_rest(f.bank());
             i.forward_state(&f, &is, &mut rebuilt);
             let (a, b) = (rebuilt.outputs(f.bank()), fs.outputs(f.bank()));
@@ -379,8 +382,8 @@ mod tests {
             let (mut r, mut s) = (rebuilt, fs);
             for u in [20.0, 140.0, 60.0] {
                 let (a, b) = (
-                    f.apply(&mut r, Volts::from_num(u)),
-                    f.apply(&mut s, Volts::from_num(u)),
+                    f.process(&mut r, Volts::from_num(u)),
+                    f.process(&mut s, Volts::from_num(u)),
                 );
                 assert!((a - b).to_num::<f64>().abs() < 1e-4, "x={x} u={u}");
             }

@@ -92,6 +92,7 @@
 //! `e` times `μ·M·|a|`).
 
 use crate::damping::DynamicsSpec;
+use crate::process::SplitProcess;
 use crate::q::{LeadRatio, Micrometres, Newtons};
 
 /// `1` in raw [`LeadRatio`] bits.
@@ -199,31 +200,32 @@ impl LeadGain {
     pub const fn ratio(&self) -> LeadRatio {
         self.beta
     }
+}
 
+/// The explained force's block: dynamic force, lead, acceleration and whether
+/// to learn in, the force left for the damping out.
+impl SplitProcess<(Newtons, Micrometres, Micrometres, bool), Newtons, LeadGain> for LeadSpec {
     /// The force left for the damping (N) from the dynamic force `dynamic`, the
     /// shaped reference's lead `moved = S_{k−1} − x_ref` (µm) and the tracked
     /// reference's acceleration `accel` (µm/tick²); where `learn`, `β` takes one
     /// step (see the module docs). Saturating, no division, no panic.
     #[inline]
-    pub fn step(
-        &mut self,
-        spec: &LeadSpec,
-        dynamic: Newtons,
-        moved: Micrometres,
-        accel: Micrometres,
-        learn: bool,
+    fn process(
+        &self,
+        gain: &mut LeadGain,
+        (dynamic, moved, accel, learn): (Newtons, Micrometres, Micrometres, bool),
     ) -> Newtons {
         let r = dynamic.to_bits();
         // f_m: I16F16 × I16F16 → I16F16, within ±4096 N by the held lead
         // (κ ≥ 0 and κ·moved_max ≤ 4096 N).
-        let mm = spec.moved_max.to_bits();
+        let mm = self.moved_max.to_bits();
         #[allow(clippy::manual_clamp)]
         let m = moved.to_bits().max(-mm).min(mm);
-        let fm = ((i64::from(spec.force_gain.to_bits()) * i64::from(m)) >> 16) as i32;
-        let beta = self.beta.to_bits();
+        let fm = ((i64::from(self.force_gain.to_bits()) * i64::from(m)) >> 16) as i32;
+        let beta = gain.beta.to_bits();
         // β·f_m and α_b·β·f_m (I2F30 × I16F16 → I16F16): below 2¹³ and 2¹⁴ N.
         let scaled = ((i64::from(beta) * i64::from(fm)) >> 30) as i32;
-        let fit = ((i64::from(spec.baseline.to_bits()) * i64::from(scaled)) >> 30) as i32;
+        let fit = ((i64::from(self.baseline.to_bits()) * i64::from(scaled)) >> 30) as i32;
         let e = r.saturating_sub(fit);
         // μ·e·M·a in 32 bits: e to 1/256 N within ±128 N (in the high half),
         // M·a (I16F16 bits, below 2³⁰), their product's high word (e·M·a·2⁻²⁴
@@ -233,15 +235,15 @@ impl LeadGain {
         let e8 = (e >> 8).max(-E8_MAX).min(E8_MAX - 1) << 16;
         #[allow(clippy::manual_clamp)]
         let a = accel.to_bits().max(-ACCEL_MAX).min(ACCEL_MAX - 1);
-        let inertial = a << (spec.mass_log2 & 15);
+        let inertial = a << (self.mass_log2 & 15);
         let q = ((i64::from(e8) * i64::from(inertial)) >> 32) as i32;
         #[allow(clippy::manual_clamp)]
         let d = q.max(-Q_MAX).min(Q_MAX - 1) << Q_SHIFT;
         let next = beta.saturating_add(d).max(RATIO_MIN.to_bits());
         if learn {
-            self.beta = LeadRatio::from_bits(next);
+            gain.beta = LeadRatio::from_bits(next);
         }
-        let left = if spec.applied { scaled } else { fm };
+        let left = if self.applied { scaled } else { fm };
         Newtons::from_bits(r.saturating_sub(left))
     }
 }

@@ -16,7 +16,8 @@
 //!   quantity has a documented Q format ([`q`]) and every model is validated when it
 //!   is built (at compile time for the embedded one, [`model`]).
 //! * Configuration (weights, thresholds, tables, limits) is separate from state
-//!   (operator outputs, last voltage), like `idsp`'s split processors.
+//!   (operator outputs, last voltage), like `idsp`'s split processors, and every
+//!   block has one verb: `config.process(&mut state, x)` ([`process`]).
 //! * `defmt` only with the `defmt` feature (derives `Format` on errors and faults).
 //!
 //! Modules: [`play`] (the OSP operator), [`pi`] (forward PI), [`inverse`] (closed-form
@@ -44,6 +45,7 @@ pub mod model;
 pub mod pi;
 pub mod play;
 pub mod preview;
+pub mod process;
 pub mod q;
 pub mod stability;
 pub mod table;

@@ -3,6 +3,7 @@
 
 use crate::error::ModelError;
 use crate::play::{Edge, Operator, Operators, PlayBank};
+use crate::process::SplitProcess;
 use crate::q::{
     self, narrow_gain, within, GainAcc, Micrometres, UmPerVolt, Volts, GAIN_FRAC, MAX_OPERATORS,
     SIGNAL_ABS_MAX_BITS,
@@ -181,15 +182,6 @@ impl<const N: usize> PiModel<N> {
         Self::new(g(w0)?, r, w, s(input_max)?)
     }
 
-    /// One sample: advances the operator states with input `u` (V) and returns `Y[u]` (µm).
-    ///
-    /// `u` is clamped to `[0, input_max]`. No division, no panic, one rounding.
-    #[inline(always)]
-    pub fn apply<E: Edge>(&self, state: &mut PlayBank<N, E>, u: Volts) -> Micrometres {
-        let u = within(u, Volts::ZERO, self.input_max);
-        q::narrow_gain_biased(state.advance(&self.ops, u))
-    }
-
     /// Linear weight `w0`, µm/V.
     pub const fn w0(&self) -> UmPerVolt {
         self.w0
@@ -212,6 +204,17 @@ impl<const N: usize> PiModel<N> {
     }
 }
 
+impl<const N: usize, E: Edge> SplitProcess<Volts, Micrometres, PlayBank<N, E>> for PiModel<N> {
+    /// One sample: advances the operator states with input `u` (V) and returns `Y[u]` (µm).
+    ///
+    /// `u` is clamped to `[0, input_max]`. No division, no panic, one rounding.
+    #[inline(always)]
+    fn process(&self, state: &mut PlayBank<N, E>, u: Volts) -> Micrometres {
+        let u = within(u, Volts::ZERO, self.input_max);
+        q::narrow_gain_biased(state.advance(&self.ops, u))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -226,7 +229,7 @@ mod tests {
         let mut s = PlayBank::new();
         for k in 0..=150 {
             let u = k as f64;
-            let x = m.apply(&mut s, Volts::from_num(u)).to_num::<f64>();
+            let x = m.process(&mut s, Volts::from_num(u)).to_num::<f64>();
             let want = 0.06 * u
                 + 0.01 * (u - 10.0).max(0.0)
                 + 0.008 * (u - 30.0).max(0.0)
@@ -241,8 +244,8 @@ mod tests {
     fn inputs_are_clamped_to_the_domain() {
         let m = model();
         let mut s = PlayBank::new();
-        assert_eq!(m.apply(&mut s, Volts::from_num(-20)), Micrometres::ZERO);
-        let top = m.apply(&mut s, Volts::from_num(400));
+        assert_eq!(m.process(&mut s, Volts::from_num(-20)), Micrometres::ZERO);
+        let top = m.process(&mut s, Volts::from_num(400));
         assert_eq!(top, m.output_max());
     }
 

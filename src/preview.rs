@@ -26,6 +26,7 @@
 //! so no error accumulates. The delay `n` is `1..=PREVIEW_MAX` ticks.
 
 use crate::error::{Field, Invalid, ModelError};
+use crate::process::SplitProcess;
 use crate::q::{Micrometres, COEFF_FRAC, SIGNAL_ABS_MAX_BITS};
 
 /// Taps of the feedforward on the line (its length).
@@ -158,21 +159,25 @@ impl Preview {
     pub const fn ticks(&self) -> u8 {
         self.ticks
     }
+}
 
-    /// Takes the newest reference `ahead` (µm) through `f`: the reference the
-    /// loops track this tick (`f`'s delay older) and the feedforward `S_k` (µm,
+/// The preview feedforward: the reference ahead in, the tracked reference
+/// and the feedforward out.
+impl SplitProcess<Micrometres, (Micrometres, Micrometres), Preview> for Fir {
+    /// Takes the newest reference `ahead` (µm) through the taps: the reference the
+    /// loops track this tick (their delay older) and the feedforward `S_k` (µm,
     /// see the module docs). No division, no panic.
     #[inline]
-    pub fn run(&mut self, ahead: Micrometres, f: &Fir) -> (Micrometres, Micrometres) {
+    fn process(&self, p: &mut Preview, ahead: Micrometres) -> (Micrometres, Micrometres) {
         let x = ahead
             .to_bits()
             .clamp(-SIGNAL_ABS_MAX_BITS, SIGNAL_ABS_MAX_BITS);
-        let tracked = self.push(Micrometres::from_bits(x), f.ticks);
+        let tracked = p.push(Micrometres::from_bits(x), self.ticks);
         let mut acc = 1i64 << (COEFF_FRAC - 1);
         // The newest TAPS values, oldest first, in one run of the mirrored line.
-        let newest = (self.at & MASK) as usize + SLOTS;
-        if let Some(w) = self.ring.get(newest + 1 - TAPS..=newest) {
-            for (h, x) in f.taps.iter().zip(w.iter().rev()) {
+        let newest = (p.at & MASK) as usize + SLOTS;
+        if let Some(w) = p.ring.get(newest + 1 - TAPS..=newest) {
+            for (h, x) in self.taps.iter().zip(w.iter().rev()) {
                 acc += *h as i64 * x.to_bits() as i64;
             }
         }
@@ -219,7 +224,7 @@ mod tests {
         let mut past = [r(0); TAPS];
         for k in 0..400 {
             let ahead = Micrometres::from_num(r(k));
-            let (tracked, ff) = p.run(ahead, &f);
+            let (tracked, ff) = f.process(&mut p, ahead);
             past.rotate_right(1);
             past[0] = ahead.to_num::<f64>();
             let want: f64 = taps
@@ -236,15 +241,15 @@ mod tests {
         // A held reference comes out exactly.
         let held = Micrometres::from_num(17.123_4);
         for _ in 0..TAPS {
-            p.run(held, &f);
+            f.process(&mut p, held);
         }
-        assert_eq!(p.run(held, &f), (held, held));
+        assert_eq!(f.process(&mut p, held), (held, held));
         // Rails: saturated, no overflow.
         let mut q = Preview::new();
         let big = Fir::new(1, padded(&[one * 8, -one * 7])).unwrap();
-        let (_, y) = q.run(Micrometres::MAX, &big);
+        let (_, y) = big.process(&mut q, Micrometres::MAX);
         assert_eq!(y.to_bits(), SIGNAL_ABS_MAX_BITS);
-        let (_, y) = q.run(Micrometres::MIN, &big);
+        let (_, y) = big.process(&mut q, Micrometres::MIN);
         assert_eq!(y.to_bits(), -SIGNAL_ABS_MAX_BITS);
     }
 

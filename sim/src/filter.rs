@@ -212,6 +212,7 @@ pub fn cascade_update(refs: &mut [Reference], x: f64) -> f64 {
 mod tests {
     use super::*;
     use fixed::types::I16F16;
+    use piezo_fpi::process::SplitProcess;
 
     const FS: f64 = 20_000.0;
 
@@ -257,7 +258,7 @@ mod tests {
         let x = I16F16::from_num(75.123_456);
         let mut y = I16F16::ZERO;
         for _ in 0..20_000 {
-            y = c.update(&mut st, x);
+            y = c.process(&mut st, x);
         }
         assert_eq!(y, x, "fixed-point cascade settles exactly on a constant");
     }
@@ -302,7 +303,7 @@ mod tests {
         let lsb = 1.0 / 65_536.0;
         for x in chirp(100_000, 10.0, 5_000.0, 75.0, 20.0) {
             let xq = I16F16::from_num(x);
-            let y = c.update(&mut st, xq).to_num::<f64>();
+            let y = c.process(&mut st, xq).to_num::<f64>();
             let r = cascade_update(&mut refs, xq.to_num::<f64>());
             let d = cascade_update(&mut design, xq.to_num::<f64>());
             worst = worst.max((y - r).abs() / lsb);
@@ -335,7 +336,7 @@ mod tests {
         let mut out = std::vec::Vec::new();
         for i in 0..40_000 {
             let x = 75.0 + 50.0 * libm::sin(2.0 * core::f64::consts::PI * f * i as f64 / FS);
-            let y = q.update(&mut st, I16F16::from_num(x)).to_num::<f64>();
+            let y = q.process(&mut st, I16F16::from_num(x)).to_num::<f64>();
             if i >= 20_000 {
                 out.push(y - 75.0);
             }

@@ -65,6 +65,7 @@
 pub mod analysis;
 
 use crate::control::Interval;
+use crate::process::SplitProcess;
 use crate::q::Micrometres;
 
 /// Fractional bits of speeds and speed changes (`I4F28`).
@@ -211,10 +212,12 @@ impl GovernorConfig {
     pub fn speed(&self) -> f64 {
         self.limits.speed()
     }
+}
 
-    /// One tick ([`GovernorLimits::process`]).
+/// One tick ([`GovernorLimits::process`], in the configuration's window).
+impl SplitProcess<Micrometres, Micrometres, GovernorState> for GovernorConfig {
     #[inline]
-    pub fn process(&self, st: &mut GovernorState, r: Micrometres) -> Micrometres {
+    fn process(&self, st: &mut GovernorState, r: Micrometres) -> Micrometres {
         self.limits.process(&self.window, st, r)
     }
 }

@@ -56,7 +56,7 @@ fn one_step(g: &mut LeadGain, beta: &mut f64, spec: &LeadSpec, mass_ratio: f64, 
         let (mq, aq) = (Micrometres::from_num(moved), Micrometres::from_num(acc));
         let r = Newtons::from_num(r).to_num::<f64>();
         *beta = g.ratio().to_num::<f64>();
-        let out = g.step(spec, Newtons::from_num(r), mq, aq, true);
+        let out = spec.process(g, (Newtons::from_num(r), mq, aq, true));
         let want = reference(spec, beta, r, mq.to_num(), aq.to_num());
         worst = worst.max((out.to_num::<f64>() - want).abs());
         let fixed = g.ratio().to_num::<f64>();
@@ -107,12 +107,14 @@ fn a_lag_term_or_a_held_reference_leaves_beta_in_place() {
     // A held reference with a noisy force: no acceleration, no change.
     for i in 0..1000 {
         let r = if i % 2 == 0 { 0.3 } else { -0.3 };
-        g.step(
-            &SPEC,
-            Newtons::from_num(r),
-            Micrometres::ZERO,
-            Micrometres::ZERO,
-            true,
+        SPEC.process(
+            &mut g,
+            (
+                Newtons::from_num(r),
+                Micrometres::ZERO,
+                Micrometres::ZERO,
+                true,
+            ),
         );
     }
     assert_eq!(g, before);
@@ -126,10 +128,10 @@ fn a_lag_term_or_a_held_reference_leaves_beta_in_place() {
             Micrometres::from_num(3.0 * v),
             Micrometres::from_num(acc),
         );
-        let held = g.step(&SPEC, r, m, a, false);
+        let held = SPEC.process(&mut g, (r, m, a, false));
         let mut same = g;
-        assert_eq!(held, same.step(&SPEC, r, m, a, true));
-        learning.step(&SPEC, r, m, a, true);
+        assert_eq!(held, SPEC.process(&mut same, (r, m, a, true)));
+        SPEC.process(&mut learning, (r, m, a, true));
     }
     assert_eq!(g, before);
     assert_ne!(learning, before);
@@ -156,7 +158,10 @@ fn without_a_baseline_alpha_is_learned_and_not_applied() {
         g.ratio()
     );
     let moved = Micrometres::from_num(1);
-    let out = g.step(&spec, Newtons::from_num(10), moved, Micrometres::ZERO, true);
+    let out = spec.process(
+        &mut g,
+        (Newtons::from_num(10), moved, Micrometres::ZERO, true),
+    );
     assert_eq!(out, Newtons::from_num(4));
 }
 
@@ -166,27 +171,21 @@ fn beta_is_bounded_and_the_output_saturates() {
     let mut g = LeadGain::new();
     let one = Micrometres::from_num(1);
     for _ in 0..10_000 {
-        g.step(&SPEC, Newtons::from_num(-4000), one, one, true);
+        SPEC.process(&mut g, (Newtons::from_num(-4000), one, one, true));
     }
     assert_eq!(g.ratio(), RATIO_MIN);
     for _ in 0..10_000 {
-        g.step(&SPEC, Newtons::from_num(4000), one, one, true);
+        SPEC.process(&mut g, (Newtons::from_num(4000), one, one, true));
     }
     assert!(g.ratio() > 1.99 && g.ratio() < 2, "{}", g.ratio());
-    let e = g.step(
-        &SPEC,
-        Newtons::MIN,
-        Micrometres::MAX,
-        Micrometres::ZERO,
-        true,
+    let e = SPEC.process(
+        &mut g,
+        (Newtons::MIN, Micrometres::MAX, Micrometres::ZERO, true),
     );
     assert_eq!(e, Newtons::MIN);
-    let e = g.step(
-        &SPEC,
-        Newtons::MAX,
-        Micrometres::MIN,
-        Micrometres::MAX,
-        true,
+    let e = SPEC.process(
+        &mut g,
+        (Newtons::MAX, Micrometres::MIN, Micrometres::MAX, true),
     );
     assert_eq!(e, Newtons::MAX);
 }

@@ -12,6 +12,7 @@ use piezo_fpi::feedback::{FeedbackConfig, FeedbackSpec, Pi as Feedback, Saturati
 use piezo_fpi::inverse::InversePi;
 use piezo_fpi::pi::PiModel;
 use piezo_fpi::play::{PlayBank, Top};
+use piezo_fpi::process::SplitProcess;
 use piezo_fpi::q::{LoopGain, Micrometres, Volts};
 use piezo_sim::electromech::{Electromech, ElectromechParams};
 use piezo_sim::model::Model;
@@ -74,13 +75,13 @@ fn run(drive: Drive, hz: f64, periods: usize) -> ErrorStats<f64> {
         let r = Micrometres::from_num(x_ref);
         let error = r - Micrometres::from_num(x);
         let u: Volts = match drive {
-            Drive::Feedforward => inv.apply(&mut bank, r),
+            Drive::Feedforward => inv.process(&mut bank, r),
             Drive::Both => {
-                let d = pi.update(&cfg, error, Saturation::Free, cfg.correction());
-                inv.apply(&mut bank, r + d)
+                let d = cfg.process(&mut pi, (error, Saturation::Free, cfg.correction()));
+                inv.process(&mut bank, r + d)
             }
             Drive::FeedbackOnly => {
-                let c = pi.update(&cfg, error, Saturation::Free, stroke);
+                let c = cfg.process(&mut pi, (error, Saturation::Free, stroke));
                 line.voltage(c)
             }
         };

@@ -13,6 +13,7 @@ use piezo_fpi::fpi::CreepMemory;
 use piezo_fpi::inverse::InversePi;
 use piezo_fpi::pi::PiModel;
 use piezo_fpi::play::PlayBank;
+use piezo_fpi::process::SplitProcess;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 use proptest::prelude::*;
 
@@ -34,8 +35,8 @@ proptest! {
         let top = pi.input_max().to_num::<f64>();
         for s in h {
             let u = Volts::from_num(s * top);
-            let x = pi.apply(&mut fb, u);
-            let back = inv.apply(&mut ib, x);
+            let x = pi.process(&mut fb, u);
+            let back = inv.process(&mut ib, x);
             prop_assert!((back - u).to_num::<f64>().abs() <= BOUND_U_V, "u {} -> {}", u, back);
         }
     }
@@ -125,8 +126,8 @@ proptest! {
         let (mut fb, mut ib) = (PlayBank::<32>::new(), PlayBank::<32>::new());
         for f in h {
             let u = Volts::from_num(f * top);
-            let x = pi.apply(&mut fb, u);
-            let back = inv.apply(&mut ib, x);
+            let x = pi.process(&mut fb, u);
+            let back = inv.process(&mut ib, x);
             prop_assert!((back - u).to_num::<f64>().abs() <= bound, "n={n} u {u} -> {back} (bound {bound})");
         }
     }

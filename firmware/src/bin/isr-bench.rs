@@ -626,6 +626,7 @@ mod bench {
         use cortex_m_semihosting::hprintln;
         use fpi_firmware::control::reference::wave::WavePhase;
         use piezo_fpi::biquad::{Biquad, BiquadState, Cascade, CascadeState};
+        use piezo_fpi::process::SplitProcess;
         use piezo_fpi::q::Volts;
 
         /// `piezo_sim::filter::mode_inverse(850.0, 0.02, 0.7, 20_000.0)`: the stable
@@ -658,12 +659,12 @@ mod bench {
 
         #[inline(never)]
         fn section_of(f: &Biquad, st: &mut BiquadState, x: Volts) -> Volts {
-            f.update(st, x)
+            f.process(st, x)
         }
 
         #[inline(never)]
         fn cascade_of(f: &Cascade<2>, st: &mut CascadeState<2>, x: Volts) -> Volts {
-            f.update(st, x)
+            f.process(st, x)
         }
 
         fn line(name: &str, c: &Counts) {

@@ -75,6 +75,7 @@ use piezo_fpi::damping::{Damping, DampingConfig};
 use piezo_fpi::feedback::{FeedbackConfig, Pi, Saturation};
 use piezo_fpi::lead::{LeadGain, LeadSpec};
 use piezo_fpi::preview::{Fir, Preview, PREVIEW_MAX};
+use piezo_fpi::process::SplitProcess;
 use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
 
 use crate::board::capacity::{Controller, APPROACH_STEP, RATE_HZ};
@@ -220,7 +221,7 @@ impl Loop {
         };
         match fir {
             Some(f) => {
-                let (tracked, ff) = self.ahead.run(ahead, f);
+                let (tracked, ff) = f.process(&mut self.ahead, ahead);
                 self.ahead_ff = ff;
                 self.previewing = true;
                 tracked
@@ -392,7 +393,7 @@ impl Loop {
                     Micrometres::from_bits(x.wrapping_sub(t1).wrapping_sub(t1.wrapping_sub(t2)));
                 self.tracked = [io.x_ref, Micrometres::from_bits(t1)];
                 let learn = self.lead_window > 0;
-                self.lead_gain.step(lead, io.dynamic, moved, accel, learn)
+                lead.process(&mut self.lead_gain, (io.dynamic, moved, accel, learn))
             }
             _ => {
                 self.tracked = [io.x_ref; 2];
@@ -400,7 +401,7 @@ impl Loop {
             }
         };
         self.damped = match (self.damping_on, io.damping) {
-            (true, Some(c)) => self.damping.update(c, dynamic),
+            (true, Some(c)) => c.process(&mut self.damping, dynamic),
             _ => {
                 self.damping.reset();
                 Micrometres::ZERO
@@ -413,7 +414,7 @@ impl Loop {
         // dynamics, where the model has it and it is on.
         let ff = match (self.shaping_on, io.shaping) {
             (true, _) if self.previewing => self.ahead_ff,
-            (true, Some(c)) => c.update(&mut self.shaped, io.x_ref),
+            (true, Some(c)) => c.process(&mut self.shaped, io.x_ref),
             _ => io.x_ref,
         };
         self.last_ff = ff;
@@ -421,10 +422,10 @@ impl Loop {
         let error = io.x_ref.saturating_sub(io.reading);
         let wanted = match (self.mode, io.feedback) {
             (LoopMode::Closed, Some(f)) => {
-                let d = self.pi.update(f, error, self.sat, f.correction());
+                let d = f.process(&mut self.pi, (error, self.sat, f.correction()));
                 ff.saturating_add(d)
             }
-            (LoopMode::FeedbackOnly, Some(f)) => self.pi.update(f, error, self.sat, window),
+            (LoopMode::FeedbackOnly, Some(f)) => f.process(&mut self.pi, (error, self.sat, window)),
             _ => {
                 self.held = toward_zero(self.held);
                 ff.saturating_add(self.held)
