@@ -336,13 +336,14 @@ fn the_figures_page_is_its_template_with_the_commands_output() {
 
 /// The reference pages generated from a declaration are what their command
 /// prints now: the runtime settings (`fpi reference settings`, from
-/// `fpi_protocol::Settings`) and the command line (`fpi reference cli`, from
+/// `fpi_protocol::Settings`), the model file's keys (`fpi reference model`,
+/// from `piezo_sim::file`'s sections) and the command line (`fpi reference cli`, from
 /// clap's declaration). A setting or an option added without regenerating
 /// the page fails here, with the command that regenerates it.
 #[test]
 fn the_generated_reference_pages_are_their_declarations() {
     let mut problems = Vec::new();
-    for page in ["settings", "cli"] {
+    for page in ["settings", "model", "cli"] {
         let out = std::process::Command::new(fpi_tests::fpi_bin())
             .args(["reference", page])
             .output()

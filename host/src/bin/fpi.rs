@@ -262,7 +262,8 @@ enum Command {
     /// Print one of the book's generated reference pages (Markdown).
     #[command(hide = true)]
     Reference {
-        /// settings (the board's runtime settings) or cli (every command).
+        /// settings (the board's runtime settings), model (the model file's keys)
+        /// or cli (every command).
         #[arg(value_enum)]
         page: ReferencePage,
     },
@@ -282,6 +283,8 @@ enum Command {
 enum ReferencePage {
     /// The board's runtime settings, from their declaration.
     Settings,
+    /// The firmware model file's keys, from their declaration.
+    Model,
     /// Every `fpi` command and option, from the command line's declaration.
     Cli,
 }
@@ -290,6 +293,7 @@ enum ReferencePage {
 fn reference(page: ReferencePage) -> String {
     match page {
         ReferencePage::Settings => fpi_host::board::settings::reference(),
+        ReferencePage::Model => fpi_host::method::keys::reference(),
         ReferencePage::Cli => {
             let options = clap_markdown::MarkdownOptions::new()
                 .title("The fpi command line".into())

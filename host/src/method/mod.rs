@@ -24,6 +24,7 @@ pub mod export;
 pub mod fit;
 pub mod identify;
 pub mod invert;
+pub mod keys;
 pub mod kinds;
 pub mod lever;
 pub mod limits;

@@ -14,7 +14,7 @@ use crate::quote::Num;
 
 /// The stage's first mode as the loops see it from the command (µm in, the
 /// position sensor and the force channel's dynamic part out).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DynamicsSection {
     /// Natural frequency of the first mode, small-signal, undamped, Hz.
@@ -70,7 +70,7 @@ impl DynamicsSection {
 
 /// Active damping: integral force feedback on the force channel's dynamic part,
 /// in a band (`C(s) ≈ g·s/((s + ω_h)(s + ω_l))`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DampingSection {
     /// IFF gain: µm of command per N·s of dynamic force.
@@ -138,7 +138,7 @@ fn is_zero(v: &u8) -> bool {
 
 /// The reference-shaping filter: up to two second-order sections at the control
 /// rate, `y = b0·x + b1·x₁ + b2·x₂ − a1·y₁ − a2·y₂`, each of static gain 1.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ShapingSection {
     /// `[b0, b1, b2, a1, a2]` of each section (at most two), dimensionless.
@@ -220,7 +220,7 @@ impl ShapingSection {
 }
 
 /// Position-feedback settings: the PI law's gains and the sensor's supervision.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FeedbackSection {
     /// Proportional gain, µm per µm of error (0–16).

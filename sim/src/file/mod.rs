@@ -39,10 +39,10 @@ pub const DYNAMIC_LIMIT_FACTOR: f64 = 4.0;
 pub const FORMAT: &str = "piezo-fpi-firmware/1";
 
 /// A whole firmware model file.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FirmwareModel {
-    /// Always [`FORMAT`].
+    /// Always `piezo-fpi-firmware/1` ([`FORMAT`]): the format this schema reads and writes.
     pub format: String,
     /// Where the numbers came from.
     pub provenance: Provenance,

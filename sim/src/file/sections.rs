@@ -17,7 +17,7 @@ use crate::maps::TableMap;
 use crate::quote::Num;
 
 /// Provenance of a model file.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Provenance {
     /// The calibrated model it was exported from.
@@ -31,7 +31,7 @@ pub struct Provenance {
 }
 
 /// `Y[u] = w0·u + Σ w_i G_{r_i}[u]`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PiSection {
     /// Linear weight, µm/V (> 0).
@@ -47,7 +47,7 @@ pub struct PiSection {
 /// `U_p(F) = k0 + k_f·F + k_q·(F - F_q)²`, `x = h(Y[g(u - U_p)]) - c·(F - F_ref)`
 /// (also the coupling of the host tools' calibrated models, which have no `F_ref`:
 /// that belongs to a stage).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CouplingSection {
     /// Constant part `k0` of the preload offset, V.
@@ -71,7 +71,7 @@ pub struct CouplingSection {
 }
 
 /// A monotone map and its inverse, both tabulated (see the core's `fpi::Map`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MapSection {
     /// `y = map(x)`.
@@ -81,7 +81,7 @@ pub struct MapSection {
 }
 
 /// One creep term: `m ← m + (1 - exp(-T_s/τ))·(û - m)`, contributing `b·m` to `Y`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CreepSection {
     /// Time constant `τ`, s.
@@ -91,7 +91,7 @@ pub struct CreepSection {
 }
 
 /// Control-loop settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ControllerSection {
     /// ISR rate, Hz.
@@ -215,7 +215,7 @@ impl ControllerSection {
 }
 
 /// The three FEM-derived maps.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Tables {
     /// Preload, N, vs stack extension, µm.
@@ -227,7 +227,7 @@ pub struct Tables {
 }
 
 /// A monotone function sampled at `x0 + k·2^step_log2`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TableSection {
     /// First knot, input unit.
