@@ -7,23 +7,36 @@ frequencies in Hz, unless a name says otherwise (``_ms``, ``_um`` …).
 """
 
 from os import PathLike
-from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple, TypedDict, Union, overload
+from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple, TypedDict, Union, final, overload
 
 import numpy as np
 import numpy.typing as npt
 
+__all__ = [
+    "__version__",
+    "BoardError",
+    "LinkError",
+    "Interrupted",
+    "Board",
+    "Settings",
+    "Emulator",
+    "Model",
+    "calibrate",
+    "qemu_available",
+]
+
 __version__: str
 
-ArrayLike = Union[Sequence[float], npt.NDArray[np.float64]]
-Columns = Dict[str, npt.NDArray[np.float64]]
-Path = Union[str, PathLike]
+_ArrayLike = Union[Sequence[float], npt.NDArray[np.float64]]
+_Columns = Dict[str, npt.NDArray[np.float64]]
+_Path = Union[str, PathLike]
 
-class Recorded(TypedDict):
+class _Recorded(TypedDict):
     """A motion recorded at every tick (``move``/``wave`` with ``record=True``)."""
 
     tick: int
     """The tick the board took the command on (the recording's first)."""
-    recording: Columns
+    recording: _Columns
     """Every tick, as ``Board.record``'s columns."""
 
 class BoardError(Exception):
@@ -47,15 +60,19 @@ class Interrupted(KeyboardInterrupt):
 def qemu_available() -> bool:
     """Whether ``qemu-system-arm`` is there to run the emulated board."""
 
+@final
 class Emulator:
     """The emulated board (``fpi board emulate``): the firmware on QEMU's
     netduinoplus2, its link on a TCP port. Builds the firmware with cargo in the
     source tree the package was built from. A context manager; ``close()`` stops QEMU."""
 
-    def __init__(self, listen: Optional[str] = None, link: str = "usb") -> None:
+    def __new__(
+        cls, listen: Optional[str] = None, link: str = "usb", frontend: str = "internal"
+    ) -> "Emulator":
         """``listen``: ``HOST:PORT`` (default: a free loopback port); ``link``: the
         link whose rate the board paces its own at, ``"usb"`` (800 kB/s) or
-        ``"uart"`` (11 520 B/s)."""
+        ``"uart"`` (11 520 B/s); ``frontend``: the analog front end the firmware
+        is built with, ``"internal"`` or ``"precision"``."""
     @property
     def port(self) -> str:
         """``tcp:HOST:PORT``: what ``Board`` opens."""
@@ -65,6 +82,7 @@ class Emulator:
     def __enter__(self) -> "Emulator": ...
     def __exit__(self, *exc: object) -> bool: ...
 
+@final
 class Board:
     """A board over its command link: one method per ``fpi board`` command.
 
@@ -74,7 +92,7 @@ class Board:
     A context manager; ``close()`` closes the link.
     """
 
-    def __init__(self, port: str) -> None:
+    def __new__(cls, port: str) -> "Board":
         """``port``: a serial device (``/dev/ttyUSB0``, ``COM3``), ``tcp:HOST:PORT``
         (the emulated board) or ``virtual`` (the firmware built for this host, run
         in this process at real time, starting afresh; its link paced as the UART,
@@ -107,15 +125,15 @@ class Board:
     def position(self) -> float:
         """Position, µm: the position sensor when the model closes a loop on it,
         else the model's estimate (PI: ``POS?``)."""
-    def on_target(self, tolerance_um: float = 0.1) -> bool:
-        """Running, the reference held, the position within ``tolerance_um`` of it (PI: ``ONT?``)."""
-    def wait_on_target(self, timeout: float = 5.0, tolerance_um: float = 0.1) -> float:
+    def on_target(self, tolerance_um: float = ...) -> bool:
+        """(``tolerance_um``: 0.1 by default.) Running, the reference held, the position within ``tolerance_um`` of it (PI: ``ONT?``)."""
+    def wait_on_target(self, timeout: float = 5.0, tolerance_um: float = ...) -> float:
         """Waits up to ``timeout`` s until on target; the position, µm. ``TimeoutError`` otherwise."""
     @overload
     def move(self, target_um: float, speed: float = 1000.0, *, record: Literal[False] = False) -> int:
         """Ramps to ``target_um`` at ``speed`` µm/s and holds it (PI: ``MOV``); the tick it started."""
     @overload
-    def move(self, target_um: float, speed: float = 1000.0, *, record: Literal[True]) -> Recorded:
+    def move(self, target_um: float, speed: float = 1000.0, *, record: Literal[True]) -> _Recorded:
         """The move, recorded at every tick (every column of ``record``, ``x_fhps_um``
         the true position on the emulated board) until it holds the target and 50 ms
         more: ``tick`` and ``recording``. A fault meanwhile: ``BoardError``. Ctrl-C:
@@ -145,26 +163,26 @@ class Board:
         cycles: int = 0,
         record: Literal[True],
         seconds: Optional[float] = None,
-    ) -> Recorded:
+    ) -> _Recorded:
         """The wave, recorded at every tick from its approach for ``seconds`` (needed
         where ``cycles`` is 0), or until a finite wave has ended and 50 ms more:
         ``tick`` and ``recording``, as ``move(record=True)``."""
     def stream(
-        self, points_um: ArrayLike, interval: int = 20, *, record: bool = False
+        self, points_um: _ArrayLike, interval: int = 20, *, record: bool = False
     ) -> Dict[str, Any]:
         """Streams a trajectory (µm), one point every ``interval`` control ticks;
         ``points``, ``started_tick``, ``underrun_ticks`` (and with ``record`` the
         ``recording`` of every tick until the board holds the last point, and 50 ms
         more). Ctrl-C: ``Interrupted``, board holding."""
-    def record(self, seconds: float, decimation: int = 20) -> Columns:
+    def record(self, seconds: float, decimation: int = 20) -> _Columns:
         """The data recorder (PI: ``DRC``/``DRR?``): every ``decimation``-th tick for
         ``seconds`` of board time, as the recording's CSV columns (``t_s``,
         ``voltage_V``, ``force_N``, ``x_ref_um``, ``x_est_um``, ``status``,
         ``x_fhps_um``, ``x_sensor_um``). Ctrl-C: ``Interrupted`` with the partial recording."""
     def load(
         self,
-        model: Path,
-        fem: Optional[Path] = None,
+        model: _Path,
+        fem: Optional[_Path] = None,
         *,
         store: bool = False,
         match_mass: bool = False,
@@ -238,11 +256,11 @@ class Board:
         (N/µm), ``dynamic`` (N/µm), ``x_per_v`` (µm/V)."""
     def autotune(
         self,
-        model: Path,
-        out: Path,
-        fem: Optional[Path] = None,
+        model: _Path,
+        out: _Path,
+        fem: Optional[_Path] = None,
         *,
-        trials: int = 2,
+        trials: int = ...,
         store: bool = False,
         rate: int = 20000,
         u_max: float = 150.0,
@@ -254,7 +272,7 @@ class Board:
         max_sensitivity: float = 1.6,
         bandwidth_hz: Optional[float] = None,
     ) -> str:
-        """``fpi board autotune`` (``trials``: ``--trials``, the feedforward's
+        """``fpi board autotune`` (``trials``: ``--trials``, 2 by default, the feedforward's
         refinement through the board; ``damping=False``: ``--no-damping``;
         ``target_damping``, ``force_noise_n`` (the force sensor's σ, N, designed
         for instead of the one measured), ``max_sensitivity``, ``bandwidth_hz``:
@@ -267,6 +285,7 @@ class Board:
     def __enter__(self) -> "Board": ...
     def __exit__(self, *exc: object) -> bool: ...
 
+@final
 class Settings:
     """The board's runtime settings by key path (the book's reference lists
     them): ``settings[key]`` reads one, ``settings[key] = value`` changes it as
@@ -275,9 +294,9 @@ class Settings:
     ``"stage.0.loop_mode"``); a key that is no setting raises ``KeyError``.
     Values are JSON's: ``bool``, ``int``, ``str`` (``"closed"``)."""
 
-    def __getitem__(self, key: str) -> Any: ...
-    def __setitem__(self, key: str, value: Any) -> None: ...
-    def __contains__(self, key: str) -> bool: ...
+    def __getitem__(self, key: str, /) -> Any: ...
+    def __setitem__(self, key: str, value: Any, /) -> None: ...
+    def __contains__(self, key: str, /) -> bool: ...
     def __len__(self) -> int: ...
     def __iter__(self) -> Any: ...
     def keys(self) -> List[str]:
@@ -287,12 +306,13 @@ class Settings:
     def describe(self, key: str) -> Dict[str, Optional[str]]:
         """The declaration: ``doc``, ``range``, ``unit``, ``default``."""
 
+@final
 class Model:
     """A calibrated model (``fpi calibrate``'s file)."""
 
     @staticmethod
-    def load(path: Path) -> "Model": ...
-    def save(self, path: Path) -> None: ...
+    def load(path: _Path) -> "Model": ...
+    def save(self, path: _Path) -> None: ...
     @property
     def kind(self) -> str: ...
     @property
@@ -305,15 +325,15 @@ class Model:
     def per_file(self) -> List[Dict[str, Any]]: ...
     @property
     def warnings(self) -> List[str]: ...
-    def predict(self, *, fem: Path, t_s: ArrayLike, voltage_V: ArrayLike) -> Columns:
+    def predict(self, *, fem: _Path, t_s: _ArrayLike, voltage_V: _ArrayLike) -> _Columns:
         """``fpi predict``: ``t_s``, ``voltage_V``, ``x_pea_um``, ``preload_N``, ``x_fhps_um``."""
     def invert(
-        self, *, fem: Path, t_s: ArrayLike, x_fhps_um: ArrayLike, u_max: float = 150.0
-    ) -> Columns:
+        self, *, fem: _Path, t_s: _ArrayLike, x_fhps_um: _ArrayLike, u_max: float = 150.0
+    ) -> _Columns:
         """``fpi invert``: ``t_s``, ``voltage_V`` (V) that make the stage follow ``x_fhps_um``."""
 
 def calibrate(
-    runs: Sequence[Dict[str, ArrayLike]],
+    runs: Sequence[Dict[str, _ArrayLike]],
     kind: Optional[str] = None,
     *,
     operators: Optional[int] = None,

@@ -215,6 +215,55 @@ def test_settings_by_key(board):
     assert st.describe("supervise_ms")["unit"] == "ms"
 
 
+def test_step_is_scored_from_the_recording(board):
+    # Every tick does not fit the UART's rate (the `virtual` board's): the
+    # error names the Python argument.
+    if board.info()["link"] == "uart":
+        with pytest.raises(ValueError, match=r"decimation 31 or more fits.*raise decimation\)$"):
+            board.step(10.0, 20.0, seconds=0.03)
+    r = board.step(10.0, 20.0, seconds=0.1, decimation=40)
+    for key in ("rise_ms", "overshoot_um", "settle_ms", "final_error_um", "governed_ticks"):
+        assert key in r, r.keys()
+    rec = r["recording"]
+    assert len(rec["t_s"]) > 40 and rec["x_ref_um"][-1] == pytest.approx(20.0, abs=1e-3)
+    # Open loop on the factory model's own stage: a fraction of a µm.
+    assert abs(r["final_error_um"]) < 0.5, r
+    assert r["settle_ms"] is not None and r["settle_ms"] < 10.0, r
+    with pytest.raises(pf.BoardError, match="outside the stroke"):
+        board.step(10.0, 45.0, decimation=40)
+
+
+def test_frf_measures_the_response_through_the_board(board):
+    with pytest.raises(ValueError, match=r"^points 3: 8 to 400 points$"):
+        board.frf(points=3)
+    with pytest.raises(ValueError, match=r"^to_hz 50: above from_hz 100$"):
+        board.frf(from_hz=100.0, to_hz=50.0)
+    f = board.frf(from_hz=100.0, to_hz=1000.0, points=8, zoom_points=0, amplitude_um=0.1)
+    assert len(f["f_hz"]) == 8
+    assert f["f_hz"][0] == pytest.approx(100.0) and f["f_hz"][-1] == pytest.approx(1000.0)
+    assert f["x"].dtype.kind == "c" and len(f["x"]) == 8
+    # Well below the stage's mode the compensated open loop passes the command.
+    assert 0.7 < abs(f["x"][0]) < 1.3, f["x"]
+    assert board.status()["source"] == "hold"
+
+
+def test_analog_follows_the_input_and_supervision_parks(board):
+    board.bench(analog_v=1.65)
+    board.analog()
+    time.sleep(0.3)
+    s = board.status()
+    assert s["source"] == "analog"
+    lo, hi = s["model"]["stroke_um"]
+    # 1.65 V of 3.3 V: the middle of the stroke.
+    assert s["reference_um"] == pytest.approx((lo + hi) / 2, abs=0.5)
+    board.hold()
+    board.supervise(250)
+    assert board.status()["supervision_ms"] == pytest.approx(250.0, abs=0.1)
+    assert board.settings["supervise_ms"] == 250
+    board.supervise(0)
+    assert board.status()["supervision_ms"] == 0.0
+
+
 def test_load_errors(board):
     with pytest.raises(FileNotFoundError):
         board.load("no-such-model.toml")
@@ -328,6 +377,24 @@ def test_autotune_refines_the_feedforward_on_trials(tmp_path):
             b.autotune(model, tmp_path / "never.toml", trials=-1)
         table = b.autotune(model, tmp_path / "tuned.toml", trials=1)
         assert "1 trial(s)" in table, table
+        # The tuned model runs: its damping and shaping switch off and on, by
+        # name and by key (in open loop: its gains need the damping closed).
+        b.loop("open")
+        s = b.status()
+        assert s["damping"] is True and s["shaping"] is True
+        assert isinstance(b.damping(False), int)
+        assert b.status()["damping"] is False
+        assert b.settings["stage/0/damping"] is False
+        b.damping("on")
+        b.shaping("off")
+        assert b.status()["shaping"] is False
+        b.settings["stage/0/shaping"] = True
+        assert b.status()["shaping"] is True
+        # Closed on the mode, the damping stays on: the board says why.
+        b.loop("closed")
+        with pytest.raises(pf.BoardError, match="without damping"):
+            b.damping(False)
+        b.loop("open")
         text = (tmp_path / "tuned.toml").read_text()
         assert "taps" in text and "preview_ticks = 5" in text
         with pytest.raises(ValueError, match="target_damping 2: between 0 and 1"):

@@ -3,11 +3,12 @@
 //! target folder (with the `dev` profile, so it shares this build's compiled
 //! crates), and runs its pytest tests (`python/tests`): the package against the
 //! in-process board and the emulated board, the method against this `fpi`
-//! (`FPI_BIN`) on the shared datasets, every error path, and an example.
+//! (`FPI_BIN`) on the shared datasets, every error path, and an example; then
+//! checks the stubs (`piezo_fpi.pyi`) against the built module (mypy's stubtest).
 //!
 //! It needs only `python3` with its `venv` module (`$PYTHON` names another
-//! Python): everything else — the build backend (maturin), numpy, pytest and
-//! matplotlib, as `python/pyproject.toml` lists them — pip installs into the
+//! Python): everything else — the build backend (maturin), numpy, pytest,
+//! matplotlib and mypy, as `python/pyproject.toml` lists them — pip installs into the
 //! environment from PyPI the first time (later runs find them there, offline).
 //! Every tool of the environment runs from its `bin/` (which is put first on
 //! `PATH`: the build backend calls `maturin` by name), never from the system's.
@@ -144,7 +145,7 @@ fn make_venv(dir: &Path) -> Result<Venv, String> {
 
 /// What `python/pyproject.toml` says the package needs to be built and tested:
 /// the build system's requirements (maturin), the package's dependencies
-/// (numpy) and its `test` extra (pytest, matplotlib).
+/// (numpy) and its `test` extra (pytest, matplotlib, mypy).
 fn requirements(pyproject: &Path) -> Vec<String> {
     let text = std::fs::read_to_string(pyproject)
         .unwrap_or_else(|e| panic!("reading {}: {e}", pyproject.display()));
@@ -255,12 +256,25 @@ fn the_python_package_builds_and_passes_its_tests() {
     );
     assert!(o.status.success(), "pytest failed:\n{out}");
     assert!(summary.contains(" passed"), "pytest ran no test:\n{out}");
+    // The stubs (`piezo_fpi.pyi`) say what the built module has: every class,
+    // method, argument and default (mypy's stubtest).
+    let o = run(v
+        .command(&v.python)
+        .args(["-m", "mypy.stubtest", "piezo_fpi", "--allowlist"])
+        .arg(root.join("python").join("stubtest-allowlist.txt"))
+        .current_dir(root.join("python")))
+    .expect("running stubtest");
+    assert!(
+        o.status.success(),
+        "python/piezo_fpi.pyi differs from the built module (mypy.stubtest):\n{}",
+        text(&o)
+    );
 }
 
 #[test]
 fn the_requirements_come_from_pyproject() {
     let needs = requirements(&project_root().join("python").join("pyproject.toml"));
-    for name in ["maturin", "numpy", "pytest", "matplotlib"] {
+    for name in ["maturin", "numpy", "pytest", "matplotlib", "mypy"] {
         assert!(
             needs.iter().any(|r| r.starts_with(name)),
             "{name} missing from {needs:?}"

@@ -35,9 +35,29 @@ pub struct BadArgument {
 }
 
 impl BadArgument {
-    /// The message with the argument named as the Python package names it.
+    /// The message with the arguments named as the Python package names them:
+    /// the argument itself, and every other command-line option it mentions
+    /// (`--decimation` → `decimation`: the package's arguments are the long
+    /// options in snake case).
     pub fn python_message(&self) -> String {
-        self.message.replacen(self.cli, self.name, 1)
+        let m = self.message.replacen(self.cli, self.name, 1);
+        let mut out = String::with_capacity(m.len());
+        let mut rest = m.as_str();
+        while let Some(at) = rest.find("--") {
+            out.push_str(&rest[..at]);
+            let after = &rest[at + 2..];
+            let end = after
+                .find(|c: char| !(c.is_ascii_lowercase() || c == '-'))
+                .unwrap_or(after.len());
+            if end == 0 {
+                out.push_str("--");
+            } else {
+                out.push_str(&after[..end].replace('-', "_"));
+            }
+            rest = &after[end..];
+        }
+        out.push_str(rest);
+        out
     }
 }
 
@@ -54,7 +74,7 @@ pub fn bad_argument(e: &anyhow::Error) -> Option<&BadArgument> {
     e.downcast_ref::<BadArgument>()
 }
 
-fn bad(name: &'static str, cli: &'static str, message: String) -> anyhow::Error {
+pub(crate) fn bad(name: &'static str, cli: &'static str, message: String) -> anyhow::Error {
     BadArgument { name, cli, message }.into()
 }
 
@@ -685,4 +705,33 @@ pub fn analog(c: &mut Client) -> Result<u32> {
 /// Forgets the stored model and runs the factory default; the tick.
 pub fn factory(c: &mut Client) -> Result<u32> {
     c.order(&Command::ModelFactory)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An error names the Python package's arguments for Python: the
+    /// argument, and every option the message mentions.
+    #[test]
+    fn a_bad_argument_names_python_s_arguments_for_python() {
+        let b = BadArgument {
+            name: "decimation",
+            cli: "--decimation",
+            message: "the step's recording would drop samples: --decimation 31 or more fits \
+                      (shorten --seconds or raise --decimation); a -- alone stays"
+                .into(),
+        };
+        assert_eq!(
+            b.python_message(),
+            "the step's recording would drop samples: decimation 31 or more fits \
+             (shorten seconds or raise decimation); a -- alone stays"
+        );
+        let b = BadArgument {
+            name: "to_hz",
+            cli: "--to-hz",
+            message: "--to-hz 50: above --from-hz 100".into(),
+        };
+        assert_eq!(b.python_message(), "to_hz 50: above from_hz 100");
+    }
 }

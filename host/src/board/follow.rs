@@ -142,12 +142,17 @@ impl<'c> Follow<'c> {
             cap.seconds + 0.005,
         );
         if !budget.fits() {
-            bail!(
-                "{}'s recording would drop samples: {} ({})",
-                cap.what,
-                budget.describe(self.c.hello().rate_hz),
-                cap.hint
-            );
+            // The caller's argument: a larger decimation (or less time) fits.
+            return Err(super::commands::bad(
+                "decimation",
+                "--decimation",
+                format!(
+                    "{}'s recording would drop samples: {} ({})",
+                    cap.what,
+                    budget.describe(self.c.hello().rate_hz),
+                    cap.hint
+                ),
+            ));
         }
         self.record(cap.decimation)?;
         self.rec.samples.clear();

@@ -66,16 +66,34 @@ fn measure_periods(f_hz: f64) -> u16 {
 
 /// The frequencies of `s`, Hz.
 pub fn frequencies(s: &FrfSettings) -> Result<Vec<f64>> {
-    if !(s.from_hz > 0.0 && s.to_hz > s.from_hz && s.points >= 8 && s.points <= 400) {
-        bail!(
-            "--from-hz {} --to-hz {} --points {}: 0 < from < to and 8 to 400 points",
-            s.from_hz,
-            s.to_hz,
-            s.points
-        );
+    use super::commands::bad;
+    if s.from_hz.is_nan() || s.from_hz <= 0.0 {
+        return Err(bad(
+            "from_hz",
+            "--from-hz",
+            format!("--from-hz {}: above 0 Hz", s.from_hz),
+        ));
+    }
+    if s.to_hz.is_nan() || s.to_hz <= s.from_hz {
+        return Err(bad(
+            "to_hz",
+            "--to-hz",
+            format!("--to-hz {}: above --from-hz {}", s.to_hz, s.from_hz),
+        ));
+    }
+    if !(8..=400).contains(&s.points) {
+        return Err(bad(
+            "points",
+            "--points",
+            format!("--points {}: 8 to 400 points", s.points),
+        ));
     }
     if !(s.amplitude_um > 0.0 && s.amplitude_um <= 2.0) {
-        bail!("--amplitude-um {}: in (0, 2] µm", s.amplitude_um);
+        return Err(bad(
+            "amplitude_um",
+            "--amplitude-um",
+            format!("--amplitude-um {}: in (0, 2] µm", s.amplitude_um),
+        ));
     }
     let n = s.points;
     Ok((0..n)
