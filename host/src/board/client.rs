@@ -56,6 +56,18 @@ pub struct Refused {
     pub reason: String,
 }
 
+impl Refused {
+    /// The error of the board's refusal of `what`.
+    fn by(what: String, code: Refusal, reason: &str) -> anyhow::Error {
+        Self {
+            what,
+            code,
+            reason: reason.to_string(),
+        }
+        .into()
+    }
+}
+
 impl std::fmt::Display for Refused {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
@@ -365,12 +377,7 @@ impl Client {
     pub fn ack(&mut self, cmd: &Command<'_>) -> Result<u32> {
         match self.request(cmd)? {
             (tick, Reply::Ack) => Ok(tick),
-            (_, Reply::Refused { code, reason }) => Err(Refused {
-                what: name_of(cmd),
-                code,
-                reason: reason.to_string(),
-            }
-            .into()),
+            (_, Reply::Refused { code, reason }) => Err(Refused::by(name_of(cmd), code, &reason)),
             (_, r) => bail!("unexpected reply to {}: {r:?}", name_of(cmd)),
         }
     }
@@ -464,12 +471,7 @@ impl Client {
         };
         match self.request(&cmd)? {
             (_, Reply::Setting(v)) => Ok(String::from_utf8_lossy(&v).into_owned()),
-            (_, Reply::Refused { code, reason }) => Err(Refused {
-                what: name_of(&cmd),
-                code,
-                reason: reason.to_string(),
-            }
-            .into()),
+            (_, Reply::Refused { code, reason }) => Err(Refused::by(name_of(&cmd), code, &reason)),
             (_, r) => bail!("unexpected reply to a setting's get: {r:?}"),
         }
     }
@@ -624,12 +626,7 @@ impl Client {
                     }
                 }
                 (_, Reply::Refused { code, reason }) => {
-                    return Err(Refused {
-                        what: "model read".into(),
-                        code,
-                        reason: reason.to_string(),
-                    }
-                    .into())
+                    return Err(Refused::by("model read".into(), code, &reason))
                 }
                 (_, r) => bail!("unexpected reply to model read: {r:?}"),
             }

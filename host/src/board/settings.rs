@@ -10,6 +10,7 @@ use fpi_protocol::Settings;
 
 use super::client::Client;
 use crate::data::Quoted;
+use crate::method::keys::one_paragraph;
 
 /// One setting as declared: its key path and what its declaration says.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -48,11 +49,6 @@ pub fn leaves() -> Vec<Leaf> {
             }
         })
         .collect()
-}
-
-/// A doc comment's lines as one paragraph.
-fn one_paragraph(doc: &str) -> String {
-    doc.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
 /// `key` as the board's key path: `stage.0.damping`, `stage/0/damping` and
@@ -103,12 +99,10 @@ pub fn read_all(c: &mut Client) -> Result<Vec<(String, Option<String>)>> {
     Ok(out)
 }
 
-/// The board said the running model lacks the setting's section.
+/// The board refused a get of a declared setting: the running model lacks
+/// its section (a key that is no setting is refused before it is sent).
 fn absent(e: &anyhow::Error) -> bool {
-    e.chain().any(|c| {
-        c.to_string()
-            .contains("the running model has no such section")
-    })
+    super::client::refusal(e).is_some_and(|r| r.code == fpi_protocol::Refusal::Setting)
 }
 
 /// The book's reference page of the runtime settings (`fpi reference

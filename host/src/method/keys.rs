@@ -101,8 +101,9 @@ fn kind(t: &Value, defs: &Value) -> String {
     }
 }
 
-/// A doc comment's lines as one paragraph, its rustdoc links as plain code.
-fn one_paragraph(doc: &str) -> String {
+/// A doc comment's lines as one paragraph, its rustdoc links as plain code
+/// (the generated reference pages' doc column).
+pub fn one_paragraph(doc: &str) -> String {
     doc.split_whitespace()
         .collect::<Vec<_>>()
         .join(" ")

@@ -14,21 +14,17 @@ use crate::link::protocol::{Command, Refusal, Reply, Settings};
 use crate::link::refusal::{refuse, Refuse};
 
 impl<F: NorFlash> Handler<F> {
-    /// The board's settings as they are now.
+    /// The board's settings as they are now: what its status says (which
+    /// sections the running model has, and whether each is on).
     fn settings(&mut self, board: &mut impl Board) -> Settings {
-        let (damping, shaping) = (
-            self.summary.damping.is_some(),
-            self.summary.shaping.is_some() || self.summary.preview.is_some(),
-        );
-        let stage = board.exchange(|x| {
-            let s = &x.snapshot;
-            StageSettings {
-                loop_mode: s.loop_mode,
-                damping: damping.then_some(s.damping_on),
-                shaping: shaping.then_some(s.shaping_on),
-                compensated: s.compensated,
-            }
-        });
+        let summary = self.summary;
+        let s = board.exchange(|x| super::status(x, &summary, 0));
+        let stage = StageSettings {
+            loop_mode: s.loop_mode,
+            damping: s.damping,
+            shaping: s.shaping,
+            compensated: s.compensated,
+        };
         Settings {
             stage: [stage; STAGES],
             supervise_ms: self.timeout_ms,
