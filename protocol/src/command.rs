@@ -125,7 +125,7 @@ pub enum Command<'a> {
         axis: u8,
         /// Position, µm (`I16F16` bits).
         target: i32,
-        /// Speed, µm/s (`I16F16` bits, > 0).
+        /// Speed, µm/s (`I16F16` bits, > 0 and at most 30 000).
         speed: i32,
     },
     /// Run a waveform between `offset − amplitude` and `offset + amplitude`.

@@ -1,6 +1,7 @@
 //! The board's command link in one place: every message, enum and frame that
 //! crosses it, shared by the firmware and the host so the two cannot disagree
-//! (`firmware/PROTOCOL.md` describes the bytes for other clients).
+//! (the book's *The command link*, `docs/src/protocol.md`, describes the bytes
+//! for other clients; its reference page is generated from these declarations).
 //!
 //! Every request is a [`Header`] (protocol version, sequence number) and a
 //! [`Command`]; every reply is a [`ReplyHeader`] echoing the sequence number and

@@ -3,7 +3,7 @@
 //! what crosses the link without a test saying so — and a new protocol
 //! version with it. Each message also decodes back from its bytes.
 //!
-//! Encoding (see `firmware/PROTOCOL.md`): a message is its kind's wire number
+//! Encoding (see the book's `docs/src/protocol.md`): a message is its kind's wire number
 //! (one byte), then its fields in order, in postcard's encoding: `u8` and
 //! `bool` one byte, other unsigned integers LEB128 varints, signed integers
 //! zig-zag varints, `Option` 0/1 then the value, sequences and text a varint
@@ -386,6 +386,6 @@ fn status_reply_size() {
     assert_eq!(
         (n, framed),
         (65, 76),
-        "the status reply's size changed: update PROTOCOL.md"
+        "the status reply's size changed: update docs/src/protocol.md"
     );
 }

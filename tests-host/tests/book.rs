@@ -337,13 +337,14 @@ fn the_figures_page_is_its_template_with_the_commands_output() {
 /// The reference pages generated from a declaration are what their command
 /// prints now: the runtime settings (`fpi reference settings`, from
 /// `fpi_protocol::Settings`), the model file's keys (`fpi reference model`,
-/// from `piezo_sim::file`'s sections) and the command line (`fpi reference cli`, from
-/// clap's declaration). A setting or an option added without regenerating
+/// from `piezo_sim::file`'s sections), the command line (`fpi reference cli`, from
+/// clap's declaration) and the link's messages (`fpi reference protocol`, from
+/// `protocol/src/`). A setting or an option added without regenerating
 /// the page fails here, with the command that regenerates it.
 #[test]
 fn the_generated_reference_pages_are_their_declarations() {
     let mut problems = Vec::new();
-    for page in ["settings", "model", "cli"] {
+    for page in ["settings", "model", "cli", "protocol"] {
         let out = std::process::Command::new(fpi_tests::fpi_bin())
             .args(["reference", page])
             .output()

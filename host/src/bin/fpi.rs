@@ -262,8 +262,8 @@ enum Command {
     /// Print one of the book's generated reference pages (Markdown).
     #[command(hide = true)]
     Reference {
-        /// settings (the board's runtime settings), model (the model file's keys)
-        /// or cli (every command).
+        /// settings (the board's runtime settings), model (the model file's keys),
+        /// cli (every command) or protocol (the link's messages).
         #[arg(value_enum)]
         page: ReferencePage,
     },
@@ -287,13 +287,18 @@ enum ReferencePage {
     Model,
     /// Every `fpi` command and option, from the command line's declaration.
     Cli,
+    /// The link's messages, from the protocol crate's declaration.
+    Protocol,
 }
 
 /// The reference `page`, Markdown.
-fn reference(page: ReferencePage) -> String {
-    match page {
+fn reference(page: ReferencePage) -> Result<String> {
+    Ok(match page {
         ReferencePage::Settings => fpi_host::board::settings::reference(),
         ReferencePage::Model => fpi_host::method::keys::reference(),
+        ReferencePage::Protocol => {
+            fpi_host::board::protocol_page::reference().map_err(anyhow::Error::msg)?
+        }
         ReferencePage::Cli => {
             let options = clap_markdown::MarkdownOptions::new()
                 .title("The fpi command line".into())
@@ -305,7 +310,7 @@ fn reference(page: ReferencePage) -> String {
                  declaration; a test fails when they differ. -->\n\n{page}"
             )
         }
-    }
+    })
 }
 
 /// The loop settings of an exported model (`fpi export`, `fpi board load`).
@@ -977,7 +982,7 @@ fn run(args: Args) -> Result<()> {
         } => fpi_host::method::lever::command(params.as_deref(), &out, points, stroke_um, output),
         Command::Board { port, command } => board(port, command),
         Command::Reference { page } => {
-            print!("{}", reference(page));
+            print!("{}", reference(page)?);
             Ok(())
         }
     }

@@ -19,6 +19,7 @@ pub mod mass;
 pub mod motion;
 pub mod noise;
 pub mod port;
+pub mod protocol_page;
 pub mod recording;
 pub mod restore;
 pub mod session;
