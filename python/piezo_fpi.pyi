@@ -63,16 +63,25 @@ def qemu_available() -> bool:
 @final
 class Emulator:
     """The emulated board (``fpi board emulate``): the firmware on QEMU's
-    netduinoplus2, its link on a TCP port. Builds the firmware with cargo in the
-    source tree the package was built from. A context manager; ``close()`` stops QEMU."""
+    netduinoplus2, its link on a TCP port. Runs the ELF ``firmware``, else builds
+    the firmware with cargo in the source tree the package was built from (an
+    installed package without that tree needs ``firmware``). A context manager;
+    ``close()`` stops QEMU."""
 
     def __new__(
-        cls, listen: Optional[str] = None, link: str = "usb", frontend: str = "internal"
+        cls,
+        listen: Optional[str] = None,
+        link: str = "usb",
+        frontend: str = "internal",
+        firmware: Optional[Union[str, PathLike[str]]] = None,
     ) -> "Emulator":
         """``listen``: ``HOST:PORT`` (default: a free loopback port); ``link``: the
         link whose rate the board paces its own at, ``"usb"`` (800 kB/s) or
-        ``"uart"`` (11 520 B/s); ``frontend``: the analog front end the firmware
-        is built with, ``"internal"`` or ``"precision"``."""
+        ``"uart"`` (11 520 B/s); ``frontend``: the analog front end the board
+        converts with, ``"internal"`` or ``"precision"``; ``firmware``: the
+        emulated board's firmware ELF (``cargo build --profile firmware --target
+        thumbv7em-none-eabihf -p fpi-firmware --bin fpi-firmware --features
+        qemu``), as ``fpi board emulate --firmware``."""
     @property
     def port(self) -> str:
         """``tcp:HOST:PORT``: what ``Board`` opens."""
@@ -109,7 +118,16 @@ class Board:
     @property
     def closed(self) -> bool: ...
     def info(self) -> Dict[str, Any]:
-        """The greeting: ``board``, ``firmware``, ``protocol``, ``rate_hz``, ``capacity``, ``reset``, ``link`` (``usb`` or ``uart``), ``link_bytes_per_s``."""
+        """What the board has (``fpi board info``): ``board`` (``driver``,
+        ``emulated`` or ``virtual``), ``firmware``, ``protocol``, ``axes``,
+        ``front_end`` (``internal`` or ``precision``), ``rate_hz``,
+        ``capacity``, ``buffers``, ``limits`` (``setpoint_min_V``,
+        ``setpoint_max_V``, ``step_max_V``, ``safe_min_V``, ``safe_max_V``),
+        ``reset``, ``link`` (``usb`` or ``uart``), ``link_bytes_per_s``,
+        ``features`` (``closed_loop``, ``dynamics``, ``damping``, ``shaping``,
+        ``mass_ratio``, ``bench``: each True or False), ``commands`` (the link
+        commands it takes) and ``settings`` (the runtime settings' keys it
+        has)."""
     def status(self) -> Dict[str, Any]:
         """The state (``fpi board status``): ``state`` (running, parked, fault),
         ``fault``, ``reference_um``, ``estimate_um``, ``position_sensor_um``,

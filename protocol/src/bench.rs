@@ -37,7 +37,8 @@ crate::wire_enum! {
 }
 
 crate::wire_enum! {
-    /// The analog front end the emulated board converts with ([`BenchOrder::FrontEnd`]).
+    /// The analog front end a board converts with ([`Hello::front_end`](crate::Hello::front_end));
+    /// the emulated board's is set by [`BenchOrder::FrontEnd`].
     pub enum FrontEndKind {
         /// The STM32's on-chip converters: a 12-bit ADC for the force sensor
         /// (0.125 N a count), the 12-bit DAC for the setpoint (36.6 mV of the

@@ -6,6 +6,7 @@ use serde::de::SeqAccess;
 use serde::ser::SerializeTuple;
 use serde::{Deserialize, Serialize};
 
+use crate::bench::FrontEndKind;
 use crate::link::LinkKind;
 use crate::modes::{LoopMode, SourceKind};
 use crate::put;
@@ -231,6 +232,13 @@ pub struct Hello {
     /// The link this hello came over (the emulated board: the link it paces
     /// its own as).
     pub link: LinkKind,
+    /// Stages it drives (axes `0..axes`; [`AXES`](crate::AXES) on this
+    /// protocol's boards).
+    pub axes: u8,
+    /// The analog front end it converts with: the board's build (`precision`
+    /// feature), or on the emulated board the one its bench was set to
+    /// ([`BenchOrder::FrontEnd`](crate::BenchOrder::FrontEnd)).
+    pub front_end: FrontEndKind,
 }
 
 /// A latched fault.

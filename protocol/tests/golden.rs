@@ -139,6 +139,8 @@ fn hello() -> Hello {
         limits: [0, 150 << 16, 5 << 16, 0, 10 << 16],
         reset: ResetReason::Command,
         link: LinkKind::Usb,
+        axes: 1,
+        front_end: FrontEndKind::Precision,
     }
 }
 
@@ -204,7 +206,7 @@ goldens! {
     Reply, all_replies;
     reply_ack: Reply::Ack => "00";
     reply_hello: Reply::Hello(hello())
-        => "01 0a 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01";
+        => "01 0b 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01 01 01";
     reply_status: Reply::Status(status())
         => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 00 02 f8 ac d1 91 01";
     reply_record: Reply::Record(batch())
@@ -339,7 +341,7 @@ fn a_request_frame_golden() {
         seq: 1,
     };
     let n = frame::encode(&h, &Command::Status { axis: 0 }, &mut scratch, &mut out).unwrap();
-    assert_eq!(hex(&out[..n]), "04 0a 01 01 05 0e 64 20 56 00");
+    assert_eq!(hex(&out[..n]), "04 0b 01 01 05 6b 03 9c ee 00");
 }
 
 /// An unknown kind is told apart from garbage; a known kind with bad fields is

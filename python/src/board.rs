@@ -115,28 +115,53 @@ impl Board {
         self.run(py, |c| Ok(c.rate_hz()))
     }
 
-    /// The board's greeting: `board` (`driver`, `emulated` or `virtual`),
-    /// `firmware`, `protocol`, `rate_hz`, `capacity` (operators, creep terms,
-    /// table intervals), `reset` (why it started), `link` (`usb` or `uart`: the
-    /// link it answers on; the emulated board: the one it paces its own as) and
-    /// `link_bytes_per_s`.
+    /// What the board has (`fpi board info`): `board` (`driver`, `emulated`
+    /// or `virtual`), `firmware`, `protocol`, `axes`, `front_end`
+    /// (`internal` or `precision`), `rate_hz`, `capacity` (operators, creep
+    /// terms, table intervals), `buffers` (recorder samples, stream points),
+    /// `limits` (`setpoint_min_V`, `setpoint_max_V`, `step_max_V`,
+    /// `safe_min_V`, `safe_max_V`), `reset` (why it started), `link` (`usb`
+    /// or `uart`: the link it answers on; the emulated board: the one it paces
+    /// its own as), `link_bytes_per_s`, `features` (each of `closed_loop`,
+    /// `dynamics`, `damping`, `shaping`, `mass_ratio`, `bench`: whether the
+    /// board with its running model has it), `commands` (the link commands it
+    /// takes) and `settings` (the runtime settings' keys it has).
     fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let (h, virt) = self.run(py, |c| {
-            Ok((
-                c.hello().clone(),
-                fpi_host::board::inprocess::is_in_process(c.port_name()),
-            ))
-        })?;
+        let i = self.run(py, fpi_host::board::info::read)?;
+        let h = &i.hello;
         let d = PyDict::new(py);
-        let kind = format!("{:?}", h.board).to_lowercase();
-        d.set_item("board", if virt { "virtual".into() } else { kind })?;
+        d.set_item("board", i.kind)?;
         d.set_item("firmware", h.firmware.to_string())?;
         d.set_item("protocol", h.protocol)?;
+        d.set_item("axes", h.axes)?;
+        d.set_item("front_end", h.front_end.name())?;
         d.set_item("rate_hz", h.rate_hz)?;
         d.set_item("capacity", (h.capacity[0], h.capacity[1], h.capacity[2]))?;
+        d.set_item("buffers", (h.buffers[0], h.buffers[1]))?;
+        let limits = PyDict::new(py);
+        for (name, bits) in [
+            "setpoint_min_V",
+            "setpoint_max_V",
+            "step_max_V",
+            "safe_min_V",
+            "safe_max_V",
+        ]
+        .into_iter()
+        .zip(h.limits)
+        {
+            limits.set_item(name, real(bits))?;
+        }
+        d.set_item("limits", limits)?;
         d.set_item("reset", format!("{:?}", h.reset))?;
         d.set_item("link", h.link.name())?;
         d.set_item("link_bytes_per_s", h.link.bytes_per_s())?;
+        let features = PyDict::new(py);
+        for (name, on) in i.features.named() {
+            features.set_item(name, on)?;
+        }
+        d.set_item("features", features)?;
+        d.set_item("commands", i.commands.clone())?;
+        d.set_item("settings", i.settings.clone())?;
         Ok(d)
     }
 

@@ -16,10 +16,11 @@ pub fn qemu_available() -> bool {
     fpi_host::board::qemu().is_ok()
 }
 
-/// The emulated board (`fpi board emulate`): builds the firmware for the
-/// emulated STM32F405 with cargo (in the source tree this package was built
-/// from) and runs it on QEMU, its link on `listen` (`HOST:PORT`; a free
-/// loopback port if None), paced as `link` (`"usb"` or `"uart"`), converting
+/// The emulated board (`fpi board emulate`): runs the firmware for the
+/// emulated STM32F405 on QEMU — the ELF `firmware` (as `fpi board emulate
+/// --firmware`), else one built with cargo in the source tree this package was
+/// built from (an installed package without that tree needs `firmware`) —
+/// its link on `listen` (`HOST:PORT`; a free loopback port if None), paced as `link` (`"usb"` or `"uart"`), converting
 /// with the analog front end `frontend` (`"internal"`: the STM32's 12-bit
 /// converters; `"precision"`: AD7606 and AD5791, as `--frontend`). `port` is
 /// what `Board` opens. Use it as a context manager, or call `close()` (which
@@ -33,8 +34,14 @@ pub struct Emulator {
 #[pymethods]
 impl Emulator {
     #[new]
-    #[pyo3(signature = (listen = None, link = "usb", frontend = "internal"))]
-    fn new(py: Python<'_>, listen: Option<String>, link: &str, frontend: &str) -> PyResult<Self> {
+    #[pyo3(signature = (listen = None, link = "usb", frontend = "internal", firmware = None))]
+    fn new(
+        py: Python<'_>,
+        listen: Option<String>,
+        link: &str,
+        frontend: &str,
+        firmware: Option<std::path::PathBuf>,
+    ) -> PyResult<Self> {
         let Some(link) = fpi_host::board::client::link_kind(link) else {
             return Err(pyo3::exceptions::PyValueError::new_err(format!(
                 "link={link:?}: \"usb\" or \"uart\""
@@ -47,7 +54,10 @@ impl Emulator {
         };
         let q = py
             .detach(|| {
-                let q = Qemu::start(listen.as_deref())?;
+                let q = match &firmware {
+                    Some(elf) => Qemu::start_elf(elf, listen.as_deref())?,
+                    None => Qemu::start(listen.as_deref())?,
+                };
                 q.pace_as(link)?;
                 q.front_end(front)?;
                 Ok::<_, anyhow::Error>(q)

@@ -32,6 +32,35 @@ def test_starts_parked_with_the_factory_model(board):
     assert text.startswith("board: ") and "state: parked" in text
 
 
+def test_info_tells_what_the_board_has(board):
+    i = board.info()
+    assert i["axes"] == 1 and i["front_end"] == "internal"
+    assert i["protocol"] >= 11 and i["rate_hz"] == 20000
+    assert i["limits"]["setpoint_max_V"] == 150.0 and i["limits"]["step_max_V"] > 0
+    # The factory model: open loop, no declared dynamics, no damping or shaping.
+    assert i["features"] == {
+        "closed_loop": False,
+        "dynamics": False,
+        "damping": False,
+        "shaping": False,
+        "mass_ratio": False,
+        "bench": True,
+    }
+    assert "Move" in i["commands"] and "Bench" in i["commands"]
+    assert i["settings"] == ["/stage/0/loop_mode", "/stage/0/compensated", "/supervise_ms"]
+
+
+def test_an_emulator_runs_a_given_firmware_and_names_a_missing_one(emulator):
+    # An installed package without the source tree runs a built ELF.
+    elf = ROOT / "target" / "thumbv7em-none-eabihf" / "firmware" / "fpi-firmware"
+    with pf.Emulator(firmware=elf, link="uart") as e, pf.Board(e.port) as b:
+        i = b.info()
+        assert i["board"] == "emulated" and i["link"] == "uart"
+    with pytest.raises(Exception) as missing:
+        pf.Emulator(firmware=ROOT / "no-such-firmware.elf")
+    assert "no-such-firmware.elf" in str(missing.value) and "not a file" in str(missing.value)
+
+
 def test_move_and_wait_on_target(board):
     tick = board.move(20.0, speed=1000.0)
     assert tick > 0
@@ -338,6 +367,8 @@ def test_the_emulator_takes_a_front_end():
     with pf.Emulator(frontend="precision") as e:
         with pf.Board(e.port) as b:
             assert b.status()["state"] == "parked"
+            # The hello names the front end the board converts with.
+            assert b.info()["front_end"] == "precision"
             # The precision front end's 16-bit force channel: the rest preload
             # read to finer than the internal 12-bit channel's 0.125 N steps.
             # One reading in 16 lands on that grid by chance (the sensor's

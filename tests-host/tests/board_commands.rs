@@ -58,6 +58,46 @@ fn the_virtual_board_reports_the_state_it_starts_in() {
     );
 }
 
+/// `fpi board info` tells what the board has, as PI's `qHLP`/`HasCMD` do:
+/// its axes, front end, link and protocol from its hello, the features its
+/// running model gives it (the factory model: open loop, no dynamics, no
+/// damping), the commands it takes (the bench's on the emulated board) and
+/// the runtime settings it has with that model.
+#[test]
+fn info_tells_what_the_board_has() {
+    let out = ok(&board("virtual", &["info"]));
+    let v = fpi_protocol::VERSION;
+    assert!(
+        out.starts_with(&format!(
+            "board: virtual (firmware {}), protocol {v}, axes 1, front end internal, link ",
+            env!("CARGO_PKG_VERSION")
+        )),
+        "{out}"
+    );
+    assert!(
+        out.contains(
+            "features: bench; without: closed_loop, dynamics, damping, shaping, mass_ratio"
+        ),
+        "{out}"
+    );
+    let commands = &line(&out, "commands: ")["commands: ".len()..];
+    assert!(
+        commands.contains(" Move ") && commands.contains(" Bench "),
+        "{out}"
+    );
+    assert_eq!(
+        commands.split(' ').count(),
+        fpi_protocol::CommandKind::ALL.len(),
+        "{out}"
+    );
+    // The factory model has no damping or shaping: their settings are absent.
+    assert_eq!(
+        line(&out, "settings: "),
+        "settings: /stage/0/loop_mode, /stage/0/compensated, /supervise_ms",
+        "{out}"
+    );
+}
+
 /// `load` said "is a calibrated model: give the stage's FEM tables with --fem"
 /// of an FEM table, of a TOML with only `hello = 1`, and of a firmware model of
 /// format version 99; and it loaded a firmware model whose f_F falls or whose f_K

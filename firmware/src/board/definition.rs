@@ -7,9 +7,9 @@
 //!
 //! **Front end**, chosen by a cargo feature of `fpi-firmware`:
 //!
-//! * default — [`FrontEnd::Internal`]: the STM32's own 12-bit ADCs and DAC
+//! * default — [`FrontEndKind::Internal`]: the STM32's own 12-bit ADCs and DAC
 //!   ([`internal`]);
-//! * `precision` — [`FrontEnd::Precision`]: an AD7606 (16 bits, force and
+//! * `precision` — [`FrontEndKind::Precision`]: an AD7606 (16 bits, force and
 //!   position sampled at one instant) and an AD5791 (20 bits) on SPI
 //!   ([`precision`]), CONVST and LDAC̅ from timer compare outputs.
 //!
@@ -58,20 +58,15 @@ use piezo_fpi::io::{AdcScale, DacScale};
 use piezo_fpi::model::store::HardwareLimits;
 use piezo_fpi::q::{Micrometres, Newtons, Volts};
 
-/// Which converters the board senses and drives with.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FrontEnd {
-    /// The STM32's 12-bit ADCs and DAC ([`internal`]).
-    Internal,
-    /// AD7606 and AD5791 on SPI ([`precision`]).
-    Precision,
-}
+pub use fpi_protocol::FrontEndKind;
 
-/// The board build's front end (the cargo feature `precision`).
-pub const FRONT_END: FrontEnd = if cfg!(feature = "precision") {
-    FrontEnd::Precision
+/// The board build's front end (the cargo feature `precision`): the STM32's
+/// 12-bit ADCs and DAC ([`internal`]), or AD7606 and AD5791 on SPI
+/// ([`precision`]). The board's hello names it.
+pub const FRONT_END: FrontEndKind = if cfg!(feature = "precision") {
+    FrontEndKind::Precision
 } else {
-    FrontEnd::Internal
+    FrontEndKind::Internal
 };
 
 /// The control rate, Hz: one control tick every 50 µs (a model's `rate_hz`

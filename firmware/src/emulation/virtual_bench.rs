@@ -931,11 +931,18 @@ mod tests {
         use crate::link::protocol::FrontEndKind;
         let mut h = host();
         h.run(5);
+        let hello = |h: &mut Host| match h.send(Command::Hello) {
+            Reply::Hello(hello) => (hello.axes, hello.front_end),
+            r => panic!("{r:?}"),
+        };
         assert_eq!(h.board.link.front_end(), FrontEndKind::Internal);
+        assert_eq!(hello(&mut h), (1, FrontEndKind::Internal));
         h.ack(Command::Bench(BenchOrder::FrontEnd(
             FrontEndKind::Precision,
         )));
         assert_eq!(h.board.link.front_end(), FrontEndKind::Precision);
+        // The hello names the front end the board converts with.
+        assert_eq!(hello(&mut h), (1, FrontEndKind::Precision));
         h.ack(Command::Move {
             axis: 0,
             target: um(20.0),

@@ -372,6 +372,10 @@ enum BoardCommand {
     },
     /// The board, its model and the loop's state.
     Status,
+    /// What the board has: axes, analog front end, link, protocol, capacity and
+    /// limits, the features its running model gives it, the commands it takes
+    /// and the runtime settings it has.
+    Info,
     /// Ramp to a position and hold it.
     Move {
         /// Target, µm.
@@ -1070,6 +1074,13 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
     match command {
         BoardCommand::Emulate { .. } => Ok(()),
         BoardCommand::Status => b::status(c),
+        BoardCommand::Info => {
+            print!(
+                "{}",
+                fpi_host::board::info::describe(&fpi_host::board::info::read(c)?)
+            );
+            Ok(())
+        }
         BoardCommand::Move { um, speed, record } => b::move_to(c, um, speed, record.as_deref()),
         BoardCommand::Wave {
             shape,

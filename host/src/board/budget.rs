@@ -142,6 +142,8 @@ mod tests {
             limits: [0; 5],
             reset: ResetReason::PowerOn,
             link,
+            axes: 1,
+            front_end: fpi_protocol::FrontEndKind::Internal,
         }
     }
 

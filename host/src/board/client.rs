@@ -222,6 +222,8 @@ impl Client {
                 limits: [0; 5],
                 reset: fpi_protocol::ResetReason::Unknown,
                 link: fpi_protocol::LinkKind::Uart,
+                axes: 0,
+                front_end: fpi_protocol::FrontEndKind::Internal,
             },
             log: Vec::new(),
         };

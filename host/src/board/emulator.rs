@@ -19,7 +19,7 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 
 use super::port::tcp_address;
-use super::{build, qemu, qemu_command};
+use super::{build, qemu, qemu_command, PROFILE, TARGET};
 
 /// Where the emulated firmware takes its model flash's content from at start-up
 /// (the board's stored-model sector; QEMU's `-device loader` puts a file there).
@@ -152,6 +152,14 @@ impl Emulator {
         listen: Option<&str>,
         flash: Option<&Path>,
     ) -> Result<Self> {
+        if !elf.is_file() {
+            bail!(
+                "the emulated board's firmware {} is not a file (build it with `cargo build \
+                 --profile {PROFILE} --target {TARGET} -p fpi-firmware --bin fpi-firmware \
+                 --features qemu` in the project's source tree)",
+                elf.display()
+            );
+        }
         let addr = match listen {
             Some(a) => {
                 let (host, port) = tcp_address(a).context("--listen")?;

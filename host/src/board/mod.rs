@@ -14,6 +14,7 @@ pub mod commands;
 pub mod emulator;
 pub mod follow;
 pub mod frf;
+pub mod info;
 pub mod inprocess;
 pub mod mass;
 pub mod motion;
@@ -137,8 +138,16 @@ pub const PROFILE: &str = "firmware";
 pub fn build(bin: &str, features: &str) -> Result<PathBuf> {
     static BUILD: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _guard = BUILD.lock().unwrap_or_else(|p| p.into_inner());
-    ensure_target()?;
     let root = project_root();
+    if !root.join("firmware").join("Cargo.toml").is_file() {
+        bail!(
+            "the firmware's source tree is not at {} (where these tools were built from): \
+             give the emulated board's firmware ELF instead (`fpi board emulate --firmware`, \
+             Python's `Emulator(firmware=...)`)",
+            root.display()
+        );
+    }
+    ensure_target()?;
     let status = Command::new(cargo())
         .current_dir(&root)
         .args([

@@ -20,8 +20,8 @@ use piezo_fpi::q::{LeadRatio, Micrometres};
 use super::frame::{self, FrameError};
 use super::pace::{reached, Pace};
 use super::protocol::{
-    Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, Header, Hello,
-    LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES,
+    Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, FrontEndKind, Header,
+    Hello, LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES,
     MAX_BATCH_BYTES, MAX_FRAME, MAX_MODEL_BYTES, MAX_VALUES, NO_SEQ, VERSION,
 };
 use super::refusal::{refuse, Refuse};
@@ -114,6 +114,9 @@ pub struct Handler<F> {
     pub(super) image_len: Option<usize>,
     /// The link and, on the emulated board, its pace.
     pace: Pace,
+    /// The analog front end: the build's, or the one the emulated board's
+    /// bench was last set to (the hello names it).
+    front_end: FrontEndKind,
 }
 
 impl<F: NorFlash> Handler<F> {
@@ -193,6 +196,7 @@ impl<F: NorFlash> Handler<F> {
                 BoardKind::Emulated => Pace::emulating(LinkKind::Uart),
                 BoardKind::Driver => Pace::hardware(LinkKind::Uart),
             },
+            front_end: crate::board::definition::FRONT_END,
         };
         Some((handler, running))
     }
@@ -569,7 +573,13 @@ impl<F: NorFlash> Handler<F> {
                 self.ack(board)
             }
             Command::Bench(b) => match self.kind {
-                BoardKind::Emulated => self.order(board, seq, Order::Bench(b)),
+                BoardKind::Emulated => {
+                    let done = self.order(board, seq, Order::Bench(b));
+                    if let (Ok(_), BenchOrder::FrontEnd(kind)) = (&done, b) {
+                        self.front_end = kind;
+                    }
+                    done
+                }
                 BoardKind::Driver => Err(refuse(
                     Refusal::NotEmulated,
                     format_args!("bench orders exist only on the emulated board"),
@@ -919,6 +929,8 @@ impl<F: NorFlash> Handler<F> {
             ],
             reset: self.reset,
             link: self.pace.link(),
+            axes: AXES,
+            front_end: self.front_end,
         }
     }
 }
