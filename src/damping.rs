@@ -38,7 +38,10 @@ use crate::biquad::{Biquad, BiquadState, Coefficient, COEFF_FRAC};
 use crate::control::ForceChannel;
 use crate::error::{Field, Invalid, ModelError};
 use crate::process::SplitProcess;
-use crate::q::{CreepRate, LoopGain, Micrometres, Newtons, LOOP_GAIN_FRAC, SIGNAL_ABS_MAX_BITS};
+use crate::q::{
+    CreepRate, LoopGain, Micrometres, Newtons, NewtonsPerUm, LOOP_GAIN_FRAC, SIGNAL_ABS_MAX_BITS,
+};
+use fixed::types::I16F16;
 
 /// Largest IFF gain, µm of command per N of dynamic force per tick.
 pub const GAIN_MAX: LoopGain = LoopGain::from_bits(1 << 24);
@@ -61,7 +64,7 @@ pub struct DynamicsSpec {
     /// κ: the dynamic force per µm of command well above the mode, N/µm, `I16F16`
     /// (0: the force channel's response is not known; damping then cannot be
     /// checked and is refused).
-    pub force_gain: Newtons,
+    pub force_gain: NewtonsPerUm,
 }
 
 impl DynamicsSpec {
@@ -161,7 +164,7 @@ impl DampingSpec {
             Coefficient::from_bits(a2 as i32),
         ];
         match Biquad::new(b, a) {
-            Ok(b) => match b.with_limits(Micrometres::from_bits(-lim.to_bits()), lim) {
+            Ok(b) => match b.with_limits(I16F16::from_bits(-lim.to_bits()), lim.raw()) {
                 Ok(b) => Ok(b),
                 Err(_) => Err(Invalid::at(
                     Field::DampingLimit,
@@ -245,7 +248,7 @@ impl DampingConfig {
 impl SplitProcess<Newtons, Micrometres, Damping> for DampingConfig {
     #[inline]
     fn process(&self, d: &mut Damping, dynamic: Newtons) -> Micrometres {
-        let y = self.section.process(&mut d.state, dynamic);
+        let y = self.section.process(&mut d.state, dynamic.raw());
         Micrometres::from_bits(y.to_bits().wrapping_neg())
     }
 }
@@ -363,7 +366,7 @@ mod tests {
             mode_mhz: 850_000,
             damping: CreepRate::from_num(0.03),
             lag_mhz: 2_000_000,
-            force_gain: Newtons::from_num(7),
+            force_gain: NewtonsPerUm::from_num(7),
         };
         assert_eq!(d.check(20_000), Ok(()));
         let at = |e: DynamicsSpec| e.check(20_000).unwrap_err().field;

@@ -52,7 +52,7 @@ pub struct FeedbackSpec {
     /// Largest correction the feedback adds to the reference, µm (> 0).
     pub limit: Micrometres,
     /// Plausible sensor readings, µm.
-    pub sensor: Interval,
+    pub sensor: Interval<Micrometres>,
     /// Largest tolerated `|x_sensor − f_K(x̂_pea)|`, µm (> 0).
     pub tolerance: Micrometres,
 }
@@ -91,7 +91,7 @@ impl FeedbackConfig {
                 ModelError::NonPositiveTolerance,
             ));
         }
-        let Some(sensor) = Window::new(spec.sensor) else {
+        let Some(sensor) = Window::new(spec.sensor.lo.to_bits(), spec.sensor.hi.to_bits()) else {
             return Err(Invalid::at(Field::PositionMin, ModelError::LimitsInverted));
         };
         if spec.sensor.lo.to_bits() < -SIGNAL_ABS_MAX_BITS {
@@ -106,10 +106,7 @@ impl FeedbackConfig {
                 ModelError::NotRepresentable,
             ));
         }
-        let Some(residual) = Window::new(Interval {
-            lo: Micrometres::from_bits(-tol),
-            hi: spec.tolerance,
-        }) else {
+        let Some(residual) = Window::new(-tol, tol) else {
             return Err(Invalid::at(
                 Field::PositionTolerance,
                 ModelError::NonPositiveTolerance,
@@ -128,7 +125,7 @@ impl FeedbackConfig {
     }
 
     /// The correction's range with feedforward, `[−limit, limit]`, µm.
-    pub const fn correction(&self) -> Interval {
+    pub const fn correction(&self) -> Interval<Micrometres> {
         Interval {
             lo: Micrometres::from_bits(-self.spec.limit.to_bits()),
             hi: self.spec.limit,
@@ -221,7 +218,9 @@ impl Pi {
 }
 
 /// The position PI: error, saturation and output range in, µm out.
-impl SplitProcess<(Micrometres, Saturation, Interval), Micrometres, Pi> for FeedbackConfig {
+impl SplitProcess<(Micrometres, Saturation, Interval<Micrometres>), Micrometres, Pi>
+    for FeedbackConfig
+{
     /// One step of the law on the error `e` (µm): the output `kp·e + I` clamped
     /// to the output range `[lo, hi]` (µm), then
     /// the integrator advanced by `ki·e` unless `sat` says the last step was held
@@ -230,7 +229,7 @@ impl SplitProcess<(Micrometres, Saturation, Interval), Micrometres, Pi> for Feed
     fn process(
         &self,
         pi: &mut Pi,
-        (error, sat, range): (Micrometres, Saturation, Interval),
+        (error, sat, range): (Micrometres, Saturation, Interval<Micrometres>),
     ) -> Micrometres {
         let e = error.to_bits() as i64;
         let (lo, hi) = (wide(range.lo), wide(range.hi));

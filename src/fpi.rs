@@ -42,11 +42,12 @@ use crate::pi::PiModel;
 use crate::play::{Bank, Edge, PlayBank, Redo, Stepped};
 use crate::process::SplitProcess;
 use crate::q::{
-    coupling_mul, quad_mul, within, CreepRate, GainAcc, Micrometres, Newtons, UmPerNewton,
-    UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2, GAIN_FRAC, MAX_CREEP_TERMS, QUAD_MAX_BITS,
-    SIGNAL_ABS_MAX_BITS,
+    compliance_mul, coupling_mul, quad_mul, within, CreepRate, GainAcc, Micrometres, Newtons,
+    Signal, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton, VoltsPerNewton2, GAIN_FRAC,
+    MAX_CREEP_TERMS, QUAD_MAX_BITS, SIGNAL_ABS_MAX_BITS,
 };
 use crate::table::Table;
+use fixed::types::I16F16;
 
 /// How the force enters: the preload offset `U_p(F)` and the compliance.
 ///
@@ -138,22 +139,25 @@ pub struct Map<'a> {
 
 impl Map<'_> {
     #[inline(always)]
-    fn through(t: &Table<'_>, x: fixed::types::I16F16) -> fixed::types::I16F16 {
-        let top = t.x_max();
-        if x > top {
-            t.last() + (x - top)
-        } else {
-            t.eval(x)
-        }
+    fn through<S: Signal>(t: &Table<'_>, x: S) -> S {
+        let (top, x) = (t.x_max(), I16F16::from_bits(x.to_bits()));
+        S::from_bits(
+            if x > top {
+                t.last() + (x - top)
+            } else {
+                t.eval(x)
+            }
+            .to_bits(),
+        )
     }
     /// `map(x)`.
     #[inline(always)]
-    pub fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
+    pub fn apply<S: Signal>(&self, x: S) -> S {
         Self::through(&self.forward, x)
     }
     /// `map⁻¹(y)`.
     #[inline(always)]
-    pub fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16 {
+    pub fn invert<S: Signal>(&self, y: S) -> S {
         Self::through(&self.inverse, y)
     }
 }
@@ -163,13 +167,14 @@ impl Map<'_> {
 /// without it (the paper's FPI has neither). The ISR code is specialised for the
 /// model's structure, so a part the model lacks costs nothing, not even a branch.
 pub trait Shape<'a>: Copy + Eq + core::fmt::Debug {
-    /// `map(x)`.
-    fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16;
+    /// `map(x)`, in the unit of `x` (a dead zone maps volts, a saturation
+    /// micrometres).
+    fn apply<S: Signal>(&self, x: S) -> S;
     /// `map⁻¹(y)`.
-    fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16;
+    fn invert<S: Signal>(&self, y: S) -> S;
     /// `y` lies below the inverse table's first knot (for a dead zone: in its foot,
     /// where the inverse can only hold the first value).
-    fn below_inverse(&self, y: fixed::types::I16F16) -> bool;
+    fn below_inverse<S: Signal>(&self, y: S) -> bool;
     /// The tables, if the map is not the identity.
     fn map(&self) -> Option<&Map<'a>>;
     /// Whether the map is not the identity (a constant for [`Map`] and
@@ -183,16 +188,16 @@ pub trait Shape<'a>: Copy + Eq + core::fmt::Debug {
 impl<'a> Shape<'a> for Map<'a> {
     const FIXED: Option<bool> = Some(true);
     #[inline(always)]
-    fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
+    fn apply<S: Signal>(&self, x: S) -> S {
         Map::apply(self, x)
     }
     #[inline(always)]
-    fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16 {
+    fn invert<S: Signal>(&self, y: S) -> S {
         Map::invert(self, y)
     }
     #[inline(always)]
-    fn below_inverse(&self, y: fixed::types::I16F16) -> bool {
-        y < self.inverse.x_min()
+    fn below_inverse<S: Signal>(&self, y: S) -> bool {
+        y.to_bits() < self.inverse.x_min().to_bits()
     }
     fn map(&self) -> Option<&Map<'a>> {
         Some(self)
@@ -211,15 +216,15 @@ pub struct Identity;
 impl<'a> Shape<'a> for Identity {
     const FIXED: Option<bool> = Some(false);
     #[inline(always)]
-    fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
+    fn apply<S: Signal>(&self, x: S) -> S {
         x
     }
     #[inline(always)]
-    fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16 {
+    fn invert<S: Signal>(&self, y: S) -> S {
         y
     }
     #[inline(always)]
-    fn below_inverse(&self, _: fixed::types::I16F16) -> bool {
+    fn below_inverse<S: Signal>(&self, _: S) -> bool {
         false
     }
     fn map(&self) -> Option<&Map<'a>> {
@@ -236,23 +241,23 @@ impl<'a> Shape<'a> for Identity {
 impl<'a> Shape<'a> for Option<Map<'a>> {
     const FIXED: Option<bool> = None;
     #[inline(always)]
-    fn apply(&self, x: fixed::types::I16F16) -> fixed::types::I16F16 {
+    fn apply<S: Signal>(&self, x: S) -> S {
         match self {
             Some(m) => m.apply(x),
             None => x,
         }
     }
     #[inline(always)]
-    fn invert(&self, y: fixed::types::I16F16) -> fixed::types::I16F16 {
+    fn invert<S: Signal>(&self, y: S) -> S {
         match self {
             Some(m) => m.invert(y),
             None => y,
         }
     }
     #[inline(always)]
-    fn below_inverse(&self, y: fixed::types::I16F16) -> bool {
+    fn below_inverse<S: Signal>(&self, y: S) -> bool {
         match self {
-            Some(m) => y < m.inverse.x_min(),
+            Some(m) => y.to_bits() < m.inverse.x_min().to_bits(),
             None => false,
         }
     }
@@ -483,7 +488,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
         }
         ForceTerms {
             preload_offset: offset,
-            compression: coupling_mul(c.compliance, force.saturating_sub(force_ref)),
+            compression: compliance_mul(c.compliance, force.saturating_sub(force_ref)),
         }
     }
 
@@ -576,7 +581,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>> Fpi<'a, N, 
         t: &ForceTerms,
     ) -> (Micrometres, Own) {
         let uh = self.effective::<BARE>(u, t);
-        let mut acc = bank.advance(self.pi.bank(), uh);
+        let mut acc = bank.advance(self.pi.bank(), uh.raw());
         if BARE {
             return (
                 crate::q::narrow_gain_biased(acc) - t.compression,
@@ -752,7 +757,7 @@ const _: () = assert!(GAIN_FRAC + 16 == 44);
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::q::{coupling, signal};
+    use crate::q::coupling;
     use crate::table::Segment;
     use fixed::types::{I0F32, I16F16};
 
@@ -761,7 +766,7 @@ mod tests {
             PiModel::from_f64(0.064, &[10.0, 30.0, 60.0], &[0.01, 0.008, 0.004], 150.0).unwrap();
         let cp = Coupling {
             compliance: coupling(c).unwrap(),
-            force_ref: signal(60.0).unwrap(),
+            force_ref: crate::testkit::v(60.0),
             ..Coupling::paper(coupling(0.1).unwrap())
         };
         Fpi::new(pi, cp, Identity, Identity, []).unwrap()
@@ -770,12 +775,12 @@ mod tests {
     #[test]
     fn a_coupling_offset_beyond_the_signal_range_is_refused_by_key() {
         let ok = Coupling {
-            offset: signal(4096.0).unwrap(),
+            offset: crate::testkit::v(4096.0),
             ..Coupling::paper(coupling(0.1).unwrap())
         };
         assert!(ok.check().is_ok());
         let bad = Coupling {
-            offset: I16F16::from_bits(i32::MAX),
+            offset: Volts::from_bits(i32::MAX),
             ..ok
         };
         assert_eq!(
@@ -933,12 +938,12 @@ mod tests {
         let pi =
             PiModel::from_f64(0.064, &[10.0, 30.0, 60.0], &[0.01, 0.008, 0.004], 150.0).unwrap();
         let cp = Coupling {
-            offset: signal(-0.4).unwrap(),
+            offset: crate::testkit::v(-0.4),
             k_f: coupling(0.106).unwrap(),
             k_q: I0F32::from_num(1.6e-4),
-            force_q: signal(75.0).unwrap(),
+            force_q: crate::testkit::v(75.0),
             compliance: coupling(0.02).unwrap(),
-            force_ref: signal(60.0).unwrap(),
+            force_ref: crate::testkit::v(60.0),
         };
         let creep = [
             Creep::new(I0F32::from_num(0.005), UmPerVolt::from_num(0.003)).unwrap(),

@@ -127,7 +127,7 @@ pub const fn invert(
             });
         }
         out[j] = Operator {
-            threshold: Micrometres::from_bits(rp as i32),
+            threshold: I16F16::from_bits(rp as i32),
             weight: VoltsPerUm::from_bits(wp as i32),
         };
         abs_sum += if wp < 0 { -wp } else { wp };
@@ -162,7 +162,7 @@ impl<const N: usize> InversePi<N> {
     /// the firmware's inverse is built by the compiler.
     pub const fn from_forward(fwd: &PiModel<N>) -> Result<Self, ModelError> {
         let mut ops = [Operator {
-            threshold: Micrometres::ZERO,
+            threshold: I16F16::ZERO,
             weight: VoltsPerUm::ZERO,
         }; N];
         let sums = match invert(fwd.w0(), fwd.operators(), fwd.output_max(), &mut ops) {
@@ -190,7 +190,14 @@ impl<const N: usize> InversePi<N> {
         state: &mut PlayBank<N, E>,
     ) {
         let (w0, from) = (fwd.w0().to_bits(), fwd.bank());
-        mirror::<_, _, GAIN_FRAC, N, F, E>(w0, from, fwd_state, &self.ops, self.input_max, state);
+        mirror::<_, _, GAIN_FRAC, N, F, E>(
+            w0,
+            from,
+            fwd_state,
+            &self.ops,
+            self.input_max.raw(),
+            state,
+        );
     }
 
     /// The other way: sets a forward bank of `fwd` (the model this inverse was
@@ -212,7 +219,7 @@ impl<const N: usize> InversePi<N> {
             &self.ops,
             state,
             to,
-            fwd.input_max(),
+            fwd.input_max().raw(),
             fwd_state,
         );
     }
@@ -231,7 +238,7 @@ impl<const N: usize> InversePi<N> {
     }
     /// Thresholds `r'_j`, µm.
     pub fn thresholds(&self) -> [Micrometres; N] {
-        self.ops.ops().map(|o| o.threshold)
+        self.ops.ops().map(|o| Micrometres::from_raw(o.threshold))
     }
     /// Weights `w'_j`, V/µm.
     pub fn weights(&self) -> [VoltsPerUm; N] {
@@ -292,7 +299,7 @@ impl<const N: usize, B: Bank<N>> SplitProcess<Micrometres, Volts, B> for Inverse
     #[inline(always)]
     fn process(&self, state: &mut B, x: Micrometres) -> Volts {
         let x = within(x, Micrometres::ZERO, self.input_max);
-        narrow_inv_gain_biased(state.advance(&self.ops, x))
+        narrow_inv_gain_biased(state.advance(&self.ops, x.raw()))
     }
 }
 

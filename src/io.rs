@@ -102,13 +102,15 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
 /// ADC counts to newtons (or, for a position channel, micrometres):
 /// `F = offset + per_count · counts`.
 ///
-/// * `offset` — N at zero counts, `I16F16`.
-/// * `per_count` — N per count, `I4F28` (12-bit ADC over 0–500 N: 0.122 N/count).
+/// * `offset` — N (µm) at zero counts, `I16F16` in the channel's unit: one
+///   scaling serves both channels, so its unit is the reading's
+///   ([`to_force`](Self::to_force), [`to_position`](Self::to_position)).
+/// * `per_count` — N (µm) per count, `I4F28` (12-bit ADC over 0–500 N: 0.122 N/count).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct AdcScale {
-    /// Force at zero counts, N.
-    pub offset: Newtons,
-    /// Newtons per count.
+    /// The value at zero counts, N or µm.
+    pub offset: I16F16,
+    /// Newtons (micrometres) per count.
     pub per_count: I4F28,
 }
 
@@ -116,7 +118,13 @@ impl AdcScale {
     /// The force for a raw conversion result.
     #[inline]
     pub fn to_force(&self, counts: u16) -> Newtons {
-        self.to_value(counts)
+        Newtons::from_raw(self.to_value(counts))
+    }
+
+    /// The position for a raw conversion result (a position channel's scaling).
+    #[inline]
+    pub fn to_position(&self, counts: u16) -> Micrometres {
+        Micrometres::from_raw(self.to_value(counts))
     }
 
     /// The value for a raw conversion result, in the channel's unit (`I16F16`: N
@@ -234,7 +242,7 @@ mod tests {
         // which stays on.
         for k in 0..300 {
             let x = Micrometres::from_num(15.0 * k as f64 / 300.0);
-            let f = cfg.f_f().eval(st.x_pea_est());
+            let f = Newtons::from_raw(cfg.f_f().eval(st.x_pea_est().raw()));
             bench.borrow_mut().force = f;
             let Tick { out, force } = hw.tick(&cfg, &mut st, &Mode::Compensated, x);
             assert_eq!(force, f, "the reading is reported");
@@ -263,7 +271,7 @@ mod tests {
     #[test]
     fn adc_scale_round_trips() {
         let s = AdcScale {
-            offset: Newtons::from_num(-5),
+            offset: I16F16::from_num(-5),
             per_count: I4F28::from_num(0.125),
         };
         assert_eq!(s.to_force(0), Newtons::from_num(-5));
@@ -273,13 +281,13 @@ mod tests {
         assert_eq!(s.to_counts(1e9, 4095), 4095);
         // A 16-bit code over 80 µm: the whole code range, exactly.
         let p = AdcScale {
-            offset: Micrometres::from_num(-10),
+            offset: I16F16::from_num(-10),
             per_count: I4F28::from_bits(80 << 12),
         };
-        assert_eq!(p.to_value(0), Micrometres::from_num(-10));
-        assert_eq!(p.to_value(32768), Micrometres::from_num(30));
+        assert_eq!(p.to_position(0), Micrometres::from_num(-10));
+        assert_eq!(p.to_position(32768), Micrometres::from_num(30));
         assert_eq!(
-            p.to_value(65535),
+            p.to_position(65535),
             Micrometres::from_num(70.0 - 80.0 / 65536.0)
         );
         assert_eq!(p.to_counts(30.0, u16::MAX), 32768);

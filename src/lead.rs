@@ -93,7 +93,7 @@
 
 use crate::damping::DynamicsSpec;
 use crate::process::SplitProcess;
-use crate::q::{LeadRatio, Micrometres, Newtons};
+use crate::q::{LeadRatio, Micrometres, Newtons, NewtonsPerUm};
 
 /// `1` in raw [`LeadRatio`] bits.
 pub const ONE: i32 = 1 << 30;
@@ -119,7 +119,7 @@ const Q_MAX: i32 = STEP_MAX >> Q_SHIFT;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LeadSpec {
     /// κ: the dynamic force per µm of `S − x_ref`, N/µm, `I16F16`.
-    pub force_gain: Newtons,
+    pub force_gain: NewtonsPerUm,
     /// `|S − x_ref|` is held to this, µm (`I16F16`): `4096 N/κ` rounded down,
     /// so that `f_m` stays within ±4096 N without a wide clamp.
     pub moved_max: Micrometres,

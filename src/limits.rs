@@ -251,6 +251,7 @@ impl OutputLimits {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use fixed::types::I16F16;
 
     fn v(x: f64) -> Volts {
         Volts::from_num(x)
@@ -400,13 +401,20 @@ mod tests {
         assert_eq!(off, v(3.0), "far");
         let (_, _, off) = l.park_damped(v(8.0), z, z, v(0.0), late, v(3.0));
         let d = v(8.0) - PARK_ACCEL;
-        let w = (d / PARK_FADE).max(Volts::from_num(0.25));
-        assert!((off - v(3.0) * w).abs() <= Volts::from_bits(2), "{off}");
+        // The fade's weight, a ratio of voltages: dimensionless.
+        let w = (d.raw() / PARK_FADE.raw()).max(I16F16::from_num(0.25));
+        assert!(
+            (off - Volts::from_raw(v(3.0).raw() * w)).abs() <= Volts::from_bits(2),
+            "{off}"
+        );
         // A large correction: held to PARK_SPAN·w (16 V here), the slew limit
         // permitting.
         let (u, _, off) = l.park_damped(v(20.0), v(12.0), z, v(0.0), late, v(100.0));
-        let w = (v(8.0) - PARK_ACCEL) / PARK_FADE;
-        assert!((off - PARK_SPAN * w).abs() <= Volts::from_bits(4), "{off}");
+        let w = (v(8.0) - PARK_ACCEL).raw() / PARK_FADE.raw();
+        assert!(
+            (off - Volts::from_raw(PARK_SPAN.raw() * w)).abs() <= Volts::from_bits(4),
+            "{off}"
+        );
         assert!(u < v(25.0), "the window, not the slew limit");
     }
 

@@ -8,6 +8,7 @@ use crate::q::{
     self, narrow_gain, within, GainAcc, Micrometres, UmPerVolt, Volts, GAIN_FRAC, MAX_OPERATORS,
     SIGNAL_ABS_MAX_BITS,
 };
+use fixed::types::I16F16;
 
 /// Configuration of a forward PI model: voltage in, stack extension out.
 ///
@@ -102,10 +103,10 @@ pub const fn check(
         return Err(ModelError::OutputOutOfRange);
     }
     // Y[input_max] on the loading curve: S_N * U - sum w_i r_i (operators all active).
-    let mut acc = w0.wide_mul(input_max);
+    let mut acc = w0.wide_mul(input_max.raw());
     let mut j = 0;
     while j < n {
-        let y = Volts::from_bits(input_max.to_bits() - ops[j].threshold.to_bits());
+        let y = I16F16::from_bits(input_max.to_bits() - ops[j].threshold.to_bits());
         acc = GainAcc::from_bits(acc.to_bits() + ops[j].weight.wide_mul(y).to_bits());
         j += 1;
     }
@@ -127,13 +128,13 @@ impl<const N: usize> PiModel<N> {
         input_max: Volts,
     ) -> Result<Self, ModelError> {
         let mut ops = [Operator {
-            threshold: Volts::ZERO,
+            threshold: I16F16::ZERO,
             weight: UmPerVolt::ZERO,
         }; N];
         let mut i = 0;
         while i < N {
             ops[i] = Operator {
-                threshold: thresholds[i],
+                threshold: thresholds[i].raw(),
                 weight: weights[i],
             };
             i += 1;
@@ -172,7 +173,11 @@ impl<const N: usize> PiModel<N> {
         input_max: f64,
     ) -> Result<Self, ModelError> {
         let g = |x: f64| q::gain(x).ok_or(ModelError::NotRepresentable);
-        let s = |x: f64| q::signal(x).ok_or(ModelError::NotRepresentable);
+        let s = |x: f64| {
+            q::signal(x)
+                .map(Volts::from_raw)
+                .ok_or(ModelError::NotRepresentable)
+        };
         let mut r = [Volts::ZERO; N];
         let mut w = [UmPerVolt::ZERO; N];
         for i in 0..N {
@@ -211,7 +216,7 @@ impl<const N: usize, E: Edge> SplitProcess<Volts, Micrometres, PlayBank<N, E>> f
     #[inline(always)]
     fn process(&self, state: &mut PlayBank<N, E>, u: Volts) -> Micrometres {
         let u = within(u, Volts::ZERO, self.input_max);
-        q::narrow_gain_biased(state.advance(&self.ops, u))
+        q::narrow_gain_biased(state.advance(&self.ops, u.raw()))
     }
 }
 

@@ -1,10 +1,11 @@
 //! Fixed-point formats of every quantity in the core (the "Q contract").
 //!
-//! | alias | unit | `fixed` type | resolution (1 LSB) | accepted range |
+//! | type | unit | `fixed` type | resolution (1 LSB) | accepted range |
 //! |---|---|---|---|---|
 //! | [`Volts`] | V | `I16F16` | 15.3 µV | ±4096 (inputs clamped to the model's domain, e.g. 0–150 V) |
 //! | [`Micrometres`] | µm | `I16F16` | 15.3 pm | ±4096 |
 //! | [`Newtons`] | N | `I16F16` | 15.3 µN | ±4096 |
+//! | [`NewtonsPerUm`] | N/µm | `I16F16` | 15.3 µN/µm | ≥ 0 (the dynamic force gain κ) |
 //! | [`UmPerVolt`] | µm/V | `I4F28` | 3.7·10⁻⁹ | ±8 (forward PI weights `w0`, `w_i`) |
 //! | [`VoltsPerNewton`] | V/N | `I0F32` | 2.3·10⁻¹⁰ | ±0.5 (force–voltage coupling `k_f`; stacks: 0.01–0.2) |
 //! | [`UmPerNewton`] | µm/N | `I0F32` | 2.3·10⁻¹⁰ | ±0.5 (stack compliance `c`; stacks: 0.005–0.1) |
@@ -23,6 +24,13 @@
 //! that every accumulator stays inside its range for inputs in the model's domain,
 //! so the hot path needs no saturation and has no overflow.
 //!
+//! [`Volts`], [`Micrometres`] and [`Newtons`] are three distinct types
+//! (`#[repr(transparent)]` newtypes over `I16F16`, with `I16F16`'s API inlined),
+//! not aliases of one: the compiler refuses a voltage where a position or a force
+//! is meant, and a product that changes the unit (gain × signal) is written
+//! through a named helper or the raw bits, never by accident. They cost no
+//! instruction: `cargo isr-bench` counts no more per phase than with the bare type.
+//!
 //! One 16-bit DAC LSB over 0–150 V is 2.29 mV = 150 LSB of [`Volts`]; one nm is
 //! 65.5 LSB of [`Micrometres`].
 
@@ -34,12 +42,25 @@ include!("qformat.rs");
 pub type LoopGain = I8F24;
 const _: () = assert!(LoopGain::FRAC_NBITS == LOOP_GAIN_FRAC);
 
-/// Electric potential in volts, `I16F16`.
-pub type Volts = I16F16;
-/// Length in micrometres, `I16F16`.
-pub type Micrometres = I16F16;
-/// Force in newtons, `I16F16`.
-pub type Newtons = I16F16;
+mod unit;
+pub use unit::Signal;
+
+unit::unit! {
+    /// Electric potential in volts, `I16F16` (a distinct type: see [`q`](self)).
+    Volts
+}
+unit::unit! {
+    /// Length in micrometres, `I16F16` (a distinct type: see [`q`](self)).
+    Micrometres
+}
+unit::unit! {
+    /// Force in newtons, `I16F16` (a distinct type: see [`q`](self)).
+    Newtons
+}
+/// The dynamic force per µm of command (the stage's stiffness above its mode,
+/// κ of [`crate::damping`] and [`crate::lead`]), newtons per µm, `I16F16`: a
+/// gain, not a force.
+pub type NewtonsPerUm = I16F16;
 /// Forward PI weight, µm per volt, `I4F28`.
 pub type UmPerVolt = I4F28;
 /// Force–voltage coupling `k_f`, volts per newton, `I0F32`.
@@ -80,31 +101,31 @@ pub const COEFF_FRAC: u32 = 24;
 ///
 /// Callers guarantee `|acc| < SIGNAL_ABS_MAX`, which the model constructors check.
 #[inline(always)]
-pub(crate) const fn narrow_gain(acc: GainAcc) -> I16F16 {
+pub(crate) const fn narrow_gain(acc: GainAcc) -> Micrometres {
     const SHIFT: u32 = GAIN_FRAC;
-    I16F16::from_bits(((acc.to_bits() + (1 << (SHIFT - 1))) >> SHIFT) as i32)
+    Micrometres::from_bits(((acc.to_bits() + (1 << (SHIFT - 1))) >> SHIFT) as i32)
 }
 
 /// Rounds an inverse-gain × signal accumulator to the nearest signal LSB.
 ///
 /// Callers guarantee `|acc| < SIGNAL_ABS_MAX`, which the model constructors check.
 #[inline(always)]
-pub(crate) const fn narrow_inv_gain(acc: InvGainAcc) -> I16F16 {
+pub(crate) const fn narrow_inv_gain(acc: InvGainAcc) -> Volts {
     const SHIFT: u32 = INV_GAIN_FRAC;
-    I16F16::from_bits(((acc.to_bits() + (1 << (SHIFT - 1))) >> SHIFT) as i32)
+    Volts::from_bits(((acc.to_bits() + (1 << (SHIFT - 1))) >> SHIFT) as i32)
 }
 
 /// Narrows a gain × signal accumulator that already holds the rounding half LSB
 /// (the bias of [`crate::play::Operators`]): the nearest signal, as [`narrow_gain`].
 #[inline(always)]
-pub(crate) const fn narrow_gain_biased(acc: i64) -> I16F16 {
-    I16F16::from_bits((acc >> GAIN_FRAC) as i32)
+pub(crate) const fn narrow_gain_biased(acc: i64) -> Micrometres {
+    Micrometres::from_bits((acc >> GAIN_FRAC) as i32)
 }
 
 /// [`narrow_gain_biased`] for an inverse-gain × signal accumulator.
 #[inline(always)]
-pub(crate) const fn narrow_inv_gain_biased(acc: i64) -> I16F16 {
-    I16F16::from_bits((acc >> INV_GAIN_FRAC) as i32)
+pub(crate) const fn narrow_inv_gain_biased(acc: i64) -> Volts {
+    Volts::from_bits((acc >> INV_GAIN_FRAC) as i32)
 }
 
 /// The bias that makes [`narrow_gain_biased`] round: half a signal LSB.
@@ -112,12 +133,24 @@ pub(crate) const GAIN_ROUND: i64 = 1 << (GAIN_FRAC - 1);
 /// The bias that makes [`narrow_inv_gain_biased`] round: half a signal LSB.
 pub(crate) const INV_GAIN_ROUND: i64 = 1 << (INV_GAIN_FRAC - 1);
 
-/// Product of a force coupling (`I0F32`) and a signal, rounded to a signal: the
-/// rounded high word of a 32 × 32-bit product.
+/// Product of a force coupling (`I0F32`) and a force, rounded to a signal's
+/// bits: the rounded high word of a 32 × 32-bit product.
 #[inline(always)]
-pub(crate) const fn coupling_mul(c: I0F32, x: I16F16) -> I16F16 {
-    let p = c.to_bits() as i64 * x.to_bits() as i64;
-    I16F16::from_bits(((p + (1 << 31)) >> COUPLING_FRAC) as i32)
+const fn coupling_mul_bits(c: I0F32, f: Newtons) -> i32 {
+    let p = c.to_bits() as i64 * f.to_bits() as i64;
+    ((p + (1 << 31)) >> COUPLING_FRAC) as i32
+}
+
+/// `k_f·F`: a force–voltage coupling (V/N) times a force, rounded to volts.
+#[inline(always)]
+pub(crate) const fn coupling_mul(k_f: VoltsPerNewton, f: Newtons) -> Volts {
+    Volts::from_bits(coupling_mul_bits(k_f, f))
+}
+
+/// `c·F`: a compliance (µm/N) times a force, rounded to micrometres.
+#[inline(always)]
+pub(crate) const fn compliance_mul(c: UmPerNewton, f: Newtons) -> Micrometres {
+    Micrometres::from_bits(coupling_mul_bits(c, f))
 }
 
 /// Force span (N, raw `I16F16`) over which the curvature product `quad_mul` is exact: `|F - F_q| <= 1024 N`.
@@ -125,23 +158,24 @@ pub const QUAD_FORCE_SPAN_BITS: i32 = 1024 << SIGNAL_FRAC;
 /// Largest `|k_q|` (raw `I0F32`) so that `k_q·(1024 N)² <= 2048 V`.
 pub const QUAD_MAX_BITS: i64 = (2048i64 << 32) / (1024 * 1024);
 
-/// `c·d²` for a curvature `c` (`I0F32`) and a difference `d` (`I16F16`, clamped to
-/// ±1024), rounded to a signal: `c·d` kept to 32 fractional bits, then times `d`.
+/// `c·d²` for a curvature `c` (V/N², `I0F32`) and a force difference `d` (N,
+/// clamped to ±1024), rounded to volts: `c·d` kept to 32 fractional bits, then
+/// times `d`.
 #[inline(always)]
-pub(crate) fn quad_mul(c: I0F32, d: I16F16) -> I16F16 {
+pub(crate) fn quad_mul(c: VoltsPerNewton2, d: Newtons) -> Volts {
     let d = within(
         d,
-        I16F16::from_bits(-QUAD_FORCE_SPAN_BITS),
-        I16F16::from_bits(QUAD_FORCE_SPAN_BITS),
+        Newtons::from_bits(-QUAD_FORCE_SPAN_BITS),
+        Newtons::from_bits(QUAD_FORCE_SPAN_BITS),
     )
     .to_bits() as i64;
     let cd = (c.to_bits() as i64 * d + (1 << 15)) >> 16; // 32 fractional bits
-    I16F16::from_bits(((cd * d + (1 << 31)) >> 32) as i32)
+    Volts::from_bits(((cd * d + (1 << 31)) >> 32) as i32)
 }
 
 /// `max(x, lo)` without the `Ord::clamp` panic path.
 #[inline(always)]
-pub(crate) fn at_least(x: I16F16, lo: I16F16) -> I16F16 {
+pub(crate) fn at_least<T: PartialOrd>(x: T, lo: T) -> T {
     if x < lo {
         lo
     } else {
@@ -151,7 +185,7 @@ pub(crate) fn at_least(x: I16F16, lo: I16F16) -> I16F16 {
 
 /// `min(x, hi)` without the `Ord::clamp` panic path.
 #[inline(always)]
-pub(crate) fn at_most(x: I16F16, hi: I16F16) -> I16F16 {
+pub(crate) fn at_most<T: PartialOrd>(x: T, hi: T) -> T {
     if x > hi {
         hi
     } else {
@@ -161,7 +195,7 @@ pub(crate) fn at_most(x: I16F16, hi: I16F16) -> I16F16 {
 
 /// Clamps `x` to `[lo, hi]`; callers guarantee `lo <= hi` (checked at construction).
 #[inline(always)]
-pub(crate) fn within(x: I16F16, lo: I16F16, hi: I16F16) -> I16F16 {
+pub(crate) fn within<T: PartialOrd>(x: T, lo: T, hi: T) -> T {
     at_most(at_least(x, lo), hi)
 }
 
@@ -243,15 +277,15 @@ mod tests {
         let f = signal(100.0).unwrap();
         let v = narrow_gain(gain(0.1).unwrap().wide_mul(f)).to_num::<f64>();
         assert!((v - 10.0).abs() < 1.0 / 65536.0);
-        let v = coupling_mul(coupling(0.1).unwrap(), f).to_num::<f64>();
+        let v = coupling_mul(coupling(0.1).unwrap(), Newtons::from_raw(f)).to_num::<f64>();
         assert!((v - 10.0).abs() < 1.0 / 65536.0);
-        let v = coupling_mul(coupling(-0.02).unwrap(), signal(-30.5).unwrap()).to_num::<f64>();
+        let v = coupling_mul(coupling(-0.02).unwrap(), Newtons::from_num(-30.5)).to_num::<f64>();
         assert!((v - 0.61).abs() < 1.0 / 65536.0);
-        let v = quad_mul(I0F32::from_num(1.655e-4), signal(-75.25).unwrap()).to_num::<f64>();
+        let v = quad_mul(I0F32::from_num(1.655e-4), Newtons::from_num(-75.25)).to_num::<f64>();
         assert!((v - 1.655e-4 * 75.25 * 75.25).abs() < 1.0 / 65536.0, "{v}");
         let v = quad_mul(
             I0F32::from_bits(QUAD_MAX_BITS as i32),
-            signal(4000.0).unwrap(),
+            Newtons::from_num(4000),
         );
         assert_eq!(v.to_num::<f64>().round(), 2048.0);
         assert_eq!(coupling(0.6), None);

@@ -427,14 +427,14 @@ fn expm4(m: &[[f64; 4]; 4], t: f64) -> [[f64; 4]; 4] {
 mod tests {
     use super::*;
     use crate::control::split_rate;
-    use crate::q::{CreepRate, LoopGain, Micrometres, Newtons};
+    use crate::q::{CreepRate, LoopGain, Micrometres, NewtonsPerUm};
 
     fn dynamics() -> DynamicsSpec {
         DynamicsSpec {
             mode_mhz: 850_000,
             damping: CreepRate::from_num(0.03),
             lag_mhz: 2_000_000,
-            force_gain: Newtons::from_num(6.5),
+            force_gain: NewtonsPerUm::from_num(6.5),
         }
     }
 

@@ -16,25 +16,27 @@ use crate::fpi::{Coupling, Fpi, Identity};
 use crate::limits::OutputLimits;
 use crate::model::{CreepSpec, ModelSpec, TableSpec};
 use crate::pi::PiModel;
-use crate::q::{coupling, signal, Micrometres, Newtons, Volts};
+use crate::q::{coupling, signal, Micrometres, Newtons, Signal, Volts};
 use crate::table::{Segment, Table};
+use fixed::types::I16F16;
 
 /// The test stage's controller type.
 pub type TestController = ControllerConfig<'static, 3>;
 
-fn v(x: f64) -> fixed::types::I16F16 {
-    signal(x).unwrap()
+/// `x` in the unit the context asks for (or bare `I16F16`).
+pub fn v<S: Signal>(x: f64) -> S {
+    S::from_bits(signal(x).unwrap().to_bits())
 }
 
 /// A table of `f` on `x0 + k·2^step_log2`, `k = 0..=n`, leaked for `'static`.
 pub fn table(x0: f64, step_log2: i32, n: usize, f: impl Fn(f64) -> f64) -> Table<'static> {
     let h = 2f64.powi(step_log2);
-    let values: Vec<_> = (0..=n).map(|k| v(f(x0 + k as f64 * h))).collect();
+    let values: Vec<I16F16> = (0..=n).map(|k| v(f(x0 + k as f64 * h))).collect();
     let segs: Vec<Segment> = values
         .windows(2)
         .map(|w| Segment::new(w[0], w[1] - w[0]))
         .collect();
-    Table::new(v(x0), (step_log2 + 16) as u32, Vec::leak(segs)).unwrap()
+    Table::new(v::<I16F16>(x0), (step_log2 + 16) as u32, Vec::leak(segs)).unwrap()
 }
 
 /// The test stage's FPI model.
@@ -83,7 +85,7 @@ pub fn controller() -> TestController {
 
 /// The force the test stage puts on the stack at an estimated extension, N.
 pub fn force_at(c: &TestController, x_pea: Micrometres) -> Newtons {
-    c.f_f().eval(x_pea)
+    Newtons::from_raw(c.f_f().eval(x_pea.raw()))
 }
 
 /// The model of a controller's parts in the core's format, at 20 kHz, with the

@@ -2,7 +2,7 @@
 //! dynamic force the damping gets, and the learned correction of the FEM's
 //! preload map (see the parent module's docs for the law and its formats).
 
-use super::{Interval, Window};
+use super::Window;
 use crate::error::{Field, Invalid, ModelError};
 use crate::q::{CreepRate, Newtons, SIGNAL_ABS_MAX_BITS};
 
@@ -133,10 +133,7 @@ pub(super) const fn force_channel_window(
             ModelError::DynamicLimitBelowTolerance,
         ));
     }
-    match Window::new(Interval {
-        lo: Newtons::from_bits(-lim),
-        hi: c.dynamic_limit,
-    }) {
+    match Window::new(-lim, lim) {
         Some(w) => Ok(w),
         None => Err(Invalid::at(
             Field::ForceDynamicLimit,

@@ -32,7 +32,7 @@ impl LinearDrive {
         let gain = crate::q::quantize(g, crate::q::INV_GAIN_FRAC, crate::q::INV_GAIN_ABS_MAX)?;
         Some(Self {
             gain: VoltsPerUm::from_bits(gain),
-            offset: crate::q::signal(u_lo - g * x_lo)?,
+            offset: Volts::from_raw(crate::q::signal(u_lo - g * x_lo)?),
         })
     }
 
@@ -41,7 +41,7 @@ impl LinearDrive {
     pub fn voltage(&self, x_ref: Micrometres) -> Volts {
         // Saturate the product at the signal range before narrowing it.
         let lim = (SIGNAL_ABS_MAX_BITS as i64) << INV_GAIN_FRAC;
-        let acc = self.gain.wide_mul(x_ref).to_bits().max(-lim).min(lim);
+        let acc = self.gain.wide_mul(x_ref.raw()).to_bits().max(-lim).min(lim);
         narrow_inv_gain(InvGainAcc::from_bits(acc)).saturating_add(self.offset)
     }
 

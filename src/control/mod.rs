@@ -135,8 +135,8 @@ pub struct ControllerConfig<'a, const N: usize, const C: usize = 0, G = Identity
     f_k: Table<'a>,
     f_k_inv: Table<'a>,
     limits: OutputLimits,
-    reference: Interval,
-    force: Interval,
+    reference: Interval<Micrometres>,
+    force: Interval<Newtons>,
     reference_window: Window,
     force_window: Window,
     /// `[-tolerance, tolerance]`, for the slow part `r_s` of the residual.
@@ -213,7 +213,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         {
             st.force_ref = force;
             // The channel starts settled: the residual at rest is the offset.
-            st.force_tare_model = self.f_f.eval(st.x_pea_est);
+            st.force_tare_model = self.preload(st.x_pea_est);
             st.forget_force_learning();
             true
         } else {
@@ -282,7 +282,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         st: &mut ControllerState<N, C>,
         reading: Newtons,
     ) -> Forces {
-        let model = self.f_f.eval(st.x_pea_est);
+        let model = self.preload(st.x_pea_est);
         if !MEASURED {
             return Forces {
                 reading,
@@ -488,11 +488,11 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             return self.ramp_to_safe(st, forces, fault);
         }
         // The reference passed its window, which lies inside the grid.
-        let x_pea_ref = self.f_k_inv.eval_from_x_min(x_ref);
+        let x_pea_ref = self.extension_within(x_ref);
         let f = if MEASURED {
             forces.feedforward
         } else {
-            self.f_f.eval(x_pea_ref)
+            self.preload(x_pea_ref)
         };
         let terms = self.fpi.force_terms_at(f, st.force_ref);
         // Double-buffered: the state before this step stays at hand.
@@ -579,11 +579,11 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         if let Some(fault) = self.supervise(st, x_ref) {
             return self.ramp_to_safe(st, forces, fault);
         }
-        let x_pea_ref = self.f_k_inv.eval(x_ref);
+        let x_pea_ref = self.extension(x_ref);
         let f = if matches!(self.force_source, ForceSource::Measured) {
             forces.feedforward
         } else {
-            self.f_f.eval(x_pea_ref)
+            self.preload(x_pea_ref)
         };
         let (voltage, limited) = self.limits.apply(st.voltage, drive.voltage(x_ref));
         let terms = self.fpi.force_terms_at(f, st.force_ref);
@@ -645,7 +645,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         let f = if matches!(self.force_source, ForceSource::Measured) && forces.in_range {
             forces.feedforward
         } else {
-            self.f_f.eval(st.x_pea_est)
+            self.preload(st.x_pea_est)
         };
         let terms = self.fpi.force_terms_at(f, st.force_ref);
         st.catch_up(&self.fpi, Memory::Now);
@@ -666,7 +666,27 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
     /// The virtual sensor's stage position for an estimated stack extension,
     /// `f_K(x_pea_est)`, µm (outside the ISR: for telemetry).
     pub fn stage_position(&self, x_pea_est: Micrometres) -> Micrometres {
-        self.f_k.eval(x_pea_est)
+        Micrometres::from_raw(self.f_k.eval(x_pea_est.raw()))
+    }
+
+    /// The FEM preload `f_F(x_pea)`, N, at a stack extension, µm (the table's
+    /// input and output units made explicit).
+    #[inline(always)]
+    pub fn preload(&self, x_pea: Micrometres) -> Newtons {
+        Newtons::from_raw(self.f_f.eval(x_pea.raw()))
+    }
+
+    /// The stack extension `f_K⁻¹(x_ref)`, µm, for a stage position, µm.
+    #[inline(always)]
+    pub fn extension(&self, x_ref: Micrometres) -> Micrometres {
+        Micrometres::from_raw(self.f_k_inv.eval(x_ref.raw()))
+    }
+
+    /// [`extension`](Self::extension) for a reference known to be at or above
+    /// the table's first knot (it passed the reference window).
+    #[inline(always)]
+    fn extension_within(&self, x_ref: Micrometres) -> Micrometres {
+        Micrometres::from_raw(self.f_k_inv.eval_from_x_min(x_ref.raw()))
     }
 
     /// The calibrated model.
@@ -701,11 +721,11 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         }
     }
     /// Reachable references, µm.
-    pub const fn reference(&self) -> Interval {
+    pub const fn reference(&self) -> Interval<Micrometres> {
         self.reference
     }
     /// Plausible force readings, N.
-    pub const fn force(&self) -> Interval {
+    pub const fn force(&self) -> Interval<Newtons> {
         self.force
     }
     /// Largest tolerated force disagreement with `f_F`, N.

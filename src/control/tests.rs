@@ -38,7 +38,7 @@ fn the_offset_update_in_two_words_is_exact() {
     }
 }
 
-fn with(force: Interval, tolerance: Newtons) -> Result<TestController, ModelError> {
+fn with(force: Interval<Newtons>, tolerance: Newtons) -> Result<TestController, ModelError> {
     let p = testkit::parts(ForceSource::Measured);
     ControllerConfig::new(ControllerParts {
         supervision: Supervision {
@@ -99,7 +99,7 @@ fn the_force_channel_splits_the_reading_into_slow_and_dynamic_parts() {
     let mut st = c.initial_state();
     assert!(c.tare(&mut st, n(61.0)));
     // Settled on the tare's residual: nothing dynamic at rest.
-    let model = c.f_f().eval(st.x_pea_est());
+    let model = Newtons::from_raw(c.f_f().eval(st.x_pea_est().raw()));
     let f = c.sense(&mut st, n(61.0));
     assert_eq!(f.dynamic, Newtons::ZERO);
     assert_eq!(f.feedforward, n(61.0));
@@ -154,7 +154,7 @@ fn the_force_channel_learns_the_preload_maps_scale() {
     let c = with_dynamic_limit(60.0);
     let mut st = c.initial_state();
     let built = |c: &TestController, st: &ControllerState<3>| {
-        0.95 * c.f_f().eval(st.x_pea_est()).to_num::<f64>()
+        0.95 * c.f_f().eval(st.x_pea_est().raw()).to_num::<f64>()
     };
     let rest = n(built(&c, &st));
     assert!(c.tare(&mut st, rest));
@@ -182,8 +182,8 @@ fn the_force_channel_learns_the_preload_maps_scale() {
     }
     // Without the learned scale the whole 5 % of the preload's change would be
     // left: a fifth of it at most.
-    let swing = (c.f_f().eval(c.f_k_inv().eval(um(20.0)))
-        - c.f_f().eval(c.f_k_inv().eval(um(2.0))))
+    let swing = (c.f_f().eval(c.f_k_inv().eval(um(20.0).raw()))
+        - c.f_f().eval(c.f_k_inv().eval(um(2.0).raw())))
     .to_num::<f64>();
     assert!(
         worst < 0.2 * 0.05 * swing,
@@ -280,7 +280,7 @@ fn plausibility_tolerance_is_inclusive_on_both_sides() {
     for sign in [1, -1] {
         for (extra, faults) in [(0, false), (1, true)] {
             let mut st = cfg.initial_state();
-            let expected = cfg.f_f().eval(st.x_pea_est());
+            let expected = Newtons::from_raw(cfg.f_f().eval(st.x_pea_est().raw()));
             let d = Newtons::from_bits(sign * (tol.to_bits() + extra));
             let out = cfg.step(&mut st, x_ref, expected + d);
             let want = faults.then_some(Fault::ForceImplausible);
@@ -482,7 +482,9 @@ fn a_park_keeps_the_damping_only_where_it_cannot_be_the_cause() {
             "{k}: {share} {left}"
         );
         if left < crate::limits::PARK_FADE {
-            let faded = left * Volts::from_num(12) / crate::limits::PARK_FADE;
+            let faded = Volts::from_raw(
+                left.raw() * Volts::from_num(12).raw() / crate::limits::PARK_FADE.raw(),
+            );
             assert!(share <= faded + Volts::from_bits(1), "{k}: {share} {faded}");
         }
     }

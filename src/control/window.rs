@@ -5,16 +5,16 @@ use super::channel::force_channel_window;
 use super::{ForceChannel, ForceSource};
 use crate::error::{Field, Invalid, ModelError};
 use crate::limits::OutputLimits;
-use crate::q::{Newtons, Volts, SIGNAL_ABS_MAX_BITS};
+use crate::q::{Micrometres, Newtons, Signal, Volts, SIGNAL_ABS_MAX_BITS};
 use crate::table::Table;
 
-/// A closed interval `[lo, hi]` of one quantity, `I16F16`.
+/// A closed interval `[lo, hi]` of one quantity (µm, N…: `T`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Interval {
+pub struct Interval<T> {
     /// Lower end.
-    pub lo: fixed::types::I16F16,
+    pub lo: T,
     /// Upper end.
-    pub hi: fixed::types::I16F16,
+    pub hi: T,
 }
 
 /// A validated interval (`lo <= hi`) as its lower end and its span, raw bits: `x`
@@ -27,8 +27,7 @@ pub(crate) struct Window {
 
 impl Window {
     /// `None` if the interval is inverted.
-    pub(crate) const fn new(i: Interval) -> Option<Self> {
-        let (lo, hi) = (i.lo.to_bits(), i.hi.to_bits());
+    pub(crate) const fn new(lo: i32, hi: i32) -> Option<Self> {
         if lo > hi {
             return None;
         }
@@ -39,7 +38,7 @@ impl Window {
     }
 
     #[inline(always)]
-    pub(crate) fn contains(&self, x: fixed::types::I16F16) -> bool {
+    pub(crate) fn contains<S: Signal>(&self, x: S) -> bool {
         self.contains_bits(x.to_bits())
     }
 
@@ -53,9 +52,9 @@ impl Window {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Supervision {
     /// Reachable references (µm of stage output); anything else is a fault.
-    pub reference: Interval,
+    pub reference: Interval<Micrometres>,
     /// Plausible force readings (N); anything else is a fault.
-    pub force: Interval,
+    pub force: Interval<Newtons>,
     /// Largest tolerated `|F - f_F(x_pea_est)|` (N).
     pub force_tolerance: Newtons,
     /// Voltage of the safe state (V), inside the limits.
@@ -92,10 +91,10 @@ pub const fn check_settings(
     let (reference, force) = (s.reference, s.force);
     let (force_tolerance, safe_voltage) = (s.force_tolerance, s.safe_voltage);
     let s_channel = s.channel;
-    let Some(reference_window) = Window::new(reference) else {
+    let Some(reference_window) = Window::new(reference.lo.to_bits(), reference.hi.to_bits()) else {
         return Err(Invalid::at(Field::ReferenceMin, ModelError::LimitsInverted));
     };
-    let Some(force_window) = Window::new(force) else {
+    let Some(force_window) = Window::new(force.lo.to_bits(), force.hi.to_bits()) else {
         return Err(Invalid::at(Field::ForceMin, ModelError::LimitsInverted));
     };
     if reference.lo.to_bits() < f_k_inv.x_min().to_bits() {
@@ -136,10 +135,7 @@ pub const fn check_settings(
     if force.hi.to_bits() > SIGNAL_ABS_MAX_BITS {
         return Err(Invalid::at(Field::ForceMax, ModelError::NotRepresentable));
     }
-    let Some(residual) = Window::new(Interval {
-        lo: Newtons::from_bits(-tol),
-        hi: force_tolerance,
-    }) else {
+    let Some(residual) = Window::new(-tol, tol) else {
         return Err(Invalid::at(
             Field::ForceTolerance,
             ModelError::NonPositiveTolerance,

@@ -30,7 +30,7 @@
 use crate::biquad::{Cascade, SHAPING_SECTIONS};
 use crate::damping::DynamicsSpec;
 use crate::preview::{Fir, TAPS};
-use crate::q::{CreepRate, Newtons};
+use crate::q::{CreepRate, NewtonsPerUm};
 use crate::stability::{section_f64, Laws, Plant};
 
 use super::Limits;
@@ -152,7 +152,7 @@ pub fn floor(rate_hz: u32) -> DynamicsSpec {
         mode_mhz: ((FLOOR_MODE_HZ * 1000.0) as u32).min(nyquist_mhz),
         damping: CreepRate::from_bits((FLOOR_DAMPING * 4_294_967_296.0) as i32),
         lag_mhz: 0,
-        force_gain: Newtons::ZERO,
+        force_gain: NewtonsPerUm::ZERO,
     }
 }
 

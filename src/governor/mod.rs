@@ -126,7 +126,7 @@ pub struct GovernorWindow {
 
 impl GovernorWindow {
     /// The governor's windows about the reference window `w`.
-    pub fn new(w: Interval) -> Self {
+    pub fn new(w: Interval<Micrometres>) -> Self {
         let margin = bits(MARGIN_UM, 16, 0.0, 1.0) as i32;
         Self {
             lo: w.lo.to_bits(),
@@ -145,7 +145,7 @@ impl GovernorWindow {
     }
 
     /// The reference window it keeps the governed reference in.
-    pub fn reference(&self) -> Interval {
+    pub fn reference(&self) -> Interval<Micrometres> {
         Interval {
             lo: Micrometres::from_bits(self.lo),
             hi: Micrometres::from_bits(self.hi),
@@ -196,7 +196,7 @@ pub struct GovernorConfig {
 impl GovernorConfig {
     /// The governor for the reference window `window` with `limits`
     /// ([`GovernorLimits::new`]).
-    pub fn new(window: Interval, l: &Limits) -> Self {
+    pub fn new(window: Interval<Micrometres>, l: &Limits) -> Self {
         Self {
             window: GovernorWindow::new(window),
             limits: GovernorLimits::new(l),

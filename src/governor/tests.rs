@@ -1,7 +1,7 @@
 use super::analysis::{floor, Feedforward, Loops, Tracking};
 use super::*;
 use crate::damping::DynamicsSpec;
-use crate::q::{CreepRate, Newtons};
+use crate::q::{CreepRate, NewtonsPerUm};
 use crate::stability::{Laws, Plant};
 
 const RATE: u32 = 20_000;
@@ -10,7 +10,7 @@ fn um(x: f64) -> Micrometres {
     Micrometres::from_num(x)
 }
 
-fn window() -> Interval {
+fn window() -> Interval<Micrometres> {
     Interval {
         lo: um(0.0),
         hi: um(39.92),
@@ -36,7 +36,7 @@ fn as_built() -> DynamicsSpec {
         mode_mhz: 856_400,
         damping: CreepRate::from_num(0.03),
         lag_mhz: 0,
-        force_gain: Newtons::from_num(6.46),
+        force_gain: NewtonsPerUm::from_num(6.46),
     }
 }
 
@@ -282,7 +282,7 @@ fn the_limits_of_a_tuned_model_s_loop_sets() {
         mode_mhz: 850_852,
         damping: CreepRate::from_num(0.030_098),
         lag_mhz: 2_026_966,
-        force_gain: Newtons::from_num(7.017),
+        force_gain: NewtonsPerUm::from_num(7.017),
     };
     let corner = CreepRate::from_num(0.030_929_031_800_5);
     let damping = DampingSpec {

@@ -3,7 +3,7 @@ use crate::q::CreepRate;
 
 /// κ 6 N/µm, a mass of 90 N per µm/tick² (as 2⁶), the baseline 0.88.
 const SPEC: LeadSpec = LeadSpec {
-    force_gain: Newtons::from_bits(6 << 16),
+    force_gain: NewtonsPerUm::from_bits(6 << 16),
     moved_max: Micrometres::from_bits(44_739_242),
     mass_log2: 6,
     baseline: LeadRatio::from_bits(944_892_805),
@@ -199,7 +199,7 @@ fn the_rate_follows_from_the_mode_and_kappa() {
         mode_mhz: 856_500,
         damping: CreepRate::from_num(0.024),
         lag_mhz: 1_870_000,
-        force_gain: Newtons::from_num(6.4),
+        force_gain: NewtonsPerUm::from_num(6.4),
     };
     let b = LeadRatio::from_num(0.88);
     let s = LeadSpec::of(&d, 20_000, Some(b));
@@ -212,7 +212,7 @@ fn the_rate_follows_from_the_mode_and_kappa() {
     // The held lead keeps f_m within ±4096 N, exactly in raw bits.
     for kappa in [0.001, 6.4, 7.017, 100.0, 4000.0] {
         let k = DynamicsSpec {
-            force_gain: Newtons::from_num(kappa),
+            force_gain: NewtonsPerUm::from_num(kappa),
             ..d
         };
         let s = LeadSpec::of(&k, 20_000, None);
@@ -232,7 +232,7 @@ fn the_rate_follows_from_the_mode_and_kappa() {
     assert_eq!(LeadSpec::of(&heavy, 20_000, None).mass_log2, 8);
     // No force gain: the least rate (and nothing to learn from).
     let none = DynamicsSpec {
-        force_gain: Newtons::ZERO,
+        force_gain: NewtonsPerUm::ZERO,
         ..d
     };
     assert_eq!(LeadSpec::of(&none, 20_000, None).mass_log2, 0);

@@ -235,7 +235,10 @@ pub fn encode(m: &ModelSpec<'_>, out: &mut [u8]) -> Result<usize, Invalid> {
         w.i32(v.to_bits())?;
     }
     let s = &m.supervision;
-    for v in [s.reference.lo, s.reference.hi, s.force.lo, s.force.hi] {
+    for v in [s.reference.lo, s.reference.hi] {
+        w.i32(v.to_bits())?;
+    }
+    for v in [s.force.lo, s.force.hi] {
         w.i32(v.to_bits())?;
     }
     w.i32(s.force_tolerance.to_bits())?;

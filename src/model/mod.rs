@@ -194,7 +194,7 @@ pub fn validate(m: &ModelSpec<'_>) -> Result<Shape, Invalid> {
         e => locate_pi(e),
     })?;
     let mut inverse = [Operator {
-        threshold: Micrometres::ZERO,
+        threshold: I16F16::ZERO,
         weight: VoltsPerUm::ZERO,
     }; MAX_OPERATORS];
     crate::inverse::invert(w0p, m.operators, sums.output_max, &mut inverse[..n])
@@ -416,11 +416,11 @@ fn locate_pi(e: ModelError) -> Invalid {
 mod tests {
     use super::*;
     use crate::control::{ControllerParts, ForceSource, Interval};
-    use crate::q::{coupling, gain, signal, Newtons};
+    use crate::q::{coupling, gain, Newtons};
     use crate::testkit;
 
-    fn v(x: f64) -> I16F16 {
-        signal(x).unwrap()
+    fn v<S: crate::q::Signal>(x: f64) -> S {
+        crate::testkit::v(x)
     }
 
     /// The test stage's parts with one creep term.

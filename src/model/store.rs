@@ -28,7 +28,9 @@ use crate::fpi::{Coupling, Creep, Fpi, Map};
 use crate::limits::OutputLimits;
 use crate::pi::PiModel;
 use crate::play::Operator;
-use crate::q::{CreepRate, LeadRatio, LoopGain, UmPerVolt, Volts};
+use crate::q::{
+    CreepRate, LeadRatio, LoopGain, Micrometres, Newtons, NewtonsPerUm, UmPerVolt, Volts,
+};
 use crate::table::{Segment, Table};
 
 /// The control step's configuration for a model received at run time: `N`
@@ -48,12 +50,12 @@ pub struct HardwareLimits {
     /// stack's capacitance).
     pub max_step: Volts,
     /// The window the safe voltage must lie in (the stack's safe voltages), V.
-    pub safe: Interval,
+    pub safe: Interval<Volts>,
     /// The position channel's rails, µm: a broken wire reads one, so a
     /// model's sensor window must lie strictly inside them.
-    pub position: Interval,
+    pub position: Interval<Micrometres>,
     /// The force channel's rails, N: likewise for the force window.
-    pub force: Interval,
+    pub force: Interval<Newtons>,
 }
 
 /// The board a model must fit: its control rate and hardware limits.
@@ -63,6 +65,23 @@ pub struct Board {
     pub rate_hz: u32,
     /// What the hardware allows.
     pub limits: HardwareLimits,
+}
+
+/// Whether a window `w` lies strictly inside the `rails` (a broken wire reads a
+/// rail); `lo` or `hi` names the end that does not.
+fn rails<T: PartialOrd>(
+    w: Interval<T>,
+    rails: Interval<T>,
+    lo: Field,
+    hi: Field,
+) -> Result<(), Invalid> {
+    if w.lo <= rails.lo {
+        Err(Invalid::at(lo, ModelError::OutsideRails))
+    } else if w.hi >= rails.hi {
+        Err(Invalid::at(hi, ModelError::OutsideRails))
+    } else {
+        Ok(())
+    }
 }
 
 impl Board {
@@ -87,15 +106,6 @@ impl Board {
         if s < h.safe.lo || s > h.safe.hi {
             return widens(Field::SafeVoltage);
         }
-        let rails = |w: Interval, rails: Interval, lo, hi| {
-            if w.lo <= rails.lo {
-                Err(Invalid::at(lo, ModelError::OutsideRails))
-            } else if w.hi >= rails.hi {
-                Err(Invalid::at(hi, ModelError::OutsideRails))
-            } else {
-                Ok(())
-            }
-        };
         rails(
             m.supervision.force,
             h.force,
@@ -164,7 +174,7 @@ impl<const N: usize, const C: usize, const S: usize> Default for ModelStore<N, C
 struct Scalars {
     rate_hz: u32,
     w0: UmPerVolt,
-    input_max: I16F16,
+    input_max: Volts,
     coupling: Coupling,
     u_min: Volts,
     u_max: Volts,
@@ -182,33 +192,33 @@ struct Scalars {
     has_damping: bool,
     lead_baseline: LeadRatio,
     has_lead: bool,
-    watch_swing: I16F16,
+    watch_swing: Micrometres,
     has_watch: bool,
 }
 
 const NO_SCALARS: Scalars = Scalars {
     rate_hz: 0,
     w0: UmPerVolt::ZERO,
-    input_max: I16F16::ZERO,
+    input_max: Volts::ZERO,
     coupling: Coupling::paper(crate::q::VoltsPerNewton::ZERO),
     u_min: Volts::ZERO,
     u_max: Volts::ZERO,
     max_step: Volts::ZERO,
     supervision: Supervision {
         reference: Interval {
-            lo: I16F16::ZERO,
-            hi: I16F16::ZERO,
+            lo: Micrometres::ZERO,
+            hi: Micrometres::ZERO,
         },
         force: Interval {
-            lo: I16F16::ZERO,
-            hi: I16F16::ZERO,
+            lo: Newtons::ZERO,
+            hi: Newtons::ZERO,
         },
-        force_tolerance: I16F16::ZERO,
-        safe_voltage: I16F16::ZERO,
+        force_tolerance: Newtons::ZERO,
+        safe_voltage: Volts::ZERO,
         force_source: ForceSource::Measured,
         channel: ForceChannel {
             split: CreepRate::ZERO,
-            dynamic_limit: I16F16::ZERO,
+            dynamic_limit: Newtons::ZERO,
         },
     },
     dead_zone: false,
@@ -216,12 +226,12 @@ const NO_SCALARS: Scalars = Scalars {
     feedback: FeedbackSpec {
         kp: LoopGain::ZERO,
         ki: LoopGain::ZERO,
-        limit: I16F16::ZERO,
+        limit: Micrometres::ZERO,
         sensor: Interval {
-            lo: I16F16::ZERO,
-            hi: I16F16::ZERO,
+            lo: Micrometres::ZERO,
+            hi: Micrometres::ZERO,
         },
-        tolerance: I16F16::ZERO,
+        tolerance: Micrometres::ZERO,
     },
     has_feedback: false,
     shaping: ShapingSpec {
@@ -234,19 +244,19 @@ const NO_SCALARS: Scalars = Scalars {
         mode_mhz: 0,
         damping: CreepRate::ZERO,
         lag_mhz: 0,
-        force_gain: I16F16::ZERO,
+        force_gain: NewtonsPerUm::ZERO,
     },
     has_dynamics: false,
     damping: DampingSpec {
         gain: LoopGain::ZERO,
         highpass: CreepRate::ZERO,
         leak: CreepRate::ZERO,
-        limit: I16F16::ZERO,
+        limit: Micrometres::ZERO,
     },
     has_damping: false,
     lead_baseline: LeadRatio::ZERO,
     has_lead: false,
-    watch_swing: I16F16::ZERO,
+    watch_swing: Micrometres::ZERO,
     has_watch: false,
 };
 
@@ -338,7 +348,7 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
         let b = &mut self.base;
         b.rate_hz = r.u32()?;
         b.w0 = UmPerVolt::from_bits(r.i32()?);
-        b.input_max = I16F16::from_bits(r.i32()?);
+        b.input_max = Volts::from_bits(r.i32()?);
         let (n, c) = (r.u8()? as usize, r.u8()? as usize);
         r.u8()?;
         r.u8()?;
@@ -354,35 +364,34 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
         }
         self.n = n;
         let k = &mut b.coupling;
-        k.offset = I16F16::from_bits(r.i32()?);
+        k.offset = Volts::from_bits(r.i32()?);
         k.k_f = crate::q::VoltsPerNewton::from_bits(r.i32()?);
         k.k_q = crate::q::VoltsPerNewton2::from_bits(r.i32()?);
-        k.force_q = I16F16::from_bits(r.i32()?);
+        k.force_q = Newtons::from_bits(r.i32()?);
         k.compliance = crate::q::UmPerNewton::from_bits(r.i32()?);
-        k.force_ref = I16F16::from_bits(r.i32()?);
+        k.force_ref = Newtons::from_bits(r.i32()?);
         for t in self.creep.iter_mut().take(c) {
             t.rate = CreepRate::from_bits(r.i32()?);
             t.gain = UmPerVolt::from_bits(r.i32()?);
         }
         self.c = c;
-        let mut signal = || r.i32().map(I16F16::from_bits);
-        b.u_min = signal()?;
-        b.u_max = signal()?;
-        b.max_step = signal()?;
+        b.u_min = Volts::from_bits(r.i32()?);
+        b.u_max = Volts::from_bits(r.i32()?);
+        b.max_step = Volts::from_bits(r.i32()?);
         let sup = &mut b.supervision;
         sup.reference = Interval {
-            lo: signal()?,
-            hi: signal()?,
+            lo: Micrometres::from_bits(r.i32()?),
+            hi: Micrometres::from_bits(r.i32()?),
         };
         sup.force = Interval {
-            lo: signal()?,
-            hi: signal()?,
+            lo: Newtons::from_bits(r.i32()?),
+            hi: Newtons::from_bits(r.i32()?),
         };
-        sup.force_tolerance = signal()?;
-        sup.safe_voltage = signal()?;
+        sup.force_tolerance = Newtons::from_bits(r.i32()?);
+        sup.safe_voltage = Volts::from_bits(r.i32()?);
         sup.channel = ForceChannel {
             split: CreepRate::from_bits(r.i32()?),
-            dynamic_limit: I16F16::from_bits(r.i32()?),
+            dynamic_limit: Newtons::from_bits(r.i32()?),
         };
         sup.force_source = if r.flags & FLAG_PREDICTED != 0 {
             ForceSource::Predicted
@@ -406,13 +415,13 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             let f = &mut b.feedback;
             f.kp = LoopGain::from_bits(r.i32()?);
             f.ki = LoopGain::from_bits(r.i32()?);
-            let mut signal = || r.i32().map(I16F16::from_bits);
-            f.limit = signal()?;
+            let mut um = || r.i32().map(Micrometres::from_bits);
+            f.limit = um()?;
             f.sensor = Interval {
-                lo: signal()?,
-                hi: signal()?,
+                lo: um()?,
+                hi: um()?,
             };
-            f.tolerance = signal()?;
+            f.tolerance = um()?;
         }
         b.has_shaping = r.flags & FLAG_SHAPING != 0;
         if b.has_shaping {
@@ -426,7 +435,7 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             d.mode_mhz = r.u32()?;
             d.damping = CreepRate::from_bits(r.i32()?);
             d.lag_mhz = r.u32()?;
-            d.force_gain = I16F16::from_bits(r.i32()?);
+            d.force_gain = NewtonsPerUm::from_bits(r.i32()?);
         }
         b.has_damping = r.flags & FLAG_DAMPING != 0;
         if b.has_damping {
@@ -434,7 +443,7 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
             d.gain = LoopGain::from_bits(r.i32()?);
             d.highpass = CreepRate::from_bits(r.i32()?);
             d.leak = CreepRate::from_bits(r.i32()?);
-            d.limit = I16F16::from_bits(r.i32()?);
+            d.limit = Micrometres::from_bits(r.i32()?);
         }
         b.shaping.preview = 0;
         b.shaping.taps = [0; crate::preview::TAPS];
@@ -456,7 +465,7 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
         }
         b.has_watch = r.flags & FLAG_WATCH != 0;
         if b.has_watch {
-            b.watch_swing = I16F16::from_bits(r.i32()?);
+            b.watch_swing = Micrometres::from_bits(r.i32()?);
         }
         if !r.finished() {
             return Err(Invalid::at(Field::Model, ModelError::Truncated));
@@ -473,7 +482,7 @@ impl<const N: usize, const C: usize, const S: usize> ModelStore<N, C, S> {
         }
         let m = self.spec();
         let mut ops = [Operator {
-            threshold: m.input_max,
+            threshold: m.input_max.raw(),
             weight: UmPerVolt::ZERO,
         }; N];
         for (o, s) in ops.iter_mut().zip(m.operators) {
@@ -557,7 +566,7 @@ mod tests {
     use super::*;
     use crate::control::ControllerState;
     use crate::model::image::{encode, encoded_len, HEADER_LEN};
-    use crate::q::{coupling, gain, signal};
+    use crate::q::{coupling, gain};
     use crate::testkit;
 
     const BOARD: Board = Board {
@@ -571,12 +580,12 @@ mod tests {
                 hi: Volts::from_bits(10 << 16),
             },
             position: Interval {
-                lo: Volts::from_bits(-10 << 16),
-                hi: Volts::from_bits(70 << 16),
+                lo: Micrometres::from_bits(-10 << 16),
+                hi: Micrometres::from_bits(70 << 16),
             },
             force: Interval {
-                lo: Volts::from_bits(-5 << 16),
-                hi: Volts::from_bits(506 << 16),
+                lo: Newtons::from_bits(-5 << 16),
+                hi: Newtons::from_bits(506 << 16),
             },
         },
     };
@@ -710,12 +719,12 @@ mod tests {
         crate::feedback::FeedbackSpec {
             kp: LoopGain::from_num(0.25),
             ki: LoopGain::from_num(0.015),
-            limit: signal(3.0).unwrap(),
+            limit: crate::testkit::v(3.0),
             sensor: Interval {
-                lo: signal(-5.0).unwrap(),
-                hi: signal(50.0).unwrap(),
+                lo: crate::testkit::v(-5.0),
+                hi: crate::testkit::v(50.0),
             },
-            tolerance: signal(4.0).unwrap(),
+            tolerance: crate::testkit::v(4.0),
         }
     }
 
@@ -758,7 +767,7 @@ mod tests {
     fn the_watch_swing_travels_with_the_image_and_is_validated() {
         let p = parts();
         let fb = feedback();
-        let swing = Some(signal(0.1).unwrap());
+        let swing = Some(crate::testkit::v(0.1));
         let spec = ModelSpec {
             feedback: Some(fb),
             watch_swing: swing,
@@ -775,7 +784,7 @@ mod tests {
         };
         for h in [0.07, 0.21] {
             let m = ModelSpec {
-                watch_swing: Some(signal(h).unwrap()),
+                watch_swing: Some(crate::testkit::v(h)),
                 ..spec
             };
             assert_eq!(
@@ -805,8 +814,8 @@ mod tests {
         let (mut a, mut b): (ControllerState<3>, ControllerState<5, 2>) =
             (typed.initial_state(), runtime.initial_state());
         for k in 0..3000 {
-            let x = signal(12.0 + 11.0 * (k as f64 * 0.01).sin()).unwrap();
-            let f = typed.f_f().eval(a.x_pea_est());
+            let x = crate::testkit::v(12.0 + 11.0 * (k as f64 * 0.01).sin());
+            let f = Newtons::from_raw(typed.f_f().eval(a.x_pea_est().raw()));
             let (oa, ob) = (typed.step(&mut a, x, f), runtime.step(&mut b, x, f));
             assert_eq!(oa, ob, "step {k}");
         }
@@ -848,8 +857,8 @@ mod tests {
         let spec = testkit::spec(&p, &[]);
         let load = |s: ModelSpec<'_>| Store::new().load(&image(&s), &BOARD);
         assert!(load(ModelSpec {
-            u_max: signal(120.0).unwrap(),
-            max_step: signal(1.0).unwrap(),
+            u_max: crate::testkit::v(120.0),
+            max_step: crate::testkit::v(1.0),
             ..spec
         })
         .is_ok());
@@ -868,7 +877,7 @@ mod tests {
             ModelSpec {
                 supervision: crate::control::Supervision {
                     force: Interval {
-                        lo: signal(-5.0).unwrap(),
+                        lo: crate::testkit::v(-5.0),
                         hi: sup.force.hi,
                     },
                     ..sup
@@ -880,12 +889,12 @@ mod tests {
         let fb = crate::feedback::FeedbackSpec {
             kp: LoopGain::from_num(0.5),
             ki: LoopGain::from_num(0.01),
-            limit: signal(5.0).unwrap(),
+            limit: crate::testkit::v(5.0),
             sensor: Interval {
-                lo: signal(-1000.0).unwrap(),
-                hi: signal(1000.0).unwrap(),
+                lo: crate::testkit::v(-1000.0),
+                hi: crate::testkit::v(1000.0),
             },
-            tolerance: signal(3.0).unwrap(),
+            tolerance: crate::testkit::v(3.0),
         };
         rails(
             ModelSpec {
@@ -898,8 +907,8 @@ mod tests {
             ModelSpec {
                 feedback: Some(crate::feedback::FeedbackSpec {
                     sensor: Interval {
-                        lo: signal(-5.0).unwrap(),
-                        hi: signal(70.0).unwrap(),
+                        lo: crate::testkit::v(-5.0),
+                        hi: crate::testkit::v(70.0),
                     },
                     ..fb
                 }),
@@ -909,14 +918,14 @@ mod tests {
         );
         widens(
             ModelSpec {
-                u_max: signal(160.0).unwrap(),
+                u_max: crate::testkit::v(160.0),
                 ..spec
             },
             Field::UMax,
         );
         widens(
             ModelSpec {
-                max_step: signal(6.0).unwrap(),
+                max_step: crate::testkit::v(6.0),
                 ..spec
             },
             Field::Slew,

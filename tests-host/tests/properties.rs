@@ -6,7 +6,6 @@
 //!   (the dev/test profile), so any overflow would panic; the control step gets
 //!   arbitrary `I16F16` references and forces, including the extremes.
 
-use fixed::types::I16F16;
 use fpi_firmware::board::factory_model::{CONTROLLER, CREEP_TERMS, OPERATORS};
 use fpi_host::board::accuracy::{BOUND_U_V, BOUND_X_UM};
 use piezo_fpi::fpi::CreepMemory;
@@ -143,7 +142,7 @@ proptest! {
         let mut st = CONTROLLER.initial_state();
         let lim = CONTROLLER.limits();
         for (x, f) in inputs {
-            let out = CONTROLLER.step(&mut st, I16F16::from_bits(x), I16F16::from_bits(f));
+            let out = CONTROLLER.step(&mut st, Micrometres::from_bits(x), Newtons::from_bits(f));
             prop_assert!(out.voltage >= lim.min() && out.voltage <= lim.max());
             if clear {
                 st.clear_fault(&CONTROLLER);
@@ -160,7 +159,7 @@ proptest! {
         let (lo, hi) = (r.lo.to_num::<f64>(), r.hi.to_num::<f64>());
         for (s, e) in h.iter().zip(&noise) {
             let x = Micrometres::from_num(lo + s * (hi - lo));
-            let f = CONTROLLER.f_f().eval(st.x_pea_est()) + Newtons::from_num(*e);
+            let f = CONTROLLER.preload(st.x_pea_est()) + Newtons::from_num(*e);
             let out = CONTROLLER.step(&mut st, x, f);
             prop_assert!(out.fault.is_none(), "{:?}", out.fault);
         }

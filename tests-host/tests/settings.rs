@@ -11,7 +11,7 @@ use fpi_host::board::settings::{path, read_all};
 use fpi_host::method::tune::{tune_measured, with_tuning, TuneOptions};
 use fpi_protocol::{Command, LoopMode, Reply};
 use piezo_fpi::damping::DynamicsSpec;
-use piezo_fpi::q::{CreepRate, Newtons};
+use piezo_fpi::q::{CreepRate, NewtonsPerUm};
 use piezo_sim::file::FirmwareModel;
 
 mod common;
@@ -29,7 +29,7 @@ fn tuned() -> FirmwareModel {
         mode_mhz: 850_000,
         damping: CreepRate::from_num(0.03),
         lag_mhz: 1_900_000,
-        force_gain: Newtons::from_num(6.3),
+        force_gain: NewtonsPerUm::from_num(6.3),
     };
     let fw = factory();
     let o = TuneOptions::default();

@@ -174,7 +174,7 @@ mod bench {
 
     /// Force the stage would put on the stack at a reference (what the sensor reads).
     fn force_at(x_ref: Micrometres) -> Newtons {
-        CONTROLLER.f_f().eval(CONTROLLER.f_k_inv().eval(x_ref))
+        CONTROLLER.preload(CONTROLLER.extension(x_ref))
     }
 
     #[inline(never)]
@@ -336,10 +336,10 @@ mod bench {
     /// its image in `buf`. The validator's loop check runs on it as on any model.
     fn closed_image<'b>(store: &mut Store, buf: &'b mut [u8]) -> Option<&'b [u8]> {
         use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
-        use piezo_fpi::q::{CreepRate, LoopGain};
+        use piezo_fpi::q::{CreepRate, LoopGain, NewtonsPerUm};
         store.load(MODEL_IMAGE, &BOARD).ok()?;
         let spec = store.spec();
-        let um = |x: f64| piezo_fpi::q::signal(x).unwrap_or(Micrometres::ZERO);
+        let um = |x: f64| piezo_fpi::q::signal(x).map_or(Micrometres::ZERO, Micrometres::from_raw);
         let gain = |x: f64| LoopGain::from_num(x);
         let r = spec.supervision.reference;
         let rate = capacity::RATE_HZ as f64;
@@ -367,7 +367,7 @@ mod bench {
             mode_mhz: 850_852,
             damping: CreepRate::from_num(0.030_098),
             lag_mhz: 2_026_966,
-            force_gain: Newtons::from_num(7.017),
+            force_gain: NewtonsPerUm::from_num(7.017),
         };
         // Autotune's feedforward: taps on the preview's delay line, 4 ticks
         // ahead (the delay line, the taps and the damping's lead force, with
@@ -422,7 +422,7 @@ mod bench {
         let Ok(running) = spare.activate(MODEL_IMAGE, Origin::Factory) else {
             return false;
         };
-        let rest = CONTROLLER.f_f().eval(Micrometres::ZERO).to_num::<f32>();
+        let rest = CONTROLLER.preload(Micrometres::ZERO).to_num::<f32>();
         LINK.set_force(rest);
         LINK.set_position(0.0);
         let mut lp = ControlLoop::new(running, LINK.hardware(), LINK.analog());
@@ -577,7 +577,7 @@ mod bench {
             c.add(instructions(t, baseline));
             // The link task reads the recorder; the sensors follow the stage.
             while x.recorder.take().is_some() {}
-            let f = CONTROLLER.f_f().eval(lp.state().x_pea_est());
+            let f = CONTROLLER.preload(lp.state().x_pea_est());
             LINK.set_force(f.to_num::<f32>());
             LINK.set_position(x.snapshot.now.x_est.to_num::<f32>());
         }
@@ -659,12 +659,12 @@ mod bench {
 
         #[inline(never)]
         fn section_of(f: &Biquad, st: &mut BiquadState, x: Volts) -> Volts {
-            f.process(st, x)
+            Volts::from_raw(f.process(st, x.raw()))
         }
 
         #[inline(never)]
         fn cascade_of(f: &Cascade<2>, st: &mut CascadeState<2>, x: Volts) -> Volts {
-            f.process(st, x)
+            Volts::from_raw(f.process(st, x.raw()))
         }
 
         fn line(name: &str, c: &Counts) {

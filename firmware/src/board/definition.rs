@@ -89,11 +89,11 @@ pub const AMPLIFIER: HardwareLimits = HardwareLimits {
         hi: Volts::from_bits(10 << 16),
     },
     position: Interval {
-        lo: POSITION.offset,
+        lo: Micrometres::from_raw(POSITION.offset),
         hi: Micrometres::from_bits(POSITION.offset.to_bits() + (80 << 16)),
     },
     force: Interval {
-        lo: internal::FORCE.offset,
+        lo: Newtons::from_raw(internal::FORCE.offset),
         hi: Newtons::from_bits(internal::FORCE.offset.to_bits() + (4095 << 13)),
     },
 };
@@ -116,7 +116,7 @@ pub const USB_STRINGS: [&str; 3] = ["piezo-fpi", "FPI piezo driver board", "FPI-
 /// ADC3 left-aligned (19.5 nm steps). A broken wire reads a rail. The control loop
 /// converts the code with this whichever front end delivers it.
 pub const POSITION: AdcScale = AdcScale {
-    offset: Micrometres::from_bits(-10 << 16),
+    offset: fixed::types::I16F16::from_bits(-10 << 16), // µm
     per_count: fixed::types::I4F28::from_bits(80 << 12), // 80 µm / 65536
 };
 /// Largest code of the position channel.
@@ -130,7 +130,7 @@ pub mod internal {
     /// The force-sensor front end on ADC1: 12 bits over −5…506.9 N (0.125 N per
     /// count), so a broken wire reads a rail.
     pub const FORCE: AdcScale = AdcScale {
-        offset: Newtons::from_bits(-5 << 16),
+        offset: fixed::types::I16F16::from_bits(-5 << 16), // N
         per_count: fixed::types::I4F28::from_bits(1 << 25),
     };
     /// The setpoint: the STM32's 12-bit DAC behind a 0–150 V (150 V / 3.3 V)
@@ -176,7 +176,7 @@ pub mod precision {
     /// the internal force channel ([`internal::FORCE`]) in 16 bits, so a broken
     /// wire still reads a rail outside the plausible range.
     pub const FORCE: AdcScale = AdcScale {
-        offset: Newtons::from_bits(-5 << 16),
+        offset: fixed::types::I16F16::from_bits(-5 << 16), // N
         per_count: fixed::types::I4F28::from_bits(1 << 21), // 512 N / 65 536
     };
     /// Missed conversions in a row the board tolerates before the converter fault:

@@ -15,6 +15,7 @@ use piezo_fpi::feedback::FeedbackConfig;
 use piezo_fpi::governor::analysis::{Feedforward, Loops, Tracking};
 use piezo_fpi::governor::{GovernorLimits, GovernorWindow};
 use piezo_fpi::preview::Fir;
+use piezo_fpi::q::Micrometres;
 use piezo_fpi::stability::Laws;
 
 use crate::control::tracking::LoopMode;
@@ -54,7 +55,7 @@ pub struct Parts<'a> {
     /// Control rate, Hz.
     pub rate_hz: u32,
     /// The reference window, µm.
-    pub window: Interval,
+    pub window: Interval<Micrometres>,
     /// The stage's dynamics, if declared.
     pub dynamics: Option<&'a DynamicsSpec>,
     /// The force channel's split rate (raw `I0F32`).

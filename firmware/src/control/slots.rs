@@ -42,7 +42,7 @@ pub struct Summary {
     /// Operators, creep terms, dead zone and saturation.
     pub shape: Shape,
     /// The reachable stroke: references must lie in it, µm.
-    pub reference: Interval,
+    pub reference: Interval<Micrometres>,
     /// The safe voltage, V.
     pub safe_voltage: Volts,
     /// Where it came from.
@@ -97,7 +97,7 @@ pub fn amplifier_speed(cfg: &Controller<'_>, drive: &LinearDrive) -> f64 {
 /// bound it. Never negative.
 pub fn force_room(cfg: &Controller<'_>, limit: Newtons) -> Newtons {
     let (r, f) = (cfg.reference(), cfg.force());
-    let preload = |x| cfg.f_f().eval(cfg.f_k_inv().eval(x));
+    let preload = |x| cfg.preload(cfg.extension(x));
     let (a, b) = (preload(r.lo), preload(r.hi));
     let below = a.min(b).saturating_sub(f.lo);
     let above = f.hi.saturating_sub(a.max(b));

@@ -300,7 +300,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
     /// the force channel's dynamic part (N) for the damping.
     #[inline]
     fn command(&mut self, x_ref: Micrometres, dynamic: Newtons) -> Command {
-        self.x_sensor = POSITION_ADC.to_value(self.analog_in.read_position());
+        self.x_sensor = POSITION_ADC.to_position(self.analog_in.read_position());
         if self.state.fault().is_none() {
             let fb = self.model.summary().feedback.as_ref();
             if let Some(f) = self.feedback.check(fb, self.x_sensor, self.x_est) {

@@ -414,7 +414,7 @@ impl Loop {
         // dynamics, where the model has it and it is on.
         let ff = match (self.shaping_on, io.shaping) {
             (true, _) if self.previewing => self.ahead_ff,
-            (true, Some(c)) => c.process(&mut self.shaped, io.x_ref),
+            (true, Some(c)) => Micrometres::from_raw(c.process(&mut self.shaped, io.x_ref.raw())),
             _ => io.x_ref,
         };
         self.last_ff = ff;
@@ -531,7 +531,7 @@ impl Loop {
         let error = io.x_ref.saturating_sub(io.reading);
         if self.fresh || self.fresh_shaping {
             // After a fault, a new model or a switch the shaping starts at rest.
-            self.shaped = CascadeState::settled(io.x_ref);
+            self.shaped = CascadeState::settled(io.x_ref.raw());
             self.fresh_shaping = false;
         }
         // The damping's correction of this tick is part of the new law's command.
@@ -588,7 +588,7 @@ pub struct Inputs<'c, 'm> {
 }
 
 /// `x` within `i` (`max`/`min`, not `clamp`: no panic path for an inverted `i`).
-fn clamp_to(x: Micrometres, i: Interval) -> Micrometres {
+fn clamp_to(x: Micrometres, i: Interval<Micrometres>) -> Micrometres {
     x.max(i.lo).min(i.hi)
 }
 

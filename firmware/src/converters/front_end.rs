@@ -65,9 +65,9 @@ impl<SA: SpiDevice, B: InputPin> Sensing<SA, B> {
         let held = self.held.take(self.adc.read(), cfg.stale_limit)?;
         let [force, position] = held.codes.map(offset_binary);
         Ok(Sensed {
-            force: cfg.force.to_value(force),
+            force: cfg.force.to_force(force),
             position_code: position,
-            position: cfg.position.to_value(position),
+            position: cfg.position.to_position(position),
             age: held.age,
         })
     }

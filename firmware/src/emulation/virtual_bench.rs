@@ -455,7 +455,7 @@ mod tests {
     }
 
     fn um(x: f64) -> i32 {
-        piezo_fpi::q::signal(x).map_or(0, Micrometres::to_bits)
+        piezo_fpi::q::signal(x).map_or(0, |x| x.to_bits())
     }
 
     #[test]

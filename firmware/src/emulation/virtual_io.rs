@@ -81,7 +81,7 @@ impl SimLink {
         let (voltage, _) = self.output();
         self.precision
             .store(kind == FrontEndKind::Precision, Ordering::Release);
-        let v = piezo_fpi::q::signal(f64::from(voltage)).unwrap_or(Volts::ZERO);
+        let v = piezo_fpi::q::signal(f64::from(voltage)).map_or(Volts::ZERO, Volts::from_raw);
         self.dac_code.store(self.dac_code_of(v), Ordering::Release);
     }
     /// The front end it converts with.
@@ -165,7 +165,7 @@ impl ForceSensor for SimSensor<'_> {
     fn read_force(&mut self) -> Newtons {
         let c = self.0.adc_counts.load(Ordering::Acquire) as u16;
         if self.0.precision.load(Ordering::Acquire) {
-            precision::FORCE.to_value(c)
+            precision::FORCE.to_force(c)
         } else {
             self.0.adc.to_force(c)
         }

@@ -73,8 +73,8 @@ pub fn embedded_model() -> &'static FirmwareModel {
 pub fn controllers() -> (factory_model::Controller, Controller<'static, f64>) {
     let c = &factory_model::CONTROLLER;
     let reference = Interval {
-        lo: c.f_k_inv().x_min(),
-        hi: c.f_k_inv().x_max(),
+        lo: Micrometres::from_raw(c.f_k_inv().x_min()),
+        hi: Micrometres::from_raw(c.f_k_inv().x_max()),
     };
     let fixed = ControllerConfig::new(ControllerParts {
         fpi: *c.fpi(),

@@ -3,16 +3,15 @@
 //! and the check of an option against such a limit.
 
 use anyhow::{bail, Result};
-use fixed::types::I16F16;
-use piezo_fpi::q::SIGNAL_FRAC;
+use piezo_fpi::q::{Volts, SIGNAL_FRAC};
 
 use fpi_firmware::board::capacity::{BOARD, RATE_HZ};
 
 use crate::data::Num;
 
-/// A signal of the core (`I16F16`: V, µm, N) in engineering units, exactly (the
-/// inverse of `piezo_fpi::q::signal`).
-const fn engineering(s: I16F16) -> f64 {
+/// A voltage of the core in volts, exactly (the inverse of
+/// `piezo_fpi::q::signal`).
+const fn engineering(s: Volts) -> f64 {
     s.to_bits() as f64 / (1u32 << SIGNAL_FRAC) as f64
 }
 
@@ -55,7 +54,7 @@ mod tests {
         // The core's conversion the other way gives the board's bits back.
         assert_eq!(
             piezo_fpi::q::signal(AMPLIFIER_MAX_V),
-            Some(BOARD.limits.u_max)
+            Some(BOARD.limits.u_max.raw())
         );
     }
 }

@@ -7,7 +7,7 @@ use piezo_fpi::control::{ForceChannel, ForceSource, Interval, Supervision, DEFAU
 use piezo_fpi::fpi::Coupling as FixedCoupling;
 use piezo_fpi::model::{CreepSpec, MapSpec, ModelSpec, TableSpec};
 use piezo_fpi::play::Operator;
-use piezo_fpi::q::{self, CreepRate, UmPerVolt, VoltsPerNewton};
+use piezo_fpi::q::{self, CreepRate, Newtons, Signal, UmPerVolt, Volts, VoltsPerNewton};
 use piezo_fpi::table::Segment;
 use serde::{Deserialize, Serialize};
 
@@ -181,9 +181,9 @@ impl ControllerSection {
     /// limit over a capacitance whose slew is below the smallest step, by both
     /// keys. (At a rate outside the validator's range, 0: the validator names the
     /// rate.)
-    pub(super) fn max_step(&self) -> Result<I16F16, String> {
+    pub(super) fn max_step(&self) -> Result<Volts, String> {
         if !(100..=200_000).contains(&self.rate_hz) {
-            return Ok(I16F16::ZERO);
+            return Ok(Volts::ZERO);
         }
         let rate = self.rate_hz as f64;
         let per_ms = |v_per_step: f64| Num(v_per_step * rate / 1e3);
@@ -197,16 +197,16 @@ impl ControllerSection {
                 self.rate_hz
             ));
         }
-        let step = q::signal(self.slew_per_step_v()?).unwrap_or(I16F16::ZERO);
+        let step = q::signal(self.slew_per_step_v()?).map_or(Volts::ZERO, Volts::from_raw);
         match (self.current_limit_ma, self.capacitance_uf) {
-            (Some(i), Some(c)) if step <= I16F16::ZERO && self.slew_v_per_ms > 0.0 => Err(format!(
+            (Some(i), Some(c)) if step <= Volts::ZERO && self.slew_v_per_ms > 0.0 => Err(format!(
                 "controller.current_limit_ma = {} over controller.capacitance_uf = {}: a \
                      slew of {} V/ms, below the smallest the loop holds ({} V/ms, 2^-16 V per \
                      control step at controller.rate_hz = {})",
                 Num(i),
                 Num(c),
                 Num(i / c),
-                per_ms(I16F16::DELTA.to_num::<f64>()),
+                per_ms(Volts::DELTA.to_num::<f64>()),
                 self.rate_hz
             )),
             _ => Ok(step),
@@ -318,14 +318,17 @@ pub(super) fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, 
         })
 }
 
-pub(super) fn signal(key: &str, v: f64) -> Result<I16F16, String> {
-    q::signal(v).ok_or_else(|| {
-        format!(
-            "{key} = {}: not a finite value within ±{} (I16F16 signal range)",
-            Num(v),
-            q::SIGNAL_ABS_MAX
-        )
-    })
+/// `v` as a signal in the unit its key names (V, µm, N; or bare `I16F16`).
+pub(super) fn signal<S: Signal>(key: &str, v: f64) -> Result<S, String> {
+    q::signal(v)
+        .map(|x| S::from_bits(x.to_bits()))
+        .ok_or_else(|| {
+            format!(
+                "{key} = {}: not a finite value within ±{} (I16F16 signal range)",
+                Num(v),
+                q::SIGNAL_ABS_MAX
+            )
+        })
 }
 
 pub(super) fn gain(key: &str, v: f64) -> Result<UmPerVolt, String> {
@@ -402,12 +405,17 @@ impl ControllerSection {
                 ))
             }
         };
-        let interval = |lo_key: &str, lo, hi_key: &str, hi| -> Result<Interval, String> {
+        fn interval<S: Signal>(
+            lo_key: &str,
+            lo: f64,
+            hi_key: &str,
+            hi: f64,
+        ) -> Result<Interval<S>, String> {
             Ok(Interval {
                 lo: signal(lo_key, lo)?,
                 hi: signal(hi_key, hi)?,
             })
-        };
+        }
         // The default corner, or f_s/64 at a rate too low for it (the validator
         // then names the rate).
         let split_hz = self
@@ -418,16 +426,18 @@ impl ControllerSection {
             dynamic_limit: match self.force_dynamic_limit_n {
                 Some(v) => signal("controller.force_dynamic_limit_n", v)?,
                 None => {
-                    signal("controller.force_tolerance_n", self.force_tolerance_n)?;
-                    q::signal(DYNAMIC_LIMIT_FACTOR * self.force_tolerance_n).ok_or_else(|| {
-                        format!(
+                    signal::<Newtons>("controller.force_tolerance_n", self.force_tolerance_n)?;
+                    q::signal(DYNAMIC_LIMIT_FACTOR * self.force_tolerance_n)
+                        .map(Newtons::from_raw)
+                        .ok_or_else(|| {
+                            format!(
                             "controller.force_tolerance_n = {}: {DYNAMIC_LIMIT_FACTOR} times it, \
                              the default controller.force_dynamic_limit_n, is not within ±{} N \
                              (I16F16 signal range): give controller.force_dynamic_limit_n",
                             Num(self.force_tolerance_n),
                             q::SIGNAL_ABS_MAX
                         )
-                    })?
+                        })?
                 }
             },
         };
@@ -472,7 +482,7 @@ pub(super) fn quantize_table(key: &str, t: &TableSection) -> Result<QuantizedTab
         .values
         .iter()
         .enumerate()
-        .map(|(i, &v)| signal(&format!("{key}.values[{i}]"), v))
+        .map(|(i, &v)| signal::<I16F16>(&format!("{key}.values[{i}]"), v))
         .collect::<Result<Vec<_>, _>>()?;
     let segments = values
         .windows(2)

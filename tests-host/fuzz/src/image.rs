@@ -12,7 +12,7 @@
 //! steps it: references across and beyond the stroke, plausible and implausible
 //! forces. The step must respect the output limits.
 
-use fixed::types::I16F16;
+use piezo_fpi::q::{Micrometres, Newtons, Volts};
 use fpi_firmware::board::capacity::{Store, BOARD};
 use fpi_firmware::board::factory_model::MODEL_IMAGE;
 use piezo_fpi::model::image::{encode, encoded_len, CRC32, HEADER_LEN};
@@ -141,12 +141,12 @@ pub fn run(store: &Store) {
         // A ramp up and down over the stroke and 10 % beyond each end.
         let phase = if k < 48 { k } else { 96 - k };
         let x = r.lo.to_bits() as i64 + span * (phase - 4) / 40;
-        let x = I16F16::from_bits(x.clamp(i32::MIN as i64, i32::MAX as i64) as i32);
+        let x = Micrometres::from_bits(x.clamp(i32::MIN as i64, i32::MAX as i64) as i32);
         let force = match k % 16 {
             13 => f.lo,
             14 => f.hi,
-            15 => I16F16::MAX,
-            _ => ctl.f_f().eval(st.x_pea_est()),
+            15 => Newtons::MAX,
+            _ => ctl.preload(st.x_pea_est()),
         };
         let out = ctl.step(&mut st, x, force);
         assert!(
@@ -160,7 +160,7 @@ pub fn run(store: &Store) {
         assert!(
             dv <= lim.max_step().to_bits() as i64,
             "step {k}: the voltage moved {} V, more than {} V",
-            I16F16::from_bits(dv as i32),
+            Volts::from_bits(dv as i32),
             lim.max_step()
         );
         prev = out.voltage;

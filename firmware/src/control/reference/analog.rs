@@ -44,7 +44,7 @@ pub struct AnalogInput {
 
 impl AnalogInput {
     /// The scaling onto a stroke `[lo, hi]` (µm).
-    pub fn over(stroke: Interval) -> Self {
+    pub fn over(stroke: Interval<Micrometres>) -> Self {
         let span = stroke.hi.to_bits() as i64 - stroke.lo.to_bits() as i64;
         // span is Q16.16; per_count Q4.28 = span · 2¹² / 4095, rounded.
         let per = ((span << 12) + ADC_MAX as i64 / 2) / ADC_MAX as i64;
@@ -83,7 +83,7 @@ impl AnalogInput {
 mod tests {
     use super::*;
 
-    fn stroke() -> Interval {
+    fn stroke() -> Interval<Micrometres> {
         Interval {
             lo: Micrometres::from_num(0),
             hi: Micrometres::from_num(38.5),

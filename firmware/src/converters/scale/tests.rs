@@ -41,24 +41,24 @@ fn adc_codes_are_offset_binary_from_minus_full_scale() {
 fn the_sensor_channels_span_their_range() {
     // Force: −5 N at −10 V, 251 N at 0 V, 507 N − 1 code at +10 V − 1 LSB.
     assert_eq!(
-        FORCE.to_value(offset_binary(i16::MIN)),
+        FORCE.to_force(offset_binary(i16::MIN)),
         Newtons::from_num(-5)
     );
-    assert_eq!(FORCE.to_value(offset_binary(0)), Newtons::from_num(251));
+    assert_eq!(FORCE.to_force(offset_binary(0)), Newtons::from_num(251));
     assert_eq!(
-        FORCE.to_value(offset_binary(i16::MAX)),
+        FORCE.to_force(offset_binary(i16::MAX)),
         Newtons::from_num(507.0 - 1.0 / 128.0)
     );
     // Position: −10 µm, 30 µm, 70 µm − 1 code.
-    assert_eq!(POSITION.to_value(0), Micrometres::from_num(-10));
-    assert_eq!(POSITION.to_value(0x8000), Micrometres::from_num(30));
+    assert_eq!(POSITION.to_position(0), Micrometres::from_num(-10));
+    assert_eq!(POSITION.to_position(0x8000), Micrometres::from_num(30));
     // The same scalings from the sensors' sensitivities: 25.6 N/V about 251 N,
     // 4 µm/V about 30 µm, on the ±10 V range.
     assert_eq!(channel(Range::PlusMinus10V, 251.0, 25.6), Some(FORCE));
     assert_eq!(channel(Range::PlusMinus10V, 30.0, 4.0), Some(POSITION));
     // On ±5 V the same sensor spans half the force in twice the resolution.
     let half = channel(Range::PlusMinus5V, 251.0, 25.6).unwrap();
-    assert_eq!(half.to_value(0), Newtons::from_num(123));
+    assert_eq!(half.to_force(0), Newtons::from_num(123));
     assert_eq!(half.per_count.to_bits(), FORCE.per_count.to_bits() / 2);
     assert_eq!(channel(Range::PlusMinus10V, 1e9, 1.0), None);
 }

@@ -151,7 +151,7 @@ fn blind_dynamics(rate_hz: u32) -> DynamicsSpec {
         // `from_num(0.7)` overflowed and panicked.
         damping: CreepRate::from_bits(0x7333_3333), // 0.45
         lag_mhz: 0,
-        force_gain: Newtons::ZERO,
+        force_gain: NewtonsPerUm::ZERO,
     }
 }
 

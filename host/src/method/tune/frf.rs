@@ -41,7 +41,7 @@ use anyhow::{bail, Context, Result};
 use fpi_protocol::LoopMode;
 use nalgebra::Complex;
 use piezo_fpi::damping::DynamicsSpec;
-use piezo_fpi::q::{CreepRate, Newtons};
+use piezo_fpi::q::{CreepRate, NewtonsPerUm};
 use piezo_fpi::stability::Plant;
 use serde::{Deserialize, Serialize};
 
@@ -176,7 +176,7 @@ fn spec(f_hz: f64, zeta: f64, lag_hz: f64, kappa: f64) -> DynamicsSpec {
         mode_mhz: (f_hz * 1000.0).round() as u32,
         damping: CreepRate::from_num(zeta.clamp(1e-4, 0.49)),
         lag_mhz: (lag_hz * 1000.0).round() as u32,
-        force_gain: Newtons::from_num(kappa.clamp(0.0, 4000.0)),
+        force_gain: NewtonsPerUm::from_num(kappa.clamp(0.0, 4000.0)),
     }
 }
 

@@ -52,7 +52,7 @@ pub mod trials;
 use anyhow::{bail, Result};
 use piezo_fpi::control::{split_rate, DEFAULT_SPLIT_HZ};
 use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
-use piezo_fpi::q::{CreepRate, LoopGain, Micrometres, Newtons};
+use piezo_fpi::q::{CreepRate, LoopGain, Micrometres, NewtonsPerUm};
 use piezo_fpi::stability::{section_f64, Laws};
 use piezo_sim::file::{
     DampingSection, DynamicsSection, FeedbackSection, FirmwareModel, ShapingSection,
@@ -266,7 +266,7 @@ pub fn dynamics_spec(d: &Dynamics, force_gain: f64) -> Result<DynamicsSpec> {
         } else {
             0
         },
-        force_gain: Newtons::from_num(force_gain.clamp(0.0, 4000.0)),
+        force_gain: NewtonsPerUm::from_num(force_gain.clamp(0.0, 4000.0)),
     })
 }
 
@@ -452,7 +452,7 @@ pub fn with_tuning(fw: &FirmwareModel, t: &Tuning, o: &TuneOptions) -> Result<Fi
             mode_hz: d.mode_hz(),
             damping_ratio: d.damping_ratio(),
             lag_hz: (d.lag_mhz > 0).then(|| d.lag_mhz as f64 / 1000.0),
-            force_gain_n_per_um: (d.force_gain > Newtons::ZERO)
+            force_gain_n_per_um: (d.force_gain > NewtonsPerUm::ZERO)
                 .then(|| d.force_gain.to_num::<f64>()),
             notes: format!("fpi tune: {}", t.plant),
         });

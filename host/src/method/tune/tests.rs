@@ -1,6 +1,7 @@
 //! The tests of `fpi tune` ([`super`]), on stage A as autotune fits it ([`stage_a`]).
 
 use super::*;
+use piezo_fpi::q::NewtonsPerUm;
 use piezo_fpi::stability::{decays, Plant};
 
 /// Stage A as built, as autotune fits it (850 Hz, ζ 0.03, a 1.9 kHz lag,
@@ -14,7 +15,7 @@ pub(super) fn stage_a() -> (FirmwareModel, DynamicsSpec) {
         mode_mhz: 850_000,
         damping: CreepRate::from_num(0.03),
         lag_mhz: 1_900_000,
-        force_gain: Newtons::from_num(6.3),
+        force_gain: NewtonsPerUm::from_num(6.3),
     };
     (fw, d)
 }
@@ -235,7 +236,7 @@ fn the_damping_designed_on_a_tiny_force_gain_is_one_the_board_takes() {
         mode_mhz: 756_600,
         damping: CreepRate::from_num(0.45),
         lag_mhz: 4_171_000,
-        force_gain: Newtons::from_num(0.05),
+        force_gain: NewtonsPerUm::from_num(0.05),
     };
     let o = TuneOptions::default();
     let t = tune_measured(&fw, d, &o).unwrap();

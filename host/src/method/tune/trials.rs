@@ -125,14 +125,14 @@ mod tests {
     use super::*;
     use piezo_fpi::damping::DynamicsSpec;
     use piezo_fpi::preview::TAPS;
-    use piezo_fpi::q::{CreepRate, Newtons};
+    use piezo_fpi::q::{CreepRate, NewtonsPerUm};
 
     fn spec(mode_hz: f64, zeta: f64, lag_hz: f64) -> DynamicsSpec {
         DynamicsSpec {
             mode_mhz: (mode_hz * 1000.0) as u32,
             damping: CreepRate::from_num(zeta),
             lag_mhz: (lag_hz * 1000.0) as u32,
-            force_gain: Newtons::from_num(6.3),
+            force_gain: NewtonsPerUm::from_num(6.3),
         }
     }
 
