@@ -130,20 +130,8 @@ pub fn describe(i: &BoardInfo) -> String {
         "limits: setpoint {:.1}…{:.1} V, at most {:.3} V per tick; safe voltage within {:.1}…{:.1} V",
         l[0], l[1], l[2], l[3], l[4]
     );
-    let on: Vec<_> = i
-        .features
-        .named()
-        .iter()
-        .filter(|f| f.1)
-        .map(|f| f.0)
-        .collect();
-    let off: Vec<_> = i
-        .features
-        .named()
-        .iter()
-        .filter(|f| !f.1)
-        .map(|f| f.0)
-        .collect();
+    let (on, off): (Vec<_>, Vec<_>) = i.features.named().into_iter().partition(|f| f.1);
+    let [on, off] = [on, off].map(|fs| fs.into_iter().map(|f| f.0).collect::<Vec<_>>());
     let _ = writeln!(out, "features: {}; without: {}", list(&on), list(&off));
     let _ = writeln!(out, "commands: {}", i.commands.join(" "));
     let _ = writeln!(out, "settings: {}", list(&i.settings));

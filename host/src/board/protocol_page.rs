@@ -142,27 +142,7 @@ fn doc(attrs: &[Attribute]) -> String {
         // A link's reference definition (`[x]: path`) is no text.
         .filter(|l| !(l.trim_start().starts_with('[') && l.contains("]: ")))
         .collect();
-    without_links(&one_paragraph(&lines.join("\n")))
-}
-
-/// Rustdoc's link targets dropped: `` `X`(crate::X) `` (what
-/// [`one_paragraph`] leaves of a link) is `` `X` ``.
-fn without_links(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    let mut rest = s;
-    while let Some(i) = rest.find("`(") {
-        let (head, tail) = rest.split_at(i + 1);
-        out += head;
-        let target_end = tail.find(')').filter(|&j| {
-            let t = &tail[1..j];
-            !t.is_empty() && !t.contains(' ') && !t.contains(".md") && !t.contains("://")
-        });
-        rest = match target_end {
-            Some(j) => &tail[j + 1..],
-            None => tail,
-        };
-    }
-    out + rest
+    one_paragraph(&lines.join("\n"))
 }
 
 /// A type as written, spaced as rustfmt would.
@@ -535,18 +515,5 @@ mod tests {
         }
         assert!(page.contains(&format!("version **{}**", fpi_protocol::VERSION)));
         assert!(!page.contains("(crate::"), "a rustdoc link target is left");
-    }
-
-    #[test]
-    fn link_targets_are_dropped_and_other_parentheses_kept() {
-        assert_eq!(
-            without_links("see `Reply::Hello`(crate::Reply::Hello) (the board's)"),
-            "see `Reply::Hello` (the board's)"
-        );
-        assert_eq!(without_links("`a` (b c)"), "`a` (b c)");
-        assert_eq!(
-            without_links("[the book](../x.md) `f`(../y.md)"),
-            "[the book](../x.md) `f`(../y.md)"
-        );
     }
 }

@@ -102,13 +102,36 @@ fn kind(t: &Value, defs: &Value) -> String {
 }
 
 /// A doc comment's lines as one paragraph, its rustdoc links as plain code
-/// (the generated reference pages' doc column).
+/// (the generated reference pages' doc column): `` [`X`] `` and
+/// `` [`X`](crate::X) `` are `` `X` ``.
 pub fn one_paragraph(doc: &str) -> String {
-    doc.split_whitespace()
-        .collect::<Vec<_>>()
-        .join(" ")
-        .replace("[`", "`")
-        .replace("`]", "`")
+    without_links(
+        &doc.split_whitespace()
+            .collect::<Vec<_>>()
+            .join(" ")
+            .replace("[`", "`")
+            .replace("`]", "`"),
+    )
+}
+
+/// Rustdoc's link targets dropped: `` `X`(crate::X) `` (what
+/// the brackets' removal leaves of a link) is `` `X` ``.
+fn without_links(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    let mut rest = s;
+    while let Some(i) = rest.find("`(") {
+        let (head, tail) = rest.split_at(i + 1);
+        out += head;
+        let target_end = tail.find(')').filter(|&j| {
+            let t = &tail[1..j];
+            !t.is_empty() && !t.contains(' ') && !t.contains(".md") && !t.contains("://")
+        });
+        rest = match target_end {
+            Some(j) => &tail[j + 1..],
+            None => tail,
+        };
+    }
+    out + rest
 }
 
 /// The book's reference page of the model file's keys (`fpi reference model`).
@@ -142,6 +165,19 @@ pub fn reference() -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn link_targets_are_dropped_and_other_parentheses_kept() {
+        assert_eq!(
+            without_links("see `Reply::Hello`(crate::Reply::Hello) (the board's)"),
+            "see `Reply::Hello` (the board's)"
+        );
+        assert_eq!(without_links("`a` (b c)"), "`a` (b c)");
+        assert_eq!(
+            without_links("[the book](../x.md) `f`(../y.md)"),
+            "[the book](../x.md) `f`(../y.md)"
+        );
+    }
 
     /// Every key the factory model's file holds is in the reference, and every
     /// key of the reference has its doc comment.
