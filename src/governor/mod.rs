@@ -56,6 +56,8 @@
 //! | `ρ` | 1 per tick | `I0F32` (raw `u32`) | [0, 1) |
 //! | `c_r`, `c_v⁺ + c_r` | µm per µm/tick | `I12F20` (raw `u32`) | 0…2047 |
 //! | `1/(2A)` | tick²/µm | `I8F24` (raw `u32`) | up to 1/(2·[`ACCEL_MIN`]) = 127 |
+//! | `1/(2A_g)` | tick²/µm | `I12F20` (raw `u32`) | up to 1/(2·[`ACCEL_GOV_MIN`]) = 2047 |
+//! | stop distance toward a governed source, the gap to it | µm | `I20F12` (raw `u32`) | below 2¹⁷ |
 //!
 //! Every product is one unsigned 32 × 32 → 64-bit multiply whose high word is
 //! the result (a gain times a speed, the envelope's decay, `v²` and the stop
@@ -107,8 +109,9 @@ pub const GOVERNING_ENVELOPE_UM: f64 = 2.0;
 /// How far past a governed source the gentle braking may carry the
 /// governed reference before it brakes at `A` instead, µm.
 pub const OVERSHOOT_UM: f64 = 1.0;
-/// [`OVERSHOOT_UM`] as `I16F16` bits.
-const OVERSHOOT_BITS: i32 = 1 << 16;
+/// [`OVERSHOOT_UM`] as `I20F12` bits (the format of the stop distance toward
+/// a governed source).
+const OVERSHOOT_BITS: u32 = 1 << 12;
 
 /// The largest envelope gain (`I12F20` bits of 2047).
 const GAIN_BITS_MAX: f64 = (2047u64 << GAIN_FRAC) as f64;
@@ -313,7 +316,7 @@ impl GovernorLimits {
     /// sources are checked against it before they run) and gives the governed
     /// reference (µm, within the window); [`GovernorState::governed`] says
     /// whether it departed from `r`.
-    #[inline]
+    #[inline(always)]
     pub fn process(
         &self,
         w: &GovernorWindow,
@@ -364,7 +367,7 @@ impl GovernorLimits {
     #[inline(never)]
     fn toward(&self, w: &GovernorWindow, st: &GovernorState, r16: i32, land: Option<i32>) -> i32 {
         let v = st.v;
-        let (a, speed) = (self.accel_gov as i32, self.speed as i32);
+        let a = self.accel_gov as i32;
         let limit = (self.speed >> (MOTION_FRAC - 16)) as i32;
         let dr = r16.wrapping_sub(st.r_prev).max(-limit).min(limit);
         let v1 = match land {
@@ -394,8 +397,10 @@ impl GovernorLimits {
                 let gap = r16.wrapping_sub(st.g).wrapping_sub(v >> (MOTION_FRAC - 16));
                 let q = v.wrapping_sub(dr << (MOTION_FRAC - 16));
                 let up = gap >= 0;
-                let closing = if up { q > 0 } else { q < 0 };
-                let room = gap.unsigned_abs() as i32;
+                // The relative speed along the way to the source.
+                let q = if up { q } else { q.wrapping_neg() };
+                let closing = q > 0;
+                let room = gap.unsigned_abs() >> 4;
                 // Brake gently where the gentle stop reaches the gap, and at
                 // `A` where it would pass the source by more than
                 // [`OVERSHOOT_UM`] (a source that passed at `A`, or the
@@ -403,17 +408,18 @@ impl GovernorLimits {
                 // time: braking at `A_g` alone swung past the source by tens
                 // of micrometres, and back; braking at `A` wherever the
                 // gentle stop fell short rang an undamped stage's mode).
-                let stop = stop_distance_gov(q.unsigned_abs(), self.inv_2accel_gov);
+                let stop = stop_distance_gov(q as u32, self.inv_2accel_gov);
                 let brake = closing && stop >= room;
-                let hard = closing && stop.saturating_sub(room) > OVERSHOOT_BITS;
+                let hard = closing && stop > room + OVERSHOOT_BITS;
                 let a = if hard { self.accel as i32 } else { a };
-                let acc = if brake == up { -a } else { a };
+                let acc = if brake { -a } else { a };
+                let acc = if up { acc } else { -acc };
                 // Within the speed, and not past the window's edge.
                 let lo = w.lo.wrapping_sub(st.g);
                 let hi = w.hi.wrapping_sub(st.g);
+                // (`±limit` is the speed to `I16F16` bits: no `±speed` clamp
+                // of its own.)
                 v.wrapping_add(acc)
-                    .max(-speed)
-                    .min(speed)
                     .max(lo.max(-limit) << (MOTION_FRAC - 16))
                     .min(hi.min(limit) << (MOTION_FRAC - 16))
             }
@@ -475,11 +481,13 @@ fn stop_distance(v: u32, inv_2accel: u32) -> i32 {
 }
 
 /// `v²/(2A_g)` for a speed `v` (`I4F28`, below 8 µm/tick) and `1/(2A_g)`
-/// (`I12F20`, at most 2047): µm, `I16F16`, held to 2¹⁴ µm (toward a governed
-/// source only: not the tick's common path).
-fn stop_distance_gov(v: u32, inv: u32) -> i32 {
+/// (`I12F20`, at most 2047): µm, `I20F12` (the high word of their product:
+/// below 2¹⁷ µm, no clamp; compared with the gap to the source, which it
+/// needs to a fraction of a nanometre only).
+#[inline(always)]
+fn stop_distance_gov(v: u32, inv: u32) -> u32 {
     let v2 = ((v as u64 * v as u64) >> 32) as u32;
-    ((v2 as u64 * inv as u64) >> 28).min(1 << 30) as i32
+    ((v2 as u64 * inv as u64) >> 32) as u32
 }
 
 /// The governor's memory (state): where the governed reference is and how it

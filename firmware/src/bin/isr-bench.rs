@@ -697,6 +697,66 @@ mod bench {
         }
     }
 
+    /// The reference governor alone (`piezo_fpi::governor`): instructions per
+    /// tick where the source passes and where it is governed, along a square
+    /// wave between 5 and 35 µm (jumps the governor takes at its limits) on
+    /// limits like a tuned stage's. Printed as `governor_passing_instructions`
+    /// and `governor_governed_instructions`.
+    mod governor_bench {
+        use super::{instructions, ticks, Counts, STEPS};
+        use core::hint::black_box;
+        use cortex_m_semihosting::hprintln;
+        use piezo_fpi::control::Interval;
+        use piezo_fpi::governor::{GovernorConfig, GovernorState, Limits};
+        use piezo_fpi::process::SplitProcess;
+        use piezo_fpi::q::Micrometres;
+
+        #[inline(never)]
+        fn tick(g: &GovernorConfig, st: &mut GovernorState, r: Micrometres) -> Micrometres {
+            g.process(st, r)
+        }
+
+        pub(super) fn report(baseline: u32) {
+            let window = Interval {
+                lo: Micrometres::ZERO,
+                hi: Micrometres::from_num(39),
+            };
+            let limits = Limits {
+                accel: 0.02,
+                speed: 0.5,
+                ramp: (0.995, 3.0),
+                lead: -1.0,
+            };
+            let g = black_box(GovernorConfig::new(window, &limits));
+            let mut st = GovernorState::at_rest(Micrometres::from_num(5));
+            let (mut pass, mut gov) = (Counts::new(), Counts::new());
+            for i in 0..STEPS {
+                let r = if (i / 400) % 2 == 0 { 35 } else { 5 };
+                let r = black_box(Micrometres::from_num(r));
+                let c = instructions(ticks(|| tick(&g, &mut st, r)), baseline);
+                if st.governed() {
+                    gov.add(c);
+                } else {
+                    pass.add(c);
+                }
+            }
+            for (name, c) in [
+                ("governor_passing_instructions", &pass),
+                ("governor_governed_instructions", &gov),
+            ] {
+                hprintln!(
+                    "{}: {} (min {} mean {}.{}, {} ticks, the call included)",
+                    name,
+                    c.max,
+                    c.min,
+                    c.mean_x10() / 10,
+                    c.mean_x10() % 10,
+                    c.n
+                );
+            }
+        }
+    }
+
     /// One tick's converter work on the precision front end
     /// (`fpi_firmware::converters::tick_frames`: read the AD7606's two channels,
     /// scale them, write the AD5791's code) on SPI devices that answer at once:
@@ -755,6 +815,7 @@ mod bench {
             baseline
         );
         biquad_bench::report(baseline);
+        governor_bench::report(baseline);
         converter_report(baseline);
 
         report(&C4, baseline);
