@@ -18,6 +18,7 @@ __all__ = [
     "LinkError",
     "Interrupted",
     "Board",
+    "Recorder",
     "Settings",
     "Emulator",
     "Model",
@@ -197,6 +198,19 @@ class Board:
         ``seconds`` of board time, as the recording's CSV columns (``t_s``,
         ``voltage_V``, ``force_N``, ``x_ref_um``, ``x_est_um``, ``status``,
         ``x_fhps_um``, ``x_sensor_um``). Ctrl-C: ``Interrupted`` with the partial recording."""
+    def record_start(
+        self,
+        *,
+        decimation: int = 1,
+        signals: Optional[Sequence[str]] = None,
+        keep: bool = True,
+    ) -> Recorder:
+        """A live recording (PI: ``DRC``, then ``DRR?`` while motions run): the recorder
+        armed for every ``decimation``-th tick and read by a thread of its own between
+        this board's other commands. ``signals``: the columns to record (every one by
+        default). ``keep=False``: ``stop()`` gives only what ``read()`` had not taken.
+        ``ValueError`` for a decimation the link cannot carry; ``BoardError`` if one runs
+        already."""
     def load(
         self,
         model: _Path,
@@ -301,6 +315,37 @@ class Board:
         it ran)."""
     def close(self) -> None: ...
     def __enter__(self) -> "Board": ...
+    def __exit__(self, *exc: object) -> bool: ...
+
+@final
+class Recorder:
+    """A live recording (``Board.record_start``): ``read()`` what came since the last
+    read, ``stop()`` the whole recording, both as ``Board.record``'s columns. Losses
+    are counted (``gaps``, ``missing``, ``dropped``) and warned of, never silent."""
+
+    def read(self) -> _Columns:
+        """What came since the last read (empty arrays where nothing did)."""
+    def stop(self) -> _Columns:
+        """Stops the recorder: the whole recording (``BoardError`` if stopped already)."""
+    @property
+    def running(self) -> bool:
+        """It still records."""
+    @property
+    def start_tick(self) -> Optional[int]:
+        """The tick the board took the recording's start on."""
+    @property
+    def samples(self) -> int:
+        """Samples received so far."""
+    @property
+    def gaps(self) -> int:
+        """Places where a sample did not follow the one before by the decimation."""
+    @property
+    def missing(self) -> int:
+        """Samples the gaps miss."""
+    @property
+    def dropped(self) -> int:
+        """Samples the board's ring dropped."""
+    def __enter__(self) -> Recorder: ...
     def __exit__(self, *exc: object) -> bool: ...
 
 @final

@@ -5,14 +5,17 @@
 //! `fpi board` runs (`fpi_host::board::commands`).
 
 use std::path::PathBuf;
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 
 use anyhow::anyhow;
 use fpi_host::board::client::{real, Client};
 use fpi_host::board::commands::{self, BenchSettings, Streamed};
 use fpi_host::board::frf::FrfSettings;
+use fpi_host::board::live::{Live, SharedClient};
 use fpi_host::board::mass;
 use fpi_host::board::motion::{self, Until};
+use fpi_host::board::recording::{column_names, signals_named};
 use fpi_host::board::restore::or_restore;
 use fpi_host::board::step::StepSettings;
 use fpi_host::cli::board::{firmware_model, model_and_image};
@@ -21,7 +24,8 @@ use pyo3::prelude::*;
 use pyo3::types::{PyComplex, PyDict};
 
 use crate::arrays::{columns_dict, floats};
-use crate::errors::{interrupted, to_py, Otherwise};
+use crate::errors::{interrupted, to_py, BoardError, Otherwise};
+use crate::recorder::Recorder;
 
 /// The loop settings of an exported model with `fpi board load`'s defaults.
 fn export_options(rate: u32, u_max: f64, slew: f64, stroke_voltage: Option<f64>) -> ExportOptions {
@@ -41,8 +45,10 @@ fn export_options(rate: u32, u_max: f64, slew: f64, stroke_voltage: Option<f64>)
 /// Use it as a context manager, or call `close()`.
 #[pyclass(module = "piezo_fpi")]
 pub struct Board {
-    client: Mutex<Option<Client>>,
+    client: Arc<Mutex<Option<Client>>>,
     port: String,
+    /// A live recording runs (`record_start`).
+    live: Arc<AtomicBool>,
 }
 
 impl Board {
@@ -63,6 +69,18 @@ impl Board {
             f(c)
         })
         .map_err(|e| to_py(py, e, Otherwise::Link))
+    }
+
+    /// Refuses `what` (a command that uses the recorder itself) while a live
+    /// recording runs.
+    fn recorder_free(&self, what: &str) -> PyResult<()> {
+        if self.live.load(Ordering::Relaxed) {
+            return Err(BoardError::new_err(format!(
+                "{what} uses the board's recorder, which a live recording holds \
+                 (record_start): stop it first"
+            )));
+        }
+        Ok(())
     }
 }
 
@@ -91,8 +109,9 @@ impl Board {
             .detach(|| commands_open(&name))
             .map_err(|e| to_py(py, e, Otherwise::Link))?;
         Ok(Self {
-            client: Mutex::new(Some(c)),
+            client: Arc::new(Mutex::new(Some(c))),
             port: port.to_string(),
+            live: Arc::new(AtomicBool::new(false)),
         })
     }
 
@@ -317,6 +336,7 @@ impl Board {
             let t = self.run(py, |c| commands::move_to(c, target_um, speed))?;
             return Ok(t.into_pyobject(py)?.into_any());
         }
+        self.recorder_free("move(record=True)")?;
         let cmd =
             commands::move_command(target_um, speed).map_err(|e| to_py(py, e, Otherwise::Link))?;
         let mut caught = None;
@@ -378,6 +398,7 @@ impl Board {
             }
             (None, _) => Until::Rest,
         };
+        self.recorder_free("wave(record=True)")?;
         let mut caught = None;
         let m = self.run(py, |c| {
             let cmd = commands::wave_command(c, shape, amplitude_um, offset_um, freq_hz, cycles)?;
@@ -409,6 +430,9 @@ impl Board {
         record: bool,
     ) -> PyResult<Bound<'py, PyDict>> {
         let points = floats(points_um, "points_um")?;
+        if record {
+            self.recorder_free("stream(record=True)")?;
+        }
         let mut caught = None;
         let (r, rec) = self.run(py, |c| {
             if !record {
@@ -453,6 +477,7 @@ impl Board {
         seconds: f64,
         decimation: u16,
     ) -> PyResult<Bound<'py, PyDict>> {
+        self.recorder_free("record")?;
         let mut caught = None;
         let r = self.run(py, |c| {
             commands::record(c, seconds, decimation, |_, _| {}, || signalled(&mut caught))
@@ -471,6 +496,51 @@ impl Board {
             )?;
         }
         Ok(d)
+    }
+
+    /// Starts a live recording (PI's `DRC`, then `DRR?` while motions run):
+    /// the board's recorder armed for every `decimation`-th tick and read
+    /// continuously by a thread of its own, between the commands this board
+    /// object sends meanwhile. Returns a `Recorder`: `read()` gives what came
+    /// since the last read, `stop()` the whole recording (with `keep=False`,
+    /// only what `read()` had not taken: for a recording that runs for hours).
+    /// `signals`: the columns to record (`voltage_V`, `force_N`, `x_ref_um`,
+    /// `x_est_um`, `status`, `x_fhps_um`, `x_sensor_um`), every one by default.
+    /// A command that keeps the link for long (`stream`, a `wait_on_target`)
+    /// holds the reader off meanwhile: at a high rate the board's ring then
+    /// drops samples, which the recorder counts and warns of. Raises
+    /// `ValueError` for a decimation the link cannot carry, `BoardError` if a
+    /// live recording runs already.
+    #[pyo3(signature = (*, decimation = 1, signals = None, keep = true))]
+    fn record_start(
+        &self,
+        py: Python<'_>,
+        decimation: u16,
+        signals: Option<Vec<String>>,
+        keep: bool,
+    ) -> PyResult<Recorder> {
+        let bits = match signals {
+            None => fpi_protocol::record::signal::ALL,
+            Some(names) => signals_named(names.iter().map(String::as_str)).map_err(|n| {
+                pyo3::exceptions::PyValueError::new_err(format!(
+                    "signals: {n:?} is no recorded column (they are {})",
+                    column_names().collect::<Vec<_>>().join(", ")
+                ))
+            })?,
+        };
+        if self.live.swap(true, Ordering::Relaxed) {
+            return Err(BoardError::new_err(
+                "a live recording runs already on this board: stop it first",
+            ));
+        }
+        let link: Arc<dyn SharedClient> = self.client.clone();
+        match py.detach(|| Live::start(link, bits, decimation, keep)) {
+            Ok(live) => Ok(Recorder::new(live, self.live.clone())),
+            Err(e) => {
+                self.live.store(false, Ordering::Relaxed);
+                Err(to_py(py, e, Otherwise::Link))
+            }
+        }
     }
 
     /// Uploads a model (`fpi board load`): a calibrated model file with the
@@ -494,6 +564,9 @@ impl Board {
         slew: f64,
         stroke_voltage: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
+        if match_mass {
+            self.recorder_free("load(match_mass=True)")?;
+        }
         let o = export_options(rate, u_max, slew, stroke_voltage);
         let (fw, image) = py
             .detach(|| model_and_image(&model, fem.as_deref(), &o))
@@ -632,6 +705,7 @@ impl Board {
         duration_ms: f64,
         decimation: u16,
     ) -> PyResult<Bound<'py, PyDict>> {
+        self.recorder_free("step")?;
         let s = StepSettings {
             from_um,
             to_um,
@@ -671,6 +745,7 @@ impl Board {
         at_um: f64,
         zoom_points: usize,
     ) -> PyResult<Bound<'py, PyDict>> {
+        self.recorder_free("frf")?;
         let s = FrfSettings {
             from_hz,
             to_hz,
@@ -736,6 +811,7 @@ impl Board {
     ) -> PyResult<String> {
         use fpi_host::board::autotune;
         use fpi_host::method::tune::TuneOptions;
+        self.recorder_free("autotune")?;
         let design = TuneOptions {
             damping,
             target_damping,

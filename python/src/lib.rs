@@ -13,6 +13,7 @@ mod board;
 mod emulator;
 mod errors;
 mod model;
+mod recorder;
 mod settings;
 
 use pyo3::prelude::*;
@@ -26,6 +27,7 @@ fn piezo_fpi(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("LinkError", py.get_type::<errors::LinkError>())?;
     m.add("Interrupted", py.get_type::<errors::Interrupted>())?;
     m.add_class::<board::Board>()?;
+    m.add_class::<recorder::Recorder>()?;
     m.add_class::<settings::Settings>()?;
     m.add_class::<emulator::Emulator>()?;
     m.add_class::<model::Model>()?;

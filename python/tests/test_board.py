@@ -476,3 +476,66 @@ def test_motions_record_every_tick_of_what_they_do(board):
     assert r["points"] == 150
     every_tick(r["recording"])
     assert len(r["recording"]["t_s"]) >= 3000 + 1000
+
+
+def test_a_live_recording_reads_while_the_board_moves(board):
+    """PI's DRC → motion → DRR?: the recorder armed before a wave, read in
+    blocks while the wave runs and other commands are sent, then stopped:
+    the whole recording, every 50th tick without a gap (what the UART
+    carries), the wave from before
+    its first tick."""
+    board.move(10.0)
+    board.wait_on_target(timeout=10.0)
+    rec = board.record_start(decimation=50)
+    assert rec.running
+    started = board.wave("sine", amplitude_um=2, offset_um=12, freq_hz=40, cycles=0)
+    blocks = []
+    deadline = time.time() + 30.0
+    while sum(len(b["t_s"]) for b in blocks) < 300 and time.time() < deadline:
+        time.sleep(0.02)
+        blocks.append(rec.read())
+    # Commands go on meanwhile; those that use the recorder wait for it.
+    assert board.status()["source"] == "wave"
+    with pytest.raises(pf.BoardError, match="live recording"):
+        board.record(seconds=0.1)
+    with pytest.raises(pf.BoardError, match="runs already"):
+        board.record_start()
+    whole = rec.stop()
+    board.hold()
+    assert not rec.running
+    assert list(whole) == COLUMNS
+    read = np.concatenate([b["t_s"] for b in blocks])
+    assert len(read) >= 300
+    assert np.array_equal(whole["t_s"][: len(read)], read)
+    assert np.allclose(np.diff(whole["t_s"]), 50 / 20000.0)
+    assert (rec.gaps, rec.missing, rec.dropped) == (0, 0, 0)
+    assert rec.samples == len(whole["t_s"])
+    assert whole["t_s"][0] * 20000.0 <= started
+    assert whole["x_ref_um"].max() > 13.5
+    with pytest.raises(pf.BoardError, match="stopped already"):
+        rec.stop()
+    # The recorder is the board's again.
+    assert len(board.record(seconds=0.05)["t_s"]) > 0
+
+
+def test_a_live_recording_checks_its_arguments_and_can_keep_only_what_is_unread(board):
+    with pytest.raises(ValueError, match=r'^signals: "nope" is no recorded column'):
+        board.record_start(signals=["nope"])
+    with pytest.raises(ValueError, match=r"^decimation 0"):
+        board.record_start(decimation=0)
+    if board.info()["link"] != "usb":
+        with pytest.raises(ValueError, match=r"^decimation 1: the stream needs"):
+            board.record_start(decimation=1)
+    with board.record_start(decimation=50, signals=["x_ref_um"], keep=False) as rec:
+        time.sleep(0.1)
+        first = rec.read()
+        time.sleep(0.1)
+        rest = rec.stop()
+    assert list(first) == ["t_s", "x_ref_um"]
+    assert len(first["t_s"]) > 0 and len(rest["t_s"]) > 0
+    assert rest["t_s"][0] == pytest.approx(first["t_s"][-1] + 50 / 20000.0)
+    # A recorder left running by a `with` block is stopped at its end.
+    with board.record_start(decimation=50) as rec:
+        pass
+    assert not rec.running
+    assert len(board.record(seconds=0.05)["t_s"]) > 0

@@ -16,6 +16,7 @@ pub mod follow;
 pub mod frf;
 pub mod info;
 pub mod inprocess;
+pub mod live;
 pub mod mass;
 pub mod motion;
 pub mod noise;

@@ -127,6 +127,25 @@ impl Recording {
     }
 }
 
+/// The signal bits of the CSV columns named (`voltage_V`, `x_fhps_um`, …; `t_s`
+/// is always there and adds none), or the first name that is no column.
+pub fn signals_named<'a>(names: impl IntoIterator<Item = &'a str>) -> Result<u8, &'a str> {
+    let mut bits = 0;
+    for name in names {
+        match COLUMNS.iter().find(|(_, n)| *n == name) {
+            Some((bit, _)) => bits |= bit,
+            None if name == "t_s" => {}
+            None => return Err(name),
+        }
+    }
+    Ok(bits)
+}
+
+/// The CSV columns a recording may hold after `t_s`, in order.
+pub fn column_names() -> impl Iterator<Item = &'static str> {
+    COLUMNS.into_iter().map(|(_, n)| n)
+}
+
 /// The signals a recording may hold, by their bit, with their CSV column.
 const COLUMNS: [(u8, &str); 7] = [
     (signal::VOLTAGE, "voltage_V"),
