@@ -49,14 +49,15 @@ pub use reply::{
 };
 pub use settings::{Settings, StageSettings};
 
-/// The protocol version of these messages (11: the board's axes and analog
+/// The protocol version of these messages (12: the refusal [`Refusal::Held`]
+/// of the board's hub; 11: the board's axes and analog
 /// front end in the hello; 10: the runtime settings by key
 /// path, [`Command::SettingGet`] and [`Command::SettingSet`]; 9: the governed ticks and the
 /// points a motion dropped from a stream in the status; 8: the learned mass ratio set by
 /// [`Command::LeadRatio`]; 7: the learned mass ratio in the status; 6: the link in the hello, recordings
 /// sent as differences between samples; 5: explicit wire numbers, an axis in
 /// every command that addresses a stage).
-pub const VERSION: u8 = 11;
+pub const VERSION: u8 = 12;
 /// Axes a board has today: a command for axis `AXES` or beyond is refused
 /// ([`Refusal::Axis`]).
 pub const AXES: u8 = 1;

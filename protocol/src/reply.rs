@@ -60,6 +60,9 @@ crate::wire_enum! {
         /// A setting the board does not have (or the running model lacks), or
         /// a value that is not of its type.
         Setting = 14,
+        /// Another client of the board's hub (`fpi board serve`) holds what
+        /// the command needs, the motion or the recorder: the reason names it.
+        Held = 15,
     }
 }
 

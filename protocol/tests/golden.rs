@@ -206,7 +206,7 @@ goldens! {
     Reply, all_replies;
     reply_ack: Reply::Ack => "00";
     reply_hello: Reply::Hello(hello())
-        => "01 0b 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01 01 01";
+        => "01 0c 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01 01 01";
     reply_status: Reply::Status(status())
         => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 00 02 f8 ac d1 91 01";
     reply_record: Reply::Record(batch())
@@ -281,7 +281,7 @@ fn wire_numbers_are_pinned() {
         "Hold=0 Move=1 Wave=2 Stream=3 Analog=4",
         "Malformed=0 Version=1 Unknown=2 Fault=3 NotAtRest=4 StillRamping=5 OutOfRange=6 \
          BadArgument=7 Model=8 Upload=9 Storage=10 NotEmulated=11 Stream=12 Axis=13 \
-         Setting=14",
+         Setting=14 Held=15",
         "Driver=0 Emulated=1",
         "PowerOn=0 Pin=1 Command=2 Watchdog=3 BrownOut=4 Unknown=5",
         "Empty=0 Valid=1 Damaged=2 Refused=3",
@@ -341,7 +341,7 @@ fn a_request_frame_golden() {
         seq: 1,
     };
     let n = frame::encode(&h, &Command::Status { axis: 0 }, &mut scratch, &mut out).unwrap();
-    assert_eq!(hex(&out[..n]), "04 0b 01 01 05 6b 03 9c ee 00");
+    assert_eq!(hex(&out[..n]), "04 0c 01 01 05 d2 3b 4b 73 00");
 }
 
 /// An unknown kind is told apart from garbage; a known kind with bad fields is

@@ -370,6 +370,19 @@ enum BoardCommand {
         #[arg(long, value_name = "ELF")]
         firmware: Option<PathBuf>,
     },
+    /// Serve the board to several local clients at once on a TCP port.
+    ///
+    /// This process owns the board's link (--port); the CLI, Python and a scope
+    /// connect to the port as to a board (--port tcp:HOST:PORT) and are served
+    /// in turn, a request at a time. The client that started the running
+    /// motion holds it, and the client that armed the recorder holds it: the
+    /// others' motion or recorder commands are refused naming the holder
+    /// (hold and safe never are). Runs until stopped (Ctrl-C).
+    Serve {
+        /// Where the clients connect: HOST:PORT.
+        #[arg(long, default_value = "127.0.0.1:4600", value_parser = parse_listen)]
+        listen: String,
+    },
     /// The board, its model and the loop's state.
     Status,
     /// What the board has: axes, analog front end, link, protocol, capacity and
@@ -1043,6 +1056,11 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
     // The outputs must take their files before the board does anything.
     let (outputs, inputs) = command.files();
     fpi_host::output::check_outputs(&outputs, &inputs)?;
+    if let BoardCommand::Serve { listen } = &command {
+        b::catch_ctrl_c()?;
+        let c = b::open(&port)?;
+        return fpi_host::board::hub::serve(c, listen, &b::stop_asked);
+    }
     let mut c = b::open(&port)?;
     // A motion ends whatever stream a previous client left (its points and
     // its supervision): say so.
@@ -1072,7 +1090,7 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
     use fpi_host::cli::board as b;
     use fpi_protocol::Command as C;
     match command {
-        BoardCommand::Emulate { .. } => Ok(()),
+        BoardCommand::Emulate { .. } | BoardCommand::Serve { .. } => Ok(()),
         BoardCommand::Status => b::status(c),
         BoardCommand::Info => {
             print!(

@@ -296,11 +296,32 @@ impl Client {
 
     /// Sends a request and waits for its reply: the reply's tick and the reply.
     pub fn request(&mut self, cmd: &Command<'_>) -> Result<(u32, Reply)> {
-        let timeout = match cmd {
+        self.request_within(cmd, Self::timeout_for(cmd))
+    }
+
+    /// How long the board may take to answer `cmd`.
+    pub fn timeout_for(cmd: &Command<'_>) -> Duration {
+        match cmd {
             Command::ModelCommit { .. } | Command::ModelFactory => STORE_TIMEOUT,
             _ => REPLY_TIMEOUT,
-        };
-        self.request_within(cmd, timeout)
+        }
+    }
+
+    /// The port it was opened on.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Passes another client's request frame (`frame`, delimiter included, as
+    /// it came: the hub's, [`super::hub`]) to the board and waits for the reply
+    /// to request `seq` (any reply where `None`).
+    pub fn forward(
+        &mut self,
+        frame: &[u8],
+        seq: Option<u16>,
+        timeout: Duration,
+    ) -> Result<(ReplyHeader, Reply)> {
+        self.exchange(frame, seq, timeout)
     }
 
     fn request_within(&mut self, cmd: &Command<'_>, timeout: Duration) -> Result<(u32, Reply)> {

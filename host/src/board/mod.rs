@@ -14,6 +14,7 @@ pub mod commands;
 pub mod emulator;
 pub mod follow;
 pub mod frf;
+pub mod hub;
 pub mod info;
 pub mod inprocess;
 pub mod live;
