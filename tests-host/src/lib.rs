@@ -39,7 +39,11 @@ pub fn fpi_bin() -> &'static Path {
         let mut build = Command::new(fpi_host::board::cargo());
         build
             .current_dir(&root)
-            .args(["build", "-p", "fpi-host", "--bin", "fpi"]);
+            // Not `-p fpi-host`: the workspace's default members resolve the
+            // crates' features as `cargo test` does, so this build reuses the
+            // crates it compiled and only links `fpi` (with `-p` the features
+            // differ and most of the host tools were compiled again).
+            .args(["build", "--bin", "fpi"]);
         if release {
             build.arg("--release");
         }
