@@ -1,8 +1,8 @@
 //! Several clients, one link (`fpi board serve`, `fpi_host::board::hub`): on
 //! the in-process board, a client drives the stage while another watches it and
-//! the CLI records it; the motion and the recorder are each held by one client,
-//! the others refused naming the holder; hold never is; what a client that went
-//! held is free again.
+//! the CLI records it; the motion is held by one client, the others refused
+//! naming the holder, hold never is; every client records at once, each its own
+//! decimation and signals, whole; what a client that went held is free again.
 
 use std::net::TcpListener;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -79,19 +79,36 @@ fn one_client_drives_while_others_watch_and_record() {
     );
     assert_eq!(driver.status().unwrap().source, SourceKind::Wave);
 
-    // The recorder: armed by the driver (a live recording), held by it.
+    // Everyone records: the driver's live recording (every 20th tick) and the
+    // watcher's own (every 40th, the position only) run at once, each whole.
     let shared: std::sync::Arc<dyn SharedClient> =
         std::sync::Arc::new(std::sync::Mutex::new(driver));
     let live = Live::start(shared.clone(), signal::ALL, 20, true).unwrap();
-    std::thread::sleep(Duration::from_millis(100));
-    let e = watcher.read_batch().expect_err("a second client's read");
-    assert!(
-        format!("{e:#}").contains("the recorder is held by client 1"),
-        "{e:#}"
-    );
+    let armed = watcher
+        .ack(&Command::Record {
+            decimation: 40,
+            signals: signal::X_REF,
+        })
+        .unwrap();
+    let mut mine = Vec::new();
+    while mine.len() < 40 {
+        std::thread::sleep(Duration::from_millis(20));
+        let b = watcher.read_batch().unwrap();
+        assert!(b.active && b.dropped == 0, "{b:?}");
+        mine.extend(fpi_protocol::record::Sample::batch(b.signals, &b.values));
+    }
+    watcher.ack(&Command::RecordStop).unwrap();
     let (rec, counts) = live.stop().unwrap();
     assert!(counts.whole(), "{counts:?}");
     assert!(rec.samples.len() > 50, "{}", rec.samples.len());
+    assert!(rec.samples.windows(2).all(|w| w[1].tick - w[0].tick == 20));
+    assert!(
+        mine[0].tick > armed && mine[0].tick <= armed + 40,
+        "{} after {armed}",
+        mine[0].tick
+    );
+    assert!(mine.windows(2).all(|w| w[1].tick - w[0].tick == 40));
+    assert!(mine.iter().all(|s| s.voltage == 0 && s.x_ref != 0));
 
     // Anyone may stop the stage; then the motion is anyone's.
     watcher.order(&Command::Hold { axis: 0 }).expect("hold");
@@ -116,10 +133,13 @@ fn what_a_client_that_went_held_is_free_again() {
         .unwrap();
     }
     // The hub sees it go (its session reads every 50 ms), frees the motion
-    // and stops the recorder it left running.
+    // and ends its recording: the board's recorder stops with the last one.
     std::thread::sleep(Duration::from_millis(300));
-    let b = other.read_batch().expect("the recorder is free");
-    assert!(!b.active, "the recorder still runs");
+    assert_eq!(
+        other.status().unwrap().recorder[0],
+        0,
+        "the board's recorder still runs"
+    );
     assert_eq!(other.status().unwrap().source, SourceKind::Wave);
     wave(&mut other);
     halt.store(true, Ordering::Relaxed);

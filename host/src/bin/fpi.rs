@@ -375,9 +375,9 @@ enum BoardCommand {
     /// This process owns the board's link (--port); the CLI, Python and a scope
     /// connect to the port as to a board (--port tcp:HOST:PORT) and are served
     /// in turn, a request at a time. The client that started the running
-    /// motion holds it, and the client that armed the recorder holds it: the
-    /// others' motion or recorder commands are refused naming the holder
-    /// (hold and safe never are). Runs until stopped (Ctrl-C).
+    /// motion holds it: the others' motion commands are refused naming the
+    /// holder (hold and safe never are). Every client may record at once, each
+    /// at its own decimation. Runs until stopped (Ctrl-C).
     Serve {
         /// Where the clients connect: HOST:PORT.
         #[arg(long, default_value = "127.0.0.1:4600", value_parser = parse_listen)]

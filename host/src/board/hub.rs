@@ -8,25 +8,25 @@
 //! whole and its reply returned to that client; requests from different
 //! clients are taken in turn, never interleaved.
 //!
-//! **Who holds what.** Two things cannot be shared, and the hub gives each to
-//! one client at a time:
+//! **Who holds the motion.** The client whose command started the running
+//! motion (a move, wave, stream, step, the analog input, an analysis) holds it
+//! while the board's source runs; another client's motion command is refused
+//! ([`Refusal::Held`], naming the holder). `hold` and `safe` are never refused:
+//! anyone may stop the stage. The motion is free again once the board holds
+//! (the reference at rest) or its holder has gone.
 //!
-//! * **the motion**: the client whose command started the running motion (a
-//!   move, wave, stream, step, the analog input, an analysis) holds it while the
-//!   board's source runs; another client's motion command is refused
-//!   ([`Refusal::Held`], naming the holder). `hold` and `safe` are never
-//!   refused: anyone may stop the stage. The motion is free again once the
-//!   board holds (the reference at rest) or its holder has gone.
-//! * **the recorder**: the client that armed it holds it until it stops it;
-//!   another client's `record`, `record-stop` or read is refused the same way.
-//!   When a holder goes, the hub stops the recorder it left running.
+//! **Everyone records.** The recorder is the hub's ([`super::fanout`]): every
+//! client that arms it gets a recording of its own, with its decimation and
+//! signals, cut from one recording of the board, so a scope, the CLI and a
+//! script can each watch the stage at once. A client that goes ends its
+//! recording.
 //!
 //! Everything else (status, settings, the model, the bench) is anyone's.
 
 use std::io::{ErrorKind, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
-use std::sync::{Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
@@ -36,6 +36,7 @@ use fpi_protocol::{
 };
 
 use super::client::{Client, REPLY_TIMEOUT};
+use super::fanout::Fanout;
 
 /// A client of the hub: its number (from 1, in the order they connected) and
 /// its address.
@@ -53,53 +54,38 @@ impl std::fmt::Display for Peer {
     }
 }
 
-/// Who holds the motion and the recorder.
-#[derive(Debug, Default)]
-struct Holders {
-    motion: Option<Peer>,
-    recorder: Option<Peer>,
-}
-
-/// What a command needs that only one client may hold.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Needs {
-    Motion,
-    Recorder,
-    Nothing,
-}
-
-/// What `cmd` needs.
-fn needs(cmd: &Command<'_>) -> Needs {
-    match cmd {
+/// Whether `cmd` starts a motion (which one client holds at a time).
+fn moves(cmd: &Command<'_>) -> bool {
+    matches!(
+        cmd,
         Command::Move { .. }
-        | Command::Wave { .. }
-        | Command::Points { .. }
-        | Command::Stream { .. }
-        | Command::StreamEnd { .. }
-        | Command::StreamClear { .. }
-        | Command::Analog { .. }
-        | Command::Step { .. }
-        | Command::Analyse { .. } => Needs::Motion,
-        Command::Record { .. } | Command::RecordStop | Command::ReadRecord { .. } => {
-            Needs::Recorder
-        }
-        _ => Needs::Nothing,
-    }
+            | Command::Wave { .. }
+            | Command::Points { .. }
+            | Command::Stream { .. }
+            | Command::StreamEnd { .. }
+            | Command::StreamClear { .. }
+            | Command::Analog { .. }
+            | Command::Step { .. }
+            | Command::Analyse { .. }
+    )
 }
 
-/// The hub: the board's client and who holds what.
+/// The hub: the board's client, who holds the motion, and the recordings.
 pub struct Hub {
-    board: Mutex<Client>,
-    holders: Mutex<Holders>,
+    board: Arc<Mutex<Client>>,
+    motion: Mutex<Option<Peer>>,
+    recorder: Mutex<Fanout>,
     next: AtomicU32,
 }
 
 impl Hub {
     /// A hub over `board`'s link.
     pub fn new(board: Client) -> Self {
+        let board = Arc::new(Mutex::new(board));
         Self {
-            board: Mutex::new(board),
-            holders: Mutex::new(Holders::default()),
+            recorder: Mutex::new(Fanout::new(board.clone())),
+            board,
+            motion: Mutex::new(None),
             next: AtomicU32::new(1),
         }
     }
@@ -203,23 +189,35 @@ impl Hub {
                 .exchange(raw, None, REPLY_TIMEOUT)
                 .map(|(bytes, _)| bytes);
         };
-        let need = needs(&cmd);
-        if let Some(holder) = self.holder_other_than(peer, need) {
-            let what = if need == Needs::Motion {
-                "the motion"
-            } else {
-                "the recorder"
+        if let Some(r) = self.record(peer, &cmd) {
+            return match r {
+                Ok((tick, reply)) => Some(encode(&reply_header(header.seq, tick), &reply)),
+                Err(e) => Some(refused(header.seq, Refusal::BadArgument, &format!("{e:#}"))),
             };
-            return Some(refusal(
-                header.seq,
-                &format!("{what} is held by {holder} of this board's hub: wait, or stop it there"),
-            ));
+        }
+        let moving = moves(&cmd);
+        if moving {
+            if let Some(holder) = self.holder_other_than(peer) {
+                return Some(refused(
+                    header.seq,
+                    Refusal::Held,
+                    &format!(
+                        "the motion is held by {holder} of this board's hub: wait, or stop it there"
+                    ),
+                ));
+            }
         }
         let (bytes, accepted) = self.exchange(raw, Some(header.seq), Client::timeout_for(&cmd))?;
         if accepted {
-            self.took(peer, &cmd, need);
+            self.took(peer, &cmd, moving);
         }
         Some(bytes)
+    }
+
+    /// A recorder command, answered by the hub's recorder.
+    fn record(&self, peer: &Peer, cmd: &Command<'_>) -> Option<Result<(u32, Reply)>> {
+        let mut f = self.recorder.lock().ok()?;
+        f.answer(peer.id, cmd)
     }
 
     /// Passes `raw` to the board: the reply's frame, and whether the board
@@ -233,22 +231,16 @@ impl Hub {
         Some((encode(&h, &reply), accepted))
     }
 
-    /// Who other than `peer` holds what `need` needs, where it is held.
-    fn holder_other_than(&self, peer: &Peer, need: Needs) -> Option<Peer> {
-        let mut h = self.holders.lock().ok()?;
-        match need {
-            Needs::Nothing => None,
-            Needs::Recorder => h.recorder.clone().filter(|p| p != peer),
-            Needs::Motion => {
-                let other = h.motion.clone().filter(|p| p != peer)?;
-                // Free again once the board holds.
-                if self.board_holds() {
-                    h.motion = None;
-                    return None;
-                }
-                Some(other)
-            }
+    /// Who other than `peer` holds the motion, where one does.
+    fn holder_other_than(&self, peer: &Peer) -> Option<Peer> {
+        let mut h = self.motion.lock().ok()?;
+        let other = h.clone().filter(|p| p != peer)?;
+        // Free again once the board holds.
+        if self.board_holds() {
+            *h = None;
+            return None;
         }
+        Some(other)
     }
 
     /// The board's reference is at rest (its source holds).
@@ -259,40 +251,27 @@ impl Hub {
             .unwrap_or(false)
     }
 
-    /// `peer`'s command `cmd`, carried out, takes or frees what it needs.
-    fn took(&self, peer: &Peer, cmd: &Command<'_>, need: Needs) {
-        let Ok(mut h) = self.holders.lock() else {
+    /// `peer`'s command `cmd`, carried out, takes or frees the motion.
+    fn took(&self, peer: &Peer, cmd: &Command<'_>, moving: bool) {
+        let Ok(mut h) = self.motion.lock() else {
             return;
         };
-        match (need, cmd) {
-            (Needs::Motion, _) => h.motion = Some(peer.clone()),
-            (Needs::Recorder, Command::Record { .. }) => h.recorder = Some(peer.clone()),
-            (Needs::Recorder, Command::RecordStop) => h.recorder = None,
-            (Needs::Nothing, Command::Hold { .. } | Command::Safe) => h.motion = None,
-            _ => {}
+        if moving {
+            *h = Some(peer.clone());
+        } else if matches!(cmd, Command::Hold { .. } | Command::Safe) {
+            *h = None;
         }
     }
 
-    /// `peer` went: what it held is free, and a recorder it left running is
-    /// stopped.
+    /// `peer` went: the motion is free if it held it, and its recording ends.
     fn gone(&self, peer: &Peer) {
-        let recorder = {
-            let Ok(mut h) = self.holders.lock() else {
-                return;
-            };
-            if h.motion.as_ref() == Some(peer) {
-                h.motion = None;
+        if let Ok(mut h) = self.motion.lock() {
+            if h.as_ref() == Some(peer) {
+                *h = None;
             }
-            let held = h.recorder.as_ref() == Some(peer);
-            if held {
-                h.recorder = None;
-            }
-            held
-        };
-        if recorder {
-            if let Ok(mut b) = self.lock_board() {
-                let _ = b.ack(&Command::RecordStop);
-            }
+        }
+        if let Ok(mut f) = self.recorder.lock() {
+            f.gone(peer.id);
         }
     }
 
@@ -312,25 +291,27 @@ fn encode(h: &ReplyHeader, reply: &Reply) -> Vec<u8> {
     }
 }
 
-/// The hub's own refusal of request `seq`.
-fn refusal(seq: u16, reason: &str) -> Vec<u8> {
+/// The header of the hub's own reply to request `seq`, at `tick`.
+fn reply_header(seq: u16, tick: u32) -> ReplyHeader {
+    ReplyHeader {
+        version: VERSION,
+        seq,
+        tick,
+    }
+}
+
+/// The hub's own refusal of request `seq` (the reason cut to what a refusal
+/// carries).
+fn refused(seq: u16, code: Refusal, reason: &str) -> Vec<u8> {
     let mut text = Text::new();
     for c in reason.chars() {
         if text.push(c).is_err() {
             break;
         }
     }
-    let h = ReplyHeader {
-        version: VERSION,
-        seq,
-        tick: 0,
-    };
     encode(
-        &h,
-        &Reply::Refused {
-            code: Refusal::Held,
-            reason: text,
-        },
+        &reply_header(seq, 0),
+        &Reply::Refused { code, reason: text },
     )
 }
 

@@ -12,6 +12,7 @@ pub mod client;
 pub mod closed_loop;
 pub mod commands;
 pub mod emulator;
+pub mod fanout;
 pub mod follow;
 pub mod frf;
 pub mod hub;
