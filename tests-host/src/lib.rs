@@ -12,7 +12,9 @@
 //!   of its own).
 //!
 //! This library holds what the test files share beyond `tests/common`: where the
-//! harness is ([`dir`]) and the `fpi` binary they run ([`fpi_bin`]).
+//! harness is ([`dir`]), the `fpi` binary they run ([`fpi_bin`]), and the model
+//! autotune tuned on the emulated board, shared between the test binaries of one
+//! run ([`keep_tuned`], [`kept_tuned`]).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -59,4 +61,37 @@ pub fn fpi_bin() -> &'static Path {
         );
         bin
     })
+}
+
+/// Where the model that `fpi board autotune` tuned (its defaults, the factory
+/// model, the emulated stage as built) is kept for the other test binaries of
+/// the same `cargo test` run: keyed by the emulated firmware's image and the
+/// `cargo test` process (the test binaries' parent), so another run, or
+/// another firmware, never reads it.
+fn tuned_path() -> Option<PathBuf> {
+    use std::hash::{Hash, Hasher};
+    let elf = fpi_host::board::emulator::Emulator::firmware().ok()?;
+    let mut h = std::hash::DefaultHasher::new();
+    std::fs::read(&elf).ok()?.hash(&mut h);
+    #[cfg(unix)]
+    std::os::unix::process::parent_id().hash(&mut h);
+    let dir = fpi_host::board::target_dir().join("tmp");
+    std::fs::create_dir_all(&dir).ok()?;
+    Some(dir.join(format!("tuned-{:016x}.toml", h.finish())))
+}
+
+/// Keeps the tuned model `m` for the other test binaries of this run
+/// ([`kept_tuned`]; `tests/autotune.rs` tunes, `tests/governor.rs` reads: one
+/// autotune on the emulated board instead of two).
+pub fn keep_tuned(m: &fpi_host::model_file::FirmwareModel) {
+    if let (Some(path), Ok(text)) = (tuned_path(), m.to_toml()) {
+        let _ = fpi_host::output::write_atomic(&path, text.as_bytes());
+    }
+}
+
+/// The tuned model another test binary of this run kept ([`keep_tuned`]).
+pub fn kept_tuned() -> Option<fpi_host::model_file::FirmwareModel> {
+    let path = tuned_path()?;
+    let text = std::fs::read_to_string(&path).ok()?;
+    fpi_host::model_file::FirmwareModel::parse(&text, &path.display().to_string()).ok()
 }

@@ -89,6 +89,8 @@ fn tuned() -> &'static Autotune {
         load(&mut c, &fw, StageVariant::BUILT);
         let a = autotune_as_a_user_would(&mut c, &fw).unwrap_or_else(|e| panic!("{e:#}"));
         println!("{}", autotune::table(&a));
+        // The governor's tests run on it too (tests/governor.rs).
+        fpi_tests::keep_tuned(&a.model);
         a
     })
 }

@@ -29,7 +29,7 @@ use std::time::{Duration, Instant};
 
 use fpi_firmware::control::recorder::Sample;
 use fpi_firmware::control::recorder::{signal, status};
-use fpi_host::board::autotune::{self, Autotune};
+use fpi_host::board::autotune;
 use fpi_host::board::client::{real, refusal, Client};
 use fpi_host::board::emulator::{self, Emulator};
 use fpi_host::board::follow::Follow;
@@ -75,10 +75,15 @@ fn load(c: &mut Client, fw: &FirmwareModel, v: StageVariant) {
     c.bench(BenchOrder::Stage(v)).unwrap();
 }
 
-/// Autotune on the stage as built, once for this test binary.
-fn tuned() -> &'static Autotune {
-    static TUNED: OnceLock<Autotune> = OnceLock::new();
+/// The model autotune tunes on the stage as built: the one `tests/autotune.rs`
+/// tuned in this `cargo test` run where it has, else tuned here, once for this
+/// test binary.
+fn tuned() -> &'static FirmwareModel {
+    static TUNED: OnceLock<FirmwareModel> = OnceLock::new();
     TUNED.get_or_init(|| {
+        if let Some(m) = fpi_tests::kept_tuned() {
+            return m;
+        }
         let (_e, mut c) = board("governor: autotune");
         let fw = factory();
         load(&mut c, &fw, StageVariant::BUILT);
@@ -91,6 +96,7 @@ fn tuned() -> &'static Autotune {
             |m| println!("{m}"),
         )
         .unwrap_or_else(|e| panic!("{e:#}"))
+        .model
     })
 }
 
@@ -127,7 +133,7 @@ fn set_up(c: &mut Client, loops: Loops, v: StageVariant, at_um: f64) -> (f64, f6
 fn arm(c: &mut Client, loops: Loops, v: StageVariant) {
     let fw = match loops {
         Loops::Factory => factory(),
-        _ => tuned().model.clone(),
+        _ => tuned().clone(),
     };
     load(c, &fw, v);
     c.move_to(20.0, 1000.0).unwrap();
