@@ -1040,3 +1040,38 @@ fn emulate_tells_a_wrong_firmware_from_a_busy_port() {
         "{err}"
     );
 }
+
+/// `record` without `--seconds` records until stopped, the CSV written as it
+/// comes: Ctrl-C is its normal end (exit 0), every sample on the grid, nothing
+/// lost; a decimation the link cannot carry for ever is refused before the
+/// recorder starts.
+#[test]
+fn record_without_seconds_runs_until_stopped() {
+    let dir = tmp();
+    let out = dir.join("until-stopped.csv");
+    let o = out.to_str().unwrap();
+    let (code, stdout, stderr) = interrupted(
+        &board("virtual:usb", &["record", "--out", o, "--decimation", "20"]),
+        Duration::from_secs(3),
+    );
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
+    assert!(stdout.contains("until stopped"), "{stdout}");
+    assert!(stdout.contains("nothing lost"), "{stdout}");
+    let (head, cols) = csv_columns(&out);
+    assert_eq!(head[0], "t_s");
+    assert!(cols[0].len() > 500, "{} samples", cols[0].len());
+    assert!(
+        cols[0]
+            .windows(2)
+            .all(|w| ((w[1] - w[0]) - 0.001).abs() < 1e-7),
+        "a sample off the 1 ms grid"
+    );
+    let e = fails(&board(
+        "virtual",
+        &["record", "--out", o, "--decimation", "1"],
+    ));
+    assert!(
+        e.contains("--decimation 1: recording until stopped needs"),
+        "{e}"
+    );
+}

@@ -453,9 +453,10 @@ enum BoardCommand {
     },
     /// Record what the stage does into a CSV (the datasets' columns).
     Record {
-        /// Board time to record, s (0 < S ≤ 3600).
+        /// Board time to record, s (0 < S ≤ 3600). Without it, it records
+        /// until stopped (Ctrl-C or SIGTERM), writing the CSV as it comes.
         #[arg(long, value_parser = parse_record_seconds, allow_negative_numbers = true)]
-        seconds: f64,
+        seconds: Option<f64>,
         /// Where to write it.
         #[arg(long)]
         out: PathBuf,
@@ -1129,7 +1130,10 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             seconds,
             out,
             decimation,
-        } => b::record(c, seconds, decimation, &out).map(|_| ()),
+        } => match seconds {
+            Some(seconds) => b::record(c, seconds, decimation, &out).map(|_| ()),
+            None => b::record_until_stopped(c, decimation, &out),
+        },
         BoardCommand::Load {
             model,
             fem,

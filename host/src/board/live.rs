@@ -321,6 +321,55 @@ impl Drop for Live {
     }
 }
 
+/// A recording on this thread for as long as `stop` says no (asked between
+/// reads): the recorder armed for `signals` every `decimation`-th tick, each
+/// batch handed to `sink` as it comes (its samples checked as [`Live`] checks
+/// them), the recorder stopped and its last samples handed over however it
+/// ends. The tick it was armed on, and the counts. For a caller that keeps the
+/// link to itself meanwhile (`fpi board record` without `--seconds`).
+pub fn follow(
+    c: &mut Client,
+    signals: u8,
+    decimation: u16,
+    mut sink: impl FnMut(&[Sample]) -> Result<()>,
+    mut stop: impl FnMut() -> bool,
+) -> Result<(u32, Counts)> {
+    if decimation == 0 {
+        return Err(bad(
+            "decimation",
+            "--decimation",
+            "--decimation 0: keep one tick in 1 or more",
+        ));
+    }
+    let pause = Budget::new(c.hello(), signals, decimation, 1.0).pause();
+    let start = c.ack(&Command::Record {
+        decimation,
+        signals,
+    })?;
+    let mut s = Stream {
+        decimation: u32::from(decimation),
+        ..Stream::default()
+    };
+    let mut run = || -> Result<()> {
+        while !stop() {
+            let b = c.read_batch()?;
+            s.batch(&b);
+            sink(&std::mem::take(&mut s.fresh))?;
+            if b.waiting == 0 {
+                std::thread::sleep(pause);
+            }
+        }
+        Ok(())
+    };
+    let ran = run();
+    let stopped = c.ack(&Command::RecordStop).and_then(|_| c.drain());
+    ran?;
+    let (samples, dropped) = stopped?;
+    s.take(samples.into_iter(), dropped);
+    sink(&s.fresh)?;
+    Ok((start, s.counts))
+}
+
 /// The reader: a batch at a time while samples wait, pausing (a quarter of
 /// the ring's time, at most 20 ms) when none do; ends at `halt` or when the
 /// link fails (the reason kept for [`Live::read`]).

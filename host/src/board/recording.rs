@@ -103,13 +103,24 @@ impl Recording {
 
     /// The CSV's header and rows into `w`.
     fn write_rows(&self, w: &mut dyn Write) -> std::io::Result<()> {
+        self.write_header(w)?;
+        self.write_samples(w, &self.samples)
+    }
+
+    /// The CSV's header (its signals', whatever its samples) into `w`.
+    pub fn write_header(&self, w: &mut dyn Write) -> std::io::Result<()> {
         let mut head = String::from("t_s");
         for (_, name) in self.recorded() {
             head.push(',');
             head.push_str(name);
         }
-        writeln!(w, "{head}")?;
-        for s in &self.samples {
+        writeln!(w, "{head}")
+    }
+
+    /// The CSV's rows of `samples` (recorded with its signals) into `w`: a
+    /// recording written as it comes ([`Self::write_header`] first).
+    pub fn write_samples(&self, w: &mut dyn Write, samples: &[Sample]) -> std::io::Result<()> {
+        for s in samples {
             let mut line = format!("{:.6}", s.tick as f64 / self.rate_hz);
             for (bit, _) in self.recorded() {
                 let v = value(bit, s);

@@ -484,6 +484,76 @@ pub fn stop_asked() -> bool {
     CTRL_C.load(Ordering::SeqCst)
 }
 
+/// `fpi board record` without `--seconds`: records every `decimation`-th tick
+/// until stopped (Ctrl-C, SIGTERM or SIGHUP), the CSV written as the samples come
+/// (into a temporary file renamed to `out` at the end: memory stays flat however
+/// long it runs). Every sample's tick is checked, so a loss is counted and
+/// reported, never silent.
+pub fn record_until_stopped(c: &mut Client, decimation: u16, out: &Path) -> Result<()> {
+    catch_ctrl_c()?;
+    let rate = c.rate_hz();
+    let budget = Budget::new(c.hello(), signal::ALL, decimation, 1.0);
+    if budget.needed() > budget.carried() {
+        anyhow::bail!(
+            "--decimation {decimation}: recording until stopped needs about {:.0} kB/s, more \
+             than the {} link carries ({:.0} kB/s): raise --decimation, or give --seconds \
+             (the board's ring holds a short recording)",
+            budget.needed() / 1e3,
+            budget.link.name(),
+            budget.carried() / 1e3
+        );
+    }
+    let header = Recording {
+        rate_hz: rate,
+        signals: signal::ALL,
+        ..Recording::default()
+    };
+    println!(
+        "recording every {decimation}th tick ({:.0} Hz) into {} until stopped (Ctrl-C)",
+        rate / decimation as f64,
+        out.display()
+    );
+    let (mut n, mut failed, mut counts) = (0usize, None, None);
+    crate::output::write_atomic_with(out, |w| {
+        header.write_header(w)?;
+        let r = crate::board::live::follow(
+            c,
+            signal::ALL,
+            decimation,
+            |samples| {
+                n += samples.len();
+                header.write_samples(w, samples).map_err(Into::into)
+            },
+            stop_asked,
+        );
+        match r {
+            Ok((_, k)) => {
+                counts = Some(k);
+                Ok(())
+            }
+            Err(e) => {
+                let m = format!("{e:#}");
+                failed = Some(e);
+                Err(std::io::Error::other(m))
+            }
+        }
+    })
+    .map_err(|e| failed.take().unwrap_or(e))?;
+    let counts = counts.unwrap_or_default();
+    println!(
+        "{n} samples ({:.3} s at {:.0} Hz) written to {}; the recorder is stopped{}",
+        n as f64 * decimation as f64 / rate,
+        rate / decimation as f64,
+        out.display(),
+        if counts.whole() {
+            ", nothing lost".to_string()
+        } else {
+            format!("; lost: {}", counts.losses())
+        }
+    );
+    Ok(())
+}
+
 /// `fpi board record`: records every `decimation`-th tick for `seconds` of board
 /// time into a CSV ([`commands::record`]). Ctrl-C stops it early: the recorder is
 /// stopped, what it recorded is written (a valid CSV) and the error is
