@@ -155,6 +155,54 @@ impl Sample {
     }
 }
 
+/// A batch's values being packed ([`Batch::values`](crate::Batch::values)):
+/// samples as [`Sample::deltas`] from the one before, while they fit a batch
+/// ([`MAX_BATCH_BYTES`](crate::MAX_BATCH_BYTES) on the wire,
+/// [`MAX_VALUES`](crate::MAX_VALUES) values). The board packs its ring with it,
+/// the host's hub the queues it keeps for its clients.
+#[derive(Debug, Clone)]
+pub struct Packer {
+    signals: u8,
+    values: heapless::Vec<i32, { crate::MAX_VALUES }>,
+    bytes: usize,
+    prev: Sample,
+}
+
+impl Packer {
+    /// Empty, for the signals `signals` (`signal` bits).
+    pub fn new(signals: u8) -> Self {
+        Self {
+            signals,
+            values: heapless::Vec::new(),
+            bytes: 0,
+            prev: Sample::default(),
+        }
+    }
+
+    /// Packs `s` if it fits the batch; whether it did (a sample that does not
+    /// is left for the next batch).
+    pub fn push(&mut self, s: &Sample) -> bool {
+        let len: usize = s.deltas(&self.prev, self.signals).map(wire_len).sum();
+        if self.bytes + len > crate::MAX_BATCH_BYTES
+            || self.values.len() + Sample::width(self.signals) > crate::MAX_VALUES
+        {
+            return false;
+        }
+        for v in s.deltas(&self.prev, self.signals) {
+            // Room for every value was checked above.
+            let _ = self.values.push(v);
+        }
+        self.bytes += len;
+        self.prev = *s;
+        true
+    }
+
+    /// The batch's values.
+    pub fn values(self) -> heapless::Vec<i32, { crate::MAX_VALUES }> {
+        self.values
+    }
+}
+
 /// Bytes one value takes on the wire (postcard's zigzag varint: 7 bits a byte).
 pub const fn wire_len(v: i32) -> usize {
     let z = ((v << 1) ^ (v >> 31)) as u32;

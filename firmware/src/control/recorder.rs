@@ -9,7 +9,7 @@
 //! Values are the core's raw fixed-point bits (`I16F16`: µm, V, N), so a recording
 //! carries exactly what the loop computed.
 
-pub use fpi_protocol::record::{signal, status, wire_len, Sample, NO_TRUE_POSITION};
+pub use fpi_protocol::record::{signal, status, wire_len, Packer, Sample, NO_TRUE_POSITION};
 
 /// The recorder: its ring (state) and settings.
 #[derive(Debug, Clone)]

@@ -18,8 +18,8 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 
 use anyhow::Result;
-use fpi_protocol::record::{signal, wire_len, Sample};
-use fpi_protocol::{Batch, Command, Reply, MAX_BATCH_BYTES, MAX_VALUES};
+use fpi_protocol::record::{signal, Packer, Sample};
+use fpi_protocol::{Batch, Command, Reply};
 use heapless::Vec as HVec;
 
 use super::client::Client;
@@ -136,23 +136,14 @@ impl Fanout {
             };
             return Ok((tick, idle));
         };
-        let mut values = HVec::new();
-        let (mut bytes, mut prev) = (0, Sample::default());
+        let mut packer = Packer::new(w.signals);
         for _ in 0..max {
-            let Some(next) = w.queue.front().copied() else {
-                break;
-            };
-            let len: usize = next.deltas(&prev, w.signals).map(wire_len).sum();
-            if bytes + len > MAX_BATCH_BYTES || values.len() + Sample::width(w.signals) > MAX_VALUES
-            {
-                break;
+            match w.queue.front() {
+                Some(next) if packer.push(next) => {
+                    w.queue.pop_front();
+                }
+                _ => break,
             }
-            for v in next.deltas(&prev, w.signals) {
-                let _ = values.push(v);
-            }
-            bytes += len;
-            prev = next;
-            w.queue.pop_front();
         }
         let batch = Batch {
             signals: w.signals,
@@ -160,7 +151,7 @@ impl Fanout {
             active: w.active,
             dropped: w.overflow.saturating_add(lost),
             waiting: w.queue.len() as u32,
-            values,
+            values: packer.values(),
         };
         Ok((tick, batch))
     }

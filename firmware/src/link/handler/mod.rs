@@ -22,7 +22,7 @@ use super::pace::{reached, Pace};
 use super::protocol::{
     Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, FrontEndKind, Header,
     Hello, LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES,
-    MAX_BATCH_BYTES, MAX_FRAME, MAX_MODEL_BYTES, MAX_VALUES, NO_SEQ, VERSION,
+    MAX_FRAME, MAX_MODEL_BYTES, NO_SEQ, VERSION,
 };
 use super::refusal::{refuse, Refuse};
 use super::upload::Upload;
@@ -33,7 +33,7 @@ use crate::board::capacity::{
 use crate::board::storage::{ModelFlash, Slot, Stored};
 use crate::control::analyser::AnalyseOrder;
 use crate::control::exchange::{Exchange, Order, Refused};
-use crate::control::recorder::{signal, wire_len, Sample};
+use crate::control::recorder::{signal, Packer};
 use crate::control::reference::wave::Wave;
 use crate::control::reference::SourceOrder;
 use crate::control::slots::{Origin, Running, Spare, Summary};
@@ -1022,24 +1022,17 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
 /// exchange is locked for one sample at a time, so the control ISR waits at
 /// most a sample's copy however long the batch.
 fn batch(board: &mut impl Board, signals: u8, max: u16) -> Batch {
-    let mut values = Vec::new();
-    let (mut bytes, mut prev) = (0, Sample::default());
+    let mut packer = Packer::new(signals);
     for _ in 0..max {
         let Some(next) = board.exchange(|x| x.recorder.peek()) else {
             break;
         };
-        let len: usize = next.deltas(&prev, signals).map(wire_len).sum();
-        if bytes + len > MAX_BATCH_BYTES || values.len() + Sample::width(signals) > MAX_VALUES {
+        if !packer.push(&next) {
             break;
         }
-        for v in next.deltas(&prev, signals) {
-            // Room for every value was checked above.
-            let _ = values.push(v);
-        }
-        bytes += len;
-        prev = next;
         board.exchange(|x| x.recorder.take());
     }
+    let values = packer.values();
     board.exchange(|x| Batch {
         signals,
         decimation: x.recorder.decimation(),
