@@ -539,3 +539,44 @@ def test_a_live_recording_checks_its_arguments_and_can_keep_only_what_is_unread(
         pass
     assert not rec.running
     assert len(board.record(seconds=0.05)["t_s"]) > 0
+
+
+def test_two_scripts_share_one_board_through_the_hub():
+    """`fpi board serve`: one process owns the board's link; a script drives
+    the stage while another records it live, and the recorder's script's
+    motion is refused naming the driver."""
+    import signal
+    import socket
+    import subprocess
+
+    from conftest import fpi_command
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    hub = subprocess.Popen(
+        fpi_command() + ["board", "--port", "virtual:usb", "serve", "--listen", f"127.0.0.1:{port}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert "serving" in hub.stdout.readline()
+        address = f"tcp:127.0.0.1:{port}"
+        with pf.Board(address) as driver, pf.Board(address) as watcher:
+            driver.move(12.0)
+            driver.wait_on_target(timeout=10.0)
+            rec = watcher.record_start(decimation=20)
+            driver.wave("sine", amplitude_um=2, offset_um=12, freq_hz=40)
+            time.sleep(0.5)
+            with pytest.raises(pf.BoardError, match=r"the motion is held by client 1"):
+                watcher.move(5.0)
+            whole = rec.stop()
+            driver.hold()
+        assert len(whole["t_s"]) > 300
+        assert np.allclose(np.diff(whole["t_s"]), 20 / 20000.0)
+        assert whole["x_ref_um"].max() > 13.5
+        assert (rec.gaps, rec.dropped) == (0, 0)
+    finally:
+        hub.send_signal(signal.SIGINT)
+        hub.wait(timeout=10)
