@@ -173,8 +173,14 @@ impl Fanout {
         let Ok(block) = live.read() else {
             return;
         };
+        self.hand_out(&block.samples);
+    }
+
+    /// The board's samples `samples` into each active client's queue: those on
+    /// its grid, while its queue has room (else counted as its overflow).
+    fn hand_out(&mut self, samples: &[Sample]) {
         for w in self.watches.values_mut().filter(|w| w.active) {
-            for s in &block.samples {
+            for s in samples {
                 if s.tick.wrapping_sub(w.next) as i32 >= 0 {
                     w.next = s.tick.wrapping_add(w.decimation);
                     if w.queue.len() < QUEUE {
@@ -216,14 +222,7 @@ impl Fanout {
                 .dropped
                 .saturating_add(counts.missing.min(u64::from(u32::MAX)) as u32);
             self.lost_before = self.lost_before.saturating_add(lost);
-            for w in self.watches.values_mut().filter(|w| w.active) {
-                for s in &rec.samples {
-                    if s.tick.wrapping_sub(w.next) as i32 >= 0 {
-                        w.next = s.tick.wrapping_add(w.decimation);
-                        w.queue.push_back(*s);
-                    }
-                }
-            }
+            self.hand_out(&rec.samples);
         }
         Ok(())
     }
