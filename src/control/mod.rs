@@ -42,9 +42,13 @@
 //! of 32 N.
 //!
 //! A reading that stays the same to the bit while the FEM's preload at the
-//! estimated extension moves by more than the tolerance is a stuck sensor
+//! estimated extension moves by more than half the tolerance is a stuck sensor
 //! ([`Fault::ForceImplausible`]): neither the learned map nor the split's
-//! low-pass can hide it.
+//! low-pass can hide it. Half, so that a stage swinging the preload by more than
+//! twice the tolerance shows a frozen reading within one swing wherever in it
+//! the sensor froze (with the whole tolerance, one frozen near the middle of a
+//! swing of 2.2 × the tolerance went unseen for cycles). A working sensor never
+//! holds its bits while the preload moves by several newtons.
 //!
 //! The virtual sensor's stage position `f_K(x_pea_est)` is a lookup the ISR does
 //! not need; telemetry consumers get it from [`ControllerConfig::stage_position`].
@@ -334,12 +338,14 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             learned.wrapping_add(hi_word(st.force_slow))
         };
         // A reading frozen (bit for bit) while the FEM's preload at the estimate
-        // moved by more than the tolerance: a stuck sensor, whatever the learned
-        // map and the split's low-pass have absorbed of the residual.
+        // moved by more than half the tolerance (twice the move against the
+        // tolerance's window, no field of its own): a stuck sensor, whatever the
+        // learned map and the split's low-pass have absorbed of the residual.
+        // Twice a move wraps only beyond 16 384 N, where the reading (inside
+        // ±4096 N) is already far outside the dynamic window.
         let stuck = if reading.to_bits() == st.force_held.to_bits() {
-            !self
-                .residual_window
-                .contains(residual(model, st.force_held_model))
+            let moved = residual(model, st.force_held_model).to_bits();
+            !self.residual_window.contains_bits(moved.wrapping_shl(1))
         } else {
             st.force_held = reading;
             st.force_held_model = model;

@@ -405,6 +405,43 @@ fn a_reading_frozen_while_the_preload_moves_is_a_stuck_sensor() {
     assert!(k < 400, "{k}");
 }
 
+/// Frozen in the middle of a swing whose preload stays within the tolerance of
+/// the frozen reading (±0.6 × 15 N): the residual never leaves the tolerance, but
+/// the preload moves by more than half of it under an unchanged reading, within
+/// the first half swing.
+#[test]
+fn a_reading_frozen_mid_swing_is_seen_within_the_swing() {
+    let c = testkit::controller();
+    let mut st = c.initial_state();
+    drive_to(&c, &mut st, 1.0);
+    assert_eq!(drive_to(&c, &mut st, 12.0).fault, None);
+    let mid = st.x_pea_est().to_num::<f64>();
+    let frozen = force_at(&c, st.x_pea_est());
+    // The testkit's preload is 60 + 4·x_pea N: ±9 N is ±2.25 µm of extension.
+    let stage = |x_pea: f64| c.stage_position(um(x_pea)).to_num::<f64>();
+    let (lo, hi) = (stage(mid - 2.25), stage(mid + 2.25));
+    let centre = stage(mid);
+    let mut seen = None;
+    for k in 1..=1600 {
+        let phase = 2.0 * core::f64::consts::PI * k as f64 / 800.0;
+        let s = phase.sin();
+        let x_ref = centre + s * if s > 0.0 { hi - centre } else { centre - lo };
+        let out = c.step(&mut st, um(x_ref), frozen);
+        let off = force_at(&c, st.x_pea_est()).to_num::<f64>() - frozen.to_num::<f64>();
+        assert!(
+            off.abs() < 15.0,
+            "the preload stays within the tolerance: {off}"
+        );
+        if let Some(f) = out.fault {
+            seen = Some((k, f));
+            break;
+        }
+    }
+    let (k, f) = seen.expect("a sensor frozen mid-swing is seen");
+    assert_eq!(f, Fault::ForceImplausible);
+    assert!(k < 400, "seen within the first half swing: {k}");
+}
+
 #[test]
 fn a_tripped_fault_ramps_to_safe_like_a_detected_one_and_codes_round_trip() {
     let c = testkit::controller();
