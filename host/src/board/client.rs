@@ -575,8 +575,13 @@ impl Client {
 
     /// Takes one batch of recorded samples.
     pub fn read_batch(&mut self) -> Result<Batch> {
+        self.read_batch_at().map(|(_, b)| b)
+    }
+
+    /// Takes one batch of recorded samples, with the board's tick at its reply.
+    pub fn read_batch_at(&mut self) -> Result<(u32, Batch)> {
         match self.request(&Command::ReadRecord { max: u16::MAX })? {
-            (_, Reply::Record(b)) => Ok(b),
+            (tick, Reply::Record(b)) => Ok((tick, b)),
             (_, r) => bail!("unexpected reply to read record: {r:?}"),
         }
     }

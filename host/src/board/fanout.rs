@@ -1,15 +1,19 @@
 //! The hub's recorder, shared ([`super::hub`]): every client that arms the
 //! recorder gets a recording of its own — its decimation, its signals, its
 //! queue — cut from one live recording of the board ([`super::live`]) at the
-//! finest decimation any of them asked (their greatest common divisor), so
-//! that a scope, the CLI and a script can each record the stage at once.
+//! finest decimation any of them asked (their greatest common divisor) with
+//! the signals any of them asked, so that a scope, the CLI and a script can
+//! each record the stage at once.
 //!
 //! A client's `Record`, `RecordStop` and `ReadRecord` are answered here, as
 //! the board answers them: a recording starts after the tick it was armed on,
 //! keeps one sample every `decimation` ticks, and is read in batches; a
 //! stopped recording can still be read. A client that arms a finer
-//! decimation than the others restarts the board's recording: the others'
-//! next sample may then fall off their grid, which their tick numbers show.
+//! decimation or a signal the others did not restarts the board's recording:
+//! the others' next sample may then fall off their grid, which their tick
+//! numbers show. A read's reply carries the board's tick at the hub's latest
+//! read of the board (not a ping of its own: the link's time goes to the
+//! samples).
 //! Nothing is lost silently: a batch's `dropped` counts what the board's ring
 //! dropped and the samples a client's queue could not keep (a client that does
 //! not read for [`QUEUE`] samples).
@@ -81,22 +85,23 @@ impl Fanout {
     fn arm(&mut self, id: u32, decimation: u16, signals: u8) -> Result<u32> {
         self.distribute();
         let d = u32::from(decimation.max(1));
-        let wanted = self
-            .watches
-            .values()
-            .filter(|w| w.active)
-            .fold(d, |g, w| gcd(g, w.decimation));
-        let running = self.live.as_ref().map(|l| u32::from(l.decimation));
-        let tick = if running == Some(wanted) {
+        let signals = signals & signal::ALL;
+        let active = || self.watches.values().filter(|w| w.active);
+        let wanted = active().fold(d, |g, w| gcd(g, w.decimation));
+        let wanted_signals = active().fold(signals, |s, w| s | w.signals);
+        let covers = self.live.as_ref().is_some_and(|l| {
+            u32::from(l.decimation) == wanted && l.signals & wanted_signals == wanted_signals
+        });
+        let tick = if covers {
             self.tick()?
         } else {
-            self.restart(wanted as u16)?
+            self.restart(wanted as u16, wanted_signals)?
         };
         self.watches.insert(
             id,
             Watch {
                 decimation: d,
-                signals: signals & signal::ALL,
+                signals,
                 active: true,
                 next: tick.wrapping_add(1),
                 queue: VecDeque::new(),
@@ -123,7 +128,13 @@ impl Fanout {
     fn read(&mut self, id: u32, max: u16) -> Result<(u32, Batch)> {
         self.distribute();
         let lost = self.lost();
-        let tick = self.tick()?;
+        // The board's tick at the hub's latest read of it (never later than
+        // the board's: a client reads on), rather than a ping to the board
+        // for every client's read.
+        let tick = match self.live.as_ref().and_then(Live::board_tick) {
+            Some(t) => t,
+            None => self.tick()?,
+        };
         let Some(w) = self.watches.get_mut(&id) else {
             // Never armed: an idle recorder, as the board's.
             let idle = Batch {
@@ -203,11 +214,11 @@ impl Fanout {
         self.lost_before.saturating_add(now)
     }
 
-    /// Restarts the board's recording at `decimation`, every signal; the tick
+    /// Restarts the board's recording at `decimation` with `signals`; the tick
     /// it started on.
-    fn restart(&mut self, decimation: u16) -> Result<u32> {
+    fn restart(&mut self, decimation: u16, signals: u8) -> Result<u32> {
         self.halt()?;
-        let live = Live::start(self.link.clone(), signal::ALL, decimation, false)?;
+        let live = Live::start(self.link.clone(), signals, decimation, false)?;
         let tick = live.start;
         self.live = Some(live);
         Ok(tick)

@@ -119,6 +119,8 @@ struct Stream {
     blocks: u64,
     /// Why the reader stopped, if it failed.
     failed: Option<String>,
+    /// The board's tick at the reply to the latest read.
+    board_tick: Option<u32>,
 }
 
 impl Stream {
@@ -264,6 +266,12 @@ impl Live {
         lock(&self.stream).map(|s| s.counts).unwrap_or_default()
     }
 
+    /// The board's tick at the reply to the reader's latest read (at most one
+    /// pause old, [`Budget::pause`]); `None` before the first.
+    pub fn board_tick(&self) -> Option<u32> {
+        lock(&self.stream).ok().and_then(|s| s.board_tick)
+    }
+
     /// Whether the reader still runs.
     pub fn running(&self) -> bool {
         self.reader.as_ref().is_some_and(|r| !r.is_finished())
@@ -378,9 +386,11 @@ fn read_on(link: &dyn SharedClient, stream: &Mutex<Stream>, halt: &AtomicBool, p
     while !halt.load(Ordering::Relaxed) {
         let mut waiting = 0;
         let r = link.with_client(&mut |c| {
-            let b = c.read_batch()?;
+            let (tick, b) = c.read_batch_at()?;
             waiting = b.waiting;
-            lock(stream)?.batch(&b);
+            let mut s = lock(stream)?;
+            s.board_tick = Some(tick);
+            s.batch(&b);
             Ok(())
         });
         if let Err(e) = r {
