@@ -6,6 +6,7 @@
 //! file or line and the value, and writes every file atomically.
 
 pub mod board;
+pub mod scope;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};

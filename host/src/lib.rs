@@ -13,6 +13,8 @@
 //!   running it on the emulated board (QEMU) or in this process, its link's client,
 //!   the scripted sessions, the twin, and measuring the fixed-point core against
 //!   its f64 reference ([`board::accuracy`]).
+//! * [`scope`] — `fpi scope`: the board's recorder streamed live to a page in the
+//!   browser, served from this binary.
 //! * [`report`] — the Markdown report, its SVG plots, and `fpi demo`, the whole
 //!   chain on the project's datasets and the emulated board (so after `board`).
 //! * [`cli`] — the `fpi` commands, `fpi board …` among them ([`cli::board`]); the
@@ -24,6 +26,7 @@ pub mod data;
 pub mod method;
 pub mod output;
 pub mod report;
+pub mod scope;
 
 /// The firmware model file (shared with the firmware's build).
 pub use piezo_sim::file as model_file;
@@ -33,7 +36,9 @@ mod layers {
     use std::path::{Path, PathBuf};
 
     /// The layers, in order: each may use those before it.
-    const ORDER: [&str; 6] = ["output", "data", "method", "board", "report", "cli"];
+    const ORDER: [&str; 7] = [
+        "output", "data", "method", "board", "scope", "report", "cli",
+    ];
 
     /// The `.rs` files of a layer: `src/NAME.rs` and everything under `src/NAME/`.
     fn files(layer: &str) -> Vec<PathBuf> {

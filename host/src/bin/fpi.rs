@@ -217,6 +217,33 @@ enum Command {
     },
     /// Throughput of the host model and the calibration (figures, not a test).
     Bench,
+    /// Watch the board live in the browser: a scope of its recorder.
+    ///
+    /// Serves a local page (nothing from the internet) showing the board's
+    /// recorder as it streams: roll mode, a trigger on any channel, pause and
+    /// zoom, per-channel scale, a spectrum, an X–Y view (the hysteresis loop),
+    /// export to CSV and PNG. Every sample reaches the page; gaps are counted
+    /// and shown. To drive the board meanwhile from the CLI or Python, serve it
+    /// first (`fpi board serve`) and point the scope and the others at the
+    /// served port. Runs until stopped (Ctrl-C).
+    Scope {
+        /// The board's port: a serial device, tcp:HOST:PORT (the emulated board
+        /// or `fpi board serve`).
+        #[arg(long, env = "FPI_BOARD")]
+        port: String,
+        /// Where the page is served: HOST:PORT (port 0: any free one).
+        #[arg(long, default_value = "127.0.0.1:4610", value_parser = parse_listen)]
+        listen: String,
+        /// The signals to stream, by their recording column (x_ref_um,
+        /// x_est_um, x_fhps_um, x_sensor_um, voltage_V, force_N, status);
+        /// default: all.
+        #[arg(long, value_delimiter = ',')]
+        signals: Vec<String>,
+        /// Keep one tick in this many (default: every tick where the link
+        /// carries it, else the fewest ticks it does).
+        #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+        decimation: Option<u16>,
+    },
     /// The stage's linear dynamics from chirps (voltage → x_fhps_um).
     ///
     /// Frequency response, rational transfer function, voltage-dependent gain,
@@ -985,6 +1012,12 @@ fn run(args: Args) -> Result<()> {
         }
         Command::Demo { out } => cli::demo(&out).context("demo"),
         Command::Bench => cli::bench(),
+        Command::Scope {
+            port,
+            listen,
+            signals,
+            decimation,
+        } => fpi_host::cli::scope::run(&port, &listen, &signals, decimation),
         Command::Identify {
             chirps,
             out,

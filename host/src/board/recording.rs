@@ -78,10 +78,8 @@ impl Recording {
 
     /// The columns recorded, in the CSV's order after `t_s`: each signal bit with
     /// its column name.
-    fn recorded(&self) -> impl Iterator<Item = (u8, &'static str)> + '_ {
-        COLUMNS
-            .into_iter()
-            .filter(move |(bit, _)| self.signals & bit != 0)
+    fn recorded(&self) -> impl Iterator<Item = (u8, &'static str)> {
+        columns_of(self.signals)
     }
 
     /// The recording by column, as the CSV has them (`t_s` first, in s; then the
@@ -157,6 +155,14 @@ pub fn column_names() -> impl Iterator<Item = &'static str> {
     COLUMNS.into_iter().map(|(_, n)| n)
 }
 
+/// The columns of a recording of `signals`, in the CSV's order after `t_s`:
+/// each signal bit with its column name.
+pub fn columns_of(signals: u8) -> impl Iterator<Item = (u8, &'static str)> {
+    COLUMNS
+        .into_iter()
+        .filter(move |(bit, _)| signals & bit != 0)
+}
+
 /// The signals a recording may hold, by their bit, with their CSV column.
 const COLUMNS: [(u8, &str); 7] = [
     (signal::VOLTAGE, "voltage_V"),
@@ -169,7 +175,7 @@ const COLUMNS: [(u8, &str); 7] = [
 ];
 
 /// The value of signal `bit` in a sample, in µm, V or N (`status`: its bits).
-fn value(bit: u8, s: &Sample) -> f64 {
+pub fn value(bit: u8, s: &Sample) -> f64 {
     match bit {
         signal::VOLTAGE => real(s.voltage),
         signal::FORCE => real(s.force),

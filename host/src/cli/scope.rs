@@ -1,0 +1,68 @@
+//! `fpi scope`: opens the board, picks what to stream and serves the page
+//! ([`crate::scope`]) until stopped.
+
+use std::sync::{Arc, Mutex};
+
+use anyhow::{bail, Result};
+use fpi_protocol::record::signal;
+
+use super::board::{catch_ctrl_c, open, stop_asked};
+use crate::board::budget::Budget;
+use crate::board::recording;
+use crate::scope::{self, Options};
+
+/// `fpi scope --port PORT --listen HOST:PORT [--signals …] [--decimation N]`.
+pub fn run(port: &str, listen: &str, signals: &[String], decimation: Option<u16>) -> Result<()> {
+    catch_ctrl_c()?;
+    let signals = if signals.is_empty() {
+        signal::ALL
+    } else {
+        match recording::signals_named(signals.iter().map(String::as_str)) {
+            Ok(bits) => bits,
+            Err(name) => bail!(
+                "--signals {name}: no such signal (one of {})",
+                recording::column_names().collect::<Vec<_>>().join(", ")
+            ),
+        }
+    };
+    let c = open(port)?;
+    let decimation = match decimation {
+        Some(d) => d,
+        None => fewest_ticks(c.hello(), signals),
+    };
+    let board = c.name().to_string();
+    let link = Arc::new(Mutex::new(c));
+    let t = scope::serve(
+        link,
+        &board,
+        listen,
+        Options {
+            signals,
+            decimation,
+        },
+        &stop_asked,
+        &|url| {
+            println!(
+                "scope of {board} at {url} ({} at every {decimation}. tick); Ctrl-C ends",
+                scope::channels(signals)
+                    .iter()
+                    .map(|(n, _)| *n)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        },
+    )?;
+    println!("{}", scope::closing(&t));
+    Ok(())
+}
+
+/// The fewest ticks between samples the link carries for `signals` (1 where
+/// it carries every tick).
+fn fewest_ticks(hello: &fpi_protocol::Hello, signals: u8) -> u16 {
+    (1..=u16::MAX)
+        .find(|&d| {
+            let b = Budget::new(hello, signals, d, 1.0);
+            b.needed() <= b.carried()
+        })
+        .unwrap_or(u16::MAX)
+}
