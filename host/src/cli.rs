@@ -719,6 +719,10 @@ pub fn bench() -> Result<()> {
         "{}",
         crate::method::bench::scaling(crate::method::bench::SAMPLES)?
     );
+
+    // The live stream from the board's recorder to the scope's page, at a real
+    // board's rate (the in-process board keeps board time with wall time).
+    println!("{}", crate::scope::bench::stream(3.0)?);
     Ok(())
 }
 

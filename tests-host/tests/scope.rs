@@ -141,6 +141,8 @@ fn the_page_shows_a_live_sine_with_its_spectrum_and_a_still_trigger() {
     let Some(exe) = browser_for(TEST) else {
         return;
     };
+    // The CLI built first, so that the times below are the scope's.
+    fpi_tests::fpi_bin();
     // The emulated board, its link paced as USB, served to several clients.
     let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
     let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));

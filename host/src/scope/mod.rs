@@ -23,6 +23,8 @@
 //! messages it could not take, counted in its gaps and missing samples: never
 //! silently.
 
+pub mod bench;
+
 use std::io::{Read, Write};
 use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
