@@ -1071,7 +1071,7 @@ fn record_without_seconds_runs_until_stopped() {
         &["record", "--out", o, "--decimation", "1"],
     ));
     assert!(
-        e.contains("--decimation 1: recording until stopped needs"),
+        e.contains("--decimation 1: recording until stopped: the stream needs about"),
         "{e}"
     );
 }

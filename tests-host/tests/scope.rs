@@ -260,3 +260,36 @@ fn the_page_shows_a_live_sine_with_its_spectrum_and_a_still_trigger() {
     hub.join().unwrap().expect("the hub");
     drop(e);
 }
+
+/// `fpi scope` refuses what it cannot do before it serves anything, naming the
+/// option and its value: an unknown signal, a decimation the link cannot carry
+/// for ever, an address already taken.
+#[test]
+fn the_scope_refuses_bad_options_by_name() {
+    common::refused(
+        &["scope", "--port", "virtual", "--signals", "x_ref_um,speed"],
+        &["--signals speed: no such signal", "x_fhps_um"],
+    );
+    // The in-process board's link is paced as its UART (12 kB/s).
+    common::refused(
+        &[
+            "scope",
+            "--port",
+            "virtual",
+            "--listen",
+            "127.0.0.1:0",
+            "--decimation",
+            "1",
+        ],
+        &[
+            "--decimation 1: the stream needs about",
+            "uart link carries",
+        ],
+    );
+    let taken = TcpListener::bind("127.0.0.1:0").unwrap();
+    let at = taken.local_addr().unwrap().to_string();
+    common::refused(
+        &["scope", "--port", "virtual", "--listen", &at],
+        &[&format!("listening on {at}")],
+    );
+}

@@ -232,7 +232,7 @@ enum Command {
         #[arg(long, env = "FPI_BOARD")]
         port: String,
         /// Where the page is served: HOST:PORT (port 0: any free one).
-        #[arg(long, default_value = "127.0.0.1:4610", value_parser = parse_listen)]
+        #[arg(long, default_value = "127.0.0.1:4610", value_parser = parse_listen_any)]
         listen: String,
         /// The signals to stream, by their recording column (x_ref_um,
         /// x_est_um, x_fhps_um, x_sensor_um, voltage_V, force_N, status);
@@ -825,6 +825,14 @@ fn parse_listen(s: &str) -> Result<String, String> {
     fpi_host::board::port::tcp_address(s)
         .map(|_| s.to_string())
         .map_err(|e| format!("{e:#}"))
+}
+
+/// `--listen` where port 0 (any free port, the address printed) is allowed.
+fn parse_listen_any(s: &str) -> Result<String, String> {
+    match s.strip_suffix(":0") {
+        Some(host) => parse_listen(&format!("{host}:1")).map(|_| s.to_string()),
+        None => parse_listen(s),
+    }
 }
 
 /// A finite number.

@@ -85,6 +85,32 @@ impl Budget {
         self.needed() <= HEADROOM * self.carried() || self.samples <= f64::from(self.ring)
     }
 
+    /// What is wrong with a recording that runs until stopped (a live one: the
+    /// ring no help), or `None` where the link carries it for ever: "the stream
+    /// needs about … kB/s, more than the … link carries (… kB/s)".
+    pub fn beyond_the_link(&self) -> Option<String> {
+        (self.needed() > self.carried()).then(|| {
+            format!(
+                "the stream needs about {:.0} kB/s, more than the {} link carries ({:.0} kB/s)",
+                self.needed() / 1e3,
+                self.link.name(),
+                self.carried() / 1e3
+            )
+        })
+    }
+
+    /// The fewest ticks between samples at which the board that said `hello`
+    /// streams `signals` for ever (1 where it streams every tick).
+    pub fn continuous_decimation(hello: &Hello, signals: u8) -> u16 {
+        (1..=u16::MAX)
+            .find(|&d| {
+                Self::new(hello, signals, d, 1.0)
+                    .beyond_the_link()
+                    .is_none()
+            })
+            .unwrap_or(u16::MAX)
+    }
+
     /// The smallest decimation at which the link keeps up.
     pub fn decimation_that_fits(&self, rate_hz: u32) -> u16 {
         (1..=u16::MAX)

@@ -199,17 +199,13 @@ impl Live {
         let mut armed = None;
         link.with_client(&mut |c| {
             let budget = Budget::new(c.hello(), signals, decimation, 1.0);
-            if budget.needed() > budget.carried() {
+            if let Some(why) = budget.beyond_the_link() {
                 return Err(bad(
                     "decimation",
                     "--decimation",
                     &format!(
-                        "--decimation {decimation}: the stream needs about {:.0} kB/s, more than \
-                         the {} link carries ({:.0} kB/s): raise the decimation or record fewer \
-                         signals",
-                        budget.needed() / 1e3,
-                        budget.link.name(),
-                        budget.carried() / 1e3
+                        "--decimation {decimation}: {why}: raise the decimation or record fewer \
+                         signals"
                     ),
                 ));
             }

@@ -493,14 +493,10 @@ pub fn record_until_stopped(c: &mut Client, decimation: u16, out: &Path) -> Resu
     catch_ctrl_c()?;
     let rate = c.rate_hz();
     let budget = Budget::new(c.hello(), signal::ALL, decimation, 1.0);
-    if budget.needed() > budget.carried() {
+    if let Some(why) = budget.beyond_the_link() {
         anyhow::bail!(
-            "--decimation {decimation}: recording until stopped needs about {:.0} kB/s, more \
-             than the {} link carries ({:.0} kB/s): raise --decimation, or give --seconds \
-             (the board's ring holds a short recording)",
-            budget.needed() / 1e3,
-            budget.link.name(),
-            budget.carried() / 1e3
+            "--decimation {decimation}: recording until stopped: {why}: raise --decimation, or \
+             give --seconds (the board's ring holds a short recording)"
         );
     }
     let header = Recording {

@@ -28,7 +28,7 @@ pub fn run(port: &str, listen: &str, signals: &[String], decimation: Option<u16>
     let c = open(port)?;
     let decimation = match decimation {
         Some(d) => d,
-        None => fewest_ticks(c.hello(), signals),
+        None => Budget::continuous_decimation(c.hello(), signals),
     };
     let board = c.name().to_string();
     let link = Arc::new(Mutex::new(c));
@@ -54,15 +54,4 @@ pub fn run(port: &str, listen: &str, signals: &[String], decimation: Option<u16>
     )?;
     println!("{}", scope::closing(&t));
     Ok(())
-}
-
-/// The fewest ticks between samples the link carries for `signals` (1 where
-/// it carries every tick).
-fn fewest_ticks(hello: &fpi_protocol::Hello, signals: u8) -> u16 {
-    (1..=u16::MAX)
-        .find(|&d| {
-            let b = Budget::new(hello, signals, d, 1.0);
-            b.needed() <= b.carried()
-        })
-        .unwrap_or(u16::MAX)
 }
