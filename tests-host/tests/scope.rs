@@ -101,9 +101,7 @@ fn get(addr: &str, path: &str) -> Option<String> {
     let mut all = String::new();
     s.read_to_string(&mut all).ok()?;
     let (head, body) = all.split_once("\r\n\r\n")?;
-    head.starts_with("HTTP/1.1 200")
-        .then(|| body.to_string())
-        .or_else(|| head.starts_with("HTTP/1.0 200").then(|| body.to_string()))
+    (head.split(' ').nth(1) == Some("200")).then(|| body.to_string())
 }
 
 /// The page's report, once it has one.
@@ -159,39 +157,25 @@ fn the_page_shows_a_live_sine_with_its_spectrum_and_a_still_trigger() {
     };
 
     // The scope, on the served board, the position and the voltage at every tick.
-    let page = Arc::new(Mutex::new(None::<String>));
+    let start = Instant::now();
+    let o = Options {
+        signals: signal::X_REF | signal::X_TRUE | signal::VOLTAGE,
+        decimation: 1,
+    };
+    let c = Client::open(&port).expect("the scope's client");
+    let bound = scope::bind(
+        Arc::new(Mutex::new(c)),
+        "the emulated board",
+        "127.0.0.1:0",
+        o,
+    )
+    .unwrap_or_else(|e| panic!("the scope: {e:#}"));
+    let (url, addr) = (bound.url(), bound.addr().to_string());
     let scope_halt = Arc::new(AtomicBool::new(false));
     let scope = {
-        let (halt, page, port) = (scope_halt.clone(), page.clone(), port.clone());
-        std::thread::spawn(move || {
-            let c = Client::open(&port).expect("the scope's client");
-            let o = Options {
-                signals: signal::X_REF | signal::X_TRUE | signal::VOLTAGE,
-                decimation: 1,
-            };
-            scope::serve(
-                Arc::new(Mutex::new(c)),
-                "the emulated board",
-                "127.0.0.1:0",
-                o,
-                &|| halt.load(Ordering::Relaxed),
-                &|url| *page.lock().unwrap() = Some(url.to_string()),
-            )
-        })
+        let halt = scope_halt.clone();
+        std::thread::spawn(move || bound.run(&|| halt.load(Ordering::Relaxed)))
     };
-    let start = Instant::now();
-    let url = loop {
-        if let Some(u) = page.lock().unwrap().clone() {
-            break u;
-        }
-        assert!(!scope.is_finished(), "the scope ended: {:?}", scope.join());
-        assert!(start.elapsed() < Duration::from_secs(30), "no scope page");
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let addr = url
-        .trim_start_matches("http://")
-        .trim_end_matches('/')
-        .to_string();
 
     // The page, triggered on the stage's true position rising through 20 µm.
     let query = "?mode=normal&trigger=x_fhps_um&level=20&edge=rising&pre=0.5&span=0.02\

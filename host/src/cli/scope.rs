@@ -31,27 +31,25 @@ pub fn run(port: &str, listen: &str, signals: &[String], decimation: Option<u16>
         None => Budget::continuous_decimation(c.hello(), signals),
     };
     let board = c.name().to_string();
-    let link = Arc::new(Mutex::new(c));
-    let t = scope::serve(
-        link,
+    let bound = scope::bind(
+        Arc::new(Mutex::new(c)),
         &board,
         listen,
         Options {
             signals,
             decimation,
         },
-        &stop_asked,
-        &|url| {
-            println!(
-                "scope of {board} at {url} ({} at every {decimation}. tick); Ctrl-C ends",
-                scope::channels(signals)
-                    .iter()
-                    .map(|(n, _)| *n)
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )
-        },
     )?;
+    println!(
+        "scope of {board} at {} ({} at every {decimation}. tick); Ctrl-C ends",
+        bound.url(),
+        scope::channels(signals)
+            .iter()
+            .map(|(n, _)| *n)
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let t = bound.run(&stop_asked)?;
     println!("{}", scope::closing(&t));
     Ok(())
 }

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, bail, Context, Result};
 use fpi_protocol::record::signal;
 
-use super::{serve, Options, HEADER_BYTES, MAGIC};
+use super::{bind, Options, HEADER_BYTES, MAGIC};
 use crate::board::client::Client;
 use crate::board::hub::Hub;
 
@@ -65,70 +65,39 @@ pub fn stream(seconds: f64) -> Result<StreamFigures> {
     let board = Client::open("virtual:usb").context("the in-process board")?;
     let listener = TcpListener::bind("127.0.0.1:0")?;
     let port = format!("tcp:{}", listener.local_addr()?);
-    let hub_halt = Arc::new(AtomicBool::new(false));
-    let scope_halt = Arc::new(AtomicBool::new(false));
-    let page = Arc::new(Mutex::new(None::<String>));
+    let hub_halt = AtomicBool::new(false);
+    let scope_halt = AtomicBool::new(false);
     std::thread::scope(|s| {
         let hub = s.spawn(|| {
             Hub::new(board).serve(&listener, &|| hub_halt.load(Ordering::Relaxed), &|_, _| {})
         });
-        let scope = s.spawn(|| -> Result<()> {
-            let c = Client::open(&port)?;
+        let scoped = Client::open(&port).and_then(|c| {
             let o = Options {
                 signals: signal::ALL,
                 decimation: 1,
             };
-            serve(
+            bind(
                 Arc::new(Mutex::new(c)),
                 "the in-process board",
                 "127.0.0.1:0",
                 o,
-                &|| scope_halt.load(Ordering::Relaxed),
-                &|url| {
-                    if let Ok(mut p) = page.lock() {
-                        *p = Some(url.to_string());
-                    }
-                },
             )
-            .map(|_| ())
         });
-        let read = page_address(&page, &scope).and_then(|addr| read_stream(&addr, seconds));
-        scope_halt.store(true, Ordering::Relaxed);
-        let scoped = scope.join().map_err(|_| anyhow!("the scope panicked"));
+        let read = scoped.and_then(|bound| {
+            let addr = bound.addr().to_string();
+            let scope = s.spawn(|| bound.run(&|| scope_halt.load(Ordering::Relaxed)));
+            let read = read_stream(&addr, seconds);
+            scope_halt.store(true, Ordering::Relaxed);
+            let ran = scope.join().map_err(|_| anyhow!("the scope panicked"))?;
+            ran?;
+            read
+        });
         hub_halt.store(true, Ordering::Relaxed);
-        let served = hub.join().map_err(|_| anyhow!("the hub panicked"));
+        let served = hub.join().map_err(|_| anyhow!("the hub panicked"))?;
         let figures = read?;
-        scoped??;
-        served??;
+        served?;
         Ok(figures)
     })
-}
-
-/// The scope's address once it serves (`HOST:PORT`).
-fn page_address(
-    page: &Mutex<Option<String>>,
-    scope: &std::thread::ScopedJoinHandle<'_, Result<()>>,
-) -> Result<String> {
-    let start = Instant::now();
-    loop {
-        if let Some(url) = page
-            .lock()
-            .map_err(|_| anyhow!("the scope failed"))?
-            .clone()
-        {
-            return Ok(url
-                .trim_start_matches("http://")
-                .trim_end_matches('/')
-                .to_string());
-        }
-        if scope.is_finished() {
-            bail!("the scope ended before it served");
-        }
-        if start.elapsed() > Duration::from_secs(30) {
-            bail!("the scope did not serve within 30 s");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 /// Reads `/stream` on `addr` for `seconds` and counts its messages.

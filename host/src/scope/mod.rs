@@ -96,23 +96,30 @@ fn unit(name: &str) -> &'static str {
     }
 }
 
-/// One stream message: `samples` of `signals` with the counts so far.
-pub fn message(signals: u8, decimation: u16, samples: &[Sample], counts: &Counts) -> Vec<u8> {
-    let columns: Vec<u8> = recording::columns_of(signals).map(|(bit, _)| bit).collect();
-    let mut out = Vec::with_capacity(HEADER_BYTES + samples.len() * columns.len() * 4);
-    let first = samples.first().map_or(0, |s| s.tick);
-    let header = [
+/// A stream message's header: `count` samples from tick `first`, with the
+/// counts so far.
+fn header(count: usize, first: u32, decimation: u16, counts: &Counts) -> [u8; HEADER_BYTES] {
+    let words = [
         MAGIC,
-        samples.len() as u32,
+        count as u32,
         first,
         u32::from(decimation),
         counts.gaps,
         u32::try_from(counts.missing).unwrap_or(u32::MAX),
         counts.dropped,
     ];
-    for word in header {
-        out.extend_from_slice(&word.to_le_bytes());
+    let mut out = [0; HEADER_BYTES];
+    for (bytes, word) in out.chunks_exact_mut(4).zip(words) {
+        bytes.copy_from_slice(&word.to_le_bytes());
     }
+    out
+}
+
+/// A stream message's values: `samples` of `signals` as `f32`, sample by
+/// sample, in the channels' order.
+fn values(signals: u8, samples: &[Sample]) -> Vec<u8> {
+    let columns: Vec<u8> = recording::columns_of(signals).map(|(bit, _)| bit).collect();
+    let mut out = Vec::with_capacity(samples.len() * columns.len() * 4);
     for s in samples {
         for &bit in &columns {
             out.extend_from_slice(&(recording::value(bit, s) as f32).to_le_bytes());
@@ -121,15 +128,13 @@ pub fn message(signals: u8, decimation: u16, samples: &[Sample], counts: &Counts
     out
 }
 
-/// The viewers' queues and what the scope's own reading has counted.
-#[derive(Default)]
-struct Viewers {
-    queues: Vec<Viewer>,
-}
+/// A message queued for a viewer: its header (its own counts) and the values,
+/// encoded once for every viewer.
+type Message = ([u8; HEADER_BYTES], Arc<Vec<u8>>);
 
 /// One open `/stream`: its queue, and what it lost of it.
 struct Viewer {
-    queue: SyncSender<Arc<Vec<u8>>>,
+    queue: SyncSender<Message>,
     lost_messages: u32,
     lost_samples: u64,
 }
@@ -139,7 +144,7 @@ struct Scope {
     info: String,
     signals: u8,
     decimation: u16,
-    viewers: Mutex<Viewers>,
+    viewers: Mutex<Vec<Viewer>>,
     report: Mutex<Option<String>>,
 }
 
@@ -170,19 +175,24 @@ impl std::fmt::Display for Throughput {
     }
 }
 
-/// Serves the scope of the board behind `link` on `listen` (HOST:PORT; port 0
-/// for any free one) until `halt`; `ready` is told the page's address once
-/// it can be opened. Refused before anything is served where the recording
-/// cannot start (the link cannot carry it, a bad decimation, no signal).
-pub fn serve(
-    link: Arc<Mutex<Client>>,
-    board: &str,
-    listen: &str,
-    o: Options,
-    halt: &(dyn Fn() -> bool + Sync),
-    ready: &dyn Fn(&str),
-) -> Result<Throughput> {
+/// A scope bound to its address, its recording armed: [`Self::run`] serves it.
+pub struct Bound {
+    server: Server,
+    live: Live,
+    scope: Scope,
+    addr: String,
+}
+
+/// Binds the scope of the board behind `link` to `listen` (HOST:PORT; port 0
+/// for any free one) and arms its recording. Refused before anything is
+/// served where the address is taken or the recording cannot start (the link
+/// cannot carry it, a bad decimation, no signal).
+pub fn bind(link: Arc<Mutex<Client>>, board: &str, listen: &str, o: Options) -> Result<Bound> {
     let server = Server::http(listen).map_err(|e| anyhow!("listening on {listen}: {e}"))?;
+    let addr = server
+        .server_addr()
+        .to_ip()
+        .ok_or_else(|| anyhow!("listening on {listen}: not an IP address"))?;
     let shared: Arc<dyn SharedClient> = link;
     let live = Live::start(shared, o.signals, o.decimation, false)?;
     let scope = Scope {
@@ -192,35 +202,59 @@ pub fn serve(
         viewers: Mutex::default(),
         report: Mutex::default(),
     };
-    let addr = server
-        .server_addr()
-        .to_ip()
-        .ok_or_else(|| anyhow!("listening on {listen}: not an IP address"))?;
-    ready(&format!("http://{addr}/"));
-    let started = Instant::now();
-    let pumped = std::thread::scope(|s| {
-        let pump = s.spawn(|| pump(&live, &scope, halt));
-        while !halt() && !pump.is_finished() {
-            if let Ok(Some(request)) = server.recv_timeout(Duration::from_millis(100)) {
-                if request.url() == "/stream" && *request.method() == Method::Get {
-                    let queue = scope.subscribe();
-                    s.spawn(move || stream(request, queue));
-                } else {
-                    scope.answer(request);
+    Ok(Bound {
+        server,
+        live,
+        scope,
+        addr: addr.to_string(),
+    })
+}
+
+impl Bound {
+    /// Where it listens (`HOST:PORT`).
+    pub fn addr(&self) -> &str {
+        &self.addr
+    }
+
+    /// The page's address (`http://HOST:PORT/`).
+    pub fn url(&self) -> String {
+        format!("http://{}/", self.addr)
+    }
+
+    /// Serves the page and the stream until `halt` (or the recording fails),
+    /// then stops the recording; what it streamed.
+    pub fn run(self, halt: &(dyn Fn() -> bool + Sync)) -> Result<Throughput> {
+        let Self {
+            server,
+            live,
+            scope,
+            ..
+        } = self;
+        let started = Instant::now();
+        let pumped = std::thread::scope(|s| {
+            let pump = s.spawn(|| pump(&live, &scope, halt));
+            while !halt() && !pump.is_finished() {
+                if let Ok(Some(request)) = server.recv_timeout(Duration::from_millis(100)) {
+                    if request.url() == "/stream" && *request.method() == Method::Get {
+                        let queue = scope.subscribe();
+                        s.spawn(move || stream(request, queue));
+                    } else {
+                        scope.answer(request);
+                    }
                 }
             }
-        }
-        scope.close();
-        pump.join()
-            .map_err(|_| anyhow!("the scope's reader panicked"))?
-    });
-    let (_, counts) = live.stop()?;
-    let samples = pumped?;
-    Ok(Throughput {
-        samples,
-        seconds: started.elapsed().as_secs_f64(),
-        counts,
-    })
+            scope.close();
+            pump.join()
+                .map_err(|_| anyhow!("the scope's reader panicked"))?
+        });
+        let (_, counts) = live.stop()?;
+        let samples = pumped?;
+        Ok(Throughput {
+            samples,
+            seconds: started.elapsed().as_secs_f64(),
+            counts,
+        })
+    }
 }
 
 /// `/info`'s JSON.
@@ -255,10 +289,10 @@ fn pump(live: &Live, scope: &Scope, halt: &(dyn Fn() -> bool + Sync)) -> Result<
 
 impl Scope {
     /// A new viewer's queue.
-    fn subscribe(&self) -> Receiver<Arc<Vec<u8>>> {
+    fn subscribe(&self) -> Receiver<Message> {
         let (tx, rx) = mpsc::sync_channel(QUEUE);
         if let Ok(mut v) = self.viewers.lock() {
-            v.queues.push(Viewer {
+            v.push(Viewer {
                 queue: tx,
                 lost_messages: 0,
                 lost_samples: 0,
@@ -270,7 +304,7 @@ impl Scope {
     /// Ends every viewer's stream.
     fn close(&self) {
         if let Ok(mut v) = self.viewers.lock() {
-            v.queues.clear();
+            v.clear();
         }
     }
 
@@ -281,14 +315,16 @@ impl Scope {
         let Ok(mut v) = self.viewers.lock() else {
             return;
         };
-        v.queues.retain_mut(|viewer| {
+        let first = samples.first().map_or(0, |s| s.tick);
+        let body = Arc::new(values(self.signals, samples));
+        v.retain_mut(|viewer| {
             let seen = Counts {
                 gaps: counts.gaps + viewer.lost_messages,
                 missing: counts.missing + viewer.lost_samples,
                 ..*counts
             };
-            let bytes = Arc::new(message(self.signals, self.decimation, samples, &seen));
-            match viewer.queue.try_send(bytes) {
+            let head = header(samples.len(), first, self.decimation, &seen);
+            match viewer.queue.try_send((head, body.clone())) {
                 Ok(()) => true,
                 Err(TrySendError::Full(_)) => {
                     viewer.lost_messages += 1;
@@ -350,7 +386,7 @@ fn text(code: u16, kind: &str, body: String) -> Response<std::io::Cursor<Vec<u8>
 
 /// Writes `queue`'s messages to a `/stream` request as one chunked response,
 /// each message a chunk sent at once, until the viewer or the scope goes.
-fn stream(request: Request, queue: Receiver<Arc<Vec<u8>>>) {
+fn stream(request: Request, queue: Receiver<Message>) {
     let mut w = request.into_writer();
     let head = "HTTP/1.1 200 OK\r\nContent-Type: application/octet-stream\r\n\
                 Cache-Control: no-store\r\nTransfer-Encoding: chunked\r\n\
@@ -361,9 +397,10 @@ fn stream(request: Request, queue: Receiver<Arc<Vec<u8>>>) {
     {
         return;
     }
-    while let Ok(message) = queue.recv() {
-        let sent = write!(w, "{:X}\r\n", message.len())
-            .and_then(|_| w.write_all(&message))
+    while let Ok((head, body)) = queue.recv() {
+        let sent = write!(w, "{:X}\r\n", head.len() + body.len())
+            .and_then(|_| w.write_all(&head))
+            .and_then(|_| w.write_all(&body))
             .and_then(|_| w.write_all(b"\r\n"))
             .and_then(|_| w.flush());
         if sent.is_err() {
