@@ -623,8 +623,13 @@ fn an_unstable_loop_is_caught_before_the_stroke_is_left() {
 /// few percent per half-cycle. The watch, at the half swing autotune set from
 /// the stage's noise (0.075…0.2 µm; at 0.2 µm it took 40–50 ms), counts it
 /// while it is small: caught, named, inside the stroke. The latency is
-/// printed; the bound asserted is generous (in-process, 15 runs at 400, 425
-/// and 450 Hz: 11.05–19.85 ms).
+/// printed; the bound asserted is generous. The oscillation grows from the
+/// sensor noise the close meets, whose phase the host's timing sets (the
+/// close is a command, sent at a wall-clock instant), so the latency spreads:
+/// in-process, 15 runs at 400, 425 and 450 Hz: 11.05–19.85 ms; under QEMU on a
+/// loaded machine 9.75–67.7 ms (the slowest with the stage inside
+/// 19.68–20.83 µm until caught). What the test holds to is the stroke: the
+/// true position stays inside 15–25 µm until the watch parks it.
 #[test]
 fn a_quiet_close_on_a_stage_that_changed_is_caught() {
     use fpi_protocol::{Command, LoopMode};
@@ -664,7 +669,7 @@ fn a_quiet_close_on_a_stage_that_changed_is_caught() {
             "{u:?}"
         );
         assert!(
-            u.ms <= 60.0 && u.before.0 > 15.0 && u.before.1 < 25.0,
+            u.ms <= 100.0 && u.before.0 > 15.0 && u.before.1 < 25.0,
             "{u:?}"
         );
         c.park().unwrap();

@@ -414,30 +414,41 @@ fn a_new_client_s_motion_ends_a_dead_client_s_stream() {
         let mut a = Client::open(e.port()).unwrap();
         a.move_to(10.0, 1000.0).unwrap();
         Follow::new(&mut a, 0).until_hold().unwrap();
-        let points: Vec<f64> = (0..1000).map(|k| 10.0 + 10.0 * k as f64 / 1000.0).collect();
-        for (k, chunk) in points[..384].chunks(fpi_protocol::MAX_POINTS).enumerate() {
+        let points: Vec<f64> = (0..384).map(|k| 10.0 + 10.0 * k as f64 / 384.0).collect();
+        for (k, chunk) in points.chunks(fpi_protocol::MAX_POINTS).enumerate() {
             a.points((k * fpi_protocol::MAX_POINTS) as u32, chunk)
                 .unwrap();
         }
+        // 384 points a 400 ticks apart: 7.7 s of board time, far longer than
+        // the stream's heartbeat timeout (0.5 s) and the wait below.
         a.ack(&Command::Stream {
             axis: 0,
-            interval: 100,
+            interval: 400,
         })
         .unwrap();
         // The client dies here: no StreamEnd, no heartbeat.
     }
-    // Its supervision parks the stage (the stream was still running).
-    // (The new client asks at longer intervals than the supervision's
-    // timeout: each of its requests would otherwise keep the link alive.)
+    // Its supervision parks the stage (the stream was still running). Every
+    // request of the new client is a heartbeat, so it stays silent for twice
+    // the timeout in board time: the emulator's pace, measured first, turns
+    // that into wall time (it varies with the machine's load).
     let mut b = Client::open(e.port()).unwrap();
+    let timeout = f64::from(fpi_firmware::control::task::STREAM_TIMEOUT_TICKS);
     let start = Instant::now();
     let lost = loop {
-        std::thread::sleep(Duration::from_millis(1500));
+        let (t0, w0) = (b.status().unwrap().tick, Instant::now());
+        std::thread::sleep(Duration::from_millis(300));
         let s = b.status().unwrap();
         if let Some(f) = s.fault.filter(|f| f.code == Fault::LinkLost as u8) {
             break f;
         }
-        assert!(start.elapsed() < Duration::from_secs(20), "{s:?}");
+        let pace = f64::from(s.tick.wrapping_sub(t0)) / w0.elapsed().as_secs_f64();
+        std::thread::sleep(Duration::from_secs_f64(2.0 * timeout / pace.max(100.0)));
+        let s = b.status().unwrap();
+        if let Some(f) = s.fault.filter(|f| f.code == Fault::LinkLost as u8) {
+            break f;
+        }
+        assert!(start.elapsed() < Duration::from_secs(60), "{s:?}");
     };
     println!("the dead client's stream parked the stage: {lost:?}");
     // The new client clears the fault and moves: the move ends the stream.
