@@ -245,6 +245,18 @@ class Board:
         """The model's active damping on or off."""
     def shaping(self, on: Union[bool, str]) -> int:
         """The model's reference shaping on or off."""
+    def trigger(
+        self,
+        mode: str,
+        *,
+        step_um: Optional[float] = None,
+        band_um: Optional[float] = None,
+        low_um: Optional[float] = None,
+        high_um: Optional[float] = None,
+        pulse_ticks: Optional[int] = None,
+    ) -> int:
+        """The trigger output: ``off``, ``travel``, ``on_target``, ``window`` or ``point``
+        (PI: ``CTO``); levels not given stay as the board has them."""
     def supervise(self, ms: int) -> int:
         """Parks the stage if the host is silent ``ms`` ms while it drives it (0: off)."""
     def reset(self) -> Dict[str, Any]:

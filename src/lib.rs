@@ -51,6 +51,7 @@ pub mod stability;
 pub mod table;
 #[cfg(test)]
 pub mod testkit;
+pub mod trigger;
 
 pub use control::{
     ControllerConfig, ControllerParts, ControllerState, Fault, ForceSource, Interval, LinearDrive,

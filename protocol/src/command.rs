@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use crate::bench::BenchOrder;
 use crate::modes::{LoopMode, Shape};
 use crate::put;
+use crate::settings::TriggerSettings;
 use crate::wire::{field, Tagged};
 use crate::MAX_POINTS;
 
@@ -101,6 +102,8 @@ crate::wire_enum! {
         SettingGet = 34,
         /// [`Command::SettingSet`].
         SettingSet = 35,
+        /// [`Command::Trigger`].
+        Trigger = 36,
     }
 }
 
@@ -269,6 +272,14 @@ pub enum Command<'a> {
         /// Duration, µs (one control period to one second).
         duration_us: u32,
     },
+    /// Drive `axis`'s trigger output as `settings` say (checked by the board:
+    /// a level out of its range is refused, naming it).
+    Trigger {
+        /// The stage.
+        axis: u8,
+        /// The mode and its levels.
+        settings: TriggerSettings,
+    },
     /// Switch the model's reference shaping (the feedforward of the stage's
     /// dynamics) on or off, without a jump.
     Shaping {
@@ -378,6 +389,7 @@ impl Command<'_> {
             Self::LeadRatio { .. } => K::LeadRatio,
             Self::SettingGet { .. } => K::SettingGet,
             Self::SettingSet { .. } => K::SettingSet,
+            Self::Trigger { .. } => K::Trigger,
         }
     }
 
@@ -400,6 +412,7 @@ impl Command<'_> {
             | Self::Shaping { axis, .. }
             | Self::Analyse { axis, .. }
             | Self::LeadRatio { axis, .. }
+            | Self::Trigger { axis, .. }
             | Self::AnalysisResult { axis } => Some(axis),
             _ => None,
         }
@@ -478,6 +491,7 @@ impl<'a> Tagged<'a> for Command<'a> {
             Self::LeadRatio { axis, ratio } => put!(t; axis, ratio),
             Self::SettingGet { path } => put!(t; path),
             Self::SettingSet { path, value } => put!(t; path, value),
+            Self::Trigger { axis, settings } => put!(t; axis, settings),
         }
         Ok(())
     }
@@ -580,6 +594,10 @@ impl<'a> Tagged<'a> for Command<'a> {
             K::SettingSet => Self::SettingSet {
                 path: field(a)?,
                 value: field(a)?,
+            },
+            K::Trigger => Self::Trigger {
+                axis: field(a)?,
+                settings: field(a)?,
             },
         }))
     }

@@ -42,12 +42,12 @@ pub use serde;
 pub use bench::{BenchKind, BenchOrder, FrontEndKind, StageVariant};
 pub use command::{Command, CommandKind, Header};
 pub use link::LinkKind;
-pub use modes::{LoopMode, Shape, SourceKind};
+pub use modes::{LoopMode, Shape, SourceKind, TriggerMode};
 pub use reply::{
     Analysis, Batch, BoardKind, Counters, FaultReport, Hello, ModelReport, Origin, OriginKind,
     Refusal, Reply, ReplyHeader, ReplyKind, ResetReason, SlotKind, SlotReport, Status,
 };
-pub use settings::{Settings, StageSettings};
+pub use settings::{Settings, StageSettings, TriggerSettings};
 
 /// The protocol version of these messages (12: the refusal [`Refusal::Held`]
 /// of the board's hub; 11: the board's axes and analog
@@ -57,7 +57,7 @@ pub use settings::{Settings, StageSettings};
 /// [`Command::LeadRatio`]; 7: the learned mass ratio in the status; 6: the link in the hello, recordings
 /// sent as differences between samples; 5: explicit wire numbers, an axis in
 /// every command that addresses a stage).
-pub const VERSION: u8 = 12;
+pub const VERSION: u8 = 13;
 /// Axes a board has today: a command for axis `AXES` or beyond is refused
 /// ([`Refusal::Axis`]).
 pub const AXES: u8 = 1;

@@ -54,3 +54,20 @@ crate::wire_enum! {
         Analog = 4,
     }
 }
+
+crate::wire_enum! {
+    /// What drives a stage's trigger output (see `piezo_fpi::trigger`).
+    #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    pub enum TriggerMode {
+        /// The line stays low.
+        Off = 0 as "off",
+        /// A pulse every `step_um` of travel, either way.
+        Travel = 1 as "travel",
+        /// High while the position is within `band_um` of the reference.
+        OnTarget = 2 as "on_target",
+        /// High while the position lies in `low_um … high_um`.
+        Window = 3 as "window",
+        /// A pulse at each point a streamed trajectory takes.
+        Point = 4 as "point",
+    }
+}

@@ -25,6 +25,12 @@ pub mod status {
     pub const GOVERNED: u8 = 128;
 }
 
+/// Bits of [`Sample::lines`]: the board's trigger lines after the tick.
+pub mod lines {
+    /// The trigger output is high.
+    pub const TRIGGER_OUT: u8 = 1;
+}
+
 /// Which signals a recording sends (bits of a mask, in this order on the wire).
 pub mod signal {
     /// Reference, µm.
@@ -41,8 +47,13 @@ pub mod signal {
     pub const X_TRUE: u8 = 32;
     /// The position sensor's reading, µm.
     pub const X_SENSOR: u8 = 64;
-    /// Every signal.
+    /// The trigger lines ([`super::lines`] bits).
+    pub const TRIGGER: u8 = 128;
+    /// Every signal of a default recording: the positions, the voltage, the
+    /// force and the status (the trigger lines are asked for by name).
     pub const ALL: u8 = 127;
+    /// Every bit a recording may ask for.
+    pub const ANY: u8 = 255;
 }
 
 /// One recorded tick. Lengths, voltage and force as raw `I16F16` bits.
@@ -64,6 +75,8 @@ pub struct Sample {
     pub x_sensor: i32,
     /// [`status`] bits.
     pub status: u8,
+    /// [`lines`] bits.
+    pub lines: u8,
 }
 
 /// `x_true` of a board that has no true position.
@@ -80,6 +93,7 @@ impl Sample {
             (signal::STATUS, self.status as i32),
             (signal::X_TRUE, self.x_true),
             (signal::X_SENSOR, self.x_sensor),
+            (signal::TRIGGER, self.lines as i32),
         ];
         core::iter::once(self.tick as i32).chain(
             all.into_iter()
@@ -102,7 +116,7 @@ impl Sample {
     /// The sample whose [`Sample::deltas`] from `prev` for `mask` are `deltas`;
     /// `None` if `deltas` is too short.
     pub fn from_deltas(prev: &Sample, mask: u8, deltas: &[i32]) -> Option<Self> {
-        let mut values = [0i32; 8];
+        let mut values = [0i32; 9];
         let width = Self::width(mask);
         let (values, deltas) = (values.get_mut(..width)?, deltas.get(..width)?);
         for ((v, d), p) in values.iter_mut().zip(deltas).zip(prev.values(mask)) {
@@ -124,7 +138,7 @@ impl Sample {
 
     /// Values per sample on the wire for `mask` (the tick included).
     pub fn width(mask: u8) -> usize {
-        1 + (mask & signal::ALL).count_ones() as usize
+        1 + mask.count_ones() as usize
     }
 
     /// A sample back from its wire values for `mask` (absent signals are 0, the
@@ -136,7 +150,7 @@ impl Sample {
             x_true: NO_TRUE_POSITION,
             ..Sample::default()
         };
-        for bit in [1u8, 2, 4, 8, 16, 32, 64] {
+        for bit in [1u8, 2, 4, 8, 16, 32, 64, 128] {
             if mask & bit == 0 {
                 continue;
             }
@@ -148,7 +162,8 @@ impl Sample {
                 signal::X_EST => s.x_est = v,
                 signal::STATUS => s.status = v as u8,
                 signal::X_TRUE => s.x_true = v,
-                _ => s.x_sensor = v,
+                signal::X_SENSOR => s.x_sensor = v,
+                _ => s.lines = v as u8,
             }
         }
         Some(s)
@@ -230,6 +245,7 @@ mod tests {
             x_true: 9,
             x_sensor: -11,
             status: 255,
+            lines: 1,
         };
         let b = Sample {
             tick: 3,
@@ -240,8 +256,9 @@ mod tests {
             x_true: 10,
             x_sensor: 12,
             status: 1,
+            lines: 0,
         };
-        for mask in 0..=signal::ALL {
+        for mask in 0..=signal::ANY {
             let mut values = Vec::new();
             let mut prev = Sample::default();
             for s in [a, b, a] {

@@ -16,8 +16,9 @@
 //! on where the model has them, compensated drive, no supervision).
 
 use miniconf::{leaf, Tree};
+use serde::{Deserialize, Serialize};
 
-use crate::{Command, LoopMode, AXES};
+use crate::{Command, LoopMode, TriggerMode, AXES};
 
 /// Stages a board's settings tree holds ([`AXES`]).
 pub const STAGES: usize = AXES as usize;
@@ -29,7 +30,7 @@ pub const MAX_VALUE: usize = 32;
 pub const MAX_PATH: usize = 64;
 
 /// Everything the host may switch while the board runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Tree)]
+#[derive(Debug, Clone, Copy, PartialEq, Tree)]
 pub struct Settings {
     /// Each stage's switches, by axis (`/stage/0/…`).
     #[tree(meta(doc))]
@@ -41,7 +42,7 @@ pub struct Settings {
 }
 
 /// One stage's switches.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Tree)]
+#[derive(Debug, Clone, Copy, PartialEq, Tree)]
 pub struct StageSettings {
     /// How the loop is closed: `"open"` (the reference through the inverse
     /// FPI), `"closed"` (PI feedback on the position sensor plus the inverse
@@ -64,6 +65,65 @@ pub struct StageSettings {
     /// The inverse FPI drive (`true`), else the straight-line baseline.
     #[tree(meta(doc, range = "true | false", default = "true"))]
     pub compensated: bool,
+    /// The trigger output (`…/trigger/…`): what drives it and its levels.
+    #[tree(meta(doc))]
+    pub trigger: TriggerSettings,
+}
+
+/// A stage's trigger output: its mode and every mode's level, kept while
+/// another mode drives the line (a change of mode keeps the levels set
+/// before it). Positions are the position sensor's, in integer nanometres
+/// (the board parses and prints no floating point: that would cost it tens
+/// of kilobytes of flash).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Tree, Serialize, Deserialize)]
+pub struct TriggerSettings {
+    /// What drives the line: `"off"`, `"travel"` (a pulse every `step_nm` of
+    /// travel, either way, from where the position was when it was set),
+    /// `"on_target"` (high while within `band_nm` of the reference),
+    /// `"window"` (high while inside `low_nm … high_nm`) or `"point"` (a pulse
+    /// at each point a stream takes).
+    #[tree(
+        with = leaf,
+        meta(
+            doc,
+            range = "\"off\" | \"travel\" | \"on_target\" | \"window\" | \"point\"",
+            default = "\"off\""
+        )
+    )]
+    pub mode: TriggerMode,
+    /// `travel`: the travel between pulses.
+    #[tree(meta(doc, unit = "nm", range = "1 – 32 767 000", default = "1000"))]
+    pub step_nm: u32,
+    /// `on_target`: the band's half-width about the reference.
+    #[tree(meta(doc, unit = "nm", range = "0 – 32 767 000", default = "100"))]
+    pub band_nm: u32,
+    /// `window`: its lower edge.
+    #[tree(meta(doc, unit = "nm", range = "±32 767 000, ≤ high_nm", default = "0"))]
+    pub low_nm: i32,
+    /// `window`: its upper edge.
+    #[tree(meta(doc, unit = "nm", range = "±32 767 000, ≥ low_nm", default = "0"))]
+    pub high_nm: i32,
+    /// `travel` and `point`: how long a pulse stays high.
+    #[tree(meta(doc, unit = "ticks", range = "1 – 65 535", default = "1"))]
+    pub pulse_ticks: u16,
+}
+
+impl TriggerSettings {
+    /// A board's trigger at start-up: off, with the documented levels.
+    pub const DEFAULT: Self = Self {
+        mode: TriggerMode::Off,
+        step_nm: 1000,
+        band_nm: 100,
+        low_nm: 0,
+        high_nm: 0,
+        pulse_ticks: 1,
+    };
+}
+
+impl Default for TriggerSettings {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
 }
 
 impl Settings {
@@ -102,6 +162,12 @@ impl StageSettings {
                 return Some(Command::Shaping { axis, on });
             }
         }
+        if self.trigger != next.trigger {
+            return Some(Command::Trigger {
+                axis,
+                settings: next.trigger,
+            });
+        }
         (self.compensated != next.compensated).then_some(Command::Drive {
             axis,
             compensated: next.compensated,
@@ -121,6 +187,7 @@ mod tests {
                 damping: Some(true),
                 shaping: None,
                 compensated: true,
+                trigger: TriggerSettings::DEFAULT,
             }],
             supervise_ms: 0,
         }
@@ -140,6 +207,12 @@ mod tests {
                 "/stage/0/damping",
                 "/stage/0/shaping",
                 "/stage/0/compensated",
+                "/stage/0/trigger/mode",
+                "/stage/0/trigger/step_nm",
+                "/stage/0/trigger/band_nm",
+                "/stage/0/trigger/low_nm",
+                "/stage/0/trigger/high_nm",
+                "/stage/0/trigger/pulse_ticks",
                 "/supervise_ms"
             ]
         );
@@ -171,6 +244,16 @@ mod tests {
         assert_eq!(
             now.command_to(&next),
             Some(Command::Supervise { timeout_ms: 500 })
+        );
+        let mut next = now;
+        json_core::set(&mut next, "/stage/0/trigger/mode", b"\"travel\"").unwrap();
+        json_core::set(&mut next, "/stage/0/trigger/step_nm", b"250").unwrap();
+        let mut settings = TriggerSettings::DEFAULT;
+        settings.mode = TriggerMode::Travel;
+        settings.step_nm = 250;
+        assert_eq!(
+            now.command_to(&next),
+            Some(Command::Trigger { axis: 0, settings })
         );
         assert_eq!(now.command_to(&now), None);
     }

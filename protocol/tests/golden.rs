@@ -126,6 +126,17 @@ goldens! {
         => "22 0d 2f 73 75 70 65 72 76 69 73 65 5f 6d 73";
     command_setting_set: Command::SettingSet { path: b"/stage/0/damping", value: b"false" }
         => "23 10 2f 73 74 61 67 65 2f 30 2f 64 61 6d 70 69 6e 67 05 66 61 6c 73 65";
+    command_trigger: Command::Trigger {
+        axis: 0,
+        settings: TriggerSettings {
+            mode: TriggerMode::Travel,
+            step_nm: 500,
+            band_nm: 100,
+            low_nm: -2,
+            high_nm: 0,
+            pulse_ticks: 3,
+        },
+    } => "24 00 01 f4 03 64 03 00 03";
 }
 
 fn hello() -> Hello {
@@ -206,7 +217,7 @@ goldens! {
     Reply, all_replies;
     reply_ack: Reply::Ack => "00";
     reply_hello: Reply::Hello(hello())
-        => "01 0c 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01 01 01";
+        => "01 0d 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01 01 01";
     reply_status: Reply::Status(status())
         => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 00 02 f8 ac d1 91 01";
     reply_record: Reply::Record(batch())
@@ -341,7 +352,7 @@ fn a_request_frame_golden() {
         seq: 1,
     };
     let n = frame::encode(&h, &Command::Status { axis: 0 }, &mut scratch, &mut out).unwrap();
-    assert_eq!(hex(&out[..n]), "04 0c 01 01 05 d2 3b 4b 73 00");
+    assert_eq!(hex(&out[..n]), "04 0d 01 01 05 b7 5c f7 cb 00");
 }
 
 /// An unknown kind is told apart from garbage; a known kind with bad fields is
@@ -349,7 +360,7 @@ fn a_request_frame_golden() {
 #[test]
 fn unknown_kinds_and_axes() {
     assert_eq!(
-        frame::body::<Command<'_>>(&[36]),
+        frame::body::<Command<'_>>(&[37]),
         Err(frame::FrameError::UnknownKind)
     );
     assert_eq!(

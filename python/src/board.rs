@@ -480,7 +480,14 @@ impl Board {
         self.recorder_free("record")?;
         let mut caught = None;
         let r = self.run(py, |c| {
-            commands::record(c, seconds, decimation, |_, _| {}, || signalled(&mut caught))
+            commands::record(
+                c,
+                seconds,
+                decimation,
+                fpi_protocol::record::signal::ALL,
+                |_, _| {},
+                || signalled(&mut caught),
+            )
         })?;
         let d = columns_dict(py, r.recording.columns())?;
         if r.stopped {
@@ -636,6 +643,37 @@ impl Board {
     fn shaping(&self, py: Python<'_>, on: &Bound<'_, PyAny>) -> PyResult<u32> {
         let state = on_off(on, "on")?;
         self.run(py, |c| commands::shaping(c, &state))
+    }
+
+    /// Drives the trigger output: `mode` is `off`, `travel` (a pulse every
+    /// `step_um` of travel), `on_target` (high within `band_um` of the
+    /// reference), `window` (high inside `low_um`…`high_um`) or `point` (a
+    /// pulse at each streamed point); `pulse_ticks` long pulses. Levels not
+    /// given stay as the board has them. The tick it took effect.
+    #[pyo3(signature = (mode, *, step_um = None, band_um = None, low_um = None, high_um = None, pulse_ticks = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn trigger(
+        &self,
+        py: Python<'_>,
+        mode: &str,
+        step_um: Option<f64>,
+        band_um: Option<f64>,
+        low_um: Option<f64>,
+        high_um: Option<f64>,
+        pulse_ticks: Option<u16>,
+    ) -> PyResult<u32> {
+        use fpi_host::board::trigger;
+        let levels = trigger::Levels {
+            step_um,
+            band_um,
+            low_um,
+            high_um,
+            pulse_ticks,
+        };
+        self.run(py, |c| {
+            let mode = trigger::mode(mode)?;
+            trigger::set(c, mode, &levels).map(|(t, _)| t)
+        })
     }
 
     /// Parks the stage if the host is silent for `ms` milliseconds while it

@@ -47,7 +47,17 @@ def test_info_tells_what_the_board_has(board):
         "bench": True,
     }
     assert "Move" in i["commands"] and "Bench" in i["commands"]
-    assert i["settings"] == ["/stage/0/loop_mode", "/stage/0/compensated", "/supervise_ms"]
+    assert i["settings"] == [
+        "/stage/0/loop_mode",
+        "/stage/0/compensated",
+        "/stage/0/trigger/mode",
+        "/stage/0/trigger/step_nm",
+        "/stage/0/trigger/band_nm",
+        "/stage/0/trigger/low_nm",
+        "/stage/0/trigger/high_nm",
+        "/stage/0/trigger/pulse_ticks",
+        "/supervise_ms",
+    ]
 
 
 def test_an_emulator_runs_a_given_firmware_and_names_a_missing_one(emulator):
@@ -214,6 +224,12 @@ def test_settings_by_key(board):
         "stage/0/damping",
         "stage/0/shaping",
         "stage/0/compensated",
+        "stage/0/trigger/mode",
+        "stage/0/trigger/step_nm",
+        "stage/0/trigger/band_nm",
+        "stage/0/trigger/low_nm",
+        "stage/0/trigger/high_nm",
+        "stage/0/trigger/pulse_ticks",
         "supervise_ms",
     ]
     assert "stage.0.loop_mode" in st and "stage/0/lop" not in st
@@ -223,6 +239,12 @@ def test_settings_by_key(board):
         "stage/0/damping": None,
         "stage/0/shaping": None,
         "stage/0/compensated": True,
+        "stage/0/trigger/mode": "off",
+        "stage/0/trigger/step_nm": 1000,
+        "stage/0/trigger/band_nm": 100,
+        "stage/0/trigger/low_nm": 0,
+        "stage/0/trigger/high_nm": 0,
+        "stage/0/trigger/pulse_ticks": 1,
         "supervise_ms": 0,
     }
     st["stage.0.compensated"] = False
@@ -516,6 +538,33 @@ def test_a_live_recording_reads_while_the_board_moves(board):
         rec.stop()
     # The recorder is the board's again.
     assert len(board.record(seconds=0.05)["t_s"]) > 0
+
+
+def test_the_trigger_output_is_recorded_in_its_column(board):
+    """The trigger output (PI: ``CTO``): a 100-tick pulse every 0.5 µm of a
+    10 µm move, recorded in the ``trigger`` column; its levels are settings
+    too, and bad ones name the argument."""
+    board.move(10.0)
+    board.wait_on_target(timeout=10.0)
+    board.trigger("travel", step_um=0.5, pulse_ticks=100)
+    assert board.settings["stage/0/trigger/step_nm"] == 500
+    assert board.settings["stage/0/trigger/mode"] == "travel"
+    rec = board.record_start(decimation=20, signals=["x_sensor_um", "trigger"])
+    board.move(20.0, speed=20.0)
+    board.wait_on_target(timeout=60.0)
+    whole = rec.stop()
+    assert list(whole) == ["t_s", "x_sensor_um", "trigger"]
+    line = whole["trigger"]
+    rising = np.count_nonzero((line[1:] > 0) & (line[:-1] == 0))
+    assert 19 <= rising <= 21, rising
+    board.settings["stage/0/trigger/mode"] = "off"
+    with pytest.raises(ValueError, match=r"^step_um 0: above 0 µm"):
+        board.trigger("travel", step_um=0.0)
+    with pytest.raises(ValueError, match=r'^mode "sometimes": off, travel'):
+        board.trigger("sometimes")
+    with pytest.raises(pf.BoardError, match="low edge must not lie above its high edge"):
+        board.trigger("window", low_um=5.0, high_um=4.0)
+    assert board.settings["stage/0/trigger/mode"] == "off"
 
 
 def test_a_live_recording_checks_its_arguments_and_can_keep_only_what_is_unread(board):

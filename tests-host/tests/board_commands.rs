@@ -93,7 +93,9 @@ fn info_tells_what_the_board_has() {
     // The factory model has no damping or shaping: their settings are absent.
     assert_eq!(
         line(&out, "settings: "),
-        "settings: /stage/0/loop_mode, /stage/0/compensated, /supervise_ms",
+        "settings: /stage/0/loop_mode, /stage/0/compensated, /stage/0/trigger/mode, \
+         /stage/0/trigger/step_nm, /stage/0/trigger/band_nm, /stage/0/trigger/low_nm, \
+         /stage/0/trigger/high_nm, /stage/0/trigger/pulse_ticks, /supervise_ms",
         "{out}"
     );
 }

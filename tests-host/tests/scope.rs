@@ -177,9 +177,12 @@ fn the_page_shows_a_live_sine_with_its_spectrum_and_a_still_trigger() {
         std::thread::spawn(move || bound.run(&|| halt.load(Ordering::Relaxed)))
     };
 
-    // The page, triggered on the stage's true position rising through 20 µm.
+    // The page, triggered on the stage's true position rising through 20 µm;
+    // its trigger-output panel sets the board's output to a pulse every
+    // 0.25 µm of travel (`tout=`: as its Set button does).
     let query = "?mode=normal&trigger=x_fhps_um&level=20&edge=rising&pre=0.5&span=0.02\
-                 &spectrum=x_fhps_um&fft=16384&x=voltage_V&y=x_fhps_um&report=500";
+                 &spectrum=x_fhps_um&fft=16384&x=voltage_V&y=x_fhps_um&report=500\
+                 &tout=travel,step_um=0.25,pulse_ticks=3";
     let browser = Browser::open(&exe, &format!("{url}{query}"));
     let first = until(&addr, Duration::from_secs(60), |r| {
         num(r, &["samples"]) > 0.0
@@ -188,6 +191,20 @@ fn the_page_shows_a_live_sine_with_its_spectrum_and_a_still_trigger() {
         "the page streams after {:.1} s",
         start.elapsed().as_secs_f64()
     );
+    let set = until(&addr, Duration::from_secs(60), |r| {
+        r["trigger_output"]["settings"]["mode"] == "travel"
+    });
+    assert!(set["trigger_output"]["error"].is_null(), "{set:#}");
+    let held = common::ok(&["board", "--port", &port, "get", "stage/0/trigger/step_nm"]);
+    assert_eq!(held.trim(), "250", "the board holds what the page set");
+    let held = common::ok(&[
+        "board",
+        "--port",
+        &port,
+        "get",
+        "stage/0/trigger/pulse_ticks",
+    ]);
+    assert_eq!(held.trim(), "3");
 
     // A 200 Hz sine of ±2 µm about 20 µm (within what the governor passes on
     // the factory model), started from the CLI.

@@ -62,6 +62,12 @@ fn every_setting_reads_back_as_the_board_s_state() {
             ("/stage/0/damping", None),
             ("/stage/0/shaping", None),
             ("/stage/0/compensated", Some("true")),
+            ("/stage/0/trigger/mode", Some("\"off\"")),
+            ("/stage/0/trigger/step_nm", Some("1000")),
+            ("/stage/0/trigger/band_nm", Some("100")),
+            ("/stage/0/trigger/low_nm", Some("0")),
+            ("/stage/0/trigger/high_nm", Some("0")),
+            ("/stage/0/trigger/pulse_ticks", Some("1")),
             ("/supervise_ms", Some("0")),
         ]
     );
@@ -199,11 +205,17 @@ fn fpi_board_get_and_set_print_the_settings() {
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
         [
-            "stage/0/loop_mode      \"open\"",
-            "stage/0/damping        (the running model has none)",
-            "stage/0/shaping        (the running model has none)",
-            "stage/0/compensated    true",
-            "supervise_ms           0",
+            "stage/0/loop_mode           \"open\"",
+            "stage/0/damping             (the running model has none)",
+            "stage/0/shaping             (the running model has none)",
+            "stage/0/compensated         true",
+            "stage/0/trigger/mode        \"off\"",
+            "stage/0/trigger/step_nm     1000",
+            "stage/0/trigger/band_nm     100",
+            "stage/0/trigger/low_nm      0",
+            "stage/0/trigger/high_nm     0",
+            "stage/0/trigger/pulse_ticks 1",
+            "supervise_ms                0",
         ]
     );
     let out = ok(&[

@@ -46,6 +46,7 @@ mod bench {
     use piezo_fpi::model::{image, ModelSpec, TableSpec};
     use piezo_fpi::pi::PiModel;
     use piezo_fpi::q::{Micrometres, Newtons, UmPerNewton, UmPerVolt, Volts, VoltsPerNewton};
+    use piezo_fpi::trigger::{Condition, Trigger};
     // The device crate provides the interrupt vector table.
     use stm32f4xx_hal as _;
 
@@ -428,6 +429,16 @@ mod bench {
         let mut lp = ControlLoop::new(running, LINK.hardware(), LINK.analog());
         x.order = Some((1, Order::Record { decimation: 1 }));
         lp.tick(&mut x);
+        // The trigger output on its costliest condition throughout: a pulse
+        // every 0.1 µm of travel.
+        let travel = Condition::Travel {
+            step: Micrometres::from_num(0.1),
+        };
+        let Ok(trigger) = Trigger::new(travel, 2) else {
+            return false;
+        };
+        x.order = Some((3, Order::Trigger(trigger)));
+        lp.tick(&mut x);
         let open_ok = tick_phase(&mut lp, &mut x, baseline, false);
         let Some(closed) = closed else {
             hprintln!("the closed-loop benchmark could not be set up");
@@ -481,9 +492,9 @@ mod bench {
             ("isr_tick_instructions", "isr_tick_stack_bytes")
         };
         let what = if closed {
-            "the board's control task on the runtime embedded model in closed loop (damping from the force sensor, PI on the position sensor, feedforward: 16 taps on the preview's delay line, 4 ticks ahead, with the damping's lead force): order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder"
+            "the board's control task on the runtime embedded model in closed loop (damping from the force sensor, PI on the position sensor, feedforward: 16 taps on the preview's delay line, 4 ticks ahead, with the damping's lead force): order check, reference, supervision, sensors, step, DAC, enable, trigger (travel), snapshot, recorder"
         } else {
-            "the board's control task on the runtime embedded model: order check, reference, supervision, sensors, step, DAC, enable, snapshot, recorder"
+            "the board's control task on the runtime embedded model: order check, reference, supervision, sensors, step, DAC, enable, trigger (travel), snapshot, recorder"
         };
         print_phase(x, names, what, &c, ok, depth)
     }

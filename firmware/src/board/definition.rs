@@ -41,6 +41,7 @@
 //! | AD5791 SYNC̅ | PB12 | GPIO | precision |
 //! | AD5791 LDAC̅ | PB7 | TIM4 channel 2 (compare, the period's first µs) | precision |
 //! | amplifier enable (high = on) | PB0 | GPIO | both |
+//! | trigger output (high = the condition met; written at the tick's end) | PB1 | GPIO | both |
 //! | host link, USB (CDC-ACM, full speed) | PA11 D−, PA12 D+ | OTG_FS | both |
 //! | host link, fallback (115 200 Bd, 8N1) | PA9 TX, PA10 RX | USART1 | both |
 //!
@@ -235,6 +236,8 @@ pub mod pins {
     pub struct Common {
         /// The amplifier's enable, low (off).
         pub enable: gpio::PB0<Output<PushPull>>,
+        /// The trigger output, low.
+        pub trigger_out: gpio::PB1<Output<PushPull>>,
         /// The analog reference input ([`ReferenceAdc`]).
         pub reference: gpio::PA1<Analog>,
         /// USB D−, D+.
@@ -312,6 +315,7 @@ pub mod pins {
         let (a, b, c) = (a.split(rcc), b.split(rcc), c.split(rcc));
         let common = Common {
             enable: b.pb0.into_push_pull_output_in_state(gpio::PinState::Low),
+            trigger_out: b.pb1.into_push_pull_output_in_state(gpio::PinState::Low),
             reference: a.pa1.into_analog(),
             usb: (a.pa11, a.pa12),
             uart: (a.pa9, a.pa10),

@@ -11,6 +11,7 @@ use fpi_protocol::BenchOrder;
 use piezo_fpi::control::Fault;
 use piezo_fpi::lead::LeadGain;
 use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
+use piezo_fpi::trigger::Trigger;
 
 use crate::board::capacity::{RECORDER_SAMPLES, STREAM_POINTS};
 use crate::control::analyser::{AnalyseOrder, AnalysisSums};
@@ -34,6 +35,9 @@ pub enum Order {
     Loop(LoopMode),
     /// Switch active damping on or off (where the model has it); without a jump.
     Damping(bool),
+    /// Drive the trigger output from this condition on (its memory starts
+    /// from the position and the stream's points as they are).
+    Trigger(Trigger),
     /// Switch the reference shaping on or off (where the model has it); without a
     /// jump.
     Shaping(bool),
@@ -118,6 +122,8 @@ pub struct Telemetry {
     pub x_sensor: Micrometres,
     /// [`status`] bits.
     pub status: u8,
+    /// The trigger lines after the tick ([`lines`](crate::control::recorder::lines) bits).
+    pub lines: u8,
 }
 
 impl Telemetry {
@@ -139,6 +145,7 @@ impl Telemetry {
             x_true: x_true.map_or(NO_TRUE_POSITION, |v| v.to_bits()),
             x_sensor: self.x_sensor.to_bits(),
             status: self.status,
+            lines: self.lines,
         }
     }
 }
@@ -184,6 +191,8 @@ pub struct Snapshot {
     pub lead_ratio: LeadRatio,
     /// An analysis is running.
     pub analysing: bool,
+    /// What drives the trigger output.
+    pub trigger: Trigger,
 }
 
 impl Snapshot {
@@ -199,6 +208,7 @@ impl Snapshot {
                 x_est: Micrometres::ZERO,
                 x_sensor: Micrometres::ZERO,
                 status: 0,
+                lines: 0,
             },
             fault: None,
             safe_at: None,
@@ -217,6 +227,7 @@ impl Snapshot {
             shaping_on: false,
             lead_ratio: LeadRatio::ZERO,
             analysing: false,
+            trigger: Trigger::OFF,
         }
     }
 }

@@ -9,7 +9,7 @@
 //! Values are the core's raw fixed-point bits (`I16F16`: µm, V, N), so a recording
 //! carries exactly what the loop computed.
 
-pub use fpi_protocol::record::{signal, status, wire_len, Packer, Sample, NO_TRUE_POSITION};
+pub use fpi_protocol::record::{lines, signal, status, wire_len, Packer, Sample, NO_TRUE_POSITION};
 
 /// The recorder: its ring (state) and settings.
 #[derive(Debug, Clone)]
@@ -48,6 +48,7 @@ impl<const N: usize> Recorder<N> {
                 x_true: 0,
                 x_sensor: 0,
                 status: 0,
+                lines: 0,
             }; N],
             head: 0,
             tail: 0,
@@ -192,14 +193,15 @@ mod tests {
             x_true: 5,
             x_sensor: 7,
             status: 6,
+            lines: 1,
         };
-        for mask in 0..=signal::ALL {
+        for mask in 0..=signal::ANY {
             let v: Vec<i32> = s.values(mask).collect();
             assert_eq!(v.len(), Sample::width(mask));
             let back = Sample::from_values(mask, &v).unwrap();
             let want = Sample::from_values(mask, &s.values(mask).collect::<Vec<_>>()).unwrap();
             assert_eq!(back, want);
-            if mask == signal::ALL {
+            if mask == signal::ANY {
                 assert_eq!(back, s);
             }
         }

@@ -34,10 +34,12 @@ pub const STREAM_TIMEOUT_TICKS: u32 = RATE_HZ / 2;
 /// Late ticks in a row that latch [`Fault::Overrun`]: 1 ms of a loop that cannot
 /// keep its rate (a single late tick is counted, not a fault).
 pub const OVERRUN_RUN: u32 = RATE_HZ / 1000;
-use crate::control::recorder::{status, Sample};
+use crate::control::recorder::{lines, status, Sample};
 use crate::control::reference::analog::AnalogInput;
 use crate::control::reference::{Reference, SourceKind, SourceOrder};
 use crate::control::slots::Running;
+use piezo_fpi::process::SplitProcess as _;
+use piezo_fpi::trigger::{Condition, Readings, Trigger, TriggerState};
 
 /// The control ISR's state (one per stage channel); `S`, `A`, `E`, `R`: the force
 /// sensor, the amplifier, its enable line and the analog reference input.
@@ -80,6 +82,10 @@ pub struct ControlLoop<S, A, E, R> {
     watch_halves: [Micrometres; 2],
     /// The status bits the settings set (uncompensated drive, feedback).
     status_base: u8,
+    /// What drives the trigger output.
+    trigger: Trigger,
+    /// The trigger output's memory.
+    trigger_state: TriggerState,
 }
 
 /// The loop watch's half swings are widened by this many times the
@@ -141,6 +147,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             stream_supervised: false,
             watch_halves: [Micrometres::ZERO; 2],
             status_base: 0,
+            trigger: Trigger::OFF,
+            trigger_state: TriggerState::at(Micrometres::ZERO, 0),
         }
         .with_loop_set()
     }
@@ -266,6 +274,12 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             }
         }
         self.x_est = cfg.stage_position(out.x_pea_est);
+        let at_safe = out.voltage == cfg.safe_voltage();
+        let lines = if self.trigger.condition() == Condition::Off {
+            0
+        } else {
+            self.trigger_line(source, x.points.taken())
+        };
         let t = Telemetry {
             tick: self.tick,
             x_ref,
@@ -273,7 +287,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             force,
             x_est: self.x_est,
             x_sensor: self.x_sensor,
-            status: self.status(out.limited, out.fault, out.voltage == cfg.safe_voltage()),
+            status: self.status(out.limited, out.fault, at_safe),
+            lines,
         };
         if let Some(f) = out.fault {
             self.reference.freeze();
@@ -281,7 +296,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 self.fault_at = Some((f, self.tick));
                 self.changed = true;
             }
-            if self.safe_at.is_none() && out.voltage == cfg.safe_voltage() {
+            if self.safe_at.is_none() && at_safe {
                 self.safe_at = Some(self.tick);
                 self.changed = true;
             }
@@ -464,6 +479,19 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         s.damping_on = self.feedback.damping_on();
         s.shaping_on = self.feedback.shaping_on();
         s.analysing = self.analyser.running();
+        s.trigger = self.trigger;
+    }
+
+    /// The trigger lines after this tick, the output's condition on
+    /// (out of line: the ordinary tick keeps its registers).
+    #[inline(never)]
+    fn trigger_line(&mut self, x_ref: Micrometres, points: u32) -> u8 {
+        let r = Readings {
+            x: self.x_sensor,
+            x_ref,
+            points,
+        };
+        self.trigger.process(&mut self.trigger_state, r) as u8 * lines::TRIGGER_OUT
     }
 
     /// Latches `fault` and stops the reference where it is.
@@ -559,6 +587,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             Order::Damping(on) => {
                 self.feedback.set_damping(on);
                 self.update_loop_set();
+                Ok(())
+            }
+            Order::Trigger(t) => {
+                self.trigger = t;
+                self.trigger_state = TriggerState::at(self.x_sensor, x.points.taken());
                 Ok(())
             }
             Order::Shaping(on) => {

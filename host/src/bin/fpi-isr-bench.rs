@@ -34,8 +34,9 @@ fn main() -> ExitCode {
 /// The worst whole control tick's budget, instructions (20 kHz on a 168 MHz
 /// Cortex-M4 leaves 8 400 cycles; the budget keeps the tick well inside). The
 /// tick that the reference governor departs from in closed loop is measured
-/// against it too.
-const TICK_BUDGET: u32 = 1600;
+/// against it too. It was 1 600 until the trigger output, which costs the
+/// tick up to 55 instructions (its travel condition; 14 while it is off).
+const TICK_BUDGET: u32 = 1700;
 /// The n = 10 step's budget (inverse, forward, two lookups, limits),
 /// instructions.
 const STEP_BUDGET: u32 = 300;
@@ -136,12 +137,12 @@ mod tests {
         let out = "control_step_instructions n=10: 290\n\
                    runtime_model_step_instructions n=10 creep=0: 301\n\
                    isr_tick_instructions n=9: 1080 (open)\n\
-                   isr_tick_closed_loop_stepping_instructions n=9: 1601 (stepping)\n";
+                   isr_tick_closed_loop_stepping_instructions n=9: 1701 (stepping)\n";
         let over = over_budget(out).expect("every figure present");
         assert_eq!(
             over,
             [
-                "isr_tick_closed_loop_stepping_instructions n=9 = 1601 > 1600",
+                "isr_tick_closed_loop_stepping_instructions n=9 = 1701 > 1700",
                 "runtime_model_step_instructions n=10 creep=0 = 301 > 300",
             ]
         );

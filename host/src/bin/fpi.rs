@@ -235,8 +235,8 @@ enum Command {
         #[arg(long, default_value = "127.0.0.1:4610", value_parser = parse_listen_any)]
         listen: String,
         /// The signals to stream, by their recording column (x_ref_um,
-        /// x_est_um, x_fhps_um, x_sensor_um, voltage_V, force_N, status);
-        /// default: all.
+        /// x_est_um, x_fhps_um, x_sensor_um, voltage_V, force_N, status,
+        /// trigger); default: every one but trigger.
         #[arg(long, value_delimiter = ',')]
         signals: Vec<String>,
         /// Keep one tick in this many (default: every tick where the link
@@ -490,6 +490,11 @@ enum BoardCommand {
         /// Keep one tick in this many (≥ 1).
         #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u16).range(1..))]
         decimation: u16,
+        /// The signals to record, by their column (x_ref_um, x_fhps_um,
+        /// voltage_V, force_N, x_est_um, status, x_sensor_um, trigger);
+        /// default: every one but trigger.
+        #[arg(long, value_delimiter = ',')]
+        signals: Vec<String>,
     },
     /// Load a model into the board.
     ///
@@ -576,6 +581,20 @@ enum BoardCommand {
     Damping {
         /// on or off.
         state: String,
+    },
+    /// Drive the trigger output (pin PB1; on the emulated board recorded as the
+    /// `trigger` column).
+    ///
+    /// travel: a pulse every --step-um of travel, either way; on_target: high
+    /// while the position is within --band-um of the reference; window: high
+    /// while it lies in --low-um … --high-um; point: a pulse at each point a
+    /// stream takes; off. Levels not given stay as the board has them
+    /// (`fpi board get` lists them).
+    Trigger {
+        /// off, travel, on_target, window or point.
+        mode: String,
+        #[command(flatten)]
+        levels: fpi_host::board::trigger::Levels,
     },
     /// Switch the model's reference shaping on or off, without a jump.
     ///
@@ -1171,10 +1190,14 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             seconds,
             out,
             decimation,
-        } => match seconds {
-            Some(seconds) => b::record(c, seconds, decimation, &out).map(|_| ()),
-            None => b::record_until_stopped(c, decimation, &out),
-        },
+            signals,
+        } => {
+            let signals = b::signals_arg(&signals)?;
+            match seconds {
+                Some(seconds) => b::record(c, seconds, decimation, signals, &out).map(|_| ()),
+                None => b::record_until_stopped(c, decimation, signals, &out),
+            }
+        }
         BoardCommand::Load {
             model,
             fem,
@@ -1196,6 +1219,7 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
         BoardCommand::Loop { mode } => b::set_loop(c, &mode),
         BoardCommand::Damping { state } => b::damping(c, &state),
         BoardCommand::Shaping { state } => b::shaping(c, &state),
+        BoardCommand::Trigger { mode, levels } => b::trigger(c, &mode, &levels),
         BoardCommand::Step {
             from,
             to,

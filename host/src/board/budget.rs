@@ -43,12 +43,10 @@ impl Budget {
     /// The demand of recording `signals` at `decimation` for `seconds` on the
     /// board that said `hello`.
     pub fn new(hello: &Hello, signals: u8, decimation: u16, seconds: f64) -> Self {
-        let others = (signals & !signal::STATUS & signal::ALL).count_ones() as f64;
-        let status = if signals & signal::STATUS != 0 {
-            1.0
-        } else {
-            0.0
-        };
+        // The status and the trigger lines change seldom: a byte each.
+        let bits = signal::STATUS | signal::TRIGGER;
+        let others = (signals & !bits).count_ones() as f64;
+        let status = (signals & bits).count_ones() as f64;
         let tick = wire_len(i32::from(decimation.max(1))) as f64;
         let samples_per_s = f64::from(hello.rate_hz) / f64::from(decimation.max(1));
         Self {

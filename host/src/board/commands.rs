@@ -11,7 +11,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
-use fpi_firmware::control::recorder::{signal, Sample};
+use fpi_firmware::control::recorder::Sample;
 use fpi_protocol::{BenchOrder, Command, LoopMode, Shape, SourceKind};
 
 use super::budget::Budget;
@@ -410,8 +410,8 @@ pub struct Recorded {
     pub stopped: bool,
 }
 
-/// Records every `decimation`-th tick for `seconds` (s) of board time, every
-/// signal (the datasets' columns, [`Recording`]). `progress` gets the ticks
+/// Records every `decimation`-th tick for `seconds` (s) of board time, the
+/// `signals` asked for (`signal::ALL`: the datasets' columns, [`Recording`]). `progress` gets the ticks
 /// recorded and the ticks asked for; `stop` is polled between reads (every
 /// 20 ms at most, [`Budget::pause`]) and ends the recording early (the recorder
 /// is stopped, what it recorded kept, the stage left as it was:
@@ -420,6 +420,7 @@ pub fn record(
     c: &mut Client,
     seconds: f64,
     decimation: u16,
+    signals: u8,
     mut progress: impl FnMut(u32, u32),
     mut stop: impl FnMut() -> bool,
 ) -> Result<Recorded> {
@@ -439,17 +440,24 @@ pub fn record(
     }
     let rate = c.rate_hz();
     let ticks = (seconds * rate).round() as u32;
+    if signals == 0 {
+        return Err(bad(
+            "signals",
+            "--signals",
+            "--signals: name one signal or more".into(),
+        ));
+    }
     let start = c.ack(&Command::Record {
         decimation,
-        signals: signal::ALL,
+        signals,
     })?;
     let mut rec = Recording {
         rate_hz: rate,
-        signals: signal::ALL,
+        signals,
         ..Recording::default()
     };
     // Between reads while nothing waits.
-    let pause = Budget::new(c.hello(), signal::ALL, decimation, seconds).pause();
+    let pause = Budget::new(c.hello(), signals, decimation, seconds).pause();
     let started = Instant::now();
     let mut stopped = false;
     loop {

@@ -22,7 +22,7 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 
 use anyhow::Result;
-use fpi_protocol::record::{signal, Packer, Sample};
+use fpi_protocol::record::{Packer, Sample};
 use fpi_protocol::{Batch, Command, Reply};
 use heapless::Vec as HVec;
 
@@ -85,7 +85,6 @@ impl Fanout {
     fn arm(&mut self, id: u32, decimation: u16, signals: u8) -> Result<u32> {
         self.distribute();
         let d = u32::from(decimation.max(1));
-        let signals = signals & signal::ALL;
         let active = || self.watches.values().filter(|w| w.active);
         let wanted = active().fold(d, |g, w| gcd(g, w.decimation));
         let wanted_signals = active().fold(signals, |s, w| s | w.signals);

@@ -23,7 +23,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Result};
-use fpi_firmware::control::recorder::{signal, Sample};
+use fpi_firmware::control::recorder::Sample;
 use fpi_protocol::{Batch, Command};
 
 use super::budget::Budget;
@@ -188,7 +188,6 @@ impl Live {
                 "--decimation 0: keep one tick in 1 or more",
             ));
         }
-        let signals = signals & signal::ALL;
         if signals == 0 {
             return Err(bad(
                 "signals",

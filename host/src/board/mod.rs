@@ -30,6 +30,7 @@ pub mod session;
 pub mod settings;
 pub mod step;
 pub mod trial;
+pub mod trigger;
 pub mod twin;
 pub mod variant;
 pub mod warm;

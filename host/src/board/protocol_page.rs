@@ -439,6 +439,7 @@ pub fn reference() -> Result<String, String> {
     structure(&mut s, &p, "Header")?;
     s += "### `Command`\n\n";
     tagged(&mut s, &p, "Command", "CommandKind")?;
+    structure(&mut s, &p, "TriggerSettings")?;
     s += "## Replies\n\n";
     structure(&mut s, &p, "ReplyHeader")?;
     s += "### `Reply`\n\n";
@@ -471,12 +472,15 @@ pub fn reference() -> Result<String, String> {
     constants(&mut s, p.consts("record::signal")?, "Bit");
     s += "### Status bits\n\nThe bits of a recorded sample's `status` signal.\n\n";
     constants(&mut s, p.consts("record::status")?, "Bit");
+    s += "### Line bits\n\nThe bits of a recorded sample's `lines` (the `TRIGGER` signal).\n\n";
+    constants(&mut s, p.consts("record::lines")?, "Bit");
     structure(&mut s, &p, "Sample")?;
     s += "## Enumerations\n\nEach crosses the link as one byte, its wire number.\n\n";
     for name in [
         "Shape",
         "LoopMode",
         "SourceKind",
+        "TriggerMode",
         "LinkKind",
         "BoardKind",
         "ResetReason",

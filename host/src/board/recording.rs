@@ -125,6 +125,7 @@ impl Recording {
                 let v = match bit {
                     signal::FORCE => format!("{v:.4}"),
                     signal::STATUS => s.status.to_string(),
+                    signal::TRIGGER => s.lines.to_string(),
                     _ => format!("{v:.5}"),
                 };
                 line.push(',');
@@ -164,7 +165,7 @@ pub fn columns_of(signals: u8) -> impl Iterator<Item = (u8, &'static str)> {
 }
 
 /// The signals a recording may hold, by their bit, with their CSV column.
-const COLUMNS: [(u8, &str); 7] = [
+const COLUMNS: [(u8, &str); 8] = [
     (signal::VOLTAGE, "voltage_V"),
     (signal::FORCE, "force_N"),
     (signal::X_REF, "x_ref_um"),
@@ -172,6 +173,7 @@ const COLUMNS: [(u8, &str); 7] = [
     (signal::STATUS, "status"),
     (signal::X_TRUE, "x_fhps_um"),
     (signal::X_SENSOR, "x_sensor_um"),
+    (signal::TRIGGER, "trigger"),
 ];
 
 /// The value of signal `bit` in a sample, in µm, V or N (`status`: its bits).
@@ -183,6 +185,7 @@ pub fn value(bit: u8, s: &Sample) -> f64 {
         signal::X_EST => real(s.x_est),
         signal::STATUS => f64::from(s.status),
         signal::X_TRUE => real(s.x_true),
+        signal::TRIGGER => f64::from(s.lines),
         _ => real(s.x_sensor),
     }
 }

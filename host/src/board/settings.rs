@@ -150,6 +150,12 @@ mod tests {
                 "/stage/0/damping",
                 "/stage/0/shaping",
                 "/stage/0/compensated",
+                "/stage/0/trigger/mode",
+                "/stage/0/trigger/step_nm",
+                "/stage/0/trigger/band_nm",
+                "/stage/0/trigger/low_nm",
+                "/stage/0/trigger/high_nm",
+                "/stage/0/trigger/pulse_ticks",
                 "/supervise_ms"
             ]
         );
@@ -157,7 +163,7 @@ mod tests {
             assert!(l.doc.len() > 20, "{l:?}");
             assert!(l.range.is_some() && l.default.is_some(), "{l:?}");
         }
-        assert_eq!(all[4].unit, Some("ms"));
+        assert_eq!(all[10].unit, Some("ms"));
     }
 
     #[test]

@@ -489,10 +489,15 @@ pub fn stop_asked() -> bool {
 /// (into a temporary file renamed to `out` at the end: memory stays flat however
 /// long it runs). Every sample's tick is checked, so a loss is counted and
 /// reported, never silent.
-pub fn record_until_stopped(c: &mut Client, decimation: u16, out: &Path) -> Result<()> {
+pub fn record_until_stopped(
+    c: &mut Client,
+    decimation: u16,
+    signals: u8,
+    out: &Path,
+) -> Result<()> {
     catch_ctrl_c()?;
     let rate = c.rate_hz();
-    let budget = Budget::new(c.hello(), signal::ALL, decimation, 1.0);
+    let budget = Budget::new(c.hello(), signals, decimation, 1.0);
     if let Some(why) = budget.beyond_the_link() {
         anyhow::bail!(
             "--decimation {decimation}: recording until stopped: {why}: raise --decimation, or \
@@ -501,7 +506,7 @@ pub fn record_until_stopped(c: &mut Client, decimation: u16, out: &Path) -> Resu
     }
     let header = Recording {
         rate_hz: rate,
-        signals: signal::ALL,
+        signals,
         ..Recording::default()
     };
     println!(
@@ -514,7 +519,7 @@ pub fn record_until_stopped(c: &mut Client, decimation: u16, out: &Path) -> Resu
         header.write_header(w)?;
         let r = crate::board::live::follow(
             c,
-            signal::ALL,
+            signals,
             decimation,
             |samples| {
                 n += samples.len();
@@ -554,10 +559,16 @@ pub fn record_until_stopped(c: &mut Client, decimation: u16, out: &Path) -> Resu
 /// time into a CSV ([`commands::record`]). Ctrl-C stops it early: the recorder is
 /// stopped, what it recorded is written (a valid CSV) and the error is
 /// [`Interrupted`].
-pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Result<Recording> {
+pub fn record(
+    c: &mut Client,
+    seconds: f64,
+    decimation: u16,
+    signals: u8,
+    out: &Path,
+) -> Result<Recording> {
     catch_ctrl_c()?;
     let rate = c.rate_hz();
-    let budget = Budget::new(c.hello(), signal::ALL, decimation, seconds);
+    let budget = Budget::new(c.hello(), signals, decimation, seconds);
     if budget.fits() {
         println!("{}", budget.describe(c.hello().rate_hz));
     } else {
@@ -568,6 +579,7 @@ pub fn record(c: &mut Client, seconds: f64, decimation: u16, out: &Path) -> Resu
         c,
         seconds,
         decimation,
+        signals,
         |done, _| pb.set_position(u64::from(done)),
         stop_asked,
     )?;
@@ -800,6 +812,21 @@ pub fn drive(c: &mut Client, mode: &str) -> Result<()> {
     Ok(())
 }
 
+/// `--signals NAME,…` as signal bits: the recording's columns named (none:
+/// every signal of a default recording), or the name that is none.
+pub fn signals_arg(names: &[String]) -> Result<u8> {
+    use crate::board::recording;
+    if names.is_empty() {
+        return Ok(signal::ALL);
+    }
+    recording::signals_named(names.iter().map(String::as_str)).map_err(|name| {
+        anyhow::anyhow!(
+            "--signals {name}: no such signal (one of {})",
+            recording::column_names().collect::<Vec<_>>().join(", ")
+        )
+    })
+}
+
 /// `fpi board damping on|off`.
 pub fn damping(c: &mut Client, state: &str) -> Result<()> {
     let t = commands::damping(c, state)?;
@@ -813,9 +840,15 @@ pub fn get(c: &mut Client, key: Option<&str>) -> Result<()> {
     match key {
         Some(k) => println!("{}", c.setting(&settings::path(k)?)?),
         None => {
-            for (path, value) in settings::read_all(c)? {
+            let all = settings::read_all(c)?;
+            let width = all
+                .iter()
+                .map(|(p, _)| p[1..].chars().count())
+                .max()
+                .unwrap_or(0);
+            for (path, value) in all {
                 let v = value.unwrap_or_else(|| "(the running model has none)".into());
-                println!("{:<22} {v}", &path[1..]);
+                println!("{:<width$} {v}", &path[1..]);
             }
         }
     }
@@ -828,6 +861,14 @@ pub fn set(c: &mut Client, key: &str, value: &str) -> Result<()> {
     let path = settings::path(key)?;
     let t = c.set_setting(&path, &settings::json(value))?;
     println!("{} = {} from tick {t}", &path[1..], c.setting(&path)?);
+    Ok(())
+}
+
+/// `fpi board trigger MODE [levels]`.
+pub fn trigger(c: &mut Client, mode: &str, levels: &crate::board::trigger::Levels) -> Result<()> {
+    use crate::board::trigger;
+    let (t, s) = trigger::set(c, trigger::mode(mode)?, levels)?;
+    println!("trigger output {} from tick {t}", trigger::describe(&s));
     Ok(())
 }
 

@@ -3,28 +3,16 @@
 
 use std::sync::{Arc, Mutex};
 
-use anyhow::{bail, Result};
-use fpi_protocol::record::signal;
+use anyhow::Result;
 
-use super::board::{catch_ctrl_c, open, stop_asked};
+use super::board::{catch_ctrl_c, open, signals_arg, stop_asked};
 use crate::board::budget::Budget;
-use crate::board::recording;
 use crate::scope::{self, Options};
 
 /// `fpi scope --port PORT --listen HOST:PORT [--signals …] [--decimation N]`.
 pub fn run(port: &str, listen: &str, signals: &[String], decimation: Option<u16>) -> Result<()> {
     catch_ctrl_c()?;
-    let signals = if signals.is_empty() {
-        signal::ALL
-    } else {
-        match recording::signals_named(signals.iter().map(String::as_str)) {
-            Ok(bits) => bits,
-            Err(name) => bail!(
-                "--signals {name}: no such signal (one of {})",
-                recording::column_names().collect::<Vec<_>>().join(", ")
-            ),
-        }
-    };
+    let signals = signals_arg(signals)?;
     let c = open(port)?;
     let decimation = match decimation {
         Some(d) => d,

@@ -13,6 +13,8 @@
 //! | `GET /` | the page (`index.html`, `scope.js`, `scope.css`) |
 //! | `GET /info` | JSON: `rate_hz`, `decimation`, `channels` (`name`, `unit`), `board` |
 //! | `GET /stream` | the samples, a never-ending chunked response of messages (below) |
+//! | `GET /trigger` | JSON: the board's trigger output settings (`stage/0/trigger/…`) |
+//! | `POST /trigger` | sets the trigger output: a JSON body `{"mode": …, "step_um": …}` as `fpi board trigger` takes it; the settings the board then holds, or 400 with why |
 //! | `POST /report`, `GET /report` | what the page last said it shows (`?report=MS`; for tests) |
 //!
 //! **A stream message**, little-endian: seven `u32` — the magic `"SCP1"`, the
@@ -141,6 +143,8 @@ struct Viewer {
 
 /// What the scope serves and the stream's state.
 struct Scope {
+    /// The board's link, shared with the recording (the trigger panel).
+    link: Arc<Mutex<Client>>,
     info: String,
     signals: u8,
     decimation: u16,
@@ -193,9 +197,10 @@ pub fn bind(link: Arc<Mutex<Client>>, board: &str, listen: &str, o: Options) -> 
         .server_addr()
         .to_ip()
         .ok_or_else(|| anyhow!("listening on {listen}: not an IP address"))?;
-    let shared: Arc<dyn SharedClient> = link;
+    let shared: Arc<dyn SharedClient> = link.clone();
     let live = Live::start(shared, o.signals, o.decimation, false)?;
     let scope = Scope {
+        link,
         info: info(&live, board),
         signals: live.signals,
         decimation: live.decimation,
@@ -341,6 +346,14 @@ impl Scope {
         let path = request.url().split('?').next().unwrap_or("/").to_string();
         let response = match (request.method(), path.as_str()) {
             (Method::Get, "/info") => text(200, "application/json", self.info.clone()),
+            (Method::Get, "/trigger") => self.trigger(None),
+            (Method::Post, "/trigger") => {
+                let mut body = String::new();
+                match request.as_reader().take(4096).read_to_string(&mut body) {
+                    Ok(_) => self.trigger(Some(&body)),
+                    Err(e) => text(400, "text/plain", format!("the trigger's settings: {e}")),
+                }
+            }
             (Method::Get, "/report") => match self.report.lock().ok().and_then(|r| r.clone()) {
                 Some(r) => text(200, "application/json", r),
                 None => text(404, "text/plain", "no report yet".into()),
@@ -366,10 +379,43 @@ impl Scope {
                 None if p == "/index.html" => text(200, ASSETS[0].1, ASSETS[0].2.to_string()),
                 None => text(404, "text/plain", format!("{p}: no such page")),
             },
-            _ => text(405, "text/plain", "GET or POST /report".into()),
+            _ => text(405, "text/plain", "GET, or POST /report or /trigger".into()),
         };
         let _ = request.respond(response);
     }
+}
+
+impl Scope {
+    /// `GET /trigger` (`body` none) or `POST /trigger`: the board's trigger
+    /// settings after the change the body asks for, as JSON; 400 with why a
+    /// change was refused (by the host's checks or the board's).
+    fn trigger(&self, body: Option<&str>) -> Response<std::io::Cursor<Vec<u8>>> {
+        use crate::board::trigger;
+        let Ok(mut c) = self.link.lock() else {
+            return text(500, "text/plain", "the board's link failed".into());
+        };
+        let result = match body {
+            None => trigger::settings(&mut c),
+            Some(b) => serde_json::from_str::<TriggerRequest>(b)
+                .map_err(|e| anyhow!("the trigger's settings {b}: {e}"))
+                .and_then(|r| {
+                    let mode = trigger::mode(&r.mode)?;
+                    trigger::set(&mut c, mode, &r.levels).map(|(_, s)| s)
+                }),
+        };
+        match result.and_then(|s| Ok(serde_json::to_string(&s)?)) {
+            Ok(json) => text(200, "application/json", json),
+            Err(e) => text(400, "text/plain", format!("{e:#}")),
+        }
+    }
+}
+
+/// `POST /trigger`'s body.
+#[derive(serde::Deserialize)]
+struct TriggerRequest {
+    mode: String,
+    #[serde(flatten)]
+    levels: crate::board::trigger::Levels,
 }
 
 /// A whole response of `body` with its type.

@@ -78,7 +78,12 @@ const settings = {
   trigChannel: 0, level: NaN, edge: 'rising', pre: 0.5,
   specChannel: 0, fftN: DEFAULT_FFT, specKind: 'amp', showSpectrum: true, showXY: true,
   xChannel: 0, yChannel: 0, axisChannel: 0, reportMs: 0, notes: [],
+  toutQuery: null,
 };
+
+// The board's trigger output as the server last said it (GET/POST /trigger), and
+// the last refusal.
+const tout = { settings: null, error: null };
 
 // Per-channel display state: {name, unit, color, visible, auto, perDiv, offset, range, env, ui}.
 let channels = [];
@@ -432,6 +437,16 @@ function applyQuery() {
   });
   numberParam('fft', (v) => FFT_SIZES.includes(v), (v) => { settings.fftN = v; });
   numberParam('report', (v) => v >= 10, (v) => { settings.reportMs = v; });
+  // tout=MODE[,key=value…]: the trigger output set as the panel sets it (for tests).
+  if (q.has('tout')) {
+    const [mode, ...pairs] = q.get('tout').split(',');
+    const body = { mode };
+    for (const p of pairs) {
+      const [k, v] = p.split('=');
+      body[k] = Number(v);
+    }
+    settings.toutQuery = body;
+  }
 }
 
 // Span limited to what the rings can show.
@@ -1868,6 +1883,7 @@ function buildReport() {
       stillness: trig.stillness,
     },
     roll_motion: roll.motion,
+    trigger_output: { settings: tout.settings, error: tout.error },
   };
 }
 
@@ -1882,6 +1898,72 @@ async function postReport() {
   } catch (e) {
     if (!settings.notes.some((n) => n.startsWith('report'))) settings.notes.push(`report failed: ${e.message}`);
   }
+}
+
+/* ------------------------------------------------------------------ */
+/* The board's trigger output                                         */
+/* ------------------------------------------------------------------ */
+
+// Shows the levels of mode `mode` only.
+function showToutLevels(mode) {
+  for (const l of $('tout').querySelectorAll('label[data-for]')) {
+    l.classList.toggle('off', !l.dataset.for.split(' ').includes(mode));
+  }
+}
+
+// Fills the panel from the board's settings (levels in nm on the board, µm here).
+function showTout(s) {
+  tout.settings = s;
+  $('tout-mode').value = s.mode;
+  $('tout-step').value = String(s.step_nm / 1000);
+  $('tout-band').value = String(s.band_nm / 1000);
+  $('tout-low').value = String(s.low_nm / 1000);
+  $('tout-high').value = String(s.high_nm / 1000);
+  $('tout-pulse').value = String(s.pulse_ticks);
+  showToutLevels(s.mode);
+}
+
+// What the panel says under its controls: the board's settings, or why a change was refused.
+function showToutState() {
+  const st = $('tout-state');
+  st.classList.toggle('bad', tout.error !== null);
+  st.textContent = tout.error ?? (tout.settings ? `board: ${tout.settings.mode}` : '');
+}
+
+// GET /trigger (body null) or POST it; the panel shows the outcome.
+async function toutRequest(body) {
+  try {
+    const init = body === null ? { cache: 'no-store' }
+      : { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body) };
+    const resp = await fetch('/trigger', init);
+    const text = await resp.text();
+    if (!resp.ok) throw new Error(text || `HTTP ${resp.status}`);
+    showTout(JSON.parse(text));
+    tout.error = null;
+  } catch (e) {
+    tout.error = e.message;
+  }
+  showToutState();
+}
+
+// The panel's settings as POST /trigger takes them.
+function toutBody() {
+  const mode = $('tout-mode').value;
+  const num = (id) => Number($(id).value);
+  const body = { mode };
+  if (mode === 'travel') body.step_um = num('tout-step');
+  if (mode === 'on_target') body.band_um = num('tout-band');
+  if (mode === 'window') { body.low_um = num('tout-low'); body.high_um = num('tout-high'); }
+  if (mode === 'travel' || mode === 'point') body.pulse_ticks = num('tout-pulse');
+  return body;
+}
+
+// Binds the panel and reads the board's settings (then applies a `tout=` query).
+async function startTout() {
+  $('tout-mode').onchange = (e) => showToutLevels(e.target.value);
+  $('tout-set').onclick = () => toutRequest(toutBody());
+  await toutRequest(null);
+  if (settings.toutQuery) await toutRequest(settings.toutQuery);
 }
 
 /* ------------------------------------------------------------------ */
@@ -1961,6 +2043,7 @@ async function start() {
   if (settings.reportMs > 0) setInterval(postReport, settings.reportMs);
   requestAnimationFrame(frame);
   runStream();
+  startTout();
 }
 
 start();

@@ -59,6 +59,12 @@ impl<const N: usize> Points<N> {
         N - self.len()
     }
 
+    /// Points taken since the last [`clear`](Self::clear) (free-running): a
+    /// stream's point trigger pulses when it moves.
+    pub const fn taken(&self) -> u32 {
+        self.head
+    }
+
     /// Points put since the last [`clear`](Self::clear): the index the host's next point gets.
     pub const fn received(&self) -> u32 {
         self.tail

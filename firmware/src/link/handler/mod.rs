@@ -21,8 +21,8 @@ use super::frame::{self, FrameError};
 use super::pace::{reached, Pace};
 use super::protocol::{
     Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, FrontEndKind, Header,
-    Hello, LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text, AXES,
-    MAX_FRAME, MAX_MODEL_BYTES, NO_SEQ, VERSION,
+    Hello, LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text,
+    TriggerSettings, AXES, MAX_FRAME, MAX_MODEL_BYTES, NO_SEQ, VERSION,
 };
 use super::refusal::{refuse, Refuse};
 use super::upload::Upload;
@@ -41,6 +41,7 @@ use crate::control::tracking::LoopMode;
 
 mod models;
 mod settings;
+mod trigger;
 
 /// What the handler needs from the board it runs on.
 pub trait Board {
@@ -106,6 +107,8 @@ pub struct Handler<F> {
     reset_requested: bool,
     pub(super) signals: u8,
     pub(super) timeout_ms: u32,
+    /// The trigger output's settings, every mode's levels kept.
+    pub(super) trigger: TriggerSettings,
     pub(super) counters: Counters,
     /// The tick of the request being handled (see [`ReplyHeader::tick`]).
     pub(super) tick: Option<u32>,
@@ -189,6 +192,7 @@ impl<F: NorFlash> Handler<F> {
             reset_requested: false,
             signals: signal::ALL,
             timeout_ms: 0,
+            trigger: TriggerSettings::DEFAULT,
             counters: Counters::default(),
             tick: None,
             image_len,
@@ -480,6 +484,12 @@ impl<F: NorFlash> Handler<F> {
                 self.order(board, seq, Order::Damping(on))
             }
             Command::Shaping { on, .. } => self.order(board, seq, Order::Shaping(on)),
+            Command::Trigger { settings, .. } => {
+                let t = trigger::condition(&settings)?;
+                let reply = self.order(board, seq, Order::Trigger(t))?;
+                self.trigger = settings;
+                Ok(reply)
+            }
             Command::LeadRatio { ratio, .. } => {
                 let gain = self.lead_start(ratio)?;
                 self.order(board, seq, Order::LeadRatio(gain))
@@ -516,10 +526,10 @@ impl<F: NorFlash> Handler<F> {
                 decimation,
                 signals,
             } => {
-                if decimation == 0 || signals & !signal::ALL != 0 {
+                if decimation == 0 {
                     return Err(refuse(
                         Refusal::BadArgument,
-                        format_args!("decimation {decimation} (≥ 1) or signal mask {signals:#x}"),
+                        format_args!("decimation {decimation}: keep one tick in 1 or more"),
                     ));
                 }
                 self.signals = signals;

@@ -24,6 +24,7 @@ impl<F: NorFlash> Handler<F> {
             damping: s.damping,
             shaping: s.shaping,
             compensated: s.compensated,
+            trigger: self.trigger,
         };
         Settings {
             stage: [stage; STAGES],

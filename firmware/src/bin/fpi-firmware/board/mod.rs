@@ -27,6 +27,7 @@ use fpi_firmware::board::definition::{
 use fpi_firmware::board::storage::{ModelFlash, BOARD_SLOTS};
 use fpi_firmware::board::watchdog::{Watchdog, PERIOD_MS};
 use fpi_firmware::control::exchange::Exchange;
+use fpi_firmware::control::recorder::lines;
 use fpi_firmware::control::slots::Running;
 use fpi_firmware::link::protocol::BoardKind;
 use fpi_firmware::link::protocol::ResetReason;
@@ -36,7 +37,7 @@ use crate::supervisor::{was_reset_by_command, Supervisor};
 use panic_probe as _;
 use piezo_fpi::io::Hardware;
 use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
-use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA1, PB0};
+use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA1, PB0, PB1};
 use stm32f4xx_hal::otg_fs::{UsbBus, UsbBusType, USB};
 use stm32f4xx_hal::pac::{self, USART1};
 use stm32f4xx_hal::prelude::*;
@@ -100,6 +101,8 @@ impl ReferenceIn for ReferenceAdc {
 
 /// The amplifier's enable line.
 pub type Enable = PB0<Output<PushPull>>;
+/// The trigger output.
+pub type TriggerOut = PB1<Output<PushPull>>;
 
 /// The model's flash sectors: each erase or write unlocks the flash only for
 /// its own duration.
@@ -230,6 +233,7 @@ impl Watchdog for Iwdg {
 pub struct TickIo {
     control: front::Control,
     supervisor: Supervisor<Iwdg>,
+    trigger_out: TriggerOut,
 }
 
 impl TickIo {
@@ -239,6 +243,8 @@ impl TickIo {
         front::before_tick();
         let t = self.control.tick(x);
         front::after_tick(&mut self.control);
+        self.trigger_out
+            .set_state((t.lines & lines::TRIGGER_OUT != 0).into());
         self.control.record(x, &t, None);
         self.supervisor.after_tick(&mut self.control);
     }
@@ -249,6 +255,7 @@ pub struct Io {
     hw: Hardware<front::Sensor, front::Amplifier, Enable>,
     analog: front::Analog,
     iwdg: IndependentWatchdog,
+    trigger_out: TriggerOut,
 }
 
 impl Io {
@@ -259,6 +266,7 @@ impl Io {
         TickIo {
             control: front::Control::new(model, self.hw, self.analog),
             supervisor: Supervisor::new(iwdg),
+            trigger_out: self.trigger_out,
         }
     }
 }
@@ -296,7 +304,12 @@ pub fn init(
     let flash = ModelFlash::new(Flash(LockedFlash::new(dp.FLASH)), BOARD_SLOTS);
     let iwdg = IndependentWatchdog::new(dp.IWDG);
     iwdg.stop_on_debug(&dp.DBGMCU, true);
-    let io = Io { hw, analog, iwdg };
+    let io = Io {
+        hw,
+        analog,
+        iwdg,
+        trigger_out: common.trigger_out,
+    };
     (flash, serial, usb, io)
 }
 

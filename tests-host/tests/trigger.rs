@@ -1,0 +1,232 @@
+//! The trigger output on the emulated board (QEMU, else the firmware built for
+//! the host): set from the client as `fpi board trigger` and Python set it,
+//! recorded in the `trigger` column, and checked against the position sensor's
+//! readings of the same ticks (the latency from condition to edge is 0 ticks:
+//! the line is written at the end of the tick whose reading met it).
+
+use fpi_firmware::control::recorder::{lines, signal, Sample};
+use fpi_host::board::client::{real, Client};
+use fpi_host::board::emulator::{self, Emulator};
+use fpi_host::board::follow::Follow;
+use fpi_host::board::trigger::{self, Levels};
+use fpi_protocol::{LinkKind, TriggerMode, TriggerSettings};
+use piezo_fpi::process::SplitProcess;
+use piezo_fpi::q::Micrometres;
+use piezo_fpi::trigger::{Condition, Readings, Trigger, TriggerState};
+
+/// A board: the emulated one if QEMU is here, else the firmware in-process.
+fn board(test: &str) -> (Option<Emulator>, Client) {
+    if emulator::available_for(test) {
+        let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
+        let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
+        let mut c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
+        c.pace_as(LinkKind::Usb).unwrap();
+        (Some(e), c)
+    } else {
+        println!("{test}: on the firmware built for the host (in-process)");
+        (None, Client::open("virtual:usb").unwrap())
+    }
+}
+
+const SIGNALS: u8 = signal::X_SENSOR | signal::X_REF | signal::TRIGGER;
+
+fn high(s: &Sample) -> bool {
+    s.lines & lines::TRIGGER_OUT != 0
+}
+
+/// The ticks at which the line rose.
+fn rising(samples: &[Sample]) -> Vec<usize> {
+    (1..samples.len())
+        .filter(|&k| high(&samples[k]) && !high(&samples[k - 1]))
+        .collect()
+}
+
+/// Records every tick while the trigger is set to `mode` with `levels` and
+/// the stage moves to `to_um`; the trigger's settings, the tick they took
+/// effect on, and the samples.
+fn moved(
+    c: &mut Client,
+    mode: TriggerMode,
+    levels: &Levels,
+    to_um: f64,
+) -> (TriggerSettings, u32, Vec<Sample>) {
+    let s = trigger::with(trigger::settings(c).unwrap(), mode, levels).unwrap();
+    let mut f = Follow::new(c, SIGNALS);
+    f.record(1).unwrap();
+    f.rec.samples.clear();
+    let set_at = f.c.ack(&trigger::command(s)).unwrap();
+    f.c.move_to(to_um, 200.0).unwrap();
+    f.until_hold().unwrap();
+    let end = f.c.status().unwrap().tick + f.ticks(0.005);
+    f.until_tick(end).unwrap();
+    f.c.ack(&fpi_protocol::Command::RecordStop).unwrap();
+    f.drain().unwrap();
+    assert_eq!(f.rec.dropped, 0, "every tick recorded");
+    (s, set_at, f.rec.samples)
+}
+
+/// The line the core's trigger gives on the recorded readings from the tick
+/// it was set on (its memory from the reading before: the order is taken at
+/// the tick's start, before the sensor is read).
+fn replayed(t: &Trigger, set_at: u32, rec: &[Sample]) -> Vec<(u32, bool)> {
+    let k0 = rec
+        .iter()
+        .position(|s| s.tick + 1 == set_at)
+        .expect("the tick before the set");
+    let mut state = TriggerState::at(Micrometres::from_bits(rec[k0].x_sensor), 0);
+    rec[k0 + 1..]
+        .iter()
+        .map(|s| {
+            let r = Readings {
+                x: Micrometres::from_bits(s.x_sensor),
+                x_ref: Micrometres::from_bits(s.x_ref),
+                points: 0,
+            };
+            (s.tick, t.process(&mut state, r))
+        })
+        .collect()
+}
+
+/// The recorded line from `set_at` on.
+fn recorded(set_at: u32, rec: &[Sample]) -> Vec<(u32, bool)> {
+    rec.iter()
+        .filter(|s| s.tick >= set_at)
+        .map(|s| (s.tick, high(s)))
+        .collect()
+}
+
+#[test]
+fn travel_pulses_every_step_and_a_window_is_high_exactly_inside_it() {
+    let (_e, mut c) = board("trigger output");
+    c.move_to(10.0, 1000.0).unwrap();
+    Follow::new(&mut c, 0).until_hold().unwrap();
+
+    // Travel: a 2-tick pulse every 0.5 µm of a 10 → 20 µm move, the line
+    // the core's rule gives on the same readings, tick for tick (latency 0).
+    let levels = Levels {
+        step_um: Some(0.5),
+        pulse_ticks: Some(2),
+        ..Levels::default()
+    };
+    let (s, set_at, rec) = moved(&mut c, TriggerMode::Travel, &levels, 20.0);
+    assert_eq!((s.step_nm, s.pulse_ticks), (500, 2));
+    let step = Condition::Travel {
+        step: Micrometres::from_num(0.5),
+    };
+    let want = replayed(&Trigger::new(step, 2).unwrap(), set_at, &rec);
+    assert_eq!(recorded(set_at, &rec), want);
+    let edges = rising(&rec);
+    println!(
+        "travel 0.5 µm over {:.3} → {:.3} µm: {} pulses, each where the core's rule puts it",
+        real(rec[0].x_sensor),
+        real(rec[rec.len() - 1].x_sensor),
+        edges.len()
+    );
+    // 10 µm in 0.5 µm steps (the sensor's noise may add a pulse back and
+    // forth where the stage rests on a boundary).
+    assert!((19..=21).contains(&edges.len()), "{edges:?}");
+
+    // Window: high on exactly the ticks whose reading lies in 14–16 µm.
+    let levels = Levels {
+        low_um: Some(14.0),
+        high_um: Some(16.0),
+        ..Levels::default()
+    };
+    let (s, set_at, rec) = moved(&mut c, TriggerMode::Window, &levels, 10.0);
+    assert_eq!((s.low_nm, s.high_nm, s.step_nm), (14_000, 16_000, 500));
+    let inside = |s: &Sample| (14.0..=16.0).contains(&real(s.x_sensor));
+    let want: Vec<(u32, bool)> = rec
+        .iter()
+        .filter(|s| s.tick >= set_at)
+        .map(|s| (s.tick, inside(s)))
+        .collect();
+    let highs = want.iter().filter(|(_, h)| *h).count();
+    println!(
+        "window 14–16 µm on a 20 → 10 µm move: high {highs} of {} ticks, each where the reading is inside",
+        want.len()
+    );
+    assert_eq!(recorded(set_at, &rec), want);
+    assert!(highs > 100, "{highs}");
+
+    // Off: low throughout.
+    let (_, _, rec) = moved(&mut c, TriggerMode::Off, &Levels::default(), 15.0);
+    assert!(rec.iter().all(|s| !high(s)));
+}
+
+#[test]
+fn a_stream_pulses_at_each_point_and_bad_levels_are_refused_by_name() {
+    let (_e, mut c) = board("trigger on points");
+    c.move_to(10.0, 1000.0).unwrap();
+    Follow::new(&mut c, 0).until_hold().unwrap();
+    let (_, s) = trigger::set(
+        &mut c,
+        TriggerMode::Point,
+        &Levels {
+            pulse_ticks: Some(3),
+            ..Levels::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(s.mode, TriggerMode::Point);
+    let points: Vec<f64> = (0..40).map(|k| 10.0 + 0.05 * k as f64).collect();
+    let mut samples = Vec::new();
+    c.ack(&fpi_protocol::Command::Record {
+        decimation: 1,
+        signals: SIGNALS,
+    })
+    .unwrap();
+    let report = c
+        .stream(
+            &points,
+            20,
+            |_| {},
+            |c| {
+                samples.extend(c.drain()?.0);
+                Ok(())
+            },
+        )
+        .unwrap();
+    c.ack(&fpi_protocol::Command::RecordStop).unwrap();
+    samples.extend(c.drain().unwrap().0);
+    let edges = rising(&samples);
+    println!(
+        "a stream of {} points: {} pulses ({report:?})",
+        points.len(),
+        edges.len()
+    );
+    // One pulse per point taken, the first included, 20 ticks apart.
+    assert_eq!(edges.len(), points.len(), "{edges:?}");
+    assert!(edges
+        .windows(2)
+        .all(|w| samples[w[1]].tick - samples[w[0]].tick == 20));
+
+    // Levels the board cannot hold are refused, naming the argument.
+    let mut bad = |l: Levels, mode: TriggerMode| {
+        let e = trigger::set(&mut c, mode, &l).unwrap_err();
+        format!("{e:#}")
+    };
+    let e = bad(
+        Levels {
+            step_um: Some(0.0),
+            ..Levels::default()
+        },
+        TriggerMode::Travel,
+    );
+    assert!(e.contains("--step-um 0: above 0 µm"), "{e}");
+    let e = bad(
+        Levels {
+            low_um: Some(5.0),
+            high_um: Some(4.0),
+            ..Levels::default()
+        },
+        TriggerMode::Window,
+    );
+    assert!(
+        e.contains("low edge must not lie above its high edge"),
+        "{e}"
+    );
+    let e = format!("{:#}", trigger::mode("sometimes").unwrap_err());
+    assert!(e.contains("off, travel, on_target, window or point"), "{e}");
+    // What was refused changed nothing.
+    assert_eq!(trigger::settings(&mut c).unwrap(), s);
+}
