@@ -257,6 +257,9 @@ class Board:
     ) -> int:
         """The trigger output: ``off``, ``travel``, ``on_target``, ``window`` or ``point``
         (PI: ``CTO``); levels not given stay as the board has them."""
+    def trigger_in(self, starts: str) -> int:
+        """What the trigger input's rising edge starts: ``off``, ``motion``, ``recorder``
+        or ``both`` (PI: ``CTI``/``WGO`` start at trigger)."""
     def supervise(self, ms: int) -> int:
         """Parks the stage if the host is silent ``ms`` ms while it drives it (0: off)."""
     def reset(self) -> Dict[str, Any]:
@@ -271,6 +274,7 @@ class Board:
         damage_stored: bool = False,
         position_sensor: Optional[str] = None,
         stage: Optional[str] = None,
+        trigger_in_ticks: Optional[int] = None,
     ) -> List[str]:
         """The emulated board's virtual bench (a real board refuses); what was set."""
     def step(

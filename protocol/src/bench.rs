@@ -33,6 +33,8 @@ crate::wire_enum! {
         Link = 9,
         /// [`BenchOrder::FrontEnd`].
         FrontEnd = 10,
+        /// [`BenchOrder::TriggerIn`].
+        TriggerIn = 11,
     }
 }
 
@@ -105,6 +107,9 @@ pub enum BenchOrder {
     /// turns codes into newtons, micrometres and volts with). The emulated board
     /// starts with [`FrontEndKind::Internal`]; a reset returns to it.
     FrontEnd(FrontEndKind),
+    /// Raise the trigger input for this many control ticks from the tick the
+    /// order is taken on (a pulse: its rising edge is that tick's).
+    TriggerIn(u16),
 }
 
 impl BenchOrder {
@@ -122,6 +127,7 @@ impl BenchOrder {
             Self::Stage(_) => BenchKind::Stage,
             Self::Link(_) => BenchKind::Link,
             Self::FrontEnd(_) => BenchKind::FrontEnd,
+            Self::TriggerIn(_) => BenchKind::TriggerIn,
         }
     }
 }
@@ -145,6 +151,7 @@ impl<'de> Tagged<'de> for BenchOrder {
             Self::Stage(v) => t.serialize_element(v),
             Self::Link(l) => t.serialize_element(l),
             Self::FrontEnd(f) => t.serialize_element(f),
+            Self::TriggerIn(ticks) => t.serialize_element(ticks),
         }
     }
 
@@ -164,6 +171,7 @@ impl<'de> Tagged<'de> for BenchOrder {
             BenchKind::Stage => Self::Stage(field(a)?),
             BenchKind::Link => Self::Link(field(a)?),
             BenchKind::FrontEnd => Self::FrontEnd(field(a)?),
+            BenchKind::TriggerIn => Self::TriggerIn(field(a)?),
         }))
     }
 }

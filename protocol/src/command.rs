@@ -12,7 +12,7 @@ use serde::ser::SerializeTuple;
 use serde::{Deserialize, Serialize};
 
 use crate::bench::BenchOrder;
-use crate::modes::{LoopMode, Shape};
+use crate::modes::{LoopMode, Shape, TriggerStart};
 use crate::put;
 use crate::settings::TriggerSettings;
 use crate::wire::{field, Tagged};
@@ -104,6 +104,8 @@ crate::wire_enum! {
         SettingSet = 35,
         /// [`Command::Trigger`].
         Trigger = 36,
+        /// [`Command::TriggerIn`].
+        TriggerIn = 37,
     }
 }
 
@@ -280,6 +282,16 @@ pub enum Command<'a> {
         /// The mode and its levels.
         settings: TriggerSettings,
     },
+    /// What a rising edge on `axis`'s trigger input starts: from now on a
+    /// wave or stream order, a record order, or both, wait (armed) for the
+    /// next edge instead of starting at once; another source order, a stop or
+    /// a fault drops an armed motion, a record stop an armed recording.
+    TriggerIn {
+        /// The stage.
+        axis: u8,
+        /// What the edge starts.
+        starts: TriggerStart,
+    },
     /// Switch the model's reference shaping (the feedforward of the stage's
     /// dynamics) on or off, without a jump.
     Shaping {
@@ -390,6 +402,7 @@ impl Command<'_> {
             Self::SettingGet { .. } => K::SettingGet,
             Self::SettingSet { .. } => K::SettingSet,
             Self::Trigger { .. } => K::Trigger,
+            Self::TriggerIn { .. } => K::TriggerIn,
         }
     }
 
@@ -413,6 +426,7 @@ impl Command<'_> {
             | Self::Analyse { axis, .. }
             | Self::LeadRatio { axis, .. }
             | Self::Trigger { axis, .. }
+            | Self::TriggerIn { axis, .. }
             | Self::AnalysisResult { axis } => Some(axis),
             _ => None,
         }
@@ -492,6 +506,7 @@ impl<'a> Tagged<'a> for Command<'a> {
             Self::SettingGet { path } => put!(t; path),
             Self::SettingSet { path, value } => put!(t; path, value),
             Self::Trigger { axis, settings } => put!(t; axis, settings),
+            Self::TriggerIn { axis, starts } => put!(t; axis, starts),
         }
         Ok(())
     }
@@ -598,6 +613,10 @@ impl<'a> Tagged<'a> for Command<'a> {
             K::Trigger => Self::Trigger {
                 axis: field(a)?,
                 settings: field(a)?,
+            },
+            K::TriggerIn => Self::TriggerIn {
+                axis: field(a)?,
+                starts: field(a)?,
             },
         }))
     }

@@ -42,7 +42,7 @@ pub use serde;
 pub use bench::{BenchKind, BenchOrder, FrontEndKind, StageVariant};
 pub use command::{Command, CommandKind, Header};
 pub use link::LinkKind;
-pub use modes::{LoopMode, Shape, SourceKind, TriggerMode};
+pub use modes::{LoopMode, Shape, SourceKind, TriggerMode, TriggerStart};
 pub use reply::{
     Analysis, Batch, BoardKind, Counters, FaultReport, Hello, ModelReport, Origin, OriginKind,
     Refusal, Reply, ReplyHeader, ReplyKind, ResetReason, SlotKind, SlotReport, Status,

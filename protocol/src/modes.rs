@@ -71,3 +71,32 @@ crate::wire_enum! {
         Point = 4 as "point",
     }
 }
+
+crate::wire_enum! {
+    /// What a rising edge on a stage's trigger input starts: the wave or
+    /// stream ordered last (held until the edge), the recording ordered last,
+    /// or both.
+    #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    pub enum TriggerStart {
+        /// Nothing: orders start at once.
+        Nothing = 0 as "off",
+        /// A wave or stream order waits for the edge.
+        Motion = 1 as "motion",
+        /// A record order waits for the edge.
+        Recorder = 2 as "recorder",
+        /// Both wait for the same edge.
+        Both = 3 as "both",
+    }
+}
+
+impl TriggerStart {
+    /// A wave or stream order waits for the edge.
+    pub const fn motion(self) -> bool {
+        matches!(self, Self::Motion | Self::Both)
+    }
+
+    /// A record order waits for the edge.
+    pub const fn recorder(self) -> bool {
+        matches!(self, Self::Recorder | Self::Both)
+    }
+}

@@ -29,6 +29,8 @@ pub mod status {
 pub mod lines {
     /// The trigger output is high.
     pub const TRIGGER_OUT: u8 = 1;
+    /// The trigger input is high.
+    pub const TRIGGER_IN: u8 = 2;
 }
 
 /// Which signals a recording sends (bits of a mask, in this order on the wire).

@@ -310,6 +310,9 @@ pub struct Status {
     pub overruns: u32,
     /// CRC-32 of the running model's image.
     pub model_crc: u32,
+    /// Armed for the trigger input's next rising edge: a wave or stream
+    /// order, a record order.
+    pub armed: [bool; 2],
 }
 
 /// The running model.

@@ -18,7 +18,7 @@
 use miniconf::{leaf, Tree};
 use serde::{Deserialize, Serialize};
 
-use crate::{Command, LoopMode, TriggerMode, AXES};
+use crate::{Command, LoopMode, TriggerMode, TriggerStart, AXES};
 
 /// Stages a board's settings tree holds ([`AXES`]).
 pub const STAGES: usize = AXES as usize;
@@ -68,6 +68,18 @@ pub struct StageSettings {
     /// The trigger output (`…/trigger/…`): what drives it and its levels.
     #[tree(meta(doc))]
     pub trigger: TriggerSettings,
+    /// What a rising edge on the trigger input starts: `"off"` (nothing:
+    /// orders start at once), `"motion"` (a wave or stream order waits for
+    /// it), `"recorder"` (a record order waits for it) or `"both"`.
+    #[tree(
+        with = leaf,
+        meta(
+            doc,
+            range = "\"off\" | \"motion\" | \"recorder\" | \"both\"",
+            default = "\"off\""
+        )
+    )]
+    pub trigger_in: TriggerStart,
 }
 
 /// A stage's trigger output: its mode and every mode's level, kept while
@@ -162,6 +174,12 @@ impl StageSettings {
                 return Some(Command::Shaping { axis, on });
             }
         }
+        if self.trigger_in != next.trigger_in {
+            return Some(Command::TriggerIn {
+                axis,
+                starts: next.trigger_in,
+            });
+        }
         if self.trigger != next.trigger {
             return Some(Command::Trigger {
                 axis,
@@ -188,6 +206,7 @@ mod tests {
                 shaping: None,
                 compensated: true,
                 trigger: TriggerSettings::DEFAULT,
+                trigger_in: TriggerStart::Nothing,
             }],
             supervise_ms: 0,
         }
@@ -213,6 +232,7 @@ mod tests {
                 "/stage/0/trigger/low_nm",
                 "/stage/0/trigger/high_nm",
                 "/stage/0/trigger/pulse_ticks",
+                "/stage/0/trigger_in",
                 "/supervise_ms"
             ]
         );

@@ -106,6 +106,7 @@ goldens! {
     command_bench: Command::Bench(BenchOrder::SensorOffset(-(2 << 16))) => "18 03 ff ff 0f";
     command_bench_link: Command::Bench(BenchOrder::Link(LinkKind::Usb)) => "18 09 01";
     command_bench_front_end: Command::Bench(BenchOrder::FrontEnd(FrontEndKind::Precision)) => "18 0a 01";
+    command_bench_trigger_in: Command::Bench(BenchOrder::TriggerIn(300)) => "18 0b ac 02";
     command_reset: Command::Reset => "19";
     command_loop: Command::Loop { axis: 0, mode: LoopMode::FeedbackOnly } => "1a 00 02";
     command_damping: Command::Damping { axis: 0, on: false } => "1b 00 00";
@@ -137,6 +138,7 @@ goldens! {
             pulse_ticks: 3,
         },
     } => "24 00 01 f4 03 64 03 00 03";
+    command_trigger_in: Command::TriggerIn { axis: 0, starts: TriggerStart::Both } => "25 00 03";
 }
 
 fn hello() -> Hello {
@@ -182,6 +184,7 @@ fn status() -> Status {
         ended_points: 0,
         overruns: 2,
         model_crc: 0x1234_5678,
+        armed: [true, false],
     }
 }
 
@@ -219,7 +222,7 @@ goldens! {
     reply_hello: Reply::Hello(hello())
         => "01 0d 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01 01 01";
     reply_status: Reply::Status(status())
-        => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 00 02 f8 ac d1 91 01";
+        => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 00 02 f8 ac d1 91 01 01 00";
     reply_record: Reply::Record(batch())
         => "03 11 19 01 00 07 06 d0 0f 80 80 08 06 32 00 00";
     reply_model: Reply::Model(model_report())
@@ -285,6 +288,8 @@ fn wire_numbers_are_pinned() {
         names(BenchKind::ALL, BenchKind::to_u8),
         names(LinkKind::ALL, LinkKind::to_u8),
         names(FrontEndKind::ALL, FrontEndKind::to_u8),
+        names(TriggerMode::ALL, TriggerMode::to_u8),
+        names(TriggerStart::ALL, TriggerStart::to_u8),
     ];
     let golden = [
         "Sine=0 Triangle=1 RaisedCosine=2",
@@ -298,9 +303,11 @@ fn wire_numbers_are_pinned() {
         "Empty=0 Valid=1 Damaged=2 Refused=3",
         "Factory=0 Stored=1 Received=2",
         "SensorOpen=0 SensorStuck=1 Analog=2 SensorOffset=3 Stall=4 DamageStored=5 \
-         PositionOpen=6 PositionStuck=7 Stage=8 Link=9 FrontEnd=10",
+         PositionOpen=6 PositionStuck=7 Stage=8 Link=9 FrontEnd=10 TriggerIn=11",
         "Uart=0 Usb=1",
         "Internal=0 Precision=1",
+        "Off=0 Travel=1 OnTarget=2 Window=3 Point=4",
+        "Nothing=0 Motion=1 Recorder=2 Both=3",
     ];
     assert_eq!(pinned, golden);
     for k in CommandKind::ALL {
@@ -360,7 +367,7 @@ fn a_request_frame_golden() {
 #[test]
 fn unknown_kinds_and_axes() {
     assert_eq!(
-        frame::body::<Command<'_>>(&[37]),
+        frame::body::<Command<'_>>(&[38]),
         Err(frame::FrameError::UnknownKind)
     );
     assert_eq!(
@@ -398,7 +405,7 @@ fn status_reply_size() {
     println!("status reply: {n} bytes of body, {framed} bytes framed");
     assert_eq!(
         (n, framed),
-        (65, 76),
+        (67, 78),
         "the status reply's size changed: update docs/src/protocol.md"
     );
 }

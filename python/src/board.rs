@@ -245,6 +245,8 @@ impl Board {
         d.set_item("late_ticks", s.overruns)?;
         d.set_item("governed_ticks", s.governed_ticks)?;
         d.set_item("ended_points", s.ended_points)?;
+        d.set_item("motion_armed", s.armed[0])?;
+        d.set_item("record_armed", s.armed[1])?;
         let model = PyDict::new(py);
         model.set_item("crc", format!("{:08x}", m.crc))?;
         model.set_item("origin", format!("{:?}", m.origin))?;
@@ -676,6 +678,14 @@ impl Board {
         })
     }
 
+    /// What a rising edge on the trigger input starts: `off`, `motion` (a
+    /// wave or stream ordered from now on waits for it), `recorder` (a record
+    /// order waits for it) or `both`. The tick it took effect.
+    fn trigger_in(&self, py: Python<'_>, starts: &str) -> PyResult<u32> {
+        use fpi_host::board::trigger;
+        self.run(py, |c| trigger::set_input(c, trigger::starts(starts)?))
+    }
+
     /// Parks the stage if the host is silent for `ms` milliseconds while it
     /// drives the stage (0: off).
     fn supervise(&self, py: Python<'_>, ms: u32) -> PyResult<u32> {
@@ -692,9 +702,10 @@ impl Board {
     /// The emulated board's virtual bench (a real board refuses): `analog_v`
     /// (V on the analog input, 0–3.3), `sensor` and `position_sensor` (`ok`,
     /// `open` or `stuck`), `force_offset_n` (N), `stall_ticks`,
-    /// `damage_stored`, `stage` (`nominal`, `built` or a variant TOML file).
-    /// Returns what was set, one line each.
-    #[pyo3(signature = (*, analog_v = None, sensor = None, force_offset_n = None, stall_ticks = None, damage_stored = false, position_sensor = None, stage = None))]
+    /// `trigger_in_ticks` (a pulse on the trigger input), `damage_stored`,
+    /// `stage` (`nominal`, `built` or a variant TOML file). Returns what was
+    /// set, one line each.
+    #[pyo3(signature = (*, analog_v = None, sensor = None, force_offset_n = None, stall_ticks = None, damage_stored = false, position_sensor = None, stage = None, trigger_in_ticks = None))]
     #[allow(clippy::too_many_arguments)]
     fn bench(
         &self,
@@ -706,12 +717,14 @@ impl Board {
         damage_stored: bool,
         position_sensor: Option<String>,
         stage: Option<String>,
+        trigger_in_ticks: Option<u16>,
     ) -> PyResult<Vec<String>> {
         let b = BenchSettings {
             analog_v,
             sensor,
             force_offset_n,
             stall_ticks,
+            trigger_in_ticks,
             damage_stored,
             position_sensor,
             stage,
@@ -719,7 +732,7 @@ impl Board {
         if b == BenchSettings::default() {
             return Err(pyo3::exceptions::PyTypeError::new_err(
                 "bench: nothing to set: analog_v, sensor, force_offset_n, stall_ticks, \
-                 damage_stored, position_sensor or stage",
+                 trigger_in_ticks, damage_stored, position_sensor or stage",
             ));
         }
         self.run(py, |c| commands::bench(c, &b))

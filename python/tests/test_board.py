@@ -56,6 +56,7 @@ def test_info_tells_what_the_board_has(board):
         "/stage/0/trigger/low_nm",
         "/stage/0/trigger/high_nm",
         "/stage/0/trigger/pulse_ticks",
+        "/stage/0/trigger_in",
         "/supervise_ms",
     ]
 
@@ -230,6 +231,7 @@ def test_settings_by_key(board):
         "stage/0/trigger/low_nm",
         "stage/0/trigger/high_nm",
         "stage/0/trigger/pulse_ticks",
+        "stage/0/trigger_in",
         "supervise_ms",
     ]
     assert "stage.0.loop_mode" in st and "stage/0/lop" not in st
@@ -245,6 +247,7 @@ def test_settings_by_key(board):
         "stage/0/trigger/low_nm": 0,
         "stage/0/trigger/high_nm": 0,
         "stage/0/trigger/pulse_ticks": 1,
+        "stage/0/trigger_in": "off",
         "supervise_ms": 0,
     }
     st["stage.0.compensated"] = False
@@ -565,6 +568,31 @@ def test_the_trigger_output_is_recorded_in_its_column(board):
     with pytest.raises(pf.BoardError, match="low edge must not lie above its high edge"):
         board.trigger("window", low_um=5.0, high_um=4.0)
     assert board.settings["stage/0/trigger/mode"] == "off"
+
+
+def test_the_trigger_input_starts_an_armed_recording_and_wave(board):
+    """PI's WGO with start at the trigger input: a recording and a wave
+    ordered while the input starts both wait, armed, until a pulse on the
+    (emulated) input starts them on its edge."""
+    board.move(20.0)
+    board.wait_on_target(timeout=10.0)
+    board.trigger_in("both")
+    rec = board.record_start(decimation=20, signals=["x_ref_um", "trigger"])
+    board.wave("sine", amplitude_um=1, offset_um=20, freq_hz=50, cycles=2)
+    s = board.status()
+    assert s["source"] == "hold" and s["motion_armed"] and s["record_armed"]
+    board.bench(trigger_in_ticks=40)
+    deadline = time.time() + 30.0
+    while board.status()["source"] != "hold" or board.status()["motion_armed"]:
+        assert time.time() < deadline
+        time.sleep(0.05)
+    whole = rec.stop()
+    assert whole["x_ref_um"].max() > 20.9
+    # The recording starts on the edge: its first samples see the input high.
+    assert whole["trigger"][0] == 2
+    board.trigger_in("off")
+    with pytest.raises(ValueError, match=r'^starts "always": off, motion, recorder or both'):
+        board.trigger_in("always")
 
 
 def test_a_live_recording_checks_its_arguments_and_can_keep_only_what_is_unread(board):

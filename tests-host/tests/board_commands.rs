@@ -95,7 +95,8 @@ fn info_tells_what_the_board_has() {
         line(&out, "settings: "),
         "settings: /stage/0/loop_mode, /stage/0/compensated, /stage/0/trigger/mode, \
          /stage/0/trigger/step_nm, /stage/0/trigger/band_nm, /stage/0/trigger/low_nm, \
-         /stage/0/trigger/high_nm, /stage/0/trigger/pulse_ticks, /supervise_ms",
+         /stage/0/trigger/high_nm, /stage/0/trigger/pulse_ticks, /stage/0/trigger_in, \
+         /supervise_ms",
         "{out}"
     );
 }

@@ -178,11 +178,12 @@ fn the_page_shows_a_live_sine_with_its_spectrum_and_a_still_trigger() {
     };
 
     // The page, triggered on the stage's true position rising through 20 µm;
-    // its trigger-output panel sets the board's output to a pulse every
-    // 0.25 µm of travel (`tout=`: as its Set button does).
+    // its triggers panel sets the board's output to a pulse every 0.25 µm of
+    // travel and its input to start recordings (`tout=`: as its Set button
+    // does).
     let query = "?mode=normal&trigger=x_fhps_um&level=20&edge=rising&pre=0.5&span=0.02\
                  &spectrum=x_fhps_um&fft=16384&x=voltage_V&y=x_fhps_um&report=500\
-                 &tout=travel,step_um=0.25,pulse_ticks=3";
+                 &tout=travel,step_um=0.25,pulse_ticks=3,input=recorder";
     let browser = Browser::open(&exe, &format!("{url}{query}"));
     let first = until(&addr, Duration::from_secs(60), |r| {
         num(r, &["samples"]) > 0.0

@@ -68,6 +68,7 @@ fn every_setting_reads_back_as_the_board_s_state() {
             ("/stage/0/trigger/low_nm", Some("0")),
             ("/stage/0/trigger/high_nm", Some("0")),
             ("/stage/0/trigger/pulse_ticks", Some("1")),
+            ("/stage/0/trigger_in", Some("\"off\"")),
             ("/supervise_ms", Some("0")),
         ]
     );
@@ -215,6 +216,7 @@ fn fpi_board_get_and_set_print_the_settings() {
             "stage/0/trigger/low_nm      0",
             "stage/0/trigger/high_nm     0",
             "stage/0/trigger/pulse_ticks 1",
+            "stage/0/trigger_in          \"off\"",
             "supervise_ms                0",
         ]
     );

@@ -230,3 +230,83 @@ fn a_stream_pulses_at_each_point_and_bad_levels_are_refused_by_name() {
     // What was refused changed nothing.
     assert_eq!(trigger::settings(&mut c).unwrap(), s);
 }
+
+#[test]
+fn the_trigger_input_starts_an_armed_wave_and_recording_on_its_edge() {
+    use fpi_protocol::{BenchOrder, Command, Shape, SourceKind, TriggerStart};
+    let (_e, mut c) = board("trigger input");
+    c.move_to(20.0, 1000.0).unwrap();
+    Follow::new(&mut c, 0).until_hold().unwrap();
+    trigger::set_input(&mut c, TriggerStart::Both).unwrap();
+    assert_eq!(
+        c.setting("/stage/0/trigger_in").unwrap(),
+        "\"both\"",
+        "the setting says it"
+    );
+    // Armed: a recording and a 100 Hz wave (2 cycles) are ordered, and neither
+    // starts while the input stays low.
+    c.ack(&Command::Record {
+        decimation: 1,
+        signals: signal::X_REF | signal::TRIGGER,
+    })
+    .unwrap();
+    let ordered = c.wave(Shape::Sine, 1.0, 20.0, 100.0, 2).unwrap();
+    // (The follower reads the recorder while it waits: what it read is in
+    // its recording.)
+    let mut f = Follow::new(&mut c, signal::X_REF | signal::TRIGGER);
+    let later = ordered + f.ticks(0.01);
+    f.until_tick(later).unwrap();
+    let st = f.c.status().unwrap();
+    assert_eq!(st.source, SourceKind::Hold, "the wave waits: {st:?}");
+    f.drain().unwrap();
+    assert!(
+        f.rec.samples.is_empty(),
+        "the recording waits: {} samples",
+        f.rec.samples.len()
+    );
+
+    // A 5-tick pulse on the input: both start on its rising edge's tick.
+    let edge = f.c.bench(BenchOrder::TriggerIn(5)).unwrap();
+    let end = edge + f.ticks(0.025);
+    f.until_tick(end).unwrap();
+    assert_eq!(
+        f.c.status().unwrap().source,
+        SourceKind::Hold,
+        "two cycles ran"
+    );
+    f.c.ack(&Command::RecordStop).unwrap();
+    f.drain().unwrap();
+    assert_eq!(f.rec.dropped, 0);
+    let rec = std::mem::take(&mut f.rec.samples);
+    let first = rec[0];
+    let input_high: Vec<u32> = rec
+        .iter()
+        .filter(|s| s.lines & lines::TRIGGER_IN != 0)
+        .map(|s| s.tick)
+        .collect();
+    let moved = rec
+        .iter()
+        .find(|s| (real(s.x_ref) - 20.0).abs() > 1e-3)
+        .map(|s| s.tick);
+    let peak = rec.iter().map(|s| real(s.x_ref)).fold(f64::MIN, f64::max);
+    println!(
+        "armed wave and recording: the input rose at tick {edge}; the recording's first \
+         sample is tick {}, the reference left 20 µm at tick {moved:?} (peak {peak:.3} µm); \
+         input high at ticks {input_high:?}",
+        first.tick
+    );
+    assert_eq!(first.tick, edge, "the recording starts on the edge's tick");
+    assert_eq!(input_high, (edge..edge + 5).collect::<Vec<_>>());
+    assert!(
+        moved.is_some_and(|t| t > edge && t <= edge + 2),
+        "{moved:?}"
+    );
+    assert!((peak - 21.0).abs() < 0.01, "{peak}");
+
+    // Back to off: a wave starts at once.
+    trigger::set_input(&mut c, TriggerStart::Nothing).unwrap();
+    c.wave(Shape::Sine, 1.0, 20.0, 100.0, 1).unwrap();
+    assert_eq!(c.status().unwrap().source, SourceKind::Wave);
+    let e = format!("{:#}", trigger::starts("always").unwrap_err());
+    assert!(e.contains("off, motion, recorder or both"), "{e}");
+}

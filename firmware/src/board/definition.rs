@@ -42,6 +42,7 @@
 //! | AD5791 LDAC̅ | PB7 | TIM4 channel 2 (compare, the period's first µs) | precision |
 //! | amplifier enable (high = on) | PB0 | GPIO | both |
 //! | trigger output (high = the condition met; written at the tick's end) | PB1 | GPIO | both |
+//! | trigger input (a rising edge starts what is armed; read at the tick's start) | PB9 | GPIO input, pulled down | both |
 //! | host link, USB (CDC-ACM, full speed) | PA11 D−, PA12 D+ | OTG_FS | both |
 //! | host link, fallback (115 200 Bd, 8N1) | PA9 TX, PA10 RX | USART1 | both |
 //!
@@ -238,6 +239,8 @@ pub mod pins {
         pub enable: gpio::PB0<Output<PushPull>>,
         /// The trigger output, low.
         pub trigger_out: gpio::PB1<Output<PushPull>>,
+        /// The trigger input, pulled down.
+        pub trigger_in: gpio::PB9<gpio::Input>,
         /// The analog reference input ([`ReferenceAdc`]).
         pub reference: gpio::PA1<Analog>,
         /// USB D−, D+.
@@ -316,6 +319,7 @@ pub mod pins {
         let common = Common {
             enable: b.pb0.into_push_pull_output_in_state(gpio::PinState::Low),
             trigger_out: b.pb1.into_push_pull_output_in_state(gpio::PinState::Low),
+            trigger_in: b.pb9.into_pull_down_input(),
             reference: a.pa1.into_analog(),
             usb: (a.pa11, a.pa12),
             uart: (a.pa9, a.pa10),

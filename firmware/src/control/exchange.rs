@@ -7,7 +7,7 @@
 //! take a batch of samples or append points. The link task never holds the lock
 //! while it parses or sends a frame.
 
-use fpi_protocol::BenchOrder;
+use fpi_protocol::{BenchOrder, TriggerStart};
 use piezo_fpi::control::Fault;
 use piezo_fpi::lead::LeadGain;
 use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
@@ -38,6 +38,9 @@ pub enum Order {
     /// Drive the trigger output from this condition on (its memory starts
     /// from the position and the stream's points as they are).
     Trigger(Trigger),
+    /// What the trigger input's rising edge starts from now on (a wave or
+    /// stream order, a record order: armed until the edge).
+    TriggerIn(TriggerStart),
     /// Switch the reference shaping on or off (where the model has it); without a
     /// jump.
     Shaping(bool),
@@ -193,6 +196,12 @@ pub struct Snapshot {
     pub analysing: bool,
     /// What drives the trigger output.
     pub trigger: Trigger,
+    /// What the trigger input's edge starts.
+    pub trigger_in: TriggerStart,
+    /// A wave or stream order waits for the trigger input's edge.
+    pub motion_armed: bool,
+    /// A record order waits for the trigger input's edge.
+    pub record_armed: bool,
 }
 
 impl Snapshot {
@@ -228,6 +237,9 @@ impl Snapshot {
             lead_ratio: LeadRatio::ZERO,
             analysing: false,
             trigger: Trigger::OFF,
+            trigger_in: TriggerStart::Nothing,
+            motion_armed: false,
+            record_armed: false,
         }
     }
 }
@@ -261,6 +273,9 @@ pub struct Exchange<'a> {
     pub points: &'a mut Points<STREAM_POINTS>,
     /// The last analysis's result (ISR → link; `None` while one runs).
     pub analysis: Option<AnalysisSums>,
+    /// The trigger input's level this tick (the board → ISR: the board reads
+    /// its pin, the emulated board its bench, before the tick).
+    pub trigger_in: bool,
 }
 
 impl<'a> Exchange<'a> {
@@ -278,6 +293,7 @@ impl<'a> Exchange<'a> {
             recorder,
             points,
             analysis: None,
+            trigger_in: false,
         }
     }
 }

@@ -38,6 +38,7 @@ use crate::control::recorder::{lines, status, Sample};
 use crate::control::reference::analog::AnalogInput;
 use crate::control::reference::{Reference, SourceKind, SourceOrder};
 use crate::control::slots::Running;
+use fpi_protocol::TriggerStart;
 use piezo_fpi::process::SplitProcess as _;
 use piezo_fpi::trigger::{Condition, Readings, Trigger, TriggerState};
 
@@ -86,6 +87,14 @@ pub struct ControlLoop<S, A, E, R> {
     trigger: Trigger,
     /// The trigger output's memory.
     trigger_state: TriggerState,
+    /// What the trigger input's rising edge starts.
+    starts: TriggerStart,
+    /// The trigger input's level at the last tick.
+    input_was: bool,
+    /// A wave or stream order armed for the trigger input's edge.
+    armed: Option<SourceOrder>,
+    /// A recording (its decimation) armed for the trigger input's edge.
+    armed_record: Option<u16>,
 }
 
 /// The loop watch's half swings are widened by this many times the
@@ -149,6 +158,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
             status_base: 0,
             trigger: Trigger::OFF,
             trigger_state: TriggerState::at(Micrometres::ZERO, 0),
+            starts: TriggerStart::Nothing,
+            input_was: false,
+            armed: None,
+            armed_record: None,
         }
         .with_loop_set()
     }
@@ -203,6 +216,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         if x.order.is_some() {
             self.take_order(x);
         }
+        if x.trigger_in && !self.input_was {
+            self.trigger_edge(x);
+        }
+        self.input_was = x.trigger_in;
         self.supervise(x.heartbeats);
         let counts = if self.reference.wants_analog() {
             self.analog_in.read_counts()
@@ -275,11 +292,12 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         }
         self.x_est = cfg.stage_position(out.x_pea_est);
         let at_safe = out.voltage == cfg.safe_voltage();
-        let lines = if self.trigger.condition() == Condition::Off {
+        let out_line = if self.trigger.condition() == Condition::Off {
             0
         } else {
             self.trigger_line(source, x.points.taken())
         };
+        let lines = out_line | ((x.trigger_in as u8) * lines::TRIGGER_IN);
         let t = Telemetry {
             tick: self.tick,
             x_ref,
@@ -480,6 +498,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         s.shaping_on = self.feedback.shaping_on();
         s.analysing = self.analyser.running();
         s.trigger = self.trigger;
+        s.trigger_in = self.starts;
+        s.motion_armed = self.armed.is_some();
+        s.record_armed = self.armed_record.is_some();
     }
 
     /// The trigger lines after this tick, the output's condition on
@@ -494,8 +515,24 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
         self.trigger.process(&mut self.trigger_state, r) as u8 * lines::TRIGGER_OUT
     }
 
+    /// The trigger input rose: what is armed starts (out of line: an edge is
+    /// rare). An armed motion the board cannot start now (a fault latched
+    /// since) is dropped; the status says why.
+    #[cold]
+    #[inline(never)]
+    fn trigger_edge(&mut self, x: &mut Exchange<'_>) {
+        if let Some(s) = self.armed.take() {
+            let _ = self.start_source(s, x);
+        }
+        if let Some(decimation) = self.armed_record.take() {
+            x.recorder.start(decimation);
+        }
+        self.changed = true;
+    }
+
     /// Latches `fault` and stops the reference where it is.
     fn trip(&mut self, fault: Fault) {
+        self.armed = None;
         self.state.trip(fault);
         self.reference.freeze();
         self.changed = true;
@@ -553,22 +590,28 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
 
     fn apply(&mut self, order: Order, x: &mut Exchange<'_>) -> Result<(), Refused> {
         match order {
-            Order::Source(s) => {
+            Order::Source(s) if self.starts.motion() && s.waits_for_trigger() => {
                 self.arm()?;
-                self.analyser.abort();
-                self.widen_watch(Micrometres::ZERO);
-                if matches!(s, SourceOrder::Stream { .. }) {
-                    self.underruns = 0;
-                    // A stream is always supervised.
-                    if self.timeout == 0 {
-                        self.timeout = STREAM_TIMEOUT_TICKS;
-                        self.silent = 0;
-                        self.stream_supervised = true;
-                    }
-                } else {
-                    self.end_stream(x);
+                self.armed = Some(s);
+                Ok(())
+            }
+            Order::Source(s) => {
+                self.armed = None;
+                self.start_source(s, x)
+            }
+            Order::TriggerIn(starts) => {
+                self.starts = starts;
+                self.input_was = x.trigger_in;
+                if !starts.motion() {
+                    self.armed = None;
                 }
-                self.reference.select(s);
+                if !starts.recorder() {
+                    self.armed_record = None;
+                }
+                Ok(())
+            }
+            Order::Record { decimation } if self.starts.recorder() => {
+                self.armed_record = Some(decimation);
                 Ok(())
             }
             Order::Drive { compensated } => {
@@ -631,12 +674,33 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> ControlLoop<S, A, E
                 Ok(())
             }
             Order::StopRecording => {
+                self.armed_record = None;
                 x.recorder.stop();
                 Ok(())
             }
             Order::Swap => self.swap(x),
             Order::Bench(_) => Ok(()),
         }
+    }
+
+    /// Switches the reference to source `s` (leaving the parked state).
+    fn start_source(&mut self, s: SourceOrder, x: &mut Exchange<'_>) -> Result<(), Refused> {
+        self.arm()?;
+        self.analyser.abort();
+        self.widen_watch(Micrometres::ZERO);
+        if matches!(s, SourceOrder::Stream { .. }) {
+            self.underruns = 0;
+            // A stream is always supervised.
+            if self.timeout == 0 {
+                self.timeout = STREAM_TIMEOUT_TICKS;
+                self.silent = 0;
+                self.stream_supervised = true;
+            }
+        } else {
+            self.end_stream(x);
+        }
+        self.reference.select(s);
+        Ok(())
     }
 
     /// The output is at the safe voltage.

@@ -63,6 +63,8 @@ pub struct Bench {
     x_true: Micrometres,
     offset: f32,
     stall: u16,
+    /// Ticks the trigger input stays high.
+    trigger_in: u16,
     force: f32,
     /// The precision front end's ADC noise generator (xorshift32); `None` with the
     /// internal front end, which adds none.
@@ -97,6 +99,7 @@ impl Bench {
             x_true: Micrometres::ZERO,
             offset: 0.0,
             stall: 0,
+            trigger_in: 0,
             force,
             adc_noise: None,
         })
@@ -121,6 +124,7 @@ impl Bench {
                 self.offset = Newtons::from_bits(bits).to_num::<f32>();
             }
             BenchOrder::Stall(ticks) => self.stall = ticks,
+            BenchOrder::TriggerIn(ticks) => self.trigger_in = ticks,
             // The link handler damages the stored model and paces the link itself.
             BenchOrder::DamageStored | BenchOrder::Link(_) => {}
             BenchOrder::PositionOpen(open) => self.position_open = open,
@@ -251,6 +255,8 @@ pub fn tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
     }
     // The true position at the instant this tick's sensors are read, like them.
     let x_true = bench.true_position();
+    x.trigger_in = bench.trigger_in > 0;
+    bench.trigger_in = bench.trigger_in.saturating_sub(1);
     let t = lp.tick(x);
     bench.after_tick(link);
     bench.stall();

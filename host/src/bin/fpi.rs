@@ -596,6 +596,16 @@ enum BoardCommand {
         #[command(flatten)]
         levels: fpi_host::board::trigger::Levels,
     },
+    /// What a rising edge on the trigger input (pin PB9) starts.
+    ///
+    /// motion: a wave or stream ordered from now on waits (armed) for the
+    /// next edge; recorder: a record order waits for it; both; off: orders
+    /// start at once. The emulated board's input: `fpi board bench
+    /// --trigger-in-ticks N`.
+    TriggerIn {
+        /// off, motion, recorder or both.
+        starts: String,
+    },
     /// Switch the model's reference shaping on or off, without a jump.
     ///
     /// The shaping is the model's `[shaping]` section.
@@ -1220,6 +1230,7 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
         BoardCommand::Damping { state } => b::damping(c, &state),
         BoardCommand::Shaping { state } => b::shaping(c, &state),
         BoardCommand::Trigger { mode, levels } => b::trigger(c, &mode, &levels),
+        BoardCommand::TriggerIn { starts } => b::trigger_in(c, &starts),
         BoardCommand::Step {
             from,
             to,

@@ -274,6 +274,10 @@ pub struct BenchSettings {
     /// Make this many control ticks overrun their period.
     #[arg(long)]
     pub stall_ticks: Option<u16>,
+    /// Raise the trigger input for this many control ticks (a pulse: its
+    /// rising edge starts what is armed).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    pub trigger_in_ticks: Option<u16>,
     /// Damage the newest model stored in flash (the next start refuses it).
     #[arg(long)]
     pub damage_stored: bool,
@@ -296,8 +300,8 @@ pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<Vec<String>> {
     if *b == BenchSettings::default() {
         bail!(
             "nothing to set: --analog-v V, --sensor ok|open|stuck, --force-offset-n N, \
-             --stall-ticks T, --damage-stored, --position-sensor ok|open|stuck or \
-             --stage nominal|built|VARIANT.toml"
+             --stall-ticks T, --trigger-in-ticks T, --damage-stored, --position-sensor \
+             ok|open|stuck or --stage nominal|built|VARIANT.toml"
         );
     }
     let mut done = Vec::new();
@@ -363,6 +367,17 @@ fn bench_faults(c: &mut Client, b: &BenchSettings, done: &mut Vec<String>) -> Re
         let bits = link_value("force_offset_n", "--force-offset-n", n, "N")?;
         let tick = c.bench(BenchOrder::SensorOffset(bits))?;
         done.push(format!("force reading offset by {n} N from tick {tick}"));
+    }
+    if let Some(t) = b.trigger_in_ticks {
+        if t == 0 {
+            return Err(bad(
+                "trigger_in_ticks",
+                "--trigger-in-ticks",
+                "--trigger-in-ticks 0: a pulse lasts 1 tick or more".into(),
+            ));
+        }
+        let tick = c.bench(BenchOrder::TriggerIn(t))?;
+        done.push(format!("trigger input high for {t} ticks from tick {tick}"));
     }
     if let Some(t) = b.stall_ticks {
         let tick = c.bench(BenchOrder::Stall(t))?;

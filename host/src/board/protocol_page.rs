@@ -481,6 +481,7 @@ pub fn reference() -> Result<String, String> {
         "LoopMode",
         "SourceKind",
         "TriggerMode",
+        "TriggerStart",
         "LinkKind",
         "BoardKind",
         "ResetReason",

@@ -156,6 +156,7 @@ mod tests {
                 "/stage/0/trigger/low_nm",
                 "/stage/0/trigger/high_nm",
                 "/stage/0/trigger/pulse_ticks",
+                "/stage/0/trigger_in",
                 "/supervise_ms"
             ]
         );
@@ -163,7 +164,7 @@ mod tests {
             assert!(l.doc.len() > 20, "{l:?}");
             assert!(l.range.is_some() && l.default.is_some(), "{l:?}");
         }
-        assert_eq!(all[10].unit, Some("ms"));
+        assert_eq!(all[11].unit, Some("ms"));
     }
 
     #[test]

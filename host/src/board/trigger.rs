@@ -5,7 +5,7 @@
 //! settings tree's `stage/0/trigger/…`).
 
 use anyhow::{Context, Result};
-use fpi_protocol::{Command, TriggerMode, TriggerSettings};
+use fpi_protocol::{Command, TriggerMode, TriggerSettings, TriggerStart};
 
 use super::client::Client;
 use super::commands::bad;
@@ -147,4 +147,24 @@ pub fn describe(s: &TriggerSettings) -> String {
         ),
         TriggerMode::Point => pulse("point: at each streamed point".into()),
     }
+}
+
+/// What the trigger input's edge starts, by name: `off`, `motion`,
+/// `recorder` or `both`.
+pub fn starts(name: &str) -> Result<TriggerStart> {
+    TriggerStart::from_label(name).ok_or_else(|| {
+        bad(
+            "starts",
+            "the input's action",
+            format!(
+                "the input's action {}: off, motion, recorder or both",
+                Quoted(name)
+            ),
+        )
+    })
+}
+
+/// Sets what the trigger input's rising edge starts; the tick it took effect.
+pub fn set_input(c: &mut Client, starts: TriggerStart) -> Result<u32> {
+    c.order(&Command::TriggerIn { axis: 0, starts })
 }

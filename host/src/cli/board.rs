@@ -432,6 +432,18 @@ pub fn state_text(s: &Status, rate: f64) -> String {
          the stage can take within its stroke); {} stale streamed points dropped by a motion",
         s.governed_ticks, s.ended_points
     );
+    let armed: Vec<&str> = [("a motion", s.armed[0]), ("a recording", s.armed[1])]
+        .iter()
+        .filter(|(_, on)| *on)
+        .map(|(what, _)| *what)
+        .collect();
+    if !armed.is_empty() {
+        let _ = writeln!(
+            out,
+            "armed for the trigger input's next rising edge: {}",
+            armed.join(" and ")
+        );
+    }
     out
 }
 
@@ -869,6 +881,14 @@ pub fn trigger(c: &mut Client, mode: &str, levels: &crate::board::trigger::Level
     use crate::board::trigger;
     let (t, s) = trigger::set(c, trigger::mode(mode)?, levels)?;
     println!("trigger output {} from tick {t}", trigger::describe(&s));
+    Ok(())
+}
+
+/// `fpi board trigger-in off|motion|recorder|both`.
+pub fn trigger_in(c: &mut Client, starts: &str) -> Result<()> {
+    use crate::board::trigger;
+    let t = trigger::set_input(c, trigger::starts(starts)?)?;
+    println!("the trigger input's rising edge starts {starts} from tick {t}");
     Ok(())
 }
 

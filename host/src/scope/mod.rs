@@ -13,8 +13,8 @@
 //! | `GET /` | the page (`index.html`, `scope.js`, `scope.css`) |
 //! | `GET /info` | JSON: `rate_hz`, `decimation`, `channels` (`name`, `unit`), `board` |
 //! | `GET /stream` | the samples, a never-ending chunked response of messages (below) |
-//! | `GET /trigger` | JSON: the board's trigger output settings (`stage/0/trigger/…`) |
-//! | `POST /trigger` | sets the trigger output: a JSON body `{"mode": …, "step_um": …}` as `fpi board trigger` takes it; the settings the board then holds, or 400 with why |
+//! | `GET /trigger` | JSON: the board's trigger output settings (`stage/0/trigger/…`) and what its input starts (`input`) |
+//! | `POST /trigger` | sets them: a JSON body `{"mode": …, "step_um": …, "input": …}` as `fpi board trigger` and `trigger-in` take them (each optional); the settings the board then holds, or 400 with why |
 //! | `POST /report`, `GET /report` | what the page last said it shows (`?report=MS`; for tests) |
 //!
 //! **A stream message**, little-endian: seven `u32` — the magic `"SCP1"`, the
@@ -387,35 +387,47 @@ impl Scope {
 
 impl Scope {
     /// `GET /trigger` (`body` none) or `POST /trigger`: the board's trigger
-    /// settings after the change the body asks for, as JSON; 400 with why a
-    /// change was refused (by the host's checks or the board's).
+    /// output settings and what its input starts (`input`) after the change
+    /// the body asks for, as JSON; 400 with why a change was refused (by the
+    /// host's checks or the board's).
     fn trigger(&self, body: Option<&str>) -> Response<std::io::Cursor<Vec<u8>>> {
-        use crate::board::trigger;
         let Ok(mut c) = self.link.lock() else {
             return text(500, "text/plain", "the board's link failed".into());
         };
-        let result = match body {
-            None => trigger::settings(&mut c),
-            Some(b) => serde_json::from_str::<TriggerRequest>(b)
-                .map_err(|e| anyhow!("the trigger's settings {b}: {e}"))
-                .and_then(|r| {
-                    let mode = trigger::mode(&r.mode)?;
-                    trigger::set(&mut c, mode, &r.levels).map(|(_, s)| s)
-                }),
-        };
-        match result.and_then(|s| Ok(serde_json::to_string(&s)?)) {
+        match trigger_request(&mut c, body) {
             Ok(json) => text(200, "application/json", json),
             Err(e) => text(400, "text/plain", format!("{e:#}")),
         }
     }
 }
 
-/// `POST /trigger`'s body.
+/// `POST /trigger`'s body: the output's mode and levels, what the input
+/// starts; each optional.
 #[derive(serde::Deserialize)]
 struct TriggerRequest {
-    mode: String,
+    mode: Option<String>,
+    input: Option<String>,
     #[serde(flatten)]
     levels: crate::board::trigger::Levels,
+}
+
+/// Carries out `body` (none: reads only); the board's trigger settings, JSON.
+fn trigger_request(c: &mut Client, body: Option<&str>) -> Result<String> {
+    use crate::board::trigger;
+    if let Some(b) = body {
+        let r: TriggerRequest =
+            serde_json::from_str(b).map_err(|e| anyhow!("the trigger's settings {b}: {e}"))?;
+        if let Some(mode) = r.mode {
+            trigger::set(c, trigger::mode(&mode)?, &r.levels)?;
+        }
+        if let Some(input) = r.input {
+            trigger::set_input(c, trigger::starts(&input)?)?;
+        }
+    }
+    let mut v = serde_json::to_value(trigger::settings(c)?)?;
+    let input: String = serde_json::from_str(&c.setting("/stage/0/trigger_in")?)?;
+    v["input"] = input.into();
+    Ok(v.to_string())
 }
 
 /// A whole response of `body` with its type.

@@ -437,13 +437,14 @@ function applyQuery() {
   });
   numberParam('fft', (v) => FFT_SIZES.includes(v), (v) => { settings.fftN = v; });
   numberParam('report', (v) => v >= 10, (v) => { settings.reportMs = v; });
-  // tout=MODE[,key=value…]: the trigger output set as the panel sets it (for tests).
+  // tout=MODE[,key=value…]: the triggers set as the panel sets them (for tests;
+  // `input=` takes a name, the levels numbers).
   if (q.has('tout')) {
     const [mode, ...pairs] = q.get('tout').split(',');
     const body = { mode };
     for (const p of pairs) {
       const [k, v] = p.split('=');
-      body[k] = Number(v);
+      body[k] = k === 'input' ? v : Number(v);
     }
     settings.toutQuery = body;
   }
@@ -1920,6 +1921,7 @@ function showTout(s) {
   $('tout-low').value = String(s.low_nm / 1000);
   $('tout-high').value = String(s.high_nm / 1000);
   $('tout-pulse').value = String(s.pulse_ticks);
+  $('tin').value = s.input;
   showToutLevels(s.mode);
 }
 
@@ -1927,7 +1929,8 @@ function showTout(s) {
 function showToutState() {
   const st = $('tout-state');
   st.classList.toggle('bad', tout.error !== null);
-  st.textContent = tout.error ?? (tout.settings ? `board: ${tout.settings.mode}` : '');
+  st.textContent = tout.error
+    ?? (tout.settings ? `board: output ${tout.settings.mode}, input starts ${tout.settings.input}` : '');
 }
 
 // GET /trigger (body null) or POST it; the panel shows the outcome.
@@ -1950,7 +1953,7 @@ async function toutRequest(body) {
 function toutBody() {
   const mode = $('tout-mode').value;
   const num = (id) => Number($(id).value);
-  const body = { mode };
+  const body = { mode, input: $('tin').value };
   if (mode === 'travel') body.step_um = num('tout-step');
   if (mode === 'on_target') body.band_um = num('tout-band');
   if (mode === 'window') { body.low_um = num('tout-low'); body.high_um = num('tout-high'); }

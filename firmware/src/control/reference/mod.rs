@@ -72,6 +72,14 @@ pub enum SourceOrder {
     Analog,
 }
 
+impl SourceOrder {
+    /// A trigger input set to start motions holds it until its edge (a wave
+    /// or a stream; a move, a step, a hold or the analog input start at once).
+    pub const fn waits_for_trigger(&self) -> bool {
+        matches!(self, Self::Wave(_) | Self::Stream { .. })
+    }
+}
+
 /// The running source (state).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Active {

@@ -484,6 +484,7 @@ impl<F: NorFlash> Handler<F> {
                 self.order(board, seq, Order::Damping(on))
             }
             Command::Shaping { on, .. } => self.order(board, seq, Order::Shaping(on)),
+            Command::TriggerIn { starts, .. } => self.order(board, seq, Order::TriggerIn(starts)),
             Command::Trigger { settings, .. } => {
                 let t = trigger::condition(&settings)?;
                 let reply = self.order(board, seq, Order::Trigger(t))?;
@@ -1024,6 +1025,7 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
         ended_points: s.ended_points,
         overruns: s.overruns,
         model_crc: summary.crc,
+        armed: [s.motion_armed, s.record_armed],
     }
 }
 

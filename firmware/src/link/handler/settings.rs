@@ -18,13 +18,15 @@ impl<F: NorFlash> Handler<F> {
     /// sections the running model has, and whether each is on).
     fn settings(&mut self, board: &mut impl Board) -> Settings {
         let summary = self.summary;
-        let s = board.exchange(|x| super::status(x, &summary, 0));
+        let (s, trigger_in) =
+            board.exchange(|x| (super::status(x, &summary, 0), x.snapshot.trigger_in));
         let stage = StageSettings {
             loop_mode: s.loop_mode,
             damping: s.damping,
             shaping: s.shaping,
             compensated: s.compensated,
             trigger: self.trigger,
+            trigger_in,
         };
         Settings {
             stage: [stage; STAGES],

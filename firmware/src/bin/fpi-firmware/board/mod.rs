@@ -37,7 +37,7 @@ use crate::supervisor::{was_reset_by_command, Supervisor};
 use panic_probe as _;
 use piezo_fpi::io::Hardware;
 use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
-use stm32f4xx_hal::gpio::{Analog, Output, PushPull, PA1, PB0, PB1};
+use stm32f4xx_hal::gpio::{Analog, Input, Output, PushPull, PA1, PB0, PB1, PB9};
 use stm32f4xx_hal::otg_fs::{UsbBus, UsbBusType, USB};
 use stm32f4xx_hal::pac::{self, USART1};
 use stm32f4xx_hal::prelude::*;
@@ -103,6 +103,8 @@ impl ReferenceIn for ReferenceAdc {
 pub type Enable = PB0<Output<PushPull>>;
 /// The trigger output.
 pub type TriggerOut = PB1<Output<PushPull>>;
+/// The trigger input.
+pub type TriggerIn = PB9<Input>;
 
 /// The model's flash sectors: each erase or write unlocks the flash only for
 /// its own duration.
@@ -234,6 +236,7 @@ pub struct TickIo {
     control: front::Control,
     supervisor: Supervisor<Iwdg>,
     trigger_out: TriggerOut,
+    trigger_in: TriggerIn,
 }
 
 impl TickIo {
@@ -241,6 +244,7 @@ impl TickIo {
     #[inline]
     pub fn tick(&mut self, x: &mut Exchange<'_>) {
         front::before_tick();
+        x.trigger_in = self.trigger_in.is_high();
         let t = self.control.tick(x);
         front::after_tick(&mut self.control);
         self.trigger_out
@@ -256,6 +260,7 @@ pub struct Io {
     analog: front::Analog,
     iwdg: IndependentWatchdog,
     trigger_out: TriggerOut,
+    trigger_in: TriggerIn,
 }
 
 impl Io {
@@ -267,6 +272,7 @@ impl Io {
             control: front::Control::new(model, self.hw, self.analog),
             supervisor: Supervisor::new(iwdg),
             trigger_out: self.trigger_out,
+            trigger_in: self.trigger_in,
         }
     }
 }
@@ -309,6 +315,7 @@ pub fn init(
         analog,
         iwdg,
         trigger_out: common.trigger_out,
+        trigger_in: common.trigger_in,
     };
     (flash, serial, usb, io)
 }
