@@ -12,7 +12,8 @@
 //!   of its own).
 //!
 //! This library holds what the test files share beyond `tests/common`: where the
-//! harness is ([`dir`]), the `fpi` binary they run ([`fpi_bin`]), and the model
+//! harness is ([`dir`]), the `fpi` binary they run ([`fpi_bin`]), the board
+//! the emulated-board tests drive ([`usb_board`]), and the model
 //! autotune tuned on the emulated board, shared between the test binaries of one
 //! run ([`keep_tuned`], [`kept_tuned`]).
 
@@ -94,4 +95,31 @@ pub fn kept_tuned() -> Option<fpi_host::model_file::FirmwareModel> {
     let path = tuned_path()?;
     let text = std::fs::read_to_string(&path).ok()?;
     fpi_host::model_file::FirmwareModel::parse(&text, &path.display().to_string()).ok()
+}
+
+/// A board for the test `test`: the emulated one (QEMU) with its link paced as
+/// USB (recordings of every tick), else the firmware built for the host,
+/// in-process, said so on stdout. The emulator stops when its handle drops.
+pub fn usb_board(
+    test: &str,
+) -> (
+    Option<fpi_host::board::emulator::Emulator>,
+    fpi_host::board::client::Client,
+) {
+    use fpi_host::board::client::Client;
+    use fpi_host::board::emulator::{self, Emulator};
+    if emulator::available_for(test) {
+        let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
+        let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
+        let mut c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
+        c.pace_as(fpi_protocol::LinkKind::Usb)
+            .unwrap_or_else(|err| panic!("{err:#}"));
+        (Some(e), c)
+    } else {
+        println!("{test}: on the firmware built for the host (in-process)");
+        (
+            None,
+            Client::open("virtual:usb").unwrap_or_else(|e| panic!("{e:#}")),
+        )
+    }
 }

@@ -20,13 +20,13 @@ use fpi_host::board::autotune::{self, Autotune};
 use fpi_host::board::bandwidth;
 use fpi_host::board::client::{real, Client};
 use fpi_host::board::closed_loop::{self, Drive};
-use fpi_host::board::emulator::{self, Emulator};
 use fpi_host::board::follow::Follow;
 use fpi_host::board::frf::{self, FrfSettings};
 use fpi_host::board::mass;
 use fpi_host::board::step::{self, StepSettings};
 use fpi_host::method::tune::TuneOptions;
-use fpi_protocol::{BenchOrder, LinkKind, StageVariant};
+use fpi_protocol::{BenchOrder, StageVariant};
+use fpi_tests::usb_board as board;
 use piezo_sim::file::{FirmwareModel, ShapingSection};
 
 /// The factory model (stage A, no loops).
@@ -34,21 +34,6 @@ fn factory() -> FirmwareModel {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/model/stage-a.toml");
     let text = std::fs::read_to_string(&path).unwrap();
     FirmwareModel::parse(&text, "stage-a.toml").unwrap()
-}
-
-/// A board: the emulated one if QEMU is here, else the firmware in-process.
-fn board(test: &str) -> (Option<Emulator>, Client) {
-    if emulator::available_for(test) {
-        let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
-        let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
-        let mut c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
-        // Steps are recorded at every tick: the USB link's rate.
-        c.pace_as(LinkKind::Usb).unwrap();
-        (Some(e), c)
-    } else {
-        println!("{test}: on the firmware built for the host (in-process)");
-        (None, Client::open("virtual:usb").unwrap())
-    }
 }
 
 /// `fw` loaded onto a parked board with the stage `v`.

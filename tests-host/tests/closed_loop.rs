@@ -17,14 +17,14 @@ use std::time::{Duration, Instant};
 
 use fpi_firmware::control::recorder::{signal, status};
 use fpi_host::board::client::{real, refusal, Client};
-use fpi_host::board::emulator::{self, Emulator};
 use fpi_protocol::LoopMode;
 use fpi_protocol::Shape;
-use fpi_protocol::{BenchOrder, Command, FaultReport, LinkKind, Refusal, StageVariant};
+use fpi_protocol::{BenchOrder, Command, FaultReport, Refusal, StageVariant};
 use piezo_fpi::control::Fault;
 use piezo_sim::file::FirmwareModel;
 
 use common::{ok, s, scratch};
+use fpi_tests::usb_board as board;
 
 fn data(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(rel)
@@ -59,21 +59,6 @@ fn tuned() -> &'static (FirmwareModel, Vec<u8>) {
         let image = fw.image().unwrap();
         (fw, image)
     })
-}
-
-/// A board: the emulated one if QEMU is here, else the firmware in-process.
-fn board(test: &str) -> (Option<Emulator>, Client) {
-    if emulator::available_for(test) {
-        let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
-        let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
-        let mut c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
-        // Steps are recorded at every tick: the USB link's rate.
-        c.pace_as(LinkKind::Usb).unwrap();
-        (Some(e), c)
-    } else {
-        println!("{test}: on the firmware built for the host (in-process)");
-        (None, Client::open("virtual:usb").unwrap())
-    }
 }
 
 #[test]

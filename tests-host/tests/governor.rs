@@ -35,7 +35,8 @@ use fpi_host::board::emulator::{self, Emulator};
 use fpi_host::board::follow::Follow;
 use fpi_host::board::frf::{self, FrfSettings};
 use fpi_host::method::tune::TuneOptions;
-use fpi_protocol::{BenchOrder, Command, LinkKind, LoopMode, Shape, StageVariant};
+use fpi_protocol::{BenchOrder, Command, LoopMode, Shape, StageVariant};
+use fpi_tests::usb_board as board;
 use piezo_fpi::control::Fault;
 use piezo_sim::file::FirmwareModel;
 
@@ -50,20 +51,6 @@ fn factory() -> FirmwareModel {
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/model/stage-a.toml");
     let text = std::fs::read_to_string(&path).unwrap();
     FirmwareModel::parse(&text, "stage-a.toml").unwrap()
-}
-
-/// A board: the emulated one if QEMU is here, else the firmware in-process.
-fn board(test: &str) -> (Option<Emulator>, Client) {
-    if emulator::available_for(test) {
-        let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
-        let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
-        let mut c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
-        c.pace_as(LinkKind::Usb).unwrap();
-        (Some(e), c)
-    } else {
-        println!("{test}: on the firmware built for the host (in-process)");
-        (None, Client::open("virtual:usb").unwrap())
-    }
 }
 
 /// `fw` loaded onto a parked board with the stage `v` (a fault a previous

@@ -6,27 +6,13 @@
 
 use fpi_firmware::control::recorder::{lines, signal, Sample};
 use fpi_host::board::client::{real, Client};
-use fpi_host::board::emulator::{self, Emulator};
 use fpi_host::board::follow::Follow;
 use fpi_host::board::trigger::{self, Levels};
-use fpi_protocol::{LinkKind, TriggerMode, TriggerSettings};
+use fpi_protocol::{TriggerMode, TriggerSettings};
+use fpi_tests::usb_board as board;
 use piezo_fpi::process::SplitProcess;
 use piezo_fpi::q::Micrometres;
 use piezo_fpi::trigger::{Condition, Readings, Trigger, TriggerState};
-
-/// A board: the emulated one if QEMU is here, else the firmware in-process.
-fn board(test: &str) -> (Option<Emulator>, Client) {
-    if emulator::available_for(test) {
-        let elf = Emulator::firmware().unwrap_or_else(|e| panic!("{e:#}"));
-        let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
-        let mut c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
-        c.pace_as(LinkKind::Usb).unwrap();
-        (Some(e), c)
-    } else {
-        println!("{test}: on the firmware built for the host (in-process)");
-        (None, Client::open("virtual:usb").unwrap())
-    }
-}
 
 const SIGNALS: u8 = signal::X_SENSOR | signal::X_REF | signal::TRIGGER;
 
@@ -309,4 +295,43 @@ fn the_trigger_input_starts_an_armed_wave_and_recording_on_its_edge() {
     assert_eq!(c.status().unwrap().source, SourceKind::Wave);
     let e = format!("{:#}", trigger::starts("always").unwrap_err());
     assert!(e.contains("off, motion, recorder or both"), "{e}");
+}
+
+#[test]
+fn an_armed_stream_is_played_whole_once_the_input_rises() {
+    use fpi_protocol::{BenchOrder, SourceKind, TriggerStart};
+    let (_e, mut c) = board("an armed stream");
+    c.move_to(10.0, 1000.0).unwrap();
+    Follow::new(&mut c, 0).until_hold().unwrap();
+    trigger::set_input(&mut c, TriggerStart::Motion).unwrap();
+    // 40 points fit the board's queue: the client sends them all, then
+    // waits for the armed stream to be played, pulsing the input (as an
+    // external device would) once it sees the stream armed.
+    let points: Vec<f64> = (0..40).map(|k| 10.0 + 0.05 * k as f64).collect();
+    let mut edge = None;
+    let report = c
+        .stream(
+            &points,
+            20,
+            |_| {},
+            |c| {
+                if edge.is_none() && c.status()?.armed[0] {
+                    edge = Some(c.bench(BenchOrder::TriggerIn(3))?);
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+    let st = c.status().unwrap();
+    println!("an armed stream: {report:?}, the input rose at tick {edge:?}; then {st:?}");
+    let edge = edge.expect("the stream was seen armed");
+    assert!(
+        edge > report.started,
+        "armed at {}, started at {edge}",
+        report.started
+    );
+    assert_eq!(st.source, SourceKind::Hold);
+    assert!(!st.armed[0]);
+    assert_eq!((report.points, report.underruns), (40, 0));
+    assert!((real(st.signals[0]) - points[39]).abs() < 1e-3, "{st:?}");
 }

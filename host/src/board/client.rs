@@ -746,10 +746,12 @@ impl Client {
                 std::thread::sleep(Duration::from_millis(5));
             }
         }
-        // Until the board has played the last point (and holds it).
+        // Until the board has played the last point (and holds it); a
+        // stream armed for the trigger input has not started yet.
         let underruns = loop {
             let s = self.status()?;
-            if s.source != fpi_protocol::SourceKind::Stream || s.fault.is_some() {
+            let playing = s.source == fpi_protocol::SourceKind::Stream || s.armed[0];
+            if !playing || s.fault.is_some() {
                 break s.stream[3];
             }
             idle(self)?;
