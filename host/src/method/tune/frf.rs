@@ -242,7 +242,12 @@ pub fn fit(points: &[FrfPoint], rate_hz: u32, split: f64) -> Result<FrfFit> {
         let (px, pr) = responses(&plant, &z1);
         let (g, mx) = scale(&hx, &px);
         let prs: Vec<Complex<f64>> = fi.iter().map(|&i| pr[i] * highpass(split, z1[i])).collect();
-        let (k, mf) = scale_unweighted(&hd, &prs);
+        // Where plain least squares finds no positive gain (a response that
+        // is no plant's: measured with the damping on), the relative weights'.
+        let (k, mf) = match scale_unweighted(&hd, &prs) {
+            (k, mf) if k > 0.0 => (k, mf),
+            _ => scale(&hd, &prs),
+        };
         (mx + mf, g, k, mx, mf)
     };
     // Start: the peak of the position response, ζ from its height, a lag an
