@@ -84,8 +84,7 @@ fn recorded(set_at: u32, rec: &[Sample]) -> Vec<(u32, bool)> {
 #[test]
 fn travel_pulses_every_step_and_a_window_is_high_exactly_inside_it() {
     let (_e, mut c) = board("trigger output");
-    c.move_to(10.0, 1000.0).unwrap();
-    Follow::new(&mut c, 0).until_hold().unwrap();
+    Follow::new(&mut c, 0).rest_at(10.0, "the start").unwrap();
 
     // Travel: a 2-tick pulse every 0.5 µm of a 10 → 20 µm move, the line
     // the core's rule gives on the same readings, tick for tick (latency 0).
@@ -142,8 +141,7 @@ fn travel_pulses_every_step_and_a_window_is_high_exactly_inside_it() {
 #[test]
 fn a_stream_pulses_at_each_point_and_bad_levels_are_refused_by_name() {
     let (_e, mut c) = board("trigger on points");
-    c.move_to(10.0, 1000.0).unwrap();
-    Follow::new(&mut c, 0).until_hold().unwrap();
+    Follow::new(&mut c, 0).rest_at(10.0, "the start").unwrap();
     let (_, s) = trigger::set(
         &mut c,
         TriggerMode::Point,
@@ -221,8 +219,7 @@ fn a_stream_pulses_at_each_point_and_bad_levels_are_refused_by_name() {
 fn the_trigger_input_starts_an_armed_wave_and_recording_on_its_edge() {
     use fpi_protocol::{BenchOrder, Command, Shape, SourceKind, TriggerStart};
     let (_e, mut c) = board("trigger input");
-    c.move_to(20.0, 1000.0).unwrap();
-    Follow::new(&mut c, 0).until_hold().unwrap();
+    Follow::new(&mut c, 0).rest_at(20.0, "the start").unwrap();
     trigger::set_input(&mut c, TriggerStart::Both).unwrap();
     assert_eq!(
         c.setting("/stage/0/trigger_in").unwrap(),
@@ -301,8 +298,7 @@ fn the_trigger_input_starts_an_armed_wave_and_recording_on_its_edge() {
 fn an_armed_stream_is_played_whole_once_the_input_rises() {
     use fpi_protocol::{BenchOrder, SourceKind, TriggerStart};
     let (_e, mut c) = board("an armed stream");
-    c.move_to(10.0, 1000.0).unwrap();
-    Follow::new(&mut c, 0).until_hold().unwrap();
+    Follow::new(&mut c, 0).rest_at(10.0, "the start").unwrap();
     trigger::set_input(&mut c, TriggerStart::Motion).unwrap();
     // 40 points fit the board's queue: the client sends them all, then
     // waits for the armed stream to be played, pulsing the input (as an
