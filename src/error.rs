@@ -10,6 +10,8 @@
 
 use core::fmt;
 
+pub use crate::fields::{Field, TableId, TablePart};
+
 /// A configuration the core refuses to run, with the offending index where there is one.
 ///
 /// Indices are 0-based positions in the array that was passed in (for a table:
@@ -305,208 +307,6 @@ impl fmt::Display for ModelError {
 
 impl core::error::Error for ModelError {}
 
-/// One of the lookup tables of a model.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum TableId {
-    /// Preload `f_F`.
-    FF,
-    /// Kinematics `f_K`.
-    FK,
-    /// Inverse kinematics `f_K⁻¹`.
-    FKInv,
-    /// The soft dead zone `g`.
-    DeadZone,
-    /// Its inverse.
-    DeadZoneInverse,
-    /// The output saturation `h`.
-    Saturation,
-    /// Its inverse.
-    SaturationInverse,
-}
-
-impl TableId {
-    /// The table's key in the model file.
-    pub const fn key(self) -> &'static str {
-        match self {
-            Self::FF => "tables.f_f",
-            Self::FK => "tables.f_k",
-            Self::FKInv => "tables.f_k_inv",
-            Self::DeadZone => "dead_zone.forward",
-            Self::DeadZoneInverse => "dead_zone.inverse",
-            Self::Saturation => "saturation.forward",
-            Self::SaturationInverse => "saturation.inverse",
-        }
-    }
-}
-
-/// A part of a lookup table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum TablePart {
-    /// The first knot.
-    X0,
-    /// The knot spacing.
-    StepLog2,
-    /// The values at the knots.
-    Values,
-}
-
-/// Where in a model a value lives: the model file's key, without the index.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Field {
-    /// The number of play operators (and of thresholds and weights).
-    Operators,
-    /// `w0`, µm/V.
-    PiW0,
-    /// Thresholds `r_i`, V.
-    PiThresholds,
-    /// Weights `w_i`, µm/V.
-    PiWeights,
-    /// Input domain, V.
-    PiInputMax,
-    /// `k0`, V.
-    CouplingOffset,
-    /// `k_f`, V/N.
-    CouplingKf,
-    /// `k_q`, V/N².
-    CouplingKq,
-    /// `F_q`, N.
-    CouplingForceQ,
-    /// Compliance, µm/N.
-    CouplingCompliance,
-    /// `F_ref`, N.
-    CouplingForceRef,
-    /// The number of creep terms.
-    Creep,
-    /// A creep term's time constant, s.
-    CreepTau,
-    /// A creep term's gain, µm/V.
-    CreepGain,
-    /// A part of a table.
-    Table(TableId, TablePart),
-    /// Control rate, Hz.
-    Rate,
-    /// Lowest setpoint, V.
-    UMin,
-    /// Highest setpoint, V.
-    UMax,
-    /// Slew limit, V/ms.
-    Slew,
-    /// Lowest reference, µm.
-    ReferenceMin,
-    /// Highest reference, µm.
-    ReferenceMax,
-    /// Lowest plausible force, N.
-    ForceMin,
-    /// Highest plausible force, N.
-    ForceMax,
-    /// Force-plausibility tolerance, N.
-    ForceTolerance,
-    /// Safe voltage, V.
-    SafeVoltage,
-    /// Measured or predicted force.
-    ForceSource,
-    /// Position feedback: proportional gain.
-    FeedbackKp,
-    /// Position feedback: integral gain.
-    FeedbackKi,
-    /// Position feedback: largest correction, µm.
-    FeedbackLimit,
-    /// Lowest plausible position reading, µm.
-    PositionMin,
-    /// Highest plausible position reading, µm.
-    PositionMax,
-    /// Position-plausibility tolerance, µm.
-    PositionTolerance,
-    /// A section of the reference-shaping filter.
-    Shaping,
-    /// The shaping's preview: its delay and taps.
-    Preview,
-    /// Stage dynamics: the first mode, Hz.
-    DynamicsModeHz,
-    /// Stage dynamics: its damping ratio.
-    DynamicsDamping,
-    /// Stage dynamics: the lag's corner, Hz.
-    DynamicsLagHz,
-    /// Stage dynamics: the dynamic force per µm of command, N/µm.
-    DynamicsForceGain,
-    /// Damping: the IFF gain.
-    DampingGain,
-    /// Damping: the integrator's leak.
-    DampingLeak,
-    /// Damping: the high-pass's corner.
-    DampingHighpass,
-    /// Damping: the largest correction, µm.
-    DampingLimit,
-    /// Damping: the lead's baseline, the fit's ratio on the tuned stage.
-    LeadBaseline,
-    /// Feedback: the oscillation watch's half swing on the tracking error, µm.
-    WatchSwing,
-    /// The force channel's split corner.
-    ForceSplit,
-    /// The force channel's dynamic limit, N.
-    ForceDynamicLimit,
-    /// The model as a whole (format, version, length, checksum).
-    Model,
-}
-
-impl Field {
-    /// The model file's key (the table part is added by [`Display`](fmt::Display)).
-    pub const fn key(self) -> &'static str {
-        match self {
-            Self::Operators => "pi.thresholds_v",
-            Self::PiW0 => "pi.w0_um_per_v",
-            Self::PiThresholds => "pi.thresholds_v",
-            Self::PiWeights => "pi.weights_um_per_v",
-            Self::PiInputMax => "pi.input_max_v",
-            Self::CouplingOffset => "coupling.offset_v",
-            Self::CouplingKf => "coupling.k_f_v_per_n",
-            Self::CouplingKq => "coupling.k_q_v_per_n2",
-            Self::CouplingForceQ => "coupling.force_q_n",
-            Self::CouplingCompliance => "coupling.compliance_um_per_n",
-            Self::CouplingForceRef => "coupling.force_ref_n",
-            Self::Creep => "creep",
-            Self::CreepTau => "creep.tau_s",
-            Self::CreepGain => "creep.gain_um_per_v",
-            Self::Table(t, _) => t.key(),
-            Self::Rate => "controller.rate_hz",
-            Self::UMin => "controller.u_min_v",
-            Self::UMax => "controller.u_max_v",
-            Self::Slew => "controller.slew_v_per_ms",
-            Self::ReferenceMin => "controller.reference_min_um",
-            Self::ReferenceMax => "controller.reference_max_um",
-            Self::ForceMin => "controller.force_min_n",
-            Self::ForceMax => "controller.force_max_n",
-            Self::ForceTolerance => "controller.force_tolerance_n",
-            Self::SafeVoltage => "controller.safe_voltage_v",
-            Self::ForceSource => "controller.force_source",
-            Self::FeedbackKp => "feedback.kp",
-            Self::FeedbackKi => "feedback.ki_per_s",
-            Self::FeedbackLimit => "feedback.limit_um",
-            Self::PositionMin => "feedback.position_min_um",
-            Self::PositionMax => "feedback.position_max_um",
-            Self::PositionTolerance => "feedback.position_tolerance_um",
-            Self::Shaping => "shaping.sections",
-            Self::Preview => "shaping.taps",
-            Self::DynamicsModeHz => "dynamics.mode_hz",
-            Self::DynamicsDamping => "dynamics.damping_ratio",
-            Self::DynamicsLagHz => "dynamics.lag_hz",
-            Self::DynamicsForceGain => "dynamics.force_gain_n_per_um",
-            Self::DampingGain => "damping.gain_um_per_n_s",
-            Self::DampingLeak => "damping.leak_hz",
-            Self::DampingHighpass => "damping.highpass_hz",
-            Self::DampingLimit => "damping.limit_um",
-            Self::LeadBaseline => "damping.lead_baseline",
-            Self::WatchSwing => "feedback.watch_swing_um",
-            Self::ForceSplit => "controller.force_split_hz",
-            Self::ForceDynamicLimit => "controller.force_dynamic_limit_n",
-            Self::Model => "model",
-        }
-    }
-}
-
 /// Why a model is invalid, and where: the field, the element (when the field is an
 /// array) and the problem.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -539,37 +339,43 @@ impl Invalid {
     }
 }
 
-/// `key[index]`, e.g. `pi.weights_um_per_v[3]`, `tables.f_f.step_log2`,
-/// `creep[1].tau_s`.
+/// `key`, e.g. `pi.weights_um_per_v`, `tables.f_f.step_log2`, `creep[].tau_s`.
 impl fmt::Display for Field {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.key())?;
         if let Self::Table(_, part) = self {
-            f.write_str(match part {
-                TablePart::X0 => ".x0",
-                TablePart::StepLog2 => ".step_log2",
-                TablePart::Values => ".values",
-            })?;
+            write!(f, ".{}", part.key())?;
         }
         Ok(())
     }
 }
 
-impl Invalid {
-    /// Writes the located key: `pi.weights_um_per_v[3]`, `creep[1].tau_s`.
-    pub fn write_key(&self, f: &mut impl fmt::Write) -> fmt::Result {
-        match (self.field, self.index) {
-            (Field::CreepTau | Field::CreepGain, Some(i)) => {
-                let leaf = if self.field == Field::CreepTau {
-                    "tau_s"
-                } else {
-                    "gain_um_per_v"
-                };
-                write!(f, "creep[{i}].{leaf}")
-            }
-            (field, Some(i)) => write!(f, "{field}[{i}]"),
-            (field, None) => write!(f, "{field}"),
+/// A field at an element: `pi.weights_um_per_v[3]`, `creep[1].tau_s` (the
+/// index goes into the key's `[]`, where it has one), `tables.f_f.x0`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Located(pub Field, pub Option<u16>);
+
+impl Field {
+    /// This field at element `index` (of an array, or an array of tables).
+    pub const fn at(self, index: usize) -> Located {
+        Located(self, Some(index as u16))
+    }
+}
+
+impl fmt::Display for Located {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match (self.0.key().split_once("[]"), self.1) {
+            (Some((array, leaf)), Some(i)) => write!(f, "{array}[{i}]{leaf}"),
+            (_, Some(i)) => write!(f, "{}[{i}]", self.0),
+            (_, None) => write!(f, "{}", self.0),
         }
+    }
+}
+
+impl Invalid {
+    /// Writes the located key ([`Located`]).
+    pub fn write_key(&self, f: &mut impl fmt::Write) -> fmt::Result {
+        write!(f, "{}", Located(self.field, self.index))
     }
 }
 

@@ -38,7 +38,8 @@ use crate::process::SplitProcess;
 use crate::q::{LoopGain, Micrometres, Volts, INTEGRAL_FRAC, LOOP_GAIN_FRAC, SIGNAL_ABS_MAX_BITS};
 
 /// Largest proportional gain, µm/µm.
-pub const KP_MAX: LoopGain = LoopGain::from_bits(16 << LOOP_GAIN_FRAC);
+pub const KP_MAX: LoopGain = LoopGain::from_bits(Field::FeedbackKp.decl().bits().1 as i32);
+const _: () = assert!(KP_MAX.to_bits() == 16 << LOOP_GAIN_FRAC);
 /// Largest integral gain, per tick.
 pub const KI_MAX: LoopGain = LoopGain::from_bits(1 << LOOP_GAIN_FRAC);
 

@@ -98,7 +98,8 @@ use crate::q::{LeadRatio, Micrometres, Newtons, NewtonsPerUm};
 /// `1` in raw [`LeadRatio`] bits.
 pub const ONE: i32 = 1 << 30;
 /// The least `β`, and the least baseline a model may carry: one half.
-pub const RATIO_MIN: LeadRatio = LeadRatio::from_bits(ONE / 2);
+pub const RATIO_MIN: LeadRatio =
+    LeadRatio::from_bits(crate::fields::Field::LeadBaseline.decl().bits().0 as i32);
 /// `μ = 2^-ADAPT_SHIFT` per N² and tick.
 pub const ADAPT_SHIFT: u32 = 8;
 /// The largest `log₂ M` the rate takes (a heavier stage learns more slowly).

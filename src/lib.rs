@@ -35,6 +35,7 @@ pub mod control;
 pub mod damping;
 pub mod error;
 pub mod feedback;
+pub mod fields;
 pub mod fpi;
 pub mod governor;
 pub mod inverse;

@@ -39,7 +39,7 @@ pub const TAPS: usize = 16;
 pub const TAPS_GAIN_MAX: i64 = 32;
 
 /// The longest preview the board keeps, ticks.
-pub const PREVIEW_MAX: u8 = 7;
+pub const PREVIEW_MAX: u8 = crate::fields::Field::PreviewTicks.decl().bits().1 as u8;
 /// Slots of the delay line: a power of two (the index is masked), above
 /// [`PREVIEW_MAX`] and holding every tap's reference.
 const SLOTS: usize = 16;

@@ -12,15 +12,21 @@
 //! by `build.rs`.
 
 use crate::error::ModelError;
+use crate::fields::{TableId, TablePart};
 use crate::q::{MAX_TABLE_LEN, SIGNAL_ABS_MAX_BITS};
 use fixed::types::I16F16;
 
 /// Largest knot spacing, as `log2` of raw LSB: one unit (µm or N).
-pub const MAX_SHIFT: u32 = 16;
+pub const MAX_SHIFT: u32 = shift_of(TablePart::StepLog2.decl(TableId::FF).bits().1);
 
 /// Smallest knot spacing, as `log2` of raw LSB: 2 LSB (30 pm or 30 µN), so that
 /// `2^(32 - shift)` fits 32 bits.
-pub const MIN_SHIFT: u32 = 1;
+pub const MIN_SHIFT: u32 = shift_of(TablePart::StepLog2.decl(TableId::FF).bits().0);
+
+/// The raw shift of a file's `step_log2` (its spacing in units of `I16F16`).
+const fn shift_of(step_log2: i64) -> u32 {
+    (step_log2 + 16) as u32
+}
 
 /// Largest rise of one interval, raw: half a unit. It keeps every interval fine
 /// (`fpi export` refines the grid until it holds) and `2·rise` within 16 bits, so

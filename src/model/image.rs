@@ -36,6 +36,11 @@
 
 use crc::{Crc, CRC_32_ISO_HDLC};
 
+pub use crate::fields::{
+    FLAG_DAMPING, FLAG_DEAD_ZONE, FLAG_DYNAMICS, FLAG_FEEDBACK, FLAG_LEAD, FLAG_PREDICTED,
+    FLAG_PREVIEW, FLAG_SATURATION, FLAG_SHAPING, FLAG_WATCH,
+};
+
 use super::{MapSpec, ModelSpec, TableSpec};
 use crate::biquad::SHAPING_SECTIONS;
 use crate::control::ForceSource;
@@ -50,31 +55,8 @@ pub const VERSION: u16 = 3;
 /// Bytes before the body.
 pub const HEADER_LEN: usize = 16;
 
-/// Flag: the model has a soft dead zone (two tables).
-pub const FLAG_DEAD_ZONE: u16 = 1;
-/// Flag: the model has an output saturation (two tables).
-pub const FLAG_SATURATION: u16 = 2;
-/// Flag: the force comes from `f_F` of the reference, not the sensor.
-pub const FLAG_PREDICTED: u16 = 4;
-/// Flag: the model carries position-feedback settings (a block after the tables).
-pub const FLAG_FEEDBACK: u16 = 8;
-/// Flag: the model carries a reference-shaping filter (a block after the feedback's).
-pub const FLAG_SHAPING: u16 = 16;
-/// Flag: the model declares the stage's dynamics (a block after the shaping's).
-pub const FLAG_DYNAMICS: u16 = 32;
-/// Flag: the model carries active-damping settings (a block after the dynamics').
-pub const FLAG_DAMPING: u16 = 64;
-/// Flag: the shaping runs ahead of the tracked reference (a block after the
-/// damping's; version-2 images without it read as before).
-pub const FLAG_PREVIEW: u16 = 128;
-/// Flag: the model carries the lead's baseline (a block after the preview's;
-/// version-2 images without it read as before).
-pub const FLAG_LEAD: u16 = 256;
 /// Bytes of the lead block.
 const LEAD_LEN: usize = 4;
-/// Flag: the model carries the oscillation watch's half swing on the tracking
-/// error (a block after the lead's; version-2 images without it read as before).
-pub const FLAG_WATCH: u16 = 512;
 /// Bytes of the watch block.
 const WATCH_LEN: usize = 4;
 /// Bytes of the preview block.

@@ -141,11 +141,13 @@ pub struct ModelSpec<'a> {
 /// the residue a healthy loop's step leaves for tens of milliseconds on the
 /// emulated stages (up to about 0.05 µm; at 0.04 µm its swings chain into
 /// false trips).
-pub const WATCH_SWING_MIN: Micrometres = Micrometres::from_bits(4915);
+pub const WATCH_SWING_MIN: Micrometres =
+    Micrometres::from_bits(Field::WatchSwing.decl().bits().0 as i32);
 /// The largest, and the default, half swing of the oscillation watch (µm, 0.2;
 /// `I16F16`): well above the as-built stage's noise at rest, below the half
 /// micrometre where the watch's growing rule starts.
-pub const WATCH_SWING_MAX: Micrometres = Micrometres::from_bits(13_107);
+pub const WATCH_SWING_MAX: Micrometres =
+    Micrometres::from_bits(Field::WatchSwing.decl().bits().1 as i32);
 
 /// The shape of a valid model: what the firmware's types are built from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -163,9 +165,9 @@ pub struct Shape {
 }
 
 /// Lowest control rate a model may ask for, Hz.
-pub const MIN_RATE_HZ: u32 = 100;
+pub const MIN_RATE_HZ: u32 = Field::Rate.decl().bits().0 as u32;
 /// Highest control rate a model may ask for, Hz.
-pub const MAX_RATE_HZ: u32 = 200_000;
+pub const MAX_RATE_HZ: u32 = Field::Rate.decl().bits().1 as u32;
 
 /// Validates a whole model; the first problem, located by the model file's key.
 ///

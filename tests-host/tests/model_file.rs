@@ -370,7 +370,7 @@ fn feedback_and_shaping_sections_name_their_keys() {
     );
     check(
         &|b| b.shaping.as_mut().unwrap().preview_ticks = 8,
-        "shaping.preview_ticks = 8: the board looks ahead at most 7 ticks",
+        "shaping.preview_ticks = 8: not within [0, 7] ticks (u8)",
     );
     check(
         &|b| b.shaping.as_mut().unwrap().preview_ticks = 3,
@@ -456,11 +456,11 @@ fn a_lead_baseline_names_its_key() {
     let check = |edit: &dyn Fn(&mut FirmwareModel), want: &str| refused(&m, edit, want);
     check(
         &|b| b.damping.as_mut().unwrap().lead_baseline = Some(2.0),
-        "damping.lead_baseline = 2: not a ratio within [0.5, 2) (I2F30)",
+        "damping.lead_baseline = 2: not within [0.5, 2) (I2F30)",
     );
     check(
         &|b| b.damping.as_mut().unwrap().lead_baseline = Some(0.4),
-        "damping.lead_baseline = 0.4: not a ratio within [0.5, 2) (I2F30)",
+        "damping.lead_baseline = 0.4: not within [0.5, 2) (I2F30)",
     );
     check(
         &|b| {
@@ -599,6 +599,26 @@ fn every_number_out_of_its_range_names_file_key_value_and_rule() {
         ("damping.lead_baseline", true),
         ("shaping.taps[0]", false),
     ];
+    // The list holds every declared number (the integers, the choice and the
+    // filter's sections are refused by the TOML reader and their own tests).
+    use piezo_fpi::fields::Field;
+    let listed = |k: &str| {
+        keys.iter().any(|(x, _)| {
+            let x = x.replace("[1]", "[]");
+            x.split_once('[').map_or(x.as_str(), |(head, _)| head) == k || x == k
+        })
+    };
+    for f in Field::DECLARED {
+        let skip = matches!(
+            f,
+            Field::Rate | Field::PreviewTicks | Field::ForceSource | Field::Shaping
+        );
+        assert!(
+            skip || listed(f.key()),
+            "{} is declared but not tried here",
+            f.key()
+        );
+    }
     let mut wrong = Vec::new();
     for &(key, negative) in keys {
         let values = [
@@ -672,4 +692,100 @@ fn a_lag_below_the_mode_names_both() {
         "dynamics.mode_hz = 12000: the mode must lie from 1 Hz up to below the Nyquist \
          frequency, 10000 Hz at controller.rate_hz = 20000",
     );
+}
+
+/// The image of `m`, quantised and encoded without the validator (a changed
+/// key need not leave a model that runs).
+fn raw_image(m: &FirmwareModel) -> Vec<u8> {
+    let q = m.quantize().unwrap();
+    let spec = q.spec();
+    let mut out = vec![0; piezo_fpi::model::image::encoded_len(&spec)];
+    piezo_fpi::model::image::encode(&spec, &mut out).unwrap();
+    out
+}
+
+/// `m` with the value at `key` (`creep[1].tau_s`; an array's element 1)
+/// changed: a number by 1 % (at least 0.001, above every format's LSB), an integer by one, a choice to
+/// the other one.
+fn with_changed(m: &FirmwareModel, key: &str) -> FirmwareModel {
+    let mut doc: toml::Value = toml::from_str(&m.to_toml().unwrap()).unwrap();
+    let mut at = &mut doc;
+    for part in key.split('.') {
+        let mut pieces = part.split('[');
+        let name = pieces.next().unwrap();
+        at = at
+            .get_mut(name)
+            .unwrap_or_else(|| panic!("{key}: the file has no {name}"));
+        for index in pieces {
+            at = &mut at[index.trim_end_matches(']').parse::<usize>().unwrap()];
+        }
+    }
+    while at.is_array() {
+        let i = at.as_array().map_or(1, |a| a.len().min(2) - 1);
+        at = &mut at[i];
+    }
+    *at = match at {
+        toml::Value::Float(v) => toml::Value::Float(*v + (0.01 * v.abs()).max(0.001)),
+        toml::Value::Integer(v) => toml::Value::Integer(*v - 1),
+        toml::Value::String(s) if s == "measured" => toml::Value::String("predicted".into()),
+        other => panic!("{key}: {other:?}"),
+    };
+    doc.try_into().unwrap()
+}
+
+/// Every key the declaration (`src/fields.rs`) says the image carries reaches
+/// the image: changing it in a file that has every section changes the image's
+/// bytes, and the block (or flag) it is declared in is flagged in the header.
+/// A key added to the declaration and to the file but not to the image's
+/// encoding fails here.
+#[test]
+fn every_declared_key_reaches_the_image() {
+    use piezo_fpi::fields::{Field, Image, TableId, TablePart};
+    let preview = with_every_key();
+    let mut sections = with_every_key();
+    sections.damping.as_mut().unwrap().lead_baseline = None;
+    sections.shaping = Some(piezo_sim::file::ShapingSection {
+        sections: vec![[0.5, 0.5, 0.0, 0.0, 0.0]],
+        preview_ticks: 0,
+        taps: Vec::new(),
+        notes: String::new(),
+    });
+    let mut decls: Vec<_> = Field::DECLARED.iter().map(|f| f.decl()).collect();
+    for id in TableId::ALL {
+        decls.extend(TablePart::ALL.iter().map(|p| p.decl(id)));
+    }
+    let mut wrong = Vec::new();
+    let mut checked = 0;
+    for d in decls {
+        let flag = match d.image {
+            Image::Host => continue,
+            Image::Body => 0,
+            Image::Block { flag, .. } | Image::Flag(flag) => flag,
+        };
+        let part = TableId::ALL
+            .iter()
+            .flat_map(|&id| TablePart::ALL.map(|p| (id, p)))
+            .find(|&(id, p)| d.key == id.key() && d == p.decl(id));
+        let key = match (part, d.key.split_once("[]")) {
+            (Some((_, p)), _) => format!("{}.{}", d.key, p.key()),
+            (None, Some((array, leaf))) => format!("{array}[1]{leaf}"),
+            (None, None) => d.key.to_string(),
+        };
+        let m = if d.key == "shaping.sections" {
+            &sections
+        } else {
+            &preview
+        };
+        let before = raw_image(m);
+        let after = raw_image(&with_changed(m, &key));
+        let flags = u16::from_le_bytes([after[6], after[7]]);
+        if after == before {
+            wrong.push(format!("{key}: the image did not change"));
+        } else if flags & flag != flag {
+            wrong.push(format!("{key}: flag {flag} is not set"));
+        }
+        checked += 1;
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+    assert!(checked > 60, "{checked}");
 }

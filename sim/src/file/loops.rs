@@ -5,11 +5,12 @@ use piezo_fpi::biquad::{ShapingSpec, COEFF_ABS_MAX, COEFF_FRAC, SHAPING_SECTIONS
 use piezo_fpi::control::Interval;
 use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
 use piezo_fpi::feedback::FeedbackSpec;
-use piezo_fpi::preview::{PREVIEW_MAX, TAPS};
+use piezo_fpi::fields::Field;
+use piezo_fpi::preview::TAPS;
 use piezo_fpi::q::{self, CreepRate, LeadRatio, LoopGain, Micrometres};
 use serde::{Deserialize, Serialize};
 
-use super::sections::{rate_per_tick, signal};
+use super::sections::{rate_per_tick, signal, within};
 use crate::quote::Num;
 
 /// The stage's first mode as the loops see it from the command (µm in, the
@@ -17,15 +18,14 @@ use crate::quote::Num;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DynamicsSection {
-    /// Natural frequency of the first mode, small-signal, undamped, Hz.
+    /// Declared as [`Field::DynamicsModeHz`](piezo_fpi::fields::Field::DynamicsModeHz).
     pub mode_hz: f64,
-    /// Its damping ratio (0–0.5).
+    /// Declared as [`Field::DynamicsDamping`](piezo_fpi::fields::Field::DynamicsDamping).
     pub damping_ratio: f64,
-    /// The amplifier's and sensors' lag as a real pole, Hz (absent: none).
+    /// Declared as [`Field::DynamicsLagHz`](piezo_fpi::fields::Field::DynamicsLagHz).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lag_hz: Option<f64>,
-    /// κ: the dynamic force per µm of command well above the mode, N/µm (absent:
-    /// not measured; active damping needs it).
+    /// Declared as [`Field::DynamicsForceGain`](piezo_fpi::fields::Field::DynamicsForceGain).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub force_gain_n_per_um: Option<f64>,
     /// Where the numbers came from.
@@ -35,7 +35,7 @@ pub struct DynamicsSection {
 
 impl DynamicsSection {
     pub(super) fn quantize(&self) -> Result<DynamicsSpec, String> {
-        let mhz = |key: &str, v: f64| -> Result<u32, String> {
+        let mhz = |key: Field, v: f64| -> Result<u32, String> {
             if v.is_finite() && v > 0.0 && v < 4.0e6 {
                 Ok((v * 1000.0).round() as u32)
             } else {
@@ -45,7 +45,7 @@ impl DynamicsSection {
                 ))
             }
         };
-        let ratio = |key: &str, v: f64| {
+        let ratio = |key: Field, v: f64| {
             q::quantize(v, q::COUPLING_FRAC, q::COUPLING_ABS_MAX)
                 .map(CreepRate::from_bits)
                 .ok_or_else(|| {
@@ -53,15 +53,15 @@ impl DynamicsSection {
                 })
         };
         Ok(DynamicsSpec {
-            mode_mhz: mhz("dynamics.mode_hz", self.mode_hz)?,
-            damping: ratio("dynamics.damping_ratio", self.damping_ratio)?,
+            mode_mhz: mhz(Field::DynamicsModeHz, self.mode_hz)?,
+            damping: ratio(Field::DynamicsDamping, self.damping_ratio)?,
             lag_mhz: self
                 .lag_hz
-                .map(|v| mhz("dynamics.lag_hz", v))
+                .map(|v| mhz(Field::DynamicsLagHz, v))
                 .transpose()?
                 .unwrap_or(0),
             force_gain: signal(
-                "dynamics.force_gain_n_per_um",
+                Field::DynamicsForceGain,
                 self.force_gain_n_per_um.unwrap_or(0.0),
             )?,
         })
@@ -73,19 +73,15 @@ impl DynamicsSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DampingSection {
-    /// IFF gain: µm of command per N·s of dynamic force.
+    /// Declared as [`Field::DampingGain`](piezo_fpi::fields::Field::DampingGain).
     pub gain_um_per_n_s: f64,
-    /// Corner of the high-pass below which the law stops integrating, Hz (> 0).
+    /// Declared as [`Field::DampingHighpass`](piezo_fpi::fields::Field::DampingHighpass).
     pub highpass_hz: f64,
-    /// Corner of the integrator's leak, Hz (> 0).
+    /// Declared as [`Field::DampingLeak`](piezo_fpi::fields::Field::DampingLeak).
     pub leak_hz: f64,
-    /// Largest correction the damping adds to the command, µm.
+    /// Declared as [`Field::DampingLimit`](piezo_fpi::fields::Field::DampingLimit).
     pub limit_um: f64,
-    /// The lead's baseline `α_b` (`piezo_fpi::lead`), in [0.5, 2): the ratio the
-    /// board's fit of the explained force settles at on the stage the model was
-    /// tuned on (`fpi board autotune` measures it). With it the board scales the
-    /// explained force by the stage's mass over the tuned one's; without it,
-    /// by 1.
+    /// Declared as [`Field::LeadBaseline`](piezo_fpi::fields::Field::LeadBaseline).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lead_baseline: Option<f64>,
     /// How the gains were chosen (what the tuning assumed and the margins it got).
@@ -109,25 +105,16 @@ impl DampingSection {
             })?;
         Ok(DampingSpec {
             gain,
-            highpass: rate_per_tick("damping.highpass_hz", self.highpass_hz, fs)?,
-            leak: rate_per_tick("damping.leak_hz", self.leak_hz, fs)?,
-            limit: signal("damping.limit_um", self.limit_um)?,
+            highpass: rate_per_tick(Field::DampingHighpass, self.highpass_hz, fs)?,
+            leak: rate_per_tick(Field::DampingLeak, self.leak_hz, fs)?,
+            limit: signal(Field::DampingLimit, self.limit_um)?,
         })
     }
 
     /// The lead's baseline in its format, `I2F30`, if the section has one.
     pub(super) fn lead(&self) -> Result<Option<LeadRatio>, String> {
         self.lead_baseline
-            .map(|b| {
-                if (0.5..2.0).contains(&b) {
-                    Ok(LeadRatio::from_num(b))
-                } else {
-                    Err(format!(
-                        "damping.lead_baseline = {}: not a ratio within [0.5, 2) (I2F30)",
-                        Num(b)
-                    ))
-                }
-            })
+            .map(|b| within(Field::LeadBaseline, b).map(LeadRatio::from_num))
             .transpose()
     }
 }
@@ -141,15 +128,12 @@ fn is_zero(v: &u8) -> bool {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ShapingSection {
-    /// `[b0, b1, b2, a1, a2]` of each section (at most two), dimensionless.
+    /// Declared as [`Field::Shaping`](piezo_fpi::fields::Field::Shaping).
     pub sections: Vec<[f64; 5]>,
-    /// Ticks the shaping runs ahead of the reference the loops track (0–7; 0:
-    /// none): it is then `taps` on the preview's delay line, not sections (see
-    /// `piezo_fpi::preview`).
+    /// Declared as [`Field::PreviewTicks`](piezo_fpi::fields::Field::PreviewTicks).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub preview_ticks: u8,
-    /// The taps on the delay line, newest first (at most [`TAPS`], 16, summing to 1),
-    /// with `preview_ticks > 0`.
+    /// Declared as [`Field::Preview`](piezo_fpi::fields::Field::Preview).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub taps: Vec<f64>,
     /// What the filter cancels (the modes, the damping it leaves).
@@ -166,12 +150,7 @@ impl ShapingSection {
                 self.sections.len()
             ));
         }
-        if self.preview_ticks > PREVIEW_MAX {
-            return Err(format!(
-                "shaping.preview_ticks = {}: the board looks ahead at most {PREVIEW_MAX} ticks",
-                self.preview_ticks
-            ));
-        }
+        within(Field::PreviewTicks, f64::from(self.preview_ticks))?;
         let mut out = ShapingSpec {
             preview: self.preview_ticks,
             ..ShapingSpec::IDENTITY
@@ -223,21 +202,19 @@ impl ShapingSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FeedbackSection {
-    /// Proportional gain, µm per µm of error (0–16).
+    /// Declared as [`Field::FeedbackKp`](piezo_fpi::fields::Field::FeedbackKp).
     pub kp: f64,
-    /// Integral gain, per second (`ki_per_s / rate_hz` per tick, 0–1 per tick).
+    /// Declared as [`Field::FeedbackKi`](piezo_fpi::fields::Field::FeedbackKi).
     pub ki_per_s: f64,
-    /// Largest correction the feedback adds to the reference, µm.
+    /// Declared as [`Field::FeedbackLimit`](piezo_fpi::fields::Field::FeedbackLimit).
     pub limit_um: f64,
-    /// Lowest plausible position reading, µm.
+    /// Declared as [`Field::PositionMin`](piezo_fpi::fields::Field::PositionMin).
     pub position_min_um: f64,
-    /// Highest plausible position reading, µm.
+    /// Declared as [`Field::PositionMax`](piezo_fpi::fields::Field::PositionMax).
     pub position_max_um: f64,
-    /// Largest tolerated `|x_sensor − f_K(x̂_pea)|`, µm.
+    /// Declared as [`Field::PositionTolerance`](piezo_fpi::fields::Field::PositionTolerance).
     pub position_tolerance_um: f64,
-    /// The oscillation watch's half swing on the tracking error, µm (0.075…0.2;
-    /// `piezo_fpi::model::WATCH_SWING_MIN`): `fpi board autotune` sets it from
-    /// the noise the loops leave at rest; without it, 0.2 µm.
+    /// Declared as [`Field::WatchSwing`](piezo_fpi::fields::Field::WatchSwing).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub watch_swing_um: Option<f64>,
     /// How the gains were chosen (what `fpi tune` assumed and the margins it got).
@@ -266,19 +243,19 @@ impl FeedbackSection {
                     Num(128.0 * fs)
                 )
             })?,
-            limit: signal("feedback.limit_um", self.limit_um)?,
+            limit: signal(Field::FeedbackLimit, self.limit_um)?,
             sensor: Interval {
-                lo: signal("feedback.position_min_um", self.position_min_um)?,
-                hi: signal("feedback.position_max_um", self.position_max_um)?,
+                lo: signal(Field::PositionMin, self.position_min_um)?,
+                hi: signal(Field::PositionMax, self.position_max_um)?,
             },
-            tolerance: signal("feedback.position_tolerance_um", self.position_tolerance_um)?,
+            tolerance: signal(Field::PositionTolerance, self.position_tolerance_um)?,
         })
     }
 
     /// The watch's half swing in its format, `I16F16` µm, if the section has one.
     pub(super) fn watch_swing(&self) -> Result<Option<Micrometres>, String> {
         self.watch_swing_um
-            .map(|h| signal("feedback.watch_swing_um", h))
+            .map(|h| signal(Field::WatchSwing, h))
             .transpose()
     }
 }

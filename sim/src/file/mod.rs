@@ -21,7 +21,7 @@ use std::vec::Vec;
 
 use fixed::types::I16F16;
 use piezo_fpi::control::DEFAULT_SPLIT_HZ;
-use piezo_fpi::error::{Field, Invalid, ModelError, TableId, TablePart};
+use piezo_fpi::error::{Field, Invalid, ModelError, TableId};
 use piezo_fpi::model::{validate, CreepSpec, ModelSpec, Shape, TableSpec};
 use piezo_fpi::q::CreepRate;
 use serde::{Deserialize, Serialize};
@@ -155,9 +155,9 @@ impl FirmwareModel {
         Ok(Quantized {
             base: ModelSpec {
                 rate_hz: k.rate_hz,
-                w0: gain("pi.w0_um_per_v", self.pi.w0_um_per_v)?,
+                w0: gain(Field::PiW0, self.pi.w0_um_per_v)?,
                 operators: &[],
-                input_max: signal("pi.input_max_v", self.pi.input_max_v)?,
+                input_max: signal(Field::PiInputMax, self.pi.input_max_v)?,
                 coupling: self.coupling.quantize()?,
                 dead_zone: None,
                 saturation: None,
@@ -165,8 +165,8 @@ impl FirmwareModel {
                 f_f: empty,
                 f_k: empty,
                 f_k_inv: empty,
-                u_min: signal("controller.u_min_v", k.u_min_v)?,
-                u_max: signal("controller.u_max_v", k.u_max_v)?,
+                u_min: signal(Field::UMin, k.u_min_v)?,
+                u_max: signal(Field::UMax, k.u_max_v)?,
                 max_step: k.max_step()?,
                 supervision: k.supervision()?,
                 feedback: self
@@ -204,12 +204,18 @@ impl FirmwareModel {
             },
             operators: self.pi.operators()?,
             creep: self.creep_terms()?,
-            dead_zone: quantize_map("dead_zone", &self.dead_zone)?,
-            saturation: quantize_map("saturation", &self.saturation)?,
+            dead_zone: quantize_map(
+                [TableId::DeadZone, TableId::DeadZoneInverse],
+                &self.dead_zone,
+            )?,
+            saturation: quantize_map(
+                [TableId::Saturation, TableId::SaturationInverse],
+                &self.saturation,
+            )?,
             tables: [
-                quantize_table("tables.f_f", &self.tables.f_f)?,
-                quantize_table("tables.f_k", &self.tables.f_k)?,
-                quantize_table("tables.f_k_inv", &self.tables.f_k_inv)?,
+                quantize_table(TableId::FF, &self.tables.f_f)?,
+                quantize_table(TableId::FK, &self.tables.f_k)?,
+                quantize_table(TableId::FKInv, &self.tables.f_k_inv)?,
             ],
         })
     }
@@ -224,7 +230,7 @@ impl FirmwareModel {
             .iter()
             .enumerate()
             .map(|(j, cr)| {
-                let key = format!("creep[{j}].tau_s");
+                let key = Field::CreepTau.at(j);
                 if !(cr.tau_s.is_finite() && cr.tau_s > 0.0) {
                     return Err(format!(
                         "{key} = {}: not a positive finite time constant, s",
@@ -249,7 +255,7 @@ impl FirmwareModel {
                 };
                 Ok(CreepSpec {
                     rate,
-                    gain: gain(&format!("creep[{j}].gain_um_per_v"), cr.gain_um_per_v)?,
+                    gain: gain(Field::CreepGain.at(j), cr.gain_um_per_v)?,
                 })
             })
             .collect()
@@ -271,68 +277,49 @@ impl FirmwareModel {
         }
     }
 
-    /// The file's value at a located field, when it is one number.
+    /// The file's value at a located field, when it is one number: looked up by
+    /// the field's declared key (`piezo_fpi::fields`), so no key is spelled
+    /// here; a key the file leaves out reads as its default where the reader
+    /// gives it one (the force channel's split and dynamic limit).
     pub fn value_at(&self, field: Field, index: Option<u16>) -> Option<f64> {
-        let i = index.map(usize::from);
-        let at = |v: &Vec<f64>| i.and_then(|i| v.get(i).copied());
-        let (p, c, k) = (&self.pi, &self.coupling, &self.controller);
+        let k = &self.controller;
         match field {
-            Field::PiW0 => Some(p.w0_um_per_v),
-            Field::PiThresholds => at(&p.thresholds_v),
-            Field::PiWeights => at(&p.weights_um_per_v),
-            Field::PiInputMax => Some(p.input_max_v),
-            Field::CouplingOffset => Some(c.offset_v),
-            Field::CouplingKf => Some(c.k_f_v_per_n),
-            Field::CouplingKq => Some(c.k_q_v_per_n2),
-            Field::CouplingForceQ => Some(c.force_q_n),
-            Field::CouplingCompliance => Some(c.compliance_um_per_n),
-            Field::CouplingForceRef => c.force_ref_n,
-            Field::CreepTau => i.and_then(|i| self.creep.get(i)).map(|c| c.tau_s),
-            Field::CreepGain => i.and_then(|i| self.creep.get(i)).map(|c| c.gain_um_per_v),
-            Field::Table(id, part) => {
-                let t = self.table(id)?;
-                match part {
-                    TablePart::X0 => Some(t.x0),
-                    TablePart::StepLog2 => Some(t.step_log2 as f64),
-                    TablePart::Values => at(&t.values),
-                }
+            Field::ForceSplit => {
+                return Some(
+                    k.force_split_hz
+                        .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(k.rate_hz as f64 / 64.0)),
+                )
             }
-            Field::Rate => Some(k.rate_hz as f64),
-            Field::UMin => Some(k.u_min_v),
-            Field::UMax => Some(k.u_max_v),
-            Field::Slew => Some(k.slew_v_per_ms),
-            Field::ReferenceMin => Some(k.reference_min_um),
-            Field::ReferenceMax => Some(k.reference_max_um),
-            Field::ForceMin => Some(k.force_min_n),
-            Field::ForceMax => Some(k.force_max_n),
-            Field::ForceTolerance => Some(k.force_tolerance_n),
-            Field::SafeVoltage => Some(k.safe_voltage_v),
-            Field::FeedbackKp => self.feedback.as_ref().map(|f| f.kp),
-            Field::FeedbackKi => self.feedback.as_ref().map(|f| f.ki_per_s),
-            Field::FeedbackLimit => self.feedback.as_ref().map(|f| f.limit_um),
-            Field::PositionMin => self.feedback.as_ref().map(|f| f.position_min_um),
-            Field::PositionMax => self.feedback.as_ref().map(|f| f.position_max_um),
-            Field::PositionTolerance => self.feedback.as_ref().map(|f| f.position_tolerance_um),
-            Field::Shaping | Field::Preview => None,
-            Field::ForceSplit => Some(
-                k.force_split_hz
-                    .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(k.rate_hz as f64 / 64.0)),
-            ),
-            Field::ForceDynamicLimit => Some(
-                k.force_dynamic_limit_n
-                    .unwrap_or(DYNAMIC_LIMIT_FACTOR * k.force_tolerance_n),
-            ),
-            Field::DynamicsModeHz => self.dynamics.as_ref().map(|d| d.mode_hz),
-            Field::DynamicsDamping => self.dynamics.as_ref().map(|d| d.damping_ratio),
-            Field::DynamicsLagHz => self.dynamics.as_ref().and_then(|d| d.lag_hz),
-            Field::DynamicsForceGain => self.dynamics.as_ref().and_then(|d| d.force_gain_n_per_um),
-            Field::DampingGain => self.damping.as_ref().map(|d| d.gain_um_per_n_s),
-            Field::DampingLeak => self.damping.as_ref().map(|d| d.leak_hz),
-            Field::DampingHighpass => self.damping.as_ref().map(|d| d.highpass_hz),
-            Field::DampingLimit => self.damping.as_ref().map(|d| d.limit_um),
-            Field::LeadBaseline => self.damping.as_ref().and_then(|d| d.lead_baseline),
-            Field::WatchSwing => self.feedback.as_ref().and_then(|f| f.watch_swing_um),
-            Field::Operators | Field::Creep | Field::ForceSource | Field::Model => None,
+            Field::ForceDynamicLimit => {
+                return Some(
+                    k.force_dynamic_limit_n
+                        .unwrap_or(DYNAMIC_LIMIT_FACTOR * k.force_tolerance_n),
+                )
+            }
+            Field::Operators | Field::Creep | Field::Model => return None,
+            _ => {}
+        }
+        let tree = toml::Value::try_from(self).ok()?;
+        let key = field.to_string();
+        let (path, leaf_index) = match key.split_once("[]") {
+            Some((array, leaf)) => (format!("{array}[].{}", &leaf[1..]), index),
+            None => (key, index),
+        };
+        let mut at = &tree;
+        for part in path.split('.') {
+            at = match part.strip_suffix("[]") {
+                Some(array) => at.get(array)?.get(usize::from(leaf_index?))?,
+                None => at.get(part)?,
+            };
+        }
+        let at = match (at, index) {
+            (toml::Value::Array(a), Some(i)) if !path.contains("[]") => a.get(usize::from(i))?,
+            (v, _) => v,
+        };
+        match at {
+            toml::Value::Float(v) => Some(*v),
+            toml::Value::Integer(v) => Some(*v as f64),
+            _ => None,
         }
     }
 

@@ -2,8 +2,11 @@
 //! coupling, the maps, creep, the controller's settings, the tables) and their
 //! quantisation into the core's formats.
 
+use std::fmt;
+
 use fixed::types::I16F16;
 use piezo_fpi::control::{ForceChannel, ForceSource, Interval, Supervision, DEFAULT_SPLIT_HZ};
+use piezo_fpi::fields::{Field, Range, TableId, TablePart};
 use piezo_fpi::fpi::Coupling as FixedCoupling;
 use piezo_fpi::model::{CreepSpec, MapSpec, ModelSpec, TableSpec};
 use piezo_fpi::play::Operator;
@@ -34,13 +37,13 @@ pub struct Provenance {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PiSection {
-    /// Linear weight, µm/V (> 0).
+    /// Declared as [`Field::PiW0`](piezo_fpi::fields::Field::PiW0).
     pub w0_um_per_v: f64,
-    /// Thresholds, V, non-decreasing, in `[0, input_max_v]`.
+    /// Declared as [`Field::PiThresholds`](piezo_fpi::fields::Field::PiThresholds).
     pub thresholds_v: Vec<f64>,
-    /// Weights, µm/V; partial sums with `w0` positive.
+    /// Declared as [`Field::PiWeights`](piezo_fpi::fields::Field::PiWeights).
     pub weights_um_per_v: Vec<f64>,
-    /// Input domain `[0, input_max_v]`, V.
+    /// Declared as [`Field::PiInputMax`](piezo_fpi::fields::Field::PiInputMax).
     pub input_max_v: f64,
 }
 
@@ -50,22 +53,21 @@ pub struct PiSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CouplingSection {
-    /// Constant part `k0` of the preload offset, V.
+    /// Declared as [`Field::CouplingOffset`](piezo_fpi::fields::Field::CouplingOffset).
     #[serde(default)]
     pub offset_v: f64,
-    /// Force–voltage coupling, V/N.
+    /// Declared as [`Field::CouplingKf`](piezo_fpi::fields::Field::CouplingKf).
     pub k_f_v_per_n: f64,
-    /// Curvature `k_q` of the preload offset, V/N².
+    /// Declared as [`Field::CouplingKq`](piezo_fpi::fields::Field::CouplingKq).
     #[serde(default)]
     pub k_q_v_per_n2: f64,
-    /// Centre `F_q` of the curvature term, N.
+    /// Declared as [`Field::CouplingForceQ`](piezo_fpi::fields::Field::CouplingForceQ).
     #[serde(default)]
     pub force_q_n: f64,
-    /// Stack compliance, µm/N (0 for the paper's FPI).
+    /// Declared as [`Field::CouplingCompliance`](piezo_fpi::fields::Field::CouplingCompliance).
     #[serde(default)]
     pub compliance_um_per_n: f64,
-    /// Force at zero extension, N: the stage's rest preload (a firmware model
-    /// needs it; a calibrated actuator model has none).
+    /// Declared as [`Field::CouplingForceRef`](piezo_fpi::fields::Field::CouplingForceRef).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub force_ref_n: Option<f64>,
 }
@@ -84,9 +86,9 @@ pub struct MapSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CreepSection {
-    /// Time constant `τ`, s.
+    /// Declared as [`Field::CreepTau`](piezo_fpi::fields::Field::CreepTau).
     pub tau_s: f64,
-    /// Gain `b`, µm/V.
+    /// Declared as [`Field::CreepGain`](piezo_fpi::fields::Field::CreepGain).
     pub gain_um_per_v: f64,
 }
 
@@ -94,44 +96,38 @@ pub struct CreepSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ControllerSection {
-    /// ISR rate, Hz.
+    /// Declared as [`Field::Rate`](piezo_fpi::fields::Field::Rate).
     pub rate_hz: u32,
-    /// Lowest amplifier setpoint, V.
+    /// Declared as [`Field::UMin`](piezo_fpi::fields::Field::UMin).
     pub u_min_v: f64,
-    /// Highest amplifier setpoint, V.
+    /// Declared as [`Field::UMax`](piezo_fpi::fields::Field::UMax).
     pub u_max_v: f64,
-    /// Largest setpoint slew, V/ms.
+    /// Declared as [`Field::Slew`](piezo_fpi::fields::Field::Slew).
     pub slew_v_per_ms: f64,
-    /// Lowest reachable reference, µm of stage output.
+    /// Declared as [`Field::ReferenceMin`](piezo_fpi::fields::Field::ReferenceMin).
     pub reference_min_um: f64,
-    /// Highest reachable reference, µm of stage output.
+    /// Declared as [`Field::ReferenceMax`](piezo_fpi::fields::Field::ReferenceMax).
     pub reference_max_um: f64,
-    /// Lowest plausible force reading, N.
+    /// Declared as [`Field::ForceMin`](piezo_fpi::fields::Field::ForceMin).
     pub force_min_n: f64,
-    /// Highest plausible force reading, N.
+    /// Declared as [`Field::ForceMax`](piezo_fpi::fields::Field::ForceMax).
     pub force_max_n: f64,
-    /// Largest tolerated `|F - f_F(x_pea_est)|`, N.
+    /// Declared as [`Field::ForceTolerance`](piezo_fpi::fields::Field::ForceTolerance).
     pub force_tolerance_n: f64,
-    /// Safe-state voltage, V.
+    /// Declared as [`Field::SafeVoltage`](piezo_fpi::fields::Field::SafeVoltage).
     pub safe_voltage_v: f64,
-    /// `"measured"` (force sensor) or `"predicted"` (`f_F` of the reference).
+    /// Declared as [`Field::ForceSource`](piezo_fpi::fields::Field::ForceSource).
     pub force_source: String,
-    /// The amplifier's output current limit, mA: with `capacitance_uf` it bounds
-    /// the slew to `I_max / C` (second paper, eq. 14).
+    /// Declared as [`Field::CurrentLimit`](piezo_fpi::fields::Field::CurrentLimit).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub current_limit_ma: Option<f64>,
-    /// The stack's capacitance, µF (`fpi identify`).
+    /// Declared as [`Field::Capacitance`](piezo_fpi::fields::Field::Capacitance).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub capacitance_uf: Option<f64>,
-    /// Corner of the force channel's split, Hz: below it the FPI uses the measured
-    /// force, above it the FEM's preload (the dynamic part goes to the damping).
-    /// Absent: 10 Hz; 0: no split (the reading as it is).
+    /// Declared as [`Field::ForceSplit`](piezo_fpi::fields::Field::ForceSplit).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub force_split_hz: Option<f64>,
-    /// Largest tolerated `|F − f_F(x_pea_est)|` at once (the dynamic force
-    /// included), N; the slow part is held to `force_tolerance_n`. Absent:
-    /// [`DYNAMIC_LIMIT_FACTOR`] times the tolerance (a stage's first mode, rung by a
-    /// fast move, swings the force by tens of newtons).
+    /// Declared as [`Field::ForceDynamicLimit`](piezo_fpi::fields::Field::ForceDynamicLimit).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub force_dynamic_limit_n: Option<f64>,
 }
@@ -230,11 +226,11 @@ pub struct Tables {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TableSection {
-    /// First knot, input unit.
+    /// Declared as [`TablePart::X0`](piezo_fpi::fields::TablePart) (unit, format, range, doc).
     pub x0: f64,
-    /// Knot spacing is `2^step_log2` input units; `-15..=0`.
+    /// Declared as [`TablePart::StepLog2`](piezo_fpi::fields::TablePart) (unit, format, range, doc).
     pub step_log2: i32,
-    /// Values at the knots, output unit.
+    /// Declared as [`TablePart::Values`](piezo_fpi::fields::TablePart) (unit, format, range, doc).
     pub values: Vec<f64>,
 }
 
@@ -298,7 +294,11 @@ impl Quantized {
 
 /// `1 − e^{−2π·f/f_s}` in `I0F32` for a corner `f` (Hz, ≥ 0) at `f_s`; errors
 /// name `key`.
-pub(super) fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, String> {
+pub(super) fn rate_per_tick(
+    key: impl fmt::Display,
+    f_hz: f64,
+    fs: f64,
+) -> Result<CreepRate, String> {
     if !(f_hz.is_finite() && f_hz >= 0.0 && f_hz * 64.0 <= fs) {
         return Err(format!(
             "{key} = {}: not a corner between 0 and f_s/64 = {} Hz (controller.rate_hz = {})",
@@ -319,7 +319,7 @@ pub(super) fn rate_per_tick(key: &str, f_hz: f64, fs: f64) -> Result<CreepRate, 
 }
 
 /// `v` as a signal in the unit its key names (V, µm, N; or bare `I16F16`).
-pub(super) fn signal<S: Signal>(key: &str, v: f64) -> Result<S, String> {
+pub(super) fn signal<S: Signal>(key: impl fmt::Display, v: f64) -> Result<S, String> {
     q::signal(v)
         .map(|x| S::from_bits(x.to_bits()))
         .ok_or_else(|| {
@@ -331,7 +331,7 @@ pub(super) fn signal<S: Signal>(key: &str, v: f64) -> Result<S, String> {
         })
 }
 
-pub(super) fn gain(key: &str, v: f64) -> Result<UmPerVolt, String> {
+pub(super) fn gain(key: impl fmt::Display, v: f64) -> Result<UmPerVolt, String> {
     q::gain(v).ok_or_else(|| {
         format!(
             "{key} = {}: not a finite value within ±{} (I4F28 gain range)",
@@ -341,7 +341,7 @@ pub(super) fn gain(key: &str, v: f64) -> Result<UmPerVolt, String> {
     })
 }
 
-pub(super) fn coupling(key: &str, v: f64) -> Result<VoltsPerNewton, String> {
+pub(super) fn coupling(key: impl fmt::Display, v: f64) -> Result<VoltsPerNewton, String> {
     q::coupling(v).ok_or_else(|| {
         format!(
             "{key} = {}: not a finite value within ±{} (I0F32 coupling range)",
@@ -367,8 +367,8 @@ impl PiSection {
             .enumerate()
             .map(|(i, (&r, &w))| {
                 Ok(Operator {
-                    threshold: signal(&format!("pi.thresholds_v[{i}]"), r)?,
-                    weight: gain(&format!("pi.weights_um_per_v[{i}]"), w)?,
+                    threshold: signal(Field::PiThresholds.at(i), r)?,
+                    weight: gain(Field::PiWeights.at(i), w)?,
                 })
             })
             .collect()
@@ -382,12 +382,12 @@ impl CouplingSection {
             .force_ref_n
             .ok_or("coupling.force_ref_n: missing (the stage's force at zero extension, N)")?;
         Ok(FixedCoupling {
-            offset: signal("coupling.offset_v", self.offset_v)?,
-            k_f: coupling("coupling.k_f_v_per_n", self.k_f_v_per_n)?,
-            k_q: coupling("coupling.k_q_v_per_n2", self.k_q_v_per_n2)?,
-            force_q: signal("coupling.force_q_n", self.force_q_n)?,
-            compliance: coupling("coupling.compliance_um_per_n", self.compliance_um_per_n)?,
-            force_ref: signal("coupling.force_ref_n", force_ref)?,
+            offset: signal(Field::CouplingOffset, self.offset_v)?,
+            k_f: coupling(Field::CouplingKf, self.k_f_v_per_n)?,
+            k_q: coupling(Field::CouplingKq, self.k_q_v_per_n2)?,
+            force_q: signal(Field::CouplingForceQ, self.force_q_n)?,
+            compliance: coupling(Field::CouplingCompliance, self.compliance_um_per_n)?,
+            force_ref: signal(Field::CouplingForceRef, force_ref)?,
         })
     }
 }
@@ -406,9 +406,9 @@ impl ControllerSection {
             }
         };
         fn interval<S: Signal>(
-            lo_key: &str,
+            lo_key: Field,
             lo: f64,
-            hi_key: &str,
+            hi_key: Field,
             hi: f64,
         ) -> Result<Interval<S>, String> {
             Ok(Interval {
@@ -422,11 +422,11 @@ impl ControllerSection {
             .force_split_hz
             .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(self.rate_hz as f64 / 64.0));
         let channel = ForceChannel {
-            split: rate_per_tick("controller.force_split_hz", split_hz, self.rate_hz as f64)?,
+            split: rate_per_tick(Field::ForceSplit, split_hz, self.rate_hz as f64)?,
             dynamic_limit: match self.force_dynamic_limit_n {
-                Some(v) => signal("controller.force_dynamic_limit_n", v)?,
+                Some(v) => signal(Field::ForceDynamicLimit, v)?,
                 None => {
-                    signal::<Newtons>("controller.force_tolerance_n", self.force_tolerance_n)?;
+                    signal::<Newtons>(Field::ForceTolerance, self.force_tolerance_n)?;
                     q::signal(DYNAMIC_LIMIT_FACTOR * self.force_tolerance_n)
                         .map(Newtons::from_raw)
                         .ok_or_else(|| {
@@ -444,19 +444,19 @@ impl ControllerSection {
         Ok(Supervision {
             channel,
             reference: interval(
-                "controller.reference_min_um",
+                Field::ReferenceMin,
                 self.reference_min_um,
-                "controller.reference_max_um",
+                Field::ReferenceMax,
                 self.reference_max_um,
             )?,
             force: interval(
-                "controller.force_min_n",
+                Field::ForceMin,
                 self.force_min_n,
-                "controller.force_max_n",
+                Field::ForceMax,
                 self.force_max_n,
             )?,
-            force_tolerance: signal("controller.force_tolerance_n", self.force_tolerance_n)?,
-            safe_voltage: signal("controller.safe_voltage_v", self.safe_voltage_v)?,
+            force_tolerance: signal(Field::ForceTolerance, self.force_tolerance_n)?,
+            safe_voltage: signal(Field::SafeVoltage, self.safe_voltage_v)?,
             force_source,
         })
     }
@@ -464,32 +464,32 @@ impl ControllerSection {
 
 /// A tabulated map and its inverse in the core's format.
 pub(super) fn quantize_map(
-    name: &str,
+    [forward, inverse]: [TableId; 2],
     m: &Option<MapSection>,
 ) -> Result<Option<[QuantizedTable; 2]>, String> {
     m.as_ref()
         .map(|m| {
             Ok([
-                quantize_table(&format!("{name}.forward"), &m.forward)?,
-                quantize_table(&format!("{name}.inverse"), &m.inverse)?,
+                quantize_table(forward, &m.forward)?,
+                quantize_table(inverse, &m.inverse)?,
             ])
         })
         .transpose()
 }
 
-pub(super) fn quantize_table(key: &str, t: &TableSection) -> Result<QuantizedTable, String> {
+pub(super) fn quantize_table(id: TableId, t: &TableSection) -> Result<QuantizedTable, String> {
     let values = t
         .values
         .iter()
         .enumerate()
-        .map(|(i, &v)| signal::<I16F16>(&format!("{key}.values[{i}]"), v))
+        .map(|(i, &v)| signal::<I16F16>(Field::Table(id, TablePart::Values).at(i), v))
         .collect::<Result<Vec<_>, _>>()?;
     let segments = values
         .windows(2)
         .map(|w| Segment::from_bits(w[0].to_bits(), w[1].to_bits() - w[0].to_bits()))
         .collect();
     Ok(QuantizedTable {
-        x0: signal(&format!("{key}.x0"), t.x0)?,
+        x0: signal(Field::Table(id, TablePart::X0), t.x0)?,
         // Out-of-range spacings are passed on for the validator to name.
         shift: (t.step_log2 + q::SIGNAL_FRAC as i32).clamp(0, 32) as u32,
         segments,
@@ -520,4 +520,32 @@ impl MapSection {
             inverse: self.inverse.curve()?,
         })
     }
+}
+
+/// `v` if it lies within its key's declared range (`piezo_fpi::fields`), else
+/// the error naming the key, the value and the range: `[lo, hi]`, or `[lo, hi)`
+/// where `hi` itself is beyond the stored format (a ratio of `I2F30` below 2).
+pub(super) fn within(field: Field, v: f64) -> Result<f64, String> {
+    let d = field.decl();
+    let Range::Within(lo, hi) = d.range else {
+        return Ok(v);
+    };
+    let open = d.q.frac > 0 && d.bits().1 > i64::from(i32::MAX);
+    let inside = v >= lo && if open { v < hi } else { v <= hi };
+    if inside {
+        return Ok(v);
+    }
+    let unit = if d.unit.is_empty() {
+        String::new()
+    } else {
+        format!(" {}", d.unit)
+    };
+    Err(format!(
+        "{field} = {}: not within [{}, {}{}{unit} ({})",
+        Num(v),
+        Num(lo),
+        Num(hi),
+        if open { ")" } else { "]" },
+        d.q.name
+    ))
 }
