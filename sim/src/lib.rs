@@ -8,7 +8,8 @@
 //!   figures;
 //! * in `f64`, the reference the fixed-point core is measured against, and the
 //!   models the host tools calibrate, predict and invert with;
-//! * in `f32`, [`stage`] — the virtual stage the emulated board drives.
+//! * in `f32`, [`stage`] — the virtual stage the emulated board drives; [`axes`] —
+//!   stages of two or three axes coupled through their flexure.
 //!
 //! `no_std`; the `file` feature (host) adds the firmware model file (`file`)
 //! and what an error quotes of a file's text (`quote`).
@@ -19,6 +20,7 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod axes;
 pub mod control;
 pub mod curve;
 pub mod electromech;

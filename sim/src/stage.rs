@@ -345,6 +345,17 @@ impl<'a> Stage<'a> {
         }
     }
 
+    /// [`step`](Self::step) with an external force on the stack, N, pushing it
+    /// back (the preload a neighbouring stack adds through a shared flexure,
+    /// [`crate::axes`]); a stage without mechanics has no stack to push and
+    /// ignores it.
+    pub fn step_loaded(&mut self, u: f32, f_ext_n: f32) -> StageSample {
+        if let Plant::Dynamic(e) = &mut self.plant {
+            e.set_external_force_n(f_ext_n);
+        }
+        self.step(u)
+    }
+
     /// A position-sensor reading of `x` (µm): adds zero-mean noise of the
     /// configured standard deviation (its own generator, so the force sensor's
     /// noise does not depend on it); exact when the noise is zero.
