@@ -246,6 +246,15 @@ macro_rules! declare {
             /// Every declared key's field, in the file's order.
             pub const DECLARED: &'static [Field] = &[$(Field::$name),*];
 
+            /// Every field that is one key of the file: the declared ones, then
+            /// every part of every table (`tables.f_f.x0`, …).
+            pub fn keyed() -> impl Iterator<Item = Field> {
+                let tables = TableId::ALL
+                    .into_iter()
+                    .flat_map(|id| TablePart::ALL.map(|p| Field::Table(id, p)));
+                Field::DECLARED.iter().copied().chain(tables)
+            }
+
             /// The field's declaration. `Operators` and `Creep` are the lengths of
             /// arrays declared elsewhere (`pi.thresholds_v`, `creep[]`); a table
             /// part is declared per part ([`TablePart::decl`]) under its table's key.
@@ -261,7 +270,7 @@ macro_rules! declare {
                         image: $image,
                     },)*
                     Field::Operators => Decl {
-                        key: "pi.thresholds_v",
+                        key: self.key(),
                         unit: "",
                         q: Q::U8,
                         range: Range::Rule("at most MAX_OPERATORS (32) play operators"),
@@ -270,7 +279,7 @@ macro_rules! declare {
                         image: Image::Body,
                     },
                     Field::Creep => Decl {
-                        key: "creep",
+                        key: self.key(),
                         unit: "",
                         q: Q::U8,
                         range: Range::Rule("at most MAX_CREEP_TERMS (8) terms"),
@@ -280,7 +289,7 @@ macro_rules! declare {
                     },
                     Field::Table(id, part) => part.decl(id),
                     Field::Model => Decl {
-                        key: "model",
+                        key: self.key(),
                         unit: "",
                         q: Q::U32,
                         range: Range::Format,

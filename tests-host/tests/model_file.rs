@@ -740,7 +740,7 @@ fn with_changed(m: &FirmwareModel, key: &str) -> FirmwareModel {
 /// encoding fails here.
 #[test]
 fn every_declared_key_reaches_the_image() {
-    use piezo_fpi::fields::{Field, Image, TableId, TablePart};
+    use piezo_fpi::fields::{Field, Image};
     let preview = with_every_key();
     let mut sections = with_every_key();
     sections.damping.as_mut().unwrap().lead_baseline = None;
@@ -750,28 +750,23 @@ fn every_declared_key_reaches_the_image() {
         taps: Vec::new(),
         notes: String::new(),
     });
-    let mut decls: Vec<_> = Field::DECLARED.iter().map(|f| f.decl()).collect();
-    for id in TableId::ALL {
-        decls.extend(TablePart::ALL.iter().map(|p| p.decl(id)));
-    }
     let mut wrong = Vec::new();
     let mut checked = 0;
-    for d in decls {
+    for f in Field::keyed() {
+        let d = f.decl();
         let flag = match d.image {
             Image::Host => continue,
             Image::Body => 0,
             Image::Block { flag, .. } | Image::Flag(flag) => flag,
         };
-        let part = TableId::ALL
-            .iter()
-            .flat_map(|&id| TablePart::ALL.map(|p| (id, p)))
-            .find(|&(id, p)| d.key == id.key() && d == p.decl(id));
-        let key = match (part, d.key.split_once("[]")) {
-            (Some((_, p)), _) => format!("{}.{}", d.key, p.key()),
-            (None, Some((array, leaf))) => format!("{array}[1]{leaf}"),
-            (None, None) => d.key.to_string(),
+        // An array of tables' key at its element 1 (`creep[1].tau_s`); an
+        // array's element is found by `with_changed`.
+        let key = if d.key.contains("[]") {
+            f.at(1).to_string()
+        } else {
+            f.to_string()
         };
-        let m = if d.key == "shaping.sections" {
+        let m = if f == Field::Shaping {
             &sections
         } else {
             &preview

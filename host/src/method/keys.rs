@@ -5,7 +5,7 @@
 //! text keys). `fpi reference model` prints the book's reference page from
 //! them; a test fails when the two disagree on a key.
 
-use piezo_fpi::fields::{Decl, Field, Range, TableId, TablePart};
+use piezo_fpi::fields::{Decl, Field, Range};
 use serde_json::Value;
 
 /// One key of the firmware model file.
@@ -25,18 +25,9 @@ pub struct Key {
 
 /// The declaration of the file's key `path` (`tables.f_f.x0`, `creep[].tau_s`).
 pub fn declared(path: &str) -> Option<Decl> {
-    let field = Field::DECLARED
-        .iter()
-        .map(|f| f.decl())
-        .find(|d| d.key == path);
-    field.or_else(|| {
-        TableId::ALL.iter().find_map(|&id| {
-            TablePart::ALL
-                .iter()
-                .find(|p| format!("{}.{}", id.key(), p.key()) == path)
-                .map(|p| p.decl(id))
-        })
-    })
+    Field::keyed()
+        .find(|f| f.to_string() == path)
+        .map(Field::decl)
 }
 
 /// Every key of the firmware model file, section by section.
@@ -242,18 +233,11 @@ mod tests {
                 k.path
             );
         }
-        for f in Field::DECLARED {
+        for f in Field::keyed() {
             assert!(
-                all.iter().any(|k| k.path == f.key()),
-                "{f:?} declares {}, which the file's sections do not hold",
-                f.key()
+                all.iter().any(|k| k.path == f.to_string()),
+                "{f:?} declares {f}, which the file's sections do not hold"
             );
-        }
-        for id in TableId::ALL {
-            for p in TablePart::ALL {
-                let key = format!("{}.{}", id.key(), p.key());
-                assert!(all.iter().any(|k| k.path == key), "{key}");
-            }
         }
     }
 

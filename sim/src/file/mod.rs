@@ -20,7 +20,6 @@ use std::string::{String, ToString};
 use std::vec::Vec;
 
 use fixed::types::I16F16;
-use piezo_fpi::control::DEFAULT_SPLIT_HZ;
 use piezo_fpi::error::{Field, Invalid, ModelError, TableId};
 use piezo_fpi::model::{validate, CreepSpec, ModelSpec, Shape, TableSpec};
 use piezo_fpi::q::CreepRate;
@@ -282,33 +281,19 @@ impl FirmwareModel {
     /// here; a key the file leaves out reads as its default where the reader
     /// gives it one (the force channel's split and dynamic limit).
     pub fn value_at(&self, field: Field, index: Option<u16>) -> Option<f64> {
-        let k = &self.controller;
         match field {
-            Field::ForceSplit => {
-                return Some(
-                    k.force_split_hz
-                        .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(k.rate_hz as f64 / 64.0)),
-                )
-            }
-            Field::ForceDynamicLimit => {
-                return Some(
-                    k.force_dynamic_limit_n
-                        .unwrap_or(DYNAMIC_LIMIT_FACTOR * k.force_tolerance_n),
-                )
-            }
+            Field::ForceSplit => return Some(self.controller.split_hz()),
+            Field::ForceDynamicLimit => return Some(self.controller.dynamic_limit_n()),
             Field::Operators | Field::Creep | Field::Model => return None,
             _ => {}
         }
         let tree = toml::Value::try_from(self).ok()?;
-        let key = field.to_string();
-        let (path, leaf_index) = match key.split_once("[]") {
-            Some((array, leaf)) => (format!("{array}[].{}", &leaf[1..]), index),
-            None => (key, index),
-        };
+        // `creep[].tau_s`: the index goes into the array of tables.
+        let path = field.to_string();
         let mut at = &tree;
         for part in path.split('.') {
             at = match part.strip_suffix("[]") {
-                Some(array) => at.get(array)?.get(usize::from(leaf_index?))?,
+                Some(array) => at.get(array)?.get(usize::from(index?))?,
                 None => at.get(part)?,
             };
         }
@@ -447,10 +432,7 @@ impl FirmwareModel {
                 s.channel.split.to_num::<f64>(),
                 s.channel.dynamic_limit.to_num::<f64>(),
             ),
-            Err(_) => (
-                0.0,
-                DYNAMIC_LIMIT_FACTOR * self.controller.force_tolerance_n,
-            ),
+            Err(_) => (0.0, self.controller.dynamic_limit_n()),
         }
     }
 

@@ -133,6 +133,21 @@ pub struct ControllerSection {
 }
 
 impl ControllerSection {
+    /// The force channel's split corner, Hz: the file's, else the default
+    /// corner, or f_s/64 at a rate too low for it (the validator then names the
+    /// rate).
+    pub fn split_hz(&self) -> f64 {
+        self.force_split_hz
+            .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(self.rate_hz as f64 / 64.0))
+    }
+
+    /// The dynamic force limit, N: the file's, else
+    /// [`DYNAMIC_LIMIT_FACTOR`] times the tolerance.
+    pub fn dynamic_limit_n(&self) -> f64 {
+        self.force_dynamic_limit_n
+            .unwrap_or(DYNAMIC_LIMIT_FACTOR * self.force_tolerance_n)
+    }
+
     /// The slew the loop enforces, V/ms: `slew_v_per_ms`, or `I_max / C` (mA/µF =
     /// V/ms) where the amplifier's current limit and the stack's capacitance are
     /// given and it is lower. An `I_max` or `C` that is not positive and finite is
@@ -416,18 +431,13 @@ impl ControllerSection {
                 hi: signal(hi_key, hi)?,
             })
         }
-        // The default corner, or f_s/64 at a rate too low for it (the validator
-        // then names the rate).
-        let split_hz = self
-            .force_split_hz
-            .unwrap_or((DEFAULT_SPLIT_HZ as f64).min(self.rate_hz as f64 / 64.0));
         let channel = ForceChannel {
-            split: rate_per_tick(Field::ForceSplit, split_hz, self.rate_hz as f64)?,
+            split: rate_per_tick(Field::ForceSplit, self.split_hz(), self.rate_hz as f64)?,
             dynamic_limit: match self.force_dynamic_limit_n {
                 Some(v) => signal(Field::ForceDynamicLimit, v)?,
                 None => {
                     signal::<Newtons>(Field::ForceTolerance, self.force_tolerance_n)?;
-                    q::signal(DYNAMIC_LIMIT_FACTOR * self.force_tolerance_n)
+                    q::signal(self.dynamic_limit_n())
                         .map(Newtons::from_raw)
                         .ok_or_else(|| {
                             format!(
