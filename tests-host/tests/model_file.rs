@@ -518,18 +518,28 @@ fn with_every_key() -> FirmwareModel {
     m
 }
 
-/// The text of `m` with the number at `key` (`pi.weights_um_per_v[2]`,
-/// `creep[1].tau_s`) set to `v`.
-fn with_number(m: &FirmwareModel, key: &str, v: f64) -> String {
-    let mut doc: toml::Value = toml::from_str(&m.to_toml().unwrap()).unwrap();
-    let mut at = &mut doc;
+/// The value at `key` (`pi.weights_um_per_v[2]`, `creep[1].tau_s`) of a
+/// file's TOML; a key the file does not hold fails the test, naming it.
+fn value_at<'d>(doc: &'d mut toml::Value, key: &str) -> &'d mut toml::Value {
+    let mut at = doc;
     for part in key.split('.') {
         let mut pieces = part.split('[');
-        at = &mut at[pieces.next().unwrap()];
+        let name = pieces.next().unwrap();
+        at = at
+            .get_mut(name)
+            .unwrap_or_else(|| panic!("{key}: the file has no {name}"));
         for index in pieces {
             at = &mut at[index.trim_end_matches(']').parse::<usize>().unwrap()];
         }
     }
+    at
+}
+
+/// The text of `m` with the number at `key` (`pi.weights_um_per_v[2]`,
+/// `creep[1].tau_s`) set to `v`.
+fn with_number(m: &FirmwareModel, key: &str, v: f64) -> String {
+    let mut doc: toml::Value = toml::from_str(&m.to_toml().unwrap()).unwrap();
+    let at = value_at(&mut doc, key);
     assert!(at.is_float() || at.is_integer(), "{key}: {at:?}");
     *at = toml::Value::Float(v);
     toml::to_string(&doc).unwrap()
@@ -709,17 +719,7 @@ fn raw_image(m: &FirmwareModel) -> Vec<u8> {
 /// the other one.
 fn with_changed(m: &FirmwareModel, key: &str) -> FirmwareModel {
     let mut doc: toml::Value = toml::from_str(&m.to_toml().unwrap()).unwrap();
-    let mut at = &mut doc;
-    for part in key.split('.') {
-        let mut pieces = part.split('[');
-        let name = pieces.next().unwrap();
-        at = at
-            .get_mut(name)
-            .unwrap_or_else(|| panic!("{key}: the file has no {name}"));
-        for index in pieces {
-            at = &mut at[index.trim_end_matches(']').parse::<usize>().unwrap()];
-        }
-    }
+    let mut at = value_at(&mut doc, key);
     while at.is_array() {
         let i = at.as_array().map_or(1, |a| a.len().min(2) - 1);
         at = &mut at[i];
