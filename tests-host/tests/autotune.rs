@@ -66,6 +66,12 @@ fn three_steps(c: &mut Client, name: &str) -> Vec<step::StepFigures> {
 }
 
 /// Autotune on the stage as built (once), and the board it ran on.
+///
+/// Its autotune is the longest wait of this file (2½ minutes under QEMU on 2
+/// cores). The harness starts the tests in the order of their names, so the
+/// first (`a_fast_wave_s_…`) runs it, while the other thread runs the next two,
+/// which need it not (`a_fault_latched_…`, and `a_force_sensor_s_noise_…` with
+/// an autotune of its own), rather than waiting for it.
 fn tuned() -> &'static Autotune {
     static TUNED: OnceLock<Autotune> = OnceLock::new();
     TUNED.get_or_init(|| {
@@ -906,7 +912,7 @@ fn motion_at_rest(c: &mut Client) -> (f64, Option<u8>) {
 /// the prediction. A tuning made for a quieter sensor still trips the watch on
 /// it, and autotune's error then names the noise.
 #[test]
-fn a_noisy_force_sensor_is_measured_and_the_damping_designed_for_it() {
+fn a_force_sensor_s_noise_is_measured_and_the_damping_designed_for_it() {
     use fpi_host::board::noise;
     use fpi_host::method::tune;
     let (_e, mut c) = board("noisy force sensor");
