@@ -23,11 +23,21 @@
 //! where X has 1.03),
 //! Y moves 1.5 % of X's output and X 2 % of Y's, each stack's preload rises by
 //! 0.5 N per µm of the other's, and each sensor reads 0.2 % of the other axis.
+//! [`xyz_built`] adds Z ([`Z_BUILT`], mode 700 Hz) with the weaker couplings of
+//! [`XYZ_COUPLING`].
+//!
+//! As designed, every axis of these stages is stage A's FEM design (the same
+//! stack and hinge) with these couplings: the FEM grids of the method for several
+//! axes (`fpi axes grid`) are generated from that design.
 
-use crate::stage::{stage_a, Stage, StageParams, StageSample};
+use crate::stage::{stage_a, Overrides, Stage, StageParams, StageSample};
 
 /// The most axes a stage has.
 pub const MAX_AXES: usize = 3;
+
+/// The axes' names, in order: column suffixes (`x_fhps_um@y`), file sections
+/// (`[y]`) and command-line values (`--axis y`).
+pub const AXIS_NAMES: [&str; MAX_AXES] = ["x", "y", "z"];
 
 /// How the axes of a stage couple (configuration). Indices are axes (0 = x);
 /// the diagonals are unused (an axis's own stack and output are its
@@ -178,7 +188,141 @@ pub const XY_COUPLING: Coupling = Coupling {
 
 /// The XY stage as built, at rest (both axes have a mode: always `Some`).
 pub fn xy_built(seed: u32) -> Option<Axes<'static, 2>> {
-    Axes::new(&[stage_a::BUILT, Y_BUILT], XY_COUPLING, seed)
+    AxesSpec::base("xy-built")?.build(seed)
+}
+
+/// Z of the XYZ stage as built: stage A's stack carrying the XY stage (its
+/// mode at 700 Hz, ζ 0.03), its output gain 0.98.
+pub const Z_BUILT: StageParams<'static> = StageParams {
+    mode_hz: 700.0,
+    mode_damping: 0.03,
+    output_gain: 0.98,
+    ..stage_a::BUILT
+};
+
+/// The XYZ stage's couplings as built: X and Y as the XY stage's; Z moves
+/// 1 % of X's and Y's outputs and they 0.5 % of Z's; Z's preload and the
+/// others' couple by 0.2 N per µm; each sensor reads 0.2 % of every other axis.
+pub const XYZ_COUPLING: Coupling = Coupling {
+    preload_n_per_um: [[0.0, 0.5, 0.2], [0.5, 0.0, 0.2], [0.2, 0.2, 0.0]],
+    cross_um_per_um: [[0.0, 0.02, 0.005], [0.015, 0.0, 0.005], [0.01, 0.01, 0.0]],
+    sensor_crosstalk: 0.002,
+};
+
+/// The XYZ stage as built, at rest (every axis has a mode: always `Some`).
+pub fn xyz_built(seed: u32) -> Option<Axes<'static, 3>> {
+    AxesSpec::base("xyz-built")?.build(seed)
+}
+
+/// The nominal twin of an axis of the XY(Z) stage: stage A's nominal twin
+/// ([`stage_a::PARAMS`], what the recorded stage-A runs came from) with the
+/// axis's mode (`mode_hz`, ζ) and no position noise — the stage as designed,
+/// where only the stacks' own behaviour differs from the FEM design.
+pub const fn nominal(mode_hz: f32, mode_damping: f32) -> StageParams<'static> {
+    StageParams {
+        mode_hz,
+        mode_damping,
+        ..stage_a::PARAMS
+    }
+}
+
+/// The XY stage's nominal twin (X 850 Hz, Y 1 000 Hz; the flexure's couplings
+/// as built, its sensors without cross-talk).
+pub fn xy_nominal(seed: u32) -> Option<Axes<'static, 2>> {
+    AxesSpec::base("xy")?.build(seed)
+}
+
+/// The XYZ stage's nominal twin (Z 700 Hz).
+pub fn xyz_nominal(seed: u32) -> Option<Axes<'static, 3>> {
+    AxesSpec::base("xyz")?.build(seed)
+}
+
+/// A virtual stage of several axes by name, with changes (configuration): the
+/// base (the XY or XYZ twin or prototype), each axis's replaced values, and
+/// the couplings' scale and the sensors' cross-talk (a variant file's
+/// `coupling_scale` and `sensor_crosstalk`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxesSpec {
+    /// Axes, 2 or 3.
+    pub axes: usize,
+    /// The prototypes (`true`) or the nominal twins.
+    pub built: bool,
+    /// Each axis's replaced values.
+    pub overrides: [Overrides; MAX_AXES],
+    /// Multiplies every cross gain and preload coupling of the base.
+    pub coupling_scale: f32,
+    /// Replaces the sensors' cross-talk (fraction of every other axis).
+    pub sensor_crosstalk: Option<f32>,
+}
+
+impl AxesSpec {
+    /// The bases by name: `xy`, `xyz` (nominal twins), `xy-built`, `xyz-built`.
+    pub const BASES: [&'static str; 4] = ["xy", "xyz", "xy-built", "xyz-built"];
+
+    /// The base named `name`, unchanged.
+    pub fn base(name: &str) -> Option<Self> {
+        let (axes, built) = match name {
+            "xy" => (2, false),
+            "xyz" => (3, false),
+            "xy-built" => (2, true),
+            "xyz-built" => (3, true),
+            _ => return None,
+        };
+        Some(Self {
+            axes,
+            built,
+            overrides: [Overrides::default(); MAX_AXES],
+            coupling_scale: 1.0,
+            sensor_crosstalk: None,
+        })
+    }
+
+    /// Each axis's parameters (the unused axes' too).
+    pub fn params(&self) -> [StageParams<'static>; MAX_AXES] {
+        let base = if self.built {
+            [stage_a::BUILT, Y_BUILT, Z_BUILT]
+        } else {
+            [
+                nominal(850.0, 0.03),
+                nominal(1000.0, 0.025),
+                nominal(700.0, 0.03),
+            ]
+        };
+        core::array::from_fn(|i| base[i].with(&self.overrides[i]))
+    }
+
+    /// The couplings: the base's, scaled, with the sensors' cross-talk replaced.
+    pub fn coupling(&self) -> Coupling {
+        let mut c = coupling_of(self.axes).scaled(self.coupling_scale);
+        if self.sensor_crosstalk.is_none() && !self.built {
+            c.sensor_crosstalk = 0.0;
+        }
+        if let Some(k) = self.sensor_crosstalk {
+            c.sensor_crosstalk = k;
+        }
+        c
+    }
+
+    /// The stage at rest; `None` if `N` is not the spec's axes or an axis has
+    /// no model.
+    pub fn build<const N: usize>(&self, seed: u32) -> Option<Axes<'static, N>> {
+        if N != self.axes {
+            return None;
+        }
+        let p = self.params();
+        let params: [StageParams<'static>; N] = core::array::from_fn(|i| p[i]);
+        Axes::new(&params, self.coupling(), seed)
+    }
+}
+
+/// A stage's couplings among its first `n` axes (the others' rows and columns
+/// zero): the XY stage's for two, the XYZ stage's for three.
+pub fn coupling_of(n: usize) -> Coupling {
+    match n {
+        2 => XY_COUPLING,
+        3 => XYZ_COUPLING,
+        _ => Coupling::NONE,
+    }
 }
 
 #[cfg(test)]
