@@ -5,6 +5,7 @@
 //! refuses numbers outside what the model and the board take, naming the option,
 //! file or line and the value, and writes every file atomically.
 
+pub mod axes;
 pub mod board;
 pub mod scope;
 
@@ -129,10 +130,14 @@ pub fn calibrate(
     operators: Option<usize>,
     compliance: Option<f64>,
     rows: Option<(usize, usize)>,
+    axis: Option<usize>,
 ) -> Result<()> {
     not_an_input("--out", out, &inputs("--rig", rig))?;
     output::prepare(out)?;
-    let data = calibrate::load(rig, rows)?;
+    let data = match axis {
+        Some(a) => calibrate::load_stack(rig, a, rows)?,
+        None => calibrate::load(rig, rows)?,
+    };
     let (opt, note) = calibrate::settle(&data, kind, operators, compliance, rows)?;
     if let Some(note) = note {
         eprintln!("note: {note}");
@@ -711,6 +716,9 @@ pub fn bench() -> Result<()> {
             n as f64 / secs / 1e6,
             p.iterations as f64 / n as f64
         );
+        if kind == Kind::Efpi {
+            bench_axes(&m, &t[..200_000], &drive[..200_000])?;
+        }
     }
 
     // Calibration on 5 million samples: linear in time and memory (the default
@@ -723,6 +731,45 @@ pub fn bench() -> Result<()> {
     // The live stream from the board's recorder to the scope's page, at a real
     // board's rate (the in-process board keeps board time with wall time).
     println!("{}", crate::scope::bench::stream(3.0)?);
+    Ok(())
+}
+
+/// The several-axis method's cost (`fpi axes`): every stack of the XY and XYZ
+/// grids driven by `drive` (each axis phase-shifted), coupled and each axis
+/// alone, one core.
+fn bench_axes(m: &HostModel, t: &[f64], drive: &[f64]) -> Result<()> {
+    use crate::method::axes::{grid::FemGrid, predict as axes};
+    for stage in ["xy", "xyz"] {
+        let grid = FemGrid::read(&data::dataset(&format!("{stage}/fem_grid.csv")))?;
+        let n = grid.axes();
+        let u: Vec<Vec<f64>> = (0..n)
+            .map(|i| {
+                let shift = i * drive.len() / 7;
+                (0..drive.len())
+                    .map(|k| drive[(k + shift) % drive.len()])
+                    .collect()
+            })
+            .collect();
+        let models = vec![m; n];
+        let t0 = std::time::Instant::now();
+        let c = axes::coupled(&models, &grid, t, &u);
+        let coupled = t0.elapsed().as_secs_f64();
+        let t0 = std::time::Instant::now();
+        let i = axes::independent(&models, &grid, t, &u)?;
+        let alone = t0.elapsed().as_secs_f64();
+        std::hint::black_box((&c, &i));
+        let samples = t.len() as f64;
+        println!(
+            "coupled_solve_samples_per_s axes={n} kind=efpi: {:.2} M coupled ({:.2} evaluations per stack, \
+             {:.2} sweeps per sample), {:.2} M each axis alone; {:.2} µs against {:.2} µs a sample, one core",
+            samples / coupled / 1e6,
+            c.evaluations_per_sample(),
+            c.sweeps as f64 / samples,
+            samples / alone / 1e6,
+            coupled / samples * 1e6,
+            alone / samples * 1e6
+        );
+    }
     Ok(())
 }
 

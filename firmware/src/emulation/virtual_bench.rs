@@ -141,15 +141,7 @@ impl Bench {
                 } else {
                     &stage_a::PARAMS
                 };
-                let p = base.with(&Overrides {
-                    mode_hz: v.mode_hz,
-                    mode_damping: v.mode_damping,
-                    output_gain: v.output_gain,
-                    force_scale: v.force_scale,
-                    creep_scale: v.creep_scale,
-                    position_noise_um: v.position_noise_um,
-                    force_noise_n: v.force_noise_n,
-                });
+                let p = base.with(&overrides(&v));
                 if let Some(s) = Stage::new(&p, SEED) {
                     // Its readings at rest, as `new` starts with (what
                     // `prime` leaves on the link).
@@ -332,6 +324,19 @@ impl Board for Virtual {
     }
     fn wait(&mut self) {
         self.tick();
+    }
+}
+
+/// The values a stage variant replaces in its base's parameters.
+pub fn overrides(v: &fpi_protocol::StageVariant) -> Overrides {
+    Overrides {
+        mode_hz: v.mode_hz,
+        mode_damping: v.mode_damping,
+        output_gain: v.output_gain,
+        force_scale: v.force_scale,
+        creep_scale: v.creep_scale,
+        position_noise_um: v.position_noise_um,
+        force_noise_n: v.force_noise_n,
     }
 }
 

@@ -11,6 +11,9 @@
 //! fpi demo      [--out DIR]
 //! fpi bench
 //! fpi identify  --chirp FILE.csv... --out DYN.toml [--plots DIR] [--min-hz F]
+//! fpi axes grid --stage xy|xyz --out GRID.csv | record --stage xy-built --drive D.csv --out R.csv
+//!               predict --grid GRID.csv --model M.toml… --drive D.csv --out P.csv [--independent]
+//!               compare --grid GRID.csv --model M.toml… --runs R.csv…
 //! fpi lever     [--params LEVER.toml] --out FEM.csv [--points N] [--stroke-um S] [--output arc|deg]
 //! fpi board emulate [--listen 127.0.0.1:PORT]
 //! fpi board --port PORT status | move UM | wave … | stream FILE.csv | record --seconds S --out FILE.csv
@@ -74,6 +77,10 @@ enum Command {
         /// 20 rows).
         #[arg(long, value_parser = parse_rows)]
         rows: Option<(usize, usize)>,
+        /// Calibrate stack x, y or z of recordings of a stage of several axes
+        /// (`fpi axes record`: its `voltage_V@…`, `force_N@…` and `x_pea_um@…`).
+        #[arg(long, value_parser = parse_axis)]
+        axis: Option<usize>,
     },
     /// Parts II–III: predict a stage from a model, its FEM tables and a drive.
     Predict {
@@ -286,6 +293,12 @@ enum Command {
         #[arg(long, value_enum, default_value = "arc")]
         output: fpi_host::method::lever::OutputUnit,
     },
+    /// Stages of several axes (XY, XYZ): FEM grids, the virtual stage, the
+    /// coupled prediction against independent axes.
+    Axes {
+        #[command(subcommand)]
+        command: AxesCommand,
+    },
     /// Print one of the book's generated reference pages (Markdown).
     #[command(hide = true)]
     Reference {
@@ -302,6 +315,76 @@ enum Command {
         port: Option<String>,
         #[command(subcommand)]
         command: BoardCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum AxesCommand {
+    /// The FEM grid of a stage's design: the preload on every stack and the
+    /// output of every axis over all the stacks' extensions.
+    Grid {
+        /// xy or xyz.
+        #[arg(long, value_enum)]
+        stage: fpi_host::cli::axes::Design,
+        /// Keep every N-th of stage A's FEM points per stack (default 1 for xy,
+        /// 4 for xyz: 49² and 13³ points).
+        #[arg(long)]
+        every: Option<usize>,
+        /// Where to write `x_pea_um@x,…,preload_N@x,…,x_fhps_um@x,…` (CSV).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Record a virtual XY or XYZ stage under a drive (open loop).
+    Record {
+        /// xy or xyz (nominal twins: only the stacks differ from the FEM design),
+        /// xy-built or xyz-built (the prototypes, which differ as stage A's does),
+        /// or a variant file naming one as its base (`[x]`, `[y]`, `[z]`,
+        /// `coupling_scale`, `sensor_crosstalk`).
+        #[arg(long)]
+        stage: String,
+        /// Drive `t_s,voltage_V@x,voltage_V@y[,voltage_V@z]` at 20 kHz.
+        #[arg(long)]
+        drive: PathBuf,
+        /// Where to write `t_s` and per axis `voltage_V`, `force_N`, `x_pea_um`,
+        /// `x_fhps_um` (true) and `x_sensed_um` (`…@x`, `…@y`).
+        #[arg(long)]
+        out: PathBuf,
+        /// Seed of the sensors' noise.
+        #[arg(long, default_value_t = 1)]
+        seed: u32,
+    },
+    /// Predict every axis from the stacks' models and the stage's FEM grid, the
+    /// coupled equation solved for all stacks at each sample.
+    Predict {
+        /// The stage's FEM grid (`fpi axes grid`).
+        #[arg(long)]
+        grid: PathBuf,
+        /// Calibrated models: one for every stack, or one per stack in axis order.
+        #[arg(long, required = true, num_args = 1..)]
+        model: Vec<PathBuf>,
+        /// Drive `t_s,voltage_V@x,voltage_V@y[,voltage_V@z]`.
+        #[arg(long)]
+        drive: PathBuf,
+        /// Where to write `t_s` and per axis `voltage_V`, `x_pea_um`, `preload_N`,
+        /// `x_fhps_um`.
+        #[arg(long)]
+        out: PathBuf,
+        /// Predict each axis alone from its own tables (a one-axis method).
+        #[arg(long)]
+        independent: bool,
+    },
+    /// Score the coupled prediction and independent axes on recordings of every
+    /// axis (`x_fhps_um@…`), with their cost per sample.
+    Compare {
+        /// The stage's FEM grid.
+        #[arg(long)]
+        grid: PathBuf,
+        /// Calibrated models: one for every stack, or one per stack in axis order.
+        #[arg(long, required = true, num_args = 1..)]
+        model: Vec<PathBuf>,
+        /// Recordings (`fpi axes record`).
+        #[arg(long, required = true, num_args = 1..)]
+        runs: Vec<PathBuf>,
     },
 }
 
@@ -982,9 +1065,10 @@ fn run(args: Args) -> Result<()> {
             operators,
             compliance,
             rows,
+            axis,
         } => {
             let kind = kind.as_deref().map(Kind::parse).transpose()?;
-            cli::calibrate(kind, &rig, &out, operators, compliance, rows)
+            cli::calibrate(kind, &rig, &out, operators, compliance, rows, axis)
         }
         Command::Predict {
             model,
@@ -1069,11 +1153,42 @@ fn run(args: Args) -> Result<()> {
             output,
         } => fpi_host::method::lever::command(params.as_deref(), &out, points, stroke_um, output),
         Command::Board { port, command } => board(port, command),
+        Command::Axes { command } => axes(command),
         Command::Reference { page } => {
             print!("{}", reference(page)?);
             Ok(())
         }
     }
+}
+
+/// `fpi axes …`.
+fn axes(command: AxesCommand) -> Result<()> {
+    use fpi_host::cli::axes;
+    match command {
+        AxesCommand::Grid { stage, every, out } => axes::grid(stage, every, &out),
+        AxesCommand::Record {
+            stage,
+            drive,
+            out,
+            seed,
+        } => axes::record(&stage, &drive, &out, seed),
+        AxesCommand::Predict {
+            grid,
+            model,
+            drive,
+            out,
+            independent,
+        } => axes::predict(&grid, &model, &drive, &out, independent),
+        AxesCommand::Compare { grid, model, runs } => axes::compare(&grid, &model, &runs).map(drop),
+    }
+}
+
+/// `--axis`: x, y or z, as an index.
+fn parse_axis(s: &str) -> Result<usize, String> {
+    piezo_sim::axes::AXIS_NAMES
+        .iter()
+        .position(|a| *a == s)
+        .ok_or_else(|| format!("{s:?} is not an axis: x, y or z"))
 }
 
 /// `--link`: `uart` or `usb`.
@@ -1127,6 +1242,9 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
     // The outputs must take their files before the board does anything.
     let (outputs, inputs) = command.files();
     fpi_host::output::check_outputs(&outputs, &inputs)?;
+    if let BoardCommand::Bench { settings } = &command {
+        settings.check()?;
+    }
     if let BoardCommand::Serve { listen } = &command {
         b::catch_ctrl_c()?;
         let c = b::open(&port)?;

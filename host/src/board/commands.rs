@@ -297,6 +297,7 @@ pub struct BenchSettings {
 /// Sets the emulated board's virtual bench (a real board refuses); what was set,
 /// one line each, for people.
 pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<Vec<String>> {
+    b.check()?;
     if *b == BenchSettings::default() {
         bail!(
             "nothing to set: --analog-v V, --sensor ok|open|stuck, --force-offset-n N, \
@@ -325,6 +326,44 @@ pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<Vec<String>> {
     bench_faults(c, b, &mut done)?;
     bench_position(c, b, &mut done)?;
     Ok(done)
+}
+
+impl BenchSettings {
+    /// Checks what can be checked without the board, before any order goes
+    /// out (a bad value after a good one would leave the bench half set): the
+    /// analog voltage's range, the sensors' states and the stage's file.
+    pub fn check(&self) -> Result<()> {
+        if let Some(v) = self.analog_v.filter(|v| !(0.0..=3.3).contains(v)) {
+            return Err(bad(
+                "analog_v",
+                "--analog-v",
+                format!("--analog-v {v}: the input spans 0–3.3 V"),
+            ));
+        }
+        for (key, option, state) in [
+            ("sensor", "--sensor", &self.sensor),
+            (
+                "position_sensor",
+                "--position-sensor",
+                &self.position_sensor,
+            ),
+        ] {
+            if let Some(s) = state
+                .as_deref()
+                .filter(|s| !["ok", "open", "stuck"].contains(s))
+            {
+                return Err(bad(
+                    key,
+                    option,
+                    format!("{option} {}: ok, open or stuck", Quoted(s)),
+                ));
+            }
+        }
+        if let Some(s) = self.stage.as_deref() {
+            variant::parse(s)?;
+        }
+        Ok(())
+    }
 }
 
 /// Puts a sensor of the virtual bench in state `s` (`ok`, `open` or `stuck`,

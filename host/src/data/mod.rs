@@ -8,9 +8,11 @@
 //! Every error names the file, the line (1-based, header = line 1) and the column,
 //! e.g. `stage-a/fem.csv:17: column x_pea_um: "1,5" is not a number`.
 
+pub mod columns;
 pub mod fem;
 pub mod toml_file;
 
+use std::collections::BTreeMap;
 use std::fmt;
 use std::fs::File;
 use std::io::{BufReader, Read};
@@ -342,7 +344,16 @@ fn carried(e: &csv::Error) -> Option<DataError> {
 /// Records whose every number must be finite; names the first that is not.
 pub trait Finite {
     /// The column of the first non-finite field, if any.
-    fn non_finite(&self) -> Option<&'static str>;
+    fn non_finite(&self) -> Option<&str>;
+}
+
+/// A row read by column name (the columns a file's header names).
+impl Finite for BTreeMap<String, f64> {
+    fn non_finite(&self) -> Option<&str> {
+        self.iter()
+            .find(|(_, v)| !v.is_finite())
+            .map(|(k, _)| k.as_str())
+    }
 }
 
 /// Reads a CSV file with a header into records of `T` (columns by name; extra
@@ -386,6 +397,16 @@ pub fn for_each_record<T: DeserializeOwned + Finite>(
     content: impl Read,
     columns: &[&str],
     mut each: impl FnMut(T),
+) -> Result<u64, DataError> {
+    for_each_record_at(path, content, columns, |v, _| each(v))
+}
+
+/// [`for_each_record`], handing each record its line in the file.
+pub fn for_each_record_at<T: DeserializeOwned + Finite>(
+    path: &Path,
+    content: impl Read,
+    columns: &[&str],
+    mut each: impl FnMut(T, u64),
 ) -> Result<u64, DataError> {
     let mut rdr = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
@@ -449,7 +470,7 @@ pub fn for_each_record<T: DeserializeOwned + Finite>(
                 ),
             ));
         }
-        each(value);
+        each(value, line);
         rows += 1;
     }
     if rows == 0 {
@@ -522,7 +543,7 @@ pub fn strictly_increasing(path: &Path, column: &str, values: &[f64]) -> Result<
 macro_rules! finite_record {
     ($ty:ident { $($field:ident : $col:literal),* $(,)? }) => {
         impl Finite for $ty {
-            fn non_finite(&self) -> Option<&'static str> {
+            fn non_finite(&self) -> Option<&str> {
                 $( if !self.$field.is_finite() { return Some($col); } )*
                 None
             }

@@ -56,6 +56,52 @@ pub fn load(paths: &[impl AsRef<Path>], rows: Option<(usize, usize)>) -> Result<
     Ok(out)
 }
 
+/// Reads one stack's columns of recordings of a stage of several axes
+/// (`fpi axes record`: `t_s`, `voltage_V@y`, `force_N@y`, `x_pea_um@y` for
+/// `axis` 1): each stack calibrated in its stage, under the preload the other
+/// stacks put on it. `rows` as in [`load`].
+pub fn load_stack(
+    paths: &[impl AsRef<Path>],
+    axis: usize,
+    rows: Option<(usize, usize)>,
+) -> Result<Vec<CalibData>> {
+    use crate::data::columns::read_named_columns;
+    use crate::method::axes::grid::column;
+    if rows.is_some() && paths.len() != 1 {
+        bail!(
+            "--rows selects a window of one recording; {} were given",
+            paths.len()
+        );
+    }
+    let names = [
+        "t_s".to_string(),
+        column("voltage_V", axis),
+        column("force_N", axis),
+        column("x_pea_um", axis),
+    ];
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    let mut out = Vec::new();
+    for p in paths {
+        let p = p.as_ref();
+        let c = read_named_columns(p, &names)?;
+        data::strictly_increasing(p, "t_s", &c.values[0])?;
+        let name = format!(
+            "{}@{}",
+            p.file_name()
+                .map(|n| n.to_string_lossy().trim_end_matches(".gz").to_string())
+                .unwrap_or_default(),
+            piezo_sim::axes::AXIS_NAMES[axis]
+        );
+        let v = &c.values;
+        let d = from_columns(&name, &v[0], &v[1], Some(&v[2]), &v[3], rows);
+        out.push(d.with_context(|| p.display().to_string())?);
+    }
+    if out.is_empty() {
+        bail!("no calibration recordings given");
+    }
+    Ok(out)
+}
+
 /// One recording for calibration from its columns (the CSV's `t_s`, s;
 /// `voltage_V`, V; `force_N`, N, `None` for a recording without force; and the
 /// extension, µm, zeroed here at the first fitted row), named `name` in reports;

@@ -15,6 +15,7 @@
 //! * [`tune`] — the gains of the board's position loop; [`shaping`] — the
 //!   firmware's dynamic compensation from the identified dynamics.
 
+pub mod axes;
 pub mod bench;
 pub mod calibrate;
 pub mod checks;

@@ -1,0 +1,280 @@
+//! `fpi axes …`: the method for several degrees of freedom
+//! ([`crate::method::axes`]) on an XY or XYZ stage.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use piezo_sim::axes::AXIS_NAMES;
+
+use crate::cli::write_columns;
+use crate::data::columns::{axes_in_header, read_named_columns};
+use crate::data::{strictly_increasing, DataError};
+use crate::method::axes::grid::{column, FemGrid};
+use crate::method::axes::predict::{self, AxesPrediction};
+use crate::method::axes::record::{self, sample_period_s};
+use crate::method::limits::AMPLIFIER_MAX_V;
+use crate::method::model::HostModel;
+use crate::output::{self, not_an_input};
+
+/// The stages `fpi axes grid` writes the design of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Design {
+    /// The XY stage.
+    Xy,
+    /// The XYZ stage.
+    Xyz,
+}
+
+impl Design {
+    fn axes(self) -> usize {
+        match self {
+            Self::Xy => 2,
+            Self::Xyz => 3,
+        }
+    }
+}
+
+/// `fpi axes grid`: the design's FEM grid.
+pub fn grid(stage: Design, every: Option<usize>, out: &Path) -> Result<()> {
+    output::prepare(out)?;
+    let every = every.unwrap_or(match stage {
+        Design::Xy => 1,
+        Design::Xyz => 4,
+    });
+    let Some(g) = FemGrid::design(stage.axes(), every) else {
+        bail!("--every {every}: the design's tables keep at least two points (1..=24)");
+    };
+    g.write(out)?;
+    println!(
+        "{}: {} of {} stacks, {} points per stack ({:.3}..{:.3} µm)",
+        out.display(),
+        g.source,
+        g.axes(),
+        g.knots(0).len(),
+        g.knots(0)[0],
+        g.knots(0)[g.knots(0).len() - 1]
+    );
+    Ok(())
+}
+
+/// A drive of every axis: `t_s,voltage_V@x,voltage_V@y[,voltage_V@z]`.
+pub fn read_drive(path: &Path) -> Result<(Vec<f64>, Vec<Vec<f64>>), DataError> {
+    let n = axes_in_header(path, "voltage_V")?;
+    let mut names = vec!["t_s".to_string()];
+    names.extend((0..n).map(|i| column("voltage_V", i)));
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    let mut c = read_named_columns(path, &names)?;
+    strictly_increasing(path, "t_s", &c.values[0])?;
+    let t = c.values.remove(0);
+    Ok((t, c.values))
+}
+
+/// `fpi axes record`: the virtual stage as built under a drive.
+pub fn record(stage: &str, drive: &Path, out: &Path, seed: u32) -> Result<()> {
+    not_an_input("--out", out, &[("--drive", drive)])?;
+    output::prepare(out)?;
+    let (t, u) = read_drive(drive)?;
+    let dt = sample_period_s();
+    if let Some(k) = (1..t.len()).find(|&k| ((t[k] - t[k - 1]) / dt - 1.0).abs() > 1e-6) {
+        bail!(
+            "{}:{}: column t_s: a step of {} s; the virtual stage runs at {} s a sample",
+            drive.display(),
+            k + 2,
+            t[k] - t[k - 1],
+            dt
+        );
+    }
+    for (i, ui) in u.iter().enumerate() {
+        if let Some(k) = ui.iter().position(|v| !(0.0..=AMPLIFIER_MAX_V).contains(v)) {
+            bail!(
+                "{}:{}: column {}: {} V is outside the amplifier's 0..{AMPLIFIER_MAX_V} V",
+                drive.display(),
+                k + 2,
+                column("voltage_V", i),
+                ui[k]
+            );
+        }
+    }
+    let spec = crate::board::variant::parse_axes(stage)?;
+    let r = record::record(&spec, &u, seed)?;
+    let (names, cols) = r.columns();
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    write_columns(out, &names, &cols)?;
+    println!(
+        "{}: {stage}, {} samples of axes {}",
+        out.display(),
+        t.len(),
+        record::names(u.len())
+    );
+    Ok(())
+}
+
+/// The models of a grid's stacks: one file for every stack, or one per stack.
+fn models(paths: &[PathBuf], axes: usize) -> Result<(Vec<HostModel>, Vec<String>)> {
+    if paths.len() != 1 && paths.len() != axes {
+        bail!(
+            "--model: {} given; give one for every stack or one per stack ({axes}, in the order {})",
+            paths.len(),
+            record::names(axes)
+        );
+    }
+    let mut models = Vec::new();
+    let mut names = Vec::new();
+    for i in 0..axes {
+        let p = &paths[i.min(paths.len() - 1)];
+        models.push(HostModel::read(p)?);
+        names.push(p.display().to_string());
+    }
+    Ok((models, names))
+}
+
+/// `fpi axes predict`: every axis with the coupled preloads and outputs (or
+/// each alone, `independent`).
+pub fn predict(
+    grid: &Path,
+    model: &[PathBuf],
+    drive: &Path,
+    out: &Path,
+    independent: bool,
+) -> Result<()> {
+    let mut given: Vec<(&str, &Path)> = vec![("--grid", grid), ("--drive", drive)];
+    given.extend(model.iter().map(|m| ("--model", m.as_path())));
+    not_an_input("--out", out, &given)?;
+    output::prepare(out)?;
+    let g = FemGrid::read(grid)?;
+    let (models, names) = models(model, g.axes())?;
+    let (t, u) = read_drive(drive)?;
+    let p = run(&g, &models, &names, &t, &u, independent)
+        .with_context(|| drive.display().to_string())?;
+    let mut header = vec!["t_s".to_string()];
+    let mut cols: Vec<&[f64]> = vec![&p.t];
+    for i in 0..g.axes() {
+        for (name, c) in [
+            ("voltage_V", &p.u[i]),
+            ("x_pea_um", &p.x_pea[i]),
+            ("preload_N", &p.preload[i]),
+            ("x_fhps_um", &p.x_fhps[i]),
+        ] {
+            header.push(column(name, i));
+            cols.push(c);
+        }
+    }
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    write_columns(out, &header, &cols)?;
+    println!(
+        "{}: {} samples, {} ({:.2} model evaluations per sample and stack)",
+        out.display(),
+        t.len(),
+        if independent {
+            "each axis alone"
+        } else {
+            "coupled"
+        },
+        p.evaluations_per_sample()
+    );
+    Ok(())
+}
+
+fn run(
+    g: &FemGrid,
+    models: &[HostModel],
+    names: &[String],
+    t: &[f64],
+    u: &[Vec<f64>],
+    independent: bool,
+) -> Result<AxesPrediction> {
+    if u.len() != g.axes() {
+        bail!(
+            "the drive has {} axes, the grid {} ({})",
+            u.len(),
+            g.axes(),
+            g.source
+        );
+    }
+    if t.len() < 2 {
+        bail!("a drive needs at least two samples");
+    }
+    let refs: Vec<&HostModel> = models.iter().collect();
+    predict::check(&refs, names, g, u)?;
+    if independent {
+        predict::independent(&refs, g, t, u)
+    } else {
+        Ok(predict::coupled(&refs, g, t, u))
+    }
+}
+
+/// One run's figures of `fpi axes compare`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunFigures {
+    /// The run's file name.
+    pub run: String,
+    /// Per axis: coupled and independent RMSE and MTE, µm.
+    pub axes: Vec<[f64; 4]>,
+    /// Coupled and independent cost: µs per sample (all stacks).
+    pub us_per_sample: [f64; 2],
+    /// Coupled and independent model evaluations per sample and stack.
+    pub evaluations: [f64; 2],
+    /// Coupled sweeps per sample.
+    pub sweeps: f64,
+}
+
+/// `fpi axes compare`: both predictions of every run, scored on its true outputs
+/// (`x_fhps_um@…`), and their cost per sample; prints the table and returns it.
+pub fn compare(grid: &Path, model: &[PathBuf], runs: &[PathBuf]) -> Result<Vec<RunFigures>> {
+    let g = FemGrid::read(grid)?;
+    let (models, names) = models(model, g.axes())?;
+    let mut all = Vec::new();
+    for r in runs {
+        let (t, u) = read_drive(r)?;
+        let measured: Vec<String> = (0..u.len()).map(|i| column("x_fhps_um", i)).collect();
+        let measured: Vec<&str> = measured.iter().map(String::as_str).collect();
+        let x = read_named_columns(r, &measured)?.values;
+        let timed = |independent| -> Result<(AxesPrediction, f64)> {
+            let start = Instant::now();
+            let p = run(&g, &models, &names, &t, &u, independent)
+                .with_context(|| r.display().to_string())?;
+            Ok((p, start.elapsed().as_secs_f64() * 1e6 / t.len() as f64))
+        };
+        let (c, c_us) = timed(false)?;
+        let (i, i_us) = timed(true)?;
+        let (mc, mi) = (c.metrics(&x), i.metrics(&x));
+        all.push(RunFigures {
+            run: r
+                .file_name()
+                .map_or_else(|| r.display().to_string(), |n| n.to_string_lossy().into()),
+            axes: mc
+                .iter()
+                .zip(&mi)
+                .map(|(c, i)| [c.rmse, c.mte, i.rmse, i.mte])
+                .collect(),
+            us_per_sample: [c_us, i_us],
+            evaluations: [c.evaluations_per_sample(), i.evaluations_per_sample()],
+            sweeps: c.sweeps as f64 / t.len() as f64,
+        });
+    }
+    print_figures(&g, &all);
+    Ok(all)
+}
+
+fn print_figures(g: &FemGrid, all: &[RunFigures]) {
+    println!("grid: {} ({} stacks)", g.source, g.axes());
+    println!(
+        "  {:<40} {:>4} {:>13} {:>12} {:>16} {:>15}",
+        "run", "axis", "coupled RMSE", "coupled MTE", "independent RMSE", "independent MTE"
+    );
+    for f in all {
+        for (i, a) in f.axes.iter().enumerate() {
+            let name = if i == 0 { f.run.as_str() } else { "" };
+            println!(
+                "  {:<40} {:>4} {:>10.4} µm {:>9.4} µm {:>13.4} µm {:>12.4} µm",
+                name, AXIS_NAMES[i], a[0], a[1], a[2], a[3]
+            );
+        }
+        println!(
+            "  {:<40} cost per sample: coupled {:.2} µs ({:.2} evaluations per stack, {:.2} sweeps), \
+             independent {:.2} µs ({:.2} evaluations per stack)",
+            "", f.us_per_sample[0], f.evaluations[0], f.sweeps, f.us_per_sample[1], f.evaluations[1]
+        );
+    }
+}

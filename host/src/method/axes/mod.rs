@@ -1,0 +1,14 @@
+//! The method for several degrees of freedom: an XY or XYZ stage whose stacks
+//! load each other through the flexure (the first paper's stated limitation,
+//! "multi-degree-of-freedom stages").
+//!
+//! * [`grid`] — the stage's FEM tables as grids over every stack's extension
+//!   (the preload on each stack, the output of each axis);
+//! * [`predict`] — every axis predicted with the coupled preloads and outputs
+//!   (the coupled equation solved for all stacks at each sample), and the
+//!   independent one-axis predictions a one-axis method gives, for comparison;
+//! * [`record`] — recordings of the virtual XY(Z) stage as built.
+
+pub mod grid;
+pub mod predict;
+pub mod record;
