@@ -31,6 +31,7 @@ fn the_demo_chain_meets_every_target() {
         "{lines}"
     );
     assert!(lines.contains("0.73–0.83 µm on its test run"), "{lines}");
+    assert!(lines.contains("several axes (XY twin"), "{lines}");
     let report = std::fs::read_to_string(&s.report).unwrap();
     for figure in [
         "loops_sine_05Hz.svg",
@@ -38,6 +39,7 @@ fn the_demo_chain_meets_every_target() {
         "rig_loops.svg",
         "rig_rmse.svg",
         "micromanipulator.svg",
+        "xy_held_axis.svg",
     ] {
         assert!(report.contains(figure), "report shows {figure}");
         assert!(out.join(figure).exists(), "{figure} written");
