@@ -23,6 +23,7 @@ __all__ = [
     "Emulator",
     "Model",
     "calibrate",
+    "predict_axes",
     "qemu_available",
 ]
 
@@ -410,6 +411,18 @@ class Model:
         self, *, fem: _Path, t_s: _ArrayLike, x_fhps_um: _ArrayLike, u_max: float = 150.0
     ) -> _Columns:
         """``fpi invert``: ``t_s``, ``voltage_V`` (V) that make the stage follow ``x_fhps_um``."""
+
+def predict_axes(
+    models: Sequence[Model],
+    *,
+    grid: _Path,
+    t_s: _ArrayLike,
+    voltages: Sequence[_ArrayLike],
+    independent: bool = False,
+) -> _Columns:
+    """``fpi axes predict``: every axis of a stage of several stacks from its FEM
+    grid, ``models`` one for every stack or one per stack; ``t_s`` and per axis
+    ``voltage_V@x``, ``x_pea_um@x``, ``preload_N@x``, ``x_fhps_um@x``, …."""
 
 def calibrate(
     runs: Sequence[Dict[str, _ArrayLike]],

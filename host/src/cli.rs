@@ -755,7 +755,7 @@ fn bench_axes(m: &HostModel, t: &[f64], drive: &[f64]) -> Result<()> {
         let c = axes::coupled(&models, &grid, t, &u);
         let coupled = t0.elapsed().as_secs_f64();
         let t0 = std::time::Instant::now();
-        let i = axes::independent(&models, &grid, t, &u)?;
+        let i = axes::independent_axes(&models, &grid, t, &u)?;
         let alone = t0.elapsed().as_secs_f64();
         std::hint::black_box((&c, &i));
         let samples = t.len() as f64;

@@ -1,7 +1,9 @@
 //! `piezo_fpi.Model` and `piezo_fpi.calibrate`: the method's calibrated model
 //! (`fpi_host::method::model::HostModel`), calibrated from arrays
 //! (`fpi_host::method::calibrate`, as `fpi calibrate` does from files), and its
-//! prediction (`fpi predict`) and inversion (`fpi invert`) of arrays.
+//! prediction (`fpi predict`) and inversion (`fpi invert`) of arrays;
+//! `piezo_fpi.predict_axes`: every axis of a stage of several stacks
+//! (`fpi axes predict`).
 
 use std::path::{Path, PathBuf};
 
@@ -342,4 +344,61 @@ pub fn calibrate(
         warn(py, w)?;
     }
     Ok(Model { inner: m })
+}
+
+/// Every axis of a stage of several stacks predicted from its FEM grid `grid`
+/// (`fpi axes predict`): `models` one for every stack or one per stack in axis
+/// order, `voltages` one drive per axis (V) at times `t_s` (s); coupled, or
+/// each axis alone (`independent`). A dict of arrays: `t_s`, then per axis
+/// `voltage_V@x`, `x_pea_um@x`, `preload_N@x`, `x_fhps_um@x`, ….
+#[pyfunction]
+#[pyo3(signature = (models, *, grid, t_s, voltages, independent = false))]
+pub fn predict_axes<'py>(
+    py: Python<'py>,
+    models: Vec<PyRef<'py, Model>>,
+    grid: PathBuf,
+    t_s: &Bound<'py, PyAny>,
+    voltages: Vec<Bound<'py, PyAny>>,
+    independent: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    use fpi_host::method::axes::{grid::FemGrid, predict as axes};
+    let t = floats(t_s, "t_s")?;
+    finite("t_s", &t, true)?;
+    let u = voltages
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let name = format!("voltages[{i}]");
+            let u = floats(v, &name)?;
+            finite(&name, &u, false)?;
+            Ok(u)
+        })
+        .collect::<PyResult<Vec<_>>>()?;
+    let g = py
+        .detach(|| FemGrid::read(&grid).map_err(anyhow::Error::from))
+        .map_err(|e| to_py(py, e, Otherwise::Input))?;
+    if models.len() != 1 && models.len() != g.axes() {
+        return Err(PyValueError::new_err(format!(
+            "models: {} given for a grid of {} stacks: one for every stack or one per stack",
+            models.len(),
+            g.axes()
+        )));
+    }
+    let chosen: Vec<&HostModel> = (0..g.axes())
+        .map(|i| &models[i.min(models.len() - 1)].inner)
+        .collect();
+    let names: Vec<String> = (0..g.axes())
+        .map(|i| format!("models[{}]", i.min(models.len() - 1)))
+        .collect();
+    let p = py
+        .detach(|| axes::run(&chosen, &names, &g, &t, &u, independent))
+        .map_err(|e| to_py(py, e, Otherwise::Input))?;
+    let columns = p.columns();
+    columns_dict(
+        py,
+        columns
+            .iter()
+            .map(|(n, v)| (n.as_str(), v.to_vec()))
+            .collect(),
+    )
 }

@@ -146,3 +146,29 @@ def test_predict_and_invert_errors(cli_model):
         pf.Model.load("no-such-model.toml")
     with pytest.raises(ValueError, match="not a model|format"):
         pf.Model.load(FEM)
+
+
+def test_predict_axes_gives_the_clis_numbers(cli_model, tmp_path, fpi):
+    grid = DATA / "xy" / "fem_grid.csv.gz"
+    # The drive as its file holds it (six decimals), so both read the same numbers.
+    as_written = lambda v: np.array([float(f"{x:.6f}") for x in v])
+    t = as_written(np.arange(2000) * 5e-5)
+    ux = as_written(50 - 50 * np.cos(2 * np.pi * 5 * t))
+    uy = as_written(50 - 50 * np.cos(2 * np.pi * 3 * t))
+    drive = tmp_path / "drive.csv"
+    lines = ["t_s,voltage_V@x,voltage_V@y"] + [f"{a:.6f},{b:.6f},{c:.6f}" for a, b, c in zip(t, ux, uy)]
+    drive.write_text("\n".join(lines) + "\n")
+    m = pf.Model.load(cli_model)
+    for independent in (False, True):
+        out = tmp_path / f"axes-{independent}.csv"
+        args = ["axes", "predict", "--grid", grid, "--model", cli_model, "--drive", drive, "--out", out]
+        fpi(*(args + (["--independent"] if independent else [])))
+        p = pf.predict_axes(
+            [m], grid=grid, t_s=t, voltages=[ux, uy], independent=independent
+        )
+        assert list(p)[:5] == ["t_s", "voltage_V@x", "x_pea_um@x", "preload_N@x", "x_fhps_um@x"]
+        assert as_cli_prints(p) == csv_lines(out)
+    with pytest.raises(ValueError, match="3 given for a grid of 2 stacks"):
+        pf.predict_axes([m, m, m], grid=grid, t_s=t, voltages=[ux, uy])
+    with pytest.raises(ValueError, match="the drive has 1 axes"):
+        pf.predict_axes([m], grid=grid, t_s=t, voltages=[ux])

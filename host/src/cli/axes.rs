@@ -147,19 +147,7 @@ pub fn predict(
     let (t, u) = read_drive(drive)?;
     let p = run(&g, &models, &names, &t, &u, independent)
         .with_context(|| drive.display().to_string())?;
-    let mut header = vec!["t_s".to_string()];
-    let mut cols: Vec<&[f64]> = vec![&p.t];
-    for i in 0..g.axes() {
-        for (name, c) in [
-            ("voltage_V", &p.u[i]),
-            ("x_pea_um", &p.x_pea[i]),
-            ("preload_N", &p.preload[i]),
-            ("x_fhps_um", &p.x_fhps[i]),
-        ] {
-            header.push(column(name, i));
-            cols.push(c);
-        }
-    }
+    let (header, cols): (Vec<String>, Vec<&[f64]>) = p.columns().into_iter().unzip();
     let header: Vec<&str> = header.iter().map(String::as_str).collect();
     write_columns(out, &header, &cols)?;
     println!(
@@ -184,24 +172,8 @@ fn run(
     u: &[Vec<f64>],
     independent: bool,
 ) -> Result<AxesPrediction> {
-    if u.len() != g.axes() {
-        bail!(
-            "the drive has {} axes, the grid {} ({})",
-            u.len(),
-            g.axes(),
-            g.source
-        );
-    }
-    if t.len() < 2 {
-        bail!("a drive needs at least two samples");
-    }
     let refs: Vec<&HostModel> = models.iter().collect();
-    predict::check(&refs, names, g, u)?;
-    if independent {
-        predict::independent(&refs, g, t, u)
-    } else {
-        Ok(predict::coupled(&refs, g, t, u))
-    }
+    predict::run(&refs, names, g, t, u, independent)
 }
 
 /// One run's figures of `fpi axes compare`.

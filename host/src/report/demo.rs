@@ -758,7 +758,7 @@ impl<'o> Chain<'o> {
         let c = axes::coupled(&refs, &grid, &run.t, &u);
         let coupled_s = t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
-        let i = axes::independent(&refs, &grid, &run.t, &u)?;
+        let i = axes::independent_axes(&refs, &grid, &run.t, &u)?;
         let alone_s = t0.elapsed().as_secs_f64();
         let (mc, mi) = (c.metrics(&truth), i.metrics(&truth));
         self.summary.lines.push(format!(

@@ -16,14 +16,14 @@
 //! the couplings: about 0.015 per sweep on the XY stage), so two or three sweeps
 //! do.
 //!
-//! [`independent`] is what a one-axis method gives: each axis predicted alone
+//! [`independent_axes`] is what a one-axis method gives: each axis predicted alone
 //! from its own FEM tables ([`FemGrid::alone`]), blind to the others.
 
 use anyhow::{bail, Result};
 use piezo_sim::axes::AXIS_NAMES;
 use piezo_sim::solve::{coupled as solve, WarmStart};
 
-use crate::method::axes::grid::FemGrid;
+use crate::method::axes::grid::{column, FemGrid};
 use crate::method::model::HostModel;
 use crate::method::predict::{self as one_axis, metrics, outside_range, Metrics};
 
@@ -63,6 +63,23 @@ impl AxesPrediction {
             evaluations: 0,
             sweeps: 0,
         }
+    }
+
+    /// The prediction's columns, named as its file's (`t_s`, then per axis
+    /// `voltage_V@x`, `x_pea_um@x`, `preload_N@x`, `x_fhps_um@x`, …).
+    pub fn columns(&self) -> Vec<(String, &[f64])> {
+        let mut cols = vec![("t_s".to_string(), self.t.as_slice())];
+        for i in 0..self.u.len() {
+            for (name, c) in [
+                ("voltage_V", &self.u[i]),
+                ("x_pea_um", &self.x_pea[i]),
+                ("preload_N", &self.preload[i]),
+                ("x_fhps_um", &self.x_fhps[i]),
+            ] {
+                cols.push((column(name, i), c.as_slice()));
+            }
+        }
+        cols
     }
 
     /// Model evaluations per sample and stack.
@@ -129,6 +146,40 @@ pub fn check(
     Ok(())
 }
 
+/// Every axis of the drive `u` (V, one per stack) at times `t` (s) predicted
+/// from the grid with `models` (one per stack; `names` name them in errors):
+/// coupled, or each axis alone (`independent`). Checks the inputs first
+/// ([`check`]).
+pub fn run(
+    models: &[&HostModel],
+    names: &[String],
+    grid: &FemGrid,
+    t: &[f64],
+    u: &[Vec<f64>],
+    independent: bool,
+) -> Result<AxesPrediction> {
+    if u.len() != grid.axes() {
+        bail!(
+            "the drive has {} axes, the grid {} ({})",
+            u.len(),
+            grid.axes(),
+            grid.source
+        );
+    }
+    if t.len() < 2 || u.iter().any(|ui| ui.len() != t.len()) {
+        bail!(
+            "a drive needs at least two samples, as many of every axis as of time ({})",
+            t.len()
+        );
+    }
+    check(models, names, grid, u)?;
+    if independent {
+        independent_axes(models, grid, t, u)
+    } else {
+        Ok(coupled(models, grid, t, u))
+    }
+}
+
 /// The coupled prediction of every axis (see the module docs); `models[i]` is
 /// stack `i`'s, `u[i]` its drive (V) at times `t` (s). Call [`check`] first.
 pub fn coupled(models: &[&HostModel], grid: &FemGrid, t: &[f64], u: &[Vec<f64>]) -> AxesPrediction {
@@ -173,7 +224,7 @@ pub fn coupled(models: &[&HostModel], grid: &FemGrid, t: &[f64], u: &[Vec<f64>])
 
 /// Each axis predicted alone from its own FEM tables ([`FemGrid::alone`]), as a
 /// one-axis method does ([`crate::method::predict::predict`]).
-pub fn independent(
+pub fn independent_axes(
     models: &[&HostModel],
     grid: &FemGrid,
     t: &[f64],
