@@ -60,14 +60,30 @@ pub fn grid(stage: Design, every: Option<usize>, out: &Path) -> Result<()> {
 
 /// A drive of every axis: `t_s,voltage_V@x,voltage_V@y[,voltage_V@z]`.
 pub fn read_drive(path: &Path) -> Result<(Vec<f64>, Vec<Vec<f64>>), DataError> {
+    let (t, mut per_axis) = read_axes(path, &["voltage_V"])?;
+    Ok((t, per_axis.remove(0)))
+}
+
+/// Columns of every axis (`[axis][sample]`).
+type PerAxis = Vec<Vec<f64>>;
+
+/// `t_s` (strictly increasing) and, for each of `quantities`, its column of
+/// every axis the file has `voltage_V@…` for, in one read of the file.
+fn read_axes(path: &Path, quantities: &[&str]) -> Result<(Vec<f64>, Vec<PerAxis>), DataError> {
     let n = axes_in_header(path, "voltage_V")?;
     let mut names = vec!["t_s".to_string()];
-    names.extend((0..n).map(|i| column("voltage_V", i)));
+    for q in quantities {
+        names.extend((0..n).map(|i| column(q, i)));
+    }
     let names: Vec<&str> = names.iter().map(String::as_str).collect();
-    let mut c = read_named_columns(path, &names)?;
-    strictly_increasing(path, "t_s", &c.values[0])?;
-    let t = c.values.remove(0);
-    Ok((t, c.values))
+    let mut values = read_named_columns(path, &names)?.values.into_iter();
+    let t = values.next().unwrap_or_default();
+    strictly_increasing(path, "t_s", &t)?;
+    let per_quantity = quantities
+        .iter()
+        .map(|_| values.by_ref().take(n).collect())
+        .collect();
+    Ok((t, per_quantity))
 }
 
 /// `fpi axes record`: the virtual stage as built under a drive.
@@ -119,14 +135,17 @@ fn models(paths: &[PathBuf], axes: usize) -> Result<(Vec<HostModel>, Vec<String>
             record::names(axes)
         );
     }
-    let mut models = Vec::new();
-    let mut names = Vec::new();
-    for i in 0..axes {
-        let p = &paths[i.min(paths.len() - 1)];
-        models.push(HostModel::read(p)?);
-        names.push(p.display().to_string());
-    }
-    Ok((models, names))
+    let read: Vec<HostModel> = paths
+        .iter()
+        .map(|p| HostModel::read(p))
+        .collect::<Result<_>>()?;
+    let of = |i: usize| i.min(paths.len() - 1);
+    Ok((
+        (0..axes).map(|i| read[of(i)].clone()).collect(),
+        (0..axes)
+            .map(|i| paths[of(i)].display().to_string())
+            .collect(),
+    ))
 }
 
 /// `fpi axes predict`: every axis with the coupled preloads and outputs (or
@@ -198,10 +217,8 @@ pub fn compare(grid: &Path, model: &[PathBuf], runs: &[PathBuf]) -> Result<Vec<R
     let (models, names) = models(model, g.axes())?;
     let mut all = Vec::new();
     for r in runs {
-        let (t, u) = read_drive(r)?;
-        let measured: Vec<String> = (0..u.len()).map(|i| column("x_fhps_um", i)).collect();
-        let measured: Vec<&str> = measured.iter().map(String::as_str).collect();
-        let x = read_named_columns(r, &measured)?.values;
+        let (t, mut columns) = read_axes(r, &["voltage_V", "x_fhps_um"])?;
+        let (x, u) = (columns.remove(1), columns.remove(0));
         let timed = |independent| -> Result<(AxesPrediction, f64)> {
             let start = Instant::now();
             let p = run(&g, &models, &names, &t, &u, independent)
