@@ -264,12 +264,58 @@ pub fn design_preview(
             rhs.push(r[k] - y0[k]);
         }
     }
-    let h = fit_with_sum(&rows, &rhs, o.ridge, 1.0)?;
+    let zeros = vec![0.0; TAPS];
+    let h = fit_taps_within_gain(&rows, &rhs, o.ridge, &zeros, 1.0)?;
     Ok(Feedforward::Preview {
         ticks: o.preview,
         taps: quantise_taps(&h)?,
         trials: 0,
     })
+}
+
+/// Ridges tried, each ten times the last, before taps within the board's gain
+/// are given up on.
+const RIDGE_RAISES: u32 = 8;
+
+/// The taps `base + c` for the least squares `c` of [`fit_with_sum`], with
+/// their gain `Σ |h_j|` within the board's `TAPS_GAIN_MAX`
+/// (`piezo_fpi::preview`, which refuses more): where the fit on a plant
+/// with little to invert (a mode damped to ζ 0.45, no force gain) wants
+/// more, the ridge is raised tenfold until it does not — a weaker inverse,
+/// never a model the board refuses.
+pub fn fit_taps_within_gain(
+    rows: &[Vec<f64>],
+    rhs: &[f64],
+    ridge: f64,
+    base: &[f64],
+    sum: f64,
+) -> Result<Vec<f64>> {
+    let limit = taps_gain_max();
+    let mut r = ridge.max(1e-12);
+    for _ in 0..=RIDGE_RAISES {
+        let c = fit_with_sum(rows, rhs, r, sum)?;
+        let h: Vec<f64> = base.iter().zip(&c).map(|(b, d)| b + d).collect();
+        if taps_gain(&h) <= limit {
+            return Ok(h);
+        }
+        r *= 10.0;
+    }
+    bail!(
+        "the feedforward's taps amplify the reference more than the board's {limit:.0} times \
+         (the sum of their magnitudes) even with a ridge of {r:.0e}: the fitted plant has \
+         nothing a preview can invert; tune without the feedforward (--no-feedforward)"
+    )
+}
+
+/// `Σ |h_j|`: how many times the taps can amplify the reference.
+pub fn taps_gain(h: &[f64]) -> f64 {
+    h.iter().map(|t| t.abs()).sum()
+}
+
+/// The board's bound on [`taps_gain`] (`piezo_fpi::preview::TAPS_GAIN_MAX`),
+/// less the rounding to `I8F24` of every tap.
+fn taps_gain_max() -> f64 {
+    piezo_fpi::preview::TAPS_GAIN_MAX as f64 - 1e-6
 }
 
 /// A preview of `ticks` the board has: 1 to `PREVIEW_MAX`.
@@ -358,6 +404,14 @@ pub fn quantise_taps(h: &[f64]) -> Result<Vec<f64>> {
         .find(|t| !t.is_finite() || t.abs() >= COEFF_ABS_MAX)
     {
         bail!("a feedforward tap of {t:.2} is beyond the board's range ±{COEFF_ABS_MAX:.0}");
+    }
+    if taps_gain(h) > taps_gain_max() {
+        bail!(
+            "the feedforward's taps amplify the reference {:.1} times (the sum of their \
+             magnitudes): the board takes at most {}",
+            taps_gain(h),
+            piezo_fpi::preview::TAPS_GAIN_MAX
+        );
     }
     let mut raw: Vec<i64> = h.iter().map(|t| (t * one).round() as i64).collect();
     let (big, _) = raw

@@ -249,3 +249,58 @@ fn the_damping_designed_on_a_tiny_force_gain_is_one_the_board_takes() {
     let model = with_tuning(&fw, &t, &o).unwrap();
     assert_eq!(model.damping.unwrap().gain_um_per_n_s, t.damping_gain);
 }
+
+/// A response measured with the damping on fits a plant with nothing to
+/// invert (437 Hz damped to ζ 0.45 with a 657 Hz lag and no force gain: the
+/// fit CI once met); the preview's least squares alone then wants taps
+/// amplifying the reference beyond the board's 32 times, which the image's
+/// validator refuses. The design raises its ridge instead: the taps are
+/// within the board's gain, still summing to 1, and the model builds.
+#[test]
+fn a_plant_with_nothing_to_invert_gets_taps_the_board_takes() {
+    let (fw, _) = stage_a();
+    let d = DynamicsSpec {
+        mode_mhz: 437_100,
+        damping: CreepRate::from_num(0.45),
+        lag_mhz: 657_000,
+        force_gain: NewtonsPerUm::from_num(0.0),
+    };
+    let p = Plant::new(&d, fw.controller.rate_hz, 1.0, None, 1.0);
+    let t = tune_measured(&fw, d, &TuneOptions::default()).unwrap();
+    let o = feedforward::TimeOptions::default();
+    let rate = f64::from(fw.controller.rate_hz);
+    // The ridge as designed is not enough on this plant ...
+    let unbounded = {
+        use piezo_fpi::preview::TAPS;
+        use simulate::{respond_led, step, triangle};
+        let period = (rate / o.triangle_hz).round() as usize;
+        let (mut rows, mut rhs) = (Vec::new(), Vec::new());
+        for r in [
+            step(1.0, o.step_ticks, 2 * TAPS, 8 * o.step_ticks),
+            triangle(1.0, period, 3),
+        ] {
+            let zeros = vec![0.0; r.len()];
+            let y0 = respond_led(&p, &t.laws, &r, &zeros, &zeros, true);
+            let basis = feedforward::tap_responses(&p, &t.laws, usize::from(o.preview), &r);
+            for k in 0..r.len() {
+                rows.push(basis.iter().map(|b| b[k]).collect::<Vec<f64>>());
+                rhs.push(r[k] - y0[k]);
+            }
+        }
+        feedforward::fit_with_sum(&rows, &rhs, o.ridge, 1.0).unwrap()
+    };
+    let wanted = feedforward::taps_gain(&unbounded);
+    // ... the design's taps are within the board's gain, and the model builds.
+    let Some(Feedforward::Preview { taps, .. }) = &t.feedforward else {
+        panic!("{:?}", t.feedforward)
+    };
+    let gain = feedforward::taps_gain(taps);
+    println!("taps' gain: {wanted:.1} by least squares alone, {gain:.1} as designed");
+    assert!(wanted > 32.0, "{wanted}");
+    assert!(gain <= 32.0, "{gain}");
+    assert!((taps.iter().sum::<f64>() - 1.0).abs() < 1e-9);
+    with_tuning(&fw, &t, &TuneOptions::default())
+        .unwrap()
+        .image()
+        .unwrap();
+}

@@ -22,7 +22,7 @@
 use anyhow::{bail, Result};
 use piezo_fpi::stability::{Laws, Plant};
 
-use super::feedforward::{check_preview, fit_with_sum, quantise_taps, tap_responses};
+use super::feedforward::{check_preview, fit_taps_within_gain, quantise_taps, tap_responses};
 
 /// One trial's record: the reference the loops tracked and the position
 /// sensor's reading, µm, at every tick, from rest (the first sample is taken
@@ -113,9 +113,7 @@ pub fn refine(
             rhs.push(r - x);
         }
     }
-    let change = fit_with_sum(&rows, &rhs, ridge, 0.0)?;
-    let refined: Vec<f64> = taps.iter().zip(&change).map(|(h, d)| h + d).collect();
-    quantise_taps(&refined)
+    quantise_taps(&fit_taps_within_gain(&rows, &rhs, ridge, taps, 0.0)?)
 }
 
 #[cfg(test)]
