@@ -191,7 +191,9 @@ class Board:
         self, points_um: _ArrayLike, interval: int = 20, *, record: bool = False
     ) -> Dict[str, Any]:
         """Streams a trajectory (µm), one point every ``interval`` control ticks;
-        ``points``, ``started_tick``, ``underrun_ticks`` (and with ``record`` the
+        ``points``, ``started_tick`` (for a stream ``armed`` for the trigger
+        input: the tick it was armed), ``armed``, ``underrun_ticks`` (and with
+        ``record`` the
         ``recording`` of every tick until the board holds the last point, and 50 ms
         more). Ctrl-C: ``Interrupted``, board holding."""
     def record(self, seconds: float, decimation: int = 20) -> _Columns:

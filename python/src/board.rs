@@ -418,7 +418,8 @@ impl Board {
 
     /// Streams a trajectory (µm, an array), one point every `interval` control
     /// ticks (20 = 1 kHz at 20 kHz), interpolated on the board; the board
-    /// supervises the host meanwhile. Returns `points`, `started_tick`,
+    /// supervises the host meanwhile. Returns `points`, `started_tick` (for a
+    /// stream `armed` for the trigger input: the tick it was armed), `armed`,
     /// `underrun_ticks`. Ctrl-C stops it with the board holding (raises
     /// `Interrupted`, whose `done` gives the points sent). With `record`, every
     /// tick of it is recorded (until the board holds its last point, and 50 ms
@@ -455,6 +456,7 @@ impl Board {
             Streamed::Played(r) => {
                 d.set_item("points", r.points)?;
                 d.set_item("started_tick", r.started)?;
+                d.set_item("armed", r.armed)?;
                 d.set_item("underrun_ticks", r.underruns)?;
                 Ok(d)
             }

@@ -147,7 +147,7 @@ def test_stream_plays_every_point(board):
     x = 10.0 + 5.0 * np.sin(np.linspace(0, 2 * np.pi, 300))
     r = board.stream(x, interval=20)
     assert r["points"] == 300
-    assert r["underrun_ticks"] == 0
+    assert r["underrun_ticks"] == 0 and r["armed"] is False
     s = board.status()
     assert s["reference_um"] == pytest.approx(x[-1], abs=1e-3)
     assert s["supervision_ms"] == 0.0

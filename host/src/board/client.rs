@@ -686,8 +686,14 @@ pub fn refusal(e: &anyhow::Error) -> Option<&Refused> {
 pub struct StreamReport {
     /// Points sent.
     pub points: usize,
-    /// The tick the stream started (its approach to the first point).
+    /// The tick the board took the stream order: where the stream started
+    /// (its approach to the first point), or, for a stream [`armed`](Self::armed)
+    /// for the trigger input, where it was armed (it started on the input's
+    /// edge, later).
     pub started: u32,
+    /// The stream waited for the trigger input's edge (`fpi board trigger
+    /// --start motion`) before it played.
+    pub armed: bool,
     /// Ticks the board held a point for want of the next one.
     pub underruns: u32,
 }
@@ -717,6 +723,7 @@ impl Client {
             progress(sent);
             idle(self)?;
         }
+        let armed = self.waits_for_trigger()?;
         let started = self.ack(&Command::Stream { axis: 0, interval })?;
         loop {
             let s = self.status()?;
@@ -763,8 +770,18 @@ impl Client {
         Ok(StreamReport {
             points: sent,
             started,
+            armed,
             underruns,
         })
+    }
+
+    /// Whether a wave or stream order now waits for the trigger input's edge
+    /// (the board's `/stage/0/trigger_in` starts motion).
+    pub fn waits_for_trigger(&mut self) -> Result<bool> {
+        let v = self.setting("/stage/0/trigger_in")?;
+        let starts: fpi_protocol::TriggerStart = serde_json::from_str(&v)
+            .with_context(|| format!("the board's /stage/0/trigger_in {v}"))?;
+        Ok(starts.motion())
     }
 
     fn send_points(&mut self, from: usize, points_um: &[f64]) -> Result<usize> {

@@ -661,10 +661,14 @@ pub fn stream(c: &mut Client, points: &[f64], interval: u16, record: Option<&Pat
     pb.finish_and_clear();
     match r {
         commands::Streamed::Played(r) => {
+            let from = if r.armed {
+                format!("armed at tick {}, started on the trigger input", r.started)
+            } else {
+                format!("from tick {}", r.started)
+            };
             println!(
-                "{} points streamed from tick {} ({:.3} s at {} ticks per point); {} underrun ticks",
+                "{} points streamed {from} ({:.3} s at {} ticks per point); {} underrun ticks",
                 r.points,
-                r.started,
                 r.points as f64 * interval as f64 / c.rate_hz(),
                 interval,
                 r.underruns
