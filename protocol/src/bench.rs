@@ -218,19 +218,35 @@ impl StageVariant {
         ..Self::NOMINAL
     };
 
+    /// The keys a variant may change (a variant file's, `fpi board bench`'s),
+    /// each with the range its value must lie in, in [`Self::values`]'s order.
+    pub const KEYS: [(&'static str, (f32, f32)); 7] = [
+        ("mode_hz", (100.0, 5000.0)),
+        ("mode_damping", (0.001, 0.5)),
+        ("output_gain", (0.5, 2.0)),
+        ("force_scale", (0.5, 1.5)),
+        ("creep_scale", (0.0, 5.0)),
+        ("position_noise_um", (0.0, 1.0)),
+        ("force_noise_n", (0.0, 10.0)),
+    ];
+
+    /// The values, in [`Self::KEYS`]'s order (`None`: the base's).
+    pub const fn values(&self) -> [Option<f32>; 7] {
+        [
+            self.mode_hz,
+            self.mode_damping,
+            self.output_gain,
+            self.force_scale,
+            self.creep_scale,
+            self.position_noise_um,
+            self.force_noise_n,
+        ]
+    }
+
     /// Each value that is given, by its key, with the range it must lie in: the
     /// one check of a variant, for the host's file reader and the board.
     pub fn check(&self) -> Result<(), (&'static str, f32, (f32, f32))> {
-        let ranges: [(&'static str, Option<f32>, (f32, f32)); 7] = [
-            ("mode_hz", self.mode_hz, (100.0, 5000.0)),
-            ("mode_damping", self.mode_damping, (0.001, 0.5)),
-            ("output_gain", self.output_gain, (0.5, 2.0)),
-            ("force_scale", self.force_scale, (0.5, 1.5)),
-            ("creep_scale", self.creep_scale, (0.0, 5.0)),
-            ("position_noise_um", self.position_noise_um, (0.0, 1.0)),
-            ("force_noise_n", self.force_noise_n, (0.0, 10.0)),
-        ];
-        for (key, v, (lo, hi)) in ranges {
+        for ((key, (lo, hi)), v) in Self::KEYS.into_iter().zip(self.values()) {
             if let Some(v) = v {
                 if !(v >= lo && v <= hi) {
                     return Err((key, v, (lo, hi)));

@@ -41,16 +41,16 @@ struct AxisValues {
 }
 
 impl AxisValues {
-    /// The values by key, as given.
-    fn given(&self) -> [(&'static str, Option<f64>); 7] {
+    /// The values as given, in [`StageVariant::KEYS`]'s order.
+    fn given(&self) -> [Option<f64>; 7] {
         [
-            ("mode_hz", self.mode_hz),
-            ("mode_damping", self.mode_damping),
-            ("output_gain", self.output_gain),
-            ("force_scale", self.force_scale),
-            ("creep_scale", self.creep_scale),
-            ("position_noise_um", self.position_noise_um),
-            ("force_noise_n", self.force_noise_n),
+            self.mode_hz,
+            self.mode_damping,
+            self.output_gain,
+            self.force_scale,
+            self.creep_scale,
+            self.position_noise_um,
+            self.force_noise_n,
         ]
     }
 
@@ -69,10 +69,10 @@ impl AxisValues {
             force_noise_n: narrow(self.force_noise_n),
         };
         if let Err((key, value, (lo, hi))) = v.check() {
-            let given = self
-                .given()
-                .into_iter()
-                .find(|(k, _)| *k == key)
+            let given = StageVariant::KEYS
+                .iter()
+                .zip(self.given())
+                .find(|((k, _), _)| *k == key)
                 .and_then(|(_, v)| v)
                 .unwrap_or(value as f64);
             bail!(
@@ -240,16 +240,7 @@ pub fn describe(v: &StageVariant) -> String {
     } else {
         "nominal twin"
     });
-    let fields: [(&str, Option<f32>); 7] = [
-        ("mode_hz", v.mode_hz),
-        ("mode_damping", v.mode_damping),
-        ("output_gain", v.output_gain),
-        ("force_scale", v.force_scale),
-        ("creep_scale", v.creep_scale),
-        ("position_noise_um", v.position_noise_um),
-        ("force_noise_n", v.force_noise_n),
-    ];
-    for (k, x) in fields {
+    for ((k, _), x) in StageVariant::KEYS.iter().zip(v.values()) {
         if let Some(x) = x {
             s.push_str(&format!(", {k} = {x}"));
         }
@@ -272,6 +263,26 @@ mod tests {
         assert_eq!(v.mode_hz, Some(700.0));
         assert_eq!(v.mode_damping, Some(0.015));
         assert_eq!(v.output_gain, None);
+    }
+
+    /// Every key the protocol declares is a file's key and reaches its own
+    /// value (the reader's fields and [`StageVariant::values`] in
+    /// [`StageVariant::KEYS`]'s order), and the description names it.
+    #[test]
+    fn every_declared_key_reaches_its_value() {
+        for (k, (key, (lo, hi))) in StageVariant::KEYS.iter().enumerate() {
+            let x = 0.5 * (lo + hi);
+            let v = from_toml(&format!("base = \"built\"\n{key} = {x}\n"), "v.toml").unwrap();
+            let mut want = [None; 7];
+            want[k] = Some(x);
+            assert_eq!(v.values(), want, "{key}");
+            assert!(describe(&v).ends_with(&format!(", {key} = {x}")), "{key}");
+            let e = from_toml(&format!("base = \"built\"\n{key} = 1e9\n"), "v.toml");
+            assert!(
+                format!("{:#}", e.unwrap_err()).contains(&format!("{key} = 1e9")),
+                "{key}"
+            );
+        }
     }
 
     #[test]
