@@ -28,6 +28,55 @@ pub use crate::method::series::CalibData;
 /// recording; the operators still see the whole history from the first row, and
 /// the extension is zeroed at the window's first row.
 pub fn load(paths: &[impl AsRef<Path>], rows: Option<(usize, usize)>) -> Result<Vec<CalibData>> {
+    load_each(paths, rows, |p, name| {
+        if name.ends_with(".dat") {
+            let m = data::read_micromanipulator(p)?;
+            prepare(name, 1.0 / 200.0, &m.u, None, &m.sensor, rows)
+        } else {
+            let r = data::read_rig(p)?;
+            from_columns(name, &r.t, &r.u, Some(&r.f), &r.x, rows)
+        }
+        .with_context(|| p.display().to_string())
+    })
+}
+
+/// Reads one stack's columns of recordings of a stage of several axes
+/// (`fpi axes record`: `t_s`, `voltage_V@y`, `force_N@y`, `x_pea_um@y` for
+/// `axis` 1): each stack calibrated in its stage, under the preload the other
+/// stacks put on it. `rows` as in [`load`]; each recording is named
+/// `file@axis` in reports.
+pub fn load_stack(
+    paths: &[impl AsRef<Path>],
+    axis: usize,
+    rows: Option<(usize, usize)>,
+) -> Result<Vec<CalibData>> {
+    use crate::data::columns::read_named_columns;
+    use crate::method::axes::grid::column;
+    let names = [
+        "t_s".to_string(),
+        column("voltage_V", axis),
+        column("force_N", axis),
+        column("x_pea_um", axis),
+    ];
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    load_each(paths, rows, |p, name| {
+        let c = read_named_columns(p, &names)?;
+        data::strictly_increasing(p, "t_s", &c.values[0])?;
+        let name = format!("{name}@{}", piezo_sim::axes::AXIS_NAMES[axis]);
+        let v = &c.values;
+        from_columns(&name, &v[0], &v[1], Some(&v[2]), &v[3], rows)
+            .with_context(|| p.display().to_string())
+    })
+}
+
+/// What [`load`] and [`load_stack`] share: `rows` for one recording only,
+/// each file read by `read` (its path and its name without `.gz`; its errors
+/// name the file), and at least one recording.
+fn load_each<P: AsRef<Path>>(
+    paths: &[P],
+    rows: Option<(usize, usize)>,
+    read: impl Fn(&Path, &str) -> Result<CalibData>,
+) -> Result<Vec<CalibData>> {
     if rows.is_some() && paths.len() != 1 {
         bail!(
             "--rows selects a window of one recording; {} were given",
@@ -41,60 +90,7 @@ pub fn load(paths: &[impl AsRef<Path>], rows: Option<(usize, usize)>) -> Result<
             .file_name()
             .map(|n| n.to_string_lossy().trim_end_matches(".gz").to_string())
             .unwrap_or_default();
-        let d = if name.ends_with(".dat") {
-            let m = data::read_micromanipulator(p)?;
-            prepare(&name, 1.0 / 200.0, &m.u, None, &m.sensor, rows)
-        } else {
-            let r = data::read_rig(p)?;
-            from_columns(&name, &r.t, &r.u, Some(&r.f), &r.x, rows)
-        };
-        out.push(d.with_context(|| p.display().to_string())?);
-    }
-    if out.is_empty() {
-        bail!("no calibration recordings given");
-    }
-    Ok(out)
-}
-
-/// Reads one stack's columns of recordings of a stage of several axes
-/// (`fpi axes record`: `t_s`, `voltage_V@y`, `force_N@y`, `x_pea_um@y` for
-/// `axis` 1): each stack calibrated in its stage, under the preload the other
-/// stacks put on it. `rows` as in [`load`].
-pub fn load_stack(
-    paths: &[impl AsRef<Path>],
-    axis: usize,
-    rows: Option<(usize, usize)>,
-) -> Result<Vec<CalibData>> {
-    use crate::data::columns::read_named_columns;
-    use crate::method::axes::grid::column;
-    if rows.is_some() && paths.len() != 1 {
-        bail!(
-            "--rows selects a window of one recording; {} were given",
-            paths.len()
-        );
-    }
-    let names = [
-        "t_s".to_string(),
-        column("voltage_V", axis),
-        column("force_N", axis),
-        column("x_pea_um", axis),
-    ];
-    let names: Vec<&str> = names.iter().map(String::as_str).collect();
-    let mut out = Vec::new();
-    for p in paths {
-        let p = p.as_ref();
-        let c = read_named_columns(p, &names)?;
-        data::strictly_increasing(p, "t_s", &c.values[0])?;
-        let name = format!(
-            "{}@{}",
-            p.file_name()
-                .map(|n| n.to_string_lossy().trim_end_matches(".gz").to_string())
-                .unwrap_or_default(),
-            piezo_sim::axes::AXIS_NAMES[axis]
-        );
-        let v = &c.values;
-        let d = from_columns(&name, &v[0], &v[1], Some(&v[2]), &v[3], rows);
-        out.push(d.with_context(|| p.display().to_string())?);
+        out.push(read(p, &name)?);
     }
     if out.is_empty() {
         bail!("no calibration recordings given");
