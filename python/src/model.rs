@@ -377,19 +377,10 @@ pub fn predict_axes<'py>(
     let g = py
         .detach(|| FemGrid::read(&grid).map_err(anyhow::Error::from))
         .map_err(|e| to_py(py, e, Otherwise::Input))?;
-    if models.len() != 1 && models.len() != g.axes() {
-        return Err(PyValueError::new_err(format!(
-            "models: {} given for a grid of {} stacks: one for every stack or one per stack",
-            models.len(),
-            g.axes()
-        )));
-    }
-    let chosen: Vec<&HostModel> = (0..g.axes())
-        .map(|i| &models[i.min(models.len() - 1)].inner)
-        .collect();
-    let names: Vec<String> = (0..g.axes())
-        .map(|i| format!("models[{}]", i.min(models.len() - 1)))
-        .collect();
+    let of = axes::model_of_each_stack(models.len(), g.axes(), "models")
+        .map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
+    let chosen: Vec<&HostModel> = of.iter().map(|&k| &models[k].inner).collect();
+    let names: Vec<String> = of.iter().map(|k| format!("models[{k}]")).collect();
     let p = py
         .detach(|| axes::run(&chosen, &names, &g, &t, &u, independent))
         .map_err(|e| to_py(py, e, Otherwise::Input))?;

@@ -126,25 +126,17 @@ pub fn record(stage: &str, drive: &Path, out: &Path, seed: u32) -> Result<()> {
     Ok(())
 }
 
-/// The models of a grid's stacks: one file for every stack, or one per stack.
+/// The models of a grid's stacks: one file for every stack, or one per stack
+/// ([`predict::model_of_each_stack`]), each file read once.
 fn models(paths: &[PathBuf], axes: usize) -> Result<(Vec<HostModel>, Vec<String>)> {
-    if paths.len() != 1 && paths.len() != axes {
-        bail!(
-            "--model: {} given; give one for every stack or one per stack ({axes}, in the order {})",
-            paths.len(),
-            record::names(axes)
-        );
-    }
+    let of = predict::model_of_each_stack(paths.len(), axes, "--model")?;
     let read: Vec<HostModel> = paths
         .iter()
         .map(|p| HostModel::read(p))
         .collect::<Result<_>>()?;
-    let of = |i: usize| i.min(paths.len() - 1);
     Ok((
-        (0..axes).map(|i| read[of(i)].clone()).collect(),
-        (0..axes)
-            .map(|i| paths[of(i)].display().to_string())
-            .collect(),
+        of.iter().map(|&k| read[k].clone()).collect(),
+        of.iter().map(|&k| paths[k].display().to_string()).collect(),
     ))
 }
 

@@ -97,6 +97,20 @@ impl AxesPrediction {
     }
 }
 
+/// Which of the `given` models each of `axes` stacks takes: one model for
+/// every stack, or one per stack in axis order; refused otherwise, naming
+/// `key` (the CLI's `--model`, Python's `models`).
+pub fn model_of_each_stack(given: usize, axes: usize, key: &str) -> Result<Vec<usize>> {
+    if given != 1 && given != axes {
+        bail!(
+            "{key}: {given} given for a grid of {axes} stacks; give one for every stack or one \
+             per stack (in the order {})",
+            super::record::names(axes)
+        );
+    }
+    Ok((0..axes).map(|i| i.min(given - 1)).collect())
+}
+
 /// Refuses what the several-axis method cannot run: a model count other than
 /// one per stack, a model of branch polynomials (its own solver), a model whose
 /// FEM correction (`fpi refine`) was made for a one-axis stage, and a drive
