@@ -423,8 +423,10 @@ def predict_axes(
     independent: bool = False,
 ) -> _Columns:
     """``fpi axes predict``: every axis of a stage of several stacks from its FEM
-    grid, ``models`` one for every stack or one per stack; ``t_s`` and per axis
-    ``voltage_V@x``, ``x_pea_um@x``, ``preload_N@x``, ``x_fhps_um@x``, …."""
+    grid, ``models`` one for every stack or one per stack (a model refined by
+    ``fpi axes refine`` brings its axis's correction of the grid); ``t_s`` and
+    per axis ``voltage_V@x``, ``x_pea_um@x``, ``preload_N@x``, ``x_fhps_um@x``,
+    …."""
 
 def calibrate(
     runs: Sequence[Dict[str, _ArrayLike]],

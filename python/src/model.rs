@@ -348,7 +348,8 @@ pub fn calibrate(
 
 /// Every axis of a stage of several stacks predicted from its FEM grid `grid`
 /// (`fpi axes predict`): `models` one for every stack or one per stack in axis
-/// order, `voltages` one drive per axis (V) at times `t_s` (s); coupled, or
+/// order (a model refined by `fpi axes refine` brings its axis's correction of
+/// the grid), `voltages` one drive per axis (V) at times `t_s` (s); coupled, or
 /// each axis alone (`independent`). A dict of arrays: `t_s`, then per axis
 /// `voltage_V@x`, `x_pea_um@x`, `preload_N@x`, `x_fhps_um@x`, ….
 #[pyfunction]

@@ -386,6 +386,25 @@ enum AxesCommand {
         #[arg(long, required = true, num_args = 1..)]
         runs: Vec<PathBuf>,
     },
+    /// Correct the grid for the built stage, axis by axis, from measured runs:
+    /// the preload on each stack and the gain and offset of each axis's output
+    /// (`fpi refine` for several axes, with the coupled prediction).
+    Refine {
+        /// The stage's FEM grid.
+        #[arg(long)]
+        grid: PathBuf,
+        /// Calibrated models: one for every stack, or one per stack in axis order.
+        #[arg(long, required = true, num_args = 1..)]
+        model: Vec<PathBuf>,
+        /// Measured runs of the built stage (`t_s`, and per axis `voltage_V`,
+        /// `force_N`, `x_fhps_um`: `…@x`, `…@y`).
+        #[arg(long = "run", required = true, num_args = 1..)]
+        runs: Vec<PathBuf>,
+        /// Where to write each stack's refined model (its model with its axis's
+        /// [fem_correction]): one per stack, in axis order.
+        #[arg(long, required = true, num_args = 1..)]
+        out: Vec<PathBuf>,
+    },
 }
 
 /// The book's generated reference pages.
@@ -1180,6 +1199,12 @@ fn axes(command: AxesCommand) -> Result<()> {
             independent,
         } => axes::predict(&grid, &model, &drive, &out, independent),
         AxesCommand::Compare { grid, model, runs } => axes::compare(&grid, &model, &runs).map(drop),
+        AxesCommand::Refine {
+            grid,
+            model,
+            runs,
+            out,
+        } => axes::refine(&grid, &model, &runs, &out).map(drop),
     }
 }
 

@@ -259,3 +259,101 @@ fn print_figures(g: &FemGrid, all: &[RunFigures]) {
         );
     }
 }
+
+/// `fpi axes refine`: every axis of `grid` corrected from measured runs of the
+/// built stage (`t_s`, `voltage_V@…`, `force_N@…`, `x_fhps_um@…`), with the
+/// stacks' models; each stack's model with its axis's `[fem_correction]` is
+/// written to its `--out` (one per stack, in axis order). Prints the table and
+/// returns the refinement.
+pub fn refine(
+    grid: &Path,
+    model: &[PathBuf],
+    runs: &[PathBuf],
+    out: &[PathBuf],
+) -> Result<crate::method::axes::refine::AxesRefinement> {
+    use crate::method::axes::refine::{estimate, AxesRun};
+    let mut given: Vec<(&str, &Path)> = vec![("--grid", grid)];
+    given.extend(model.iter().map(|m| ("--model", m.as_path())));
+    given.extend(runs.iter().map(|r| ("--run", r.as_path())));
+    for (k, o) in out.iter().enumerate() {
+        not_an_input("--out", o, &given)?;
+        if out[..k].contains(o) {
+            bail!("--out {} is given twice: one file per stack", o.display());
+        }
+    }
+    let g = FemGrid::read(grid)?;
+    if out.len() != g.axes() {
+        bail!(
+            "--out: {} given for a grid of {} stacks; give one per stack (in the order {})",
+            out.len(),
+            g.axes(),
+            record::names(g.axes())
+        );
+    }
+    for o in out {
+        output::prepare(o)?;
+    }
+    let (models, names) = models(model, g.axes())?;
+    let data = runs
+        .iter()
+        .map(|r| {
+            let (t, mut c) = read_axes(r, &["voltage_V", "force_N", "x_fhps_um"])?;
+            let (x, f, u) = (c.remove(2), c.remove(1), c.remove(0));
+            Ok(AxesRun {
+                name: r.display().to_string(),
+                t,
+                u,
+                f,
+                x,
+            })
+        })
+        .collect::<Result<Vec<_>, DataError>>()?;
+    let refs: Vec<&HostModel> = models.iter().collect();
+    let start = Instant::now();
+    let r = estimate(
+        &refs,
+        &names,
+        &g,
+        &data,
+        &crate::method::refine::Options::default(),
+    )?;
+    let secs = start.elapsed().as_secs_f64();
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
+    println!(
+        "grid {} refined on {} run(s) ({} rounds, {secs:.2} s):",
+        grid.display(),
+        data.len(),
+        r.iterations
+    );
+    println!(
+        "  {:<4} {:>13} {:>11} {:>15} {:>18} {:>17}  written to",
+        "axis",
+        "preload_scale",
+        "stage_gain",
+        "stage_offset_um",
+        "RMSE before, µm",
+        "RMSE after, µm"
+    );
+    for (i, c) in r.corrections.iter().enumerate() {
+        let mut refined = models[i].clone();
+        refined.fem_correction = Some(crate::method::model::FemCorrection {
+            fem: grid.display().to_string(),
+            refined_on: runs.iter().map(|p| p.display().to_string()).collect(),
+            ..c.clone()
+        });
+        refined.write(&out[i])?;
+        println!(
+            "  {:<4} {:>13.5} {:>11.5} {:>15.4} {:>18.4} {:>17.4}  {}",
+            AXIS_NAMES[i],
+            c.preload_scale,
+            c.stage_gain,
+            c.stage_offset_um,
+            r.before[i].rmse,
+            r.after[i].rmse,
+            out[i].display()
+        );
+    }
+    Ok(r)
+}

@@ -90,9 +90,10 @@ pub struct Refinement {
 /// another stage): the correction may be biased by it, and [`estimate`] warns.
 pub const UNEXPLAINED_FRACTION: f64 = 0.02;
 
-/// Sums of the least-squares problems over all runs' samples.
+/// Sums of the least-squares problems over all runs' samples (also of each
+/// axis of a several-axis stage's, [`crate::method::axes::refine`]).
 #[derive(Debug, Default, Clone, Copy)]
-struct Sums {
+pub(crate) struct Sums {
     n: f64,
     /// Measured force × predicted preload, predicted preload².
     fp: f64,
@@ -106,9 +107,15 @@ struct Sums {
 
 impl Sums {
     fn add(&mut self, run: &StageRun, p: &Prediction) {
-        for k in 0..run.x.len() {
-            let (f, pf) = (run.f[k], p.preload[k]);
-            let (x, y) = (run.x[k], p.x_fhps[k]);
+        self.add_samples(&run.f, &run.x, &p.preload, &p.x_fhps);
+    }
+
+    /// Adds samples: measured force `f` (N) and output `x` (µm), predicted
+    /// preload `preload` (N) and output `x_fhps` (µm).
+    pub(crate) fn add_samples(&mut self, f: &[f64], x: &[f64], preload: &[f64], x_fhps: &[f64]) {
+        for k in 0..x.len() {
+            let (f, pf) = (f[k], preload[k]);
+            let (x, y) = (x[k], x_fhps[k]);
             self.n += 1.0;
             self.fp += f * pf;
             self.pp += pf * pf;
@@ -119,9 +126,15 @@ impl Sums {
         }
     }
 
+    /// The least-squares scale of the predicted preload to the measured force
+    /// (`Σ f·p / Σ p²`); `None` when the predicted preload is zero throughout.
+    pub(crate) fn preload_ratio(&self) -> Option<f64> {
+        (self.pp > 0.0).then(|| self.fp / self.pp)
+    }
+
     /// The least-squares gain and offset of `x ≈ g·y + b`; `None` when `y` does not
     /// vary (the prediction does not move the stage).
-    fn gain_offset(&self) -> Option<(f64, f64)> {
+    pub(crate) fn gain_offset(&self) -> Option<(f64, f64)> {
         let (my, mx) = (self.y / self.n, self.x / self.n);
         let var = self.yy / self.n - my * my;
         let cov = self.xy / self.n - mx * my;
@@ -222,11 +235,11 @@ pub fn estimate(
         for (r, p) in runs.iter().zip(&preds) {
             sums.add(r, p);
         }
-        if sums.pp <= 0.0 {
+        let Some(ratio) = sums.preload_ratio() else {
             bail!("{}: the FEM's preload is zero along the runs", names(runs));
-        }
+        };
         // The preload predicted is s·f_F: the least-squares scale of f_F.
-        let next = s * sums.fp / sums.pp;
+        let next = s * ratio;
         in_range(
             "preload scale",
             next,

@@ -7,6 +7,7 @@ use anyhow::{bail, Result};
 use serde::{Deserialize, Serialize};
 
 use crate::data::fem::FemMaps;
+use crate::method::axes::grid::FemGrid;
 use crate::model_file::PiSection;
 
 /// Refuses a non-finite value of key `key`.
@@ -164,6 +165,28 @@ impl FemCorrection {
                     fem.source
                 )
             })
+    }
+
+    /// `grid` with this correction on stack and axis `i`
+    /// ([`FemGrid::corrected`]). The correction must have been refined on this
+    /// grid (`fpi axes refine`: its `fem` names the grid's file): one refined
+    /// on a one-axis stage's FEM (`fpi refine`) holds that stage's numbers, not
+    /// this one's, and is refused.
+    pub fn apply_grid(&self, grid: &FemGrid, i: usize) -> Result<FemGrid> {
+        let file = |s: &str| std::path::Path::new(s).file_name().map(|n| n.to_owned());
+        if self.fem.is_empty() || file(&self.fem) != file(&grid.source) {
+            bail!(
+                "its [fem_correction] was refined against {}, not the grid {}: a grid takes \
+                 the correction `fpi axes refine` makes on it (use the model before `fpi refine`)",
+                if self.fem.is_empty() {
+                    "no named FEM"
+                } else {
+                    &self.fem
+                },
+                grid.source
+            );
+        }
+        grid.corrected(i, self.stage_gain, self.stage_offset_um, self.preload_scale)
     }
 
     /// Checks the section; names the key that is wrong.

@@ -142,6 +142,45 @@ impl FemGrid {
         self.interpolate(&self.output[i], x)
     }
 
+    /// The grid of a built stage whose stack `i` and axis `i` differ from this
+    /// FEM as a one-axis stage's do ([`FemMaps::corrected`]): the preload on
+    /// stack `i` times `preload_scale`, the output of axis `i` times `gain` plus
+    /// `offset_um`, everywhere on the grid; the other stacks and axes as they
+    /// are. A scale or gain that is not finite and > 0, or an offset that is not
+    /// finite, is refused.
+    pub fn corrected(
+        &self,
+        i: usize,
+        gain: f64,
+        offset_um: f64,
+        preload_scale: f64,
+    ) -> Result<Self> {
+        for (what, v) in [("stage gain", gain), ("preload scale", preload_scale)] {
+            if !(v.is_finite() && v > 0.0) {
+                bail!(
+                    "{}: a {what} of {v} for axis {} (it must be a finite number > 0)",
+                    self.source,
+                    AXIS_NAMES[i]
+                );
+            }
+        }
+        if !offset_um.is_finite() {
+            bail!(
+                "{}: a stage offset of {offset_um} µm for axis {} is not finite",
+                self.source,
+                AXIS_NAMES[i]
+            );
+        }
+        let mut out = self.clone();
+        for f in &mut out.preload[i] {
+            *f *= preload_scale;
+        }
+        for y in &mut out.output[i] {
+            *y = *y * gain + offset_um;
+        }
+        Ok(out)
+    }
+
     /// Stack `i`'s preload as the other stacks at `x` leave it: the map the
     /// coupled equation of stack `i` solves against.
     pub fn slice<'g>(&'g self, i: usize, x: &[f64]) -> Slice<'g> {
@@ -418,6 +457,25 @@ mod tests {
         let (f1, d1) = s.preload_with_slope(2.2);
         assert!(s.same_segment(2.1, 2.2));
         assert!((d0 - d1).abs() < 1e-12 && (f1 - f0 - 0.1 * d0).abs() < 1e-9);
+    }
+
+    /// A correction of axis 1 scales stack 1's preload and axis 1's output
+    /// everywhere, and leaves stack and axis 0 as they are; a gain of 0 or a
+    /// non-finite offset is refused, naming the axis.
+    #[test]
+    fn a_correction_acts_on_its_own_stack_and_axis_only() {
+        let g = FemGrid::design(2, 6).unwrap();
+        let c = g.corrected(1, 1.03, -0.2, 0.95).unwrap();
+        for x in [[0.0, 0.0], [3.1, 7.4], [9.0, 2.0]] {
+            assert_eq!(c.preload_at(0, &x), g.preload_at(0, &x));
+            assert_eq!(c.output_at(0, &x), g.output_at(0, &x));
+            assert!((c.preload_at(1, &x) - 0.95 * g.preload_at(1, &x)).abs() < 1e-12);
+            assert!((c.output_at(1, &x) - (1.03 * g.output_at(1, &x) - 0.2)).abs() < 1e-12);
+        }
+        let e = g.corrected(1, 0.0, 0.0, 1.0).unwrap_err().to_string();
+        assert!(e.contains("stage gain of 0 for axis y"), "{e}");
+        let e = g.corrected(0, 1.0, f64::NAN, 1.0).unwrap_err().to_string();
+        assert!(e.contains("offset of NaN µm for axis x"), "{e}");
     }
 
     #[test]

@@ -7,8 +7,11 @@
 //! * [`predict`] — every axis predicted with the coupled preloads and outputs
 //!   (the coupled equation solved for all stacks at each sample), and the
 //!   independent one-axis predictions a one-axis method gives, for comparison;
-//! * [`record`] — recordings of the virtual XY(Z) stage as built.
+//! * [`record`] — recordings of the virtual XY(Z) stage as built;
+//! * [`refine`] — a built stage's grid corrected, axis by axis, from measured
+//!   runs (the preload on each stack, the gain and offset of each axis).
 
 pub mod grid;
 pub mod predict;
 pub mod record;
+pub mod refine;

@@ -19,7 +19,7 @@
 //! [`independent_axes`] is what a one-axis method gives: each axis predicted alone
 //! from its own FEM tables ([`FemGrid::alone`]), blind to the others.
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use piezo_sim::axes::AXIS_NAMES;
 use piezo_sim::solve::{coupled as solve, WarmStart};
 
@@ -112,9 +112,9 @@ pub fn model_of_each_stack(given: usize, axes: usize, key: &str) -> Result<Vec<u
 }
 
 /// Refuses what the several-axis method cannot run: a model count other than
-/// one per stack, a model of branch polynomials (its own solver), a model whose
-/// FEM correction (`fpi refine`) was made for a one-axis stage, and a drive
-/// outside a model's input range. `names` name the models in errors.
+/// one per stack, a model of branch polynomials (its own solver) and a drive
+/// outside a model's input range (a correction refined on another FEM is
+/// refused by [`stage_grid`]). `names` name the models in errors.
 pub fn check(
     models: &[&HostModel],
     names: &[String],
@@ -138,13 +138,6 @@ pub fn check(
                  method; calibrate stack {} as efpi, fpi, pi, ldpi, epi or gpi",
                 names[i],
                 AXIS_NAMES[i]
-            );
-        }
-        if m.fem_correction.is_some() {
-            bail!(
-                "{}: its [fem_correction] was refined on a one-axis stage (`fpi refine`); \
-                 a grid takes no correction: use the model before refining",
-                names[i]
             );
         }
         if let Some((k, v)) = outside_range(m, &u[i]) {
@@ -187,11 +180,29 @@ pub fn run(
         );
     }
     check(models, names, grid, u)?;
+    let grid = stage_grid(models, names, grid)?;
     if independent {
-        independent_axes(models, grid, t, u)
+        independent_axes(models, &grid, t, u)
     } else {
-        Ok(coupled(models, grid, t, u))
+        Ok(coupled(models, &grid, t, u))
     }
+}
+
+/// The grid the `models` run with: `grid`, with each stack's model's
+/// `[fem_correction]` (`fpi axes refine`) on its stack and axis
+/// ([`FemCorrection::apply_grid`](crate::method::model::FemCorrection::apply_grid));
+/// the several-axis counterpart of [`HostModel::stage_maps`]. `names` name
+/// the models in errors.
+pub fn stage_grid(models: &[&HostModel], names: &[String], grid: &FemGrid) -> Result<FemGrid> {
+    let mut g = grid.clone();
+    for (i, m) in models.iter().enumerate() {
+        if let Some(c) = &m.fem_correction {
+            g = c
+                .apply_grid(&g, i)
+                .with_context(|| format!("{} (stack {})", names[i], AXIS_NAMES[i]))?;
+        }
+    }
+    Ok(g)
 }
 
 /// The coupled prediction of every axis (see the module docs); `models[i]` is
