@@ -214,7 +214,7 @@ fn print_session(r: &SessionReport) {
 /// Adds the board session to the report.
 fn append_report(path: &Path, r: &SessionReport, emulated: bool) -> Result<()> {
     let mut md = std::fs::read_to_string(path).unwrap_or_default();
-    let _ = writeln!(md, "\n## 6. The emulated board, driven over its link\n");
+    let _ = writeln!(md, "\n## 7. The emulated board, driven over its link\n");
     let _ = writeln!(
         md,
         "The firmware {} with its virtual stage; the efpi model exported \

@@ -267,7 +267,7 @@ fn append(path: &Path, tables: &[String; 3], plots: &[PathBuf], ok: bool) -> Res
     let mut md = std::fs::read_to_string(path).unwrap_or_default();
     let _ = writeln!(
         md,
-        "\n## 7. Damping, tracking and autotune on the stage as built\n"
+        "\n## 8. Damping, tracking and autotune on the stage as built\n"
     );
     let _ = writeln!(
         md,
