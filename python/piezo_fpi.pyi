@@ -24,6 +24,7 @@ __all__ = [
     "Model",
     "calibrate",
     "predict_axes",
+    "refine_axes",
     "qemu_available",
 ]
 
@@ -407,6 +408,11 @@ class Model:
     def per_file(self) -> List[Dict[str, Any]]: ...
     @property
     def warnings(self) -> List[str]: ...
+    @property
+    def fem_correction(self) -> Optional[Dict[str, Any]]:
+        """The correction of the stage's FEM tables (``fpi refine``, ``fpi axes
+        refine``): ``stage_gain``, ``stage_offset_um``, ``preload_scale``, ``fem``,
+        ``refined_on``; ``None`` without one."""
     def predict(self, *, fem: _Path, t_s: _ArrayLike, voltage_V: _ArrayLike) -> _Columns:
         """``fpi predict``: ``t_s``, ``voltage_V``, ``x_pea_um``, ``preload_N``, ``x_fhps_um``."""
     def invert(
@@ -427,6 +433,18 @@ def predict_axes(
     ``fpi axes refine`` brings its axis's correction of the grid); ``t_s`` and
     per axis ``voltage_V@x``, ``x_pea_um@x``, ``preload_N@x``, ``x_fhps_um@x``,
     …."""
+
+def refine_axes(
+    models: Sequence[Model],
+    *,
+    grid: _Path,
+    runs: Sequence[Dict[str, _ArrayLike]],
+    names: Optional[Sequence[str]] = None,
+) -> List[Model]:
+    """``fpi axes refine``: the grid corrected for the built stage axis by axis
+    from measured ``runs`` (``t_s`` and per axis ``voltage_V@x``, ``force_N@x``,
+    ``x_fhps_um@x``); each stack's model with its axis's correction, in axis
+    order (``predict_axes`` applies it)."""
 
 def calibrate(
     runs: Sequence[Dict[str, _ArrayLike]],

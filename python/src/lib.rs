@@ -33,6 +33,7 @@ fn piezo_fpi(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<model::Model>()?;
     m.add_function(wrap_pyfunction!(model::calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(model::predict_axes, m)?)?;
+    m.add_function(wrap_pyfunction!(model::refine_axes, m)?)?;
     m.add_function(wrap_pyfunction!(emulator::qemu_available, m)?)?;
     Ok(())
 }

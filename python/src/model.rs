@@ -3,7 +3,8 @@
 //! (`fpi_host::method::calibrate`, as `fpi calibrate` does from files), and its
 //! prediction (`fpi predict`) and inversion (`fpi invert`) of arrays;
 //! `piezo_fpi.predict_axes`: every axis of a stage of several stacks
-//! (`fpi axes predict`).
+//! (`fpi axes predict`), and `piezo_fpi.refine_axes`: its grid corrected for
+//! the built stage (`fpi axes refine`).
 
 use std::path::{Path, PathBuf};
 
@@ -120,6 +121,24 @@ impl Model {
     #[getter]
     fn warnings(&self) -> Vec<String> {
         self.inner.calibration.warnings.clone()
+    }
+
+    /// The correction of the stage's FEM tables the model carries (`fpi
+    /// refine`, `fpi axes refine`), or `None`: `stage_gain`, `stage_offset_um`
+    /// (µm), `preload_scale`, the `fem` it was refined against and the runs it
+    /// was `refined_on`.
+    #[getter]
+    fn fem_correction<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(c) = &self.inner.fem_correction else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("stage_gain", c.stage_gain)?;
+        d.set_item("stage_offset_um", c.stage_offset_um)?;
+        d.set_item("preload_scale", c.preload_scale)?;
+        d.set_item("fem", &c.fem)?;
+        d.set_item("refined_on", c.refined_on.clone())?;
+        Ok(Some(d))
     }
 
     /// Predicts the stage for the drive `voltage_V(t_s)` (V, s) with the stage's
@@ -393,4 +412,77 @@ pub fn predict_axes<'py>(
             .map(|(n, v)| (n.as_str(), v.to_vec()))
             .collect(),
     )
+}
+
+/// Corrects a stage's FEM grid for the built stage, axis by axis (`fpi axes
+/// refine`): `models` one for every stack or one per stack in axis order,
+/// `runs` measured runs of the built stage, each a dict of arrays with `t_s`
+/// (s) and per axis `voltage_V@x` (V), `force_N@x` (N) and `x_fhps_um@x` (µm),
+/// as `predict_axes` and `fpi axes record` name them; `names` name the runs in
+/// the models (default `runs[k]`). Each stack's model with its axis's
+/// `[fem_correction]`, in axis order (`predict_axes` applies it).
+#[pyfunction]
+#[pyo3(signature = (models, *, grid, runs, names = None))]
+pub fn refine_axes(
+    py: Python<'_>,
+    models: Vec<PyRef<'_, Model>>,
+    grid: PathBuf,
+    runs: Vec<Bound<'_, PyAny>>,
+    names: Option<Vec<String>>,
+) -> PyResult<Vec<Model>> {
+    use fpi_host::method::axes::grid::{column as named, FemGrid};
+    use fpi_host::method::axes::{predict as axes, refine};
+    if runs.is_empty() {
+        return Err(PyValueError::new_err("runs: no recordings given"));
+    }
+    if let Some(n) = names.as_ref().filter(|n| n.len() != runs.len()) {
+        return Err(PyValueError::new_err(format!(
+            "names: {} for {} runs",
+            n.len(),
+            runs.len()
+        )));
+    }
+    let g = py
+        .detach(|| FemGrid::read(&grid).map_err(anyhow::Error::from))
+        .map_err(|e| to_py(py, e, Otherwise::Input))?;
+    let of = axes::model_of_each_stack(models.len(), g.axes(), "models")
+        .map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
+    let chosen: Vec<&HostModel> = of.iter().map(|&k| &models[k].inner).collect();
+    let model_names: Vec<String> = of.iter().map(|k| format!("models[{k}]")).collect();
+    let mut data = Vec::with_capacity(runs.len());
+    for (k, run) in runs.iter().enumerate() {
+        let what = format!("runs[{k}]");
+        let d = run.cast::<PyDict>().map_err(|_| {
+            PyTypeError::new_err(format!(
+                "{what}: a dict of arrays (t_s, voltage_V@x, force_N@x, x_fhps_um@x, …), not {}",
+                run.get_type()
+            ))
+        })?;
+        let t = required(d, "t_s", &what)?;
+        finite(&format!("{what}[\"t_s\"]"), &t, true)?;
+        let per_axis = |q: &str| -> PyResult<Vec<Vec<f64>>> {
+            (0..g.axes())
+                .map(|i| {
+                    let key = named(q, i);
+                    let v = required(d, &key, &what)?;
+                    finite(&format!("{what}[{key:?}]"), &v, false)?;
+                    Ok(v)
+                })
+                .collect()
+        };
+        data.push(refine::AxesRun {
+            name: names.as_ref().map_or(what.clone(), |n| n[k].clone()),
+            t,
+            u: per_axis("voltage_V")?,
+            f: per_axis("force_N")?,
+            x: per_axis("x_fhps_um")?,
+        });
+    }
+    let (refined, r) = py
+        .detach(|| refine::refine_models(&chosen, &model_names, &g, &data))
+        .map_err(|e| to_py(py, e, Otherwise::Input))?;
+    for w in &r.warnings {
+        warn(py, w)?;
+    }
+    Ok(refined.into_iter().map(|inner| Model { inner }).collect())
 }

@@ -422,17 +422,21 @@ def test_long_calls_release_the_gil():
         assert len(ticks) >= 20
 
 
-def test_autotune_refines_the_feedforward_on_trials(tmp_path):
+def test_autotune_takes_its_options_and_refines_the_feedforward(tmp_path):
     """`autotune` on the in-process board with the stage as built: the table
-    names the trials asked for, the tuned model is written; a negative count
-    of trials is refused before anything runs."""
+    names the trials asked for, and the design's options reach it (designed
+    for a force sensor's σ of 1 N, the stage's being 0.15 N, the damping
+    target is lowered and the table says so); the tuned model is written; a
+    negative count of trials is refused before anything runs."""
     model = ROOT / "firmware" / "model" / "stage-a.toml"
     with pf.Board("virtual:usb") as b:
         b.bench(stage="built")
         with pytest.raises(OverflowError):
             b.autotune(model, tmp_path / "never.toml", trials=-1)
-        table = b.autotune(model, tmp_path / "tuned.toml", trials=1)
+        table = b.autotune(model, tmp_path / "tuned.toml", trials=1, force_noise_n=1.0)
         assert "1 trial(s)" in table, table
+        assert "lowered for the noise" in table, table
+        assert "(asked 0.50" in table, table
         # The tuned model runs: its damping and shaping switch off and on, by
         # name and by key (in open loop: its gains need the damping closed).
         b.loop("open")
@@ -455,20 +459,6 @@ def test_autotune_refines_the_feedforward_on_trials(tmp_path):
         assert "taps" in text and "preview_ticks = 5" in text
         with pytest.raises(ValueError, match="target_damping 2: between 0 and 1"):
             b.autotune(model, tmp_path / "never.toml", target_damping=2.0)
-
-
-def test_autotune_takes_the_design_options(tmp_path):
-    """The design's options reach autotune: designed for a force sensor's σ
-    of 1 N (the stage's is 0.15 N), the damping target is lowered and the
-    table says so."""
-    model = ROOT / "firmware" / "model" / "stage-a.toml"
-    with pf.Board("virtual:usb") as b:
-        b.bench(stage="built")
-        table = b.autotune(
-            model, tmp_path / "tuned.toml", trials=0, force_noise_n=1.0
-        )
-        assert "lowered for the noise" in table, table
-        assert "(asked 0.50" in table, table
 
 
 def test_motions_record_every_tick_of_what_they_do(board):

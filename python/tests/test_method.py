@@ -172,3 +172,50 @@ def test_predict_axes_gives_the_clis_numbers(cli_model, tmp_path, fpi):
         pf.predict_axes([m, m, m], grid=grid, t_s=t, voltages=[ux, uy])
     with pytest.raises(ValueError, match="the drive has 1 axes"):
         pf.predict_axes([m], grid=grid, t_s=t, voltages=[ux])
+
+
+def read_axes_csv(path) -> dict:
+    """A several-axis recording (`fpi axes record`): arrays by column, the
+    `@x`/`@y` in the names kept."""
+    with open(path, encoding="utf-8") as f:
+        header = f.readline().strip().split(",")
+    values = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return {name: values[:, k].copy() for k, name in enumerate(header)}
+
+
+def test_refine_axes_gives_the_clis_corrections(cli_model, tmp_path, fpi):
+    """`refine_axes` on a recording of the XY prototype: the corrections
+    `fpi axes refine` writes, digit for digit; the refined models predict the
+    run better; a run without a column is refused naming it."""
+    grid = DATA / "xy" / "fem_grid.csv.gz"
+    t = np.arange(4000) * 5e-5
+    drive = tmp_path / "drive.csv"
+    ux = 50 - 50 * np.cos(2 * np.pi * 5 * t)
+    uy = 50 - 50 * np.cos(2 * np.pi * 3 * t)
+    lines = ["t_s,voltage_V@x,voltage_V@y"] + [f"{a:.6f},{b:.6f},{c:.6f}" for a, b, c in zip(t, ux, uy)]
+    drive.write_text("\n".join(lines) + "\n")
+    rec = tmp_path / "built.csv"
+    fpi("axes", "record", "--stage", "xy-built", "--drive", drive, "--out", rec)
+    outs = [tmp_path / "x.toml", tmp_path / "y.toml"]
+    fpi("axes", "refine", "--grid", grid, "--model", cli_model, "--run", rec, "--out", *outs)
+    run = read_axes_csv(rec)
+    m = pf.Model.load(cli_model)
+    refined = pf.refine_axes([m], grid=grid, runs=[run], names=[str(rec)])
+    assert len(refined) == 2 and m.fem_correction is None
+    for r, out in zip(refined, outs):
+        mine, cli = r.fem_correction, pf.Model.load(out).fem_correction
+        assert mine["fem"] == str(grid) and mine["refined_on"] == [str(rec)]
+        for key in ("stage_gain", "stage_offset_um", "preload_scale"):
+            assert mine[key] == pytest.approx(cli[key], rel=1e-12, abs=1e-12), key
+    voltages = [run["voltage_V@x"], run["voltage_V@y"]]
+    err = lambda ms: [
+        np.sqrt(np.mean((p - run[f"x_fhps_um@{a}"]) ** 2))
+        for a, p in zip("xy", (lambda c: [c["x_fhps_um@x"], c["x_fhps_um@y"]])(
+            pf.predict_axes(ms, grid=grid, t_s=run["t_s"], voltages=voltages)
+        ))
+    ]
+    before, after = err([m]), err(refined)
+    assert all(a < b for a, b in zip(after, before)), (before, after)
+    del run["force_N@y"]
+    with pytest.raises(ValueError, match='runs\\[0\\]: no column "force_N@y"'):
+        pf.refine_axes([m], grid=grid, runs=[run])

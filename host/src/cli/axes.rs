@@ -271,7 +271,7 @@ pub fn refine(
     runs: &[PathBuf],
     out: &[PathBuf],
 ) -> Result<crate::method::axes::refine::AxesRefinement> {
-    use crate::method::axes::refine::{estimate, AxesRun};
+    use crate::method::axes::refine::{refine_models, AxesRun};
     let mut given: Vec<(&str, &Path)> = vec![("--grid", grid)];
     given.extend(model.iter().map(|m| ("--model", m.as_path())));
     given.extend(runs.iter().map(|r| ("--run", r.as_path())));
@@ -310,13 +310,7 @@ pub fn refine(
         .collect::<Result<Vec<_>, DataError>>()?;
     let refs: Vec<&HostModel> = models.iter().collect();
     let start = Instant::now();
-    let r = estimate(
-        &refs,
-        &names,
-        &g,
-        &data,
-        &crate::method::refine::Options::default(),
-    )?;
+    let (refined, r) = refine_models(&refs, &names, &g, &data)?;
     let secs = start.elapsed().as_secs_f64();
     for w in &r.warnings {
         eprintln!("warning: {w}");
@@ -336,14 +330,8 @@ pub fn refine(
         "RMSE before, µm",
         "RMSE after, µm"
     );
-    for (i, c) in r.corrections.iter().enumerate() {
-        let mut refined = models[i].clone();
-        refined.fem_correction = Some(crate::method::model::FemCorrection {
-            fem: grid.display().to_string(),
-            refined_on: runs.iter().map(|p| p.display().to_string()).collect(),
-            ..c.clone()
-        });
-        refined.write(&out[i])?;
+    for (i, (c, m)) in r.corrections.iter().zip(&refined).enumerate() {
+        m.write(&out[i])?;
         println!(
             "  {:<4} {:>13.5} {:>11.5} {:>15.4} {:>18.4} {:>17.4}  {}",
             AXIS_NAMES[i],

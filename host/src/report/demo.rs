@@ -826,7 +826,7 @@ impl<'o> Chain<'o> {
         both: &[Vec<f64>],
         x_only: &[Vec<f64>],
     ) -> Result<()> {
-        use crate::method::axes::refine::{estimate, AxesRun};
+        use crate::method::axes::refine::{refine_models, AxesRun};
         use crate::method::axes::{predict as axes, record};
         use piezo_sim::axes::{AxesSpec, AXIS_NAMES};
         let built = AxesSpec::base("xy-built").context("the XY prototype")?;
@@ -845,19 +845,7 @@ impl<'o> Chain<'o> {
             f: column(&cal, 1),
             x: column(&cal, 3),
         };
-        let r = estimate(&refs, &names, grid, &[measured], &Default::default())?;
-        let refined: Vec<HostModel> = models
-            .iter()
-            .zip(&r.corrections)
-            .map(|(m, c)| {
-                let mut m = m.clone();
-                m.fem_correction = Some(crate::method::model::FemCorrection {
-                    fem: grid.source.clone(),
-                    ..c.clone()
-                });
-                m
-            })
-            .collect();
+        let (refined, r) = refine_models(&refs, &names, grid, &[measured])?;
         let (u, truth) = (column(&run, 0), column(&run, 3));
         let score = |ms: &[HostModel]| -> Result<Vec<f64>> {
             let refs: Vec<&HostModel> = ms.iter().collect();

@@ -193,6 +193,31 @@ fn unexplained(r: &AxesRun, i: usize, after: &[f64]) -> Option<String> {
     })
 }
 
+/// The stacks' models, each with its axis's correction of `grid` estimated
+/// from `runs` ([`estimate`]), naming the grid (its source) and the runs:
+/// what `fpi axes refine` writes and Python's `refine_axes` returns.
+pub fn refine_models(
+    models: &[&HostModel],
+    names: &[String],
+    grid: &FemGrid,
+    runs: &[AxesRun],
+) -> Result<(Vec<HostModel>, AxesRefinement)> {
+    let r = estimate(models, names, grid, runs, &Options::default())?;
+    let refined = models
+        .iter()
+        .zip(&r.corrections)
+        .map(|(m, c)| HostModel {
+            fem_correction: Some(FemCorrection {
+                fem: grid.source.clone(),
+                refined_on: runs.iter().map(|r| r.name.clone()).collect(),
+                ..c.clone()
+            }),
+            ..(*m).clone()
+        })
+        .collect();
+    Ok((refined, r))
+}
+
 /// Each axis's least-squares sums over every run's samples.
 fn sums(runs: &[AxesRun], preds: &[AxesPrediction], n: usize) -> Vec<Sums> {
     let mut out = vec![Sums::default(); n];
