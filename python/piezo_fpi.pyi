@@ -415,6 +415,16 @@ class Model:
         ``refined_on``; ``None`` without one."""
     def predict(self, *, fem: _Path, t_s: _ArrayLike, voltage_V: _ArrayLike) -> _Columns:
         """``fpi predict``: ``t_s``, ``voltage_V``, ``x_pea_um``, ``preload_N``, ``x_fhps_um``."""
+    def refine(
+        self,
+        *,
+        fem: _Path,
+        runs: Sequence[Dict[str, _ArrayLike]],
+        names: Optional[Sequence[str]] = None,
+    ) -> "Model":
+        """``fpi refine``: the model with the correction of the FEM table ``fem``
+        estimated from measured runs of the built stage (``t_s``, ``voltage_V``,
+        ``force_N``, ``x_fhps_um``)."""
     def invert(
         self, *, fem: _Path, t_s: _ArrayLike, x_fhps_um: _ArrayLike, u_max: float = 150.0
     ) -> _Columns:

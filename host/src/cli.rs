@@ -417,18 +417,9 @@ pub fn refine(model: &Path, fem: &Path, runs: &[PathBuf], out: &Path) -> Result<
         drive_in_range(&r.path, &m, &r.u)?;
     }
     let start = std::time::Instant::now();
-    let r = crate::method::refine::estimate(
-        &m,
-        &maps,
-        &data,
-        &crate::method::refine::Options::default(),
-    )?;
+    let (refined, r) = crate::method::refine::refine_model(&m, &maps, &data)?;
     let secs = start.elapsed().as_secs_f64();
-    let mut refined = m.clone();
-    let mut c = r.correction.clone();
-    c.fem = fem.display().to_string();
-    c.refined_on = runs.iter().map(|p| p.display().to_string()).collect();
-    refined.fem_correction = Some(c.clone());
+    let c = &r.correction;
     println!(
         "FEM tables {} refined for the {} model {} on {} run(s) ({} rounds, {:.2} s):",
         fem.display(),

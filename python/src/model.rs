@@ -188,6 +188,82 @@ impl Model {
         )
     }
 
+    /// The model with the correction of the stage's FEM table `fem` estimated
+    /// from measured `runs` of the built stage (`fpi refine`): each a dict of
+    /// arrays `t_s` (s), `voltage_V` (V), `force_N` (N), `x_fhps_um` (µm), as a
+    /// board recording has them; `names` name the runs in the model (default
+    /// `runs[k]`). The table is used as it is (the model's own correction, if
+    /// any, is estimated anew).
+    #[pyo3(signature = (*, fem, runs, names = None))]
+    fn refine(
+        &self,
+        py: Python<'_>,
+        fem: PathBuf,
+        runs: Vec<Bound<'_, PyAny>>,
+        names: Option<Vec<String>>,
+    ) -> PyResult<Model> {
+        if runs.is_empty() {
+            return Err(PyValueError::new_err("runs: no recordings given"));
+        }
+        if let Some(n) = names.as_ref().filter(|n| n.len() != runs.len()) {
+            return Err(PyValueError::new_err(format!(
+                "names: {} for {} runs",
+                n.len(),
+                runs.len()
+            )));
+        }
+        let m = &self.inner;
+        let mut data = Vec::with_capacity(runs.len());
+        for (k, run) in runs.iter().enumerate() {
+            let what = format!("runs[{k}]");
+            let d = run.cast::<PyDict>().map_err(|_| {
+                PyTypeError::new_err(format!(
+                    "{what}: a dict of arrays (t_s, voltage_V, force_N, x_fhps_um), not {}",
+                    run.get_type()
+                ))
+            })?;
+            let col = |key: &str, increasing: bool| -> PyResult<Vec<f64>> {
+                let v = required(d, key, &what)?;
+                finite(&format!("{what}[{key:?}]"), &v, increasing)?;
+                Ok(v)
+            };
+            let (t, u, f, x) = (
+                col("t_s", true)?,
+                col("voltage_V", false)?,
+                col("force_N", false)?,
+                col("x_fhps_um", false)?,
+            );
+            if let Some((i, v)) = predict::outside_range(m, &u) {
+                let (lo, hi) = predict::input_range(m);
+                return Err(PyValueError::new_err(format!(
+                    "{what}[\"voltage_V\"][{i}] = {v} V is outside the model's input range \
+                     {lo}..{hi} V; the model would clamp it"
+                )));
+            }
+            let path = names.as_ref().map_or(what.clone(), |n| n[k].clone());
+            data.push(fpi_host::data::StageRun {
+                path: path.into(),
+                t,
+                u,
+                f,
+                x,
+            });
+        }
+        let maps = py
+            .detach(|| FemMaps::read(&fem).map_err(anyhow::Error::from))
+            .map_err(|e| to_py(py, e, Otherwise::Input))?;
+        for w in maps.warnings() {
+            warn(py, w)?;
+        }
+        let (refined, r) = py
+            .detach(|| fpi_host::method::refine::refine_model(m, &maps, &data))
+            .map_err(|e| to_py(py, e, Otherwise::Input))?;
+        for w in &r.warnings {
+            warn(py, w)?;
+        }
+        Ok(Model { inner: refined })
+    }
+
     /// The voltage that makes the stage follow `x_fhps_um(t_s)` (µm, s) with the
     /// stage's FEM table `fem` (`fpi invert`), within 0..`u_max` V: a dict of
     /// arrays `t_s`, `voltage_V`. Targets outside the reachable stroke are

@@ -219,3 +219,20 @@ def test_refine_axes_gives_the_clis_corrections(cli_model, tmp_path, fpi):
     del run["force_N@y"]
     with pytest.raises(ValueError, match='runs\\[0\\]: no column "force_N@y"'):
         pf.refine_axes([m], grid=grid, runs=[run])
+
+
+def test_refine_gives_the_clis_correction(cli_model, tmp_path, fpi):
+    """`Model.refine` on a run of stage A: the correction `fpi refine` writes,
+    digit for digit, naming the FEM and the run; a run without force is
+    refused naming the column."""
+    out = tmp_path / "refined.toml"
+    fpi("refine", "--model", cli_model, "--fem", FEM, "--run", RUN, "--out", out)
+    run = read_csv(RUN)
+    refined = pf.Model.load(cli_model).refine(fem=FEM, runs=[run], names=[str(RUN)])
+    mine, cli = refined.fem_correction, pf.Model.load(out).fem_correction
+    assert mine["fem"] == str(FEM) and mine["refined_on"] == [str(RUN)]
+    for key in ("stage_gain", "stage_offset_um", "preload_scale"):
+        assert mine[key] == pytest.approx(cli[key], rel=1e-12, abs=1e-12), key
+    del run["force_N"]
+    with pytest.raises(ValueError, match='runs\\[0\\]: no column "force_N"'):
+        pf.Model.load(cli_model).refine(fem=FEM, runs=[run])

@@ -333,6 +333,26 @@ pub fn estimate(
     })
 }
 
+/// `model` with the correction of `fem` estimated from `runs` ([`estimate`]),
+/// naming the FEM (its source) and the runs (their paths): what `fpi refine`
+/// writes and Python's `Model.refine` returns.
+pub fn refine_model(
+    model: &HostModel,
+    fem: &FemMaps,
+    runs: &[StageRun],
+) -> Result<(HostModel, Refinement)> {
+    let r = estimate(model, fem, runs, &Options::default())?;
+    let refined = HostModel {
+        fem_correction: Some(FemCorrection {
+            fem: fem.source.clone(),
+            refined_on: runs.iter().map(|r| r.path.display().to_string()).collect(),
+            ..r.correction.clone()
+        }),
+        ..model.clone()
+    };
+    Ok((refined, r))
+}
+
 /// Largest minus smallest value.
 fn span(v: &[f64]) -> f64 {
     let (lo, hi) = v
