@@ -244,9 +244,29 @@ pub fn design_preview(
     rate_hz: f64,
     o: &TimeOptions,
 ) -> Result<Feedforward> {
-    use super::simulate::{respond_led, step, triangle};
     use piezo_fpi::preview::TAPS;
     check_preview(o.preview)?;
+    let (rows, rhs) = preview_rows(p, l, rate_hz, o);
+    let h = fit_taps_within_gain(&rows, &rhs, o.ridge, &[0.0; TAPS], 1.0)?;
+    Ok(Feedforward::Preview {
+        ticks: o.preview,
+        taps: quantise_taps(&h)?,
+        trials: 0,
+    })
+}
+
+/// The least squares [`design_preview`] solves for the taps: a row per tick
+/// of the step and the triangle (each tap's response, [`tap_responses`]) and
+/// its right-hand side (the reference less the loops' response without
+/// taps). `o.preview` must be a preview the board has ([`check_preview`]).
+pub fn preview_rows(
+    p: &piezo_fpi::stability::Plant,
+    l: &piezo_fpi::stability::Laws,
+    rate_hz: f64,
+    o: &TimeOptions,
+) -> (Vec<Vec<f64>>, Vec<f64>) {
+    use super::simulate::{respond_led, step, triangle};
+    use piezo_fpi::preview::TAPS;
     let n = usize::from(o.preview);
     let period = (rate_hz / o.triangle_hz).round() as usize;
     let refs = [
@@ -264,13 +284,7 @@ pub fn design_preview(
             rhs.push(r[k] - y0[k]);
         }
     }
-    let zeros = vec![0.0; TAPS];
-    let h = fit_taps_within_gain(&rows, &rhs, o.ridge, &zeros, 1.0)?;
-    Ok(Feedforward::Preview {
-        ticks: o.preview,
-        taps: quantise_taps(&h)?,
-        trials: 0,
-    })
+    (rows, rhs)
 }
 
 /// Ridges tried, each ten times the last, before taps within the board's gain

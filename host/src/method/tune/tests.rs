@@ -270,25 +270,8 @@ fn a_plant_with_nothing_to_invert_gets_taps_the_board_takes() {
     let o = feedforward::TimeOptions::default();
     let rate = f64::from(fw.controller.rate_hz);
     // The ridge as designed is not enough on this plant ...
-    let unbounded = {
-        use piezo_fpi::preview::TAPS;
-        use simulate::{respond_led, step, triangle};
-        let period = (rate / o.triangle_hz).round() as usize;
-        let (mut rows, mut rhs) = (Vec::new(), Vec::new());
-        for r in [
-            step(1.0, o.step_ticks, 2 * TAPS, 8 * o.step_ticks),
-            triangle(1.0, period, 3),
-        ] {
-            let zeros = vec![0.0; r.len()];
-            let y0 = respond_led(&p, &t.laws, &r, &zeros, &zeros, true);
-            let basis = feedforward::tap_responses(&p, &t.laws, usize::from(o.preview), &r);
-            for k in 0..r.len() {
-                rows.push(basis.iter().map(|b| b[k]).collect::<Vec<f64>>());
-                rhs.push(r[k] - y0[k]);
-            }
-        }
-        feedforward::fit_with_sum(&rows, &rhs, o.ridge, 1.0).unwrap()
-    };
+    let (rows, rhs) = feedforward::preview_rows(&p, &t.laws, rate, &o);
+    let unbounded = feedforward::fit_with_sum(&rows, &rhs, o.ridge, 1.0).unwrap();
     let wanted = feedforward::taps_gain(&unbounded);
     // ... the design's taps are within the board's gain, and the model builds.
     let Some(Feedforward::Preview { taps, .. }) = &t.feedforward else {
