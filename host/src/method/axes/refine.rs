@@ -16,7 +16,7 @@
 //! measured output (`x_fhps_um@i`), exact for the last scales. The actuators'
 //! parameters are not touched.
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use piezo_sim::axes::AXIS_NAMES;
 
 use crate::method::axes::grid::FemGrid;
@@ -75,23 +75,19 @@ pub fn estimate(
     }
     for r in runs {
         check_run(r, n)?;
+        predict::check(models, names, grid, &r.u).with_context(|| r.name.clone())?;
     }
-    let bare: Vec<HostModel> = models
-        .iter()
-        .map(|m| HostModel {
-            fem_correction: None,
-            ..(*m).clone()
-        })
-        .collect();
-    let bare: Vec<&HostModel> = bare.iter().collect();
+    // The models' own corrections are not applied: `coupled` runs on the
+    // grid it is given, here the grid with the scales of this round.
     let run_all = |s: &[f64]| -> Result<Vec<AxesPrediction>> {
         let mut g = grid.clone();
         for (i, si) in s.iter().enumerate() {
             g = g.corrected(i, 1.0, 0.0, *si)?;
         }
-        runs.iter()
-            .map(|r| predict::run(&bare, names, &g, &r.t, &r.u, false))
-            .collect()
+        Ok(runs
+            .iter()
+            .map(|r| predict::coupled(models, &g, &r.t, &r.u))
+            .collect())
     };
     let before = run_all(&vec![1.0; n])?;
     let (mut s, mut preds) = (vec![1.0; n], before.clone());
