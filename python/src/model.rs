@@ -202,31 +202,13 @@ impl Model {
         runs: Vec<Bound<'_, PyAny>>,
         names: Option<Vec<String>>,
     ) -> PyResult<Model> {
-        if runs.is_empty() {
-            return Err(PyValueError::new_err("runs: no recordings given"));
-        }
-        if let Some(n) = names.as_ref().filter(|n| n.len() != runs.len()) {
-            return Err(PyValueError::new_err(format!(
-                "names: {} for {} runs",
-                n.len(),
-                runs.len()
-            )));
-        }
+        let names = run_names(runs.len(), names)?;
         let m = &self.inner;
         let mut data = Vec::with_capacity(runs.len());
-        for (k, run) in runs.iter().enumerate() {
+        for (k, (run, name)) in runs.iter().zip(names).enumerate() {
             let what = format!("runs[{k}]");
-            let d = run.cast::<PyDict>().map_err(|_| {
-                PyTypeError::new_err(format!(
-                    "{what}: a dict of arrays (t_s, voltage_V, force_N, x_fhps_um), not {}",
-                    run.get_type()
-                ))
-            })?;
-            let col = |key: &str, increasing: bool| -> PyResult<Vec<f64>> {
-                let v = required(d, key, &what)?;
-                finite(&format!("{what}[{key:?}]"), &v, increasing)?;
-                Ok(v)
-            };
+            let d = run_dict(run, &what, "t_s, voltage_V, force_N, x_fhps_um")?;
+            let col = |key: &str, increasing: bool| finite_column(d, key, &what, increasing);
             let (t, u, f, x) = (
                 col("t_s", true)?,
                 col("voltage_V", false)?,
@@ -240,9 +222,8 @@ impl Model {
                      {lo}..{hi} V; the model would clamp it"
                 )));
             }
-            let path = names.as_ref().map_or(what.clone(), |n| n[k].clone());
             data.push(fpi_host::data::StageRun {
-                path: path.into(),
+                path: name.into(),
                 t,
                 u,
                 f,
@@ -332,6 +313,50 @@ impl Model {
     }
 }
 
+/// The names of `runs` recordings: `names` where given (one per run), else
+/// `runs[k]`; no runs, or a count of names other than the runs', refused.
+fn run_names(runs: usize, names: Option<Vec<String>>) -> PyResult<Vec<String>> {
+    if runs == 0 {
+        return Err(PyValueError::new_err("runs: no recordings given"));
+    }
+    match names {
+        Some(n) if n.len() != runs => Err(PyValueError::new_err(format!(
+            "names: {} names for {runs} runs",
+            n.len()
+        ))),
+        Some(n) => Ok(n),
+        None => Ok((0..runs).map(|k| format!("runs[{k}]")).collect()),
+    }
+}
+
+/// Run `what` (`runs[k]`) as a dict of arrays; `columns` says which, for the
+/// error.
+fn run_dict<'a, 'py>(
+    run: &'a Bound<'py, PyAny>,
+    what: &str,
+    columns: &str,
+) -> PyResult<&'a Bound<'py, PyDict>> {
+    run.cast::<PyDict>().map_err(|_| {
+        PyTypeError::new_err(format!(
+            "{what}: a dict of arrays ({columns}), not {}",
+            run.get_type()
+        ))
+    })
+}
+
+/// Column `key` of run `what`, which must be there, finite (and increasing if
+/// `increasing`).
+fn finite_column(
+    d: &Bound<'_, PyDict>,
+    key: &str,
+    what: &str,
+    increasing: bool,
+) -> PyResult<Vec<f64>> {
+    let v = required(d, key, what)?;
+    finite(&format!("{what}[{key:?}]"), &v, increasing)?;
+    Ok(v)
+}
+
 /// The recording `run` (a dict of arrays, `runs[k]`) for calibration: `t_s`,
 /// `voltage_V`, `force_N` if it has one, and the displacement, µm:
 /// `displacement_um` (a preload rig's stack extension) or else `x_fhps_um` (a
@@ -343,12 +368,7 @@ fn run_data(
     rows: Option<(usize, usize)>,
 ) -> PyResult<method::CalibData> {
     let what = format!("runs[{k}]");
-    let d = run.cast::<PyDict>().map_err(|_| {
-        PyTypeError::new_err(format!(
-            "{what}: a dict of arrays (t_s, voltage_V, force_N, displacement_um), not {}",
-            run.get_type()
-        ))
-    })?;
+    let d = run_dict(run, &what, "t_s, voltage_V, force_N, displacement_um")?;
     let t = required(d, "t_s", &what)?;
     let u = required(d, "voltage_V", &what)?;
     let f = column(d, "force_N", &what)?;
@@ -391,20 +411,7 @@ pub fn calibrate(
         .try_iter()
         .map_err(|_| PyTypeError::new_err("runs: a list of dicts of arrays"))?
         .collect::<PyResult<_>>()?;
-    if runs.is_empty() {
-        return Err(PyValueError::new_err("runs: no recordings given"));
-    }
-    let names = match names {
-        Some(n) if n.len() != runs.len() => {
-            return Err(PyValueError::new_err(format!(
-                "names: {} names for {} runs",
-                n.len(),
-                runs.len()
-            )))
-        }
-        Some(n) => n,
-        None => (0..runs.len()).map(|k| format!("runs[{k}]")).collect(),
-    };
+    let names = run_names(runs.len(), names)?;
     if rows.is_some() && runs.len() != 1 {
         return Err(PyValueError::new_err(format!(
             "rows selects a window of one recording; {} were given",
@@ -508,16 +515,7 @@ pub fn refine_axes(
 ) -> PyResult<Vec<Model>> {
     use fpi_host::method::axes::grid::{column as named, FemGrid};
     use fpi_host::method::axes::{predict as axes, refine};
-    if runs.is_empty() {
-        return Err(PyValueError::new_err("runs: no recordings given"));
-    }
-    if let Some(n) = names.as_ref().filter(|n| n.len() != runs.len()) {
-        return Err(PyValueError::new_err(format!(
-            "names: {} for {} runs",
-            n.len(),
-            runs.len()
-        )));
-    }
+    let names = run_names(runs.len(), names)?;
     let g = py
         .detach(|| FemGrid::read(&grid).map_err(anyhow::Error::from))
         .map_err(|e| to_py(py, e, Otherwise::Input))?;
@@ -526,28 +524,17 @@ pub fn refine_axes(
     let chosen: Vec<&HostModel> = of.iter().map(|&k| &models[k].inner).collect();
     let model_names: Vec<String> = of.iter().map(|k| format!("models[{k}]")).collect();
     let mut data = Vec::with_capacity(runs.len());
-    for (k, run) in runs.iter().enumerate() {
+    for (k, (run, name)) in runs.iter().zip(names).enumerate() {
         let what = format!("runs[{k}]");
-        let d = run.cast::<PyDict>().map_err(|_| {
-            PyTypeError::new_err(format!(
-                "{what}: a dict of arrays (t_s, voltage_V@x, force_N@x, x_fhps_um@x, …), not {}",
-                run.get_type()
-            ))
-        })?;
-        let t = required(d, "t_s", &what)?;
-        finite(&format!("{what}[\"t_s\"]"), &t, true)?;
+        let d = run_dict(run, &what, "t_s, voltage_V@x, force_N@x, x_fhps_um@x, …")?;
+        let t = finite_column(d, "t_s", &what, true)?;
         let per_axis = |q: &str| -> PyResult<Vec<Vec<f64>>> {
             (0..g.axes())
-                .map(|i| {
-                    let key = named(q, i);
-                    let v = required(d, &key, &what)?;
-                    finite(&format!("{what}[{key:?}]"), &v, false)?;
-                    Ok(v)
-                })
+                .map(|i| finite_column(d, &named(q, i), &what, false))
                 .collect()
         };
         data.push(refine::AxesRun {
-            name: names.as_ref().map_or(what.clone(), |n| n[k].clone()),
+            name,
             t,
             u: per_axis("voltage_V")?,
             f: per_axis("force_N")?,

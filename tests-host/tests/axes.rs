@@ -117,6 +117,28 @@ fn on_the_xy_twin_the_coupled_prediction_beats_independent_axes() {
     }
 }
 
+/// `fpi axes refine` of `grid` on `run` with `models`, into `out`.
+fn refine_args<'a>(
+    grid: &'a Path,
+    run: &'a Path,
+    models: &'a [PathBuf],
+    out: &'a [PathBuf],
+) -> Vec<&'a str> {
+    let mut args = vec![
+        "axes",
+        "refine",
+        "--grid",
+        s(grid),
+        "--run",
+        s(run),
+        "--model",
+    ];
+    args.extend(models.iter().map(|m| s(m)));
+    args.push("--out");
+    args.extend(out.iter().map(|m| s(m)));
+    args
+}
+
 /// The XY stage as built: each stack calibrated on a run with both axes
 /// swept, the grid refined on that run (`fpi axes refine`: each axis's preload
 /// scale, gain and offset, with the coupled prediction), and both scored on a
@@ -134,19 +156,7 @@ fn on_the_xy_stage_as_built_the_refined_grid_takes_out_its_deviations() {
     let models = [calibrate(&dir, &both, "x"), calibrate(&dir, &both, "y")];
     let unrefined = &compare(grid, &models, std::slice::from_ref(&x_only)).unwrap()[0];
     let refined = [dir.join("x-refined.toml"), dir.join("y-refined.toml")];
-    let mut args = vec![
-        "axes",
-        "refine",
-        "--grid",
-        s(grid),
-        "--run",
-        s(&both),
-        "--model",
-    ];
-    args.extend(models.iter().map(|m| s(m)));
-    args.push("--out");
-    args.extend(refined.iter().map(|m| s(m)));
-    let printed = ok(&args);
+    let printed = ok(&refine_args(grid, &both, &models, &refined));
     println!("{}", printed.replace(&format!("{}/", dir.display()), ""));
     assert!(
         printed.contains("preload_scale") && printed.contains("y-refined.toml"),
@@ -167,18 +177,10 @@ fn on_the_xy_stage_as_built_the_refined_grid_takes_out_its_deviations() {
         );
     }
     // One output for two stacks; a correction refined on a one-axis FEM.
-    let mut args = vec![
-        "axes",
-        "refine",
-        "--grid",
-        s(grid),
-        "--run",
-        s(&both),
-        "--model",
-    ];
-    args.push(s(&models[0]));
-    args.extend(["--out", s(&refined[0])]);
-    refused(&args, &["--out: 1 given for a grid of 2 stacks", "x, y"]);
+    refused(
+        &refine_args(grid, &both, &models[..1], &refined[..1]),
+        &["--out: 1 given for a grid of 2 stacks", "x, y"],
+    );
     let text = std::fs::read_to_string(&refined[0]).unwrap();
     let other = dir.join("one-axis-refined.toml");
     let at = text.find("fem = ").unwrap();
