@@ -29,7 +29,7 @@ mod bench {
     use fpi_firmware::board::capacity::{RECORDER_SAMPLES, STREAM_POINTS};
     use fpi_firmware::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
     use fpi_firmware::board::factory_model::{self, CONTROLLER, MODEL_IMAGE};
-    use fpi_firmware::control::exchange::{Exchange, Order};
+    use fpi_firmware::control::exchange::{Exchange, Order, Posted};
     use fpi_firmware::control::recorder::Recorder;
     use fpi_firmware::control::reference::stream::Points;
     use fpi_firmware::control::reference::wave::{Shape as WaveShape, Wave, WavePhase};
@@ -426,8 +426,8 @@ mod bench {
         let rest = CONTROLLER.preload(Micrometres::ZERO).to_num::<f32>();
         LINK.set_force(rest);
         LINK.set_position(0.0);
-        let mut lp = ControlLoop::new(running, LINK.hardware(), LINK.analog());
-        x.order = Some((1, Order::Record { decimation: 1 }));
+        let mut lp = ControlLoop::new([(running, LINK.hardware(), LINK.analog())]);
+        x.order = Some(Posted::all(1, Order::Record { decimation: 1 }));
         lp.tick(&mut x);
         // The trigger output on its costliest condition throughout: a pulse
         // every 0.1 µm of travel.
@@ -437,7 +437,7 @@ mod bench {
         let Ok(trigger) = Trigger::new(travel, 2) else {
             return false;
         };
-        x.order = Some((3, Order::Trigger(trigger)));
+        x.order = Some(Posted::all(3, Order::Trigger(trigger)));
         lp.tick(&mut x);
         let open_ok = tick_phase(&mut lp, &mut x, baseline, false);
         let Some(closed) = closed else {
@@ -445,12 +445,12 @@ mod bench {
             return false;
         };
         // Park, swap the model in, close the loop, run the stroke again.
-        x.order = Some((4, Order::Safe));
+        x.order = Some(Posted::all(4, Order::Safe));
         for _ in 0..200 {
             lp.tick(&mut x);
         }
         x.model = Some(closed);
-        x.order = Some((5, Order::Swap));
+        x.order = Some(Posted::all(5, Order::Swap));
         lp.tick(&mut x);
         let swapped = matches!(x.applied, Some(a) if a.result.is_ok());
         // A step command over the stroke, as long as the phase, running when
@@ -460,9 +460,9 @@ mod bench {
             target: Micrometres::from_num(38),
             phase_step: fpi_firmware::control::reference::step_phase_for(STEPS + 20),
         };
-        x.order = Some((6, Order::Source(up)));
+        x.order = Some(Posted::all(6, Order::Source(up)));
         lp.tick(&mut x);
-        x.order = Some((7, Order::Loop(LoopMode::Closed)));
+        x.order = Some(Posted::all(7, Order::Loop(LoopMode::Closed)));
         lp.tick(&mut x);
         let stepping_ok = swapped && stepping_phase(&mut lp, &mut x, baseline);
         let closed_ok = stepping_ok && tick_phase(&mut lp, &mut x, baseline, true);
@@ -480,7 +480,10 @@ mod bench {
 
     /// Runs a 5 Hz full stroke from where the loop is and prints its counts.
     fn tick_phase(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32, closed: bool) -> bool {
-        x.order = Some((2, Order::Source(SourceOrder::Wave(full_stroke(5.0)))));
+        x.order = Some(Posted::all(
+            2,
+            Order::Source(SourceOrder::Wave(full_stroke(5.0))),
+        ));
         lp.tick(x);
         let (c, ok, depth) = run_ticks(lp, x, baseline);
         let names = if closed {
@@ -510,7 +513,7 @@ mod bench {
                 target: Micrometres::from_num(target),
                 step: Micrometres::from_num(2),
             };
-            x.order = Some((seq, Order::Source(fast)));
+            x.order = Some(Posted::all(seq, Order::Source(fast)));
             lp.tick(x);
             let (part, part_ok, part_depth) = run_ticks(lp, x, baseline);
             c.merge(&part);
@@ -564,10 +567,13 @@ mod bench {
                 " FAILED: faulted or not recording"
             }
         );
-        if let Some((f, at)) = x.snapshot.fault {
+        if let Some((f, at)) = x.snapshot.axes[0].fault {
             hprintln!("  fault at tick {}: {}", at, f.message());
         }
-        hprintln!("  governed ticks so far: {}", x.snapshot.governed_ticks);
+        hprintln!(
+            "  governed ticks so far: {}",
+            x.snapshot.axes[0].governed_ticks
+        );
         hprintln!("{}: {}", stack, depth);
         ok
     }
@@ -582,17 +588,17 @@ mod bench {
         let sp = paint_below(PAINT);
         for _ in 0..STEPS {
             let t = ticks(|| {
-                let t = lp.tick(x);
+                let [t] = lp.tick(x);
                 lp.record(x, &t, None)
             });
             c.add(instructions(t, baseline));
             // The link task reads the recorder; the sensors follow the stage.
             while x.recorder.take().is_some() {}
-            let f = CONTROLLER.preload(lp.state().x_pea_est());
+            let f = CONTROLLER.preload(lp.axes()[0].state().x_pea_est());
             LINK.set_force(f.to_num::<f32>());
-            LINK.set_position(x.snapshot.now.x_est.to_num::<f32>());
+            LINK.set_position(x.snapshot.axes[0].now.x_est.to_num::<f32>());
         }
-        let ok = x.snapshot.fault.is_none() && x.recorder.kept() >= kept + STEPS;
+        let ok = x.snapshot.axes[0].fault.is_none() && x.recorder.kept() >= kept + STEPS;
         (c, ok, depth_below(sp, PAINT))
     }
 

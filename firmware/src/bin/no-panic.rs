@@ -19,7 +19,7 @@ mod proof {
     use fpi_firmware::board::capacity::{Store, RECORDER_SAMPLES, STREAM_POINTS};
     use fpi_firmware::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
     use fpi_firmware::board::factory_model::{CONTROLLER, MODEL_IMAGE};
-    use fpi_firmware::control::exchange::{Exchange, Order};
+    use fpi_firmware::control::exchange::{Exchange, Order, Posted};
     use fpi_firmware::control::recorder::Recorder;
     use fpi_firmware::control::reference::stream::Points;
     use fpi_firmware::control::reference::SourceOrder;
@@ -56,15 +56,18 @@ mod proof {
             halt()
         };
         let mut x = Exchange::new(recorder, points);
-        let mut lp = ControlLoop::new(running, LINK.hardware(), LINK.analog());
+        let mut lp = ControlLoop::new([(running, LINK.hardware(), LINK.analog())]);
         loop {
             let xr = Micrometres::from_bits(black_box(0));
             let f = Newtons::from_bits(black_box(0));
             black_box(cfg.step(&mut st, xr, f));
             if black_box(false) {
-                x.order = Some((1, Order::Source(black_box(SourceOrder::Analog))));
+                x.order = Some(Posted::all(
+                    1,
+                    Order::Source(black_box(SourceOrder::Analog)),
+                ));
             }
-            let t = lp.tick(&mut x);
+            let [t] = lp.tick(&mut x);
             black_box(lp.record(&mut x, &t, None));
             if let Some(back) = x.model.take() {
                 black_box(back.retire());

@@ -75,6 +75,58 @@ pub enum Order {
     Bench(BenchOrder),
 }
 
+/// The axes an order addresses: bit `i` is axis `i` (x, y, z). An order that
+/// concerns the whole board (recording, supervision, triggers) ignores it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AxisSet(u8);
+
+impl AxisSet {
+    /// Every axis the board has.
+    pub const ALL: Self = Self(u8::MAX);
+
+    /// Axis `i` alone.
+    pub const fn one(i: usize) -> Self {
+        Self(1 << i)
+    }
+
+    /// These axes and axis `i`.
+    pub const fn with(self, i: usize) -> Self {
+        Self(self.0 | 1 << i)
+    }
+
+    /// Whether axis `i` is addressed.
+    pub const fn contains(self, i: usize) -> bool {
+        i < 8 && self.0 & (1 << i) != 0
+    }
+
+    /// The first addressed axis of `n`, if any.
+    pub fn first(self, n: usize) -> Option<usize> {
+        (0..n).find(|&i| self.contains(i))
+    }
+}
+
+/// An order as the link task posts it: its sequence number (the link's
+/// request number), the axes it addresses and the order.
+pub struct Posted {
+    /// The link's request number.
+    pub seq: u16,
+    /// The axes a per-axis order applies to (on each, on the same tick).
+    pub axes: AxisSet,
+    /// What to do.
+    pub order: Order,
+}
+
+impl Posted {
+    /// `order` for every axis.
+    pub const fn all(seq: u16, order: Order) -> Self {
+        Self {
+            seq,
+            axes: AxisSet::ALL,
+            order,
+        }
+    }
+}
+
 /// Why the ISR did not carry out an order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Refused {
@@ -95,6 +147,11 @@ pub enum Refused {
     Unstable,
     /// The running model has no feedback settings: the loop cannot be closed.
     NoFeedback,
+    /// The order addresses no axis of the board, or several where it takes
+    /// one (a model swap, an analysis, a stream: the board has one hand-over
+    /// slot, one analysis result and one stream buffer; one axis streams at
+    /// a time).
+    Axes,
 }
 
 /// The outcome of the last order: which, when, and whether it was carried out.
@@ -130,6 +187,18 @@ pub struct Telemetry {
 }
 
 impl Telemetry {
+    /// Nothing yet: every signal zero, no status bit.
+    pub const ZERO: Self = Self {
+        tick: 0,
+        x_ref: Micrometres::ZERO,
+        voltage: Volts::ZERO,
+        force: Newtons::ZERO,
+        x_est: Micrometres::ZERO,
+        x_sensor: Micrometres::ZERO,
+        status: 0,
+        lines: 0,
+    };
+
     /// The amplifier is enabled after this tick.
     pub const fn amplifier_on(&self) -> bool {
         self.status & status::AMPLIFIER_ON != 0
@@ -153,13 +222,14 @@ impl Telemetry {
     }
 }
 
-/// The loop's state, refreshed by the ISR every tick (its settings and
-/// fault where they change).
+/// One axis's state, refreshed by the ISR every tick (its settings and fault
+/// where they change).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Snapshot {
+pub struct AxisSnapshot {
     /// The last tick: its number, the signals and the status bits.
     pub now: Telemetry,
-    /// The latched fault, with the tick it latched at.
+    /// The latched fault, with the tick it latched at (a fault on another
+    /// axis parks this one: [`Fault::Stopped`]; [`Snapshot::fault_axis`]).
     pub fault: Option<(Fault, u32)>,
     /// Tick at which the output reached the safe voltage after the fault.
     pub safe_at: Option<u32>,
@@ -169,21 +239,12 @@ pub struct Snapshot {
     pub approaching: bool,
     /// Inverse FPI (else the straight-line baseline).
     pub compensated: bool,
-    /// Heartbeat timeout, ticks (0: not supervised).
-    pub timeout_ticks: u32,
-    /// Ticks since the last heartbeat.
-    pub silent_ticks: u32,
     /// Ticks a stream spent holding for want of points.
     pub underruns: u32,
     /// Ticks in which the output limits bit.
     pub limited_steps: u32,
     /// Ticks in which the reference governor departed from the source.
     pub governed_ticks: u32,
-    /// Streamed points a motion dropped when it ended a stream that still
-    /// had them queued (since start-up).
-    pub ended_points: u32,
-    /// Ticks that started late.
-    pub overruns: u32,
     /// Open or closed loop.
     pub loop_mode: LoopMode,
     /// Active damping switched on (it runs where the model has it).
@@ -194,57 +255,87 @@ pub struct Snapshot {
     pub lead_ratio: LeadRatio,
     /// An analysis is running.
     pub analysing: bool,
-    /// What drives the trigger output.
-    pub trigger: Trigger,
-    /// What the trigger input's edge starts.
-    pub trigger_in: TriggerStart,
     /// A wave or stream order waits for the trigger input's edge.
     pub motion_armed: bool,
-    /// A record order waits for the trigger input's edge.
-    pub record_armed: bool,
 }
 
-impl Snapshot {
-    /// The state at start-up, before the first tick (all zero, so the board's
-    /// exchange costs no flash for its initial value).
+impl AxisSnapshot {
+    /// The state at start-up, before the first tick (all zero).
     pub const fn new() -> Self {
         Self {
-            now: Telemetry {
-                tick: 0,
-                x_ref: Micrometres::ZERO,
-                voltage: Volts::ZERO,
-                force: Newtons::ZERO,
-                x_est: Micrometres::ZERO,
-                x_sensor: Micrometres::ZERO,
-                status: 0,
-                lines: 0,
-            },
+            now: Telemetry::ZERO,
             fault: None,
             safe_at: None,
             source: SourceKind::Hold,
             approaching: false,
             compensated: false,
-            timeout_ticks: 0,
-            silent_ticks: 0,
             underruns: 0,
             limited_steps: 0,
             governed_ticks: 0,
-            ended_points: 0,
-            overruns: 0,
             loop_mode: LoopMode::Open,
             damping_on: false,
             shaping_on: false,
             lead_ratio: LeadRatio::ZERO,
             analysing: false,
+            motion_armed: false,
+        }
+    }
+}
+
+impl Default for AxisSnapshot {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The loop's state, refreshed by the ISR every tick (its settings and
+/// fault where they change): each of the `N` axes', and the board's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Snapshot<const N: usize = 1> {
+    /// Each axis's state.
+    pub axes: [AxisSnapshot; N],
+    /// The number of the last tick.
+    pub tick: u32,
+    /// The axis whose fault parked every axis (none: no fault other than a
+    /// parked stage is latched).
+    pub fault_axis: Option<u8>,
+    /// Heartbeat timeout, ticks (0: not supervised).
+    pub timeout_ticks: u32,
+    /// Ticks since the last heartbeat.
+    pub silent_ticks: u32,
+    /// Streamed points a motion dropped when it ended a stream that still
+    /// had them queued (since start-up).
+    pub ended_points: u32,
+    /// Ticks that started late.
+    pub overruns: u32,
+    /// What drives the trigger output.
+    pub trigger: Trigger,
+    /// What the trigger input's edge starts.
+    pub trigger_in: TriggerStart,
+    /// A record order waits for the trigger input's edge.
+    pub record_armed: bool,
+}
+
+impl<const N: usize> Snapshot<N> {
+    /// The state at start-up, before the first tick (all zero, so the board's
+    /// exchange costs no flash for its initial value).
+    pub const fn new() -> Self {
+        Self {
+            axes: [AxisSnapshot::new(); N],
+            tick: 0,
+            fault_axis: None,
+            timeout_ticks: 0,
+            silent_ticks: 0,
+            ended_points: 0,
+            overruns: 0,
             trigger: Trigger::OFF,
             trigger_in: TriggerStart::Nothing,
-            motion_armed: false,
             record_armed: false,
         }
     }
 }
 
-impl Default for Snapshot {
+impl<const N: usize> Default for Snapshot<N> {
     fn default() -> Self {
         Self::new()
     }
@@ -252,9 +343,9 @@ impl Default for Snapshot {
 
 /// Everything the ISR and the link task share. The recorder's ring and the stream
 /// buffer are statics of their own (all zero, so they cost no flash), lent here.
-pub struct Exchange<'a> {
-    /// The next order and its sequence number (link → ISR).
-    pub order: Option<(u16, Order)>,
+pub struct Exchange<'a, const N: usize = 1> {
+    /// The next order (link → ISR).
+    pub order: Option<Posted>,
     /// The outcome of the last order (ISR → link).
     pub applied: Option<Applied>,
     /// The models' hand-over: a new model for [`Order::Swap`] (link → ISR),
@@ -266,7 +357,7 @@ pub struct Exchange<'a> {
     pub heartbeats: u32,
 
     /// The loop's state (ISR → link).
-    pub snapshot: Snapshot,
+    pub snapshot: Snapshot<N>,
     /// The data recorder (ISR fills, link empties).
     pub recorder: &'a mut Recorder<RECORDER_SAMPLES>,
     /// The streamed trajectory (link fills, ISR empties).
@@ -278,7 +369,7 @@ pub struct Exchange<'a> {
     pub trigger_in: bool,
 }
 
-impl<'a> Exchange<'a> {
+impl<'a, const N: usize> Exchange<'a, N> {
     /// Nothing ordered yet, around an empty recorder and stream buffer.
     pub fn new(
         recorder: &'a mut Recorder<RECORDER_SAMPLES>,

@@ -4,8 +4,9 @@
 //! analog channels) and on the core crate.
 //!
 //! * [`task`] — the control ISR's whole job, one [`task::ControlLoop`] tick: take
-//!   an order, generate the reference, supervise the link, run the control step,
-//!   report;
+//!   an order, supervise the link, run every axis's control step, report;
+//! * [`axis`] — one axis's part of the tick: its model, reference, governor,
+//!   loops, sensors, amplifier and faults;
 //! * [`tracking`] — how the command follows the reference: open loop, or feedback
 //!   on the position sensor, active damping and the feedforward;
 //! * [`watch`] — the loops watched in the ISR (an oscillating or saturating loop
@@ -22,6 +23,7 @@
 //! * [`exchange`] — what the control ISR and the link task share.
 
 pub mod analyser;
+pub mod axis;
 pub mod baseline;
 pub mod cosine;
 pub mod exchange;

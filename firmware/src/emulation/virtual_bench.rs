@@ -23,7 +23,7 @@ use crate::board::capacity::{Store, IMAGE_BYTES};
 use crate::board::definition::{precision, POSITION};
 use crate::board::factory_model::MODEL_IMAGE;
 use crate::board::storage::{ModelFlash, RamFlash, Slots};
-use crate::control::exchange::{Applied, Exchange, Order, Refused};
+use crate::control::exchange::{Applied, Exchange, Order, Posted, Refused};
 use crate::control::recorder::Sample;
 use crate::control::slots::Spare;
 use crate::control::task::ControlLoop;
@@ -225,7 +225,12 @@ pub fn tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
     link: &SimLink,
     x: &mut Exchange<'_>,
 ) -> Sample {
-    if let Some((seq, Order::Bench(b))) = x.order {
+    if let Some(Posted {
+        seq,
+        order: Order::Bench(b),
+        ..
+    }) = x.order
+    {
         x.order = None;
         let swap = matches!(b, BenchOrder::Stage(_));
         let result = if swap && !lp.is_parked() {
@@ -249,7 +254,7 @@ pub fn tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
     let x_true = bench.true_position();
     x.trigger_in = bench.trigger_in > 0;
     bench.trigger_in = bench.trigger_in.saturating_sub(1);
-    let t = lp.tick(x);
+    let [t] = lp.tick(x);
     bench.after_tick(link);
     bench.stall();
     lp.record(x, &t, Some(x_true))
@@ -295,7 +300,7 @@ impl Virtual {
         )?;
         let mut bench = Bench::new()?;
         bench.prime(link);
-        let control = ControlLoop::new(running, link.hardware(), link.analog());
+        let control = ControlLoop::new([(running, link.hardware(), link.analog())]);
         Some((
             Self {
                 link,

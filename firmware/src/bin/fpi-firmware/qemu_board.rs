@@ -123,7 +123,7 @@ impl Io {
     /// The control task's hardware, running `model`.
     pub fn tick(self, model: Running) -> TickIo {
         TickIo {
-            control: Loop::new(model, LINK.hardware(), LINK.analog()),
+            control: Loop::new([(model, LINK.hardware(), LINK.analog())]),
             bench: self.bench,
             supervisor: Supervisor::new(NoWatchdog { feeds: 0 }),
         }

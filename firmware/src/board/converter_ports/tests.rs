@@ -6,7 +6,7 @@ use super::*;
 use crate::board::capacity::Store;
 use crate::board::definition::precision::{DAC, FRONT_END};
 use crate::board::factory_model::MODEL_IMAGE;
-use crate::control::exchange::{Exchange, Order};
+use crate::control::exchange::{Exchange, Order, Posted};
 use crate::control::recorder::Recorder;
 use crate::control::reference::stream::Points;
 use crate::control::reference::SourceOrder;
@@ -116,7 +116,7 @@ fn rig() -> Rig {
         amplifier: Amplifier::new(Driving::new(Ad579x::new(dac, DAC)), &FRONT_END, health),
         enable: enable.clone(),
     };
-    let lp = ControlLoop::new(running, hw, Analog::new(MidScale, health));
+    let lp = ControlLoop::new([(running, hw, Analog::new(MidScale, health))]);
     let x = Exchange::new(leak(Recorder::new()), leak(Points::new()));
     Rig {
         lp,
@@ -136,12 +136,12 @@ impl Rig {
     }
 
     fn fault(&self) -> Option<Fault> {
-        self.lp.state().fault()
+        self.lp.axes()[0].state().fault()
     }
 
     /// Armed (holding where the stage rests), then `n` good ticks.
     fn armed(mut self, n: usize) -> Self {
-        self.x.order = Some((1, Order::Source(SourceOrder::Hold)));
+        self.x.order = Some(Posted::all(1, Order::Source(SourceOrder::Hold)));
         for _ in 0..n {
             assert_eq!(self.tick(), None);
         }
@@ -164,7 +164,7 @@ impl Rig {
 #[test]
 fn the_ports_read_force_and_position_from_one_frame() {
     let mut r = rig().armed(10);
-    let t = r.lp.tick(&mut r.x);
+    let [t] = r.lp.tick(&mut r.x);
     // The canned frame: 60 N on V1, 20 µm on V2 (offset-binary 24 576).
     assert_eq!(t.force, Newtons::from_num(60));
     assert_eq!(t.x_sensor, piezo_fpi::q::Micrometres::from_num(20));
@@ -189,11 +189,14 @@ fn a_stalled_adc_latches_the_converter_fault_and_the_output_parks() {
         Some((Device::Adc, Error::Stalled.code()))
     );
     let parked = r.ticks_to_park(4000);
-    assert_eq!(r.lp.state().voltage(), r.lp.model().get().safe_voltage());
+    assert_eq!(
+        r.lp.axes()[0].state().voltage(),
+        r.lp.axes()[0].model().get().safe_voltage()
+    );
     println!("stalled ADC: latched after {latched} ticks, amplifier off {parked} ticks later");
     // The converter back: the fault can be cleared, and stays cleared.
     r.busy.set(false);
-    r.x.order = Some((2, Order::ClearFault));
+    r.x.order = Some(Posted::all(2, Order::ClearFault));
     for _ in 0..5 {
         assert_eq!(r.tick(), None);
     }

@@ -32,7 +32,7 @@ use crate::board::capacity::{
 };
 use crate::board::storage::{ModelFlash, Slot, Stored};
 use crate::control::analyser::AnalyseOrder;
-use crate::control::exchange::{Exchange, Order, Refused};
+use crate::control::exchange::{Exchange, Order, Posted, Refused};
 use crate::control::recorder::{signal, Packer};
 use crate::control::reference::wave::Wave;
 use crate::control::reference::SourceOrder;
@@ -62,7 +62,7 @@ pub trait Board {
 
 /// Waits until the board's tick reaches `due`.
 fn wait_until(board: &mut impl Board, due: u32) {
-    while !reached(board.exchange(|x| x.snapshot.now.tick), due) {
+    while !reached(board.exchange(|x| x.snapshot.tick), due) {
         board.wait();
     }
 }
@@ -273,7 +273,7 @@ impl<F: NorFlash> Handler<F> {
     ) -> usize {
         self.tick = None;
         if self.pace.paced() {
-            let now = board.exchange(|x| x.snapshot.now.tick);
+            let now = board.exchange(|x| x.snapshot.tick);
             // Framed: a delimiter and about one COBS byte per 254.
             let due = self.pace.received(now, request.len() + 2);
             wait_until(board, due);
@@ -307,7 +307,7 @@ impl<F: NorFlash> Handler<F> {
         });
         let tick = match self.tick {
             Some(t) => t,
-            None => board.exchange(|x| x.snapshot.now.tick.wrapping_add(1)),
+            None => board.exchange(|x| x.snapshot.tick.wrapping_add(1)),
         };
         let header = ReplyHeader {
             version: VERSION,
@@ -316,7 +316,7 @@ impl<F: NorFlash> Handler<F> {
         };
         let n = frame::encode(&header, &reply, scratch, out).unwrap_or(0);
         if self.pace.paced() {
-            let now = board.exchange(|x| x.snapshot.now.tick);
+            let now = board.exchange(|x| x.snapshot.tick);
             let due = self.pace.sent(now, n);
             wait_until(board, due);
         }
@@ -354,7 +354,7 @@ impl<F: NorFlash> Handler<F> {
     fn locked<R>(&mut self, board: &mut impl Board, f: impl FnOnce(&mut Exchange<'_>) -> R) -> R {
         let (r, tick) = board.exchange(|x| {
             x.heartbeats = x.heartbeats.wrapping_add(1);
-            (f(x), x.snapshot.now.tick.wrapping_add(1))
+            (f(x), x.snapshot.tick.wrapping_add(1))
         });
         self.tick = Some(tick);
         r
@@ -470,14 +470,14 @@ impl<F: NorFlash> Handler<F> {
                 self.order(board, seq, Order::Drive { compensated })
             }
             Command::Loop { mode, .. } => {
-                let damping_on = board.exchange(|x| x.snapshot.damping_on);
+                let damping_on = board.exchange(|x| x.snapshot.axes[0].damping_on);
                 if mode != LoopMode::Open {
                     self.stable_with(damping_on, mode)?;
                 }
                 self.order(board, seq, Order::Loop(mode))
             }
             Command::Damping { on, .. } => {
-                let mode = board.exchange(|x| x.snapshot.loop_mode);
+                let mode = board.exchange(|x| x.snapshot.axes[0].loop_mode);
                 if !on && mode != LoopMode::Open {
                     self.stable_with(false, mode)?;
                 }
@@ -634,7 +634,7 @@ impl<F: NorFlash> Handler<F> {
         board.exchange(|x| {
             x.heartbeats = x.heartbeats.wrapping_add(1);
             x.applied = None;
-            x.order = order.take().map(|o| (seq, o));
+            x.order = order.take().map(|o| Posted::all(seq, o));
         });
         for _ in 0..APPLY_TIMEOUT_WAITS {
             board.wait();
@@ -751,7 +751,7 @@ impl<F: NorFlash> Handler<F> {
                 format_args!("an analysis correlates at least one period"),
             ));
         }
-        let at = board.exchange(|x| x.snapshot.now.x_ref);
+        let at = board.exchange(|x| x.snapshot.axes[0].now.x_ref);
         self.in_stroke(
             "excitation's low point",
             at.to_bits().saturating_sub(amplitude),
@@ -980,16 +980,23 @@ pub(super) fn refused(r: Refused) -> Refuse {
             Refusal::BadArgument,
             format_args!("that would leave the loop unstable on the stage's mode"),
         ),
+        Refused::Axes => refuse(
+            Refusal::Axis,
+            format_args!(
+                "the order addresses no axis of this board, or several where it takes one \
+                 (a model swap, an analysis, a stream)"
+            ),
+        ),
     }
 }
 
 /// The status of `axis` (the board's one).
 fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
-    let s = &x.snapshot;
+    let (b, s) = (&x.snapshot, &x.snapshot.axes[0]);
     let (q, r) = (&x.points, &x.recorder);
     Status {
         axis,
-        tick: s.now.tick,
+        tick: b.tick,
         signals: [
             s.now.x_ref.to_bits(),
             s.now.x_est.to_bits(),
@@ -1017,15 +1024,15 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
         shaping: (summary.shaping.is_some() || summary.preview.is_some()).then_some(s.shaping_on),
         lead_ratio: summary.lead.map(|l| (s.lead_ratio.to_bits(), l.applied)),
         analysing: s.analysing,
-        supervision: [s.timeout_ticks, s.silent_ticks],
+        supervision: [b.timeout_ticks, b.silent_ticks],
         stream: [q.len() as u32, q.free() as u32, q.received(), s.underruns],
         recorder: [r.active() as u32, r.kept(), r.dropped(), r.len() as u32],
         limited_steps: s.limited_steps,
         governed_ticks: s.governed_ticks,
-        ended_points: s.ended_points,
-        overruns: s.overruns,
+        ended_points: b.ended_points,
+        overruns: b.overruns,
         model_crc: summary.crc,
-        armed: [s.motion_armed, s.record_armed],
+        armed: [s.motion_armed, b.record_armed],
     }
 }
 

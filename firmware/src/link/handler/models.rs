@@ -76,7 +76,8 @@ impl<F: NorFlash> Handler<F> {
 
     /// The parked stage's check before a model change.
     fn parked(&self, board: &mut impl Board) -> Result<(), Refuse> {
-        let (fault, voltage) = board.exchange(|x| (x.snapshot.fault, x.snapshot.now.voltage));
+        let (fault, voltage) =
+            board.exchange(|x| (x.snapshot.axes[0].fault, x.snapshot.axes[0].now.voltage));
         match fault {
             Some(_) if voltage == self.summary.safe_voltage => Ok(()),
             Some(_) => Err(refuse(
