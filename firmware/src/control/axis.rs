@@ -401,12 +401,6 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         self.tripped |= fault != Fault::Stopped;
     }
 
-    /// Marks the settings changed (an order was applied): the snapshot's copy
-    /// is refreshed at the tick's end.
-    pub fn touch(&mut self) {
-        self.changed = true;
-    }
-
     /// Whether a fault other than a parked stage latched since the last call.
     pub fn take_tripped(&mut self) -> bool {
         core::mem::take(&mut self.tripped)
@@ -428,6 +422,12 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
     /// The output is at the safe voltage.
     fn at_safe_voltage(&self) -> bool {
         self.state.voltage() == self.model.get().safe_voltage()
+    }
+
+    /// A fault is latched and the output is at the safe voltage: the axis
+    /// may take a new model or a new stage.
+    fn at_rest(&self) -> bool {
+        self.state.fault().is_some() && self.at_safe_voltage()
     }
 
     /// Whether a source order would re-arm the axis now (else why not).
@@ -583,7 +583,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
     /// (a fault latched, the output at the safe voltage); the model it
     /// replaces goes back into `slot` (a model refused stays there).
     pub fn swap(&mut self, slot: &mut Option<Running>, tick: u32) -> Result<(), Refused> {
-        if self.state.fault().is_none() || !self.at_safe_voltage() {
+        if !self.at_rest() {
             return Err(Refused::NotAtRest);
         }
         let Some(new) = slot.take() else {
@@ -598,7 +598,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
     /// its model starts again as after its upload, tared at the new stage's
     /// force reading, and `true`.
     pub fn restart_on_new_stage(&mut self, tick: u32) -> bool {
-        if self.state.fault().is_none() || !self.at_safe_voltage() {
+        if !self.at_rest() {
             return false;
         }
         self.force = self.hw.sensor.read_force();

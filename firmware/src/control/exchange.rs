@@ -99,9 +99,9 @@ impl AxisSet {
         i < 8 && self.0 & (1 << i) != 0
     }
 
-    /// The first addressed axis of `n`, if any.
-    pub fn first(self, n: usize) -> Option<usize> {
-        (0..n).find(|&i| self.contains(i))
+    /// The addressed axes of a board of `n`, in order.
+    pub fn indices(self, n: usize) -> impl Iterator<Item = usize> {
+        (0..n).filter(move |&i| self.contains(i))
     }
 }
 

@@ -309,7 +309,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
 
     /// Whether an axis outside `axes` streams.
     fn streams_elsewhere(&self, axes: AxisSet) -> bool {
-        (0..N).any(|i| !axes.contains(i) && self.axes[i].source() == SourceKind::Stream)
+        let elsewhere = |(i, a): (usize, &Axis<S, A, E, R>)| {
+            !axes.contains(i) && a.source() == SourceKind::Stream
+        };
+        self.axes.iter().enumerate().any(elsewhere)
     }
 
     /// The host has been silent past the timeout: the link is lost, unless
@@ -336,9 +339,6 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         if let Some(Posted { seq, axes, order }) = x.order.take() {
             self.changed = true;
             let result = self.apply(axes, order, x);
-            for a in self.axes.iter_mut() {
-                a.touch();
-            }
             x.applied = Some(Applied {
                 seq,
                 tick: self.tick,
@@ -355,19 +355,33 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         check: impl Fn(&Axis<S, A, E, R>) -> Result<(), Refused>,
     ) -> Result<impl Iterator<Item = usize>, Refused> {
         let mut any = false;
-        for i in (0..N).filter(|&i| axes.contains(i)) {
+        for i in axes.indices(N) {
             check(&self.axes[i])?;
             any = true;
         }
         if !any {
             return Err(Refused::Axes);
         }
-        Ok((0..N).filter(move |&i| axes.contains(i)))
+        Ok(axes.indices(N))
+    }
+
+    /// Applies `f` to every addressed axis once `check` passes on each of
+    /// them; else why the first that refuses does (then none is changed).
+    fn each(
+        &mut self,
+        axes: AxisSet,
+        check: impl Fn(&Axis<S, A, E, R>) -> Result<(), Refused>,
+        mut f: impl FnMut(&mut Axis<S, A, E, R>),
+    ) -> Result<(), Refused> {
+        for i in self.addressed(axes, check)? {
+            f(&mut self.axes[i]);
+        }
+        Ok(())
     }
 
     /// The one axis an order that takes one addresses.
     fn only(&self, axes: AxisSet) -> Result<usize, Refused> {
-        let mut it = (0..N).filter(|&i| axes.contains(i));
+        let mut it = axes.indices(N);
         match (it.next(), it.next()) {
             (Some(i), None) => Ok(i),
             _ => Err(Refused::Axes),
@@ -398,23 +412,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 Ok(())
             }
             Order::Drive { compensated } => {
-                for i in self.addressed(axes, |_| Ok(()))? {
-                    self.axes[i].set_compensated(compensated);
-                }
-                Ok(())
+                self.each(axes, |_| Ok(()), |a| a.set_compensated(compensated))
             }
-            Order::Loop(mode) => {
-                for i in self.addressed(axes, |a| a.can_loop(mode))? {
-                    self.axes[i].select_loop(mode);
-                }
-                Ok(())
-            }
-            Order::Damping(on) => {
-                for i in self.addressed(axes, |_| Ok(()))? {
-                    self.axes[i].set_damping(on);
-                }
-                Ok(())
-            }
+            Order::Loop(mode) => self.each(axes, |a| a.can_loop(mode), |a| a.select_loop(mode)),
+            Order::Damping(on) => self.each(axes, |_| Ok(()), |a| a.set_damping(on)),
             Order::Trigger(t) => {
                 self.trigger = t;
                 self.trigger_state = TriggerState::at(
@@ -423,18 +424,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 );
                 Ok(())
             }
-            Order::Shaping(on) => {
-                for i in self.addressed(axes, |_| Ok(()))? {
-                    self.axes[i].set_shaping(on);
-                }
-                Ok(())
-            }
-            Order::LeadRatio(gain) => {
-                for i in self.addressed(axes, |_| Ok(()))? {
-                    self.axes[i].start_lead(gain);
-                }
-                Ok(())
-            }
+            Order::Shaping(on) => self.each(axes, |_| Ok(()), |a| a.set_shaping(on)),
+            Order::LeadRatio(gain) => self.each(axes, |_| Ok(()), |a| a.start_lead(gain)),
             Order::Analyse(o) => {
                 let i = self.only(axes)?;
                 self.axes[i].can_analyse()?;
@@ -442,17 +433,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 self.axes[i].analyse(o);
                 Ok(())
             }
-            Order::Safe => {
-                for i in self.addressed(axes, |_| Ok(()))? {
-                    self.axes[i].trip(Fault::Stopped);
-                }
-                Ok(())
-            }
+            Order::Safe => self.each(axes, |_| Ok(()), |a| a.trip(Fault::Stopped)),
             Order::ClearFault => {
                 let tick = self.tick;
-                for i in self.addressed(axes, Axis::can_clear)? {
-                    self.axes[i].clear(tick);
-                }
+                self.each(axes, Axis::can_clear, |a| a.clear(tick))?;
                 if self
                     .axes
                     .iter()

@@ -93,6 +93,14 @@ impl Rig {
     }
 }
 
+/// A ramp to `target` µm at `step` µm a tick.
+fn move_to(target: f64, step: f64) -> SourceOrder {
+    SourceOrder::Move {
+        target: Micrometres::from_num(target),
+        step: Micrometres::from_num(step),
+    }
+}
+
 fn wave() -> SourceOrder {
     SourceOrder::Wave(Wave {
         shape: Shape::RaisedCosine,
@@ -106,10 +114,7 @@ fn wave() -> SourceOrder {
 #[test]
 fn a_move_on_one_axis_leaves_the_others_parked() {
     let mut r = three();
-    let to = SourceOrder::Move {
-        target: Micrometres::from_num(10),
-        step: Micrometres::from_num(0.01),
-    };
+    let to = move_to(10.0, 0.01);
     assert_eq!(r.order(AxisSet::one(1), Order::Source(to)), Ok(()));
     r.run(10);
     assert_eq!(
@@ -126,10 +131,7 @@ fn waves_armed_on_two_axes_start_on_the_trigger_edges_tick() {
     let mut r = three();
     // x and z first move to one point (on one tick: one order for both).
     let xz = AxisSet::one(0).with(2);
-    let to = SourceOrder::Move {
-        target: Micrometres::from_num(15),
-        step: Micrometres::from_num(0.01),
-    };
+    let to = move_to(15.0, 0.01);
     assert_eq!(r.order(xz, Order::Source(to)), Ok(()));
     r.run(3000);
     let t = r.tick();
@@ -183,10 +185,7 @@ fn a_fault_on_one_axis_parks_every_axis_and_names_it() {
     assert_eq!(r.faults(), [None; 3]);
     // A source beyond y's window (the link task checks a move against the
     // stroke; the ISR catches what comes past it).
-    let beyond = SourceOrder::Move {
-        target: Micrometres::from_num(1000),
-        step: Micrometres::from_num(100),
-    };
+    let beyond = move_to(1000.0, 100.0);
     assert_eq!(r.order(AxisSet::one(1), Order::Source(beyond)), Ok(()));
     r.run(2);
     assert_eq!(
@@ -215,10 +214,7 @@ fn an_order_one_axis_refuses_changes_none() {
     let mut r = three();
     let hold = Order::Source(SourceOrder::Hold);
     assert_eq!(r.order(AxisSet::ALL, hold), Ok(()));
-    let beyond = SourceOrder::Move {
-        target: Micrometres::from_num(1000),
-        step: Micrometres::from_num(100),
-    };
+    let beyond = move_to(1000.0, 100.0);
     assert_eq!(r.order(AxisSet::one(2), Order::Source(beyond)), Ok(()));
     r.run(2000);
     // z's fault is latched: a hold for every axis is refused by name, and
@@ -248,10 +244,7 @@ fn a_stream_a_swap_and_an_analysis_take_one_axis() {
     let stream = Order::Source(SourceOrder::Stream { interval: 1 });
     assert_eq!(r.order(AxisSet::one(1), stream), Err(Refused::Axes));
     // A move on y leaves x's stream and its points alone.
-    let to = SourceOrder::Move {
-        target: Micrometres::from_num(10),
-        step: Micrometres::from_num(0.01),
-    };
+    let to = move_to(10.0, 0.01);
     r.x.points.push(Micrometres::from_num(1));
     let queued = r.x.points.len();
     assert_eq!(r.order(AxisSet::one(1), Order::Source(to)), Ok(()));
