@@ -173,6 +173,15 @@ pub enum ModelError {
     /// [`crate::preview::TAPS_GAIN_MAX`] times (`Σ|h| >` it): no stage's
     /// inverse needs that much.
     FeedforwardTooLarge,
+    /// A decoupling matrix's entry lies outside its range
+    /// ([`crate::decoupling::DIAGONAL`] on the diagonal, ±
+    /// [`crate::decoupling::OFF_DIAGONAL_MAX`] off it) or is not a number.
+    MatrixEntryOutOfRange {
+        /// Row (the axis out).
+        row: u8,
+        /// Column (the axis in).
+        col: u8,
+    },
 }
 
 impl ModelError {
@@ -274,6 +283,9 @@ impl ModelError {
             Self::FeedforwardTooLarge => {
                 "the feedforward's taps amplify the reference more than 32 times (the sum of their magnitudes): no stage's inverse needs it"
             }
+            Self::MatrixEntryOutOfRange { .. } => {
+                "a decoupling matrix entry is outside its range (diagonal 0.8…1.25, off the diagonal ±0.1) or not a number"
+            }
         }
     }
 
@@ -300,6 +312,9 @@ impl fmt::Display for ModelError {
         f.write_str(self.message())?;
         if let Some(i) = self.index() {
             write!(f, " (index {i})")?;
+        }
+        if let Self::MatrixEntryOutOfRange { row, col } = *self {
+            write!(f, " (row {row}, column {col})")?;
         }
         Ok(())
     }

@@ -33,6 +33,7 @@
 pub mod biquad;
 pub mod control;
 pub mod damping;
+pub mod decoupling;
 pub mod error;
 pub mod feedback;
 pub mod fields;

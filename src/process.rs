@@ -15,6 +15,7 @@
 //! | position PI | [`FeedbackConfig`](crate::feedback::FeedbackConfig) | [`Pi`](crate::feedback::Pi) | (error µm, saturation, output range) | µm |
 //! | explained force (lead) | [`LeadSpec`](crate::lead::LeadSpec) | [`LeadGain`](crate::lead::LeadGain) | (force N, lead µm, acceleration µm/tick², learn) | N |
 //! | preview feedforward | [`Fir`](crate::preview::Fir) | [`Preview`](crate::preview::Preview) | µm (reference ahead) | (tracked µm, feedforward µm) |
+//! | decoupling matrix | [`Matrix`](crate::decoupling::Matrix) | `()` | `[µm; N]` (every axis) | `[µm; N]` |
 //! | reference governor | [`GovernorConfig`](crate::governor::GovernorConfig) | [`GovernorState`](crate::governor::GovernorState) | µm (source) | µm (governed) |
 
 /// A block whose configuration processes one sample `x` through its state.

@@ -20,6 +20,10 @@ pub const TABLE_INTERVALS: usize = 3072;
 /// Bytes of the largest model image (the room to receive one).
 pub const IMAGE_BYTES: usize = image::max_len(OPERATORS, CREEP_TERMS, TABLE_INTERVALS);
 
+/// The most axes a board drives (x, y, z): the size of a decoupling order's
+/// matrices.
+pub const MAX_AXES: usize = 3;
+
 /// Recorder ring: samples (28 bytes each, 14 KiB).
 pub const RECORDER_SAMPLES: usize = 512;
 /// Streamed points buffered on the board.

@@ -14,7 +14,7 @@
 //! cleared before the axis moves again.
 
 use embedded_hal::digital::OutputPin;
-use piezo_fpi::control::{ControllerState, Fault};
+use piezo_fpi::control::{ControllerState, Fault, Forces};
 use piezo_fpi::governor::GovernorState;
 use piezo_fpi::io::{ForceSensor, Hardware, Setpoint, Tick};
 use piezo_fpi::q::{Micrometres, Newtons};
@@ -53,6 +53,20 @@ fn rest_position(
 ) -> Micrometres {
     let r = cfg.reference();
     cfg.stage_position(st.x_pea_est()).max(r.lo).min(r.hi)
+}
+
+/// What an axis's tick found in its first phase ([`Axis::front`]), which
+/// its later phases use.
+#[derive(Debug, Clone, Copy)]
+pub struct Front {
+    /// The source's reference, µm.
+    pub source: Micrometres,
+    /// The reference the loops track (governed, previewed), µm.
+    pub x_ref: Micrometres,
+    /// The analyser's excitation on the command, µm.
+    pub excitation: Micrometres,
+    /// The force channel's reading.
+    pub forces: Forces,
 }
 
 /// One axis's state; `S`, `A`, `E`, `R`: its force sensor, its amplifier, the
@@ -168,10 +182,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         (state, reference)
     }
 
-    /// This axis's part of tick `tick`: the reference from its source (the
-    /// streamed `points`, or the analog input), the governor, the sensors, the
-    /// control step and the amplifier; an analysis that ends leaves its sums
-    /// in `analysis`. Its telemetry (without the trigger lines, which the
+    /// This axis's part of tick `tick`, whole: [`Axis::front`],
+    /// [`Axis::command`] and [`Axis::back`] in turn (a loop that decouples
+    /// its axes runs the phases of every axis in turn instead, its matrices
+    /// between them). Its telemetry (without the trigger lines, which the
     /// loop adds) and the source's reference, µm. Bounded time, no panic.
     #[inline]
     pub fn tick(
@@ -180,6 +194,17 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         points: &mut Points<STREAM_POINTS>,
         analysis: &mut Option<AnalysisSums>,
     ) -> (Telemetry, Micrometres) {
+        let front = self.front(points);
+        let cmd = self.command(&front);
+        (self.back(tick, &front, &cmd, analysis), front.source)
+    }
+
+    /// The tick's first phase: the reference from its source (the streamed
+    /// `points`, or the analog input), the governor, the preview, the force
+    /// sensor and the position sensor (its reading in
+    /// [`Axis::x_sensor`] until the loop's input matrix replaces it).
+    #[inline]
+    pub fn front(&mut self, points: &mut Points<STREAM_POINTS>) -> Front {
         let counts = if self.reference.wants_analog() {
             self.analog_in.read_counts()
         } else {
@@ -218,21 +243,82 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         let x_ref = self
             .feedback
             .preview(x_ahead, summary.preview.as_ref(), stepping);
-        let cfg = self.model.get();
-        let forces = self.hw.sense(cfg, &mut self.state);
-        let cmd = self.command(x_ref, forces.dynamic);
+        let forces = self.hw.sense(self.model.get(), &mut self.state);
+        self.x_sensor = POSITION_ADC.to_position(self.analog_in.read_position());
+        Front {
+            source,
+            x_ref,
+            excitation,
+            forces,
+        }
+    }
+
+    /// The axis's position as the loop's input matrix makes it of every
+    /// sensor's reading, µm (replaces this tick's reading).
+    #[inline]
+    pub fn set_x_sensor(&mut self, x: Micrometres) {
+        self.x_sensor = x;
+    }
+
+    /// The tick's second phase: checks the position (a bad reading trips a
+    /// fault) and turns the reference the loops track into this tick's
+    /// command, the analyser's excitation on top (µm of the axis's output,
+    /// before the loop's output matrix).
+    #[inline]
+    pub fn command(&mut self, front: &Front) -> Command {
+        if self.state.fault().is_none() {
+            let fb = self.model.summary().feedback.as_ref();
+            if let Some(f) = self.feedback.check(fb, self.x_sensor, self.x_est) {
+                self.trip(f);
+            }
+        }
+        let summary = self.model.summary();
+        let feedback = summary.feedback.as_ref();
+        let mut cmd = self.feedback.command(&Inputs {
+            cfg: self.model.get(),
+            feedback,
+            shaping: summary.shaping.as_ref(),
+            damping: summary.damping.as_ref(),
+            lead: summary.lead.as_ref(),
+            watch_halves: &self.watch_halves,
+            dynamic: front.forces.dynamic,
+            drive: &summary.baseline,
+            compensated: self.compensated,
+            x_ref: front.x_ref,
+            reading: self.x_sensor,
+            estimate: self.x_est,
+            voltage: self.state.voltage(),
+        });
+        if let Some(f) = self.feedback.alarm() {
+            if self.state.fault().is_none() {
+                self.trip(f);
+            }
+        }
+        cmd.x_cmd = cmd.x_cmd.saturating_add(front.excitation);
+        cmd
+    }
+
+    /// The tick's last phase: the control step on `cmd` (the stack's
+    /// command, µm, after the loop's output matrix), the amplifier, the
+    /// analyser (an analysis that ends leaves its sums in `analysis`), the
+    /// fault's bookkeeping. Its telemetry, without the trigger lines.
+    #[inline]
+    pub fn back(
+        &mut self,
+        tick: u32,
+        front: &Front,
+        cmd: &Command,
+        analysis: &mut Option<AnalysisSums>,
+    ) -> Telemetry {
         if self.state.fault().is_some() {
             self.damp_park();
         }
         let cfg = self.model.get();
         let before = self.state.voltage();
-        let Tick { out, force } = self.hw.drive(
-            cfg,
-            &mut self.state,
-            &cmd.mode,
-            cmd.x_cmd.saturating_add(excitation),
-            &forces,
-        );
+        let forces = &front.forces;
+        let Tick { out, force } = self
+            .hw
+            .drive(cfg, &mut self.state, &cmd.mode, cmd.x_cmd, forces);
         self.feedback.after(&out, before, cfg);
         if self.analyser.running() {
             let signals = [
@@ -240,7 +326,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
                 force.to_bits(),
                 forces.dynamic.to_bits(),
                 out.voltage.to_bits(),
-                excitation.to_bits(),
+                front.excitation.to_bits(),
             ];
             let governed = self.governor.governed();
             if let Some(r) = self.analyser.take(signals, out.fault.is_some(), governed) {
@@ -253,7 +339,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         let at_safe = out.voltage == cfg.safe_voltage();
         let t = Telemetry {
             tick,
-            x_ref,
+            x_ref: front.x_ref,
             voltage: out.voltage,
             force,
             x_est: self.x_est,
@@ -276,44 +362,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
             .underruns
             .wrapping_add(self.reference.underrun() as u32);
         self.force = force;
-        (t, source)
-    }
-
-    /// Reads the position sensor, checks it (a bad reading trips a fault), and
-    /// turns the reference the loops track (µm) into this tick's command, with
-    /// the force channel's dynamic part (N) for the damping.
-    #[inline]
-    fn command(&mut self, x_ref: Micrometres, dynamic: Newtons) -> Command {
-        self.x_sensor = POSITION_ADC.to_position(self.analog_in.read_position());
-        if self.state.fault().is_none() {
-            let fb = self.model.summary().feedback.as_ref();
-            if let Some(f) = self.feedback.check(fb, self.x_sensor, self.x_est) {
-                self.trip(f);
-            }
-        }
-        let summary = self.model.summary();
-        let feedback = summary.feedback.as_ref();
-        let cmd = self.feedback.command(&Inputs {
-            cfg: self.model.get(),
-            feedback,
-            shaping: summary.shaping.as_ref(),
-            damping: summary.damping.as_ref(),
-            lead: summary.lead.as_ref(),
-            watch_halves: &self.watch_halves,
-            dynamic,
-            drive: &summary.baseline,
-            compensated: self.compensated,
-            x_ref,
-            reading: self.x_sensor,
-            estimate: self.x_est,
-            voltage: self.state.voltage(),
-        });
-        if let Some(f) = self.feedback.alarm() {
-            if self.state.fault().is_none() {
-                self.trip(f);
-            }
-        }
-        cmd
+        t
     }
 
     /// Offers the damping's correction, where it runs on through the park

@@ -9,11 +9,12 @@
 
 use fpi_protocol::{BenchOrder, TriggerStart};
 use piezo_fpi::control::Fault;
+use piezo_fpi::decoupling::Decoupling;
 use piezo_fpi::lead::LeadGain;
 use piezo_fpi::q::{LeadRatio, Micrometres, Newtons, Volts};
 use piezo_fpi::trigger::Trigger;
 
-use crate::board::capacity::{RECORDER_SAMPLES, STREAM_POINTS};
+use crate::board::capacity::{MAX_AXES, RECORDER_SAMPLES, STREAM_POINTS};
 use crate::control::analyser::{AnalyseOrder, AnalysisSums};
 use crate::control::recorder::{status, Recorder, Sample, NO_TRUE_POSITION};
 use crate::control::reference::stream::Points;
@@ -70,6 +71,11 @@ pub enum Order {
     /// at rest in its safe state); the one it replaces (or the new one,
     /// refused) is left there.
     Swap,
+    /// Decouple the axes from this tick on: the input matrix (sensors → axes)
+    /// and the output matrix (axes → stacks), over the board's most axes;
+    /// their leading block is the board's (refused as [`Refused::Axes`] on a
+    /// one-axis board, or where they couple an axis the board does not have).
+    Decoupling(Decoupling<MAX_AXES>),
     /// An order for the emulated board's virtual bench (taken by the emulated
     /// board before the loop sees it; the loop ignores it).
     Bench(BenchOrder),

@@ -32,7 +32,7 @@ use piezo_fpi::q::Micrometres;
 
 use crate::board::analog_in::AnalogIn;
 use crate::board::capacity::RATE_HZ;
-pub use crate::control::axis::{Axis, WATCH_WIDEN};
+pub use crate::control::axis::{Axis, Front, WATCH_WIDEN};
 pub use crate::control::exchange::Telemetry;
 use crate::control::exchange::{Applied, AxisSet, Exchange, Order, Posted, Refused, Snapshot};
 
@@ -44,7 +44,9 @@ pub const OVERRUN_RUN: u32 = RATE_HZ / 1000;
 use crate::control::recorder::{lines, Sample};
 use crate::control::reference::{SourceKind, SourceOrder};
 use crate::control::slots::Running;
+use crate::control::tracking::Command;
 use fpi_protocol::TriggerStart;
+use piezo_fpi::decoupling::Decoupling;
 use piezo_fpi::process::SplitProcess as _;
 use piezo_fpi::trigger::{Condition, Readings, Trigger, TriggerState};
 
@@ -76,6 +78,8 @@ pub struct ControlLoop<S, A, E, R, const N: usize = 1> {
     input_was: bool,
     /// A recording (its decimation) armed for the trigger input's edge.
     armed_record: Option<u16>,
+    /// The axes' input and output matrices (the identity on one axis).
+    decoupling: Decoupling<N>,
 }
 
 impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
@@ -102,6 +106,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             starts: TriggerStart::Nothing,
             input_was: false,
             armed_record: None,
+            decoupling: Decoupling::NONE,
         }
     }
 
@@ -119,14 +124,12 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         self.input_was = x.trigger_in;
         self.supervise(x.heartbeats);
         let tick = self.tick;
-        let mut first_source = Micrometres::ZERO;
-        let mut t: [Telemetry; N] = core::array::from_fn(|i| {
-            let (t, source) = self.axes[i].tick(tick, x.points, &mut x.analysis);
-            if i == 0 {
-                first_source = source;
-            }
-            t
-        });
+        let (t, first_source) = if N == 1 {
+            self.tick_one(tick, x)
+        } else {
+            self.tick_coupled(tick, x)
+        };
+        let mut t = t;
         if N > 1 {
             self.park_on_fault();
         }
@@ -155,6 +158,56 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         self.snapshot(&mut x.snapshot);
         self.tick = tick.wrapping_add(1);
         t
+    }
+
+    /// Each axis's tick whole, one axis after the other (no matrix between
+    /// them: one axis, or none coupled); the telemetry and the first axis's
+    /// source reference, µm.
+    #[inline(always)]
+    fn tick_one(&mut self, tick: u32, x: &mut Exchange<'_, N>) -> ([Telemetry; N], Micrometres) {
+        let mut first_source = Micrometres::ZERO;
+        let t = core::array::from_fn(|i| {
+            let (t, source) = self.axes[i].tick(tick, x.points, &mut x.analysis);
+            if i == 0 {
+                first_source = source;
+            }
+            t
+        });
+        (t, first_source)
+    }
+
+    /// Each phase of every axis's tick in turn, the decoupling between them:
+    /// every axis's reference and sensors; the input matrix (sensors → axes);
+    /// every axis's command; the output matrix (axes → stacks); every axis's
+    /// step and amplifier. The telemetry and the first axis's source
+    /// reference, µm.
+    #[inline(never)]
+    fn tick_coupled(
+        &mut self,
+        tick: u32,
+        x: &mut Exchange<'_, N>,
+    ) -> ([Telemetry; N], Micrometres) {
+        let fronts: [Front; N] = core::array::from_fn(|i| self.axes[i].front(x.points));
+        let d = &self.decoupling;
+        if !d.input.is_identity() {
+            let read = core::array::from_fn(|i| self.axes[i].x_sensor());
+            let x = d.input.process(&mut (), read);
+            for (a, x) in self.axes.iter_mut().zip(x) {
+                a.set_x_sensor(x);
+            }
+        }
+        let mut cmds: [Command; N] = core::array::from_fn(|i| self.axes[i].command(&fronts[i]));
+        let d = &self.decoupling;
+        if !d.output.is_identity() {
+            let x = d.output.process(&mut (), cmds.map(|c| c.x_cmd));
+            for (c, x) in cmds.iter_mut().zip(x) {
+                c.x_cmd = x;
+            }
+        }
+        let t = core::array::from_fn(|i| {
+            self.axes[i].back(tick, &fronts[i], &cmds[i], &mut x.analysis)
+        });
+        (t, fronts.first().map_or(Micrometres::ZERO, |f| f.source))
     }
 
     /// Parks every axis when one latched a fault this tick, and names it.
@@ -355,9 +408,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         check: impl Fn(&Axis<S, A, E, R>) -> Result<(), Refused>,
     ) -> Result<impl Iterator<Item = usize>, Refused> {
         let mut any = false;
-        for i in axes.indices(N) {
-            check(&self.axes[i])?;
-            any = true;
+        for (i, a) in self.axes.iter().enumerate() {
+            if axes.contains(i) {
+                check(a)?;
+                any = true;
+            }
         }
         if !any {
             return Err(Refused::Axes);
@@ -462,6 +517,13 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 Ok(())
             }
             Order::Swap => self.swap(axes, x),
+            Order::Decoupling(d) => match d.leading() {
+                Some(d) if N > 1 => {
+                    self.decoupling = d;
+                    Ok(())
+                }
+                _ => Err(Refused::Axes),
+            },
             Order::Bench(_) => Ok(()),
         }
     }

@@ -1,0 +1,282 @@
+//! The axes' decoupling: a square matrix over `N` axes' positions (µm in,
+//! µm out), without memory. The board runs two of them in its control tick
+//! (`fpi_firmware::control::task`):
+//!
+//! * the **input matrix** (sensors → axes): each axis's position is a
+//!   combination of every position sensor's reading, which takes out the
+//!   sensors' cross-talk (a sensor that reads 0.2 % of the other axis);
+//! * the **output matrix** (axes → stacks): each stack's command is a
+//!   combination of every axis's command, which takes out the flexure's
+//!   parasitic motion (Y moving 1.5 % of X's output). The commands are µm of
+//!   each axis's own output, before each stack's inverse model, so the matrix
+//!   is the inverse of the stage's static cross gains `(I + C)⁻¹`, where
+//!   `C[i][j]` is µm of axis `i` per µm of axis `j`'s own output.
+//!
+//! Both are the identity until autotune measures the coupling (drive each
+//! axis, measure all) and sets them. A matrix far from the identity would
+//! change the loops a model's validator checked one axis at a time, so
+//! [`Matrix::new`] refuses an entry outside [`DIAGONAL`] on the diagonal or
+//! beyond ±[`OFF_DIAGONAL_MAX`] off it: stages couple by a few percent.
+//!
+//! **Q contract.** Entries are `I2F30` (range [−2, 2), 9.3·10⁻¹⁰ per LSB);
+//! positions `I16F16` µm. Each output is the exact 64-bit sum of `N`
+//! products (`I18F46`), rounded to nearest once and saturated to ±32 768 µm;
+//! `N` multiply-accumulates per axis, no division, no panic.
+
+use fixed::types::I2F30;
+
+use crate::error::ModelError;
+use crate::process::SplitProcess;
+use crate::q::Micrometres;
+
+/// The diagonal's accepted range: an axis's own gain may be corrected by
+/// −20 % … +25 % (its own loops' gains are the model's).
+pub const DIAGONAL: (f64, f64) = (0.8, 1.25);
+/// The largest off-diagonal entry, either sign: a coupling of 10 %.
+pub const OFF_DIAGONAL_MAX: f64 = 0.1;
+
+/// One entry of a [`Matrix`]: a gain, µm/µm, `I2F30`.
+pub type Entry = I2F30;
+
+/// A square matrix over `N` axes (configuration): `y = M·x`, µm in, µm out.
+/// Its entries are checked near the identity ([`Matrix::new`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Matrix<const N: usize> {
+    rows: [[Entry; N]; N],
+    identity: bool,
+}
+
+impl<const N: usize> Matrix<N> {
+    /// The identity: every axis is its own.
+    pub const IDENTITY: Self = {
+        let mut rows = [[Entry::ZERO; N]; N];
+        let mut i = 0;
+        while i < N {
+            rows[i][i] = Entry::ONE;
+            i += 1;
+        }
+        Self {
+            rows,
+            identity: true,
+        }
+    };
+
+    /// A matrix of `rows` (`rows[i][j]`: the gain of input `j` in output
+    /// `i`); refused with the first entry outside its range
+    /// ([`ModelError::MatrixEntryOutOfRange`], its row and column).
+    pub fn new(rows: [[Entry; N]; N]) -> Result<Self, ModelError> {
+        let (lo, hi) = (Entry::from_num(DIAGONAL.0), Entry::from_num(DIAGONAL.1));
+        let off = Entry::from_num(OFF_DIAGONAL_MAX);
+        for (i, row) in rows.iter().enumerate() {
+            for (j, &m) in row.iter().enumerate() {
+                let ok = if i == j {
+                    (lo..=hi).contains(&m)
+                } else {
+                    m.abs() <= off
+                };
+                if !ok {
+                    return Err(ModelError::MatrixEntryOutOfRange {
+                        row: i as u8,
+                        col: j as u8,
+                    });
+                }
+            }
+        }
+        let identity = rows == Self::IDENTITY.rows;
+        Ok(Self { rows, identity })
+    }
+
+    /// A matrix of `rows` given as numbers: refused as [`Matrix::new`]
+    /// refuses, and a value that is not finite as out of range.
+    pub fn from_f64(rows: [[f64; N]; N]) -> Result<Self, ModelError> {
+        let mut q = [[Entry::ZERO; N]; N];
+        for (i, row) in rows.iter().enumerate() {
+            for (j, &v) in row.iter().enumerate() {
+                q[i][j] = Entry::checked_from_num(v).ok_or(ModelError::MatrixEntryOutOfRange {
+                    row: i as u8,
+                    col: j as u8,
+                })?;
+            }
+        }
+        Self::new(q)
+    }
+
+    /// The entries, `rows[i][j]`.
+    pub const fn rows(&self) -> &[[Entry; N]; N] {
+        &self.rows
+    }
+
+    /// Whether it is the identity (then the board skips it).
+    pub const fn is_identity(&self) -> bool {
+        self.identity
+    }
+
+    /// Its leading `K × K` block, the matrix of a stage with the first `K`
+    /// of its axes; `None` if it couples those axes with another (an entry
+    /// outside the block that is not the identity's).
+    pub fn leading<const K: usize>(&self) -> Option<Matrix<K>> {
+        let mut rows = [[Entry::ZERO; K]; K];
+        for (i, row) in self.rows.iter().enumerate() {
+            for (j, &m) in row.iter().enumerate() {
+                match (rows.get_mut(i).and_then(|r| r.get_mut(j)), i == j) {
+                    (Some(e), _) => *e = m,
+                    (None, true) if m == Entry::ONE => {}
+                    (None, false) if m == Entry::ZERO => {}
+                    (None, _) => return None,
+                }
+            }
+        }
+        Matrix::new(rows).ok()
+    }
+}
+
+impl<const N: usize> Default for Matrix<N> {
+    fn default() -> Self {
+        Self::IDENTITY
+    }
+}
+
+impl<const N: usize> SplitProcess<[Micrometres; N]> for Matrix<N> {
+    /// `M·x`, each output rounded to nearest once and saturated.
+    #[inline]
+    fn process(&self, _: &mut (), x: [Micrometres; N]) -> [Micrometres; N] {
+        let mut y = [Micrometres::ZERO; N];
+        for (row, y) in self.rows.iter().zip(y.iter_mut()) {
+            let mut acc: i64 = 1 << (Entry::FRAC_NBITS - 1);
+            for (m, x) in row.iter().zip(x.iter()) {
+                acc += i64::from(m.to_bits()) * i64::from(x.to_bits());
+            }
+            let v = acc >> Entry::FRAC_NBITS;
+            *y = Micrometres::from_bits(v.clamp(i32::MIN.into(), i32::MAX.into()) as i32);
+        }
+        y
+    }
+}
+
+/// The board's two matrices (configuration): sensors → axes, axes → stacks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Decoupling<const N: usize> {
+    /// Sensors → axes: takes out the position sensors' cross-talk.
+    pub input: Matrix<N>,
+    /// Axes → stacks: takes out the flexure's parasitic motion.
+    pub output: Matrix<N>,
+}
+
+impl<const N: usize> Decoupling<N> {
+    /// Both matrices the identity: no decoupling.
+    pub const NONE: Self = Self {
+        input: Matrix::IDENTITY,
+        output: Matrix::IDENTITY,
+    };
+
+    /// Both matrices' leading `K × K` blocks ([`Matrix::leading`]).
+    pub fn leading<const K: usize>(&self) -> Option<Decoupling<K>> {
+        Some(Decoupling {
+            input: self.input.leading()?,
+            output: self.output.leading()?,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn um(v: f64) -> Micrometres {
+        Micrometres::from_num(v)
+    }
+
+    /// The f64 reference of `M·x`.
+    fn reference<const N: usize>(m: &[[f64; N]; N], x: &[f64; N]) -> [f64; N] {
+        core::array::from_fn(|i| (0..N).map(|j| m[i][j] * x[j]).sum())
+    }
+
+    #[test]
+    fn the_identity_passes_every_position_unchanged() {
+        let x = [um(-10.0), um(0.0), um(37.123_456)];
+        assert_eq!(Matrix::<3>::IDENTITY.process(&mut (), x), x);
+        assert!(Matrix::<3>::IDENTITY.is_identity());
+        assert!(
+            Matrix::<3>::from_f64([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+                .unwrap()
+                .is_identity()
+        );
+    }
+
+    /// The XY stage's inverse cross gains (Y moves 1.5 % of X, X 2 % of Y),
+    /// over the stroke: within 2 LSB (31 pm) of the f64 product.
+    #[test]
+    fn the_product_is_within_two_lsb_of_the_f64_one() {
+        let c = [[0.0, 0.02], [0.015, 0.0]];
+        let det = 1.0 - c[0][1] * c[1][0];
+        let inv = [[1.0 / det, -c[0][1] / det], [-c[1][0] / det, 1.0 / det]];
+        let m = Matrix::from_f64(inv).unwrap();
+        assert!(!m.is_identity());
+        let mut worst: f64 = 0.0;
+        for a in -10..=70 {
+            for b in (-10..=70).step_by(7) {
+                let x = [a as f64 * 0.51, b as f64 * 0.49];
+                let y = m.process(&mut (), x.map(um));
+                let r = reference(&inv, &x);
+                for k in 0..2 {
+                    worst = worst.max((y[k].to_num::<f64>() - r[k]).abs());
+                }
+            }
+        }
+        assert!(worst <= 2.0 / 65536.0, "worst {worst} µm");
+    }
+
+    /// Applied to what the coupled stage does, the output matrix returns
+    /// the commanded positions: `(I + C)·M·r = r`.
+    #[test]
+    fn the_inverse_of_the_cross_gains_undoes_them() {
+        let c = [[0.0, 0.02], [0.015, 0.0]];
+        let det = 1.0 - c[0][1] * c[1][0];
+        let inv = [[1.0 / det, -c[0][1] / det], [-c[1][0] / det, 1.0 / det]];
+        let m = Matrix::from_f64(inv).unwrap();
+        let r = [30.0, 5.0];
+        let cmd = m.process(&mut (), r.map(um)).map(|v| v.to_num::<f64>());
+        let out = [cmd[0] + c[0][1] * cmd[1], cmd[1] + c[1][0] * cmd[0]];
+        for k in 0..2 {
+            assert!((out[k] - r[k]).abs() < 1e-4, "{out:?}");
+        }
+    }
+
+    #[test]
+    fn an_entry_beyond_its_range_is_refused_by_its_place() {
+        let e = Matrix::from_f64([[1.0, 0.0], [0.2, 1.0]]).unwrap_err();
+        assert_eq!(e, ModelError::MatrixEntryOutOfRange { row: 1, col: 0 });
+        let e = Matrix::from_f64([[1.0, 0.0], [0.0, 0.5]]).unwrap_err();
+        assert_eq!(e, ModelError::MatrixEntryOutOfRange { row: 1, col: 1 });
+        let e = Matrix::from_f64([[f64::NAN, 0.0], [0.0, 1.0]]).unwrap_err();
+        assert_eq!(e, ModelError::MatrixEntryOutOfRange { row: 0, col: 0 });
+        assert!(Matrix::from_f64([[1.25, -0.1], [0.1, 0.8]]).is_ok());
+    }
+
+    /// A three-axis matrix serves a two-axis stage where it does not couple
+    /// the third axis with the others.
+    #[test]
+    fn the_leading_block_is_the_matrix_of_fewer_axes() {
+        let xy = [[1.0, -0.02, 0.0], [-0.015, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let m = Matrix::<3>::from_f64(xy).unwrap();
+        let two = m.leading::<2>().unwrap();
+        assert_eq!(
+            two,
+            Matrix::from_f64([[1.0, -0.02], [-0.015, 1.0]]).unwrap()
+        );
+        let mut xyz = xy;
+        xyz[2][0] = 0.01;
+        assert_eq!(Matrix::<3>::from_f64(xyz).unwrap().leading::<2>(), None);
+        assert!(Matrix::<3>::IDENTITY.leading::<1>().unwrap().is_identity());
+    }
+
+    /// Saturates at the signal range rather than wrapping.
+    #[test]
+    fn a_sum_beyond_the_range_saturates() {
+        let m = Matrix::from_f64([[1.25, 0.1], [0.1, 1.25]]).unwrap();
+        let x = [Micrometres::MAX, Micrometres::MAX];
+        assert_eq!(m.process(&mut (), x), [Micrometres::MAX; 2]);
+        let x = [Micrometres::MIN, Micrometres::MIN];
+        assert_eq!(m.process(&mut (), x), [Micrometres::MIN; 2]);
+    }
+}
