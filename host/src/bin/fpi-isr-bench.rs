@@ -1,7 +1,8 @@
 //! `cargo isr-bench`: instructions per control step on the emulated Cortex-M4, and
 //! the flash and static RAM of the release firmware.
 //!
-//! Builds `isr-bench` for the emulated board and runs it under
+//! Builds `isr-bench` (one axis, as the board builds it) and `isr-bench-axes`
+//! (a three-axis control task) for the emulated board and runs each under
 //! `-icount shift=10,align=off,sleep=off` (SysTick differences are then exact
 //! instruction counts), printing `control_step_instructions n=<N>: <count>` for
 //! n = 4, 10, 16, 32; then builds the board firmware (`--features defmt`, and
@@ -9,9 +10,11 @@
 //! their section sizes.
 //!
 //! Fails (exit 1, after printing every figure) when a budget is passed: the
-//! worst whole control tick above [`TICK_BUDGET`] instructions, or the n = 10
-//! step, compiled in or received at run time, above [`STEP_BUDGET`] (issue
-//! 19's item 3). Instruction counts under `-icount` are exact and repeatable,
+//! worst whole control tick above [`TICK_BUDGET`] instructions, the worst
+//! three-axis tick above [`THREE_AXES_BUDGET`], or the n = 10 step, compiled
+//! in or received at run time, above [`STEP_BUDGET`] (issue 19's item 3).
+//! Prints the three-axis tick against its target ([`THREE_AXES_TARGET`]),
+//! met or missed. Instruction counts under `-icount` are exact and repeatable,
 //! so the check is not a timing test; a compiler that lays the code out
 //! differently can move them by a few instructions.
 
@@ -37,18 +40,30 @@ fn main() -> ExitCode {
 /// against it too. It was 1 600 until the trigger output, which costs the
 /// tick up to 55 instructions (its travel condition; 14 while it is off).
 const TICK_BUDGET: u32 = 1700;
+/// The worst three-axis closed-loop tick's budget, instructions: it must
+/// stay well inside the 8 400 cycles of a 20 kHz period on a 168 MHz M4
+/// (71 %, leaving room for the interrupt's entry, the converters' bus time
+/// and the link task).
+const THREE_AXES_BUDGET: u32 = 6000;
+/// What issue 44 asks of the three-axis tick, instructions (about 55 % of
+/// the period): printed as met or missed, not a failure.
+const THREE_AXES_TARGET: u32 = 4500;
 /// The n = 10 step's budget (inverse, forward, two lookups, limits),
 /// instructions.
 const STEP_BUDGET: u32 = 300;
 
 fn run() -> Result<()> {
     board::qemu()?;
-    let bench = board::build("isr-bench", "qemu")?;
-    let q = board::run(&bench, board::ICOUNT_BENCH, Duration::from_secs(300), true)?;
-    if q.code != Some(0) {
-        bail!("the benchmark firmware failed (exit {:?})", q.code);
+    let mut out = String::new();
+    for bin in ["isr-bench", "isr-bench-axes"] {
+        let bench = board::build(bin, "qemu")?;
+        let q = board::run(&bench, board::ICOUNT_BENCH, Duration::from_secs(300), true)?;
+        if q.code != Some(0) {
+            bail!("the benchmark firmware `{bin}` failed (exit {:?})", q.code);
+        }
+        out.push_str(&q.stdout);
     }
-    let over = over_budget(&q.stdout)?;
+    let over = over_budget(&out)?;
     // Program flash: 768 KiB (sectors 10 and 11 hold the stored model); RAM: the
     // chip's 128 KiB, and the 192 KiB of QEMU's netduinoplus2 for the emulated
     // board, which keeps its model "flash" in RAM.
@@ -87,11 +102,20 @@ fn over_budget(out: &str) -> Result<Vec<String>> {
     let figure =
         |line: &str| -> Option<u32> { line.split(": ").nth(1)?.split(' ').next()?.parse().ok() };
     let mut over = Vec::new();
-    let budgets: [Budget; 2] = [
+    let budgets: [Budget; 3] = [
         (
             "the worst control tick",
-            |l| l.starts_with("isr_tick") && l.contains("_instructions"),
+            |l| {
+                l.starts_with("isr_tick")
+                    && l.contains("_instructions")
+                    && !l.starts_with("isr_tick_three_axes")
+            },
             TICK_BUDGET,
+        ),
+        (
+            THREE_AXES,
+            |l| l.starts_with("isr_tick_three_axes_instructions"),
+            THREE_AXES_BUDGET,
         ),
         (
             "the n = 10 step",
@@ -124,9 +148,23 @@ fn over_budget(out: &str) -> Result<Vec<String>> {
             "budget: {what}: {n} of {budget} instructions ({name}; margin {})",
             budget as i64 - n as i64
         );
+        if what == THREE_AXES {
+            let verdict = if n <= THREE_AXES_TARGET {
+                "met"
+            } else {
+                "MISSED"
+            };
+            println!(
+                "target: {what}: {n} of {THREE_AXES_TARGET} instructions: {verdict} (by {})",
+                (i64::from(THREE_AXES_TARGET) - i64::from(n)).abs()
+            );
+        }
     }
     Ok(over)
 }
+
+/// The three-axis tick's budget and target name it so.
+const THREE_AXES: &str = "the worst three-axis control tick";
 
 #[cfg(test)]
 mod tests {
@@ -137,12 +175,14 @@ mod tests {
         let out = "control_step_instructions n=10: 290\n\
                    runtime_model_step_instructions n=10 creep=0: 301\n\
                    isr_tick_instructions n=9: 1080 (open)\n\
-                   isr_tick_closed_loop_stepping_instructions n=9: 1701 (stepping)\n";
+                   isr_tick_closed_loop_stepping_instructions n=9: 1701 (stepping)\n\
+                   isr_tick_three_axes_instructions n=9: 6001 (three)\n";
         let over = over_budget(out).expect("every figure present");
         assert_eq!(
             over,
             [
                 "isr_tick_closed_loop_stepping_instructions n=9 = 1701 > 1700",
+                "isr_tick_three_axes_instructions n=9 = 6001 > 6000",
                 "runtime_model_step_instructions n=10 creep=0 = 301 > 300",
             ]
         );

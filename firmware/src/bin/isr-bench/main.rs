@@ -18,12 +18,12 @@
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]
+mod measure;
+
+#[cfg(target_os = "none")]
 mod bench {
     use core::hint::black_box;
-    use cortex_m::peripheral::syst::SystClkSource;
-    use cortex_m::peripheral::SYST;
     use cortex_m_rt::entry;
-    use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
     use cortex_m_semihosting::hprintln;
     use fpi_firmware::board::capacity::{self, Store, BOARD};
     use fpi_firmware::board::capacity::{RECORDER_SAMPLES, STREAM_POINTS};
@@ -32,7 +32,7 @@ mod bench {
     use fpi_firmware::control::exchange::{Exchange, Order, Posted};
     use fpi_firmware::control::recorder::Recorder;
     use fpi_firmware::control::reference::stream::Points;
-    use fpi_firmware::control::reference::wave::{Shape as WaveShape, Wave, WavePhase};
+    use fpi_firmware::control::reference::wave::WavePhase;
     use fpi_firmware::control::reference::SourceOrder;
     use fpi_firmware::control::slots::{Origin, Running, Spare};
     use fpi_firmware::control::task::ControlLoop;
@@ -50,8 +50,10 @@ mod bench {
     // The device crate provides the interrupt vector table.
     use stm32f4xx_hal as _;
 
-    /// SysTick ticks per instruction at `-icount shift=10` on a 168 MHz core clock.
-    const TICKS_PER_INSTRUCTION: f32 = 0.168 * 1024.0;
+    use crate::measure::{
+        calibrate, closed_image, depth_below, exit, full_stroke, instructions, paint_below,
+        start_counter, ticks, Counts, STEPS,
+    };
 
     /// A synthetic n-operator model at compile time: thresholds evenly spread over
     /// 0–100 V, the weight budget of the embedded model spread evenly.
@@ -125,76 +127,9 @@ mod bench {
     static C16: ControllerConfig<'static, 16> = config(synthetic::<16>());
     static C32: ControllerConfig<'static, 32> = config(synthetic::<32>());
 
-    /// min, sum, max of instruction counts.
-    #[derive(Clone, Copy)]
-    struct Counts {
-        min: u32,
-        sum: u64,
-        max: u32,
-        n: u32,
-    }
-
-    impl Counts {
-        fn new() -> Self {
-            Self {
-                min: u32::MAX,
-                sum: 0,
-                max: 0,
-                n: 0,
-            }
-        }
-        fn add(&mut self, c: u32) {
-            self.min = self.min.min(c);
-            self.max = self.max.max(c);
-            self.sum += c as u64;
-            self.n += 1;
-        }
-        fn merge(&mut self, o: &Self) {
-            self.min = self.min.min(o.min);
-            self.max = self.max.max(o.max);
-            self.sum += o.sum;
-            self.n += o.n;
-        }
-        fn mean_x10(&self) -> u32 {
-            (self.sum * 10 / self.n.max(1) as u64) as u32
-        }
-    }
-
-    /// SysTick ticks of `f`, the two counter reads included.
-    #[inline(always)]
-    fn ticks<R>(f: impl FnOnce() -> R) -> u32 {
-        let t0 = SYST::get_current();
-        black_box(f());
-        let t1 = SYST::get_current();
-        t0.wrapping_sub(t1) & 0x00FF_FFFF
-    }
-
-    fn instructions(ticks: u32, baseline: u32) -> u32 {
-        ((ticks.saturating_sub(baseline)) as f32 / TICKS_PER_INSTRUCTION + 0.5) as u32
-    }
-
     /// Force the stage would put on the stack at a reference (what the sensor reads).
     fn force_at(x_ref: Micrometres) -> Newtons {
         CONTROLLER.preload(CONTROLLER.extension(x_ref))
-    }
-
-    #[inline(never)]
-    fn nop_1000() {
-        // SAFETY: nops only.
-        unsafe {
-            core::arch::asm!(
-                ".rept 1000",
-                "nop",
-                ".endr",
-                options(nomem, nostack, preserves_flags)
-            )
-        }
-    }
-
-    #[inline(never)]
-    fn nop_0() {
-        // SAFETY: empty.
-        unsafe { core::arch::asm!("", options(nomem, nostack, preserves_flags)) }
     }
 
     /// The step as its own function, so its code can be inspected and is not
@@ -207,19 +142,6 @@ mod bench {
         f: Newtons,
     ) -> piezo_fpi::control::StepOutput {
         cfg.step(st, x, f)
-    }
-
-    const STEPS: u32 = 4000;
-
-    /// A raised cosine over 2–38 µm at `hz`, continuous.
-    fn full_stroke(hz: f32) -> Wave {
-        Wave {
-            shape: WaveShape::RaisedCosine,
-            offset: Micrometres::from_num(20),
-            amplitude: Micrometres::from_num(18),
-            phase_step: Wave::phase_step_for((hz * 1000.0) as u32, 20_000),
-            cycles: 0,
-        }
     }
 
     /// Instruction counts of the nominal steps and of the slew-limited ones (which
@@ -330,88 +252,12 @@ mod bench {
         true
     }
 
-    /// The embedded model with every loop on, as `fpi tune --dynamics` tunes it for
-    /// stage A (its 850.9 Hz mode, ζ 0.0301, the 2027 Hz lag, κ 7.02 N/µm): active
-    /// damping (IFF, 1316 µm/(N·s) between 100 Hz corners), the position PI
-    /// (kp 0.75, ki 1762.6/s) and the feedforward of the damped stage (16 taps on the preview's line);
-    /// its image in `buf`. The validator's loop check runs on it as on any model.
-    fn closed_image<'b>(store: &mut Store, buf: &'b mut [u8]) -> Option<&'b [u8]> {
-        use piezo_fpi::damping::{DampingSpec, DynamicsSpec};
-        use piezo_fpi::q::{CreepRate, LoopGain, NewtonsPerUm};
-        store.load(MODEL_IMAGE, &BOARD).ok()?;
-        let spec = store.spec();
-        let um = |x: f64| piezo_fpi::q::signal(x).map_or(Micrometres::ZERO, Micrometres::from_raw);
-        let gain = |x: f64| LoopGain::from_num(x);
-        let r = spec.supervision.reference;
-        let rate = capacity::RATE_HZ as f64;
-        let feedback = piezo_fpi::feedback::FeedbackSpec {
-            kp: gain(0.75),
-            ki: gain(1762.611 / rate),
-            limit: um(9.98),
-            // Inside the position channel's rails (−10…70 µm), as the
-            // validator has a sensor window.
-            sensor: piezo_fpi::control::Interval {
-                lo: r.lo - um(9.0),
-                hi: r.hi + um(9.0),
-            },
-            tolerance: um(6.0),
-        };
-        // 1 − e^{−2π·100 Hz/20 kHz}
-        let corner = CreepRate::from_num(0.030_929_031_800_5);
-        let damping = DampingSpec {
-            gain: gain(1315.733 / rate),
-            highpass: corner,
-            leak: corner,
-            limit: um(39.921),
-        };
-        let dynamics = DynamicsSpec {
-            mode_mhz: 850_852,
-            damping: CreepRate::from_num(0.030_098),
-            lag_mhz: 2_026_966,
-            force_gain: NewtonsPerUm::from_num(7.017),
-        };
-        // Autotune's feedforward: taps on the preview's delay line, 4 ticks
-        // ahead (the delay line, the taps and the damping's lead force, with
-        // its learned mass ratio, run).
-        let one = f64::from(1 << piezo_fpi::biquad::COEFF_FRAC);
-        let mut taps = [
-            1.67, -0.08, -0.63, -0.57, -0.7, -0.04, 0.61, 0.74, 0.2, -0.1, -0.15, 0.05, 0.1, -0.05,
-            -0.05, 0.02,
-        ]
-        .map(|t| (t * one) as i32);
-        taps[0] += (1 << piezo_fpi::biquad::COEFF_FRAC) - taps.iter().sum::<i32>();
-        let shaping = piezo_fpi::biquad::ShapingSpec {
-            preview: 4,
-            taps,
-            ..piezo_fpi::biquad::ShapingSpec::IDENTITY
-        };
-        let closed = ModelSpec {
-            feedback: Some(feedback),
-            shaping: Some(shaping),
-            dynamics: Some(dynamics),
-            damping: Some(damping),
-            // The lead's learned mass ratio, applied (piezo_fpi::lead).
-            lead_baseline: Some(piezo_fpi::q::LeadRatio::from_num(0.88)),
-            // The watch's least half swing (the most half-cycles counted).
-            watch_swing: Some(piezo_fpi::model::WATCH_SWING_MIN),
-            ..spec
-        };
-        let len = match image::encode(&closed, buf) {
-            Ok(len) => len,
-            Err(e) => {
-                hprintln!("the closed-loop model was refused: {}", e);
-                return None;
-            }
-        };
-        buf.get(..len)
-    }
-
     /// The board's control task on the embedded model received at run time, its
     /// instruction counts per tick; then, with `closed` (the same model with
     /// feedback and shaping, swapped in parked), the same in closed loop.
     fn report_tick(
         store: &'static mut Store,
-        mut x: Exchange<'static>,
+        x: &mut Exchange<'static>,
         baseline: u32,
         closed: Option<Running>,
     ) -> bool {
@@ -428,7 +274,7 @@ mod bench {
         LINK.set_position(0.0);
         let mut lp = ControlLoop::new([(running, LINK.hardware(), LINK.analog())]);
         x.order = Some(Posted::all(1, Order::Record { decimation: 1 }));
-        lp.tick(&mut x);
+        lp.tick(x);
         // The trigger output on its costliest condition throughout: a pulse
         // every 0.1 µm of travel.
         let travel = Condition::Travel {
@@ -438,8 +284,8 @@ mod bench {
             return false;
         };
         x.order = Some(Posted::all(3, Order::Trigger(trigger)));
-        lp.tick(&mut x);
-        let open_ok = tick_phase(&mut lp, &mut x, baseline, false);
+        lp.tick(x);
+        let open_ok = tick_phase(&mut lp, x, baseline, false);
         let Some(closed) = closed else {
             hprintln!("the closed-loop benchmark could not be set up");
             return false;
@@ -447,11 +293,11 @@ mod bench {
         // Park, swap the model in, close the loop, run the stroke again.
         x.order = Some(Posted::all(4, Order::Safe));
         for _ in 0..200 {
-            lp.tick(&mut x);
+            lp.tick(x);
         }
         x.model = Some(closed);
         x.order = Some(Posted::all(5, Order::Swap));
-        lp.tick(&mut x);
+        lp.tick(x);
         let swapped = matches!(x.applied, Some(a) if a.result.is_ok());
         // A step command over the stroke, as long as the phase, running when
         // the loop closes: the lead's mass ratio (which learns from steps
@@ -461,12 +307,12 @@ mod bench {
             phase_step: fpi_firmware::control::reference::step_phase_for(STEPS + 20),
         };
         x.order = Some(Posted::all(6, Order::Source(up)));
-        lp.tick(&mut x);
+        lp.tick(x);
         x.order = Some(Posted::all(7, Order::Loop(LoopMode::Closed)));
-        lp.tick(&mut x);
-        let stepping_ok = swapped && stepping_phase(&mut lp, &mut x, baseline);
-        let closed_ok = stepping_ok && tick_phase(&mut lp, &mut x, baseline, true);
-        let governed_ok = closed_ok && governed_phase(&mut lp, &mut x, baseline);
+        lp.tick(x);
+        let stepping_ok = swapped && stepping_phase(&mut lp, x, baseline);
+        let closed_ok = stepping_ok && tick_phase(&mut lp, x, baseline, true);
+        let governed_ok = closed_ok && governed_phase(&mut lp, x, baseline);
         open_ok && closed_ok && stepping_ok && governed_ok
     }
 
@@ -604,41 +450,12 @@ mod bench {
 
     static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
 
-    /// Paints `bytes` of the unused stack below the current stack pointer with a
-    /// pattern; [`depth_below`] then tells how much of it a call used.
-    #[inline(never)]
-    fn paint_below(bytes: usize) -> usize {
-        let sp = cortex_m::register::msp::read() as usize;
-        // SAFETY: the region lies below the stack pointer of this function, in the
-        // stack's free space (the benchmark's statics are far below); nothing else
-        // runs (no interrupts are enabled in the benchmark).
-        unsafe {
-            let mut p = sp - bytes;
-            while p < sp - 64 {
-                core::ptr::write_volatile(p as *mut u32, 0xCCCC_CCCC);
-                p += 4;
-            }
-        }
-        sp
-    }
-
-    /// Bytes below `sp` (from [`paint_below`]) that were written since it painted.
-    #[inline(never)]
-    fn depth_below(sp: usize, bytes: usize) -> usize {
-        let mut p = sp - bytes;
-        // SAFETY: reads the region `paint_below` painted.
-        while p < sp && unsafe { core::ptr::read_volatile(p as *const u32) } == 0xCCCC_CCCC {
-            p += 4;
-        }
-        sp - p
-    }
-
     /// The dynamic compensator of issue 12 (`piezo_fpi::biquad`): one section and a
     /// two-section cascade, instructions per sample along the 5 Hz full-stroke
     /// reference in volts. Self-contained: printed as
     /// `biquad_section_instructions` and `biquad_cascade2_instructions`.
     mod biquad_bench {
-        use super::{full_stroke, instructions, ticks, Counts, STEPS};
+        use crate::measure::{full_stroke, instructions, ticks, Counts, STEPS};
         use core::hint::black_box;
         use cortex_m_semihosting::hprintln;
         use fpi_firmware::control::reference::wave::WavePhase;
@@ -720,7 +537,7 @@ mod bench {
     /// limits like a tuned stage's. Printed as `governor_passing_instructions`
     /// and `governor_governed_instructions`.
     mod governor_bench {
-        use super::{instructions, ticks, Counts, STEPS};
+        use crate::measure::{instructions, ticks, Counts, STEPS};
         use core::hint::black_box;
         use cortex_m_semihosting::hprintln;
         use piezo_fpi::control::Interval;
@@ -810,27 +627,9 @@ mod bench {
 
     #[entry]
     fn main() -> ! {
-        let Some(mut cp) = cortex_m::Peripherals::take() else {
-            debug::exit(EXIT_FAILURE);
-            loop {
-                cortex_m::asm::wfi();
-            }
-        };
-        cp.SYST.set_clock_source(SystClkSource::Core);
-        cp.SYST.set_reload(0x00FF_FFFF);
-        cp.SYST.clear_current();
-        cp.SYST.enable_counter();
+        start_counter();
 
-        // Calibration: the counter reads alone, and a block of known length.
-        let baseline = (0..64).map(|_| ticks(|| ())).min().unwrap_or(0);
-        // A function of 1000 nops minus an empty function: exactly 1000 instructions.
-        let best = |f: fn()| (0..8).map(|_| ticks(f)).min().unwrap_or(0);
-        let nops = instructions(best(nop_1000).saturating_sub(best(nop_0)), 0);
-        hprintln!(
-            "calibration: 1000 nops counted as {} instructions (baseline {} SysTick ticks)",
-            nops,
-            baseline
-        );
+        let (baseline, nops) = calibrate();
         biquad_bench::report(baseline);
         governor_bench::report(baseline);
         converter_report(baseline);
@@ -879,16 +678,18 @@ mod bench {
 
         // The closed-loop model: built in the first store (free again), its image in
         // the benchmark's buffer, loaded into a second store and made runnable.
-        let closed = match (
-            store.as_deref_mut(),
-            buf,
-            cortex_m::singleton!(: Store = Store::new()),
-        ) {
-            (Some(s), Some(b), Some(s2)) => closed_image(s, b).and_then(|image| {
+        let image = match (store.as_deref_mut(), buf) {
+            (Some(s), Some(b)) => closed_image(s, b),
+            _ => None,
+        };
+        let closed = match (image, cortex_m::singleton!(: Store = Store::new())) {
+            (Some(image), Some(s2)) => {
                 let mut spare = Spare::new(s2);
-                spare.load(image).ok()?;
-                spare.activate(image, Origin::Received).ok()
-            }),
+                spare
+                    .load(image)
+                    .ok()
+                    .and_then(|_| spare.activate(image, Origin::Received).ok())
+            }
             _ => None,
         };
         // The board's whole control task, on the embedded model loaded at run time
@@ -900,29 +701,14 @@ mod bench {
             cortex_m::singleton!(: Points<STREAM_POINTS> = Points::new()),
         ) {
             (Some(store), Some(recorder), Some(points)) => {
-                report_tick(store, Exchange::new(recorder, points), baseline, closed)
+                let mut x = Exchange::new(recorder, points);
+                report_tick(store, &mut x, baseline, closed)
             }
             _ => false,
         };
         // ±1: the two calibration calls may be compiled with call sequences that
         // differ by an instruction.
-        debug::exit(if nops.abs_diff(1000) <= 1 && runtime_ok && tick_ok {
-            EXIT_SUCCESS
-        } else {
-            EXIT_FAILURE
-        });
-        loop {
-            cortex_m::asm::wfi();
-        }
-    }
-
-    #[panic_handler]
-    fn panic(info: &core::panic::PanicInfo) -> ! {
-        hprintln!("panic: {}", info);
-        debug::exit(EXIT_FAILURE);
-        loop {
-            cortex_m::asm::wfi();
-        }
+        exit(nops.abs_diff(1000) <= 1 && runtime_ok && tick_ok)
     }
 }
 
