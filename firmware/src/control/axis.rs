@@ -182,10 +182,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         (state, reference)
     }
 
-    /// This axis's part of tick `tick`, whole: [`Axis::front`],
-    /// [`Axis::command`] and [`Axis::back`] in turn (a loop that decouples
-    /// its axes runs the phases of every axis in turn instead, its matrices
-    /// between them). Its telemetry (without the trigger lines, which the
+    /// This axis's part of tick `tick`, whole: [`Axis::read_position`],
+    /// [`Axis::front`], [`Axis::command`] and [`Axis::back`] in turn (a loop
+    /// that decouples its axes reads every position, then runs the front and
+    /// the command of every axis, then every back, its matrices between
+    /// them). Its telemetry (without the trigger lines, which the
     /// loop adds) and the source's reference, µm. Bounded time, no panic.
     #[inline]
     pub fn tick(
@@ -194,15 +195,22 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         points: &mut Points<STREAM_POINTS>,
         analysis: &mut Option<AnalysisSums>,
     ) -> (Telemetry, Micrometres) {
+        self.read_position();
         let front = self.front(points);
         let cmd = self.command(&front);
         (self.back(tick, &front, &cmd, analysis), front.source)
     }
 
-    /// The tick's first phase: the reference from its source (the streamed
-    /// `points`, or the analog input), the governor, the preview, the force
-    /// sensor and the position sensor (its reading in
-    /// [`Axis::x_sensor`] until the loop's input matrix replaces it).
+    /// Reads the position sensor ([`Axis::x_sensor`], until the loop's
+    /// input matrix replaces it).
+    #[inline]
+    pub fn read_position(&mut self) {
+        self.x_sensor = POSITION_ADC.to_position(self.analog_in.read_position());
+    }
+
+    /// The tick's first phase, after the position is read: the reference
+    /// from its source (the streamed `points`, or the analog input), the
+    /// governor, the preview, the force sensor.
     #[inline]
     pub fn front(&mut self, points: &mut Points<STREAM_POINTS>) -> Front {
         let counts = if self.reference.wants_analog() {
@@ -244,7 +252,6 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
             .feedback
             .preview(x_ahead, summary.preview.as_ref(), stepping);
         let forces = self.hw.sense(self.model.get(), &mut self.state);
-        self.x_sensor = POSITION_ADC.to_position(self.analog_in.read_position());
         Front {
             source,
             x_ref,

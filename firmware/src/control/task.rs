@@ -176,18 +176,18 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         (t, first_source)
     }
 
-    /// Each phase of every axis's tick in turn, the decoupling between them:
-    /// every axis's reference and sensors; the input matrix (sensors → axes);
-    /// every axis's command; the output matrix (axes → stacks); every axis's
-    /// step and amplifier. The telemetry and the first axis's source
-    /// reference, µm.
-    #[inline(never)]
+    /// Every axis's tick in phases, the decoupling between them: every
+    /// axis's position; the input matrix (sensors → axes); every axis's
+    /// reference, sensors and command; the output matrix (axes → stacks);
+    /// every axis's step and amplifier. The telemetry and the first axis's
+    /// source reference, µm.
+    #[inline(always)]
     fn tick_coupled(
         &mut self,
         tick: u32,
         x: &mut Exchange<'_, N>,
     ) -> ([Telemetry; N], Micrometres) {
-        let fronts: [Front; N] = core::array::from_fn(|i| self.axes[i].front(x.points));
+        self.axes.iter_mut().for_each(Axis::read_position);
         let d = &self.decoupling;
         if !d.input.is_identity() {
             let read = core::array::from_fn(|i| self.axes[i].x_sensor());
@@ -196,18 +196,24 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 a.set_x_sensor(x);
             }
         }
-        let mut cmds: [Command; N] = core::array::from_fn(|i| self.axes[i].command(&fronts[i]));
+        let mut cmds: [(Front, Command); N] = core::array::from_fn(|i| {
+            let a = &mut self.axes[i];
+            let front = a.front(x.points);
+            let cmd = a.command(&front);
+            (front, cmd)
+        });
         let d = &self.decoupling;
         if !d.output.is_identity() {
-            let x = d.output.process(&mut (), cmds.map(|c| c.x_cmd));
-            for (c, x) in cmds.iter_mut().zip(x) {
+            let x = d.output.process(&mut (), cmds.map(|(_, c)| c.x_cmd));
+            for ((_, c), x) in cmds.iter_mut().zip(x) {
                 c.x_cmd = x;
             }
         }
         let t = core::array::from_fn(|i| {
-            self.axes[i].back(tick, &fronts[i], &cmds[i], &mut x.analysis)
+            let (front, cmd) = &cmds[i];
+            self.axes[i].back(tick, front, cmd, &mut x.analysis)
         });
-        (t, fronts.first().map_or(Micrometres::ZERO, |f| f.source))
+        (t, cmds.first().map_or(Micrometres::ZERO, |(f, _)| f.source))
     }
 
     /// Parks every axis when one latched a fault this tick, and names it.
@@ -492,11 +498,12 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             Order::ClearFault => {
                 let tick = self.tick;
                 self.each(axes, Axis::can_clear, |a| a.clear(tick))?;
-                if self
-                    .axes
-                    .iter()
-                    .all(|a| a.state().fault().is_none() || a.is_parked())
-                {
+                // The board's fault is gone once no axis holds one (a parked
+                // axis, still ramping or at rest, holds none).
+                let holds = |a: &Axis<S, A, E, R>| {
+                    !matches!(a.state().fault(), None | Some(Fault::Stopped))
+                };
+                if !self.axes.iter().any(holds) {
                     self.fault_axis = None;
                 }
                 Ok(())

@@ -223,6 +223,10 @@ fn a_fault_on_one_axis_parks_every_axis_and_names_it() {
         ]
     );
     assert_eq!(r.x.snapshot.fault_axis, Some(1));
+    // Clearing y's fault at once, while every axis still ramps, is refused
+    // (the output is not yet at its safe voltage).
+    assert!(r.order(AxisSet::one(1), Order::ClearFault).is_err());
+    assert_eq!(r.x.snapshot.fault_axis, Some(1));
     // Every output ramps to its safe voltage, the amplifiers go off.
     r.run(2000);
     assert!(r.x.snapshot.axes.iter().all(|a| a.safe_at.is_some()));
@@ -388,4 +392,33 @@ fn a_decoupling_the_board_cannot_run_is_refused() {
     x.order = Some(Posted::all(1, Order::Decoupling(d)));
     one.tick(&mut x);
     assert_eq!(x.applied.map(|a| a.result), Some(Err(Refused::Axes)));
+}
+
+/// The board's fault is gone once no axis holds one: clearing the faulted
+/// axis names none, though another, parked, still ramps to its safe voltage.
+#[test]
+fn clearing_the_faulted_axis_clears_the_boards_fault_while_others_ramp() {
+    let mut r = three();
+    assert_eq!(
+        r.order(AxisSet::one(0), Order::Source(move_to(35.0, 0.05))),
+        Ok(())
+    );
+    assert_eq!(
+        r.order(AxisSet::one(1), Order::Source(SourceOrder::Hold)),
+        Ok(())
+    );
+    r.run(2000);
+    let beyond = move_to(1000.0, 100.0);
+    assert_eq!(r.order(AxisSet::one(1), Order::Source(beyond)), Ok(()));
+    // y rests near its safe voltage and is there first; x ramps from 35 µm.
+    let mut ticks = 0;
+    while r.x.snapshot.axes[1].safe_at.is_none() {
+        r.tick();
+        ticks += 1;
+        assert!(ticks < 2000, "y never reached its safe voltage");
+    }
+    assert!(r.x.snapshot.axes[0].safe_at.is_none(), "x is still ramping");
+    assert_eq!(r.order(AxisSet::one(1), Order::ClearFault), Ok(()));
+    assert_eq!(r.x.snapshot.fault_axis, None);
+    assert_eq!(r.faults()[0], Some(Fault::Stopped));
 }
