@@ -422,3 +422,123 @@ fn clearing_the_faulted_axis_clears_the_boards_fault_while_others_ramp() {
     assert_eq!(r.x.snapshot.fault_axis, None);
     assert_eq!(r.faults()[0], Some(Fault::Stopped));
 }
+
+/// Two axes of the loop on the XY stage as built (`piezo_sim::axes`): each
+/// stack's preload rises with the other's extension, Y moves 1.5 % of X's
+/// output and X 2 % of Y's, each sensor reads 0.2 % of the other axis.
+struct Xy {
+    lp: ControlLoop<
+        SimSensor<'static>,
+        SimAmplifier<'static>,
+        SimEnable<'static>,
+        SimAnalog<'static>,
+        2,
+    >,
+    x: Exchange<'static, 2>,
+    links: [&'static SimLink; 2],
+    stage: piezo_sim::axes::Axes<'static, 2>,
+    /// Each axis's true output after the last tick, µm.
+    truth: [f32; 2],
+}
+
+fn xy() -> Xy {
+    let mut stage = piezo_sim::axes::xy_built(0x5EED).unwrap();
+    let links = [(); 2].map(|_| &*leak(SimLink::new(FORCE, SETPOINT)));
+    for (i, link) in links.iter().enumerate() {
+        let rest = stage.stages()[i].rest_force();
+        link.set_force(stage.sense_force(i, rest));
+        link.set_position(stage.sense_position(i));
+    }
+    let lp = ControlLoop::new(links.map(|link| (running(), link.hardware(), link.analog())));
+    let x = Exchange::new(leak(Recorder::new()), leak(Points::new()));
+    Xy {
+        lp,
+        x,
+        links,
+        stage,
+        truth: [0.0; 2],
+    }
+}
+
+impl Xy {
+    /// One tick, then one sample of the stage with the amplifiers' outputs;
+    /// the sensors read it.
+    fn tick(&mut self) {
+        self.lp.tick(&mut self.x);
+        let u = self.links.map(|l| match l.output() {
+            (v, true) => v,
+            (_, false) => 0.0,
+        });
+        let s = self.stage.step(u);
+        for (i, link) in self.links.iter().enumerate() {
+            link.set_force(self.stage.sense_force(i, s[i].stack.force_n));
+            link.set_position(self.stage.sense_position(i));
+        }
+        self.truth = s.map(|s| s.x_fhps_um);
+    }
+
+    fn order(&mut self, axes: AxisSet, order: Order) -> Result<(), Refused> {
+        self.x.order = Some(Posted {
+            seq: 1,
+            axes,
+            order,
+        });
+        self.tick();
+        self.x.applied.take().map_or(Ok(()), |a| a.result)
+    }
+}
+
+/// X moves 5 → 35 µm while Y holds 10 µm (open loop, each axis on stage A's
+/// model): how far Y's true output moves, µm, and each axis's faults.
+fn xy_run(d: Option<Decoupling<3>>) -> (f32, [Option<Fault>; 2]) {
+    let mut r = xy();
+    if let Some(d) = d {
+        assert_eq!(r.order(AxisSet::ALL, Order::Decoupling(d)), Ok(()));
+    }
+    assert_eq!(
+        r.order(AxisSet::one(0), Order::Source(move_to(5.0, 0.01))),
+        Ok(())
+    );
+    assert_eq!(
+        r.order(AxisSet::one(1), Order::Source(move_to(10.0, 0.01))),
+        Ok(())
+    );
+    for _ in 0..8000 {
+        r.tick();
+    }
+    let before = r.truth[1];
+    assert_eq!(
+        r.order(AxisSet::one(0), Order::Source(move_to(35.0, 0.005))),
+        Ok(())
+    );
+    let mut moved: f32 = 0.0;
+    for _ in 0..10_000 {
+        r.tick();
+        moved = moved.max((r.truth[1] - before).abs());
+    }
+    let faults = r.x.snapshot.axes.map(|a| a.fault.map(|(f, _)| f));
+    println!(
+        "x at {:.3} µm, y moved {moved:.4} µm, faults {faults:?}",
+        r.truth[0]
+    );
+    (moved, faults)
+}
+
+#[test]
+fn on_the_xy_stage_as_built_the_decoupling_keeps_y_still_while_x_moves() {
+    let c = piezo_sim::axes::XY_COUPLING;
+    let as3 = |m: [[f32; 3]; 3]| m.map(|r| r.map(f64::from));
+    let cross = as3(c.cross_um_per_um);
+    let t = f64::from(c.sensor_crosstalk);
+    let talk = [[0.0, t, 0.0], [t, 0.0, 0.0], [0.0; 3]];
+    let d = Decoupling {
+        input: Matrix::from_f64(inverse(&talk)).unwrap(),
+        output: Matrix::from_f64(inverse(&cross)).unwrap(),
+    };
+    let (coupled, faults) = xy_run(None);
+    assert_eq!(faults, [None, None]);
+    let (decoupled, faults) = xy_run(Some(d));
+    assert_eq!(faults, [None, None]);
+    assert!(coupled > 0.3, "{coupled} µm");
+    assert!(decoupled < coupled / 5.0, "{decoupled} µm");
+}
