@@ -78,6 +78,40 @@ fn the_stored_grids_are_the_designs() {
     }
 }
 
+/// The board's decoupling from the stored XY grid: the design's cross gains
+/// (Y 1.5 % of X, X 2 % of Y, within the file's rounding) and their inverse,
+/// as the board takes it.
+#[test]
+fn the_xy_grid_gives_the_boards_output_matrix() {
+    let grid = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/xy/fem_grid.csv.gz");
+    let printed = ok(&["axes", "decoupling", "--grid", s(&grid)]);
+    println!("{printed}");
+    let lines: Vec<&str> = printed.lines().collect();
+    let row = |after: &str, axis: &str| -> Vec<f64> {
+        let at = lines.iter().position(|l| l.contains(after)).unwrap();
+        let line = lines[at..]
+            .iter()
+            .find(|l| l.starts_with(&format!("  {axis} ")))
+            .unwrap();
+        line.split_whitespace()
+            .skip(1)
+            .map(|v| v.parse().unwrap())
+            .collect()
+    };
+    let (cx, cy) = (row("cross gains", "x"), row("cross gains", "y"));
+    assert!(
+        (cx[1] - 0.02).abs() < 1e-4 && (cy[0] - 0.015).abs() < 1e-4,
+        "{printed}"
+    );
+    // (I + C)⁻¹: det 1 − 0.0003 (within the stored grid's rounding).
+    let (mx, my) = (row("output matrix", "x"), row("output matrix", "y"));
+    let det = 1.0 - 0.02 * 0.015;
+    assert!((mx[0] - 1.0 / det).abs() < 1e-4, "{printed}");
+    assert!((mx[1] + 0.02 / det).abs() < 1e-4, "{printed}");
+    assert!((my[0] + 0.015 / det).abs() < 1e-4, "{printed}");
+    assert!(printed.contains("input matrix (sensors → axes): the identity"));
+}
+
 /// The XY twin: X swept at 5 Hz while Y rises to 50 V and holds (held-out run),
 /// and both swept (the run each stack is calibrated on).
 #[test]

@@ -334,6 +334,13 @@ enum AxesCommand {
         #[arg(long)]
         out: PathBuf,
     },
+    /// The board's decoupling for a stage's FEM grid: its cross gains and the
+    /// output matrix (I + C)⁻¹ that takes them out of the commands.
+    Decoupling {
+        /// The stage's FEM grid (`fpi axes grid`).
+        #[arg(long)]
+        grid: PathBuf,
+    },
     /// Record a virtual XY or XYZ stage under a drive (open loop).
     Record {
         /// xy or xyz (nominal twins: only the stacks differ from the FEM design),
@@ -1185,6 +1192,7 @@ fn axes(command: AxesCommand) -> Result<()> {
     use fpi_host::cli::axes;
     match command {
         AxesCommand::Grid { stage, every, out } => axes::grid(stage, every, &out),
+        AxesCommand::Decoupling { grid } => axes::decoupling(&grid),
         AxesCommand::Record {
             stage,
             drive,

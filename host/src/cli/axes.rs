@@ -35,6 +35,39 @@ impl Design {
     }
 }
 
+/// `fpi axes decoupling`: the board's matrices for a grid's stage, with the
+/// cross gains they come from; printed.
+pub fn decoupling(grid: &Path) -> Result<()> {
+    let g = FemGrid::read(grid)?;
+    let c = crate::method::axes::decouple::cross_gains(&g);
+    let d = crate::method::axes::decouple::decoupling(&g)?;
+    let n = g.axes();
+    let names = &AXIS_NAMES[..n];
+    let row = |name: &str, v: &mut dyn Iterator<Item = f64>| {
+        let cells: Vec<String> = v.map(|x| format!("{x:>11.6}")).collect();
+        println!("  {name}  {}", cells.join(" "));
+    };
+    let head = names.iter().map(|a| format!("{a:>11}")).collect::<Vec<_>>();
+    println!(
+        "{}: cross gains (µm of the row's axis per µm of the column's own output)",
+        g.source
+    );
+    println!("     {}", head.join(" "));
+    for (i, name) in names.iter().enumerate() {
+        row(name, &mut c[i].iter().copied());
+    }
+    println!("output matrix (axes → stacks), (I + C)⁻¹ as the board takes it (I2F30):");
+    println!("     {}", head.join(" "));
+    for (i, name) in names.iter().enumerate() {
+        row(
+            name,
+            &mut d.output.rows()[i][..n].iter().map(|e| e.to_num::<f64>()),
+        );
+    }
+    println!("input matrix (sensors → axes): the identity (a grid knows nothing of the sensors)");
+    Ok(())
+}
+
 /// `fpi axes grid`: the design's FEM grid.
 pub fn grid(stage: Design, every: Option<usize>, out: &Path) -> Result<()> {
     output::prepare(out)?;

@@ -1,0 +1,137 @@
+//! The board's decoupling from a stage's FEM grid: the output matrix that takes
+//! the flexure's parasitic motion out of the commands
+//! ([`piezo_fpi::decoupling`]), before autotune measures the stage as built.
+//!
+//! The grid's cross gain `C[i][j]` is µm of axis `i`'s output per µm of axis
+//! `j`'s own output: the slope of axis `i`'s output along stack `j`'s
+//! extension over the slope of axis `j`'s, at the middle of the grid (central
+//! differences over a tenth of each stack's span). The board's commands are µm
+//! of each axis's own output, so its output matrix is `(I + C)⁻¹`. The grid
+//! knows nothing of the position sensors: the input matrix stays the identity.
+
+use anyhow::{bail, Result};
+use nalgebra::DMatrix;
+use piezo_fpi::decoupling::{Decoupling, Matrix};
+use piezo_sim::axes::{AXIS_NAMES, MAX_AXES};
+
+use crate::method::axes::grid::FemGrid;
+
+/// The grid's cross gains about the middle of every stack's span,
+/// `[i][j]` (µm of axis `i` per µm of axis `j`'s own output; the diagonal 0).
+pub fn cross_gains(grid: &FemGrid) -> Vec<Vec<f64>> {
+    let n = grid.axes();
+    let (mid, h): (Vec<f64>, Vec<f64>) = (0..n)
+        .map(|j| {
+            let k = grid.knots(j);
+            let (lo, hi) = (k[0], k[k.len() - 1]);
+            ((lo + hi) / 2.0, (hi - lo) / 20.0)
+        })
+        .unzip();
+    // slope[i][j]: d(output i) / d(extension j), µm/µm.
+    let slope = |i: usize, j: usize| {
+        let (mut up, mut down) = (mid.clone(), mid.clone());
+        up[j] += h[j];
+        down[j] -= h[j];
+        (grid.output_at(i, &up) - grid.output_at(i, &down)) / (2.0 * h[j])
+    };
+    (0..n)
+        .map(|i| {
+            (0..n)
+                .map(|j| {
+                    if i == j {
+                        0.0
+                    } else {
+                        slope(i, j) / slope(j, j)
+                    }
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The board's decoupling for the grid's stage: the output matrix
+/// `(I + C)⁻¹` of its cross gains, the input matrix the identity; refused,
+/// naming the grid and the entry, where the board would refuse it (a
+/// coupling beyond its range) or an axis does not move with its own stack.
+pub fn decoupling(grid: &FemGrid) -> Result<Decoupling<MAX_AXES>> {
+    let c = cross_gains(grid);
+    let n = c.len();
+    for (j, name) in AXIS_NAMES.iter().enumerate().take(n) {
+        let k = grid.knots(j);
+        let (lo, hi) = (vec![k[0]; n], vec![k[k.len() - 1]; n]);
+        let rise = grid.output_at(j, &hi) - grid.output_at(j, &lo);
+        if rise.is_nan() || rise <= 0.0 {
+            bail!(
+                "{}: axis {name}'s output does not rise with its own stack: no cross gain is defined",
+                grid.source
+            );
+        }
+    }
+    let coupled = DMatrix::from_fn(n, n, |i, j| f64::from(u8::from(i == j)) + c[i][j]);
+    let Some(inverse) = coupled.try_inverse() else {
+        bail!("{}: the cross gains have no inverse", grid.source);
+    };
+    let mut rows = [[0.0; MAX_AXES]; MAX_AXES];
+    for (i, row) in rows.iter_mut().enumerate() {
+        for (j, m) in row.iter_mut().enumerate() {
+            *m = if i < n && j < n {
+                inverse[(i, j)]
+            } else {
+                f64::from(u8::from(i == j))
+            };
+        }
+    }
+    let output = Matrix::from_f64(rows).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: the output matrix (I + C)⁻¹ is not one the board takes: {e}",
+            grid.source
+        )
+    })?;
+    Ok(Decoupling {
+        input: Matrix::IDENTITY,
+        output,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use piezo_sim::axes::coupling_of;
+
+    /// The design's grid carries the couplings of `piezo_sim::axes`: the
+    /// cross gains read back from it are theirs, and the output matrix undoes
+    /// them.
+    #[test]
+    fn the_designs_cross_gains_are_the_couplings_it_was_made_with() {
+        for axes in [2, 3] {
+            let grid = FemGrid::design(axes, 4).unwrap();
+            let c = cross_gains(&grid);
+            let want = coupling_of(axes).cross_um_per_um;
+            for (i, (row, want)) in c.iter().zip(want).enumerate() {
+                for (j, (&got, &w)) in row.iter().zip(&want).enumerate() {
+                    let w = if i == j { 0.0 } else { f64::from(w) };
+                    assert!(
+                        (got - w).abs() < 1e-6,
+                        "{axes} axes [{i}][{j}]: {got} vs {w}"
+                    );
+                }
+            }
+            let d = decoupling(&grid).unwrap();
+            assert!(d.input.is_identity());
+            let m = d.output.rows().map(|r| r.map(|e| e.to_num::<f64>()));
+            // (I + C)·M = I.
+            let eye = |i: usize, j: usize| f64::from(u8::from(i == j));
+            for (i, row) in c.iter().enumerate() {
+                for (j, want) in (0..axes).map(|j| (j, eye(i, j))) {
+                    let p: f64 = row
+                        .iter()
+                        .zip(&m)
+                        .enumerate()
+                        .map(|(k, (ck, mk))| (eye(i, k) + ck) * mk[j])
+                        .sum();
+                    assert!((p - want).abs() < 1e-8, "{axes} axes [{i}][{j}]: {p}");
+                }
+            }
+        }
+    }
+}
