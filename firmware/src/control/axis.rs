@@ -260,6 +260,24 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         }
     }
 
+    /// Its part of a raster has reached its start, the governor's
+    /// reference too, and waits for the others.
+    pub const fn raster_waiting(&self) -> bool {
+        self.reference.waiting() && !self.governor.governed()
+    }
+
+    /// Its part of a raster is still on its way to its start (its source,
+    /// or the governor's reference behind it).
+    pub const fn raster_approaching(&self) -> bool {
+        self.reference.raster_approaching()
+            || (self.reference.waiting() && self.governor.governed())
+    }
+
+    /// Starts its waiting part of a raster from the next tick on.
+    pub fn release_raster(&mut self) {
+        self.reference.release();
+    }
+
     /// The axis's position as the loop's input matrix makes it of every
     /// sensor's reading, µm (replaces this tick's reading).
     #[inline]

@@ -17,6 +17,7 @@ use piezo_fpi::trigger::Trigger;
 use crate::board::capacity::{MAX_AXES, RECORDER_SAMPLES, STREAM_POINTS};
 use crate::control::analyser::{AnalyseOrder, AnalysisSums};
 use crate::control::recorder::{status, Recorder, Sample, NO_TRUE_POSITION};
+use crate::control::reference::raster::Raster;
 use crate::control::reference::stream::Points;
 use crate::control::reference::{SourceKind, SourceOrder};
 use crate::control::slots::Running;
@@ -71,6 +72,10 @@ pub enum Order {
     /// at rest in its safe state); the one it replaces (or the new one,
     /// refused) is left there.
     Swap,
+    /// Run a raster on two axes ([`Raster`]): each moves to its start, and
+    /// the lines start on one tick once both are there (refused as
+    /// [`Refused::Axes`] for an axis the board does not have).
+    Raster(Raster),
     /// Decouple the axes from this tick on: the input matrix (sensors → axes)
     /// and the output matrix (axes → stacks), over the board's most axes;
     /// their leading block is the board's (refused as [`Refused::Axes`] on a

@@ -42,6 +42,7 @@ pub const STREAM_TIMEOUT_TICKS: u32 = RATE_HZ / 2;
 /// keep its rate (a single late tick is counted, not a fault).
 pub const OVERRUN_RUN: u32 = RATE_HZ / 1000;
 use crate::control::recorder::{lines, Sample};
+use crate::control::reference::raster::Raster;
 use crate::control::reference::{SourceKind, SourceOrder};
 use crate::control::slots::Running;
 use crate::control::tracking::Command;
@@ -80,6 +81,9 @@ pub struct ControlLoop<S, A, E, R, const N: usize = 1> {
     armed_record: Option<u16>,
     /// The axes' input and output matrices (the identity on one axis).
     decoupling: Decoupling<N>,
+    /// A raster's axes are on their way to its start: its lines start on
+    /// every one of them on the tick the last arrives.
+    raster_pending: bool,
 }
 
 impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
@@ -107,6 +111,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             input_was: false,
             armed_record: None,
             decoupling: Decoupling::NONE,
+            raster_pending: false,
         }
     }
 
@@ -132,6 +137,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         let mut t = t;
         if N > 1 {
             self.park_on_fault();
+            if self.raster_pending {
+                self.release_raster();
+            }
         }
         let out_line = if self.trigger.condition() == Condition::Off {
             0
@@ -224,6 +232,21 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         };
         self.fault_axis = Some(i as u8);
         self.park_all();
+    }
+
+    /// Starts a raster's lines on every one of its axes once none is still
+    /// on its way to its start (out of line: a raster starts rarely). A
+    /// raster whose axes were stopped before it started is forgotten.
+    #[cold]
+    #[inline(never)]
+    fn release_raster(&mut self) {
+        if self.axes.iter().any(Axis::raster_approaching) {
+            return;
+        }
+        self.raster_pending = false;
+        for a in self.axes.iter_mut().filter(|a| a.raster_waiting()) {
+            a.release_raster();
+        }
     }
 
     /// Parks every axis (a fault latched on one of them, or on the board).
@@ -524,6 +547,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 Ok(())
             }
             Order::Swap => self.swap(axes, x),
+            Order::Raster(r) => self.raster(r, x),
             Order::Decoupling(d) => match d.leading() {
                 Some(d) if N > 1 => {
                     self.decoupling = d;
@@ -554,23 +578,44 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             if arm {
                 self.axes[i].arm_for_edge(s)?;
             } else {
-                self.axes[i].disarm();
                 self.start_source(i, s, x)?;
             }
         }
         Ok(())
     }
 
+    /// Starts raster `r`: both its axes leave for their starts on this tick
+    /// (or neither, when one refuses); the lines start on the tick both are
+    /// there.
+    fn raster(&mut self, r: Raster, x: &mut Exchange<'_, N>) -> Result<(), Refused> {
+        let (fast, slow) = (r.fast.0, r.slow.0);
+        if fast >= N || slow >= N {
+            return Err(Refused::Axes);
+        }
+        let both = AxisSet::one(fast).with(slow);
+        for _ in self.addressed(both, Axis::can_arm)? {}
+        for (i, part) in [r.fast, r.slow] {
+            self.start_source(i, SourceOrder::Raster(part), x)?;
+        }
+        self.raster_pending = true;
+        Ok(())
+    }
+
     /// Switches axis `i`'s reference to source `s` (leaving the parked
-    /// state), with the board's stream bookkeeping: a stream is supervised;
-    /// another motion ends what a stream left, where no other axis streams.
+    /// state; a motion armed for the trigger is dropped), with the board's
+    /// stream bookkeeping: a stream is supervised; another motion ends what a
+    /// stream left, where no other axis streams.
     fn start_source(
         &mut self,
         i: usize,
         s: SourceOrder,
         x: &mut Exchange<'_, N>,
     ) -> Result<(), Refused> {
-        self.axes[i].start_source(s)?;
+        let Some(axis) = self.axes.get_mut(i) else {
+            return Err(Refused::Axes);
+        };
+        axis.disarm();
+        axis.start_source(s)?;
         if matches!(s, SourceOrder::Stream { .. }) {
             // A stream is always supervised.
             if self.timeout == 0 {

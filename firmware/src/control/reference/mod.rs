@@ -1,7 +1,9 @@
-//! The reference the control loop follows, from one of five sources chosen at run
+//! The reference the control loop follows, from one of six sources chosen at run
 //! time: hold, move (a slew-limited ramp to a position, or a step: a raised
 //! cosine of a given duration), a waveform ([`wave`]), a streamed trajectory
-//! ([`stream`]) or the analog input ([`analog`]).
+//! ([`stream`]), the analog input ([`analog`]) or an axis's part of a raster
+//! ([`raster`]: it waits at its start until the loop starts every axis of the
+//! raster on one tick).
 //!
 //! Switching never makes the reference jump: a new waveform, stream or analog input
 //! starts with an *approach*, a ramp at the board's approach speed from where the
@@ -17,12 +19,14 @@
 //! the loops track it.
 
 pub mod analog;
+pub mod raster;
 pub mod stream;
 pub mod wave;
 
 use piezo_fpi::q::Micrometres;
 
 use analog::{AnalogFault, AnalogInput};
+use raster::{RasterAxis, RasterPhase};
 use stream::{Playback, Points};
 use wave::{Wave, WavePhase};
 
@@ -70,6 +74,10 @@ pub enum SourceOrder {
     },
     /// Follow the analog input.
     Analog,
+    /// This axis's part of a raster: held at its start once there until the
+    /// loop releases every axis of the raster on one tick
+    /// ([`Reference::release`]).
+    Raster(RasterAxis),
 }
 
 impl SourceOrder {
@@ -103,6 +111,12 @@ enum Active {
         playback: Playback,
     },
     Analog,
+    Raster {
+        axis: RasterAxis,
+        phase: RasterPhase,
+        /// Released: the lines run.
+        go: bool,
+    },
 }
 
 /// The reference generator (state; its approach speed is configuration).
@@ -192,6 +206,11 @@ impl Reference {
                 self.analog.restart();
                 Active::Analog
             }
+            SourceOrder::Raster(axis) => Active::Raster {
+                axis,
+                phase: RasterPhase::default(),
+                go: false,
+            },
         };
     }
 
@@ -217,6 +236,7 @@ impl Reference {
         if self.approaching {
             let entry = match &self.active {
                 Active::Wave { wave, .. } => wave.start_value(),
+                Active::Raster { axis, .. } => axis.start_value(),
                 Active::Stream { .. } => points.peek().unwrap_or(self.x),
                 Active::Analog => self.analog.read(counts)?,
                 Active::Hold | Active::Move { .. } | Active::Step { .. } => self.x,
@@ -269,8 +289,36 @@ impl Reference {
                 }
             }
             Active::Analog => self.x = self.analog.read(counts)?,
+            Active::Raster { axis, phase, go } => {
+                if *go {
+                    match axis.next(phase) {
+                        Some(x) => self.x = x,
+                        None => {
+                            self.x = axis.end_value();
+                            self.active = Active::Hold;
+                        }
+                    }
+                }
+            }
         }
         Ok(self.x)
+    }
+
+    /// A raster's part that has reached its start and waits for the others.
+    pub const fn waiting(&self) -> bool {
+        matches!(self.active, Active::Raster { go: false, .. }) && !self.approaching
+    }
+
+    /// A raster's part that is still on its way to its start.
+    pub const fn raster_approaching(&self) -> bool {
+        matches!(self.active, Active::Raster { go: false, .. }) && self.approaching
+    }
+
+    /// Starts a waiting raster's lines from the next tick on.
+    pub fn release(&mut self) {
+        if let Active::Raster { go, .. } = &mut self.active {
+            *go = true;
+        }
     }
 
     /// The analog input is read this tick.
@@ -289,7 +337,7 @@ impl Reference {
         match self.active {
             Active::Hold => SourceKind::Hold,
             Active::Move { .. } | Active::Step { .. } => SourceKind::Move,
-            Active::Wave { .. } => SourceKind::Wave,
+            Active::Wave { .. } | Active::Raster { .. } => SourceKind::Wave,
             Active::Stream { .. } => SourceKind::Stream,
             Active::Analog => SourceKind::Analog,
         }
