@@ -12,7 +12,15 @@
 //!   is the inverse of the stage's static cross gains `(I + C)⁻¹`, where
 //!   `C[i][j]` is µm of axis `i` per µm of axis `j`'s own output.
 //!
-//! Both are the identity until autotune measures the coupling (drive each
+//! A third, the **preload coupling** ([`Preload`]), is the first paper's
+//! coupled equation for several stacks: the preload on stack `i` is its FEM
+//! table's at its own extension plus `K[i][j]` N per µm of every other stack
+//! `j`'s extension. The board adds it to each stack's model force
+//! (`ControllerConfig::sense_coupled`), so the other stacks' motion is
+//! neither a dynamic force for the damping nor a residual for the force
+//! channel's slow part to chase.
+//!
+//! The matrices are the identity (the coupling zero) until autotune measures the coupling (drive each
 //! axis, measure all) and sets them. A matrix far from the identity would
 //! change the loops a model's validator checked one axis at a time, so
 //! [`Matrix::new`] refuses an entry outside [`DIAGONAL`] on the diagonal or
@@ -27,7 +35,7 @@ use fixed::types::I2F30;
 
 use crate::error::ModelError;
 use crate::process::SplitProcess;
-use crate::q::Micrometres;
+use crate::q::{Micrometres, Newtons, NewtonsPerUm};
 
 /// The diagonal's accepted range: an axis's own gain may be corrected by
 /// −20 % … +25 % (its own loops' gains are the model's).
@@ -153,27 +161,144 @@ impl<const N: usize> SplitProcess<[Micrometres; N]> for Matrix<N> {
     }
 }
 
-/// The board's two matrices (configuration): sensors → axes, axes → stacks.
+/// The largest preload coupling, either sign, N/µm (a stiff flexure's is a
+/// few tenths: the XY stage's 0.5).
+pub const PRELOAD_MAX: f64 = 4.0;
+
+/// The stacks' preload coupling (configuration): `K[i][j]`, N on stack `i`
+/// per µm of stack `j`'s extension, `I16F16`; the diagonal zero (a stack's
+/// own preload is its FEM table's).
+///
+/// **Q contract.** Each stack's coupled preload is the exact 64-bit sum of
+/// `N` products (`I32F32`), rounded to nearest once and saturated to the
+/// signal range.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Preload<const N: usize> {
+    rows: [[NewtonsPerUm; N]; N],
+    none: bool,
+}
+
+impl<const N: usize> Preload<N> {
+    /// No coupling: the stacks are independent.
+    pub const NONE: Self = Self {
+        rows: [[NewtonsPerUm::ZERO; N]; N],
+        none: true,
+    };
+
+    /// The coupling of `rows` (`rows[i][j]`, N/µm); refused with the first
+    /// entry on the diagonal that is not zero, or beyond ±[`PRELOAD_MAX`]
+    /// ([`ModelError::PreloadCouplingOutOfRange`]).
+    pub fn new(rows: [[NewtonsPerUm; N]; N]) -> Result<Self, ModelError> {
+        let max = NewtonsPerUm::from_num(PRELOAD_MAX);
+        for (i, row) in rows.iter().enumerate() {
+            for (j, &k) in row.iter().enumerate() {
+                if (i == j && k != NewtonsPerUm::ZERO) || k.abs() > max {
+                    return Err(ModelError::PreloadCouplingOutOfRange {
+                        row: i as u8,
+                        col: j as u8,
+                    });
+                }
+            }
+        }
+        let none = rows == Self::NONE.rows;
+        Ok(Self { rows, none })
+    }
+
+    /// The coupling of `rows` given as numbers (N/µm): refused as
+    /// [`Preload::new`] refuses, and a value that is not finite as out of
+    /// range.
+    pub fn from_f64(rows: [[f64; N]; N]) -> Result<Self, ModelError> {
+        let mut q = [[NewtonsPerUm::ZERO; N]; N];
+        for (i, row) in rows.iter().enumerate() {
+            for (j, &v) in row.iter().enumerate() {
+                q[i][j] = NewtonsPerUm::checked_from_num(v).ok_or(
+                    ModelError::PreloadCouplingOutOfRange {
+                        row: i as u8,
+                        col: j as u8,
+                    },
+                )?;
+            }
+        }
+        Self::new(q)
+    }
+
+    /// The entries, `rows[i][j]`, N/µm.
+    pub const fn rows(&self) -> &[[NewtonsPerUm; N]; N] {
+        &self.rows
+    }
+
+    /// Whether every coupling is zero (then the board skips it).
+    pub const fn is_none(&self) -> bool {
+        self.none
+    }
+
+    /// Its leading `K × K` block; `None` if it couples those stacks with
+    /// another.
+    pub fn leading<const K: usize>(&self) -> Option<Preload<K>> {
+        let mut rows = [[NewtonsPerUm::ZERO; K]; K];
+        for (i, row) in self.rows.iter().enumerate() {
+            for (j, &k) in row.iter().enumerate() {
+                match rows.get_mut(i).and_then(|r| r.get_mut(j)) {
+                    Some(e) => *e = k,
+                    None if k == NewtonsPerUm::ZERO => {}
+                    None => return None,
+                }
+            }
+        }
+        Preload::new(rows).ok()
+    }
+}
+
+impl<const N: usize> Default for Preload<N> {
+    fn default() -> Self {
+        Self::NONE
+    }
+}
+
+impl<const N: usize> SplitProcess<[Micrometres; N], [Newtons; N]> for Preload<N> {
+    /// Each stack's coupled preload from every stack's extension (µm), N.
+    #[inline]
+    fn process(&self, _: &mut (), x: [Micrometres; N]) -> [Newtons; N] {
+        let mut f = [Newtons::ZERO; N];
+        for (row, f) in self.rows.iter().zip(f.iter_mut()) {
+            let mut acc: i64 = 1 << 15;
+            for (k, x) in row.iter().zip(x.iter()) {
+                acc += i64::from(k.to_bits()) * i64::from(x.to_bits());
+            }
+            let v = acc >> 16;
+            *f = Newtons::from_bits(v.clamp(i32::MIN.into(), i32::MAX.into()) as i32);
+        }
+        f
+    }
+}
+
+/// The board's decoupling (configuration): sensors → axes, axes → stacks,
+/// and the stacks' preload coupling.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Decoupling<const N: usize> {
     /// Sensors → axes: takes out the position sensors' cross-talk.
     pub input: Matrix<N>,
     /// Axes → stacks: takes out the flexure's parasitic motion.
     pub output: Matrix<N>,
+    /// Each stack's preload from the other stacks' extensions.
+    pub preload: Preload<N>,
 }
 
 impl<const N: usize> Decoupling<N> {
-    /// Both matrices the identity: no decoupling.
+    /// The matrices the identity, no preload coupling: no decoupling.
     pub const NONE: Self = Self {
         input: Matrix::IDENTITY,
         output: Matrix::IDENTITY,
+        preload: Preload::NONE,
     };
 
-    /// Both matrices' leading `K × K` blocks ([`Matrix::leading`]).
+    /// Every part's leading `K × K` block ([`Matrix::leading`],
+    /// [`Preload::leading`]).
     pub fn leading<const K: usize>(&self) -> Option<Decoupling<K>> {
         Some(Decoupling {
             input: self.input.leading()?,
             output: self.output.leading()?,
+            preload: self.preload.leading()?,
         })
     }
 }
@@ -268,6 +393,26 @@ mod tests {
         xyz[2][0] = 0.01;
         assert_eq!(Matrix::<3>::from_f64(xyz).unwrap().leading::<2>(), None);
         assert!(Matrix::<3>::IDENTITY.leading::<1>().unwrap().is_identity());
+    }
+
+    /// The XY stage's 0.5 N/µm: each stack's coupled preload is the other's
+    /// extension times it, within one LSB of the f64 product.
+    #[test]
+    fn the_preload_coupling_is_each_stacks_load_from_the_others() {
+        let k = Preload::from_f64([[0.0, 0.5], [0.5, 0.0]]).unwrap();
+        assert!(!k.is_none());
+        let f = k.process(&mut (), [um(30.0), um(10.0)]);
+        assert!((f[0].to_num::<f64>() - 5.0).abs() < 2.0 / 65536.0, "{f:?}");
+        assert!((f[1].to_num::<f64>() - 15.0).abs() < 2.0 / 65536.0, "{f:?}");
+        assert!(Preload::<2>::NONE.is_none());
+        let e = Preload::from_f64([[0.1, 0.5], [0.5, 0.0]]).unwrap_err();
+        assert_eq!(e, ModelError::PreloadCouplingOutOfRange { row: 0, col: 0 });
+        let e = Preload::from_f64([[0.0, 0.5], [-4.5, 0.0]]).unwrap_err();
+        assert_eq!(e, ModelError::PreloadCouplingOutOfRange { row: 1, col: 0 });
+        let three = Preload::<3>::from_f64([[0.0, 0.5, 0.0], [0.5, 0.0, 0.0], [0.0; 3]]).unwrap();
+        assert_eq!(three.leading::<2>(), Some(k));
+        let xyz = Preload::<3>::from_f64([[0.0, 0.5, 0.2], [0.5, 0.0, 0.0], [0.0; 3]]).unwrap();
+        assert_eq!(xyz.leading::<2>(), None);
     }
 
     /// Saturates at the signal range rather than wrapping.

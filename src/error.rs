@@ -182,6 +182,15 @@ pub enum ModelError {
         /// Column (the axis in).
         col: u8,
     },
+    /// A preload coupling lies beyond ±[`crate::decoupling::PRELOAD_MAX`]
+    /// N/µm, sits on the diagonal (a stack's own preload is its FEM
+    /// table's), or is not a number.
+    PreloadCouplingOutOfRange {
+        /// Row (the stack loaded).
+        row: u8,
+        /// Column (the stack that loads it).
+        col: u8,
+    },
 }
 
 impl ModelError {
@@ -286,6 +295,9 @@ impl ModelError {
             Self::MatrixEntryOutOfRange { .. } => {
                 "a decoupling matrix entry is outside its range (diagonal 0.8…1.25, off the diagonal ±0.1) or not a number"
             }
+            Self::PreloadCouplingOutOfRange { .. } => {
+                "a preload coupling is beyond ±4 N/µm, on the diagonal (a stack's own preload is its FEM table's) or not a number"
+            }
         }
     }
 
@@ -313,7 +325,9 @@ impl fmt::Display for ModelError {
         if let Some(i) = self.index() {
             write!(f, " (index {i})")?;
         }
-        if let Self::MatrixEntryOutOfRange { row, col } = *self {
+        if let Self::MatrixEntryOutOfRange { row, col }
+        | Self::PreloadCouplingOutOfRange { row, col } = *self
+        {
             write!(f, " (row {row}, column {col})")?;
         }
         Ok(())

@@ -67,8 +67,20 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin> Hardware<S, A, E> {
         cfg: &ControllerConfig<'a, N, C, G, H>,
         st: &mut ControllerState<N, C>,
     ) -> Forces {
+        self.sense_coupled(cfg, st, Newtons::ZERO)
+    }
+
+    /// [`sense`](Self::sense) with the preload the other stacks put on this
+    /// one, N ([`ControllerConfig::sense_coupled`]).
+    #[inline]
+    pub fn sense_coupled<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>(
+        &mut self,
+        cfg: &ControllerConfig<'a, N, C, G, H>,
+        st: &mut ControllerState<N, C>,
+        coupled: Newtons,
+    ) -> Forces {
         let force = self.sensor.read_force();
-        cfg.sense(st, force)
+        cfg.sense_coupled(st, force, coupled)
     }
 
     /// The second half: run the step on the forces read, write the setpoint. Once

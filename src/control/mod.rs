@@ -266,10 +266,28 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
     /// With a predicted force the reading is ignored. Bounded time, no panic.
     #[inline(always)]
     pub fn sense(&self, st: &mut ControllerState<N, C>, reading: Newtons) -> Forces {
+        self.sense_coupled(st, reading, Newtons::ZERO)
+    }
+
+    /// [`sense`](Self::sense) on a stage of several stacks: the FEM's preload
+    /// at the last estimated extension plus `coupled` (N), what the other
+    /// stacks' extensions put on this one (the first paper's coupled
+    /// equation, each stack's preload a function of every stack's
+    /// extension; `piezo_fpi::decoupling::Preload`). The channel's model
+    /// force, its split and its checks all take the coupled preload, so the
+    /// other stacks' motion is neither a dynamic force for the damping nor a
+    /// residual for the slow part to chase.
+    #[inline(always)]
+    pub fn sense_coupled(
+        &self,
+        st: &mut ControllerState<N, C>,
+        reading: Newtons,
+        coupled: Newtons,
+    ) -> Forces {
         if matches!(self.force_source, ForceSource::Measured) {
-            self.sense_as::<true>(st, reading)
+            self.sense_as::<true>(st, reading, coupled)
         } else {
-            self.sense_as::<false>(st, reading)
+            self.sense_as::<false>(st, reading, coupled)
         }
     }
 
@@ -285,8 +303,9 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         &self,
         st: &mut ControllerState<N, C>,
         reading: Newtons,
+        coupled: Newtons,
     ) -> Forces {
-        let model = self.preload(st.x_pea_est);
+        let model = self.preload(st.x_pea_est).saturating_add(coupled);
         if !MEASURED {
             return Forces {
                 reading,
@@ -391,12 +410,12 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
             self.fpi.is_bare(),
         ) {
             (true, true) => {
-                let f = self.sense_as::<true>(st, force);
+                let f = self.sense_as::<true>(st, force, Newtons::ZERO);
                 self.step_with::<true, true>(st, x_ref, &f)
             }
             (true, false) => self.step_general::<true>(st, x_ref, force),
             (false, true) => {
-                let f = self.sense_as::<false>(st, force);
+                let f = self.sense_as::<false>(st, force, Newtons::ZERO);
                 self.step_with::<false, true>(st, x_ref, &f)
             }
             (false, false) => self.step_general::<false>(st, x_ref, force),
@@ -414,7 +433,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         force: Newtons,
     ) -> StepOutput {
         if G::FIXED.is_some() && H::FIXED.is_some() {
-            let f = self.sense_as::<MEASURED>(st, force);
+            let f = self.sense_as::<MEASURED>(st, force, Newtons::ZERO);
             self.step_with::<MEASURED, false>(st, x_ref, &f)
         } else {
             self.step_general_outlined::<MEASURED>(st, x_ref, force)
@@ -429,7 +448,7 @@ impl<'a, const N: usize, const C: usize, G: Shape<'a>, H: Shape<'a>>
         x_ref: Micrometres,
         force: Newtons,
     ) -> StepOutput {
-        let f = self.sense_as::<MEASURED>(st, force);
+        let f = self.sense_as::<MEASURED>(st, force, Newtons::ZERO);
         self.step_with::<MEASURED, false>(st, x_ref, &f)
     }
 

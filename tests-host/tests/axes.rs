@@ -79,8 +79,8 @@ fn the_stored_grids_are_the_designs() {
 }
 
 /// The board's decoupling from the stored XY grid: the design's cross gains
-/// (Y 1.5 % of X, X 2 % of Y, within the file's rounding) and their inverse,
-/// as the board takes it.
+/// (Y 1.5 % of X, X 2 % of Y, within the file's rounding), their inverse as
+/// the board takes it, and the stacks' preload coupling (0.5 N/µm).
 #[test]
 fn the_xy_grid_gives_the_boards_output_matrix() {
     let grid = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/xy/fem_grid.csv.gz");
@@ -109,6 +109,11 @@ fn the_xy_grid_gives_the_boards_output_matrix() {
     assert!((mx[0] - 1.0 / det).abs() < 1e-4, "{printed}");
     assert!((mx[1] + 0.02 / det).abs() < 1e-4, "{printed}");
     assert!((my[0] + 0.015 / det).abs() < 1e-4, "{printed}");
+    let (kx, ky) = (row("preload coupling", "x"), row("preload coupling", "y"));
+    assert!(
+        (kx[1] - 0.5).abs() < 1e-4 && (ky[0] - 0.5).abs() < 1e-4,
+        "{printed}"
+    );
     assert!(printed.contains("input matrix (sensors → axes): the identity"));
 }
 

@@ -196,7 +196,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         analysis: &mut Option<AnalysisSums>,
     ) -> (Telemetry, Micrometres) {
         self.read_position();
-        let front = self.front(points);
+        let front = self.front(points, Newtons::ZERO);
         let cmd = self.command(&front);
         (self.back(tick, &front, &cmd, analysis), front.source)
     }
@@ -210,9 +210,10 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
 
     /// The tick's first phase, after the position is read: the reference
     /// from its source (the streamed `points`, or the analog input), the
-    /// governor, the preview, the force sensor.
+    /// governor, the preview, the force sensor (its model force with
+    /// `coupled`, N: what the other stacks put on this one).
     #[inline]
-    pub fn front(&mut self, points: &mut Points<STREAM_POINTS>) -> Front {
+    pub fn front(&mut self, points: &mut Points<STREAM_POINTS>, coupled: Newtons) -> Front {
         let counts = if self.reference.wants_analog() {
             self.analog_in.read_counts()
         } else {
@@ -251,7 +252,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         let x_ref = self
             .feedback
             .preview(x_ahead, summary.preview.as_ref(), stepping);
-        let forces = self.hw.sense(self.model.get(), &mut self.state);
+        let forces = self
+            .hw
+            .sense_coupled(self.model.get(), &mut self.state, coupled);
         Front {
             source,
             x_ref,

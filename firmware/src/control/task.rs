@@ -28,7 +28,7 @@
 use embedded_hal::digital::OutputPin;
 use piezo_fpi::control::Fault;
 use piezo_fpi::io::{ForceSensor, Hardware, Setpoint};
-use piezo_fpi::q::Micrometres;
+use piezo_fpi::q::{Micrometres, Newtons};
 
 use crate::board::analog_in::AnalogIn;
 use crate::board::capacity::RATE_HZ;
@@ -186,7 +186,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
 
     /// Every axis's tick in phases, the decoupling between them: every
     /// axis's position; the input matrix (sensors → axes); every axis's
-    /// reference, sensors and command; the output matrix (axes → stacks);
+    /// reference, force (its model force with the preload the other stacks'
+    /// last estimated extensions put on it) and command; the output matrix (axes → stacks);
     /// every axis's step and amplifier. The telemetry and the first axis's
     /// source reference, µm.
     #[inline(always)]
@@ -204,9 +205,15 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 a.set_x_sensor(x);
             }
         }
+        let coupled = if d.preload.is_none() {
+            [Newtons::ZERO; N]
+        } else {
+            let pea = core::array::from_fn(|i| self.axes[i].state().x_pea_est());
+            d.preload.process(&mut (), pea)
+        };
         let mut cmds: [(Front, Command); N] = core::array::from_fn(|i| {
             let a = &mut self.axes[i];
-            let front = a.front(x.points);
+            let front = a.front(x.points, coupled[i]);
             let cmd = a.command(&front);
             (front, cmd)
         });

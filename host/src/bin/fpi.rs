@@ -334,8 +334,9 @@ enum AxesCommand {
         #[arg(long)]
         out: PathBuf,
     },
-    /// The board's decoupling for a stage's FEM grid: its cross gains and the
-    /// output matrix (I + C)⁻¹ that takes them out of the commands.
+    /// The board's decoupling for a stage's FEM grid: its cross gains, the
+    /// output matrix (I + C)⁻¹ that takes them out of the commands, and the
+    /// stacks' preload coupling.
     Decoupling {
         /// The stage's FEM grid (`fpi axes grid`).
         #[arg(long)]

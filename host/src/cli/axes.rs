@@ -35,8 +35,8 @@ impl Design {
     }
 }
 
-/// `fpi axes decoupling`: the board's matrices for a grid's stage, with the
-/// cross gains they come from; printed.
+/// `fpi axes decoupling`: the board's matrices and preload coupling for a
+/// grid's stage, with the cross gains they come from; printed.
 pub fn decoupling(grid: &Path) -> Result<()> {
     let g = FemGrid::read(grid)?;
     let c = crate::method::axes::decouple::cross_gains(&g);
@@ -63,6 +63,12 @@ pub fn decoupling(grid: &Path) -> Result<()> {
             name,
             &mut d.output.rows()[i][..n].iter().map(|e| e.to_num::<f64>()),
         );
+    }
+    let k = crate::method::axes::decouple::preload_coupling(&g);
+    println!("preload coupling (N on the row's stack per µm of the column's extension):");
+    println!("     {}", head.join(" "));
+    for (i, name) in names.iter().enumerate() {
+        row(name, &mut k[i].iter().copied());
     }
     println!("input matrix (sensors → axes): the identity (a grid knows nothing of the sensors)");
     Ok(())

@@ -2,7 +2,8 @@
 //! closed-loop model (damping, position PI, the preview's feedforward
 //! and the lead on each), decoupled (the input matrix takes out the
 //! sensors' cross-talk, the output matrix the flexure's parasitic
-//! motion), the trigger output on its costliest condition, each axis's
+//! motion, the preload coupling each stack's load from the others), the
+//! trigger output on its costliest condition, each axis's
 //! tick recorded. Its phases as the one-axis loop's: closing the loops
 //! during a step on every axis, a 5 Hz full stroke, moves the governor
 //! takes at its limits. Printed as `isr_tick_three_axes_instructions`
@@ -43,7 +44,7 @@ mod bench {
     use fpi_firmware::emulation::virtual_io::{
         SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor,
     };
-    use piezo_fpi::decoupling::{Decoupling, Matrix};
+    use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
     use piezo_fpi::q::Micrometres;
     use piezo_fpi::trigger::{Condition, Trigger};
     use stm32f4xx_hal as _;
@@ -78,7 +79,8 @@ mod bench {
 
     /// `(I + c)⁻¹ ≈ I − c + c²` of the XYZ stage's couplings as built
     /// (`piezo_sim::axes`): cross gains (Y 1.5 % of X, X 2 % of Y, Z 1 %
-    /// of X and Y, X and Y 0.5 % of Z) and sensor cross-talk (0.2 %).
+    /// of X and Y, X and Y 0.5 % of Z) and sensor cross-talk (0.2 %); its
+    /// preload coupling (0.5 N/µm between X and Y, 0.2 with Z).
     fn decoupling() -> Option<Decoupling<MAX_AXES>> {
         let inv = |c: [[f64; 3]; 3]| {
             let mut m = [[0.0; 3]; 3];
@@ -96,9 +98,11 @@ mod bench {
             [0.002, 0.0, 0.002],
             [0.002, 0.002, 0.0],
         ];
+        let preload = [[0.0, 0.5, 0.2], [0.5, 0.0, 0.2], [0.2, 0.2, 0.0]];
         Some(Decoupling {
             input: inv(talk)?,
             output: inv(cross)?,
+            preload: Preload::from_f64(preload).ok()?,
         })
     }
 
@@ -212,7 +216,7 @@ mod bench {
             depth = depth.max(part_depth);
         }
         hprintln!(
-            "isr_tick_three_axes_instructions n=9: {} (three axes in closed loop, decoupled: each with damping, PI, preview feedforward and lead; input and output matrices; trigger (travel); every axis recorded; closing the loops during a step, a full stroke, governed moves; min {} mean {}.{}){}",
+            "isr_tick_three_axes_instructions n=9: {} (three axes in closed loop, decoupled: each with damping, PI, preview feedforward and lead; input and output matrices and the preload coupling; trigger (travel); every axis recorded; closing the loops during a step, a full stroke, governed moves; min {} mean {}.{}){}",
             all.max,
             all.min,
             all.mean_x10() / 10,

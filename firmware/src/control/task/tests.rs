@@ -16,7 +16,7 @@ use crate::control::reference::wave::{Shape, Wave};
 use crate::control::slots::{Origin, Spare};
 use crate::emulation::virtual_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor};
 use fpi_protocol::TriggerStart;
-use piezo_fpi::decoupling::{Decoupling, Matrix};
+use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
 
 type Three = ControlLoop<
     SimSensor<'static>,
@@ -359,6 +359,7 @@ fn the_decoupling_takes_out_parasitic_motion_and_sensor_crosstalk() {
     let d = Decoupling {
         input: rows(inverse(&crosstalk)),
         output: rows(inverse(&CROSS)),
+        ..Decoupling::NONE
     };
     let (moves, reads) = decoupled_run(Some(d));
     println!(
@@ -378,8 +379,8 @@ fn the_decoupling_takes_out_parasitic_motion_and_sensor_crosstalk() {
 fn a_decoupling_the_board_cannot_run_is_refused() {
     let mut r = three();
     let d = Decoupling {
-        input: Matrix::IDENTITY,
         output: Matrix::from_f64([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).unwrap(),
+        ..Decoupling::NONE
     };
     assert_eq!(r.order(AxisSet::ALL, Order::Decoupling(d)), Ok(()));
     // A one-axis board has nothing to decouple.
@@ -489,6 +490,25 @@ impl Xy {
     }
 }
 
+/// The XY stage's true couplings as the board takes them: the inverses of
+/// its sensor cross-talk and its cross gains, and (`preload`) its stacks'
+/// preload coupling.
+fn xy_decoupling(preload: bool) -> Decoupling<3> {
+    let c = piezo_sim::axes::XY_COUPLING;
+    let as64 = |m: [[f32; 3]; 3]| m.map(|r| r.map(f64::from));
+    let t = f64::from(c.sensor_crosstalk);
+    let talk = [[0.0, t, 0.0], [t, 0.0, 0.0], [0.0; 3]];
+    Decoupling {
+        input: Matrix::from_f64(inverse(&talk)).unwrap(),
+        output: Matrix::from_f64(inverse(&as64(c.cross_um_per_um))).unwrap(),
+        preload: if preload {
+            Preload::from_f64(as64(c.preload_n_per_um)).unwrap()
+        } else {
+            Preload::NONE
+        },
+    }
+}
+
 /// X moves 5 → 35 µm while Y holds 10 µm (open loop, each axis on stage A's
 /// model): how far Y's true output moves, µm, and each axis's faults.
 fn xy_run(d: Option<Decoupling<3>>) -> (f32, [Option<Fault>; 2]) {
@@ -527,21 +547,23 @@ fn xy_run(d: Option<Decoupling<3>>) -> (f32, [Option<Fault>; 2]) {
 
 #[test]
 fn on_the_xy_stage_as_built_the_decoupling_keeps_y_still_while_x_moves() {
-    let c = piezo_sim::axes::XY_COUPLING;
-    let as3 = |m: [[f32; 3]; 3]| m.map(|r| r.map(f64::from));
-    let cross = as3(c.cross_um_per_um);
-    let t = f64::from(c.sensor_crosstalk);
-    let talk = [[0.0, t, 0.0], [t, 0.0, 0.0], [0.0; 3]];
-    let d = Decoupling {
-        input: Matrix::from_f64(inverse(&talk)).unwrap(),
-        output: Matrix::from_f64(inverse(&cross)).unwrap(),
-    };
+    let d = xy_decoupling(false);
     let (coupled, faults) = xy_run(None);
     assert_eq!(faults, [None, None]);
     let (decoupled, faults) = xy_run(Some(d));
     assert_eq!(faults, [None, None]);
+    let (with_preload, faults) = xy_run(Some(xy_decoupling(true)));
+    assert_eq!(faults, [None, None]);
+    println!(
+        "Y moved {coupled:.4} µm without the decoupling, {decoupled:.4} µm with the \
+         matrices, {with_preload:.4} µm with the preload coupling too"
+    );
     assert!(coupled > 0.3, "{coupled} µm");
     assert!(decoupled < coupled / 5.0, "{decoupled} µm");
+    // The force channel follows a slow change of preload by itself; the
+    // coupling in the model force takes it out at once (measured: 0.059 →
+    // 0.051 µm).
+    assert!(with_preload <= decoupled, "{with_preload} µm");
 }
 
 /// A raster of `lines` lines of `ticks` ticks, x fast over 5–35 µm, y slow
@@ -697,20 +719,14 @@ fn xy_raster(d: Option<Decoupling<3>>) -> RasterFigures {
 
 #[test]
 fn a_raster_on_the_xy_stage_as_built_keeps_y_on_its_line_when_decoupled() {
-    let c = piezo_sim::axes::XY_COUPLING;
-    let cross = c.cross_um_per_um.map(|r| r.map(f64::from));
-    let t = f64::from(c.sensor_crosstalk);
-    let talk = [[0.0, t, 0.0], [t, 0.0, 0.0], [0.0; 3]];
-    let d = Decoupling {
-        input: Matrix::from_f64(inverse(&talk)).unwrap(),
-        output: Matrix::from_f64(inverse(&cross)).unwrap(),
-    };
+    let d = xy_decoupling(false);
     let coupled = xy_raster(None);
     let decoupled = xy_raster(Some(d));
-    println!(
-        "raster, open loop, stage A's model on each axis, without the decoupling: {coupled:?}"
-    );
-    println!("raster, open loop, stage A's model on each axis, with the decoupling: {decoupled:?}");
+    let with_preload = xy_raster(Some(xy_decoupling(true)));
+    let what = "raster, open loop, stage A's model on each axis";
+    println!("{what}, without the decoupling: {coupled:?}");
+    println!("{what}, with the matrices: {decoupled:?}");
+    println!("{what}, with the matrices and the preload coupling: {with_preload:?}");
     // Along a line X sweeps 30 µm: Y's error swings by 1.5 % of it and by
     // its own open-loop error along its ramp without the decoupling; with
     // it, by the open-loop error alone (measured: 0.64 and 0.32 µm).
@@ -718,5 +734,9 @@ fn a_raster_on_the_xy_stage_as_built_keeps_y_on_its_line_when_decoupled() {
     assert!(
         decoupled.y_swing_um < coupled.y_swing_um * 2.0 / 3.0,
         "{decoupled:?}"
+    );
+    assert!(
+        with_preload.y_swing_um <= decoupled.y_swing_um,
+        "{with_preload:?}"
     );
 }

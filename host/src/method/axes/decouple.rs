@@ -6,34 +6,58 @@
 //! `j`'s own output: the slope of axis `i`'s output along stack `j`'s
 //! extension over the slope of axis `j`'s, at the middle of the grid (central
 //! differences over a tenth of each stack's span). The board's commands are µm
-//! of each axis's own output, so its output matrix is `(I + C)⁻¹`. The grid
-//! knows nothing of the position sensors: the input matrix stays the identity.
+//! of each axis's own output, so its output matrix is `(I + C)⁻¹`. The
+//! preload coupling `K[i][j]` is the slope of stack `i`'s preload along stack
+//! `j`'s extension, N/µm, the same way. The grid knows nothing of the
+//! position sensors: the input matrix stays the identity.
 
 use anyhow::{bail, Result};
 use nalgebra::DMatrix;
-use piezo_fpi::decoupling::{Decoupling, Matrix};
+use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
 use piezo_sim::axes::{AXIS_NAMES, MAX_AXES};
 
 use crate::method::axes::grid::FemGrid;
 
-/// The grid's cross gains about the middle of every stack's span,
-/// `[i][j]` (µm of axis `i` per µm of axis `j`'s own output; the diagonal 0).
-pub fn cross_gains(grid: &FemGrid) -> Vec<Vec<f64>> {
-    let n = grid.axes();
-    let (mid, h): (Vec<f64>, Vec<f64>) = (0..n)
+/// The middle of every stack's span and a tenth of it, µm.
+fn middle(grid: &FemGrid) -> (Vec<f64>, Vec<f64>) {
+    (0..grid.axes())
         .map(|j| {
             let k = grid.knots(j);
             let (lo, hi) = (k[0], k[k.len() - 1]);
             ((lo + hi) / 2.0, (hi - lo) / 20.0)
         })
-        .unzip();
-    // slope[i][j]: d(output i) / d(extension j), µm/µm.
-    let slope = |i: usize, j: usize| {
-        let (mut up, mut down) = (mid.clone(), mid.clone());
-        up[j] += h[j];
-        down[j] -= h[j];
-        (grid.output_at(i, &up) - grid.output_at(i, &down)) / (2.0 * h[j])
-    };
+        .unzip()
+}
+
+/// The slope of `f` along stack `j`'s extension about `mid` (central
+/// difference over `h[j]`).
+fn slope(f: impl Fn(&[f64]) -> f64, mid: &[f64], h: &[f64], j: usize) -> f64 {
+    let (mut up, mut down) = (mid.to_vec(), mid.to_vec());
+    up[j] += h[j];
+    down[j] -= h[j];
+    (f(&up) - f(&down)) / (2.0 * h[j])
+}
+
+/// The grid's cross gains about the middle of every stack's span,
+/// `[i][j]` (µm of axis `i` per µm of axis `j`'s own output; the diagonal 0).
+pub fn cross_gains(grid: &FemGrid) -> Vec<Vec<f64>> {
+    let n = grid.axes();
+    let (mid, h) = middle(grid);
+    let s = |i: usize, j: usize| slope(|x| grid.output_at(i, x), &mid, &h, j);
+    (0..n)
+        .map(|i| {
+            (0..n)
+                .map(|j| if i == j { 0.0 } else { s(i, j) / s(j, j) })
+                .collect()
+        })
+        .collect()
+}
+
+/// The grid's preload coupling about the middle of every stack's span,
+/// `[i][j]` (N on stack `i` per µm of stack `j`'s extension; the diagonal 0).
+pub fn preload_coupling(grid: &FemGrid) -> Vec<Vec<f64>> {
+    let n = grid.axes();
+    let (mid, h) = middle(grid);
     (0..n)
         .map(|i| {
             (0..n)
@@ -41,7 +65,7 @@ pub fn cross_gains(grid: &FemGrid) -> Vec<Vec<f64>> {
                     if i == j {
                         0.0
                     } else {
-                        slope(i, j) / slope(j, j)
+                        slope(|x| grid.preload_at(i, x), &mid, &h, j)
                     }
                 })
                 .collect()
@@ -50,7 +74,8 @@ pub fn cross_gains(grid: &FemGrid) -> Vec<Vec<f64>> {
 }
 
 /// The board's decoupling for the grid's stage: the output matrix
-/// `(I + C)⁻¹` of its cross gains, the input matrix the identity; refused,
+/// `(I + C)⁻¹` of its cross gains, its preload coupling, the input matrix
+/// the identity; refused,
 /// naming the grid and the entry, where the board would refuse it (a
 /// coupling beyond its range) or an axis does not move with its own stack.
 pub fn decoupling(grid: &FemGrid) -> Result<Decoupling<MAX_AXES>> {
@@ -87,9 +112,21 @@ pub fn decoupling(grid: &FemGrid) -> Result<Decoupling<MAX_AXES>> {
             grid.source
         )
     })?;
+    let k = preload_coupling(grid);
+    let mut pre = [[0.0; MAX_AXES]; MAX_AXES];
+    for (i, row) in k.iter().enumerate() {
+        pre[i][..n].copy_from_slice(row);
+    }
+    let preload = Preload::from_f64(pre).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: the preload coupling is not one the board takes: {e}",
+            grid.source
+        )
+    })?;
     Ok(Decoupling {
         input: Matrix::IDENTITY,
         output,
+        preload,
     })
 }
 
@@ -99,8 +136,8 @@ mod tests {
     use piezo_sim::axes::coupling_of;
 
     /// The design's grid carries the couplings of `piezo_sim::axes`: the
-    /// cross gains read back from it are theirs, and the output matrix undoes
-    /// them.
+    /// cross gains and the preload coupling read back from it are theirs,
+    /// and the output matrix undoes the gains.
     #[test]
     fn the_designs_cross_gains_are_the_couplings_it_was_made_with() {
         for axes in [2, 3] {
@@ -116,8 +153,20 @@ mod tests {
                     );
                 }
             }
+            let k = preload_coupling(&grid);
+            let want = coupling_of(axes).preload_n_per_um;
+            for (i, (row, want)) in k.iter().zip(want).enumerate() {
+                for (j, (&got, &w)) in row.iter().zip(&want).enumerate() {
+                    let w = if i == j { 0.0 } else { f64::from(w) };
+                    assert!(
+                        (got - w).abs() < 1e-6,
+                        "{axes} axes K[{i}][{j}]: {got} vs {w}"
+                    );
+                }
+            }
             let d = decoupling(&grid).unwrap();
             assert!(d.input.is_identity());
+            assert!(!d.preload.is_none());
             let m = d.output.rows().map(|r| r.map(|e| e.to_num::<f64>()));
             // (I + C)·M = I.
             let eye = |i: usize, j: usize| f64::from(u8::from(i == j));
