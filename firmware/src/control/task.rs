@@ -79,7 +79,8 @@ pub struct ControlLoop<S, A, E, R, const N: usize = 1> {
     input_was: bool,
     /// A recording (its decimation) armed for the trigger input's edge.
     armed_record: Option<u16>,
-    /// The axes' input and output matrices (the identity on one axis).
+    /// The axes' input and output matrices and the stacks' preload coupling
+    /// (none on one axis).
     decoupling: Decoupling<N>,
     /// A raster's axes are on their way to its start: its lines start on
     /// every one of them on the tick the last arrives.
@@ -129,12 +130,11 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         self.input_was = x.trigger_in;
         self.supervise(x.heartbeats);
         let tick = self.tick;
-        let (t, first_source) = if N == 1 {
+        let (mut t, first_source) = if N == 1 {
             self.tick_one(tick, x)
         } else {
             self.tick_coupled(tick, x)
         };
-        let mut t = t;
         if N > 1 {
             self.park_on_fault();
             if self.raster_pending {
@@ -187,9 +187,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
     /// Every axis's tick in phases, the decoupling between them: every
     /// axis's position; the input matrix (sensors → axes); every axis's
     /// reference, force (its model force with the preload the other stacks'
-    /// last estimated extensions put on it) and command; the output matrix (axes → stacks);
-    /// every axis's step and amplifier. The telemetry and the first axis's
-    /// source reference, µm.
+    /// last estimated extensions put on it) and command; the output matrix
+    /// (axes → stacks); every axis's step and amplifier. The telemetry and
+    /// the first axis's source reference, µm.
     #[inline(always)]
     fn tick_coupled(
         &mut self,
@@ -600,7 +600,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             return Err(Refused::Axes);
         }
         let both = AxisSet::one(fast).with(slow);
-        for _ in self.addressed(both, Axis::can_arm)? {}
+        // Both can start, or neither is changed.
+        let _ = self.addressed(both, Axis::can_arm)?;
         for (i, part) in [r.fast, r.slow] {
             self.start_source(i, SourceOrder::Raster(part), x)?;
         }
