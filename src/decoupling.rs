@@ -109,6 +109,50 @@ impl<const N: usize> Matrix<N> {
         Self::new(q)
     }
 
+    /// The matrix that undoes a coupling `c` (`c[i][j]`: how much of input
+    /// `j` reaches output `i`, the diagonal unused): `(I + c)⁻¹`, by
+    /// Gauss–Jordan elimination with partial pivoting in `f64` (not on the
+    /// tick: when a decoupling is made). Refused as [`Matrix::from_f64`]
+    /// refuses its result; a coupling with no inverse as an entry out of
+    /// range at its pivot.
+    pub fn undoing(c: [[f64; N]; N]) -> Result<Self, ModelError> {
+        let mut a = [[0.0; N]; N];
+        let mut inv = [[0.0; N]; N];
+        for i in 0..N {
+            for j in 0..N {
+                a[i][j] = if i == j { 1.0 } else { c[i][j] };
+            }
+            inv[i][i] = 1.0;
+        }
+        for col in 0..N {
+            let pivot = (col..N)
+                .max_by(|&p, &q| a[p][col].abs().total_cmp(&a[q][col].abs()))
+                .unwrap_or(col);
+            let singular = ModelError::MatrixEntryOutOfRange {
+                row: col as u8,
+                col: col as u8,
+            };
+            let p = a[pivot][col];
+            if p.is_nan() || p.abs() <= 1e-12 {
+                return Err(singular);
+            }
+            a.swap(col, pivot);
+            inv.swap(col, pivot);
+            for j in 0..N {
+                a[col][j] /= p;
+                inv[col][j] /= p;
+            }
+            for r in (0..N).filter(|&r| r != col) {
+                let f = a[r][col];
+                for j in 0..N {
+                    a[r][j] -= f * a[col][j];
+                    inv[r][j] -= f * inv[col][j];
+                }
+            }
+        }
+        Self::from_f64(inv)
+    }
+
     /// The entries, `rows[i][j]`.
     pub const fn rows(&self) -> &[[Entry; N]; N] {
         &self.rows
@@ -148,16 +192,12 @@ impl<const N: usize> SplitProcess<[Micrometres; N]> for Matrix<N> {
     /// `M·x`, each output rounded to nearest once and saturated.
     #[inline]
     fn process(&self, _: &mut (), x: [Micrometres; N]) -> [Micrometres; N] {
-        let mut y = [Micrometres::ZERO; N];
-        for (row, y) in self.rows.iter().zip(y.iter_mut()) {
-            let mut acc: i64 = 1 << (Entry::FRAC_NBITS - 1);
-            for (m, x) in row.iter().zip(x.iter()) {
-                acc += i64::from(m.to_bits()) * i64::from(x.to_bits());
-            }
-            let v = acc >> Entry::FRAC_NBITS;
-            *y = Micrometres::from_bits(v.clamp(i32::MIN.into(), i32::MAX.into()) as i32);
-        }
-        y
+        let y = product(
+            &self.rows.map(|r| r.map(Entry::to_bits)),
+            x.map(Micrometres::to_bits),
+            Entry::FRAC_NBITS,
+        );
+        y.map(Micrometres::from_bits)
     }
 }
 
@@ -259,17 +299,24 @@ impl<const N: usize> SplitProcess<[Micrometres; N], [Newtons; N]> for Preload<N>
     /// Each stack's coupled preload from every stack's extension (µm), N.
     #[inline]
     fn process(&self, _: &mut (), x: [Micrometres; N]) -> [Newtons; N] {
-        let mut f = [Newtons::ZERO; N];
-        for (row, f) in self.rows.iter().zip(f.iter_mut()) {
-            let mut acc: i64 = 1 << 15;
-            for (k, x) in row.iter().zip(x.iter()) {
-                acc += i64::from(k.to_bits()) * i64::from(x.to_bits());
-            }
-            let v = acc >> 16;
-            *f = Newtons::from_bits(v.clamp(i32::MIN.into(), i32::MAX.into()) as i32);
-        }
-        f
+        let rows = self.rows.map(|r| r.map(NewtonsPerUm::to_bits));
+        let f = product(&rows, x.map(Micrometres::to_bits), NewtonsPerUm::FRAC_NBITS);
+        f.map(Newtons::from_bits)
     }
+}
+
+/// `rows · x` on raw bits, the entries with `frac` fractional bits: each
+/// output the exact 64-bit sum of its products, rounded to nearest once and
+/// saturated to `i32` (the one product both [`Matrix`] and [`Preload`] run).
+#[inline(always)]
+fn product<const N: usize>(rows: &[[i32; N]; N], x: [i32; N], frac: u32) -> [i32; N] {
+    rows.map(|row| {
+        let mut acc: i64 = 1 << (frac - 1);
+        for (m, x) in row.iter().zip(x.iter()) {
+            acc += i64::from(*m) * i64::from(*x);
+        }
+        (acc >> frac).clamp(i32::MIN.into(), i32::MAX.into()) as i32
+    })
 }
 
 /// The board's decoupling (configuration): sensors → axes, axes → stacks,
@@ -336,6 +383,8 @@ mod tests {
         let det = 1.0 - c[0][1] * c[1][0];
         let inv = [[1.0 / det, -c[0][1] / det], [-c[1][0] / det, 1.0 / det]];
         let m = Matrix::from_f64(inv).unwrap();
+        // The general inverse agrees with the 2 × 2 closed form.
+        assert_eq!(Matrix::undoing(c).unwrap(), m);
         assert!(!m.is_identity());
         let mut worst: f64 = 0.0;
         for a in -10..=70 {
@@ -355,16 +404,27 @@ mod tests {
     /// the commanded positions: `(I + C)·M·r = r`.
     #[test]
     fn the_inverse_of_the_cross_gains_undoes_them() {
-        let c = [[0.0, 0.02], [0.015, 0.0]];
-        let det = 1.0 - c[0][1] * c[1][0];
-        let inv = [[1.0 / det, -c[0][1] / det], [-c[1][0] / det, 1.0 / det]];
-        let m = Matrix::from_f64(inv).unwrap();
-        let r = [30.0, 5.0];
+        // The XYZ stage's cross gains: `(I + c)·M·r = r`.
+        let c = [[0.0, 0.02, 0.005], [0.015, 0.0, 0.005], [0.01, 0.01, 0.0]];
+        let m = Matrix::undoing(c).unwrap();
+        let r = [30.0, 5.0, 12.0];
         let cmd = m.process(&mut (), r.map(um)).map(|v| v.to_num::<f64>());
-        let out = [cmd[0] + c[0][1] * cmd[1], cmd[1] + c[1][0] * cmd[0]];
-        for k in 0..2 {
+        let out: [f64; 3] = core::array::from_fn(|i| {
+            cmd[i]
+                + (0..3)
+                    .filter(|&j| j != i)
+                    .map(|j| c[i][j] * cmd[j])
+                    .sum::<f64>()
+        });
+        for k in 0..3 {
             assert!((out[k] - r[k]).abs() < 1e-4, "{out:?}");
         }
+        // A coupling that cancels an axis has no inverse: refused.
+        let e = Matrix::undoing([[0.0, 1.0], [1.0, 0.0]]).unwrap_err();
+        assert!(
+            matches!(e, ModelError::MatrixEntryOutOfRange { .. }),
+            "{e:?}"
+        );
     }
 
     #[test]

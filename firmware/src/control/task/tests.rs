@@ -286,19 +286,6 @@ fn a_stream_a_swap_and_an_analysis_take_one_axis() {
     assert_eq!(r.order(AxisSet::one(5), Order::Safe), Err(Refused::Axes));
 }
 
-/// `(I + c)⁻¹` of a coupling small enough that four terms of its series
-/// are exact to 10⁻⁸: `I − c + c² − c³`.
-fn inverse(c: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
-    let mul = |a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]| -> [[f64; 3]; 3] {
-        core::array::from_fn(|i| core::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
-    };
-    let c2 = mul(c, c);
-    let c3 = mul(&c2, c);
-    core::array::from_fn(|i| {
-        core::array::from_fn(|j| f64::from(i == j) - c[i][j] + c2[i][j] - c3[i][j])
-    })
-}
-
 /// The XYZ stage's couplings as built (`piezo_sim::axes`): Y moves 1.5 % of
 /// X, X 2 % of Y, Z 1 % of X and Y, X and Y 0.5 % of Z.
 const CROSS: [[f64; 3]; 3] = [[0.0, 0.02, 0.005], [0.015, 0.0, 0.005], [0.01, 0.01, 0.0]];
@@ -350,15 +337,14 @@ fn decoupled_run(d: Option<Decoupling<3>>) -> (f64, [f64; 3]) {
 #[test]
 fn the_decoupling_takes_out_parasitic_motion_and_sensor_crosstalk() {
     let (coupled_moves, coupled_reads) = decoupled_run(None);
-    let rows = |m: [[f64; 3]; 3]| Matrix::from_f64(m).unwrap();
     let crosstalk = [
         [0.0, 0.002, 0.002],
         [0.002, 0.0, 0.002],
         [0.002, 0.002, 0.0],
     ];
     let d = Decoupling {
-        input: rows(inverse(&crosstalk)),
-        output: rows(inverse(&CROSS)),
+        input: Matrix::undoing(crosstalk).unwrap(),
+        output: Matrix::undoing(CROSS).unwrap(),
         ..Decoupling::NONE
     };
     let (moves, reads) = decoupled_run(Some(d));
@@ -499,8 +485,8 @@ fn xy_decoupling(preload: bool) -> Decoupling<3> {
     let t = f64::from(c.sensor_crosstalk);
     let talk = [[0.0, t, 0.0], [t, 0.0, 0.0], [0.0; 3]];
     Decoupling {
-        input: Matrix::from_f64(inverse(&talk)).unwrap(),
-        output: Matrix::from_f64(inverse(&as64(c.cross_um_per_um))).unwrap(),
+        input: Matrix::undoing(talk).unwrap(),
+        output: Matrix::undoing(as64(c.cross_um_per_um)).unwrap(),
         preload: if preload {
             Preload::from_f64(as64(c.preload_n_per_um)).unwrap()
         } else {

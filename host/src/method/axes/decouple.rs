@@ -12,7 +12,6 @@
 //! position sensors: the input matrix stays the identity.
 
 use anyhow::{bail, Result};
-use nalgebra::DMatrix;
 use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
 use piezo_sim::axes::{AXIS_NAMES, MAX_AXES};
 
@@ -38,39 +37,38 @@ fn slope(f: impl Fn(&[f64]) -> f64, mid: &[f64], h: &[f64], j: usize) -> f64 {
     (f(&up) - f(&down)) / (2.0 * h[j])
 }
 
+/// An `n × n` table of `f(i, j)` off the diagonal, 0 on it.
+fn off_diagonal(n: usize, f: impl Fn(usize, usize) -> f64) -> Vec<Vec<f64>> {
+    (0..n)
+        .map(|i| (0..n).map(|j| if i == j { 0.0 } else { f(i, j) }).collect())
+        .collect()
+}
+
+/// A table of the grid's axes as the board's three-axis one (the axes the
+/// grid lacks uncoupled).
+fn padded(t: &[Vec<f64>]) -> [[f64; MAX_AXES]; MAX_AXES] {
+    let mut out = [[0.0; MAX_AXES]; MAX_AXES];
+    for (row, t) in out.iter_mut().zip(t) {
+        row[..t.len()].copy_from_slice(t);
+    }
+    out
+}
+
 /// The grid's cross gains about the middle of every stack's span,
 /// `[i][j]` (µm of axis `i` per µm of axis `j`'s own output; the diagonal 0).
 pub fn cross_gains(grid: &FemGrid) -> Vec<Vec<f64>> {
-    let n = grid.axes();
     let (mid, h) = middle(grid);
     let s = |i: usize, j: usize| slope(|x| grid.output_at(i, x), &mid, &h, j);
-    (0..n)
-        .map(|i| {
-            (0..n)
-                .map(|j| if i == j { 0.0 } else { s(i, j) / s(j, j) })
-                .collect()
-        })
-        .collect()
+    off_diagonal(grid.axes(), |i, j| s(i, j) / s(j, j))
 }
 
 /// The grid's preload coupling about the middle of every stack's span,
 /// `[i][j]` (N on stack `i` per µm of stack `j`'s extension; the diagonal 0).
 pub fn preload_coupling(grid: &FemGrid) -> Vec<Vec<f64>> {
-    let n = grid.axes();
     let (mid, h) = middle(grid);
-    (0..n)
-        .map(|i| {
-            (0..n)
-                .map(|j| {
-                    if i == j {
-                        0.0
-                    } else {
-                        slope(|x| grid.preload_at(i, x), &mid, &h, j)
-                    }
-                })
-                .collect()
-        })
-        .collect()
+    off_diagonal(grid.axes(), |i, j| {
+        slope(|x| grid.preload_at(i, x), &mid, &h, j)
+    })
 }
 
 /// The board's decoupling for the grid's stage: the output matrix
@@ -92,32 +90,13 @@ pub fn decoupling(grid: &FemGrid) -> Result<Decoupling<MAX_AXES>> {
             );
         }
     }
-    let coupled = DMatrix::from_fn(n, n, |i, j| f64::from(u8::from(i == j)) + c[i][j]);
-    let Some(inverse) = coupled.try_inverse() else {
-        bail!("{}: the cross gains have no inverse", grid.source);
-    };
-    let mut rows = [[0.0; MAX_AXES]; MAX_AXES];
-    for (i, row) in rows.iter_mut().enumerate() {
-        for (j, m) in row.iter_mut().enumerate() {
-            *m = if i < n && j < n {
-                inverse[(i, j)]
-            } else {
-                f64::from(u8::from(i == j))
-            };
-        }
-    }
-    let output = Matrix::from_f64(rows).map_err(|e| {
+    let output = Matrix::undoing(padded(&c)).map_err(|e| {
         anyhow::anyhow!(
             "{}: the output matrix (I + C)⁻¹ is not one the board takes: {e}",
             grid.source
         )
     })?;
-    let k = preload_coupling(grid);
-    let mut pre = [[0.0; MAX_AXES]; MAX_AXES];
-    for (i, row) in k.iter().enumerate() {
-        pre[i][..n].copy_from_slice(row);
-    }
-    let preload = Preload::from_f64(pre).map_err(|e| {
+    let preload = Preload::from_f64(padded(&preload_coupling(grid))).map_err(|e| {
         anyhow::anyhow!(
             "{}: the preload coupling is not one the board takes: {e}",
             grid.source
