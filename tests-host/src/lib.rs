@@ -13,7 +13,8 @@
 //!
 //! This library holds what the test files share beyond `tests/common`: where the
 //! harness is ([`dir`]), the `fpi` binary they run ([`fpi_bin`]), the board
-//! the emulated-board tests drive ([`usb_board`]), and the model
+//! the emulated-board tests drive ([`usb_board`]), the board the
+//! behaviour's tests drive ([`behaviour_board`]), and the model
 //! autotune tuned on the emulated board, shared between the test binaries of one
 //! run ([`keep_tuned`], [`kept_tuned`]).
 
@@ -95,6 +96,32 @@ pub fn kept_tuned() -> Option<fpi_host::model_file::FirmwareModel> {
     let path = tuned_path()?;
     let text = std::fs::read_to_string(&path).ok()?;
     fpi_host::model_file::FirmwareModel::parse(&text, &path.display().to_string()).ok()
+}
+
+/// The board for the tests of the control task's behaviour (autotune, the
+/// loops, the watch, the governor's property): the firmware built for the host,
+/// in-process, its link paced as USB, said so on stdout. It is the same control
+/// task, virtual bench and fixed-point arithmetic as the emulated board's, at
+/// the board's real-time pace, at a quarter of QEMU's wall time (QEMU runs the
+/// 168 MHz core slower than real time on 2 cores). What only the Cortex-M build
+/// has (its link over the USART, the timer interrupt, its memory) is the
+/// emulated board's tests' ([`usb_board`]). `FPI_TESTS_BOARD=emulated` runs
+/// them on the emulated board instead (the figures the book gives for QEMU).
+pub fn behaviour_board(
+    test: &str,
+) -> (
+    Option<fpi_host::board::emulator::Emulator>,
+    fpi_host::board::client::Client,
+) {
+    if std::env::var("FPI_TESTS_BOARD").is_ok_and(|v| v == "emulated") {
+        return usb_board(test);
+    }
+    println!("{test}: on the firmware built for the host (in-process)");
+    (
+        None,
+        fpi_host::board::client::Client::open("virtual:usb")
+            .unwrap_or_else(|e| panic!("{test}: the in-process board: {e:#}")),
+    )
 }
 
 /// A board for the test `test`: the emulated one (QEMU) with its link paced as

@@ -1,5 +1,7 @@
-//! Damping, autotune and the loops on the stage as built, on the emulated board
-//! (QEMU; without it, the same firmware built for the host, in-process), driven
+//! Damping, autotune and the loops on the stage as built, on the firmware built
+//! for the host, in-process (`fpi_tests::behaviour_board`: the same control
+//! task and virtual bench as the emulated board's, at the board's real-time
+//! pace, where QEMU runs slower than real time), driven
 //! through the library a user's `fpi board …` runs:
 //!
 //! * `fpi board frf`'s measurement on the quasi-static nominal stage (a flat
@@ -26,7 +28,7 @@ use fpi_host::board::mass;
 use fpi_host::board::step::{self, StepSettings};
 use fpi_host::method::tune::TuneOptions;
 use fpi_protocol::{BenchOrder, StageVariant};
-use fpi_tests::usb_board as board;
+use fpi_tests::behaviour_board as board;
 use piezo_sim::file::{FirmwareModel, ShapingSection};
 
 /// The factory model (stage A, no loops).
@@ -67,9 +69,8 @@ fn three_steps(c: &mut Client, name: &str) -> Vec<step::StepFigures> {
 
 /// Autotune on the stage as built (once), and the board it ran on.
 ///
-/// Its autotune is the longest wait of this file (2½ minutes under QEMU on 2
-/// cores). The harness starts the tests in the order of their names, so the
-/// first (`a_fast_wave_s_…`) runs it, while the other thread runs the next two,
+/// Its autotune is the longest wait of this file (half a minute). The harness
+/// starts the tests in the order of their names, so the first (`a_fast_wave_s_…`) runs it, while the other thread runs the next two,
 /// which need it not (`a_fault_latched_…`, and `a_force_sensor_s_noise_…` with
 /// an autotune of its own), rather than waiting for it.
 fn tuned() -> &'static Autotune {
@@ -1139,8 +1140,7 @@ fn a_stage_that_no_longer_matches_its_model_is_caught_in_open_and_closed_loop() 
 }
 
 /// What the oscillation watch makes of references the loops cannot follow
-/// (printed; run with `--ignored --nocapture`, in-process with
-/// `QEMU_SYSTEM_ARM=none`): on the stage as built and four variants, with the
+/// (printed; run with `--ignored --nocapture`): on the stage as built and four variants, with the
 /// shaping on and off, the loops closed, ±1 µm sines at 100–1100 Hz about
 /// 20 µm, a 10 → 20 µm step and the 100 Hz triangle over 5–35 µm; the faults
 /// latched. Asserts only that the shaping on latches none.
@@ -1220,8 +1220,7 @@ fn the_watch_on_references_the_loops_cannot_follow() {
 }
 
 /// The learned mass ratio under steps faster and slower than autotune's
-/// (printed; run with `--ignored --nocapture`, in-process with
-/// `QEMU_SYSTEM_ARM=none`): the tuned model loaded afresh on the stage as
+/// (printed; run with `--ignored --nocapture`): the tuned model loaded afresh on the stage as
 /// built, then eight 10 ↔ 20 µm steps of 1.0 ms, and again of 2.0 ms; each
 /// step's settling, overshoot and the `β` it left. The fit's ratio depends on
 /// the step's speed and `α_b` was measured on 1.5 ms steps, so the board
@@ -1264,8 +1263,8 @@ fn the_mass_ratio_under_steps_of_another_speed() {
 }
 
 /// The first step after a tuning is loaded onto a stage whose mode fell 18 %,
-/// over fresh autotunes (printed; run with `--ignored --nocapture`, in-process
-/// with `QEMU_SYSTEM_ARM=none`; `SURVEY_BOARDS` boards, 4 by default): each
+/// over fresh autotunes (printed; run with `--ignored --nocapture`;
+/// `SURVEY_BOARDS` boards, 4 by default): each
 /// board autotunes the stage as built afresh (its own measurement, its own
 /// noise), then the tuning is loaded onto the 700 Hz, ζ 0.015, gain 0.97
 /// variant and stepped 10 → 20 µm three times (autotune's verification, then

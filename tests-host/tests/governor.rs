@@ -1,6 +1,4 @@
-//! The reference governor on the emulated board (QEMU; the in-process firmware
-//! where QEMU is missing and the test does not need two clients), driven
-//! through the library a user's `fpi board …` runs, and scored on the virtual
+//! The reference governor, driven through the library a user's `fpi board …` runs, and scored on the virtual
 //! stage's **true** position (`x_fhps_um`): whatever a source asks, the stage
 //! stays within its stroke (0–39.92 µm) ±1 µm, or a named fault latches
 //! before it leaves.
@@ -20,6 +18,12 @@
 //! * a property test: random references (jumps, steps, square waves, chirps
 //!   through the mode, analog noise) at the stage as built and at variants,
 //!   on the factory model and on the tuned loops.
+//!
+//! The reproductions run on the emulated board (QEMU; the in-process firmware
+//! where QEMU is missing and the test does not need two clients). The property
+//! test and the autotune it needs run on the firmware built for the host,
+//! in-process (`fpi_tests::behaviour_board`: the same control task and
+//! virtual bench at the board's real-time pace, a fifth of QEMU's wall time).
 //!
 //! Each prints its true position's extent and the ticks governed (run with
 //! `--nocapture`); the figures in the docs' fault table come from here.
@@ -71,7 +75,7 @@ fn tuned() -> &'static FirmwareModel {
         if let Some(m) = fpi_tests::kept_tuned() {
             return m;
         }
-        let (_e, mut c) = board("governor: autotune");
+        let (_e, mut c) = fpi_tests::behaviour_board("governor: autotune");
         let fw = factory();
         load(&mut c, &fw, StageVariant::BUILT);
         autotune::run(
@@ -600,7 +604,7 @@ fn random_references_stay_in_the_stroke_mode_higher() {
 
 /// The cases of the property on the stage `v` (its mode at `mode_hz`).
 fn random_references(variant: u32, name: &str, v: StageVariant, mode_hz: f64) {
-    let (_e, mut c) = board(&format!("random references, {name}"));
+    let (_e, mut c) = fpi_tests::behaviour_board(&format!("random references, {name}"));
     let seeds = std::env::var("GOVERNOR_SEEDS")
         .ok()
         .and_then(|s| s.parse().ok())
