@@ -315,7 +315,7 @@ fn product<const N: usize>(rows: &[[i32; N]; N], x: [i32; N], frac: u32) -> [i32
         for (m, x) in row.iter().zip(x.iter()) {
             acc += i64::from(*m) * i64::from(*x);
         }
-        (acc >> frac).clamp(i32::MIN.into(), i32::MAX.into()) as i32
+        crate::q::saturate_i32(acc >> frac)
     })
 }
 

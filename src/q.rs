@@ -193,6 +193,18 @@ pub(crate) fn at_most<T: PartialOrd>(x: T, hi: T) -> T {
     }
 }
 
+/// `x` saturated to the `i32` range: the low word where the high word is its
+/// sign (one compare on a Cortex-M4), else the end `x`'s sign points to.
+#[inline(always)]
+pub(crate) const fn saturate_i32(x: i64) -> i32 {
+    let lo = x as i32;
+    if lo as i64 == x {
+        lo
+    } else {
+        ((x >> 63) as i32) ^ i32::MAX
+    }
+}
+
 /// Clamps `x` to `[lo, hi]`; callers guarantee `lo <= hi` (checked at construction).
 #[inline(always)]
 pub(crate) fn within<T: PartialOrd>(x: T, lo: T, hi: T) -> T {
@@ -251,6 +263,27 @@ pub const fn gain(value: f64) -> Option<I4F28> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn saturating_to_i32_keeps_what_fits_and_holds_the_rest_at_the_ends() {
+        for x in [
+            0i64,
+            1,
+            -1,
+            i32::MAX as i64,
+            i32::MIN as i64,
+            123_456_789,
+            -987_654_321,
+        ] {
+            assert_eq!(saturate_i32(x), x as i32);
+        }
+        for x in [i32::MAX as i64 + 1, 1 << 40, i64::MAX] {
+            assert_eq!(saturate_i32(x), i32::MAX);
+        }
+        for x in [i32::MIN as i64 - 1, -(1 << 40), i64::MIN] {
+            assert_eq!(saturate_i32(x), i32::MIN);
+        }
+    }
 
     #[test]
     fn narrowing_rounds_to_nearest() {

@@ -62,7 +62,7 @@ mod proof {
                 let f = Newtons::from_bits(black_box(0));
                 black_box(cfg.step(&mut st, xr, f));
                 order(&mut x);
-                let [t] = lp.tick(&mut x);
+                let [t] = *lp.tick(&mut x);
                 black_box(lp.record(&mut x, &t, None));
                 if let Some(back) = x.model.take() {
                     black_box(back.retire());
@@ -77,8 +77,9 @@ mod proof {
         let mut x: Exchange<'static, 3> = Exchange::new(recorder, points);
         loop {
             order(&mut x);
-            for t in lp.tick(&mut x) {
-                black_box(lp.record(&mut x, &t, None));
+            lp.tick(&mut x);
+            for t in lp.telemetry() {
+                black_box(lp.record(&mut x, t, None));
             }
             if let Some(back) = x.model.take() {
                 black_box(back.retire());

@@ -69,6 +69,22 @@ pub struct Front {
     pub forces: Forces,
 }
 
+impl Front {
+    /// Nothing read yet: every signal zero (a tick's phases overwrite it
+    /// before they read it).
+    pub const ZERO: Self = Self {
+        source: Micrometres::ZERO,
+        x_ref: Micrometres::ZERO,
+        excitation: Micrometres::ZERO,
+        forces: Forces {
+            reading: Newtons::ZERO,
+            feedforward: Newtons::ZERO,
+            dynamic: Newtons::ZERO,
+            in_range: true,
+        },
+    };
+}
+
 /// One axis's state; `S`, `A`, `E`, `R`: its force sensor, its amplifier, the
 /// amplifier's enable line and its analog inputs (position, reference).
 pub struct Axis<S, A, E, R> {

@@ -85,6 +85,13 @@ pub struct ControlLoop<S, A, E, R, const N: usize = 1> {
     /// A raster's axes are on their way to its start: its lines start on
     /// every one of them on the tick the last arrives.
     raster_pending: bool,
+    /// Each axis's front and command between the phases of a coupled tick
+    /// (scratch, written before it is read: kept here so that the tick
+    /// writes them in place, where an array built on the stack was copied).
+    staged: [(Front, Command); N],
+    /// Each axis's telemetry of the last tick ([`ControlLoop::tick`]'s
+    /// answer).
+    telemetry: [Telemetry; N],
 }
 
 impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
@@ -113,6 +120,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             armed_record: None,
             decoupling: Decoupling::NONE,
             raster_pending: false,
+            staged: [(Front::ZERO, Command::ZERO); N],
+            telemetry: [Telemetry::ZERO; N],
         }
     }
 
@@ -120,7 +129,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
     /// supervision, each axis's tick, the trigger output, the snapshot. Each
     /// axis's telemetry. Bounded time, no panic.
     #[inline]
-    pub fn tick(&mut self, x: &mut Exchange<'_, N>) -> [Telemetry; N] {
+    pub fn tick(&mut self, x: &mut Exchange<'_, N>) -> &[Telemetry; N] {
         if x.order.is_some() {
             self.take_order(x);
         }
@@ -130,7 +139,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         self.input_was = x.trigger_in;
         self.supervise(x.heartbeats);
         let tick = self.tick;
-        let (mut t, first_source) = if N == 1 {
+        let first_source = if N == 1 {
             self.tick_one(tick, x)
         } else {
             self.tick_coupled(tick, x)
@@ -158,44 +167,45 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             .axes
             .iter_mut()
             .zip(x.snapshot.axes.iter_mut())
-            .zip(t.iter_mut());
+            .zip(self.telemetry.iter_mut());
         for ((axis, s), t) in each {
             t.lines = lines;
             axis.snapshot(s, t);
         }
         self.snapshot(&mut x.snapshot);
         self.tick = tick.wrapping_add(1);
-        t
+        &self.telemetry
     }
 
     /// Each axis's tick whole, one axis after the other (no matrix between
-    /// them: one axis, or none coupled); the telemetry and the first axis's
-    /// source reference, µm.
+    /// them: one axis, or none coupled), its telemetry kept; the first
+    /// axis's source reference, µm.
     #[inline(always)]
-    fn tick_one(&mut self, tick: u32, x: &mut Exchange<'_, N>) -> ([Telemetry; N], Micrometres) {
+    fn tick_one(&mut self, tick: u32, x: &mut Exchange<'_, N>) -> Micrometres {
         let mut first_source = Micrometres::ZERO;
-        let t = core::array::from_fn(|i| {
-            let (t, source) = self.axes[i].tick(tick, x.points, &mut x.analysis);
+        for (i, (a, t)) in self
+            .axes
+            .iter_mut()
+            .zip(self.telemetry.iter_mut())
+            .enumerate()
+        {
+            let source;
+            (*t, source) = a.tick(tick, x.points, &mut x.analysis);
             if i == 0 {
                 first_source = source;
             }
-            t
-        });
-        (t, first_source)
+        }
+        first_source
     }
 
     /// Every axis's tick in phases, the decoupling between them: every
     /// axis's position; the input matrix (sensors → axes); every axis's
     /// reference, force (its model force with the preload the other stacks'
     /// last estimated extensions put on it) and command; the output matrix
-    /// (axes → stacks); every axis's step and amplifier. The telemetry and
-    /// the first axis's source reference, µm.
+    /// (axes → stacks); every axis's step and amplifier, its telemetry kept.
+    /// The first axis's source reference, µm.
     #[inline(always)]
-    fn tick_coupled(
-        &mut self,
-        tick: u32,
-        x: &mut Exchange<'_, N>,
-    ) -> ([Telemetry; N], Micrometres) {
+    fn tick_coupled(&mut self, tick: u32, x: &mut Exchange<'_, N>) -> Micrometres {
         self.axes.iter_mut().for_each(Axis::read_position);
         let d = &self.decoupling;
         if !d.input.is_identity() {
@@ -211,24 +221,26 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             let pea = core::array::from_fn(|i| self.axes[i].state().x_pea_est());
             d.preload.process(&mut (), pea)
         };
-        let mut cmds: [(Front, Command); N] = core::array::from_fn(|i| {
-            let a = &mut self.axes[i];
-            let front = a.front(x.points, coupled[i]);
-            let cmd = a.command(&front);
-            (front, cmd)
-        });
+        let each = self.axes.iter_mut().zip(self.staged.iter_mut());
+        for ((a, (front, cmd)), coupled) in each.zip(coupled) {
+            *front = a.front(x.points, coupled);
+            *cmd = a.command(front);
+        }
         let d = &self.decoupling;
         if !d.output.is_identity() {
-            let x = d.output.process(&mut (), cmds.map(|(_, c)| c.x_cmd));
-            for ((_, c), x) in cmds.iter_mut().zip(x) {
+            let commands = core::array::from_fn(|i| self.staged[i].1.x_cmd);
+            let x = d.output.process(&mut (), commands);
+            for ((_, c), x) in self.staged.iter_mut().zip(x) {
                 c.x_cmd = x;
             }
         }
-        let t = core::array::from_fn(|i| {
-            let (front, cmd) = &cmds[i];
-            self.axes[i].back(tick, front, cmd, &mut x.analysis)
-        });
-        (t, cmds.first().map_or(Micrometres::ZERO, |(f, _)| f.source))
+        let each = self.axes.iter_mut().zip(&self.staged);
+        for ((a, (front, cmd)), t) in each.zip(self.telemetry.iter_mut()) {
+            *t = a.back(tick, front, cmd, &mut x.analysis);
+        }
+        self.staged
+            .first()
+            .map_or(Micrometres::ZERO, |(f, _)| f.source)
     }
 
     /// Parks every axis when one latched a fault this tick, and names it.
@@ -277,6 +289,12 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             a.take_tripped();
         }
         self.changed = true;
+    }
+
+    /// Each axis's telemetry of the last tick.
+    #[inline]
+    pub const fn telemetry(&self) -> &[Telemetry; N] {
+        &self.telemetry
     }
 
     /// Offers this tick of axis `axis` to the recorder, with the stage's true

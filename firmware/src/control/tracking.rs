@@ -98,6 +98,15 @@ pub struct Command {
     pub mode: Mode,
 }
 
+impl Command {
+    /// No command yet: 0 µm through the inverse (a tick's phases overwrite
+    /// it before it is read).
+    pub const ZERO: Self = Self {
+        x_cmd: Micrometres::ZERO,
+        mode: Mode::Compensated,
+    };
+}
+
 /// The loop's mode and the feedback's memory (state).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Loop {

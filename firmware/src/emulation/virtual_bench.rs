@@ -254,7 +254,7 @@ pub fn tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
     let x_true = bench.true_position();
     x.trigger_in = bench.trigger_in > 0;
     bench.trigger_in = bench.trigger_in.saturating_sub(1);
-    let [t] = lp.tick(x);
+    let [t] = *lp.tick(x);
     bench.after_tick(link);
     bench.stall();
     lp.record(x, &t, Some(x_true))

@@ -117,8 +117,8 @@ mod bench {
         let sp = paint_below(PAINT);
         for _ in 0..STEPS {
             let t = ticks(|| {
-                let t = lp.tick(x);
-                for t in &t {
+                lp.tick(x);
+                for t in lp.telemetry() {
                     lp.record(x, t, None);
                 }
             });

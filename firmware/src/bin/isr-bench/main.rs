@@ -434,7 +434,7 @@ mod bench {
         let sp = paint_below(PAINT);
         for _ in 0..STEPS {
             let t = ticks(|| {
-                let [t] = lp.tick(x);
+                let [t] = *lp.tick(x);
                 lp.record(x, &t, None)
             });
             c.add(instructions(t, baseline));

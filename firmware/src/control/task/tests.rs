@@ -85,7 +85,7 @@ impl Rig {
     /// its output moves with the others' ([`Rig::cross`]) and its sensor
     /// reads a little of them ([`Rig::crosstalk`]).
     fn tick(&mut self) -> [Telemetry; 3] {
-        let t = self.lp.tick(&mut self.x);
+        let t = *self.lp.tick(&mut self.x);
         for (axis, link) in self.lp.axes().iter().zip(self.links) {
             let f = CONTROLLER.preload(axis.state().x_pea_est());
             link.set_force(f.to_num::<f32>());

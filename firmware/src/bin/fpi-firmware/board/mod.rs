@@ -245,7 +245,7 @@ impl TickIo {
     pub fn tick(&mut self, x: &mut Exchange<'_>) {
         front::before_tick();
         x.trigger_in = self.trigger_in.is_high();
-        let [t] = self.control.tick(x);
+        let [t] = *self.control.tick(x);
         front::after_tick(&mut self.control);
         self.trigger_out
             .set_state((t.lines & lines::TRIGGER_OUT != 0).into());
