@@ -23,8 +23,7 @@ mod measure;
 mod bench {
 
     use crate::measure::{
-        calibrate, closed_image, depth_below, exit, full_stroke, instructions, paint_below,
-        start_counter, ticks, Counts, STEPS,
+        calibrate, closed_image, exit, full_stroke, run_ticks, start_counter, Counts, STEPS,
     };
     use core::mem::MaybeUninit;
     use cortex_m_rt::entry;
@@ -39,23 +38,14 @@ mod bench {
     use fpi_firmware::control::reference::stream::Points;
     use fpi_firmware::control::reference::{step_phase_for, SourceOrder};
     use fpi_firmware::control::slots::{Origin, Spare};
-    use fpi_firmware::control::task::ControlLoop;
     use fpi_firmware::control::tracking::LoopMode;
-    use fpi_firmware::emulation::virtual_io::{
-        SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor,
-    };
+    use fpi_firmware::emulation::virtual_io::SimLink;
     use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
     use piezo_fpi::q::Micrometres;
     use piezo_fpi::trigger::{Condition, Trigger};
     use stm32f4xx_hal as _;
 
-    type Three = ControlLoop<
-        SimSensor<'static>,
-        SimAmplifier<'static>,
-        SimEnable<'static>,
-        SimAnalog<'static>,
-        3,
-    >;
+    type Three = crate::measure::Loop<3>;
 
     static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
     static LINK_Y: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
@@ -105,36 +95,6 @@ mod bench {
         });
         lp.tick(x);
         matches!(x.applied.take(), Some(a) if a.result.is_ok())
-    }
-
-    /// [`STEPS`] ticks: their counts, whether every axis ran without a
-    /// fault and each tick was recorded, the stack the tick used.
-    fn run(lp: &mut Three, x: &mut Exchange<'static, 3>, baseline: u32) -> (Counts, bool, usize) {
-        let links = [&LINK, &LINK_Y, &LINK_Z];
-        let kept = x.recorder.kept();
-        let mut c = Counts::new();
-        const PAINT: usize = 8192;
-        let sp = paint_below(PAINT);
-        for _ in 0..STEPS {
-            let t = ticks(|| {
-                lp.tick(x);
-                for t in lp.telemetry() {
-                    lp.record(x, t, None);
-                }
-            });
-            c.add(instructions(t, baseline));
-            while x.recorder.take().is_some() {}
-            for (axis, link) in lp.axes().iter().zip(links) {
-                let f = CONTROLLER.preload(axis.state().x_pea_est());
-                link.set_force(f.to_num::<f32>());
-            }
-            for (s, link) in x.snapshot.axes.iter().zip(links) {
-                link.set_position(s.now.x_est.to_num::<f32>());
-            }
-        }
-        let ok = x.snapshot.axes.iter().all(|a| a.fault.is_none())
-            && x.recorder.kept() >= kept + 3 * STEPS;
-        (c, ok, depth_below(sp, PAINT))
     }
 
     /// The three-axis phases on `spares` (each loaded with `image`, the
@@ -200,17 +160,16 @@ mod bench {
             if let Some(o) = o {
                 ok &= order(&mut lp, &mut x, seq, o);
             }
-            let (c, part_ok, part_depth) = run(&mut lp, &mut x, baseline);
+            let (c, part_ok, part_depth) =
+                run_ticks(&mut lp, &mut x, [&LINK, &LINK_Y, &LINK_Z], baseline);
             all.merge(&c);
             ok &= part_ok;
             depth = depth.max(part_depth);
         }
         hprintln!(
-            "isr_tick_three_axes_instructions n=9: {} (three axes in closed loop, decoupled: each with damping, PI, preview feedforward and lead; input and output matrices and the preload coupling; trigger (travel); every axis recorded; closing the loops during a step, a full stroke, governed moves; min {} mean {}.{}){}",
+            "isr_tick_three_axes_instructions n=9: {} (three axes in closed loop, decoupled: each with damping, PI, preview feedforward and lead; input and output matrices and the preload coupling; trigger (travel); every axis recorded; closing the loops during a step, a full stroke, governed moves; {}){}",
             all.max,
-            all.min,
-            all.mean_x10() / 10,
-            all.mean_x10() % 10,
+            all,
             if ok { "" } else { " FAILED: faulted or not recording" }
         );
         for (i, a) in x.snapshot.axes.iter().enumerate() {

@@ -51,8 +51,8 @@ mod bench {
     use stm32f4xx_hal as _;
 
     use crate::measure::{
-        calibrate, closed_image, depth_below, exit, full_stroke, instructions, paint_below,
-        start_counter, ticks, Counts, STEPS,
+        calibrate, closed_image, exit, full_stroke, instructions, run_ticks, start_counter, ticks,
+        Counts, STEPS,
     };
 
     /// A synthetic n-operator model at compile time: thresholds evenly spread over
@@ -185,8 +185,8 @@ mod bench {
 
     fn detail(what: &str, n: usize, c: &Counts, l: &Counts, start: &Counts) {
         hprintln!(
-            "  n={:<2} {}: nominal step min {} mean {}.{} max {} ({} steps); slew-limited step with inverse realignment min {} max {} ({} steps)",
-            n, what, c.min, c.mean_x10() / 10, c.mean_x10() % 10, c.max, c.n,
+            "  n={:<2} {}: nominal step {} max {} ({} steps); slew-limited step with inverse realignment min {} max {} ({} steps)",
+            n, what, c, c.max, c.n,
             l.min.min(start.min), l.max.max(start.max), l.n + start.n
         );
     }
@@ -317,12 +317,7 @@ mod bench {
     }
 
     /// The benchmark's control loop (its I/O is the simulated link).
-    type Loop = ControlLoop<
-        fpi_firmware::emulation::virtual_io::SimSensor<'static>,
-        fpi_firmware::emulation::virtual_io::SimAmplifier<'static>,
-        fpi_firmware::emulation::virtual_io::SimEnable<'static>,
-        fpi_firmware::emulation::virtual_io::SimAnalog<'static>,
-    >;
+    type Loop = crate::measure::Loop<1>;
 
     /// Runs a 5 Hz full stroke from where the loop is and prints its counts.
     fn tick_phase(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32, closed: bool) -> bool {
@@ -331,7 +326,7 @@ mod bench {
             Order::Source(SourceOrder::Wave(full_stroke(5.0))),
         ));
         lp.tick(x);
-        let (c, ok, depth) = run_ticks(lp, x, baseline);
+        let (c, ok, depth) = run_ticks(lp, x, [&LINK], baseline);
         let names = if closed {
             (
                 "isr_tick_closed_loop_instructions",
@@ -361,7 +356,7 @@ mod bench {
             };
             x.order = Some(Posted::all(seq, Order::Source(fast)));
             lp.tick(x);
-            let (part, part_ok, part_depth) = run_ticks(lp, x, baseline);
+            let (part, part_ok, part_depth) = run_ticks(lp, x, [&LINK], baseline);
             c.merge(&part);
             ok &= part_ok;
             depth = depth.max(part_depth);
@@ -377,7 +372,7 @@ mod bench {
     /// Runs on in closed loop during the step command the loop closed in, and
     /// prints the counts: the ticks in which the lead's mass ratio learns.
     fn stepping_phase(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32) -> bool {
-        let (c, ok, depth) = run_ticks(lp, x, baseline);
+        let (c, ok, depth) = run_ticks(lp, x, [&LINK], baseline);
         let names = (
             "isr_tick_closed_loop_stepping_instructions",
             "isr_tick_closed_loop_stepping_stack_bytes",
@@ -399,14 +394,12 @@ mod bench {
         depth: usize,
     ) -> bool {
         hprintln!(
-            "{} n={}: {} ({}; min {} mean {}.{}){}",
+            "{} n={}: {} ({}; {}){}",
             instructions,
             factory_model::OPERATORS,
             c.max,
             what,
-            c.min,
-            c.mean_x10() / 10,
-            c.mean_x10() % 10,
+            c,
             if ok {
                 ""
             } else {
@@ -422,30 +415,6 @@ mod bench {
         );
         hprintln!("{}: {}", stack, depth);
         ok
-    }
-
-    /// [`STEPS`] ticks of the loop as it runs: their instruction counts,
-    /// whether it ran without a fault and recorded every tick, and the stack
-    /// the tick used, bytes.
-    fn run_ticks(lp: &mut Loop, x: &mut Exchange<'static>, baseline: u32) -> (Counts, bool, usize) {
-        let kept = x.recorder.kept();
-        let mut c = Counts::new();
-        const PAINT: usize = 8192;
-        let sp = paint_below(PAINT);
-        for _ in 0..STEPS {
-            let t = ticks(|| {
-                let [t] = *lp.tick(x);
-                lp.record(x, &t, None)
-            });
-            c.add(instructions(t, baseline));
-            // The link task reads the recorder; the sensors follow the stage.
-            while x.recorder.take().is_some() {}
-            let f = CONTROLLER.preload(lp.axes()[0].state().x_pea_est());
-            LINK.set_force(f.to_num::<f32>());
-            LINK.set_position(x.snapshot.axes[0].now.x_est.to_num::<f32>());
-        }
-        let ok = x.snapshot.axes[0].fault.is_none() && x.recorder.kept() >= kept + STEPS;
-        (c, ok, depth_below(sp, PAINT))
     }
 
     static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
@@ -503,12 +472,10 @@ mod bench {
 
         fn line(name: &str, c: &Counts) {
             hprintln!(
-                "{}: {} (min {} mean {}.{} max {}, {} samples, the call included)",
+                "{}: {} ({} max {}, {} samples, the call included)",
                 name,
                 c.max,
-                c.min,
-                c.mean_x10() / 10,
-                c.mean_x10() % 10,
+                c,
                 c.max,
                 c.n
             );
@@ -579,12 +546,10 @@ mod bench {
                 ("governor_governed_instructions", &gov),
             ] {
                 hprintln!(
-                    "{}: {} (min {} mean {}.{}, {} ticks, the call included)",
+                    "{}: {} ({}, {} ticks, the call included)",
                     name,
                     c.max,
-                    c.min,
-                    c.mean_x10() / 10,
-                    c.mean_x10() % 10,
+                    c,
                     c.n
                 );
             }
@@ -616,11 +581,9 @@ mod bench {
             ));
         }
         hprintln!(
-            "converter_tick_instructions: {} (min {} mean {}.{}, {} ticks: AD7606 read and scale, AD5791 write)",
+            "converter_tick_instructions: {} ({}, {} ticks: AD7606 read and scale, AD5791 write)",
             c.max,
-            c.min,
-            c.mean_x10() / 10,
-            c.mean_x10() % 10,
+            c,
             c.n
         );
     }

@@ -9,8 +9,11 @@ use cortex_m::peripheral::SYST;
 use cortex_m_semihosting::debug::{self, EXIT_FAILURE, EXIT_SUCCESS};
 use cortex_m_semihosting::hprintln;
 use fpi_firmware::board::capacity::{self, Store, BOARD};
-use fpi_firmware::board::factory_model::MODEL_IMAGE;
+use fpi_firmware::board::factory_model::{CONTROLLER, MODEL_IMAGE};
+use fpi_firmware::control::exchange::Exchange;
 use fpi_firmware::control::reference::wave::{Shape as WaveShape, Wave};
+use fpi_firmware::control::task::ControlLoop;
+use fpi_firmware::emulation::virtual_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor};
 use piezo_fpi::model::{image, ModelSpec};
 use piezo_fpi::q::Micrometres;
 
@@ -49,6 +52,14 @@ impl Counts {
     }
     pub(crate) fn mean_x10(&self) -> u32 {
         (self.sum * 10 / self.n.max(1) as u64) as u32
+    }
+}
+
+/// `min M mean A.B`: the counts' least and mean, as every figure prints them.
+impl core::fmt::Display for Counts {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let m = self.mean_x10();
+        write!(f, "min {} mean {}.{}", self.min, m / 10, m % 10)
     }
 }
 
@@ -171,6 +182,50 @@ pub(crate) fn closed_image<'b>(store: &mut Store, buf: &'b mut [u8]) -> Option<&
         }
     };
     buf.get(..len)
+}
+
+/// A benchmark's control loop of `N` axes on the simulated links.
+pub(crate) type Loop<const N: usize> = ControlLoop<
+    SimSensor<'static>,
+    SimAmplifier<'static>,
+    SimEnable<'static>,
+    SimAnalog<'static>,
+    N,
+>;
+
+/// [`STEPS`] ticks of the loop as it runs, every axis recorded: their
+/// instruction counts, whether every axis ran without a fault and recorded
+/// every tick, and the stack the tick used, bytes. Between ticks the link
+/// task reads the recorder and each axis's sensors (on `links`) follow the
+/// stage its model estimates.
+pub(crate) fn run_ticks<const N: usize>(
+    lp: &mut Loop<N>,
+    x: &mut Exchange<'static, N>,
+    links: [&SimLink; N],
+    baseline: u32,
+) -> (Counts, bool, usize) {
+    let kept = x.recorder.kept();
+    let mut c = Counts::new();
+    const PAINT: usize = 8192;
+    let sp = paint_below(PAINT);
+    for _ in 0..STEPS {
+        let t = ticks(|| {
+            lp.tick(x);
+            for t in lp.telemetry() {
+                lp.record(x, t, None);
+            }
+        });
+        c.add(instructions(t, baseline));
+        while x.recorder.take().is_some() {}
+        for ((axis, s), link) in lp.axes().iter().zip(&x.snapshot.axes).zip(links) {
+            let f = CONTROLLER.preload(axis.state().x_pea_est());
+            link.set_force(f.to_num::<f32>());
+            link.set_position(s.now.x_est.to_num::<f32>());
+        }
+    }
+    let ok = x.snapshot.axes.iter().all(|a| a.fault.is_none())
+        && x.recorder.kept() >= kept + N as u32 * STEPS;
+    (c, ok, depth_below(sp, PAINT))
 }
 
 /// Paints `bytes` of the unused stack below the current stack pointer with a

@@ -18,12 +18,13 @@ use crate::emulation::virtual_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, 
 use fpi_protocol::TriggerStart;
 use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
 
-type Three = ControlLoop<
+/// The loop on `N` virtual I/O links.
+type Loop<const N: usize> = ControlLoop<
     SimSensor<'static>,
     SimAmplifier<'static>,
     SimEnable<'static>,
     SimAnalog<'static>,
-    3,
+    N,
 >;
 
 fn leak<T>(v: T) -> &'static mut T {
@@ -39,62 +40,48 @@ fn running() -> Running {
         .unwrap_or_else(|_| panic!("the factory model"))
 }
 
-/// A parked three-axis loop, each axis on a link of its own, and the links;
-/// the stage's couplings (none unless a test sets them) and its true
-/// positions.
-struct Rig {
-    lp: Three,
-    x: Exchange<'static, 3>,
-    links: [&'static SimLink; 3],
-    /// µm of axis `i`'s output per µm of axis `j`'s own (parasitic motion).
-    cross: [[f64; 3]; 3],
-    /// Fraction of axis `j`'s output that axis `i`'s sensor reads.
-    crosstalk: [[f64; 3]; 3],
+/// The stage behind a rig's links: what its sensors read at rest, and after
+/// each tick.
+trait Plant<const N: usize> {
+    /// Leaves the stage's readings at rest on the links.
+    fn prime(&mut self, links: &[&'static SimLink; N]);
+    /// Moves the stage after a tick of `lp` (its telemetry `t`) and leaves
+    /// what its sensors read on the links; each axis's true output, µm.
+    fn step(&mut self, lp: &Loop<N>, t: &[Telemetry; N], links: &[&'static SimLink; N])
+        -> [f64; N];
+}
+
+/// A parked `N`-axis loop, each axis on a link of its own, the stage behind
+/// the links, and the stage's true positions.
+struct Rig<const N: usize, P> {
+    lp: Loop<N>,
+    x: Exchange<'static, N>,
+    links: [&'static SimLink; N],
+    plant: P,
     /// Each axis's true output after the last tick, µm.
-    truth: [f64; 3],
+    truth: [f64; N],
 }
 
-/// A parked three-axis loop whose sensors follow the stage each estimates
-/// (force at rest: the preload).
-fn three() -> Rig {
-    let links = [(); 3].map(|_| &*leak(SimLink::new(FORCE, SETPOINT)));
-    for link in links {
-        link.set_force(CONTROLLER.preload(Micrometres::ZERO).to_num::<f32>());
-        link.set_position(0.0);
+impl<const N: usize, P: Plant<N>> Rig<N, P> {
+    /// Every axis parked on the factory model, the stage at rest.
+    fn new(mut plant: P) -> Self {
+        let links = [(); N].map(|_| &*leak(SimLink::new(FORCE, SETPOINT)));
+        plant.prime(&links);
+        let lp = ControlLoop::new(links.map(|link| (running(), link.hardware(), link.analog())));
+        let x = Exchange::new(leak(Recorder::new()), leak(Points::new()));
+        Self {
+            lp,
+            x,
+            links,
+            plant,
+            truth: [0.0; N],
+        }
     }
-    let lp = ControlLoop::new(links.map(|link| (running(), link.hardware(), link.analog())));
-    let x = Exchange::new(leak(Recorder::new()), leak(Points::new()));
-    Rig {
-        lp,
-        x,
-        links,
-        cross: [[0.0; 3]; 3],
-        crosstalk: [[0.0; 3]; 3],
-        truth: [0.0; 3],
-    }
-}
 
-/// `(I + c)·x`.
-fn coupled(c: &[[f64; 3]; 3], x: [f64; 3]) -> [f64; 3] {
-    core::array::from_fn(|i| x[i] + (0..3).map(|j| c[i][j] * x[j]).sum::<f64>())
-}
-
-impl Rig {
-    /// One tick; then each axis's sensors read what its estimate says (a
-    /// stage that does as the model predicts), with the stage's couplings:
-    /// its output moves with the others' ([`Rig::cross`]) and its sensor
-    /// reads a little of them ([`Rig::crosstalk`]).
-    fn tick(&mut self) -> [Telemetry; 3] {
+    /// One tick, then one step of the stage; the tick's telemetry.
+    fn tick(&mut self) -> [Telemetry; N] {
         let t = *self.lp.tick(&mut self.x);
-        for (axis, link) in self.lp.axes().iter().zip(self.links) {
-            let f = CONTROLLER.preload(axis.state().x_pea_est());
-            link.set_force(f.to_num::<f32>());
-        }
-        self.truth = coupled(&self.cross, t.map(|t| t.x_est.to_num::<f64>()));
-        let read = coupled(&self.crosstalk, self.truth);
-        for (x, link) in read.iter().zip(self.links) {
-            link.set_position(*x as f32);
-        }
+        self.truth = self.plant.step(&self.lp, &t, &self.links);
         t
     }
 
@@ -115,9 +102,59 @@ impl Rig {
         }
     }
 
-    fn faults(&self) -> [Option<Fault>; 3] {
+    fn faults(&self) -> [Option<Fault>; N] {
         self.x.snapshot.axes.map(|a| a.fault.map(|(f, _)| f))
     }
+}
+
+/// A three-axis stage that does as each axis's model predicts (force at
+/// rest: the preload; each output where its estimate says), with couplings
+/// (none unless a test sets them): its output moves with the others'
+/// ([`Estimated::cross`]) and its sensor reads a little of them
+/// ([`Estimated::crosstalk`]).
+#[derive(Default)]
+struct Estimated {
+    /// µm of axis `i`'s output per µm of axis `j`'s own (parasitic motion).
+    cross: [[f64; 3]; 3],
+    /// Fraction of axis `j`'s output that axis `i`'s sensor reads.
+    crosstalk: [[f64; 3]; 3],
+}
+
+/// `(I + c)·x`.
+fn coupled(c: &[[f64; 3]; 3], x: [f64; 3]) -> [f64; 3] {
+    core::array::from_fn(|i| x[i] + (0..3).map(|j| c[i][j] * x[j]).sum::<f64>())
+}
+
+impl Plant<3> for Estimated {
+    fn prime(&mut self, links: &[&'static SimLink; 3]) {
+        for link in links {
+            link.set_force(CONTROLLER.preload(Micrometres::ZERO).to_num::<f32>());
+            link.set_position(0.0);
+        }
+    }
+
+    fn step(
+        &mut self,
+        lp: &Loop<3>,
+        t: &[Telemetry; 3],
+        links: &[&'static SimLink; 3],
+    ) -> [f64; 3] {
+        for (axis, link) in lp.axes().iter().zip(links) {
+            let f = CONTROLLER.preload(axis.state().x_pea_est());
+            link.set_force(f.to_num::<f32>());
+        }
+        let truth = coupled(&self.cross, t.map(|t| t.x_est.to_num::<f64>()));
+        let read = coupled(&self.crosstalk, truth);
+        for (x, link) in read.iter().zip(links) {
+            link.set_position(*x as f32);
+        }
+        truth
+    }
+}
+
+/// A parked three-axis loop on a stage that does as its models predict.
+fn three() -> Rig<3, Estimated> {
+    Rig::new(Estimated::default())
 }
 
 /// A ramp to `target` µm at `step` µm a tick.
@@ -296,8 +333,8 @@ const CROSS: [[f64; 3]; 3] = [[0.0, 0.02, 0.005], [0.015, 0.0, 0.005], [0.01, 0.
 /// position once the input matrix takes the cross-talk out.
 fn decoupled_run(d: Option<Decoupling<3>>) -> (f64, [f64; 3]) {
     let mut r = three();
-    r.cross = CROSS;
-    r.crosstalk = [
+    r.plant.cross = CROSS;
+    r.plant.crosstalk = [
         [0.0, 0.002, 0.002],
         [0.002, 0.0, 0.002],
         [0.002, 0.002, 0.0],
@@ -370,12 +407,8 @@ fn a_decoupling_the_board_cannot_run_is_refused() {
     };
     assert_eq!(r.order(AxisSet::ALL, Order::Decoupling(d)), Ok(()));
     // A one-axis board has nothing to decouple.
-    let mut one: ControlLoop<
-        SimSensor<'static>,
-        SimAmplifier<'static>,
-        SimEnable<'static>,
-        SimAnalog<'static>,
-    > = ControlLoop::new([(running(), r.links[0].hardware(), r.links[0].analog())]);
+    let mut one: Loop<1> =
+        ControlLoop::new([(running(), r.links[0].hardware(), r.links[0].analog())]);
     let mut x: Exchange<'static> = Exchange::new(leak(Recorder::new()), leak(Points::new()));
     x.order = Some(Posted::all(1, Order::Decoupling(d)));
     one.tick(&mut x);
@@ -411,69 +444,37 @@ fn clearing_the_faulted_axis_clears_the_boards_fault_while_others_ramp() {
     assert_eq!(r.faults()[0], Some(Fault::Stopped));
 }
 
-/// Two axes of the loop on the XY stage as built (`piezo_sim::axes`): each
-/// stack's preload rises with the other's extension, Y moves 1.5 % of X's
-/// output and X 2 % of Y's, each sensor reads 0.2 % of the other axis.
-struct Xy {
-    lp: ControlLoop<
-        SimSensor<'static>,
-        SimAmplifier<'static>,
-        SimEnable<'static>,
-        SimAnalog<'static>,
-        2,
-    >,
-    x: Exchange<'static, 2>,
-    links: [&'static SimLink; 2],
-    stage: piezo_sim::axes::Axes<'static, 2>,
-    /// Each axis's true output after the last tick, µm.
-    truth: [f32; 2],
-}
-
-fn xy() -> Xy {
-    let mut stage = piezo_sim::axes::xy_built(0x5EED).unwrap();
-    let links = [(); 2].map(|_| &*leak(SimLink::new(FORCE, SETPOINT)));
-    for (i, link) in links.iter().enumerate() {
-        let rest = stage.stages()[i].rest_force();
-        link.set_force(stage.sense_force(i, rest));
-        link.set_position(stage.sense_position(i));
+/// The XY stage as built (`piezo_sim::axes`) behind two axes of the loop:
+/// each stack's preload rises with the other's extension, Y moves 1.5 % of
+/// X's output and X 2 % of Y's, each sensor reads 0.2 % of the other axis.
+impl Plant<2> for piezo_sim::axes::Axes<'static, 2> {
+    fn prime(&mut self, links: &[&'static SimLink; 2]) {
+        for (i, link) in links.iter().enumerate() {
+            let rest = self.stages()[i].rest_force();
+            link.set_force(self.sense_force(i, rest));
+            link.set_position(self.sense_position(i));
+        }
     }
-    let lp = ControlLoop::new(links.map(|link| (running(), link.hardware(), link.analog())));
-    let x = Exchange::new(leak(Recorder::new()), leak(Points::new()));
-    Xy {
-        lp,
-        x,
-        links,
-        stage,
-        truth: [0.0; 2],
-    }
-}
 
-impl Xy {
-    /// One tick, then one sample of the stage with the amplifiers' outputs;
-    /// the sensors read it.
-    fn tick(&mut self) {
-        self.lp.tick(&mut self.x);
-        let u = self.links.map(|l| match l.output() {
+    /// One sample of the stage with the amplifiers' outputs; the sensors
+    /// read it.
+    fn step(&mut self, _: &Loop<2>, _: &[Telemetry; 2], links: &[&'static SimLink; 2]) -> [f64; 2] {
+        let u = links.map(|l| match l.output() {
             (v, true) => v,
             (_, false) => 0.0,
         });
-        let s = self.stage.step(u);
-        for (i, link) in self.links.iter().enumerate() {
-            link.set_force(self.stage.sense_force(i, s[i].stack.force_n));
-            link.set_position(self.stage.sense_position(i));
+        let s = piezo_sim::axes::Axes::step(self, u);
+        for (i, link) in links.iter().enumerate() {
+            link.set_force(self.sense_force(i, s[i].stack.force_n));
+            link.set_position(self.sense_position(i));
         }
-        self.truth = s.map(|s| s.x_fhps_um);
+        s.map(|s| f64::from(s.x_fhps_um))
     }
+}
 
-    fn order(&mut self, axes: AxisSet, order: Order) -> Result<(), Refused> {
-        self.x.order = Some(Posted {
-            seq: 1,
-            axes,
-            order,
-        });
-        self.tick();
-        self.x.applied.take().map_or(Ok(()), |a| a.result)
-    }
+/// Two parked axes of the loop on the XY stage as built.
+fn xy() -> Rig<2, piezo_sim::axes::Axes<'static, 2>> {
+    Rig::new(piezo_sim::axes::xy_built(0x5EED).unwrap())
 }
 
 /// The XY stage's true couplings as the board takes them: the inverses of
@@ -497,7 +498,7 @@ fn xy_decoupling(preload: bool) -> Decoupling<3> {
 
 /// X moves 5 → 35 µm while Y holds 10 µm (open loop, each axis on stage A's
 /// model): how far Y's true output moves, µm, and each axis's faults.
-fn xy_run(d: Option<Decoupling<3>>) -> (f32, [Option<Fault>; 2]) {
+fn xy_run(d: Option<Decoupling<3>>) -> (f64, [Option<Fault>; 2]) {
     let mut r = xy();
     if let Some(d) = d {
         assert_eq!(r.order(AxisSet::ALL, Order::Decoupling(d)), Ok(()));
@@ -518,12 +519,12 @@ fn xy_run(d: Option<Decoupling<3>>) -> (f32, [Option<Fault>; 2]) {
         r.order(AxisSet::one(0), Order::Source(move_to(35.0, 0.005))),
         Ok(())
     );
-    let mut moved: f32 = 0.0;
+    let mut moved: f64 = 0.0;
     for _ in 0..10_000 {
         r.tick();
         moved = moved.max((r.truth[1] - before).abs());
     }
-    let faults = r.x.snapshot.axes.map(|a| a.fault.map(|(f, _)| f));
+    let faults = r.faults();
     println!(
         "x at {:.3} µm, y moved {moved:.4} µm, faults {faults:?}",
         r.truth[0]
@@ -672,10 +673,9 @@ fn xy_raster(d: Option<Decoupling<3>>) -> RasterFigures {
     for _ in 0..(4000 + usize::from(ticks) * usize::from(lines)) {
         r.tick();
         let refs = r.x.snapshot.axes.map(|a| a.now.x_ref.to_num::<f64>());
-        log.push((refs, r.truth.map(f64::from)));
+        log.push((refs, r.truth));
     }
-    let faults = r.x.snapshot.axes.map(|a| a.fault.map(|(f, _)| f));
-    assert_eq!(faults, [None, None]);
+    assert_eq!(r.faults(), [None, None]);
     // The lines start on the tick both references leave 5 µm (the raster's
     // start, where both waited).
     let go = log
