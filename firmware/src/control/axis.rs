@@ -122,6 +122,9 @@ pub struct Axis<S, A, E, R> {
     status_base: u8,
     /// A wave or stream order armed for the trigger input's edge.
     armed: Option<SourceOrder>,
+    /// Its part of a raster waits for the trigger input's edge (at its
+    /// start, or on its way there) before its lines start.
+    raster_armed: bool,
 }
 
 impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
@@ -154,6 +157,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
             watch_halves: [Micrometres::ZERO; 2],
             status_base: 0,
             armed: None,
+            raster_armed: false,
         };
         axis.update_loop_set();
         axis
@@ -286,10 +290,25 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
     }
 
     /// Its part of a raster is still on its way to its start (its source,
-    /// or the governor's reference behind it).
+    /// or the governor's reference behind it), or waits there for the
+    /// trigger input's edge.
     pub const fn raster_approaching(&self) -> bool {
         self.reference.raster_approaching()
-            || (self.reference.waiting() && self.governor.governed())
+            || (self.reference.waiting() && (self.governor.governed() || self.raster_armed))
+    }
+
+    /// Its part of a raster waits for the trigger input's edge (after
+    /// [`Axis::start_source`] started it).
+    pub fn arm_raster(&mut self) {
+        self.raster_armed = true;
+        self.changed = true;
+    }
+
+    /// The trigger input's edge came: a raster armed for it starts its
+    /// lines once every one of its axes is at its start.
+    pub fn fire_raster(&mut self) {
+        self.changed |= self.raster_armed;
+        self.raster_armed = false;
     }
 
     /// Starts its waiting part of a raster from the next tick on.
@@ -479,7 +498,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         s.damping_on = self.feedback.damping_on();
         s.shaping_on = self.feedback.shaping_on();
         s.analysing = self.analyser.running();
-        s.motion_armed = self.armed.is_some();
+        s.motion_armed = self.armed.is_some() || self.raster_armed;
     }
 
     /// Latches `fault` and stops the reference where it is; an armed motion
@@ -488,6 +507,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
     #[inline(never)]
     pub fn trip(&mut self, fault: Fault) {
         self.armed = None;
+        self.raster_armed = false;
         self.state.trip(fault);
         self.reference.freeze();
         self.changed = true;
@@ -508,6 +528,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
             self.trip(Fault::Stopped);
         } else {
             self.armed = None;
+            self.raster_armed = false;
             self.changed = true;
         }
     }
@@ -571,6 +592,13 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
     pub fn disarm(&mut self) {
         self.changed |= self.armed.is_some();
         self.armed = None;
+        if self.raster_armed {
+            // The raster waits for an edge that will not start it: it
+            // ends, held where it is.
+            self.raster_armed = false;
+            self.reference.select(SourceOrder::Hold);
+            self.changed = true;
+        }
     }
 
     /// Switches the reference to source `s` (leaving the parked state); the

@@ -383,6 +383,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             if let Some(s) = self.axes[i].take_armed() {
                 let _ = self.start_source(i, s, x);
             }
+            self.axes[i].fire_raster();
         }
         if let Some(decimation) = self.armed_record.take() {
             x.recorder.start(decimation);
@@ -611,7 +612,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
 
     /// Starts raster `r`: both its axes leave for their starts on this tick
     /// (or neither, when one refuses); the lines start on the tick both are
-    /// there.
+    /// there, or, where the trigger input starts motions, on the first tick
+    /// both are there after its rising edge.
     fn raster(&mut self, r: Raster, x: &mut Exchange<'_, N>) -> Result<(), Refused> {
         let (fast, slow) = (r.fast.0, r.slow.0);
         if fast >= N || slow >= N {
@@ -620,8 +622,12 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         let both = AxisSet::one(fast).with(slow);
         // Both can start, or neither is changed.
         let _ = self.addressed(both, Axis::can_arm)?;
+        let armed = self.starts.motion();
         for (i, part) in [r.fast, r.slow] {
             self.start_source(i, SourceOrder::Raster(part), x)?;
+            if let (true, Some(a)) = (armed, self.axes.get_mut(i)) {
+                a.arm_raster();
+            }
         }
         self.raster_pending = true;
         Ok(())

@@ -619,6 +619,72 @@ fn a_rasters_lines_start_on_one_tick_on_both_axes() {
 }
 
 #[test]
+fn a_raster_armed_for_the_trigger_input_waits_at_its_start_for_the_edge() {
+    let mut r = three();
+    let starts = Order::TriggerIn(TriggerStart::Motion);
+    assert_eq!(r.order(AxisSet::ALL, starts), Ok(()));
+    assert_eq!(
+        r.order(AxisSet::ALL, Order::Raster(raster(500, 2, false))),
+        Ok(())
+    );
+    // Both go to the start at once (from 0 µm, 5 µm away) and wait there,
+    // armed, well past their arrival.
+    r.run(3000);
+    let t = r.tick();
+    assert_eq!(
+        (t[0].x_ref, t[1].x_ref),
+        (Micrometres::from_num(5), Micrometres::from_num(5))
+    );
+    let armed = r.x.snapshot.axes.map(|a| a.motion_armed);
+    assert_eq!(armed, [true, true, false]);
+    // The edge: the lines start on both axes, one tick after it.
+    r.x.trigger_in = true;
+    let edge = r.lp.next_tick();
+    let mut left = None;
+    for _ in 0..10 {
+        let t = r.tick();
+        if left.is_none() && t[0].x_ref != Micrometres::from_num(5) {
+            assert_ne!(t[1].x_ref, Micrometres::from_num(5), "y leaves with x");
+            left = Some(t[0].tick);
+        }
+    }
+    // The edge's tick releases the lines; their first point (the start) is
+    // the next tick's reference, and the reference leaves it on the one
+    // after: a fixed latency of one tick from the edge to the first line.
+    assert_eq!(
+        left,
+        Some(edge + 2),
+        "the lines start after the edge's tick"
+    );
+    assert_eq!(r.x.snapshot.axes.map(|a| a.motion_armed), [false; 3]);
+    r.run(1000);
+    let t = r.tick();
+    assert_eq!(
+        (t[0].x_ref, t[1].x_ref),
+        (Micrometres::from_num(5), Micrometres::from_num(35))
+    );
+    assert_eq!(r.faults(), [None, None, Some(Fault::Stopped)]);
+
+    // Armed again, then the trigger input no longer starts motions: the
+    // raster ends where it is (as an armed wave is dropped), nothing moves.
+    r.x.trigger_in = false;
+    r.run(2);
+    assert_eq!(
+        r.order(AxisSet::ALL, Order::Raster(raster(500, 2, false))),
+        Ok(())
+    );
+    r.run(3000);
+    let nothing = Order::TriggerIn(TriggerStart::Nothing);
+    assert_eq!(r.order(AxisSet::ALL, nothing), Ok(()));
+    let held = r.tick();
+    r.run(2000);
+    let t = r.tick();
+    assert_eq!((t[0].x_ref, t[1].x_ref), (held[0].x_ref, held[1].x_ref));
+    assert_eq!(r.x.snapshot.axes[0].source, SourceKind::Hold);
+    assert_eq!(r.x.snapshot.axes.map(|a| a.motion_armed), [false; 3]);
+}
+
+#[test]
 fn a_raster_for_an_axis_the_board_lacks_or_a_faulted_one_is_refused() {
     let mut r = three();
     let span = (Micrometres::from_num(5), Micrometres::from_num(35));
