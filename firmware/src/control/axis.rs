@@ -769,6 +769,17 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
         self.reference.kind()
     }
 
+    /// `x` (µm of the axis's output: a command the loop's output matrix
+    /// made) held to the model's reference window: where the other axes'
+    /// parasitic motion asks for more than the stack can do (an axis at the
+    /// end of its stroke), the stack does what it can rather than the step
+    /// refusing a command outside the window as an unreachable reference.
+    #[inline]
+    pub fn within_reach(&self, x: Micrometres) -> Micrometres {
+        let r = self.model.get().reference();
+        x.max(r.lo).min(r.hi)
+    }
+
     /// The position sensor's last reading, µm.
     pub const fn x_sensor(&self) -> Micrometres {
         self.x_sensor

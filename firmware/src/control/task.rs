@@ -202,7 +202,8 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
     /// axis's position; the input matrix (sensors → axes); every axis's
     /// reference, force (its model force with the preload the other stacks'
     /// last estimated extensions put on it) and command; the output matrix
-    /// (axes → stacks); every axis's step and amplifier, its telemetry kept.
+    /// (axes → stacks), each command held to its axis's reference window;
+    /// every axis's step and amplifier, its telemetry kept.
     /// The first axis's source reference, µm.
     #[inline(always)]
     fn tick_coupled(&mut self, tick: u32, x: &mut Exchange<'_, N>) -> Micrometres {
@@ -230,8 +231,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         if !d.output.is_identity() {
             let commands = core::array::from_fn(|i| self.staged[i].1.x_cmd);
             let x = d.output.process(&mut (), commands);
-            for ((_, c), x) in self.staged.iter_mut().zip(x) {
-                c.x_cmd = x;
+            let each = self.axes.iter().zip(self.staged.iter_mut());
+            for ((a, (_, c)), x) in each.zip(x) {
+                c.x_cmd = a.within_reach(x);
             }
         }
         let each = self.axes.iter_mut().zip(&self.staged);
