@@ -35,7 +35,7 @@ use fpi_firmware::emulation::virtual_io::{SimAmplifier, SimAnalog, SimEnable, Si
 use fpi_host::board::autotune;
 use fpi_host::method::tune::TuneOptions;
 use fpi_protocol::{BenchOrder, Command, StageVariant};
-use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
+use piezo_fpi::decoupling::Decoupling;
 use piezo_fpi::q::Micrometres;
 use piezo_sim::axes::{Axes, XY_COUPLING, Y_BUILT};
 use piezo_sim::file::FirmwareModel;
@@ -227,17 +227,9 @@ impl Xy {
     }
 }
 
-/// The stage's true couplings as the board takes them: the inverses of its
-/// sensors' cross-talk and of its cross gains, its preload coupling.
+/// The stage's true couplings as the board takes them.
 fn true_decoupling() -> Decoupling<3> {
-    let c = XY_COUPLING;
-    let as64 = |m: [[f32; 3]; 3]| m.map(|r| r.map(f64::from));
-    let t = f64::from(c.sensor_crosstalk);
-    Decoupling {
-        input: Matrix::undoing([[0.0, t, 0.0], [t, 0.0, 0.0], [0.0; 3]]).unwrap(),
-        output: Matrix::undoing(as64(c.cross_um_per_um)).unwrap(),
-        preload: Preload::from_f64(as64(c.preload_n_per_um)).unwrap(),
-    }
+    virtual_axes::true_decoupling(&XY_COUPLING, 2).unwrap()
 }
 
 /// A raster's figures: X's RMS error in % of its span, Y's against its own

@@ -463,22 +463,17 @@ fn xy() -> Rig<2, piezo_sim::axes::Axes<'static, 2>> {
     Rig::new(piezo_sim::axes::xy_built(0x5EED).unwrap())
 }
 
-/// The XY stage's true couplings as the board takes them: the inverses of
-/// its sensor cross-talk and its cross gains, and (`preload`) its stacks'
-/// preload coupling.
+/// The XY stage's true couplings as the board takes them, with
+/// (`preload`) or without its stacks' preload coupling.
 fn xy_decoupling(preload: bool) -> Decoupling<3> {
-    let c = piezo_sim::axes::XY_COUPLING;
-    let as64 = |m: [[f32; 3]; 3]| m.map(|r| r.map(f64::from));
-    let t = f64::from(c.sensor_crosstalk);
-    let talk = [[0.0, t, 0.0], [t, 0.0, 0.0], [0.0; 3]];
-    Decoupling {
-        input: Matrix::undoing(talk).unwrap(),
-        output: Matrix::undoing(as64(c.cross_um_per_um)).unwrap(),
-        preload: if preload {
-            Preload::from_f64(as64(c.preload_n_per_um)).unwrap()
-        } else {
-            Preload::NONE
-        },
+    let d = virtual_axes::true_decoupling(&piezo_sim::axes::XY_COUPLING, 2).unwrap();
+    if preload {
+        d
+    } else {
+        Decoupling {
+            preload: Preload::NONE,
+            ..d
+        }
     }
 }
 
