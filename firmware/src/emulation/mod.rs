@@ -6,7 +6,7 @@
 //! * with the `sim` feature, `virtual_bench` — the virtual bench: the virtual
 //!   stage stepped after every tick and its fault injection, which the host also
 //!   runs as its twin;
-//! * with the `sim` feature, [`virtual_axes`] — a virtual stage of several
+//! * with the `sim` feature, `virtual_axes` — a virtual stage of several
 //!   axes behind one link per axis, stepped after every tick.
 
 #[cfg(feature = "sim")]
