@@ -65,6 +65,15 @@ pub fn fpi_bin() -> &'static Path {
     })
 }
 
+/// The factory model (`firmware/model/stage-a.toml`: stage A, no loops), as
+/// the board's build reads it. Panics if it does not parse.
+pub fn factory_model() -> fpi_host::model_file::FirmwareModel {
+    let path = fpi_host::data::project_root().join("firmware/model/stage-a.toml");
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    fpi_host::model_file::FirmwareModel::parse(&text, "stage-a.toml")
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
 /// Where the model that `fpi board autotune` tuned (its defaults, the factory
 /// model, the emulated stage as built) is kept for the other test binaries of
 /// the same `cargo test` run: keyed by the emulated firmware's image and the

@@ -15,7 +15,6 @@
 //! * robustness: the tuning loaded unchanged onto stage variants (mode
 //!   700–1000 Hz, damping 0.015–0.05, gains a few percent off).
 
-use std::path::Path;
 use std::sync::OnceLock;
 
 use fpi_host::board::autotune::{self, Autotune};
@@ -30,13 +29,6 @@ use fpi_host::method::tune::TuneOptions;
 use fpi_protocol::{BenchOrder, StageVariant};
 use fpi_tests::behaviour_board as board;
 use piezo_sim::file::{FirmwareModel, ShapingSection};
-
-/// The factory model (stage A, no loops).
-fn factory() -> FirmwareModel {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/model/stage-a.toml");
-    let text = std::fs::read_to_string(&path).unwrap();
-    FirmwareModel::parse(&text, "stage-a.toml").unwrap()
-}
 
 /// `fw` loaded onto a parked board with the stage `v`.
 fn load(c: &mut Client, fw: &FirmwareModel, v: StageVariant) {
@@ -77,7 +69,7 @@ fn tuned() -> &'static Autotune {
     static TUNED: OnceLock<Autotune> = OnceLock::new();
     TUNED.get_or_init(|| {
         let (_e, mut c) = board("autotune");
-        let fw = factory();
+        let fw = fpi_tests::factory_model();
         load(&mut c, &fw, StageVariant::BUILT);
         let a = autotune_as_a_user_would(&mut c, &fw).unwrap_or_else(|e| panic!("{e:#}"));
         println!("{}", autotune::table(&a));
@@ -99,7 +91,7 @@ fn autotune_as_a_user_would(c: &mut Client, fw: &FirmwareModel) -> anyhow::Resul
 #[test]
 fn the_analyser_measures_a_flat_stage_flat_and_finds_the_built_stages_mode() {
     let (_e, mut c) = board("frf");
-    let fw = factory();
+    let fw = fpi_tests::factory_model();
     let s = FrfSettings {
         points: 12,
         zoom_points: 0,
@@ -199,7 +191,7 @@ fn autotune_fits_the_stage_and_its_loops_settle_a_step() {
 fn damping_and_feedforward_beat_the_pi_alone() {
     let a = tuned();
     let (_e, mut c) = board("drives");
-    let fw = factory();
+    let fw = fpi_tests::factory_model();
     let pi_only = TuneOptions {
         damping: false,
         feedforward: None,
@@ -240,7 +232,7 @@ fn damping_and_feedforward_beat_the_pi_alone() {
 #[test]
 fn the_preview_runs_the_shaping_ahead_and_the_loops_that_many_ticks_late() {
     let (_e, mut c) = board("preview");
-    let mut fw = factory();
+    let mut fw = fpi_tests::factory_model();
     let s = StepSettings {
         from_um: 10.0,
         to_um: 20.0,
@@ -367,7 +359,7 @@ fn the_mass_ratio_is_set_only_where_a_model_applies_it() {
         })
     };
     let (_e, mut c) = board("mass ratio");
-    let fw = factory();
+    let fw = fpi_tests::factory_model();
     load(&mut c, &fw, StageVariant::BUILT);
     let e = mass::match_mass(&mut c, &fw).unwrap_err();
     assert!(format!("{e:#}").contains("lead_baseline"), "{e:#}");
@@ -443,7 +435,7 @@ fn a_move_after_a_park_starts_where_the_stage_rests() {
 #[test]
 fn a_step_through_the_board_is_scored_on_the_true_position() {
     let (_e, mut c) = board("step");
-    load(&mut c, &factory(), StageVariant::NOMINAL);
+    load(&mut c, &fpi_tests::factory_model(), StageVariant::NOMINAL);
     let s = StepSettings {
         from_um: 10.0,
         to_um: 20.0,
@@ -917,7 +909,7 @@ fn a_force_sensor_s_noise_is_measured_and_the_damping_designed_for_it() {
     use fpi_host::board::noise;
     use fpi_host::method::tune;
     let (_e, mut c) = board("noisy force sensor");
-    let fw = factory();
+    let fw = fpi_tests::factory_model();
     for (sigma, ok) in [(0.15, 0.12..0.18), (3.0, 2.4..3.6)] {
         load(&mut c, &fw, built_with_force_noise(sigma));
         let n = noise::force_noise(&mut c).unwrap();
@@ -965,7 +957,7 @@ fn a_force_sensor_s_noise_is_measured_and_the_damping_designed_for_it() {
 #[test]
 fn bad_design_options_are_refused_before_the_stage_is_measured() {
     let (_e, mut c) = board("bad design options");
-    let fw = factory();
+    let fw = fpi_tests::factory_model();
     load(&mut c, &fw, StageVariant::BUILT);
     let run = |c: &mut Client, o: TuneOptions| {
         let mut said = Vec::new();
@@ -1013,7 +1005,7 @@ fn a_fault_latched_before_the_warm_up_is_named() {
     use fpi_protocol::BenchOrder;
     use piezo_fpi::control::Fault;
     let (_e, mut c) = board("fault before the warm-up");
-    load(&mut c, &factory(), StageVariant::BUILT);
+    load(&mut c, &fpi_tests::factory_model(), StageVariant::BUILT);
     c.move_to(20.0, 1000.0).unwrap();
     Follow::new(&mut c, 0).until_hold().unwrap();
     c.bench(BenchOrder::SensorOpen(true)).unwrap();
@@ -1282,7 +1274,7 @@ fn the_first_step_on_a_heavier_stage_over_fresh_autotunes() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(4)
         .max(1);
-    let fw = factory();
+    let fw = fpi_tests::factory_model();
     let heavier = built_with_mode(700.0, 0.015, Some(0.97));
     println!(
         "| board | as built: autotune's step | load | 700 Hz: settles ±0.1 µm, steps 1–3 | overshoot | β after |\n|---|---|---|---|---|---|"

@@ -49,14 +49,6 @@ use piezo_sim::file::FirmwareModel;
 const STROKE: (f64, f64) = (0.0, 39.921);
 const ALLOWANCE_UM: f64 = 1.0;
 
-/// The factory model (stage A as designed: no dynamics).
-fn factory() -> FirmwareModel {
-    let path =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/model/stage-a.toml");
-    let text = std::fs::read_to_string(&path).unwrap();
-    FirmwareModel::parse(&text, "stage-a.toml").unwrap()
-}
-
 /// `fw` loaded onto a parked board with the stage `v` (a fault a previous
 /// case latched cleared: it was that case's finding).
 fn load(c: &mut Client, fw: &FirmwareModel, v: StageVariant) {
@@ -76,7 +68,7 @@ fn tuned() -> &'static FirmwareModel {
             return m;
         }
         let (_e, mut c) = fpi_tests::behaviour_board("governor: autotune");
-        let fw = factory();
+        let fw = fpi_tests::factory_model();
         load(&mut c, &fw, StageVariant::BUILT);
         autotune::run(
             &mut c,
@@ -123,7 +115,7 @@ fn set_up(c: &mut Client, loops: Loops, v: StageVariant, at_um: f64) -> (f64, f6
 /// loops set and settled.
 fn arm(c: &mut Client, loops: Loops, v: StageVariant) {
     let fw = match loops {
-        Loops::Factory => factory(),
+        Loops::Factory => fpi_tests::factory_model(),
         _ => tuned().clone(),
     };
     load(c, &fw, v);

@@ -17,11 +17,6 @@ use piezo_sim::file::FirmwareModel;
 mod common;
 use common::{ok, refused};
 
-fn factory() -> FirmwareModel {
-    let p = fpi_host::data::project_root().join("firmware/model/stage-a.toml");
-    FirmwareModel::parse(&std::fs::read_to_string(&p).unwrap(), "stage-a.toml").unwrap()
-}
-
 /// The factory model with loops designed for stage A as autotune fits it
 /// (`[dynamics]`, `[damping]`, `[feedback]`, `[shaping]`).
 fn tuned() -> FirmwareModel {
@@ -31,7 +26,7 @@ fn tuned() -> FirmwareModel {
         lag_mhz: 1_900_000,
         force_gain: NewtonsPerUm::from_num(6.3),
     };
-    let fw = factory();
+    let fw = fpi_tests::factory_model();
     let o = TuneOptions::default();
     with_tuning(&fw, &tune_measured(&fw, d, &o).unwrap(), &o).unwrap()
 }

@@ -47,19 +47,11 @@ fn leak<T>(v: T) -> &'static mut T {
     Box::leak(Box::new(v))
 }
 
-/// The factory model (stage A, no loops).
-fn factory() -> FirmwareModel {
-    let path =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/model/stage-a.toml");
-    let text = std::fs::read_to_string(&path).unwrap();
-    FirmwareModel::parse(&text, "stage-a.toml").unwrap()
-}
-
 /// `fpi board autotune` (its defaults) on the in-process board with the
 /// stage `v`; the tuned model.
 fn autotuned(v: StageVariant, what: &str) -> FirmwareModel {
     let (_e, mut c) = fpi_tests::behaviour_board(what);
-    let fw = factory();
+    let fw = fpi_tests::factory_model();
     c.park().unwrap();
     c.ack(&Command::ClearFault).ok();
     c.upload(&fw.image().unwrap(), false, |_| {}).unwrap();
@@ -171,6 +163,17 @@ impl Xy {
         self.x.snapshot.axes.map(|a| a.fault.map(|(f, _)| f))
     }
 
+    /// Each axis moves slowly to its `at` µm.
+    fn move_to(&mut self, at: [f64; 2]) {
+        for (i, to) in at.into_iter().enumerate() {
+            let to = SourceOrder::Move {
+                target: Micrometres::from_num(to),
+                step: Micrometres::from_num(0.002),
+            };
+            assert_eq!(self.order(AxisSet::one(i), Order::Source(to)), Ok(()));
+        }
+    }
+
     /// Both axes at `at` µm with their loops closed (damping, PI, preview),
     /// decoupled by `d`, settled.
     fn closed_at(d: Option<Decoupling<3>>, at: [f64; 2]) -> Self {
@@ -178,13 +181,7 @@ impl Xy {
         if let Some(d) = d {
             assert_eq!(r.order(AxisSet::ALL, Order::Decoupling(d)), Ok(()));
         }
-        for (i, to) in at.into_iter().enumerate() {
-            let to = SourceOrder::Move {
-                target: Micrometres::from_num(to),
-                step: Micrometres::from_num(0.002),
-            };
-            assert_eq!(r.order(AxisSet::one(i), Order::Source(to)), Ok(()));
-        }
+        r.move_to(at);
         for _ in 0..30_000 {
             r.tick();
         }
@@ -212,13 +209,7 @@ impl Xy {
         for _ in 0..50_000 {
             r.tick();
         }
-        for (i, to) in at.into_iter().enumerate() {
-            let to = SourceOrder::Move {
-                target: Micrometres::from_num(to),
-                step: Micrometres::from_num(0.002),
-            };
-            assert_eq!(r.order(AxisSet::one(i), Order::Source(to)), Ok(()));
-        }
+        r.move_to(at);
         for _ in 0..20_000 {
             r.tick();
         }
