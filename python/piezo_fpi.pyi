@@ -108,9 +108,18 @@ class Board:
         """``port``: a serial device (``/dev/ttyUSB0``, ``COM3``), ``tcp:HOST:PORT``
         (the emulated board) or ``virtual`` (the firmware built for this host, run
         in this process at real time, starting afresh; its link paced as the UART,
-        or as USB with ``virtual:usb``)."""
+        or as USB with ``virtual:usb``; ``virtual:xy``, ``virtual:usb:xyz-built``…
+        a board of several axes on that stage)."""
     @property
     def port(self) -> str: ...
+    @property
+    def axis(self) -> str:
+        """The axis its per-axis calls address: ``"x"``, ``"y"`` or ``"z"``."""
+    @property
+    def axes(self) -> Dict[str, "Board"]:
+        """Each axis of the board by name: the same board on the same link, its
+        per-axis calls addressing that axis (``board.axes["y"].step(20.0)``). A
+        board of one axis has ``"x"`` only."""
     @property
     def settings(self) -> "Settings":
         """The board's runtime settings by key path, a mapping:
@@ -140,7 +149,8 @@ class Board:
         where applied, else the fit's ratio that autotune stores as
         ``damping.lead_baseline``; ``None`` where the model has no lead),
         ``model`` (``crc``, ``origin``, ``stroke_um``, ``feedback`` …), ``stream``,
-        ``recorder``, ``link`` …"""
+        ``recorder``, ``link`` …; ``axis`` (the axis it describes) and
+        ``fault_axis`` (the axis whose fault parked every axis, or ``None``)."""
     def status_text(self) -> str:
         """What ``fpi board status`` prints."""
     def position(self) -> float:

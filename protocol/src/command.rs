@@ -202,10 +202,12 @@ pub enum Command<'a> {
         /// Timeout, ms.
         timeout_ms: u32,
     },
-    /// Start recording every `decimation`-th tick; `signals`
+    /// Start recording `axis` every `decimation`-th tick; `signals`
     /// ([`signal`](crate::record::signal) bits) says what
     /// [`Command::ReadRecord`] sends.
     Record {
+        /// The axis recorded.
+        axis: u8,
         /// Keep one tick in this many (≥ 1).
         decimation: u16,
         /// Signal mask.
@@ -235,13 +237,22 @@ pub enum Command<'a> {
     /// Validate the received image and run it (the stage must be parked);
     /// `store` also writes it to flash, where it survives a reset.
     ModelCommit {
+        /// The axis whose model it becomes.
+        axis: u8,
         /// Keep it in flash.
         store: bool,
     },
-    /// The running model → [`Reply::Model`](crate::Reply::Model).
-    ModelInfo,
-    /// Forget the stored model and run the factory default (the stage must be parked).
-    ModelFactory,
+    /// The running model of `axis` → [`Reply::Model`](crate::Reply::Model).
+    ModelInfo {
+        /// The axis.
+        axis: u8,
+    },
+    /// Forget `axis`'s stored model and run the factory default (the stage
+    /// must be parked).
+    ModelFactory {
+        /// The axis.
+        axis: u8,
+    },
     /// The link's counters → [`Reply::Counters`](crate::Reply::Counters).
     Counters,
     /// An order for the emulated board's virtual bench.
@@ -334,9 +345,11 @@ pub enum Command<'a> {
         /// `β`, `I2F30` bits, in `[2²⁹, 2³¹)`.
         ratio: i32,
     },
-    /// A piece of the running model's image, from `offset` →
+    /// A piece of `axis`'s running model's image, from `offset` →
     /// [`Reply::ModelBytes`](crate::Reply::ModelBytes).
     ModelRead {
+        /// The axis whose model it is.
+        axis: u8,
         /// Where in the image.
         offset: u32,
     },
@@ -386,8 +399,8 @@ impl Command<'_> {
             Self::ModelBegin { .. } => K::ModelBegin,
             Self::ModelChunk { .. } => K::ModelChunk,
             Self::ModelCommit { .. } => K::ModelCommit,
-            Self::ModelInfo => K::ModelInfo,
-            Self::ModelFactory => K::ModelFactory,
+            Self::ModelInfo { .. } => K::ModelInfo,
+            Self::ModelFactory { .. } => K::ModelFactory,
             Self::Counters => K::Counters,
             Self::Bench(_) => K::Bench,
             Self::Reset => K::Reset,
@@ -427,7 +440,12 @@ impl Command<'_> {
             | Self::LeadRatio { axis, .. }
             | Self::Trigger { axis, .. }
             | Self::TriggerIn { axis, .. }
-            | Self::AnalysisResult { axis } => Some(axis),
+            | Self::AnalysisResult { axis }
+            | Self::ModelCommit { axis, .. }
+            | Self::ModelInfo { axis }
+            | Self::ModelFactory { axis }
+            | Self::ModelRead { axis, .. }
+            | Self::Record { axis, .. } => Some(axis),
             _ => None,
         }
     }
@@ -447,8 +465,6 @@ impl<'a> Tagged<'a> for Command<'a> {
             | Self::Safe
             | Self::ClearFault
             | Self::RecordStop
-            | Self::ModelInfo
-            | Self::ModelFactory
             | Self::Counters
             | Self::Reset => {}
             Self::Status { axis }
@@ -456,7 +472,9 @@ impl<'a> Tagged<'a> for Command<'a> {
             | Self::StreamClear { axis }
             | Self::Analog { axis }
             | Self::Hold { axis }
-            | Self::AnalysisResult { axis } => put!(t; axis),
+            | Self::AnalysisResult { axis }
+            | Self::ModelInfo { axis }
+            | Self::ModelFactory { axis } => put!(t; axis),
             Self::Move {
                 axis,
                 target,
@@ -479,13 +497,14 @@ impl<'a> Tagged<'a> for Command<'a> {
             Self::Drive { axis, compensated } => put!(t; axis, compensated),
             Self::Supervise { timeout_ms } => put!(t; timeout_ms),
             Self::Record {
+                axis,
                 decimation,
                 signals,
-            } => put!(t; decimation, signals),
+            } => put!(t; axis, decimation, signals),
             Self::ReadRecord { max } => put!(t; max),
             Self::ModelBegin { len, crc } => put!(t; len, crc),
             Self::ModelChunk { offset, data } => put!(t; offset, data),
-            Self::ModelCommit { store } => put!(t; store),
+            Self::ModelCommit { axis, store } => put!(t; axis, store),
             Self::Bench(order) => put!(t; order),
             Self::Loop { axis, mode } => put!(t; axis, mode),
             Self::Damping { axis, on } | Self::Shaping { axis, on } => put!(t; axis, on),
@@ -501,7 +520,7 @@ impl<'a> Tagged<'a> for Command<'a> {
                 settle,
                 cycles,
             } => put!(t; axis, freq_mhz, amplitude, settle, cycles),
-            Self::ModelRead { offset } => put!(t; offset),
+            Self::ModelRead { axis, offset } => put!(t; axis, offset),
             Self::LeadRatio { axis, ratio } => put!(t; axis, ratio),
             Self::SettingGet { path } => put!(t; path),
             Self::SettingSet { path, value } => put!(t; path, value),
@@ -556,6 +575,7 @@ impl<'a> Tagged<'a> for Command<'a> {
                 timeout_ms: field(a)?,
             },
             K::Record => Self::Record {
+                axis: field(a)?,
                 decimation: field(a)?,
                 signals: field(a)?,
             },
@@ -569,9 +589,12 @@ impl<'a> Tagged<'a> for Command<'a> {
                 offset: field(a)?,
                 data: field(a)?,
             },
-            K::ModelCommit => Self::ModelCommit { store: field(a)? },
-            K::ModelInfo => Self::ModelInfo,
-            K::ModelFactory => Self::ModelFactory,
+            K::ModelCommit => Self::ModelCommit {
+                axis: field(a)?,
+                store: field(a)?,
+            },
+            K::ModelInfo => Self::ModelInfo { axis: field(a)? },
+            K::ModelFactory => Self::ModelFactory { axis: field(a)? },
             K::Counters => Self::Counters,
             K::Bench => Self::Bench(field(a)?),
             K::Reset => Self::Reset,
@@ -600,7 +623,10 @@ impl<'a> Tagged<'a> for Command<'a> {
                 cycles: field(a)?,
             },
             K::AnalysisResult => Self::AnalysisResult { axis: field(a)? },
-            K::ModelRead => Self::ModelRead { offset: field(a)? },
+            K::ModelRead => Self::ModelRead {
+                axis: field(a)?,
+                offset: field(a)?,
+            },
             K::LeadRatio => Self::LeadRatio {
                 axis: field(a)?,
                 ratio: field(a)?,

@@ -49,7 +49,10 @@ pub use reply::{
 };
 pub use settings::{Settings, StageSettings, TriggerSettings};
 
-/// The protocol version of these messages (12: the refusal [`Refusal::Held`]
+/// The protocol version of these messages (14: an axis in the model
+/// commands ([`Command::ModelCommit`], [`Command::ModelInfo`],
+/// [`Command::ModelFactory`], [`Command::ModelRead`]) and in
+/// [`Command::Record`], the axis whose fault parked the board in the status; 12: the refusal [`Refusal::Held`]
 /// of the board's hub; 11: the board's axes and analog
 /// front end in the hello; 10: the runtime settings by key
 /// path, [`Command::SettingGet`] and [`Command::SettingSet`]; 9: the governed ticks and the
@@ -57,10 +60,13 @@ pub use settings::{Settings, StageSettings, TriggerSettings};
 /// [`Command::LeadRatio`]; 7: the learned mass ratio in the status; 6: the link in the hello, recordings
 /// sent as differences between samples; 5: explicit wire numbers, an axis in
 /// every command that addresses a stage).
-pub const VERSION: u8 = 13;
-/// Axes a board has today: a command for axis `AXES` or beyond is refused
-/// ([`Refusal::Axis`]).
-pub const AXES: u8 = 1;
+pub const VERSION: u8 = 14;
+/// The most axes a board drives (x, y, z): a board of fewer refuses a command
+/// for an axis it does not have ([`Refusal::Axis`]; its hello says how many
+/// it has).
+pub const MAX_AXES: u8 = 3;
+/// The axes' names by number (a command's `axis`: 0 is x).
+pub const AXIS_NAMES: [&str; MAX_AXES as usize] = ["x", "y", "z"];
 /// Largest encoded frame, delimiter included, bytes.
 pub const MAX_FRAME: usize = 1280;
 /// Model bytes per [`Command::ModelChunk`].

@@ -235,8 +235,8 @@ pub struct Hello {
     /// The link this hello came over (the emulated board: the link it paces
     /// its own as).
     pub link: LinkKind,
-    /// Stages it drives (axes `0..axes`; [`AXES`](crate::AXES) on this
-    /// protocol's boards).
+    /// Stages it drives: axes `0..axes` (x, y, z), at most
+    /// [`MAX_AXES`](crate::MAX_AXES).
     pub axes: u8,
     /// The analog front end it converts with: the board's build (`precision`
     /// feature), or on the emulated board the one its bench was set to
@@ -267,6 +267,9 @@ pub struct Status {
     pub signals: [i32; 5],
     /// The latched fault (code 4, *parked*, is the resting state).
     pub fault: Option<FaultReport>,
+    /// The axis whose fault parked every axis of the board, while that fault
+    /// is latched (`None`: no fault other than a parked stage).
+    pub fault_axis: Option<u8>,
     /// Amplifier enabled.
     pub amplifier_on: bool,
     /// Reference source.

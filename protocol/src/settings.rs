@@ -18,10 +18,12 @@
 use miniconf::{leaf, Tree};
 use serde::{Deserialize, Serialize};
 
-use crate::{Command, LoopMode, TriggerMode, TriggerStart, AXES};
+use crate::{Command, LoopMode, TriggerMode, TriggerStart};
 
-/// Stages a board's settings tree holds ([`AXES`]).
-pub const STAGES: usize = AXES as usize;
+/// Stages a board's settings tree holds: the first axis's (a board of
+/// several axes takes the other axes' switches as their named commands,
+/// which address an axis).
+pub const STAGES: usize = 1;
 
 /// Longest JSON value of one setting, bytes (a [`Reply::Setting`](crate::Reply::Setting)).
 pub const MAX_VALUE: usize = 32;

@@ -92,16 +92,16 @@ goldens! {
     command_clear_fault: Command::ClearFault => "0c";
     command_drive: Command::Drive { axis: 0, compensated: true } => "0d 00 01";
     command_supervise: Command::Supervise { timeout_ms: 500 } => "0e f4 03";
-    command_record: Command::Record { decimation: 25, signals: signal::ALL } => "0f 19 7f";
+    command_record: Command::Record { axis: 1, decimation: 25, signals: signal::ALL } => "0f 01 19 7f";
     command_record_stop: Command::RecordStop => "10";
     command_read_record: Command::ReadRecord { max: u16::MAX } => "11 ff ff 03";
     command_model_begin: Command::ModelBegin { len: 1000, crc: 0xdead_beef }
         => "12 e8 07 ef fd b6 f5 0d";
     command_model_chunk: Command::ModelChunk { offset: 256, data: &[0, 1, 0xff] }
         => "13 80 02 03 00 01 ff";
-    command_model_commit: Command::ModelCommit { store: true } => "14 01";
-    command_model_info: Command::ModelInfo => "15";
-    command_model_factory: Command::ModelFactory => "16";
+    command_model_commit: Command::ModelCommit { axis: 1, store: true } => "14 01 01";
+    command_model_info: Command::ModelInfo { axis: 0 } => "15 00";
+    command_model_factory: Command::ModelFactory { axis: 2 } => "16 02";
     command_counters: Command::Counters => "17";
     command_bench: Command::Bench(BenchOrder::SensorOffset(-(2 << 16))) => "18 03 ff ff 0f";
     command_bench_link: Command::Bench(BenchOrder::Link(LinkKind::Usb)) => "18 09 01";
@@ -121,7 +121,7 @@ goldens! {
         cycles: 20,
     } => "1e 00 a0 8d 06 80 80 04 05 14";
     command_analysis_result: Command::AnalysisResult { axis: 0 } => "1f 00";
-    command_model_read: Command::ModelRead { offset: 512 } => "20 80 04";
+    command_model_read: Command::ModelRead { axis: 0, offset: 512 } => "20 00 80 04";
     command_lead_ratio: Command::LeadRatio { axis: 0, ratio: 3 << 29 } => "21 00 80 80 80 80 0c";
     command_setting_get: Command::SettingGet { path: b"/supervise_ms" }
         => "22 0d 2f 73 75 70 65 72 76 69 73 65 5f 6d 73";
@@ -167,6 +167,7 @@ fn status() -> Status {
             at: 10,
             safe_at: None,
         }),
+        fault_axis: Some(1),
         amplifier_on: false,
         source: SourceKind::Stream,
         approaching: true,
@@ -220,9 +221,9 @@ goldens! {
     Reply, all_replies;
     reply_ack: Reply::Ack => "00";
     reply_hello: Reply::Hello(hello())
-        => "01 0d 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01 01 01";
+        => "01 0e 05 30 2e 31 2e 30 01 a0 9c 01 08 02 40 80 20 80 40 80 08 00 80 80 b0 09 80 80 28 00 80 80 50 02 01 01 01";
     reply_status: Reply::Status(status())
-        => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 00 02 f8 ac d1 91 01 01 00";
+        => "02 00 c0 c4 07 80 80 a0 01 01 80 80 d8 04 80 80 e0 12 8e 80 a0 01 01 04 0a 00 01 01 00 03 01 01 01 01 01 00 01 80 80 80 80 08 01 00 90 4e 03 64 9c 07 cc 08 00 01 f4 03 00 14 00 00 00 02 f8 ac d1 91 01 01 00";
     reply_record: Reply::Record(batch())
         => "03 11 19 01 00 07 06 d0 0f 80 80 08 06 32 00 00";
     reply_model: Reply::Model(model_report())
@@ -359,7 +360,7 @@ fn a_request_frame_golden() {
         seq: 1,
     };
     let n = frame::encode(&h, &Command::Status { axis: 0 }, &mut scratch, &mut out).unwrap();
-    assert_eq!(hex(&out[..n]), "04 0d 01 01 05 b7 5c f7 cb 00");
+    assert_eq!(hex(&out[..n]), "04 0e 01 01 05 59 f3 42 d9 00");
 }
 
 /// An unknown kind is told apart from garbage; a known kind with bad fields is
@@ -405,7 +406,7 @@ fn status_reply_size() {
     println!("status reply: {n} bytes of body, {framed} bytes framed");
     assert_eq!(
         (n, framed),
-        (67, 78),
+        (69, 80),
         "the status reply's size changed: update docs/src/protocol.md"
     );
 }

@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 use anyhow::anyhow;
-use fpi_host::board::client::{real, Client};
+use fpi_host::board::client::{axis_name, real, Client};
 use fpi_host::board::commands::{self, BenchSettings, Streamed};
 use fpi_host::board::frf::FrfSettings;
 use fpi_host::board::live::{Live, SharedClient};
@@ -49,6 +49,9 @@ pub struct Board {
     port: String,
     /// A live recording runs (`record_start`).
     live: Arc<AtomicBool>,
+    /// The axis its per-axis calls address (0: x; `board.axes["y"]` is the
+    /// same board addressing y).
+    axis: u8,
 }
 
 impl Board {
@@ -66,6 +69,7 @@ impl Board {
             let c = guard
                 .as_mut()
                 .ok_or_else(|| anyhow!("the link to {} is closed", self.port))?;
+            c.on_axis(self.axis)?;
             f(c)
         })
         .map_err(|e| to_py(py, e, Otherwise::Link))
@@ -112,6 +116,7 @@ impl Board {
             client: Arc::new(Mutex::new(Some(c))),
             port: port.to_string(),
             live: Arc::new(AtomicBool::new(false)),
+            axis: 0,
         })
     }
 
@@ -126,6 +131,31 @@ impl Board {
     #[getter]
     fn port(&self) -> String {
         self.port.clone()
+    }
+
+    /// The axis its per-axis calls address: `"x"`, `"y"` or `"z"`.
+    #[getter]
+    fn axis(&self) -> String {
+        axis_name(self.axis)
+    }
+
+    /// Each axis of the board by name (`"x"`, `"y"`, `"z"`): the same board
+    /// on the same link, its per-axis calls addressing that axis
+    /// (`board.axes["y"].step(20.0)`). A board of one axis has `"x"` only.
+    #[getter]
+    fn axes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let n = self.run(py, |c| Ok(c.hello().axes))?;
+        let d = PyDict::new(py);
+        for axis in 0..n {
+            let view = Self {
+                client: Arc::clone(&self.client),
+                port: self.port.clone(),
+                live: Arc::clone(&self.live),
+                axis,
+            };
+            d.set_item(axis_name(axis), Py::new(py, view)?)?;
+        }
+        Ok(d)
     }
 
     /// The control rate, Hz.
@@ -190,13 +220,17 @@ impl Board {
     /// `setpoint_V`, `force_N`, `amplifier_on`, `source`, `approaching`, `loop`,
     /// `compensated`, `model` (a dict: `crc`, `origin`, `operators`,
     /// `creep_terms`, `stroke_um`, `safe_V`, `feedback`), `stream`, `recorder`,
-    /// `link` (counters), `supervision_ms`, `late_ticks`.
+    /// `link` (counters), `supervision_ms`, `late_ticks`; `axis` (the axis it
+    /// describes) and `fault_axis` (the axis whose fault parked every axis,
+    /// or None).
     fn status<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let (h, m, s, k) = self.run(py, |c| {
             Ok((c.hello().clone(), c.model()?, c.status()?, c.counters()?))
         })?;
         let rate = f64::from(h.rate_hz);
         let d = PyDict::new(py);
+        d.set_item("axis", axis_name(s.axis))?;
+        d.set_item("fault_axis", s.fault_axis.map(axis_name))?;
         d.set_item("tick", s.tick)?;
         d.set_item("time_s", f64::from(s.tick) / rate)?;
         let (state, fault) = match s.fault {
@@ -339,8 +373,8 @@ impl Board {
             return Ok(t.into_pyobject(py)?.into_any());
         }
         self.recorder_free("move(record=True)")?;
-        let cmd =
-            commands::move_command(target_um, speed).map_err(|e| to_py(py, e, Otherwise::Link))?;
+        let cmd = commands::move_command(self.axis, target_um, speed)
+            .map_err(|e| to_py(py, e, Otherwise::Link))?;
         let mut caught = None;
         let m = self.run(py, |c| {
             let from = real(c.status()?.signals[0]);

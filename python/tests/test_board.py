@@ -337,6 +337,25 @@ def test_a_fault_is_a_board_error(board):
     assert board.status()["state"] == "parked"
 
 
+def test_each_axis_of_a_board_of_several_is_its_own_board_object():
+    with pf.Board("virtual:xy-built") as b:
+        assert b.axis == "x"
+        axes = b.axes
+        assert sorted(axes) == ["x", "y"]
+        y = axes["y"]
+        assert y.axis == "y" and y.port == b.port
+        y.move(10.0, speed=1000.0)
+        # Open loop, the factory model on the stage as built: within 0.6 µm.
+        assert abs(y.wait_on_target(timeout=10.0, tolerance_um=0.6) - 10.0) <= 0.6
+        sy, sx = y.status(), b.status()
+        assert sy["axis"] == "y" and sy["state"] == "running"
+        assert sy["reference_um"] == pytest.approx(10.0, abs=1e-4)
+        assert sx["axis"] == "x" and sx["state"] == "parked"
+        assert sx["fault_axis"] is None
+    with pf.Board("virtual") as one:
+        assert list(one.axes) == ["x"]
+
+
 def test_context_manager_closes_the_link():
     with pf.Board("virtual") as b:
         assert not b.closed

@@ -172,6 +172,7 @@ fn switching_is_bumpless_and_sensor_faults_end_safe() {
     wait(&mut c, 4000);
     // Record every tick around the switches.
     c.ack(&Command::Record {
+        axis: 0,
         decimation: 1,
         signals: signal::VOLTAGE | signal::X_TRUE | signal::STATUS,
     })

@@ -136,6 +136,7 @@ fn the_papers_fpi_with_ten_operators_runs_as_a_received_model() {
         );
         // 400 samples/s: what the UART the board is paced as carries.
         c.ack(&Command::Record {
+            axis: 0,
             decimation: 50,
             signals: signal::ALL,
         })?;
@@ -209,7 +210,10 @@ fn bad_model_uploads_are_refused_with_reasons_and_the_old_model_kept() {
         })
         .unwrap();
     }
-    let r = c.ack(&Command::ModelCommit { store: true });
+    let r = c.ack(&Command::ModelCommit {
+        axis: 0,
+        store: true,
+    });
     check(&mut c, "damaged in transit", r, Refusal::Model);
     // A model the validator refuses: a negative PI weight, every CRC consistent.
     let mut invalid = good.clone();
@@ -225,7 +229,10 @@ fn bad_model_uploads_are_refused_with_reasons_and_the_old_model_kept() {
         crc: CRC32.checksum(&good),
     })
     .unwrap();
-    let r = c.ack(&Command::ModelCommit { store: false });
+    let r = c.ack(&Command::ModelCommit {
+        axis: 0,
+        store: false,
+    });
     check(&mut c, "incomplete upload", r, Refusal::Upload);
     // A good model while the stage moves.
     c.move_to(10.0, 1000.0).unwrap();
@@ -267,6 +274,7 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
     // reads it (started here, not before the points' upload, whose length in
     // board ticks grows with the board's pace).
     c.ack(&Command::Record {
+        axis: 0,
         decimation: 40,
         signals: signal::ALL,
     })

@@ -275,6 +275,7 @@ fn watched(
 ) -> Vec<Sample> {
     let signals = signal::X_TRUE | signal::X_REF | signal::STATUS;
     c.ack(&Command::Record {
+        axis: 0,
         decimation: 1,
         signals,
     })

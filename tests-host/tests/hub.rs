@@ -43,7 +43,7 @@ fn move_to(c: &mut Client, um: f64) {
 }
 
 fn move_command(um: f64) -> Command<'static> {
-    commands::move_command(um, 1000.0).unwrap()
+    commands::move_command(0, um, 1000.0).unwrap()
 }
 
 #[test]
@@ -86,6 +86,7 @@ fn one_client_drives_while_others_watch_and_record() {
     let live = Live::start(shared.clone(), signal::ALL, 20, true).unwrap();
     let armed = watcher
         .ack(&Command::Record {
+            axis: 0,
             decimation: 40,
             signals: signal::X_REF,
         })
@@ -127,6 +128,7 @@ fn what_a_client_that_went_held_is_free_again() {
         move_to(&mut gone, 12.0);
         wave(&mut gone);
         gone.ack(&Command::Record {
+            axis: 0,
             decimation: 20,
             signals: signal::ALL,
         })

@@ -40,7 +40,7 @@ fn moved(
     let mut f = Follow::new(c, SIGNALS);
     f.record(1).unwrap();
     f.rec.samples.clear();
-    let set_at = f.c.ack(&trigger::command(s)).unwrap();
+    let set_at = f.c.ack(&trigger::command(f.c.axis(), s)).unwrap();
     f.c.move_to(to_um, 200.0).unwrap();
     f.until_hold().unwrap();
     let end = f.c.status().unwrap().tick + f.ticks(0.005);
@@ -155,6 +155,7 @@ fn a_stream_pulses_at_each_point_and_bad_levels_are_refused_by_name() {
     let points: Vec<f64> = (0..40).map(|k| 10.0 + 0.05 * k as f64).collect();
     let mut samples = Vec::new();
     c.ack(&fpi_protocol::Command::Record {
+        axis: 0,
         decimation: 1,
         signals: SIGNALS,
     })
@@ -231,6 +232,7 @@ fn the_trigger_input_starts_an_armed_wave_and_recording_on_its_edge() {
     // Armed: a recording and a 100 Hz wave (2 cycles) are ordered, and neither
     // starts while the input stays low.
     c.ack(&Command::Record {
+        axis: 0,
         decimation: 1,
         signals: signal::X_REF | signal::TRIGGER,
     })

@@ -415,6 +415,9 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn> Axis<S, A, E, R> {
             if self.fault_at.is_none() {
                 self.fault_at = Some((f, tick));
                 self.changed = true;
+                // Latched by the step (a sensor out of range…): the loop
+                // parks the other axes as for a trip.
+                self.tripped |= f != Fault::Stopped;
             }
             if self.safe_at.is_none() && at_safe {
                 self.safe_at = Some(tick);

@@ -158,6 +158,9 @@ pub enum Refused {
     Unstable,
     /// The running model has no feedback settings: the loop cannot be closed.
     NoFeedback,
+    /// The emulated board of several axes takes no bench order but its
+    /// link's pace (its stage's faults and variants are one axis's).
+    BenchOfAxes,
     /// The order addresses no axis of the board, or several where it takes
     /// one (a model swap, an analysis, a stream: the board has one hand-over
     /// slot, one analysis result and one stream buffer; one axis streams at
@@ -343,6 +346,14 @@ impl<const N: usize> Snapshot<N> {
             trigger_in: TriggerStart::Nothing,
             record_armed: false,
         }
+    }
+}
+
+impl<const N: usize> Snapshot<N> {
+    /// Axis `i`'s state (the first axis's where the board has no axis `i`:
+    /// the link checks an axis before it asks).
+    pub fn axis(&self, i: usize) -> &AxisSnapshot {
+        self.axes.get(i).unwrap_or(&self.axes[0])
     }
 }
 

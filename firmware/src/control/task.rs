@@ -79,6 +79,8 @@ pub struct ControlLoop<S, A, E, R, const N: usize = 1> {
     input_was: bool,
     /// A recording (its decimation) armed for the trigger input's edge.
     armed_record: Option<u16>,
+    /// The axis the recorder records (a record order's first addressed).
+    recorded: usize,
     /// The axes' input and output matrices and the stacks' preload coupling
     /// (none on one axis).
     decoupling: Decoupling<N>,
@@ -118,6 +120,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             starts: TriggerStart::Nothing,
             input_was: false,
             armed_record: None,
+            recorded: 0,
             decoupling: Decoupling::NONE,
             raster_pending: false,
             staged: [(Front::ZERO, Command::ZERO); N],
@@ -312,6 +315,13 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
         let s = t.sample(x_true);
         x.recorder.offer(&s);
         s
+    }
+
+    /// The axis the recorder records (the last record order's): the board
+    /// offers its telemetry to [`ControlLoop::record`].
+    #[inline]
+    pub const fn recorded_axis(&self) -> usize {
+        self.recorded
     }
 
     /// Tells the loop whether the tick just run ended after the next one was due
@@ -520,6 +530,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 Ok(())
             }
             Order::Record { decimation } if self.starts.recorder() => {
+                self.recorded = axes.indices(N).next().ok_or(Refused::Axes)?;
                 self.armed_record = Some(decimation);
                 Ok(())
             }
@@ -566,6 +577,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 Ok(())
             }
             Order::Record { decimation } => {
+                self.recorded = axes.indices(N).next().ok_or(Refused::Axes)?;
                 x.recorder.start(decimation);
                 Ok(())
             }

@@ -9,6 +9,8 @@
 //! * with the `sim` feature, `virtual_axes` — a virtual stage of several
 //!   axes behind one link per axis, stepped after every tick.
 
+#[cfg(all(test, feature = "sim"))]
+pub(crate) mod link_host;
 #[cfg(feature = "sim")]
 pub mod virtual_axes;
 #[cfg(feature = "sim")]

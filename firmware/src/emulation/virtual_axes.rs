@@ -4,12 +4,27 @@
 //! of the stage after each control tick with the amplifiers' outputs.
 //!
 //! The firmware's multi-axis tests and the host's closed-loop XY measurements
-//! drive the control loop's axes through it.
+//! drive the control loop's axes through it, and [`VirtualAxes`] is the
+//! emulated board of several axes: that stage, the control loop and the link
+//! handler in one thread, as [`super::virtual_bench::Virtual`] is for one
+//! axis.
 
+use embedded_storage::nor_flash::NorFlash;
+use heapless::Vec;
 use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
+use piezo_fpi::q::Micrometres;
 use piezo_sim::axes::{Axes, AxisSample, Coupling, MAX_AXES};
 
-use crate::emulation::virtual_io::SimLink;
+use crate::board::capacity::{Store, IMAGE_BYTES};
+use crate::board::factory_model::MODEL_IMAGE;
+use crate::board::storage::ModelFlash;
+use crate::control::exchange::{Applied, Exchange, Order, Posted, Refused};
+use crate::control::recorder::Sample;
+use crate::control::slots::Spare;
+use crate::control::task::ControlLoop;
+use crate::emulation::virtual_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor};
+use crate::link::handler::{Board, Handler};
+use crate::link::protocol::{BoardKind, ResetReason};
 
 /// Leaves the stage's readings at rest on `links` (axis `i` on `links[i]`).
 pub fn prime<const N: usize>(stage: &mut Axes<'_, N>, links: &[&SimLink; N]) {
@@ -51,4 +66,287 @@ pub fn true_decoupling(c: &Coupling, n: usize) -> Option<Decoupling<MAX_AXES>> {
         output: Matrix::undoing(as64(c.cross_um_per_um)).ok()?,
         preload: Preload::from_f64(as64(c.preload_n_per_um)).ok()?,
     })
+}
+
+/// The control loop of an emulated board of `N` axes (axis `i`'s I/O is
+/// its own [`SimLink`]).
+pub type AxesLoop<const N: usize> = ControlLoop<
+    SimSensor<'static>,
+    SimAmplifier<'static>,
+    SimEnable<'static>,
+    SimAnalog<'static>,
+    N,
+>;
+
+/// The emulated board of `N` axes in one thread: the control loop, the
+/// stage of several axes and the exchange, advanced one tick whenever the
+/// link handler waits.
+///
+/// Its recorder records the axis the last record order named (with its
+/// true position). It takes
+/// no bench order but its link's pace ([`Refused::BenchOfAxes`]).
+pub struct VirtualAxes<const N: usize> {
+    /// Each axis's virtual analog world.
+    pub links: [&'static SimLink; N],
+    /// The control loop.
+    pub control: AxesLoop<N>,
+    /// The virtual stage.
+    pub stage: Axes<'static, N>,
+    /// What the loop shares with the link handler.
+    pub exchange: Exchange<'static, N>,
+    /// Each axis's true output at the instant this tick's sensors are read
+    /// (the last step's), µm.
+    x_true: [Micrometres; N],
+}
+
+impl<const N: usize> VirtualAxes<N> {
+    /// Boots the board as the emulated board boots: each axis's model (the
+    /// first axis's stored in `flash`, else the factory model), a parked
+    /// loop, `stage` at rest. The handler that serves its link comes with
+    /// it; `None` if the factory model does not load.
+    pub fn boot<F: NorFlash>(
+        links: [&'static SimLink; N],
+        stores: [&'static mut Store; N],
+        spare: &'static mut Store,
+        image: &'static mut [u8; IMAGE_BYTES],
+        exchange: Exchange<'static, N>,
+        flash: ModelFlash<F>,
+        mut stage: Axes<'static, N>,
+    ) -> Option<(Self, Handler<F, N>)> {
+        let (handler, running) = Handler::boot(
+            BoardKind::Emulated,
+            stores.map(Spare::new),
+            Spare::new(spare),
+            image,
+            flash,
+            MODEL_IMAGE,
+            ResetReason::PowerOn,
+        )?;
+        prime(&mut stage, &links);
+        let mut running = running.into_iter();
+        let axes: Vec<_, N> = links
+            .iter()
+            .filter_map(|l| Some((running.next()?, l.hardware(), l.analog())))
+            .collect();
+        let control = ControlLoop::new(axes.into_array().ok()?);
+        Some((
+            Self {
+                links,
+                control,
+                stage,
+                exchange,
+                x_true: [Micrometres::ZERO; N],
+            },
+            handler,
+        ))
+    }
+
+    /// One period: a bench order refused, the control tick, the stage's
+    /// step, the recorder (the recorded axis, with its true position); that
+    /// sample.
+    pub fn tick(&mut self) -> Sample {
+        let x = &mut self.exchange;
+        if let Some(Posted {
+            seq,
+            order: Order::Bench(_),
+            ..
+        }) = x.order
+        {
+            x.order = None;
+            x.applied = Some(Applied {
+                seq,
+                tick: self.control.next_tick(),
+                result: Err(Refused::BenchOfAxes),
+            });
+        }
+        let x_true = self.x_true;
+        self.control.tick(x);
+        let s = step(&mut self.stage, &self.links);
+        self.x_true = s.map(|a| Micrometres::from_num(a.x_fhps_um));
+        let a = self.control.recorded_axis();
+        let t = self.control.telemetry()[a];
+        self.control.record(x, &t, x_true.get(a).copied())
+    }
+
+    /// Each axis's true output now, µm (where this tick's sensors read it).
+    pub const fn true_positions(&self) -> &[Micrometres; N] {
+        &self.x_true
+    }
+}
+
+impl<const N: usize> Board<N> for VirtualAxes<N> {
+    fn exchange<T>(&mut self, f: impl FnOnce(&mut Exchange<'_, N>) -> T) -> T {
+        f(&mut self.exchange)
+    }
+    fn wait(&mut self) {
+        self.tick();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
+    use crate::control::recorder::Recorder;
+    use crate::control::reference::stream::Points;
+    use crate::emulation::link_host::{leak, Host};
+    use crate::emulation::virtual_bench::{EmulatedFlash, BROKEN_WIRE_N, FLASH_SLOTS};
+    use crate::link::protocol::{Command, Refusal, Reply};
+    use piezo_fpi::control::Fault;
+    use piezo_sim::axes::AxesSpec;
+
+    /// The emulated board of the XY stage as built, booted.
+    fn xy() -> Host<VirtualAxes<2>, 2> {
+        let stage = AxesSpec::base("xy-built").unwrap().build(0x5EED).unwrap();
+        let (board, handler) = VirtualAxes::boot(
+            [(); 2].map(|_| &*leak(SimLink::new(FORCE_ADC, SETPOINT_DAC))),
+            [(); 2].map(|_| leak(Store::new())),
+            leak(Store::new()),
+            leak([0; IMAGE_BYTES]),
+            Exchange::new(leak(Recorder::new()), leak(Points::new())),
+            ModelFlash::new(EmulatedFlash::new(), FLASH_SLOTS),
+            stage,
+        )
+        .unwrap();
+        Host {
+            board,
+            handler,
+            seq: 0,
+        }
+    }
+
+    fn um(x: f64) -> i32 {
+        piezo_fpi::q::signal(x).map_or(0, |x| x.to_bits())
+    }
+
+    fn move_y(h: &mut Host<VirtualAxes<2>, 2>, to: f64) -> u32 {
+        h.ack(Command::Move {
+            axis: 1,
+            target: um(to),
+            speed: um(1000.0),
+        })
+    }
+
+    #[test]
+    fn each_axis_is_addressed_by_its_number_and_an_axis_the_board_lacks_is_refused_by_name() {
+        let mut h = xy();
+        h.run(10);
+        match h.send(Command::Hello) {
+            Reply::Hello(hello) => assert_eq!(hello.axes, 2),
+            r => panic!("{r:?}"),
+        }
+        match h.send(Command::Status { axis: 2 }) {
+            Reply::Refused { code, reason } => {
+                assert_eq!(code, Refusal::Axis);
+                assert!(
+                    reason.contains("axis z") && reason.contains("(x, y)"),
+                    "{reason}"
+                );
+            }
+            r => panic!("{r:?}"),
+        }
+        // Y moves; X stays parked where it rests (the flexure drags it a
+        // little: 1.5 % of Y's output is X's parasitic motion).
+        move_y(&mut h, 10.0);
+        h.run(2_000);
+        let (x, y) = (h.status_of(0), h.status_of(1));
+        assert_eq!(y.axis, 1);
+        assert_eq!(y.fault, None, "Y armed by its move");
+        assert_eq!(y.signals[0], um(10.0));
+        // Open loop, the factory model on the stage as built: within 0.6 µm.
+        assert!((y.signals[4] - um(10.0)).abs() < um(0.6), "{y:?}");
+        assert_eq!(x.fault.map(|f| f.code), Some(Fault::Stopped as u8));
+        assert_eq!(x.signals[0], 0, "X's reference untouched");
+        let x_true = h.board.true_positions()[0].to_num::<f64>();
+        assert!((0.1..0.3).contains(&x_true), "X dragged by Y: {x_true} µm");
+    }
+
+    #[test]
+    fn each_axis_runs_its_own_model_and_the_flash_keeps_the_first_axis_s() {
+        let mut h = xy();
+        h.run(10);
+        assert!(matches!(h.upload(1, MODEL_IMAGE, false), Reply::Ack));
+        let origin =
+            |h: &mut Host<VirtualAxes<2>, 2>, axis| match h.send(Command::ModelInfo { axis }) {
+                Reply::Model(m) => m.origin,
+                r => panic!("{r:?}"),
+            };
+        use crate::link::protocol::Origin as O;
+        assert_eq!(origin(&mut h, 1), O::Received);
+        assert_eq!(origin(&mut h, 0), O::Factory, "X's model unchanged");
+        // Read back: Y's image, which the link's buffer still holds.
+        match h.send(Command::ModelRead { axis: 1, offset: 0 }) {
+            Reply::ModelBytes { total, .. } => assert_eq!(total as usize, MODEL_IMAGE.len()),
+            r => panic!("{r:?}"),
+        }
+        match h.upload(1, MODEL_IMAGE, true) {
+            Reply::Refused { code, reason } => {
+                assert_eq!(code, Refusal::Storage);
+                assert!(reason.contains("axis y"), "{reason}");
+            }
+            r => panic!("{r:?}"),
+        }
+        assert!(matches!(h.upload(0, MODEL_IMAGE, true), Reply::Ack));
+        assert!(matches!(h.send(Command::ModelInfo { axis: 0 }),
+            Reply::Model(m) if m.stored.is_some()));
+    }
+
+    #[test]
+    fn a_fault_on_one_axis_parks_both_and_the_status_names_it() {
+        let mut h = xy();
+        h.run(10);
+        h.ack(Command::Move {
+            axis: 0,
+            target: um(10.0),
+            speed: um(1000.0),
+        });
+        move_y(&mut h, 5.0);
+        h.run(500);
+        assert_eq!(h.status_of(0).fault, None);
+        // Y's force sensor's wire breaks.
+        for _ in 0..200 {
+            h.board.tick();
+            h.board.links[1].set_force(BROKEN_WIRE_N);
+        }
+        let park = piezo_fpi::limits::park_ticks(piezo_fpi::q::Volts::const_from_int(150));
+        h.run(park + 2);
+        let (x, y) = (h.status_of(0), h.status_of(1));
+        assert_eq!(y.fault.map(|f| f.code), Some(Fault::ForceOutOfRange as u8));
+        assert_eq!(x.fault.map(|f| f.code), Some(Fault::Stopped as u8), "{x:?}");
+        for s in [x, y] {
+            assert_eq!(s.fault_axis, Some(1), "{s:?}");
+            assert!(!s.amplifier_on);
+        }
+    }
+
+    #[test]
+    fn the_recorder_records_the_axis_its_order_names() {
+        let mut h = xy();
+        h.run(10);
+        move_y(&mut h, 8.0);
+        h.run(2_000);
+        h.ack(Command::Record {
+            axis: 1,
+            decimation: 1,
+            signals: crate::control::recorder::signal::ALL,
+        });
+        h.run(10);
+        let first = h.board.exchange.recorder.take().unwrap();
+        assert_eq!(first.x_ref, um(8.0), "Y's reference, not X's 0");
+        let x_true = h.board.true_positions()[1].to_bits();
+        assert!(
+            (first.x_true - x_true).abs() < um(0.05),
+            "Y's true position"
+        );
+        // A bench order is refused by name on a board of several axes.
+        match h.send(Command::Bench(
+            crate::link::protocol::BenchOrder::SensorOpen(true),
+        )) {
+            Reply::Refused { code, reason } => {
+                assert_eq!(code, Refusal::NotEmulated);
+                assert!(reason.contains("several axes"), "{reason}");
+            }
+            r => panic!("{r:?}"),
+        }
+    }
 }

@@ -290,9 +290,10 @@ impl Virtual {
         flash: ModelFlash<F>,
     ) -> Option<(Self, Handler<F>)> {
         let [a, b] = stores;
-        let (handler, running) = Handler::boot(
+        let (handler, [running]) = Handler::boot(
             BoardKind::Emulated,
-            [Spare::new(a), Spare::new(b)],
+            [Spare::new(a)],
+            Spare::new(b),
             image,
             flash,
             MODEL_IMAGE,
@@ -353,24 +354,16 @@ mod tests {
     use crate::control::recorder::{signal, Recorder, Sample};
     use crate::control::reference::stream::Points;
     use crate::control::reference::wave::Shape;
+    use crate::emulation::link_host::{self, leak};
     use crate::link::frame;
     use crate::link::protocol::{
-        Command, Header, LinkKind, Refusal, Reply, ReplyHeader, SlotReport, Status, MAX_CHUNK,
-        MAX_FRAME, NO_SEQ, VERSION,
+        Command, Header, LinkKind, Refusal, Reply, SlotReport, MAX_FRAME, NO_SEQ, VERSION,
     };
     use piezo_fpi::control::Fault;
 
     type Flash = EmulatedFlash;
 
-    struct Host {
-        board: Virtual,
-        handler: Handler<Flash>,
-        seq: u16,
-    }
-
-    fn leak<T>(v: T) -> &'static mut T {
-        Box::leak(Box::new(v))
-    }
+    type Host = link_host::Host<Virtual>;
 
     fn host() -> Host {
         host_with(Flash::new())
@@ -392,81 +385,6 @@ mod tests {
             board,
             handler,
             seq: 0,
-        }
-    }
-
-    impl Host {
-        fn raw(&mut self, frame_bytes: &mut [u8]) -> (ReplyHeader, Reply) {
-            let (h, reply, _) = self.raw_sized(frame_bytes);
-            (h, reply)
-        }
-
-        /// The reply to a frame, and the reply frame's size, bytes.
-        fn raw_sized(&mut self, frame_bytes: &mut [u8]) -> (ReplyHeader, Reply, usize) {
-            let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
-            let n = self
-                .handler
-                .handle(&mut self.board, frame_bytes, &mut scratch, &mut out);
-            assert!(n > 0 && out[n - 1] == 0);
-            let (h, body) = frame::decode::<ReplyHeader>(&mut out[..n - 1]).unwrap();
-            (h, frame::body::<Reply>(body).unwrap(), n)
-        }
-
-        /// The reply to `cmd` and its size on the line, bytes.
-        fn sized(&mut self, cmd: Command<'_>) -> (usize, Reply) {
-            self.seq = self.seq.wrapping_add(1);
-            let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
-            let h = Header {
-                version: VERSION,
-                seq: self.seq,
-            };
-            let n = frame::encode(&h, &cmd, &mut scratch, &mut out).unwrap();
-            let (_, reply, m) = self.raw_sized(&mut out[..n - 1]);
-            (m, reply)
-        }
-
-        fn send(&mut self, cmd: Command<'_>) -> Reply {
-            self.exchange(cmd).1
-        }
-
-        fn exchange(&mut self, cmd: Command<'_>) -> (u32, Reply) {
-            self.seq += 1;
-            let (mut scratch, mut out) = (vec![0; MAX_FRAME], vec![0; MAX_FRAME]);
-            let h = Header {
-                version: VERSION,
-                seq: self.seq,
-            };
-            let n = frame::encode(&h, &cmd, &mut scratch, &mut out).unwrap();
-            let (back, reply) = self.raw(&mut out[..n - 1]);
-            assert_eq!(back.seq, self.seq, "the reply echoes the request");
-            (back.tick, reply)
-        }
-
-        fn ack(&mut self, cmd: Command<'_>) -> u32 {
-            match self.exchange(cmd) {
-                (tick, Reply::Ack) => tick,
-                (_, r) => panic!("not acknowledged: {r:?}"),
-            }
-        }
-
-        fn refused(&mut self, cmd: Command<'_>) -> Refusal {
-            match self.send(cmd) {
-                Reply::Refused { code, .. } => code,
-                r => panic!("not refused: {r:?}"),
-            }
-        }
-
-        fn status(&mut self) -> Status {
-            match self.send(Command::Status { axis: 0 }) {
-                Reply::Status(s) => s,
-                r => panic!("{r:?}"),
-            }
-        }
-
-        fn run(&mut self, ticks: u32) {
-            for _ in 0..ticks {
-                self.board.tick();
-            }
         }
     }
 
@@ -559,21 +477,6 @@ mod tests {
         assert_eq!(h.status().axis, 0);
     }
 
-    fn upload(h: &mut Host, image: &[u8], store: bool) -> Reply {
-        let crc = piezo_fpi::model::image::CRC32.checksum(image);
-        h.ack(Command::ModelBegin {
-            len: image.len() as u32,
-            crc,
-        });
-        for (k, chunk) in image.chunks(MAX_CHUNK).enumerate() {
-            h.ack(Command::ModelChunk {
-                offset: (k * MAX_CHUNK) as u32,
-                data: chunk,
-            });
-        }
-        h.send(Command::ModelCommit { store })
-    }
-
     #[test]
     fn a_model_is_uploaded_validated_swapped_at_rest_and_stored() {
         let mut h = host();
@@ -586,7 +489,7 @@ mod tests {
         bad[w0..w0 + 4].copy_from_slice(&(-1i32).to_le_bytes());
         let body = piezo_fpi::model::image::CRC32.checksum(&bad[16..]);
         bad[12..16].copy_from_slice(&body.to_le_bytes());
-        match upload(&mut h, &bad, true) {
+        match h.upload(0, &bad, true) {
             Reply::Refused { code, reason } => {
                 assert_eq!(code, Refusal::Model);
                 assert!(reason.starts_with("pi."), "names the key: {reason}");
@@ -602,7 +505,7 @@ mod tests {
         });
         h.run(200);
         assert!(matches!(
-            upload(&mut h, MODEL_IMAGE, false),
+            h.upload(0, MODEL_IMAGE, false),
             Reply::Refused {
                 code: Refusal::NotAtRest,
                 ..
@@ -611,8 +514,8 @@ mod tests {
         // Parked, it is taken, and stored.
         h.ack(Command::Safe);
         h.run(400);
-        assert!(matches!(upload(&mut h, MODEL_IMAGE, true), Reply::Ack));
-        match h.send(Command::ModelInfo) {
+        assert!(matches!(h.upload(0, MODEL_IMAGE, true), Reply::Ack));
+        match h.send(Command::ModelInfo { axis: 0 }) {
             Reply::Model(m) => {
                 assert_eq!(m.crc, piezo_fpi::model::image::CRC32.checksum(MODEL_IMAGE));
                 assert_eq!(m.origin, crate::control::slots::Origin::Received);
@@ -630,7 +533,10 @@ mod tests {
             Refusal::Upload
         );
         assert_eq!(
-            h.refused(Command::ModelCommit { store: false }),
+            h.refused(Command::ModelCommit {
+                axis: 0,
+                store: false
+            }),
             Refusal::Upload
         );
     }
@@ -706,6 +612,7 @@ mod tests {
         // 5 000 samples/s of two signals: more than the UART carries.
         h.ack(Command::Bench(BenchOrder::Link(LinkKind::Usb)));
         h.ack(Command::Record {
+            axis: 0,
             decimation: 4,
             signals: signal::X_REF | signal::X_TRUE,
         });
@@ -770,6 +677,7 @@ mod tests {
         h.run(5);
         // Every signal at 2 000 samples/s: about 20 kB/s of differences.
         h.ack(Command::Record {
+            axis: 0,
             decimation: 10,
             signals: signal::ALL,
         });
@@ -791,6 +699,7 @@ mod tests {
         // Over USB even every tick is kept: 20 000 samples/s.
         h.ack(Command::Bench(BenchOrder::Link(LinkKind::Usb)));
         h.ack(Command::Record {
+            axis: 0,
             decimation: 1,
             signals: signal::ALL,
         });
@@ -918,7 +827,7 @@ mod tests {
         let newest = flash.store(MODEL_IMAGE).unwrap();
         flash.damage(&newest, 100).unwrap();
         let mut h = host_with(flash.into_inner());
-        match h.send(Command::ModelInfo) {
+        match h.send(Command::ModelInfo { axis: 0 }) {
             Reply::Model(m) => {
                 assert_eq!(m.origin, crate::control::slots::Origin::Stored(1));
                 assert!(m.slots.contains(&SlotReport::Damaged), "{:?}", m.slots);
@@ -933,7 +842,7 @@ mod tests {
             flash.damage(s, 7).unwrap();
         }
         let mut h = host_with(flash.into_inner());
-        match h.send(Command::ModelInfo) {
+        match h.send(Command::ModelInfo { axis: 0 }) {
             Reply::Model(m) => {
                 assert_eq!(m.origin, crate::control::slots::Origin::Factory);
                 assert_eq!(m.slots, [SlotReport::Damaged; 2]);

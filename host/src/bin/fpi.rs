@@ -80,7 +80,7 @@ enum Command {
         /// Calibrate stack x, y or z of recordings of a stage of several axes
         /// (`fpi axes record`: its `voltage_V@…`, `force_N@…` and `x_pea_um@…`).
         #[arg(long, value_parser = parse_axis)]
-        axis: Option<usize>,
+        axis: Option<u8>,
     },
     /// Parts II–III: predict a stage from a model, its FEM tables and a drive.
     Predict {
@@ -313,6 +313,10 @@ enum Command {
         /// (the emulated board). Not needed by `emulate`.
         #[arg(long, global = true, env = "FPI_BOARD")]
         port: Option<String>,
+        /// The axis a per-axis command addresses on a board of several axes:
+        /// x, y or z (a board refuses an axis it does not have).
+        #[arg(long, global = true, default_value = "x", value_parser = parse_axis)]
+        axis: u8,
         #[command(subcommand)]
         command: BoardCommand,
     },
@@ -1095,7 +1099,15 @@ fn run(args: Args) -> Result<()> {
             axis,
         } => {
             let kind = kind.as_deref().map(Kind::parse).transpose()?;
-            cli::calibrate(kind, &rig, &out, operators, compliance, rows, axis)
+            cli::calibrate(
+                kind,
+                &rig,
+                &out,
+                operators,
+                compliance,
+                rows,
+                axis.map(usize::from),
+            )
         }
         Command::Predict {
             model,
@@ -1179,7 +1191,11 @@ fn run(args: Args) -> Result<()> {
             stroke_um,
             output,
         } => fpi_host::method::lever::command(params.as_deref(), &out, points, stroke_um, output),
-        Command::Board { port, command } => board(port, command),
+        Command::Board {
+            port,
+            axis,
+            command,
+        } => board(port, axis, command),
         Command::Axes { command } => axes(command),
         Command::Reference { page } => {
             print!("{}", reference(page)?);
@@ -1217,11 +1233,9 @@ fn axes(command: AxesCommand) -> Result<()> {
     }
 }
 
-/// `--axis`: x, y or z, as an index.
-fn parse_axis(s: &str) -> Result<usize, String> {
-    piezo_sim::axes::AXIS_NAMES
-        .iter()
-        .position(|a| *a == s)
+/// `--axis`: x, y or z, as its number.
+fn parse_axis(s: &str) -> Result<u8, String> {
+    fpi_host::board::client::axis_number(s)
         .ok_or_else(|| format!("{s:?} is not an axis: x, y or z"))
 }
 
@@ -1234,7 +1248,7 @@ fn parse_front_end(s: &str) -> Result<fpi_protocol::FrontEndKind, String> {
     fpi_protocol::FrontEndKind::from_name(s).ok_or_else(|| format!("{s:?}: internal or precision"))
 }
 
-fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
+fn board(port: Option<String>, axis: u8, command: BoardCommand) -> Result<()> {
     use fpi_host::board::emulator::Emulator;
     use fpi_host::cli::board as b;
     if let BoardCommand::Emulate {
@@ -1285,6 +1299,7 @@ fn board(port: Option<String>, command: BoardCommand) -> Result<()> {
         return fpi_host::board::hub::serve(c, listen, &b::stop_asked);
     }
     let mut c = b::open(&port)?;
+    c.on_axis(axis)?;
     // A motion ends whatever stream a previous client left (its points and
     // its supervision): say so.
     let motion = matches!(
@@ -1370,11 +1385,11 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             let loaded = b::model_and_image(&model, fem.as_deref(), &settings.options())?;
             b::load(c, &loaded, store, match_mass)
         }
-        BoardCommand::Factory => b::simple(c, &C::ModelFactory),
+        BoardCommand::Factory => b::simple(c, &C::ModelFactory { axis: c.axis() }),
         BoardCommand::Safe => b::simple(c, &C::Safe),
         BoardCommand::ClearFault => b::simple(c, &C::ClearFault),
-        BoardCommand::Hold => b::simple(c, &C::Hold { axis: 0 }),
-        BoardCommand::Analog => b::simple(c, &C::Analog { axis: 0 }),
+        BoardCommand::Hold => b::simple(c, &C::Hold { axis: c.axis() }),
+        BoardCommand::Analog => b::simple(c, &C::Analog { axis: c.axis() }),
         BoardCommand::Drive { mode } => b::drive(c, &mode),
         BoardCommand::Reset => b::reset(c),
         BoardCommand::Bench { settings } => b::bench(c, &settings),

@@ -132,7 +132,7 @@ pub struct Autotune {
 /// refuses the switch: nothing to switch).
 pub(crate) fn bare(c: &mut Client) -> Result<()> {
     c.ack(&Command::Loop {
-        axis: 0,
+        axis: c.axis(),
         mode: LoopMode::Open,
     })?;
     for r in [c.damping(false), c.shaping(false)] {

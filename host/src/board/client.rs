@@ -17,7 +17,7 @@ use fpi_protocol::LoopMode;
 use fpi_protocol::Shape;
 use fpi_protocol::{
     Analysis, Batch, BenchOrder, Command, Counters, Header, Hello, LinkKind, ModelReport, Refusal,
-    Reply, ReplyHeader, Status, MAX_CHUNK, MAX_FRAME, MAX_POINTS, NO_SEQ, VERSION,
+    Reply, ReplyHeader, Status, AXIS_NAMES, MAX_CHUNK, MAX_FRAME, MAX_POINTS, NO_SEQ, VERSION,
 };
 use piezo_fpi::control::Fault;
 use piezo_fpi::model::image::CRC32;
@@ -120,6 +120,8 @@ pub struct Client {
     seq: u16,
     reader: FrameReader<MAX_FRAME>,
     hello: Hello,
+    /// The axis its per-axis requests address (0: x).
+    axis: u8,
     /// Every request the board read, in order.
     pub log: Vec<Logged>,
 }
@@ -174,6 +176,18 @@ pub fn to_link(what: &str, x: f64, unit: &str) -> Result<i32> {
     Ok(b)
 }
 
+/// Axis `i`'s name (`x`, `y`, `z`; its number beyond).
+pub fn axis_name(i: u8) -> String {
+    AXIS_NAMES
+        .get(usize::from(i))
+        .map_or_else(|| i.to_string(), |n| (*n).to_string())
+}
+
+/// The number of the axis named `name` (`x`, `y`, `z`).
+pub fn axis_number(name: &str) -> Option<u8> {
+    AXIS_NAMES.iter().position(|n| *n == name).map(|i| i as u8)
+}
+
 /// A command's name for messages.
 fn name_of(c: &Command<'_>) -> String {
     let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
@@ -193,20 +207,12 @@ impl Client {
     /// Opens `port` (a serial device, `tcp:HOST:PORT`, or `virtual`: the board in this
     /// process) and greets the board; refuses a board that speaks another protocol version.
     pub fn open(port: &str) -> Result<Self> {
-        let (in_process, link) = match port.split_once(':') {
-            Some((inprocess::PORT_NAME, l)) => {
-                let link = link_kind(l).ok_or_else(|| {
-                    anyhow!("--port {port}: the in-process board's link is uart or usb")
-                })?;
-                (true, Some(link))
-            }
-            _ => (port == inprocess::PORT_NAME, None),
+        let spec = inprocess::spec(port)?;
+        let p: Box<dyn Port> = match spec {
+            Some(s) => Box::new(inprocess::InProcess::start(s.stage)?),
+            None => port::open(port, Duration::from_secs(10))?,
         };
-        let p: Box<dyn Port> = if in_process {
-            Box::new(inprocess::InProcess::start()?)
-        } else {
-            port::open(port, Duration::from_secs(10))?
-        };
+        let link = spec.and_then(|s| s.link);
         let mut c = Self {
             port: p,
             name: port.to_string(),
@@ -225,6 +231,7 @@ impl Client {
                 axes: 0,
                 front_end: fpi_protocol::FrontEndKind::Internal,
             },
+            axis: 0,
             log: Vec::new(),
         };
         let greeted = c.greet().map_err(|e| match c.port.silence() {
@@ -289,6 +296,29 @@ impl Client {
         self.bench(BenchOrder::FrontEnd(kind)).map(|_| ())
     }
 
+    /// The axis its per-axis requests address from now on (0: x, 1: y,
+    /// 2: z); refused for an axis the board does not have.
+    pub fn on_axis(&mut self, axis: u8) -> Result<()> {
+        let n = self.hello.axes;
+        if axis >= n {
+            let names: Vec<&str> = AXIS_NAMES.iter().take(n.into()).copied().collect();
+            bail!(
+                "the board on {} has {n} axis{} ({}): there is no axis {}",
+                self.name,
+                if n == 1 { "" } else { "es" },
+                names.join(", "),
+                axis_name(axis)
+            );
+        }
+        self.axis = axis;
+        Ok(())
+    }
+
+    /// The axis its per-axis requests address (0: x).
+    pub const fn axis(&self) -> u8 {
+        self.axis
+    }
+
     /// The control rate, Hz.
     pub fn rate_hz(&self) -> f64 {
         self.hello.rate_hz as f64
@@ -302,7 +332,7 @@ impl Client {
     /// How long the board may take to answer `cmd`.
     pub fn timeout_for(cmd: &Command<'_>) -> Duration {
         match cmd {
-            Command::ModelCommit { .. } | Command::ModelFactory => STORE_TIMEOUT,
+            Command::ModelCommit { .. } | Command::ModelFactory { .. } => STORE_TIMEOUT,
             _ => REPLY_TIMEOUT,
         }
     }
@@ -427,7 +457,7 @@ impl Client {
     /// off) and waits until it is at the safe voltage; the tick it got there.
     pub fn park(&mut self) -> Result<u32> {
         self.ack(&Command::Loop {
-            axis: 0,
+            axis: self.axis,
             mode: LoopMode::Open,
         })?;
         self.ack(&Command::Safe)?;
@@ -472,7 +502,7 @@ impl Client {
 
     /// The loop's state.
     pub fn status(&mut self) -> Result<Status> {
-        match self.request(&Command::Status { axis: 0 })? {
+        match self.request(&Command::Status { axis: self.axis })? {
             (_, Reply::Status(s)) => Ok(s),
             (_, r) => bail!("unexpected reply to status: {r:?}"),
         }
@@ -480,7 +510,7 @@ impl Client {
 
     /// The running model.
     pub fn model(&mut self) -> Result<ModelReport> {
-        match self.request(&Command::ModelInfo)? {
+        match self.request(&Command::ModelInfo { axis: self.axis })? {
             (_, Reply::Model(m)) => Ok(m),
             (_, r) => bail!("unexpected reply to model info: {r:?}"),
         }
@@ -520,7 +550,7 @@ impl Client {
     /// Ramps to `target_um` at `speed_um_s`, then holds; the tick it started.
     pub fn move_to(&mut self, target_um: f64, speed_um_s: f64) -> Result<u32> {
         self.ack(&Command::Move {
-            axis: 0,
+            axis: self.axis,
             target: bits(target_um),
             speed: bits(speed_um_s),
         })
@@ -536,7 +566,7 @@ impl Client {
         cycles: u32,
     ) -> Result<u32> {
         self.ack(&Command::Wave {
-            axis: 0,
+            axis: self.axis,
             shape,
             offset: bits(offset_um),
             amplitude: bits(amplitude_um),
@@ -570,7 +600,10 @@ impl Client {
             })?;
             progress((k * MAX_CHUNK + chunk.len()).min(image.len()));
         }
-        self.ack(&Command::ModelCommit { store })
+        self.ack(&Command::ModelCommit {
+            axis: self.axis,
+            store,
+        })
     }
 
     /// Takes one batch of recorded samples.
@@ -606,7 +639,7 @@ impl Client {
     /// holds; the tick it started.
     pub fn step(&mut self, target_um: f64, duration_ms: f64) -> Result<u32> {
         self.ack(&Command::Step {
-            axis: 0,
+            axis: self.axis,
             target: bits(target_um),
             duration_us: (duration_ms * 1e3).round() as u32,
         })
@@ -614,17 +647,23 @@ impl Client {
 
     /// Switches the model's active damping on or off (bumpless).
     pub fn damping(&mut self, on: bool) -> Result<u32> {
-        self.ack(&Command::Damping { axis: 0, on })
+        self.ack(&Command::Damping {
+            axis: self.axis,
+            on,
+        })
     }
 
     /// Switches the model's reference shaping on or off (bumpless).
     pub fn shaping(&mut self, on: bool) -> Result<u32> {
-        self.ack(&Command::Shaping { axis: 0, on })
+        self.ack(&Command::Shaping {
+            axis: self.axis,
+            on,
+        })
     }
 
     /// The last frequency-response analysis (`None` while one runs).
     pub fn analysis(&mut self) -> Result<Option<Analysis>> {
-        match self.request(&Command::AnalysisResult { axis: 0 })? {
+        match self.request(&Command::AnalysisResult { axis: self.axis })? {
             (_, Reply::Analysis(a)) => Ok(a),
             (_, r) => bail!("unexpected reply to analysis result: {r:?}"),
         }
@@ -635,7 +674,10 @@ impl Client {
         let mut out = Vec::new();
         loop {
             let offset = out.len() as u32;
-            match self.request(&Command::ModelRead { offset })? {
+            match self.request(&Command::ModelRead {
+                axis: self.axis,
+                offset,
+            })? {
                 (
                     _,
                     Reply::ModelBytes {
@@ -669,7 +711,7 @@ impl Client {
             .map(|&x| bits(x))
             .collect();
         self.ack(&Command::Points {
-            axis: 0,
+            axis: self.axis,
             first,
             points: pts,
         })
@@ -715,7 +757,7 @@ impl Client {
         mut idle: impl FnMut(&mut Self) -> Result<()>,
     ) -> Result<StreamReport> {
         let supervised = self.status()?.supervision[0] != 0;
-        self.ack(&Command::StreamClear { axis: 0 })?;
+        self.ack(&Command::StreamClear { axis: self.axis })?;
         let capacity = self.hello.buffers[1] as usize;
         let mut sent = 0;
         while sent < points_um.len() && sent + MAX_POINTS <= capacity {
@@ -724,7 +766,10 @@ impl Client {
             idle(self)?;
         }
         let armed = self.waits_for_trigger()?;
-        let started = self.ack(&Command::Stream { axis: 0, interval })?;
+        let started = self.ack(&Command::Stream {
+            axis: self.axis,
+            interval,
+        })?;
         loop {
             let s = self.status()?;
             let free = s.stream[1] as usize;
@@ -741,7 +786,7 @@ impl Client {
                 );
             }
             if sent == points_um.len() {
-                self.ack(&Command::StreamEnd { axis: 0 })?;
+                self.ack(&Command::StreamEnd { axis: self.axis })?;
                 break;
             }
             if free >= MAX_POINTS.min(points_um.len() - sent) {

@@ -144,7 +144,10 @@ fn prepare_on(c: &mut Client, image: &[u8], d: Drive, v: StageVariant) -> Result
     };
     switch(c.damping(matches!(d, Drive::Damped | Drive::DampedFeedforward)))?;
     switch(c.shaping(d == Drive::DampedFeedforward))?;
-    c.ack(&Command::Loop { axis: 0, mode })?;
+    c.ack(&Command::Loop {
+        axis: c.axis(),
+        mode,
+    })?;
     warm_up(c)
 }
 

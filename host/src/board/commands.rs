@@ -126,11 +126,11 @@ fn on_off(name: &'static str, cli: &'static str, s: &str) -> Result<bool> {
 
 /// Ramps to `um` (µm) at `speed` µm/s and holds it; the tick it started.
 pub fn move_to(c: &mut Client, um: f64, speed: f64) -> Result<u32> {
-    c.order(&move_command(um, speed)?)
+    c.order(&move_command(c.axis(), um, speed)?)
 }
 
-/// The command of [`move_to`], its arguments checked.
-pub fn move_command(um: f64, speed: f64) -> Result<Command<'static>> {
+/// The command of [`move_to`] for `axis`, its arguments checked.
+pub fn move_command(axis: u8, um: f64, speed: f64) -> Result<Command<'static>> {
     let target = link_value("target_um", "the target", um, "µm")?;
     if speed.is_nan() || speed <= 0.0 {
         return Err(bad(
@@ -141,7 +141,7 @@ pub fn move_command(um: f64, speed: f64) -> Result<Command<'static>> {
     }
     let speed = link_value("speed", "--speed", speed, "µm/s")?;
     Ok(Command::Move {
-        axis: 0,
+        axis,
         target,
         speed,
     })
@@ -206,7 +206,7 @@ pub fn wave_command(
         ));
     }
     Ok(Command::Wave {
-        axis: 0,
+        axis: c.axis(),
         shape,
         offset: link_value("offset_um", "--offset-um", offset_um, "µm")?,
         amplitude: link_value("amplitude_um", "--amplitude-um", amplitude_um, "µm")?,
@@ -230,7 +230,7 @@ pub fn drive(c: &mut Client, mode: &str) -> Result<u32> {
         }
     };
     c.order(&Command::Drive {
-        axis: 0,
+        axis: c.axis(),
         compensated,
     })
 }
@@ -238,19 +238,22 @@ pub fn drive(c: &mut Client, mode: &str) -> Result<u32> {
 /// Opens or closes the loop (see [`loop_mode`]), without a jump; the tick.
 pub fn set_loop(c: &mut Client, mode: &str) -> Result<u32> {
     let mode = loop_mode(mode)?;
-    c.order(&Command::Loop { axis: 0, mode })
+    c.order(&Command::Loop {
+        axis: c.axis(),
+        mode,
+    })
 }
 
 /// Switches the model's active damping `on` or `off`; the tick.
 pub fn damping(c: &mut Client, state: &str) -> Result<u32> {
     let on = on_off("state", "damping", state)?;
-    c.order(&Command::Damping { axis: 0, on })
+    c.order(&Command::Damping { axis: c.axis(), on })
 }
 
 /// Switches the model's reference shaping `on` or `off`; the tick.
 pub fn shaping(c: &mut Client, state: &str) -> Result<u32> {
     let on = on_off("state", "shaping", state)?;
-    c.order(&Command::Shaping { axis: 0, on })
+    c.order(&Command::Shaping { axis: c.axis(), on })
 }
 
 /// Parks the stage if the host is silent for `ms` ms while it drives it (0: off).
@@ -502,6 +505,7 @@ pub fn record(
         ));
     }
     let start = c.ack(&Command::Record {
+        axis: c.axis(),
         decimation,
         signals,
     })?;
@@ -660,8 +664,8 @@ pub fn stream_with(
     match result {
         Ok(r) => Ok(Streamed::Played(r)),
         Err(e) if e.downcast_ref::<StopAsked>().is_some() => {
-            let held_at = c.ack(&Command::Hold { axis: 0 })?;
-            c.ack(&Command::StreamClear { axis: 0 })?;
+            let held_at = c.ack(&Command::Hold { axis: c.axis() })?;
+            c.ack(&Command::StreamClear { axis: c.axis() })?;
             if !supervised {
                 c.ack(&Command::Supervise { timeout_ms: 0 })?;
             }
@@ -756,17 +760,17 @@ pub fn clear_fault(c: &mut Client) -> Result<u32> {
 
 /// Stops the reference where it is; the tick.
 pub fn hold(c: &mut Client) -> Result<u32> {
-    c.order(&Command::Hold { axis: 0 })
+    c.order(&Command::Hold { axis: c.axis() })
 }
 
 /// Follows the analog reference input; the tick.
 pub fn analog(c: &mut Client) -> Result<u32> {
-    c.order(&Command::Analog { axis: 0 })
+    c.order(&Command::Analog { axis: c.axis() })
 }
 
 /// Forgets the stored model and runs the factory default; the tick.
 pub fn factory(c: &mut Client) -> Result<u32> {
-    c.order(&Command::ModelFactory)
+    c.order(&Command::ModelFactory { axis: c.axis() })
 }
 
 #[cfg(test)]

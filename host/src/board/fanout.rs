@@ -70,9 +70,14 @@ impl Fanout {
     /// `None` for any other), answered: the reply's tick and the reply.
     pub fn answer(&mut self, id: u32, cmd: &Command<'_>) -> Option<Result<(u32, Reply)>> {
         Some(match *cmd {
+            Command::Record { axis, .. } if axis != 0 => Err(anyhow::anyhow!(
+                "the hub shares recordings of axis x only: record axis {} on a link of its own",
+                super::client::axis_name(axis)
+            )),
             Command::Record {
                 decimation,
                 signals,
+                ..
             } => self.arm(id, decimation, signals).map(|t| (t, Reply::Ack)),
             Command::RecordStop => self.stop(id).map(|t| (t, Reply::Ack)),
             Command::ReadRecord { max } => self.read(id, max).map(|(t, b)| (t, Reply::Record(b))),

@@ -96,6 +96,7 @@ impl<'c> Follow<'c> {
         self.dropped_before = self.rec.dropped;
         self.pause = Budget::new(self.c.hello(), self.rec.signals, decimation, 0.0).pause();
         self.c.ack(&Command::Record {
+            axis: self.c.axis(),
             decimation,
             signals: self.rec.signals,
         })?;

@@ -216,7 +216,7 @@ fn analyse_at(c: &mut Client, f: f64, amplitude_um: f64) -> Result<(Analysis, Fr
     {
         let freq_mhz = (f * 1000.0).round() as u32;
         c.ack(&Command::Analyse {
-            axis: 0,
+            axis: c.axis(),
             freq_mhz,
             amplitude: bits(amplitude_um),
             settle: settle_periods(f),

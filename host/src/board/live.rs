@@ -209,6 +209,7 @@ impl Live {
                 ));
             }
             let start = c.ack(&Command::Record {
+                axis: c.axis(),
                 decimation,
                 signals,
             })?;
@@ -346,6 +347,7 @@ pub fn follow(
     }
     let pause = Budget::new(c.hello(), signals, decimation, 1.0).pause();
     let start = c.ack(&Command::Record {
+        axis: c.axis(),
         decimation,
         signals,
     })?;

@@ -129,7 +129,7 @@ pub fn match_mass(c: &mut Client, fw: &FirmwareModel) -> Result<MassMatch> {
         );
     }
     c.ack(&Command::LeadRatio {
-        axis: 0,
+        axis: c.axis(),
         ratio: piezo_fpi::q::LeadRatio::from_num(ratio).to_bits(),
     })?;
     Ok(MassMatch {

@@ -113,6 +113,7 @@ pub fn record<T>(
         .into());
     }
     c.ack(&Command::Record {
+        axis: c.axis(),
         decimation: 1,
         signals: signal::ALL,
     })?;

@@ -57,7 +57,7 @@ impl Before {
             c.shaping(on)?;
         }
         c.ack(&Command::Loop {
-            axis: 0,
+            axis: c.axis(),
             mode: self.loop_mode,
         })?;
         Ok(())

@@ -127,7 +127,7 @@ impl Session<'_> {
         cycles: u32,
     ) -> Result<PhaseResult> {
         self.f.c.ack(&Command::Drive {
-            axis: 0,
+            axis: self.f.c.axis(),
             compensated,
         })?;
         let from = self.f.c.wave(Shape::RaisedCosine, 18.0, 20.0, hz, cycles)?;
@@ -303,6 +303,7 @@ pub fn run(c: &mut Client, image: &[u8]) -> Result<SessionReport> {
     c.upload(image, true, |_| {})
         .context("uploading the model")?;
     c.ack(&Command::Record {
+        axis: c.axis(),
         decimation: DECIMATION,
         signals: signal::ALL,
     })?;

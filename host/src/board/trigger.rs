@@ -76,16 +76,13 @@ pub fn mode(name: &str) -> Result<TriggerMode> {
 /// the board has them); the tick it took effect and what the board holds.
 pub fn set(c: &mut Client, mode: TriggerMode, levels: &Levels) -> Result<(u32, TriggerSettings)> {
     let s = with(settings(c)?, mode, levels)?;
-    let t = c.order(&command(s))?;
+    let t = c.order(&command(c.axis(), s))?;
     Ok((t, s))
 }
 
-/// The command that sets the trigger output as `s` says.
-pub fn command(s: TriggerSettings) -> Command<'static> {
-    Command::Trigger {
-        axis: 0,
-        settings: s,
-    }
+/// The command that sets the trigger output as `s` says (`axis`: its stage).
+pub fn command(axis: u8, s: TriggerSettings) -> Command<'static> {
+    Command::Trigger { axis, settings: s }
 }
 
 /// `s` with `mode` and the `levels` given, each checked as the host can (the
@@ -166,5 +163,8 @@ pub fn starts(name: &str) -> Result<TriggerStart> {
 
 /// Sets what the trigger input's rising edge starts; the tick it took effect.
 pub fn set_input(c: &mut Client, starts: TriggerStart) -> Result<u32> {
-    c.order(&Command::TriggerIn { axis: 0, starts })
+    c.order(&Command::TriggerIn {
+        axis: c.axis(),
+        starts,
+    })
 }

@@ -33,7 +33,7 @@ pub fn close_and_warm_up(c: &mut Client) -> Result<()> {
     c.move_to(20.0, 1000.0)?;
     Follow::new(c, 0).until_hold()?;
     c.ack(&Command::Loop {
-        axis: 0,
+        axis: c.axis(),
         mode: LoopMode::Closed,
     })?;
     warm_up(c)

@@ -17,7 +17,7 @@ use piezo_fpi::q::LoopGain;
 use piezo_sim::file::FirmwareModel;
 
 use crate::board::budget::Budget;
-use crate::board::client::{real, Client};
+use crate::board::client::{axis_name, real, Client};
 use crate::board::motion::{self, Until};
 use crate::board::recording::Recording;
 use crate::board::restore::or_restore;
@@ -209,6 +209,16 @@ pub fn status_text(c: &mut Client) -> Result<String> {
         h.capacity[1],
         h.capacity[2]
     );
+    if h.axes > 1 {
+        let names: Vec<String> = (0..h.axes).map(axis_name).collect();
+        let _ = writeln!(
+            out,
+            "axis: {} of {} ({}); --axis names another",
+            axis_name(c.axis()),
+            h.axes,
+            names.join(", ")
+        );
+    }
     let _ = writeln!(
         out,
         "started by: {}; flash slots at start-up: {}",
@@ -270,6 +280,14 @@ pub fn status_text(c: &mut Client) -> Result<String> {
         }
     }
     out.push_str(&state_text(&s, rate));
+    if let Some(a) = s.fault_axis.filter(|_| h.axes > 1) {
+        let _ = writeln!(
+            out,
+            "every axis parked by axis {}'s fault (`fpi board --axis {} status` says which)",
+            axis_name(a),
+            axis_name(a)
+        );
+    }
     if s.fault.is_some_and(|f| f.code == Fault::Oscillation as u8) {
         // The model's half swing watches a closed loop (the damping alone is
         // watched at the default): the model is read only then.
@@ -709,7 +727,7 @@ pub fn move_to(c: &mut Client, um: f64, speed: f64, record: Option<&Path>) -> Re
         println!("moving to {um} µm at {speed} µm/s from tick {t}");
         return Ok(());
     };
-    let cmd = commands::move_command(um, speed)?;
+    let cmd = commands::move_command(c.axis(), um, speed)?;
     let from = real(c.status()?.signals[0]);
     catch_ctrl_c()?;
     let m = motion::record(
@@ -815,7 +833,7 @@ pub fn simple(c: &mut Client, cmd: &Command<'_>) -> Result<()> {
         Command::ClearFault => println!("cleared at tick {t}; parked"),
         Command::Hold { .. } => println!("holding from tick {t}"),
         Command::Analog { .. } => println!("following the analog input from tick {t}"),
-        Command::ModelFactory => println!("factory model from tick {t}"),
+        Command::ModelFactory { .. } => println!("factory model from tick {t}"),
         _ => println!("done at tick {t}"),
     }
     Ok(())

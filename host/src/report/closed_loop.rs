@@ -105,7 +105,7 @@ fn damped_frf(c: &mut Client, image: &[u8]) -> Result<(Vec<FrfPoint>, FrfConditi
     c.move_to(20.0, 1000.0)?;
     Follow::new(c, 0).until_hold()?;
     c.ack(&Command::Loop {
-        axis: 0,
+        axis: c.axis(),
         mode: LoopMode::Open,
     })?;
     c.damping(true)?;

@@ -316,6 +316,7 @@ fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
                     cycles: 2,
                 },
                 Command::Record {
+                    axis: 0,
                     decimation: 4,
                     signals: 0xff,
                 },
@@ -375,15 +376,18 @@ fn sessions() -> Vec<(&'static str, Vec<Command<'static>>)> {
         (
             "model",
             vec![
-                Command::ModelInfo,
+                Command::ModelInfo { axis: 0 },
                 Command::Safe,
                 Command::ModelBegin { len: 16, crc: 0 },
                 Command::ModelChunk {
                     offset: 0,
                     data: &[1, 2, 3, 4],
                 },
-                Command::ModelCommit { store: false },
-                Command::ModelFactory,
+                Command::ModelCommit {
+                    axis: 0,
+                    store: false,
+                },
+                Command::ModelFactory { axis: 0 },
                 Command::Reset,
             ],
         ),
@@ -438,7 +442,7 @@ fn link() {
     upload.extend([2, 0xff, 0x03]); // 1023 idle ticks: parked
     upload.extend([3 | 4, 0]); // the factory image, unedited, stored
     upload.extend([3, 7, 2, 40, 0, 0x80, 0, 0, 0]); // one bit flipped, CRC fixed up, not stored
-    let info = payload(52, &Command::ModelInfo);
+    let info = payload(52, &Command::ModelInfo { axis: 0 });
     upload.extend([1, info.len() as u8, 0]);
     upload.extend_from_slice(&info);
     seed("link_frames", "upload", &upload);

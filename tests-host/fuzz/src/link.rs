@@ -187,7 +187,7 @@ impl Rig {
                 data: chunk,
             });
         }
-        self.send(&Command::ModelCommit { store });
+        self.send(&Command::ModelCommit { axis: 0, store });
     }
 
     /// Lets the board run `ticks` ticks without a request.

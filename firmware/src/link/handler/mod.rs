@@ -22,7 +22,7 @@ use super::pace::{reached, Pace};
 use super::protocol::{
     Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, FrontEndKind, Header,
     Hello, LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text,
-    TriggerSettings, AXES, MAX_FRAME, MAX_MODEL_BYTES, NO_SEQ, VERSION,
+    TriggerSettings, MAX_FRAME, MAX_MODEL_BYTES, NO_SEQ, VERSION,
 };
 use super::refusal::{refuse, Refuse};
 use super::upload::Upload;
@@ -32,7 +32,7 @@ use crate::board::capacity::{
 };
 use crate::board::storage::{ModelFlash, Slot, Stored};
 use crate::control::analyser::AnalyseOrder;
-use crate::control::exchange::{Exchange, Order, Posted, Refused};
+use crate::control::exchange::{AxisSet, Exchange, Order, Posted, Refused};
 use crate::control::recorder::{signal, Packer};
 use crate::control::reference::wave::Wave;
 use crate::control::reference::SourceOrder;
@@ -43,10 +43,10 @@ mod models;
 mod settings;
 mod trigger;
 
-/// What the handler needs from the board it runs on.
-pub trait Board {
+/// What the handler needs from the board it runs on (of `N` axes).
+pub trait Board<const N: usize = 1> {
     /// Runs `f` with the exchange locked (the control ISR waits meanwhile).
-    fn exchange<R>(&mut self, f: impl FnOnce(&mut Exchange<'_>) -> R) -> R;
+    fn exchange<R>(&mut self, f: impl FnOnce(&mut Exchange<'_, N>) -> R) -> R;
     /// Waits a little: at least until the next control tick has run.
     fn wait(&mut self);
     /// The deepest the stack has been since start-up, bytes, where the board can
@@ -61,7 +61,7 @@ pub trait Board {
 }
 
 /// Waits until the board's tick reaches `due`.
-fn wait_until(board: &mut impl Board, due: u32) {
+fn wait_until<const N: usize>(board: &mut impl Board<N>, due: u32) {
     while !reached(board.exchange(|x| x.snapshot.tick), due) {
         board.wait();
     }
@@ -91,10 +91,22 @@ impl core::fmt::Display for Milli {
     }
 }
 
-/// The link task's state (its configuration is the board kind and the flash).
-pub struct Handler<F> {
+/// The link task's state (its configuration is the board kind and the flash)
+/// on a board of `N` axes.
+///
+/// Each axis runs its own model; the board holds one spare model store,
+/// which receives the next model for whichever axis, and keeps the model
+/// it replaces. The flash keeps the first axis's model (the other axes
+/// start with the factory model).
+pub struct Handler<F, const N: usize = 1> {
     pub(super) kind: BoardKind,
-    pub(super) summary: Summary,
+    /// Each axis's running model.
+    pub(super) summary: [Summary; N],
+    /// The axis the request being handled addresses (0 for one that
+    /// addresses none).
+    pub(super) axis: usize,
+    /// The axes its orders go to.
+    axes: AxisSet,
     pub(super) spare: Option<Spare>,
     pub(super) upload: Upload,
     pub(super) flash: ModelFlash<F>,
@@ -112,9 +124,10 @@ pub struct Handler<F> {
     pub(super) counters: Counters,
     /// The tick of the request being handled (see [`ReplyHeader::tick`]).
     pub(super) tick: Option<u32>,
-    /// The length of the running model's image where the upload buffer still
-    /// holds it (a model received, stored or restored since no upload began).
-    pub(super) image_len: Option<usize>,
+    /// The axis and length of the running model's image that the upload
+    /// buffer still holds (a model received, stored or restored since no
+    /// upload began).
+    pub(super) image_len: Option<(usize, usize)>,
     /// The link and, on the emulated board, its pace.
     pace: Pace,
     /// The analog front end: the build's, or the one the emulated board's
@@ -122,22 +135,25 @@ pub struct Handler<F> {
     front_end: FrontEndKind,
 }
 
-impl<F: NorFlash> Handler<F> {
-    /// Starts the board's model: the newest stored model that is intact and that
-    /// the validator takes, else the older one, else the factory default `factory`;
-    /// what each flash slot held is kept for `ModelInfo`. Returns the handler (holding the other store as its spare)
-    /// and the running model for the control loop. `None` only if not even the
-    /// factory image loads (a firmware built with a model that does not fit).
+impl<F: NorFlash, const N: usize> Handler<F, N> {
+    /// Starts the board's models: on the first axis the newest stored model
+    /// that is intact and that the validator takes, else the older one, else
+    /// the factory default `factory`; on every other axis the factory default.
+    /// What each flash slot held is kept for `ModelInfo`. Returns the handler
+    /// (holding `spare`) and each axis's running model (in `stores`) for the
+    /// control loop. `None` only if not even the factory image loads (a
+    /// firmware built with a model that does not fit).
     pub fn boot(
         kind: BoardKind,
-        stores: [Spare; 2],
+        stores: [Spare; N],
+        spare: Spare,
         image: &'static mut [u8; IMAGE_BYTES],
         mut flash: ModelFlash<F>,
         factory: &[u8],
         reset: ResetReason,
-    ) -> Option<(Self, Running)> {
-        let [a, spare] = stores;
-        let mut a = Some(a);
+    ) -> Option<(Self, [Running; N])> {
+        let mut stores = stores.into_iter();
+        let mut a = stores.next();
         let survey = flash.survey().unwrap_or([Slot::Damaged; 2]);
         let mut slots = survey.map(|s| match s {
             Slot::Empty => SlotReport::Empty,
@@ -167,18 +183,23 @@ impl<F: NorFlash> Handler<F> {
                 }
             }
         }
-        let image_len = chosen.as_ref().map(|(_, s)| s.len as usize);
-        let (running, stored) = match chosen {
+        let image_len = chosen.as_ref().map(|(_, s)| (0, s.len as usize));
+        let (first, stored) = match chosen {
             Some((r, s)) => (r, Some(s)),
-            None => {
-                let mut a = a?;
-                a.load(factory).ok()?;
-                (a.activate(factory, Origin::Factory).ok()?, None)
-            }
+            None => (factory_running(a?, factory)?, None),
         };
+        let mut running: Vec<Running, N> = Vec::new();
+        running.push(first).ok()?;
+        for store in stores {
+            running.push(factory_running(store, factory)?).ok()?;
+        }
+        let running: [Running; N] = running.into_array().ok()?;
+        let summary = running.each_ref().map(|r| *r.summary());
         let handler = Self {
             kind,
-            summary: *running.summary(),
+            summary,
+            axis: 0,
+            axes: AxisSet::ALL,
             spare: Some(spare),
             upload: Upload {
                 image,
@@ -235,9 +256,26 @@ impl<F: NorFlash> Handler<F> {
         &self.counters
     }
 
-    /// The running model's summary.
+    /// The first axis's running model's summary.
     pub const fn summary(&self) -> &Summary {
+        &self.summary[0]
+    }
+
+    /// Each axis's running model's summary.
+    pub const fn summaries(&self) -> &[Summary; N] {
         &self.summary
+    }
+
+    /// The running model of the axis the request addresses.
+    pub(super) fn model(&self) -> &Summary {
+        self.summary.get(self.axis).unwrap_or(&self.summary[0])
+    }
+
+    /// The axes an order of the request goes to: the one it addresses, or
+    /// every axis for an order that addresses none.
+    fn addressed(&self, cmd: &Command<'_>) -> AxisSet {
+        cmd.axis()
+            .map_or(AxisSet::ALL, |a| AxisSet::one(a as usize))
     }
 
     /// Counts a frame the reader dropped for being longer than the buffer and
@@ -266,7 +304,7 @@ impl<F: NorFlash> Handler<F> {
     /// into `out` (`scratch` is working space); the reply's length.
     pub fn handle(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         request: &mut [u8],
         scratch: &mut [u8],
         out: &mut [u8],
@@ -351,7 +389,11 @@ impl<F: NorFlash> Handler<F> {
 
     /// Runs `f` on the exchange and counts the request as a heartbeat in the same
     /// lock; the request's tick is the next one (the first to see its effect).
-    fn locked<R>(&mut self, board: &mut impl Board, f: impl FnOnce(&mut Exchange<'_>) -> R) -> R {
+    fn locked<R>(
+        &mut self,
+        board: &mut impl Board<N>,
+        f: impl FnOnce(&mut Exchange<'_, N>) -> R,
+    ) -> R {
         let (r, tick) = board.exchange(|x| {
             x.heartbeats = x.heartbeats.wrapping_add(1);
             (f(x), x.snapshot.tick.wrapping_add(1))
@@ -377,7 +419,7 @@ impl<F: NorFlash> Handler<F> {
     #[inline(never)]
     fn command(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         seq: u16,
         cmd: Command<'_>,
     ) -> Result<Reply, Refuse> {
@@ -391,16 +433,22 @@ impl<F: NorFlash> Handler<F> {
             },
             cmd => cmd,
         };
-        if let Some(axis) = cmd.axis().filter(|&a| a >= AXES) {
+        if let Some(axis) = cmd.axis().filter(|&a| a as usize >= N) {
             return Err(refuse(
                 Refusal::Axis,
-                format_args!("axis {axis} does not exist: this board has {AXES} (numbered from 0)"),
+                format_args!(
+                    "axis {} does not exist: this board has {N} ({})",
+                    axis_name(axis as usize),
+                    AxisNames(N)
+                ),
             ));
         }
+        self.axis = cmd.axis().map_or(0, usize::from);
+        self.axes = self.addressed(&cmd);
         match cmd {
             Command::Hello => self.ack(board).map(|_| Reply::Hello(self.hello())),
             Command::Status { axis } => {
-                let summary = self.summary;
+                let summary = *self.model();
                 Ok(Reply::Status(
                     self.locked(board, |x| status(x, &summary, axis)),
                 ))
@@ -470,14 +518,16 @@ impl<F: NorFlash> Handler<F> {
                 self.order(board, seq, Order::Drive { compensated })
             }
             Command::Loop { mode, .. } => {
-                let damping_on = board.exchange(|x| x.snapshot.axes[0].damping_on);
+                let axis = self.axis;
+                let damping_on = board.exchange(|x| x.snapshot.axis(axis).damping_on);
                 if mode != LoopMode::Open {
                     self.stable_with(damping_on, mode)?;
                 }
                 self.order(board, seq, Order::Loop(mode))
             }
             Command::Damping { on, .. } => {
-                let mode = board.exchange(|x| x.snapshot.axes[0].loop_mode);
+                let axis = self.axis;
+                let mode = board.exchange(|x| x.snapshot.axis(axis).loop_mode);
                 if !on && mode != LoopMode::Open {
                     self.stable_with(false, mode)?;
                 }
@@ -515,7 +565,7 @@ impl<F: NorFlash> Handler<F> {
                     governed: a.governed,
                 })))
             }
-            Command::ModelRead { offset } => self.model_bytes(board, offset),
+            Command::ModelRead { offset, .. } => self.model_bytes(board, offset),
             Command::SettingGet { path } => self.setting_get(board, path),
             // Translated into its named command above.
             Command::SettingSet { .. } => self.ack(board),
@@ -526,6 +576,7 @@ impl<F: NorFlash> Handler<F> {
             Command::Record {
                 decimation,
                 signals,
+                ..
             } => {
                 if decimation == 0 {
                     return Err(refuse(
@@ -545,9 +596,9 @@ impl<F: NorFlash> Handler<F> {
             }
             Command::ModelBegin { len, crc } => self.begin(board, len, crc),
             Command::ModelChunk { offset, data } => self.chunk(board, offset, data),
-            Command::ModelCommit { store } => self.commit(board, seq, store),
-            Command::ModelInfo => self.ack(board).map(|_| Reply::Model(self.model_report())),
-            Command::ModelFactory => self.factory(board, seq),
+            Command::ModelCommit { store, .. } => self.commit(board, seq, store),
+            Command::ModelInfo { .. } => self.ack(board).map(|_| Reply::Model(self.model_report())),
+            Command::ModelFactory { .. } => self.factory(board, seq),
             Command::Counters => {
                 self.counters.stack_bytes = board.stack_high_water().unwrap_or(0);
                 self.ack(board).map(|_| Reply::Counters(self.counters))
@@ -601,7 +652,7 @@ impl<F: NorFlash> Handler<F> {
 
     /// Clears a byte of the newest stored model (a fault-injection aid of the
     /// emulated board).
-    fn damage_stored(&mut self, board: &mut impl Board) -> Result<Reply, Refuse> {
+    fn damage_stored(&mut self, board: &mut impl Board<N>) -> Result<Reply, Refuse> {
         let Some(s) = self.flash.newest().ok().flatten() else {
             return Err(refuse(Refusal::Storage, format_args!("no model is stored")));
         };
@@ -612,7 +663,7 @@ impl<F: NorFlash> Handler<F> {
     }
 
     /// Acknowledges a request that only counts as a heartbeat.
-    pub(super) fn ack(&mut self, board: &mut impl Board) -> Result<Reply, Refuse> {
+    pub(super) fn ack(&mut self, board: &mut impl Board<N>) -> Result<Reply, Refuse> {
         self.locked(board, |_| ());
         Ok(Reply::Ack)
     }
@@ -620,21 +671,27 @@ impl<F: NorFlash> Handler<F> {
     /// Posts an order (the request's heartbeat with it), waits until the ISR has
     /// applied it, and acknowledges it; the request's tick is the one it took
     /// effect at.
-    fn order(&mut self, board: &mut impl Board, seq: u16, order: Order) -> Result<Reply, Refuse> {
+    fn order(
+        &mut self,
+        board: &mut impl Board<N>,
+        seq: u16,
+        order: Order,
+    ) -> Result<Reply, Refuse> {
         self.post(board, seq, order).map(|_| Reply::Ack)
     }
 
     pub(super) fn post(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         seq: u16,
         order: Order,
     ) -> Result<u32, Refuse> {
         let mut order = Some(order);
+        let axes = self.axes;
         board.exchange(|x| {
             x.heartbeats = x.heartbeats.wrapping_add(1);
             x.applied = None;
-            x.order = order.take().map(|o| Posted::all(seq, o));
+            x.order = order.take().map(|order| Posted { seq, axes, order });
         });
         for _ in 0..APPLY_TIMEOUT_WAITS {
             board.wait();
@@ -651,7 +708,7 @@ impl<F: NorFlash> Handler<F> {
     }
 
     fn in_stroke(&self, what: &str, x: i32) -> Result<Micrometres, Refuse> {
-        let r = self.summary.reference;
+        let r = self.model().reference;
         if x < r.lo.to_bits() || x > r.hi.to_bits() {
             return Err(refuse(
                 Refusal::OutOfRange,
@@ -669,7 +726,7 @@ impl<F: NorFlash> Handler<F> {
     /// Refuses a closed loop that the model's dynamics make unstable with the
     /// damping as given (the model was validated with its damping on).
     fn stable_with(&self, damping_on: bool, mode: LoopMode) -> Result<(), Refuse> {
-        let s = &self.summary;
+        let s = self.model();
         let damping = if damping_on {
             s.damping.map(|d| *d.spec())
         } else {
@@ -704,7 +761,7 @@ impl<F: NorFlash> Handler<F> {
     /// The learned mass ratio to start from, `ratio` (`I2F30` bits): the
     /// running model must apply the lead, and `ratio` lie in `[1/2, 2)`.
     fn lead_start(&self, ratio: i32) -> Result<LeadGain, Refuse> {
-        if !self.summary.lead.is_some_and(|l| l.applied) {
+        if !self.model().lead.is_some_and(|l| l.applied) {
             return Err(refuse(
                 Refusal::BadArgument,
                 format_args!("the running model applies no learned mass ratio: load a tuning"),
@@ -726,7 +783,7 @@ impl<F: NorFlash> Handler<F> {
     /// at most [`crate::control::analyser::MAX_TICKS`] correlated.
     fn analyse_order(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         freq_mhz: u32,
         amplitude: i32,
         settle: u16,
@@ -751,7 +808,8 @@ impl<F: NorFlash> Handler<F> {
                 format_args!("an analysis correlates at least one period"),
             ));
         }
-        let at = board.exchange(|x| x.snapshot.axes[0].now.x_ref);
+        let axis = self.axis;
+        let at = board.exchange(|x| x.snapshot.axis(axis).now.x_ref);
         self.in_stroke(
             "excitation's low point",
             at.to_bits().saturating_sub(amplitude),
@@ -784,10 +842,10 @@ impl<F: NorFlash> Handler<F> {
 
     /// A piece of the running model's image: the factory image, or the upload
     /// buffer while it still holds the running model's.
-    fn model_bytes(&mut self, board: &mut impl Board, offset: u32) -> Result<Reply, Refuse> {
-        let image: &[u8] = match (self.summary.origin, self.image_len) {
+    fn model_bytes(&mut self, board: &mut impl Board<N>, offset: u32) -> Result<Reply, Refuse> {
+        let image: &[u8] = match (self.model().origin, self.image_len) {
             (Origin::Factory, _) => crate::board::factory_model::MODEL_IMAGE,
-            (_, Some(n)) if self.upload.expected.is_none() => {
+            (_, Some((axis, n))) if axis == self.axis && self.upload.expected.is_none() => {
                 self.upload.image.get(..n).unwrap_or(&[])
             }
             _ => {
@@ -800,7 +858,7 @@ impl<F: NorFlash> Handler<F> {
                 ))
             }
         };
-        if piezo_fpi::model::image::CRC32.checksum(image) != self.summary.crc {
+        if piezo_fpi::model::image::CRC32.checksum(image) != self.model().crc {
             return Err(refuse(
                 Refusal::Upload,
                 format_args!("the running model's image is not in the link's buffer"),
@@ -853,7 +911,7 @@ impl<F: NorFlash> Handler<F> {
 
     fn points(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         first: u32,
         points: &[i32],
     ) -> Result<Reply, Refuse> {
@@ -883,7 +941,12 @@ impl<F: NorFlash> Handler<F> {
         })
     }
 
-    fn stream(&mut self, board: &mut impl Board, seq: u16, interval: u16) -> Result<Reply, Refuse> {
+    fn stream(
+        &mut self,
+        board: &mut impl Board<N>,
+        seq: u16,
+        interval: u16,
+    ) -> Result<Reply, Refuse> {
         if interval == 0 {
             return Err(refuse(
                 Refusal::BadArgument,
@@ -901,7 +964,7 @@ impl<F: NorFlash> Handler<F> {
 
     fn supervise(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         seq: u16,
         timeout_ms: u32,
     ) -> Result<Reply, Refuse> {
@@ -940,9 +1003,45 @@ impl<F: NorFlash> Handler<F> {
             ],
             reset: self.reset,
             link: self.pace.link(),
-            axes: AXES,
+            axes: N as u8,
             front_end: self.front_end,
         }
+    }
+}
+
+/// A running model from the factory image, in `store`.
+fn factory_running(mut store: Spare, factory: &[u8]) -> Option<Running> {
+    store.load(factory).ok()?;
+    store.activate(factory, Origin::Factory).ok()
+}
+
+/// An axis's name (`x`, `y`, `z`; a number beyond).
+pub(super) const fn axis_name(i: usize) -> AxisName {
+    AxisName(i)
+}
+
+/// An axis's name as text.
+pub(super) struct AxisName(usize);
+
+impl core::fmt::Display for AxisName {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match crate::link::protocol::AXIS_NAMES.get(self.0) {
+            Some(name) => f.write_str(name),
+            None => write!(f, "{}", self.0),
+        }
+    }
+}
+
+/// The names of a board's `n` axes, as a list (`x, y`).
+struct AxisNames(usize);
+
+impl core::fmt::Display for AxisNames {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        for i in 0..self.0 {
+            let sep = if i == 0 { "" } else { ", " };
+            write!(f, "{sep}{}", AxisName(i))?;
+        }
+        Ok(())
     }
 }
 
@@ -980,6 +1079,13 @@ pub(super) fn refused(r: Refused) -> Refuse {
             Refusal::BadArgument,
             format_args!("that would leave the loop unstable on the stage's mode"),
         ),
+        Refused::BenchOfAxes => refuse(
+            Refusal::NotEmulated,
+            format_args!(
+                "the emulated board of several axes takes no bench order but `link` yet (its \
+                 stage's faults and variants are one axis's)"
+            ),
+        ),
         Refused::Axes => refuse(
             Refusal::Axis,
             format_args!(
@@ -990,9 +1096,9 @@ pub(super) fn refused(r: Refused) -> Refuse {
     }
 }
 
-/// The status of `axis` (the board's one).
-fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
-    let (b, s) = (&x.snapshot, &x.snapshot.axes[0]);
+/// The status of `axis` (`summary`: its running model's).
+fn status<const N: usize>(x: &Exchange<'_, N>, summary: &Summary, axis: u8) -> Status {
+    let (b, s) = (&x.snapshot, x.snapshot.axis(axis as usize));
     let (q, r) = (&x.points, &x.recorder);
     Status {
         axis,
@@ -1009,6 +1115,7 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
             at,
             safe_at: s.safe_at,
         }),
+        fault_axis: b.fault_axis,
         amplifier_on: s.now.amplifier_on(),
         source: s.source,
         // The source holding while the governed reference has not reached
@@ -1040,7 +1147,7 @@ fn status(x: &Exchange<'_>, summary: &Summary, axis: u8) -> Status {
 /// Up to `max` recorded samples, as a batch fills a frame (see [`Batch`]). The
 /// exchange is locked for one sample at a time, so the control ISR waits at
 /// most a sample's copy however long the batch.
-fn batch(board: &mut impl Board, signals: u8, max: u16) -> Batch {
+fn batch<const N: usize>(board: &mut impl Board<N>, signals: u8, max: u16) -> Batch {
     let mut packer = Packer::new(signals);
     for _ in 0..max {
         let Some(next) = board.exchange(|x| x.recorder.peek()) else {

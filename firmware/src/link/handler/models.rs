@@ -10,9 +10,9 @@ use crate::control::slots::{Origin, Running};
 use crate::link::protocol::{ModelReport, Refusal, Reply};
 use crate::link::refusal::{refuse, Refuse};
 
-impl<F: NorFlash> Handler<F> {
+impl<F: NorFlash, const N: usize> Handler<F, N> {
     pub(super) fn model_report(&self) -> ModelReport {
-        let s = &self.summary;
+        let s = self.model();
         ModelReport {
             crc: s.crc,
             origin: s.origin,
@@ -23,7 +23,10 @@ impl<F: NorFlash> Handler<F> {
                 s.reference.hi.to_bits(),
                 s.safe_voltage.to_bits(),
             ],
-            stored: self.stored.map(|st| (st.generation, st.crc)),
+            stored: self
+                .stored
+                .filter(|_| self.axis == 0)
+                .map(|st| (st.generation, st.crc)),
             slots: self.slots,
             feedback: s.feedback.map(|f| {
                 let f = f.spec();
@@ -54,7 +57,7 @@ impl<F: NorFlash> Handler<F> {
 
     pub(super) fn begin(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         len: u32,
         crc: u32,
     ) -> Result<Reply, Refuse> {
@@ -66,7 +69,7 @@ impl<F: NorFlash> Handler<F> {
 
     pub(super) fn chunk(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         offset: u32,
         data: &[u8],
     ) -> Result<Reply, Refuse> {
@@ -74,12 +77,15 @@ impl<F: NorFlash> Handler<F> {
         self.ack(board)
     }
 
-    /// The parked stage's check before a model change.
-    fn parked(&self, board: &mut impl Board) -> Result<(), Refuse> {
-        let (fault, voltage) =
-            board.exchange(|x| (x.snapshot.axes[0].fault, x.snapshot.axes[0].now.voltage));
+    /// The parked stage's check before a model change of the addressed axis.
+    fn parked(&self, board: &mut impl Board<N>) -> Result<(), Refuse> {
+        let axis = self.axis;
+        let (fault, voltage) = board.exchange(|x| {
+            let s = x.snapshot.axis(axis);
+            (s.fault, s.now.voltage)
+        });
         match fault {
-            Some(_) if voltage == self.summary.safe_voltage => Ok(()),
+            Some(_) if voltage == self.model().safe_voltage => Ok(()),
             Some(_) => Err(refuse(
                 Refusal::StillRamping,
                 format_args!("the output is still ramping to the safe voltage"),
@@ -93,12 +99,21 @@ impl<F: NorFlash> Handler<F> {
 
     pub(super) fn commit(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         seq: u16,
         store: bool,
     ) -> Result<Reply, Refuse> {
         let len = self.upload.complete()?;
         self.parked(board)?;
+        if store && self.axis != 0 {
+            return Err(refuse(
+                Refusal::Storage,
+                format_args!(
+                    "the flash keeps the first axis's model only: load axis {}'s without                      storing it (it runs until the board restarts)",
+                    super::axis_name(self.axis)
+                ),
+            ));
+        }
         let running = self.activate(Origin::Received, len)?;
         if store {
             let image = self.upload.image.get(..len).unwrap_or(&[]);
@@ -119,7 +134,7 @@ impl<F: NorFlash> Handler<F> {
         self.upload.done();
         let result = self.swap(board, seq, running);
         if result.is_ok() {
-            self.image_len = Some(len);
+            self.image_len = Some((self.axis, len));
         }
         result
     }
@@ -147,7 +162,7 @@ impl<F: NorFlash> Handler<F> {
     /// Hands `running` to the ISR and takes back the model it replaces.
     fn swap(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         seq: u16,
         running: Running,
     ) -> Result<Reply, Refuse> {
@@ -159,24 +174,30 @@ impl<F: NorFlash> Handler<F> {
             self.spare = Some(back.retire());
         }
         result?;
-        self.summary = summary;
+        if let Some(s) = self.summary.get_mut(self.axis) {
+            *s = summary;
+        }
         Ok(Reply::Ack)
     }
 
-    pub(super) fn factory(&mut self, board: &mut impl Board, seq: u16) -> Result<Reply, Refuse> {
+    /// The factory model on the addressed axis; on the first axis, the
+    /// stored model erased first (the flash keeps that axis's).
+    pub(super) fn factory(&mut self, board: &mut impl Board<N>, seq: u16) -> Result<Reply, Refuse> {
         self.parked(board)?;
-        board.long_operation(true);
-        let erased = self.flash.erase_all();
-        board.long_operation(false);
-        if let Err(e) = erased {
-            return Err(refuse(Refusal::Storage, format_args!("{}", e.message())));
+        if self.axis == 0 {
+            board.long_operation(true);
+            let erased = self.flash.erase_all();
+            board.long_operation(false);
+            if let Err(e) = erased {
+                return Err(refuse(Refusal::Storage, format_args!("{}", e.message())));
+            }
+            self.stored = None;
         }
-        self.stored = None;
         let n = self.upload.hold(crate::board::factory_model::MODEL_IMAGE);
         let running = self.activate(Origin::Factory, n)?;
         let result = self.swap(board, seq, running);
         if result.is_ok() {
-            self.image_len = Some(n);
+            self.image_len = Some((self.axis, n));
         }
         result
     }

@@ -13,11 +13,11 @@ use crate::link::protocol::settings::{StageSettings, MAX_PATH, MAX_VALUE, STAGES
 use crate::link::protocol::{Command, Refusal, Reply, Settings};
 use crate::link::refusal::{refuse, Refuse};
 
-impl<F: NorFlash> Handler<F> {
+impl<F: NorFlash, const N: usize> Handler<F, N> {
     /// The board's settings as they are now: what its status says (which
     /// sections the running model has, and whether each is on).
-    fn settings(&mut self, board: &mut impl Board) -> Settings {
-        let summary = self.summary;
+    fn settings(&mut self, board: &mut impl Board<N>) -> Settings {
+        let summary = self.summary[0];
         let (s, trigger_in) =
             board.exchange(|x| (super::status(x, &summary, 0), x.snapshot.trigger_in));
         let stage = StageSettings {
@@ -37,7 +37,7 @@ impl<F: NorFlash> Handler<F> {
     /// The value at `path`, JSON.
     pub(super) fn setting_get(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         path: &[u8],
     ) -> Result<Reply, Refuse> {
         let path = key(path)?;
@@ -58,7 +58,7 @@ impl<F: NorFlash> Handler<F> {
     /// nothing changes.
     pub(super) fn setting_change(
         &mut self,
-        board: &mut impl Board,
+        board: &mut impl Board<N>,
         path: &[u8],
         value: &[u8],
     ) -> Result<Option<Command<'static>>, Refuse> {
