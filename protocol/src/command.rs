@@ -106,6 +106,10 @@ crate::wire_enum! {
         Trigger = 36,
         /// [`Command::TriggerIn`].
         TriggerIn = 37,
+        /// [`Command::Raster`].
+        Raster = 38,
+        /// [`Command::Decoupling`].
+        Decoupling = 39,
     }
 }
 
@@ -202,11 +206,13 @@ pub enum Command<'a> {
         /// Timeout, ms.
         timeout_ms: u32,
     },
-    /// Start recording `axis` every `decimation`-th tick; `signals`
+    /// Start recording `axis` ([`EVERY_AXIS`](crate::EVERY_AXIS): each
+    /// axis, one sample per axis of each kept tick, in axis order) every
+    /// `decimation`-th tick; `signals`
     /// ([`signal`](crate::record::signal) bits) says what
     /// [`Command::ReadRecord`] sends.
     Record {
-        /// The axis recorded.
+        /// The axis recorded, or every axis.
         axis: u8,
         /// Keep one tick in this many (≥ 1).
         decimation: u16,
@@ -371,6 +377,40 @@ pub enum Command<'a> {
         /// The value, JSON (at most [`MAX_VALUE`](crate::settings::MAX_VALUE) bytes).
         value: &'a [u8],
     },
+    /// A raster on two axes, each to its start, then `lines` lines started
+    /// on the same tick on both: axis `fast` a triangle between
+    /// `fast_span` (µm, `I16F16` bits, from and to) at `freq_mhz` (a line is
+    /// half its period), axis `slow` over `slow_span` by a step at each
+    /// line's start (`staircase`) or a ramp.
+    Raster {
+        /// The fast axis.
+        fast: u8,
+        /// The slow axis.
+        slow: u8,
+        /// The fast axis's from and to, µm (`I16F16` bits).
+        fast_span: [i32; 2],
+        /// The slow axis's from and to, µm (`I16F16` bits).
+        slow_span: [i32; 2],
+        /// The fast axis's triangle frequency, mHz.
+        freq_mhz: u32,
+        /// Lines.
+        lines: u16,
+        /// The slow axis steps at each line's start (else it ramps).
+        staircase: bool,
+    },
+    /// The axes' decoupling from the next tick on (a board of several axes):
+    /// the input matrix (sensors → axes) and the output matrix (axes →
+    /// stacks), `I2F30` bits, `[row][column]` over x, y, z; the stacks'
+    /// preload coupling, N/µm (`I16F16` bits). The rows and columns of axes
+    /// the board does not have are the identity's (the coupling's zero).
+    Decoupling {
+        /// Sensors → axes.
+        input: [[i32; 3]; 3],
+        /// Axes → stacks.
+        output: [[i32; 3]; 3],
+        /// N on stack `i` per µm of stack `j`.
+        preload: [[i32; 3]; 3],
+    },
 }
 
 impl Command<'_> {
@@ -416,6 +456,8 @@ impl Command<'_> {
             Self::SettingSet { .. } => K::SettingSet,
             Self::Trigger { .. } => K::Trigger,
             Self::TriggerIn { .. } => K::TriggerIn,
+            Self::Raster { .. } => K::Raster,
+            Self::Decoupling { .. } => K::Decoupling,
         }
     }
 
@@ -526,6 +568,20 @@ impl<'a> Tagged<'a> for Command<'a> {
             Self::SettingSet { path, value } => put!(t; path, value),
             Self::Trigger { axis, settings } => put!(t; axis, settings),
             Self::TriggerIn { axis, starts } => put!(t; axis, starts),
+            Self::Raster {
+                fast,
+                slow,
+                fast_span,
+                slow_span,
+                freq_mhz,
+                lines,
+                staircase,
+            } => put!(t; fast, slow, fast_span, slow_span, freq_mhz, lines, staircase),
+            Self::Decoupling {
+                input,
+                output,
+                preload,
+            } => put!(t; input, output, preload),
         }
         Ok(())
     }
@@ -643,6 +699,20 @@ impl<'a> Tagged<'a> for Command<'a> {
             K::TriggerIn => Self::TriggerIn {
                 axis: field(a)?,
                 starts: field(a)?,
+            },
+            K::Raster => Self::Raster {
+                fast: field(a)?,
+                slow: field(a)?,
+                fast_span: field(a)?,
+                slow_span: field(a)?,
+                freq_mhz: field(a)?,
+                lines: field(a)?,
+                staircase: field(a)?,
+            },
+            K::Decoupling => Self::Decoupling {
+                input: field(a)?,
+                output: field(a)?,
+                preload: field(a)?,
             },
         }))
     }

@@ -52,7 +52,8 @@ pub use settings::{Settings, StageSettings, TriggerSettings};
 /// The protocol version of these messages (14: an axis in the model
 /// commands ([`Command::ModelCommit`], [`Command::ModelInfo`],
 /// [`Command::ModelFactory`], [`Command::ModelRead`]) and in
-/// [`Command::Record`], the axis whose fault parked the board in the status; 12: the refusal [`Refusal::Held`]
+/// [`Command::Record`] (or every axis), the axis whose fault parked the board in the
+/// status, [`Command::Raster`] and [`Command::Decoupling`]; 12: the refusal [`Refusal::Held`]
 /// of the board's hub; 11: the board's axes and analog
 /// front end in the hello; 10: the runtime settings by key
 /// path, [`Command::SettingGet`] and [`Command::SettingSet`]; 9: the governed ticks and the
@@ -65,6 +66,9 @@ pub const VERSION: u8 = 14;
 /// for an axis it does not have ([`Refusal::Axis`]; its hello says how many
 /// it has).
 pub const MAX_AXES: u8 = 3;
+/// A command's `axis` that addresses every axis of the board (where the
+/// command takes it: [`Command::Record`]).
+pub const EVERY_AXIS: u8 = u8::MAX;
 /// The axes' names by number (a command's `axis`: 0 is x).
 pub const AXIS_NAMES: [&str; MAX_AXES as usize] = ["x", "y", "z"];
 /// Largest encoded frame, delimiter included, bytes.

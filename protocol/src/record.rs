@@ -3,6 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::MAX_AXES;
+
 /// Bits of [`Sample::status`].
 pub mod status {
     /// A fault is latched (the output ramps to, or sits at, the safe voltage).
@@ -130,10 +132,21 @@ impl Sample {
     /// The samples of a batch's values (see [`Sample::deltas`]), in order; a
     /// trailing partial sample is ignored.
     pub fn batch(mask: u8, deltas: &[i32]) -> impl Iterator<Item = Sample> + '_ {
-        let mut prev = Sample::default();
+        Self::interleaved(mask, 1, deltas)
+    }
+
+    /// The samples of a batch of `stride` interleaved axes' samples (a
+    /// recording of every axis: each sample the difference from the one
+    /// `stride` before, [`Packer::interleaved`]), in order.
+    pub fn interleaved(mask: u8, stride: u8, deltas: &[i32]) -> impl Iterator<Item = Sample> + '_ {
+        let stride = usize::from(stride.clamp(1, MAX_AXES));
+        let mut prev = [Sample::default(); MAX_AXES as usize];
+        let mut k = 0;
         deltas.chunks_exact(Self::width(mask)).filter_map(move |d| {
-            let s = Self::from_deltas(&prev, mask, d)?;
-            prev = s;
+            let p = prev.get_mut(k)?;
+            let s = Self::from_deltas(p, mask, d)?;
+            *p = s;
+            k = (k + 1) % stride;
             Some(s)
         })
     }
@@ -182,36 +195,63 @@ pub struct Packer {
     signals: u8,
     values: heapless::Vec<i32, { crate::MAX_VALUES }>,
     bytes: usize,
-    prev: Sample,
+    /// The last sample of each interleaved axis.
+    prev: [Sample; MAX_AXES as usize],
+    /// Axes interleaved.
+    stride: usize,
+    /// The axis of the next sample.
+    next: usize,
 }
 
 impl Packer {
     /// Empty, for the signals `signals` (`signal` bits).
     pub fn new(signals: u8) -> Self {
+        Self::interleaved(signals, 1)
+    }
+
+    /// Empty, for the signals `signals` of `stride` axes whose samples
+    /// alternate (a recording of every axis): each sample packed as the
+    /// difference from the one `stride` before, the same axis's, so that a
+    /// slowly moving axis still takes a few bytes ([`Sample::interleaved`]
+    /// reads it back).
+    pub fn interleaved(signals: u8, stride: u8) -> Self {
         Self {
             signals,
             values: heapless::Vec::new(),
             bytes: 0,
-            prev: Sample::default(),
+            prev: [Sample::default(); MAX_AXES as usize],
+            stride: usize::from(stride.clamp(1, MAX_AXES)),
+            next: 0,
         }
     }
 
     /// Packs `s` if it fits the batch; whether it did (a sample that does not
     /// is left for the next batch).
     pub fn push(&mut self, s: &Sample) -> bool {
-        let len: usize = s.deltas(&self.prev, self.signals).map(wire_len).sum();
+        let Some(prev) = self.prev.get(self.next).copied() else {
+            return false;
+        };
+        let len: usize = s.deltas(&prev, self.signals).map(wire_len).sum();
         if self.bytes + len > crate::MAX_BATCH_BYTES
             || self.values.len() + Sample::width(self.signals) > crate::MAX_VALUES
         {
             return false;
         }
-        for v in s.deltas(&self.prev, self.signals) {
+        for v in s.deltas(&prev, self.signals) {
             // Room for every value was checked above.
             let _ = self.values.push(v);
         }
         self.bytes += len;
-        self.prev = *s;
+        if let Some(p) = self.prev.get_mut(self.next) {
+            *p = *s;
+        }
+        self.next = (self.next + 1) % self.stride;
         true
+    }
+
+    /// The signals it packs.
+    pub const fn signals(&self) -> u8 {
+        self.signals
     }
 
     /// The batch's values.
@@ -235,6 +275,34 @@ pub const fn wire_len(v: i32) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn interleaved_axes_pack_as_each_axis_s_differences_and_read_back() {
+        // Two axes far apart, each moving slowly: X near 5 µm, Y near 35 µm.
+        let samples: std::vec::Vec<Sample> = (0..40u32)
+            .map(|k| Sample {
+                tick: 100 + k / 2,
+                x_ref: if k % 2 == 0 { 5 << 16 } else { 35 << 16 } + (k as i32) * 100,
+                x_true: NO_TRUE_POSITION,
+                ..Sample::default()
+            })
+            .collect();
+        let mask = signal::X_REF;
+        let (mut one, mut two) = (Packer::new(mask), Packer::interleaved(mask, 2));
+        for s in &samples {
+            assert!(one.push(s) && two.push(s));
+        }
+        let (one, two) = (one.values(), two.values());
+        let bytes = |v: &[i32]| v.iter().map(|&x| wire_len(x)).sum::<usize>();
+        assert!(
+            bytes(&two) * 3 < bytes(&one) * 2,
+            "{} vs {}",
+            bytes(&two),
+            bytes(&one)
+        );
+        let back: std::vec::Vec<Sample> = Sample::interleaved(mask, 2, &two).collect();
+        assert_eq!(back, samples);
+    }
 
     #[test]
     fn deltas_round_trip_whatever_the_mask_and_wrap() {

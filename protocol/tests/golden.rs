@@ -139,6 +139,21 @@ goldens! {
         },
     } => "24 00 01 f4 03 64 03 00 03";
     command_trigger_in: Command::TriggerIn { axis: 0, starts: TriggerStart::Both } => "25 00 03";
+    command_raster: Command::Raster {
+        fast: 0,
+        slow: 1,
+        fast_span: [5 << 16, 35 << 16],
+        slow_span: [5 << 16, 35 << 16],
+        freq_mhz: 100_000,
+        lines: 20,
+        staircase: false,
+    } => "26 00 01 80 80 28 80 80 98 02 80 80 28 80 80 98 02 a0 8d 06 14 00";
+    command_decoupling: Command::Decoupling {
+        input: [[1 << 30, 0, 0], [0, 1 << 30, 0], [0, 0, 1 << 30]],
+        output: [[1 << 30, -(1 << 24), 0], [0, 1 << 30, 0], [0, 0, 1 << 30]],
+        preload: [[0, 1 << 15, 0], [1 << 15, 0, 0], [0, 0, 0]],
+    } => "27 80 80 80 80 08 00 00 00 80 80 80 80 08 00 00 00 80 80 80 80 08 80 80 80 80 08 ff ff \
+          ff 0f 00 00 80 80 80 80 08 00 00 00 80 80 80 80 08 00 80 80 04 00 80 80 04 00 00 00 00 00";
 }
 
 fn hello() -> Hello {
@@ -368,7 +383,7 @@ fn a_request_frame_golden() {
 #[test]
 fn unknown_kinds_and_axes() {
     assert_eq!(
-        frame::body::<Command<'_>>(&[38]),
+        frame::body::<Command<'_>>(&[40]),
         Err(frame::FrameError::UnknownKind)
     );
     assert_eq!(

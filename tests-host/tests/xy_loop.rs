@@ -2,11 +2,17 @@
 //! as built (`piezo_sim::axes::xy_built`: X like stage A as built, Y its own
 //! flexure at 1 000 Hz, cross gains 1.5 % and 2 %, the stacks' preloads coupled
 //! by 0.5 N/µm, each sensor reading 0.2 % of the other axis), scored on the
-//! true outputs. Each axis's model is tuned by `fpi board autotune` on the
-//! in-process board with that axis's stage alone (X: the stage as built; Y: its
-//! mode, damping and output gain); the decoupling is the stage's true couplings
-//! (`piezo_sim::axes::XY_COUPLING`: what a measurement of the coupling would
-//! find; autotune does not identify it yet).
+//! true outputs. Each axis's model is tuned by `fpi board autotune --axis x`
+//! and `--axis y` on the in-process board of that stage
+//! (`--port virtual:usb:xy-built`), the other axis parked; the decoupling is
+//! the stage's true couplings (`piezo_sim::axes::XY_COUPLING`: what a
+//! measurement of the coupling would find; autotune does not identify it
+//! yet).
+//!
+//! The raster runs twice: on the board over its link (`fpi board raster`,
+//! every axis recorded, the loops closed and warmed up as a board's scoring
+//! does) and on the board's control loop driven here tick by tick (the
+//! step and the floor at rest too).
 //!
 //! The figures of the item 5 are printed (`--nocapture`) with and
 //! without the decoupling; generous bounds are asserted:
@@ -17,7 +23,7 @@
 //!   Y's peak deviation (low-passed at 2 kHz) and each axis's settling within
 //!   ±0.1 µm, from the step's start.
 
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 
 use fpi_firmware::board::capacity::Store;
 use fpi_firmware::board::definition::internal::{FORCE, SETPOINT};
@@ -32,12 +38,12 @@ use fpi_firmware::control::task::ControlLoop;
 use fpi_firmware::control::tracking::LoopMode;
 use fpi_firmware::emulation::virtual_axes;
 use fpi_firmware::emulation::virtual_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor};
-use fpi_host::board::autotune;
+use fpi_host::board::client::Client;
+use fpi_host::board::{autotune, decoupling, raster, warm};
 use fpi_host::method::tune::TuneOptions;
-use fpi_protocol::{BenchOrder, Command, StageVariant};
 use piezo_fpi::decoupling::Decoupling;
 use piezo_fpi::q::Micrometres;
-use piezo_sim::axes::{Axes, XY_COUPLING, Y_BUILT};
+use piezo_sim::axes::{Axes, XY_COUPLING};
 use piezo_sim::file::FirmwareModel;
 
 /// The control rate, Hz.
@@ -47,43 +53,53 @@ fn leak<T>(v: T) -> &'static mut T {
     Box::leak(Box::new(v))
 }
 
-/// `fpi board autotune` (its defaults) on the in-process board with the
-/// stage `v`; the tuned model.
-fn autotuned(v: StageVariant, what: &str) -> FirmwareModel {
-    let (_e, mut c) = fpi_tests::behaviour_board(what);
+/// The in-process board of the XY stage as built, each axis tuned by
+/// `fpi board autotune --axis x|y` (its defaults) and left running its tuned
+/// model; the tuned models.
+struct Tuned {
+    board: Client,
+    models: [FirmwareModel; 2],
+}
+
+/// `fpi board autotune` of `axis` on `c` from the factory model.
+fn autotuned(c: &mut Client, axis: u8) -> FirmwareModel {
     let fw = fpi_tests::factory_model();
+    c.on_axis(axis).unwrap();
     c.park().unwrap();
-    c.ack(&Command::ClearFault).ok();
-    c.upload(&fw.image().unwrap(), false, |_| {}).unwrap();
-    c.bench(BenchOrder::Stage(v)).unwrap();
-    let settings = autotune::Settings::default();
     let a = autotune::run(
-        &mut c,
+        c,
         &fw,
         &TuneOptions::default(),
-        &settings,
+        &autotune::Settings::default(),
         false,
         |_| {},
     )
-    .unwrap_or_else(|e| panic!("{what}: {e:#}"));
-    println!("{what}: {}", a.tuning.summary(&TuneOptions::default()));
+    .unwrap_or_else(|e| panic!("autotune --axis {axis}: {e:#}"));
+    println!(
+        "autotune --axis {}: {}",
+        ["x", "y"][usize::from(axis)],
+        a.tuning.summary(&TuneOptions::default())
+    );
     a.model
 }
 
-/// X's and Y's tuned models (tuned once for this test binary, both at once).
-fn tuned() -> &'static [FirmwareModel; 2] {
-    static TUNED: OnceLock<[FirmwareModel; 2]> = OnceLock::new();
+/// The board with both axes tuned (once for this test binary).
+fn tuned() -> &'static Mutex<Tuned> {
+    static TUNED: OnceLock<Mutex<Tuned>> = OnceLock::new();
     TUNED.get_or_init(|| {
-        let y = StageVariant {
-            mode_hz: Some(Y_BUILT.mode_hz),
-            mode_damping: Some(Y_BUILT.mode_damping),
-            output_gain: Some(Y_BUILT.output_gain),
-            ..StageVariant::BUILT
-        };
-        let other = std::thread::spawn(move || autotuned(y, "autotune, Y alone"));
-        let x = autotuned(StageVariant::BUILT, "autotune, X alone");
-        [x, other.join().unwrap()]
+        let mut board = Client::open("virtual:usb:xy-built").unwrap();
+        let models = [0, 1].map(|axis| autotuned(&mut board, axis));
+        Mutex::new(Tuned { board, models })
     })
+}
+
+/// X's and Y's tuned models.
+fn models() -> [FirmwareModel; 2] {
+    tuned()
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .models
+        .clone()
 }
 
 /// `fw` running from a store of its own.
@@ -120,10 +136,10 @@ impl Xy {
         let mut stage = piezo_sim::axes::xy_built(0x5EED).unwrap();
         let links = [(); 2].map(|_| &*leak(SimLink::new(FORCE, SETPOINT)));
         virtual_axes::prime(&mut stage, &links);
-        let [mx, my] = tuned();
+        let [mx, my] = models();
         let lp = ControlLoop::new([
-            (running(mx), links[0].hardware(), links[0].analog()),
-            (running(my), links[1].hardware(), links[1].analog()),
+            (running(&mx), links[0].hardware(), links[0].analog()),
+            (running(&my), links[1].hardware(), links[1].analog()),
         ]);
         let x = Exchange::new(leak(Recorder::new()), leak(Points::new()));
         Self {
@@ -360,4 +376,66 @@ fn a_step_of_x_on_the_xy_stage_as_built_in_closed_loop() {
         decoupled.settle_ms[0] < 6.0 && decoupled.settle_ms[1] < 6.0,
         "{decoupled:?}"
     );
+}
+
+/// The raster `fpi board raster --fast x --slow y --freq-hz 100 --lines 20
+/// --from-um 5 --to-um 35` on the tuned board over its link, decoupled by
+/// `d` (set with every axis parked), the loops closed and warmed up axis by
+/// axis; its figures, or the fault that parked it.
+fn raster_over_the_link(d: Option<Decoupling<3>>) -> Result<raster::RasterFigures, String> {
+    let mut t = tuned().lock().unwrap_or_else(|e| e.into_inner());
+    let c = &mut t.board;
+    c.on_axis(0).unwrap();
+    c.park().unwrap();
+    // A fault a raster before latched (the board parked on it).
+    c.ack(&fpi_protocol::Command::ClearFault).unwrap();
+    let none = Decoupling::<3> {
+        input: piezo_fpi::decoupling::Matrix::IDENTITY,
+        output: piezo_fpi::decoupling::Matrix::IDENTITY,
+        preload: piezo_fpi::decoupling::Preload::NONE,
+    };
+    decoupling::set(c, &d.unwrap_or(none)).unwrap();
+    for axis in [0, 1] {
+        c.on_axis(axis).unwrap();
+        warm::close_and_warm_up(c).unwrap_or_else(|e| panic!("axis {axis}: {e:#}"));
+    }
+    let spec = raster::RasterSpec {
+        fast: 0,
+        slow: 1,
+        fast_um: (5.0, 35.0),
+        slow_um: (5.0, 35.0),
+        freq_hz: 100.0,
+        lines: 20,
+        staircase: false,
+    };
+    let (m, rec) = raster::run(c, &spec).unwrap();
+    if let Some(f) = m.fault {
+        return Err(format!("{f:#}"));
+    }
+    let f = raster::figures(&spec, &rec).expect("whole lines recorded");
+    println!("  {}", raster::describe(&spec, &f));
+    Ok(f)
+}
+
+#[test]
+fn a_raster_over_the_link_of_the_tuned_xy_board() {
+    let said = |r: &Result<raster::RasterFigures, String>| match r {
+        Ok(f) => format!(
+            "X {:.3} %, Y {:.3} % of X's span",
+            f.fast_rms_pct, f.slow_rms_pct
+        ),
+        Err(e) => e.clone(),
+    };
+    let coupled = raster_over_the_link(None);
+    println!(
+        "fpi board raster, without the decoupling: {}",
+        said(&coupled)
+    );
+    let decoupled = raster_over_the_link(Some(true_decoupling()));
+    println!("fpi board raster, decoupled: {}", said(&decoupled));
+    println!("target: X ≤ 0.2 %, Y ≤ 0.1 % of X's span");
+    let f = decoupled.expect("the decoupled raster runs without a fault");
+    assert!(f.on_truth && f.missing == 0, "{f:?}");
+    assert!(f.fast_rms_pct < 0.5, "{f:?}");
+    assert!(f.slow_rms_pct < 0.3, "{f:?}");
 }

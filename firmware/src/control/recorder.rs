@@ -101,6 +101,34 @@ impl<const N: usize> Recorder<N> {
         self.kept = self.kept.wrapping_add(1);
     }
 
+    /// The ISR's side for a tick of several axes: keeps `samples` (one per
+    /// axis, in axis order) if it is a recorded tick, all of them or, the
+    /// ring without room for all, none (each counted as dropped): a
+    /// recording's ticks stay whole.
+    #[inline]
+    pub fn offer_all(&mut self, samples: &[Sample]) {
+        if !self.active {
+            return;
+        }
+        if self.countdown > 0 {
+            self.countdown -= 1;
+            return;
+        }
+        self.countdown = self.decimation - 1;
+        let n = samples.len() as u32;
+        if self.tail.wrapping_sub(self.head).saturating_add(n) > N as u32 {
+            self.dropped = self.dropped.wrapping_add(n);
+            return;
+        }
+        for s in samples {
+            if let Some(slot) = self.buf.get_mut((self.tail & Self::MASK) as usize) {
+                *slot = *s;
+            }
+            self.tail = self.tail.wrapping_add(1);
+        }
+        self.kept = self.kept.wrapping_add(1);
+    }
+
     /// The oldest sample, left in the ring.
     pub fn peek(&self) -> Option<Sample> {
         if self.head == self.tail {

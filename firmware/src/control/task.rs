@@ -79,8 +79,9 @@ pub struct ControlLoop<S, A, E, R, const N: usize = 1> {
     input_was: bool,
     /// A recording (its decimation) armed for the trigger input's edge.
     armed_record: Option<u16>,
-    /// The axis the recorder records (a record order's first addressed).
-    recorded: usize,
+    /// The axis the recorder records (a record order's one), or every
+    /// axis (`None`: a record order that addresses several).
+    recorded: Option<usize>,
     /// The axes' input and output matrices and the stacks' preload coupling
     /// (none on one axis).
     decoupling: Decoupling<N>,
@@ -120,7 +121,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             starts: TriggerStart::Nothing,
             input_was: false,
             armed_record: None,
-            recorded: 0,
+            recorded: Some(0),
             decoupling: Decoupling::NONE,
             raster_pending: false,
             staged: [(Front::ZERO, Command::ZERO); N],
@@ -318,10 +319,42 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
     }
 
     /// The axis the recorder records (the last record order's): the board
-    /// offers its telemetry to [`ControlLoop::record`].
+    /// offers its telemetry to [`ControlLoop::record`]; `None` where it
+    /// records every axis ([`ControlLoop::record_axes`]).
     #[inline]
-    pub const fn recorded_axis(&self) -> usize {
+    pub const fn recorded_axis(&self) -> Option<usize> {
         self.recorded
+    }
+
+    /// Offers this tick of the recorded axis, or of every axis, to the
+    /// recorder, each with its stage's true position where the board knows
+    /// it (`x_true[i]`, the emulated board's virtual stage): a board of
+    /// several axes.
+    pub fn record_axes(&self, x: &mut Exchange<'_, N>, x_true: &[Option<Micrometres>; N]) {
+        match self.recorded {
+            Some(i) => {
+                if let (Some(t), Some(&at)) = (self.telemetry.get(i), x_true.get(i)) {
+                    x.recorder.offer(&t.sample(at));
+                }
+            }
+            None => {
+                let mut samples = [Sample::default(); N];
+                for ((s, t), &at) in samples.iter_mut().zip(&self.telemetry).zip(x_true) {
+                    *s = t.sample(at);
+                }
+                x.recorder.offer_all(&samples);
+            }
+        }
+    }
+
+    /// The axes a record order records: one, or every axis.
+    fn recorded_of(&self, axes: AxisSet) -> Result<Option<usize>, Refused> {
+        let mut it = axes.indices(N);
+        match (it.next(), it.next()) {
+            (Some(i), None) => Ok(Some(i)),
+            (Some(_), Some(_)) => Ok(None),
+            (None, _) => Err(Refused::Axes),
+        }
     }
 
     /// Tells the loop whether the tick just run ended after the next one was due
@@ -530,7 +563,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 Ok(())
             }
             Order::Record { decimation } if self.starts.recorder() => {
-                self.recorded = axes.indices(N).next().ok_or(Refused::Axes)?;
+                self.recorded = self.recorded_of(axes)?;
                 self.armed_record = Some(decimation);
                 Ok(())
             }
@@ -577,7 +610,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
                 Ok(())
             }
             Order::Record { decimation } => {
-                self.recorded = axes.indices(N).next().ok_or(Refused::Axes)?;
+                self.recorded = self.recorded_of(axes)?;
                 x.recorder.start(decimation);
                 Ok(())
             }

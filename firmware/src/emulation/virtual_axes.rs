@@ -19,7 +19,6 @@ use crate::board::capacity::{Store, IMAGE_BYTES};
 use crate::board::factory_model::MODEL_IMAGE;
 use crate::board::storage::ModelFlash;
 use crate::control::exchange::{Applied, Exchange, Order, Posted, Refused};
-use crate::control::recorder::Sample;
 use crate::control::slots::Spare;
 use crate::control::task::ControlLoop;
 use crate::emulation::virtual_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor};
@@ -82,8 +81,8 @@ pub type AxesLoop<const N: usize> = ControlLoop<
 /// stage of several axes and the exchange, advanced one tick whenever the
 /// link handler waits.
 ///
-/// Its recorder records the axis the last record order named (with its
-/// true position). It takes
+/// Its recorder records the axis the last record order named, or every
+/// axis (with the true positions). It takes
 /// no bench order but its link's pace ([`Refused::BenchOfAxes`]).
 pub struct VirtualAxes<const N: usize> {
     /// Each axis's virtual analog world.
@@ -142,9 +141,9 @@ impl<const N: usize> VirtualAxes<N> {
     }
 
     /// One period: a bench order refused, the control tick, the stage's
-    /// step, the recorder (the recorded axis, with its true position); that
-    /// sample.
-    pub fn tick(&mut self) -> Sample {
+    /// step, the recorder (the recorded axis or every axis, with the true
+    /// positions).
+    pub fn tick(&mut self) {
         let x = &mut self.exchange;
         if let Some(Posted {
             seq,
@@ -159,13 +158,11 @@ impl<const N: usize> VirtualAxes<N> {
                 result: Err(Refused::BenchOfAxes),
             });
         }
-        let x_true = self.x_true;
+        let x_true = self.x_true.map(Some);
         self.control.tick(x);
         let s = step(&mut self.stage, &self.links);
         self.x_true = s.map(|a| Micrometres::from_num(a.x_fhps_um));
-        let a = self.control.recorded_axis();
-        let t = self.control.telemetry()[a];
-        self.control.record(x, &t, x_true.get(a).copied())
+        self.control.record_axes(x, &x_true);
     }
 
     /// Each axis's true output now, µm (where this tick's sensors read it).
@@ -348,5 +345,103 @@ mod tests {
             }
             r => panic!("{r:?}"),
         }
+    }
+
+    fn raster(fast: u8, slow: u8, from: f64, to: f64) -> Command<'static> {
+        Command::Raster {
+            fast,
+            slow,
+            fast_span: [um(from), um(to)],
+            slow_span: [um(from), um(to)],
+            freq_mhz: 100_000,
+            lines: 4,
+            staircase: false,
+        }
+    }
+
+    #[test]
+    fn a_raster_over_the_link_is_checked_then_runs_its_lines_on_both_axes() {
+        let mut h = xy();
+        h.run(10);
+        let reason = |r: Reply| match r {
+            Reply::Refused { reason, .. } => reason.to_string(),
+            r => panic!("{r:?}"),
+        };
+        assert!(reason(h.send(raster(0, 0, 5.0, 35.0))).contains("two"));
+        assert!(reason(h.send(raster(0, 2, 5.0, 35.0))).contains("axis z"));
+        let r = reason(h.send(raster(0, 1, 5.0, 45.0)));
+        assert!(r.contains("fast axis's end") && r.contains("45.000"), "{r}");
+        h.ack(Command::Record {
+            axis: crate::link::protocol::EVERY_AXIS,
+            decimation: 1,
+            signals: crate::control::recorder::signal::ALL,
+        });
+        h.ack(raster(0, 1, 5.0, 35.0));
+        // The approach (5 µm at 1 mm/s: 100 ticks), then 4 lines of 100
+        // (the governor takes the references within what the stage can
+        // follow), then the hold.
+        h.run(2_000);
+        let (x, y) = (h.status_of(0), h.status_of(1));
+        assert_eq!((x.fault, y.fault), (None, None));
+        assert_eq!(x.signals[0], um(5.0), "4 lines: X back at its start");
+        assert_eq!(y.signals[0], um(35.0), "Y ramped to its end");
+        // Every axis recorded: two samples a tick, X's then Y's.
+        let (a, b) = (
+            h.board.exchange.recorder.take().unwrap(),
+            h.board.exchange.recorder.take().unwrap(),
+        );
+        assert_eq!(a.tick, b.tick);
+    }
+
+    #[test]
+    fn a_decoupling_is_taken_parked_and_its_entries_are_checked() {
+        let mut h = xy();
+        h.run(10);
+        let identity = |k: i32| {
+            let mut m = [[0; 3]; 3];
+            for (i, row) in m.iter_mut().enumerate() {
+                row[i] = k;
+            }
+            m
+        };
+        let one = 1 << 30;
+        let mut output = identity(one);
+        output[1][0] = -(one / 66); // −1.5 %
+        let ok = Command::Decoupling {
+            input: identity(one),
+            output,
+            preload: [[0; 3]; 3],
+        };
+        move_y(&mut h, 5.0);
+        assert_eq!(h.refused(ok.clone()), Refusal::NotAtRest);
+        h.ack(Command::Safe);
+        h.run(piezo_fpi::limits::park_ticks(piezo_fpi::q::Volts::const_from_int(150)) + 2);
+        h.ack(ok);
+        let mut far = identity(one);
+        far[0][1] = one / 5; // 20 %
+        match h.send(Command::Decoupling {
+            input: identity(one),
+            output: far,
+            preload: [[0; 3]; 3],
+        }) {
+            Reply::Refused { code, reason } => {
+                assert_eq!(code, Refusal::BadArgument);
+                assert!(
+                    reason.contains("output matrix [x][y] = 200/1000"),
+                    "{reason}"
+                );
+            }
+            r => panic!("{r:?}"),
+        }
+        let mut z = identity(one);
+        z[2][0] = one / 100;
+        assert_eq!(
+            h.refused(Command::Decoupling {
+                input: identity(one),
+                output: z,
+                preload: [[0; 3]; 3],
+            }),
+            Refusal::Axis
+        );
     }
 }

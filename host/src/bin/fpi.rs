@@ -756,6 +756,48 @@ enum BoardCommand {
         #[arg(long)]
         out: PathBuf,
     },
+    /// A raster on two axes of a board of several, every axis recorded.
+    ///
+    /// Both axes go to their start; the lines start on the same tick on
+    /// both: the fast axis a triangle at --freq-hz (a line is half its
+    /// period), the slow axis a ramp (or a staircase) over the same lines.
+    /// Prints the RMS error over the central 80 % of every line (the true
+    /// positions on the emulated board, else the position sensors). The
+    /// CSV's columns are `t_s` and each axis's `<signal>@<axis>`.
+    Raster {
+        /// The fast axis: x, y or z.
+        #[arg(long, value_parser = parse_axis)]
+        fast: u8,
+        /// The slow axis.
+        #[arg(long, value_parser = parse_axis)]
+        slow: u8,
+        /// The fast axis's triangle, Hz.
+        #[arg(long, value_parser = parse_positive, allow_negative_numbers = true)]
+        freq_hz: f64,
+        /// Lines.
+        #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+        lines: u16,
+        /// Where every line starts, µm (the fast axis; the slow axis too unless
+        /// --slow-from-um).
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
+        from_um: f64,
+        /// Where every line ends, µm (the fast axis; the slow axis too unless
+        /// --slow-to-um).
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
+        to_um: f64,
+        /// The slow axis's start, µm.
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
+        slow_from_um: Option<f64>,
+        /// The slow axis's end, µm.
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
+        slow_to_um: Option<f64>,
+        /// The slow axis steps at each line's start (else it ramps).
+        #[arg(long)]
+        staircase: bool,
+        /// Where to write the recording (CSV).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Measure the frequency response through the board.
     ///
     /// Its own lock-in analyser, from the command to the position and force
@@ -810,9 +852,10 @@ impl BoardCommand {
     /// starts ([`fpi_host::output::check_outputs`]).
     fn files(&self) -> (Files<'_>, Files<'_>) {
         match self {
-            Self::Record { out, .. } | Self::Step { out, .. } | Self::Frf { out, .. } => {
-                (vec![("--out", out.as_path())], vec![])
-            }
+            Self::Record { out, .. }
+            | Self::Step { out, .. }
+            | Self::Frf { out, .. }
+            | Self::Raster { out, .. } => (vec![("--out", out.as_path())], vec![]),
             Self::Move {
                 record: Some(r), ..
             }
@@ -1310,6 +1353,7 @@ fn board(port: Option<String>, axis: u8, command: BoardCommand) -> Result<()> {
             | BoardCommand::Hold
             | BoardCommand::Analog
             | BoardCommand::Step { .. }
+            | BoardCommand::Raster { .. }
     );
     let ended_before = if motion {
         Some(c.status()?.ended_points)
@@ -1418,6 +1462,29 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             b::step(c, &s, &out)
         }
         BoardCommand::Frf { sweep, out } => b::frf(c, &sweep.settings(), &out),
+        BoardCommand::Raster {
+            fast,
+            slow,
+            freq_hz,
+            lines,
+            from_um,
+            to_um,
+            slow_from_um,
+            slow_to_um,
+            staircase,
+            out,
+        } => {
+            let spec = fpi_host::board::raster::RasterSpec {
+                fast,
+                slow,
+                fast_um: (from_um, to_um),
+                slow_um: (slow_from_um.unwrap_or(from_um), slow_to_um.unwrap_or(to_um)),
+                freq_hz,
+                lines,
+                staircase,
+            };
+            b::raster(c, &spec, &out)
+        }
         BoardCommand::Autotune {
             model,
             fem,

@@ -58,6 +58,17 @@ impl Budget {
         }
     }
 
+    /// The demand of the same recording of `n` axes at once (a sample per
+    /// axis of each kept tick).
+    pub fn of_axes(self, n: u8) -> Self {
+        let n = f64::from(n.max(1));
+        Self {
+            samples_per_s: self.samples_per_s * n,
+            samples: self.samples * n,
+            ..self
+        }
+    }
+
     /// How long the host waits between two reads while the recording runs:
     /// 20 ms, or a quarter of the time the board's ring takes to fill at this
     /// rate (6.4 ms for the 512-sample ring at every tick at 20 kHz), so that a

@@ -453,18 +453,28 @@ impl Client {
         }
     }
 
-    /// Opens the loop, parks the stage (ramps to the safe voltage, amplifier
-    /// off) and waits until it is at the safe voltage; the tick it got there.
+    /// Opens the addressed axis's loop, parks every axis (each ramps to its
+    /// safe voltage, amplifier off) and waits until each is at its safe
+    /// voltage; the tick the last got there.
     pub fn park(&mut self) -> Result<u32> {
         self.ack(&Command::Loop {
             axis: self.axis,
             mode: LoopMode::Open,
         })?;
         self.ack(&Command::Safe)?;
-        let s = self.wait_for("the safe voltage", |s| {
-            s.fault.is_some_and(|f| f.safe_at.is_some())
-        })?;
-        Ok(s.fault.and_then(|f| f.safe_at).unwrap_or(s.tick))
+        // `safe` parks every axis: each at its safe voltage.
+        let here = self.axis;
+        let mut at = 0;
+        for axis in 0..self.hello.axes.max(1) {
+            self.axis = axis;
+            let s = self.wait_for("the safe voltage", |s| {
+                s.fault.is_some_and(|f| f.safe_at.is_some())
+            });
+            self.axis = here;
+            let s = s?;
+            at = at.max(s.fault.and_then(|f| f.safe_at).unwrap_or(s.tick));
+        }
+        Ok(at)
     }
 
     /// Polls the status until `done` says so (for up to a minute); that status.

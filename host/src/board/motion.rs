@@ -16,11 +16,11 @@ use anyhow::{bail, Result};
 use fpi_firmware::control::recorder::{signal, Sample};
 use std::time::{Duration, Instant};
 
-use fpi_protocol::{Command, SourceKind};
+use fpi_protocol::{Command, SourceKind, EVERY_AXIS};
 use piezo_fpi::control::Fault;
 
 use super::budget::Budget;
-use super::client::{Client, Faulted};
+use super::client::{axis_name, Client, Faulted};
 use super::commands::{self, BadArgument, Streamed};
 use super::recording::Recording;
 use crate::data::Num;
@@ -90,11 +90,45 @@ pub fn record<T>(
     go: impl FnOnce(&mut Client, &mut dyn FnMut(&mut Client) -> Result<()>) -> Result<(u32, T)>,
     stop: impl FnMut() -> bool,
 ) -> Result<Motion<T>> {
+    let axis = c.axis();
+    record_of(c, (axis, signal::ALL), what, expected_s, until, go, stop)
+}
+
+/// [`record`] of `signals` of every axis of a board of several: its
+/// recording holds one sample per axis of each tick, in axis order ([`AxesRecording::split`](super::recording::AxesRecording::split)
+/// parts them). The motion's end is the addressed axis's.
+pub fn record_every_axis<T>(
+    c: &mut Client,
+    signals: u8,
+    what: &str,
+    expected_s: f64,
+    until: Until,
+    go: impl FnOnce(&mut Client, &mut dyn FnMut(&mut Client) -> Result<()>) -> Result<(u32, T)>,
+    stop: impl FnMut() -> bool,
+) -> Result<Motion<T>> {
+    record_of(c, (EVERY_AXIS, signals), what, expected_s, until, go, stop)
+}
+
+/// [`record`] of `signals` of `axis` (or [`EVERY_AXIS`]).
+fn record_of<T>(
+    c: &mut Client,
+    (axis, signals): (u8, u8),
+    what: &str,
+    expected_s: f64,
+    until: Until,
+    go: impl FnOnce(&mut Client, &mut dyn FnMut(&mut Client) -> Result<()>) -> Result<(u32, T)>,
+    stop: impl FnMut() -> bool,
+) -> Result<Motion<T>> {
     let seconds = match until {
         Until::Seconds(s) => s,
         Until::Rest => expected_s + TAIL_S,
     };
-    let budget = Budget::new(c.hello(), signal::ALL, 1, seconds + 0.005);
+    let per_tick = if axis == EVERY_AXIS {
+        c.hello().axes
+    } else {
+        1
+    };
+    let budget = Budget::new(c.hello(), signals, 1, seconds + 0.005).of_axes(per_tick);
     if !budget.fits() {
         return Err(BadArgument {
             name: "record",
@@ -113,30 +147,34 @@ pub fn record<T>(
         .into());
     }
     c.ack(&Command::Record {
-        axis: c.axis(),
+        axis,
         decimation: 1,
-        signals: signal::ALL,
+        signals,
     })?;
     let mut rec = Recording {
         rate_hz: c.rate_hz(),
-        signals: signal::ALL,
+        signals,
         ..Recording::default()
     };
-    let followed = follow(c, &mut rec.samples, what, until, go, stop);
+    let followed = follow(c, (&mut rec.samples, per_tick), what, until, go, stop);
     // The recorder stops however the recording ended.
     let stopped_recorder = c.ack(&Command::RecordStop);
     let (result, start, end, stopped) = followed?;
     stopped_recorder?;
-    read_all(c, &mut rec.samples)?;
+    read_all(c, &mut rec.samples, per_tick)?;
     rec.samples
         .retain(|s| s.tick >= start && end.is_none_or(|e| s.tick < e));
     // What the ring dropped of the ticks kept (not of those before the motion).
     let span = rec.samples.last().map_or(0, |s| s.tick - start + 1);
-    rec.dropped = span.saturating_sub(rec.samples.len() as u32);
-    let fault = match c.status()?.fault {
+    rec.dropped = (span * u32::from(per_tick)).saturating_sub(rec.samples.len() as u32);
+    let (status, by) = faulted_status(c)?;
+    let fault = match status.fault {
         Some(x) if x.at >= start && x.code != Fault::Stopped as u8 => Some(
             Faulted {
-                what: what.to_string(),
+                what: match by {
+                    Some(a) => format!("{what} (on axis {})", axis_name(a)),
+                    None => what.to_string(),
+                },
                 tick: x.at,
                 reason: Fault::from_code(x.code).map_or("an unknown fault", |f| f.message()),
             }
@@ -153,14 +191,34 @@ pub fn record<T>(
     })
 }
 
-/// Reads the recorder until nothing waits, into `into`. One batch after the
-/// other, as `fpi board record` reads: at every tick the link has little to
-/// spare, so no other request comes between two while samples wait.
-fn read_all(c: &mut Client, into: &mut Vec<Sample>) -> Result<()> {
+/// The status of the addressed axis, or, where another axis's fault parked
+/// the board, that axis's status and its number.
+fn faulted_status(c: &mut Client) -> Result<(fpi_protocol::Status, Option<u8>)> {
+    let s = c.status()?;
+    let here = c.axis();
+    match s.fault_axis {
+        Some(a) if a != here => {
+            c.on_axis(a)?;
+            let other = c.status();
+            c.on_axis(here)?;
+            Ok((other?, Some(a)))
+        }
+        _ => Ok((s, None)),
+    }
+}
+
+/// Reads the recorder until nothing waits, into `into` (`stride` axes'
+/// samples interleaved: [`Sample::interleaved`]). One batch after the other,
+/// as `fpi board record` reads: at every tick the link has little to spare,
+/// so no other request comes between two while samples wait. At most a
+/// ring's worth of samples a call: a recording the link cannot keep up with
+/// (its ring drops, and says so) still lets the caller poll the board.
+fn read_all(c: &mut Client, into: &mut Vec<Sample>, stride: u8) -> Result<()> {
+    let most = into.len() + c.hello().buffers[0] as usize;
     loop {
         let b = c.read_batch()?;
-        into.extend(Sample::batch(b.signals, &b.values));
-        if b.waiting == 0 {
+        into.extend(Sample::interleaved(b.signals, stride, &b.values));
+        if b.waiting == 0 || into.len() >= most {
             return Ok(());
         }
     }
@@ -175,13 +233,13 @@ const POLL: Duration = Duration::from_millis(5);
 /// whether `stop` ended it. The recorder is read into `samples` throughout.
 fn follow<T>(
     c: &mut Client,
-    samples: &mut Vec<Sample>,
+    (samples, stride): (&mut Vec<Sample>, u8),
     what: &str,
     until: Until,
     go: impl FnOnce(&mut Client, &mut dyn FnMut(&mut Client) -> Result<()>) -> Result<(u32, T)>,
     mut stop: impl FnMut() -> bool,
 ) -> Result<(T, u32, Option<u32>, bool)> {
-    let (start, result) = go(c, &mut |c: &mut Client| read_all(c, samples))?;
+    let (start, result) = go(c, &mut |c: &mut Client| read_all(c, samples, stride))?;
     let rate = c.rate_hz();
     let ticks = |s: f64| (s * rate).round() as u32;
     // Until the recording's end is known (the motion has ended), then until
@@ -193,7 +251,7 @@ fn follow<T>(
     let started = Instant::now();
     let mut polled: Option<Instant> = None;
     loop {
-        read_all(c, samples)?;
+        read_all(c, samples, stride)?;
         if stop() {
             return Ok((result, start, None, true));
         }

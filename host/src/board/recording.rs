@@ -121,19 +121,107 @@ impl Recording {
         for s in samples {
             let mut line = format!("{:.6}", s.tick as f64 / self.rate_hz);
             for (bit, _) in self.recorded() {
-                let v = value(bit, s);
-                let v = match bit {
-                    signal::FORCE => format!("{v:.4}"),
-                    signal::STATUS => s.status.to_string(),
-                    signal::TRIGGER => s.lines.to_string(),
-                    _ => format!("{v:.5}"),
-                };
                 line.push(',');
-                line.push_str(&v);
+                line.push_str(&formatted(bit, s));
             }
             writeln!(w, "{line}")?;
         }
         Ok(())
+    }
+}
+
+/// Signal `bit` of `s` as the CSV writes it.
+fn formatted(bit: u8, s: &Sample) -> String {
+    let v = value(bit, s);
+    match bit {
+        signal::FORCE => format!("{v:.4}"),
+        signal::STATUS => s.status.to_string(),
+        signal::TRIGGER => s.lines.to_string(),
+        _ => format!("{v:.5}"),
+    }
+}
+
+/// A recording of every axis of a board of several: each axis's recording,
+/// over the same ticks. Its CSV has `t_s`, then each axis's columns named
+/// `<signal>@<axis>` (`x_fhps_um@y`).
+#[derive(Debug, Clone, Default)]
+pub struct AxesRecording {
+    /// Each axis's recording, in axis order.
+    pub axes: Vec<Recording>,
+}
+
+impl AxesRecording {
+    /// The recording of `n` axes from `rec`, whose samples interleave them
+    /// (each kept tick: one sample per axis, in axis order, as the board
+    /// records every axis). A tick that is not whole is dropped and counted.
+    pub fn split(rec: &Recording, n: usize) -> Self {
+        let mut axes = vec![
+            Recording {
+                rate_hz: rec.rate_hz,
+                signals: rec.signals,
+                samples: Vec::with_capacity(rec.samples.len() / n.max(1)),
+                dropped: rec.dropped / n.max(1) as u32,
+            };
+            n
+        ];
+        let mut rest = rec.samples.as_slice();
+        while !rest.is_empty() {
+            let same = rest.iter().take_while(|s| s.tick == rest[0].tick).count();
+            if same == n {
+                for (a, s) in axes.iter_mut().zip(&rest[..n]) {
+                    a.samples.push(*s);
+                }
+            } else {
+                for a in &mut axes {
+                    a.dropped += 1;
+                }
+            }
+            rest = &rest[same..];
+        }
+        Self { axes }
+    }
+
+    /// The recording by column, as the CSV has them: `t_s`, then each
+    /// axis's signals named `<signal>@<axis>`.
+    pub fn columns(&self) -> Vec<(String, Vec<f64>)> {
+        let mut out = Vec::new();
+        for (i, a) in self.axes.iter().enumerate() {
+            let name = super::client::axis_name(i as u8);
+            for (column, values) in a.columns() {
+                if column == "t_s" {
+                    if i == 0 {
+                        out.push((column.to_string(), values));
+                    }
+                } else {
+                    out.push((format!("{column}@{name}"), values));
+                }
+            }
+        }
+        out
+    }
+
+    /// Writes the CSV atomically (a failure leaves no partial file and
+    /// names `path`).
+    pub fn write_csv(&self, path: &Path) -> Result<()> {
+        crate::output::write_atomic_with(path, |w| {
+            let columns: Vec<String> = self.columns().into_iter().map(|(n, _)| n).collect();
+            writeln!(w, "{}", columns.join(","))?;
+            let Some(first) = self.axes.first() else {
+                return Ok(());
+            };
+            for (k, s) in first.samples.iter().enumerate() {
+                let mut line = format!("{:.6}", f64::from(s.tick) / first.rate_hz);
+                for a in &self.axes {
+                    let Some(s) = a.samples.get(k) else { continue };
+                    for (bit, _) in a.recorded() {
+                        line.push(',');
+                        line.push_str(&formatted(bit, s));
+                    }
+                }
+                writeln!(w, "{line}")?;
+            }
+            Ok(())
+        })
     }
 }
 

@@ -970,6 +970,30 @@ pub fn step(c: &mut Client, s: &crate::board::step::StepSettings, out: &Path) ->
     Ok(())
 }
 
+/// `fpi board raster`: the raster `spec`, every axis recorded to `out`, its
+/// figures printed; a fault during it is an error once the recording is
+/// kept.
+pub fn raster(c: &mut Client, spec: &crate::board::raster::RasterSpec, out: &Path) -> Result<()> {
+    use crate::board::raster;
+    let (m, rec) = or_restore(c, |c| raster::run(c, spec))?;
+    rec.write_csv(out)?;
+    let ticks = rec.axes.first().map_or(0, |a| a.samples.len());
+    println!(
+        "raster recorded to {} ({ticks} ticks of {} axes, {} samples dropped)",
+        out.display(),
+        rec.axes.len(),
+        m.recording.dropped
+    );
+    match raster::figures(spec, &rec) {
+        Some(f) => println!("  {}", raster::describe(spec, &f)),
+        None => println!("  no whole line recorded: no figures"),
+    }
+    match m.fault {
+        Some(f) => Err(f),
+        None => Ok(()),
+    }
+}
+
 /// `fpi board frf`: the frequency response measured through the board, to `out`.
 pub fn frf(c: &mut Client, s: &crate::board::frf::FrfSettings, out: &Path) -> Result<()> {
     let conditions = crate::board::frf::conditions(c)?;

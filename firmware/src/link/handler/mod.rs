@@ -22,7 +22,7 @@ use super::pace::{reached, Pace};
 use super::protocol::{
     Analysis, Batch, BenchOrder, BoardKind, Command, Counters, FaultReport, FrontEndKind, Header,
     Hello, LinkKind, Refusal, Reply, ReplyHeader, ResetReason, SlotReport, Status, Text,
-    TriggerSettings, MAX_FRAME, MAX_MODEL_BYTES, NO_SEQ, VERSION,
+    TriggerSettings, EVERY_AXIS, MAX_FRAME, MAX_MODEL_BYTES, NO_SEQ, VERSION,
 };
 use super::refusal::{refuse, Refuse};
 use super::upload::Upload;
@@ -39,6 +39,7 @@ use crate::control::reference::SourceOrder;
 use crate::control::slots::{Origin, Running, Spare, Summary};
 use crate::control::tracking::LoopMode;
 
+mod axes;
 mod models;
 mod settings;
 mod trigger;
@@ -118,6 +119,9 @@ pub struct Handler<F, const N: usize = 1> {
     /// A `Reset` was answered.
     reset_requested: bool,
     pub(super) signals: u8,
+    /// Axes whose samples alternate in the recording (every axis recorded),
+    /// else 1.
+    stride: u8,
     pub(super) timeout_ms: u32,
     /// The trigger output's settings, every mode's levels kept.
     pub(super) trigger: TriggerSettings,
@@ -212,6 +216,7 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
             reset,
             reset_requested: false,
             signals: signal::ALL,
+            stride: 1,
             timeout_ms: 0,
             trigger: TriggerSettings::DEFAULT,
             counters: Counters::default(),
@@ -274,8 +279,10 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
     /// The axes an order of the request goes to: the one it addresses, or
     /// every axis for an order that addresses none.
     fn addressed(&self, cmd: &Command<'_>) -> AxisSet {
-        cmd.axis()
-            .map_or(AxisSet::ALL, |a| AxisSet::one(a as usize))
+        match cmd.axis() {
+            None | Some(EVERY_AXIS) => AxisSet::ALL,
+            Some(a) => AxisSet::one(a as usize),
+        }
     }
 
     /// Counts a frame the reader dropped for being longer than the buffer and
@@ -433,17 +440,34 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
             },
             cmd => cmd,
         };
-        if let Some(axis) = cmd.axis().filter(|&a| a as usize >= N) {
-            return Err(refuse(
-                Refusal::Axis,
-                format_args!(
-                    "axis {} does not exist: this board has {N} ({})",
-                    axis_name(axis as usize),
-                    AxisNames(N)
-                ),
-            ));
+        // `record` alone takes every axis at once.
+        let every = matches!(
+            cmd,
+            Command::Record {
+                axis: EVERY_AXIS,
+                ..
+            }
+        );
+        match cmd.axis() {
+            Some(EVERY_AXIS) if !every => {
+                return Err(refuse(
+                    Refusal::Axis,
+                    format_args!("only `record` addresses every axis at once: name one axis"),
+                ))
+            }
+            Some(axis) if axis as usize >= N && !every => {
+                return Err(refuse(
+                    Refusal::Axis,
+                    format_args!(
+                        "axis {} does not exist: this board has {N} ({})",
+                        axis_name(axis as usize),
+                        AxisNames(N)
+                    ),
+                ))
+            }
+            _ => {}
         }
-        self.axis = cmd.axis().map_or(0, usize::from);
+        self.axis = cmd.axis().filter(|_| !every).map_or(0, usize::from);
         self.axes = self.addressed(&cmd);
         match cmd {
             Command::Hello => self.ack(board).map(|_| Reply::Hello(self.hello())),
@@ -584,13 +608,39 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
                         format_args!("decimation {decimation}: keep one tick in 1 or more"),
                     ));
                 }
+                let done = self.order(board, seq, Order::Record { decimation })?;
                 self.signals = signals;
-                self.order(board, seq, Order::Record { decimation })
+                self.stride = if every { N as u8 } else { 1 };
+                Ok(done)
             }
             Command::RecordStop => self.order(board, seq, Order::StopRecording),
+            Command::Raster {
+                fast,
+                slow,
+                fast_span,
+                slow_span,
+                freq_mhz,
+                lines,
+                staircase,
+            } => {
+                let asked = axes::RasterAsked {
+                    fast,
+                    slow,
+                    fast_span,
+                    slow_span,
+                    freq_mhz,
+                    lines,
+                    staircase,
+                };
+                self.raster(board, seq, &asked)
+            }
+            Command::Decoupling {
+                input,
+                output,
+                preload,
+            } => self.decoupling(board, seq, &input, &output, &preload),
             Command::ReadRecord { max } => {
-                let signals = self.signals;
-                let b = batch(board, signals, max);
+                let b = batch(board, Packer::interleaved(self.signals, self.stride), max);
                 self.locked(board, |_| ());
                 Ok(Reply::Record(b))
             }
@@ -1147,8 +1197,8 @@ fn status<const N: usize>(x: &Exchange<'_, N>, summary: &Summary, axis: u8) -> S
 /// Up to `max` recorded samples, as a batch fills a frame (see [`Batch`]). The
 /// exchange is locked for one sample at a time, so the control ISR waits at
 /// most a sample's copy however long the batch.
-fn batch<const N: usize>(board: &mut impl Board<N>, signals: u8, max: u16) -> Batch {
-    let mut packer = Packer::new(signals);
+fn batch<const N: usize>(board: &mut impl Board<N>, mut packer: Packer, max: u16) -> Batch {
+    let signals = packer.signals();
     for _ in 0..max {
         let Some(next) = board.exchange(|x| x.recorder.peek()) else {
             break;
