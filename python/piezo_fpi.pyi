@@ -161,10 +161,30 @@ class Board:
     def wait_on_target(self, timeout: float = 5.0, tolerance_um: float = ...) -> float:
         """Waits up to ``timeout`` s until on target; the position, µm. ``TimeoutError`` otherwise."""
     @overload
-    def move(self, target_um: float, speed: float = 1000.0, *, record: Literal[False] = False) -> int:
-        """Ramps to ``target_um`` at ``speed`` µm/s and holds it (PI: ``MOV``); the tick it started."""
+    def move(
+        self,
+        target_um: Optional[float] = None,
+        speed: float = 1000.0,
+        *,
+        record: Literal[False] = False,
+        x: Optional[float] = None,
+        y: Optional[float] = None,
+        z: Optional[float] = None,
+    ) -> int:
+        """Ramps to ``target_um`` at ``speed`` µm/s and holds it (PI: ``MOV``); the tick it started.
+        On a board of several axes, ``move(x=10.0, y=20.0)`` moves each axis named
+        from the same tick."""
     @overload
-    def move(self, target_um: float, speed: float = 1000.0, *, record: Literal[True]) -> _Recorded:
+    def move(
+        self,
+        target_um: Optional[float] = None,
+        speed: float = 1000.0,
+        *,
+        record: Literal[True],
+        x: Optional[float] = None,
+        y: Optional[float] = None,
+        z: Optional[float] = None,
+    ) -> _Recorded:
         """The move, recorded at every tick (every column of ``record``, ``x_fhps_um``
         the true position on the emulated board) until it holds the target and 50 ms
         more: ``tick`` and ``recording``. A fault meanwhile: ``BoardError``. Ctrl-C:
@@ -291,6 +311,26 @@ class Board:
         trigger_in_ticks: Optional[int] = None,
     ) -> List[str]:
         """The emulated board's virtual bench (a real board refuses); what was set."""
+    def raster(
+        self,
+        fast: str,
+        slow: str,
+        *,
+        freq_hz: float,
+        lines: int,
+        from_um: float,
+        to_um: float,
+        slow_from_um: Optional[float] = None,
+        slow_to_um: Optional[float] = None,
+        staircase: bool = False,
+    ) -> Dict[str, Any]:
+        """A raster on two axes of a board of several (``fpi board raster``):
+        axis ``fast`` a triangle at ``freq_hz``, axis ``slow`` a ramp (or a
+        ``staircase``), the lines started on the same tick, every axis
+        recorded. ``fast_rms_pct`` and ``slow_rms_pct`` (the RMS error over the
+        central 80 % of each line, % of the fast axis's span), ``on_truth``,
+        ``missing``, and under each axis's name its recording (a dict of
+        arrays)."""
     def step(
         self,
         from_um: float,

@@ -110,6 +110,8 @@ crate::wire_enum! {
         Raster = 38,
         /// [`Command::Decoupling`].
         Decoupling = 39,
+        /// [`Command::MoveAxes`].
+        MoveAxes = 40,
     }
 }
 
@@ -398,6 +400,17 @@ pub enum Command<'a> {
         /// The slow axis steps at each line's start (else it ramps).
         staircase: bool,
     },
+    /// Ramp each axis of `mask` (bit `i`: axis `i`) to its target at `speed`
+    /// (µm/s), all from the same tick, and hold (or none, when one refuses).
+    MoveAxes {
+        /// The axes that move.
+        mask: u8,
+        /// Each axis's target, µm (`I16F16` bits; an axis outside `mask`:
+        /// unused).
+        targets: [i32; 3],
+        /// µm/s (`I16F16` bits).
+        speed: i32,
+    },
     /// The axes' decoupling from the next tick on (a board of several axes):
     /// the input matrix (sensors → axes) and the output matrix (axes →
     /// stacks), `I2F30` bits, `[row][column]` over x, y, z; the stacks'
@@ -458,6 +471,7 @@ impl Command<'_> {
             Self::TriggerIn { .. } => K::TriggerIn,
             Self::Raster { .. } => K::Raster,
             Self::Decoupling { .. } => K::Decoupling,
+            Self::MoveAxes { .. } => K::MoveAxes,
         }
     }
 
@@ -582,6 +596,11 @@ impl<'a> Tagged<'a> for Command<'a> {
                 output,
                 preload,
             } => put!(t; input, output, preload),
+            Self::MoveAxes {
+                mask,
+                targets,
+                speed,
+            } => put!(t; mask, targets, speed),
         }
         Ok(())
     }
@@ -713,6 +732,11 @@ impl<'a> Tagged<'a> for Command<'a> {
                 input: field(a)?,
                 output: field(a)?,
                 preload: field(a)?,
+            },
+            K::MoveAxes => Self::MoveAxes {
+                mask: field(a)?,
+                targets: field(a)?,
+                speed: field(a)?,
             },
         }))
     }

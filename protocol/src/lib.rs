@@ -53,7 +53,7 @@ pub use settings::{Settings, StageSettings, TriggerSettings};
 /// commands ([`Command::ModelCommit`], [`Command::ModelInfo`],
 /// [`Command::ModelFactory`], [`Command::ModelRead`]) and in
 /// [`Command::Record`] (or every axis), the axis whose fault parked the board in the
-/// status, [`Command::Raster`] and [`Command::Decoupling`]; 12: the refusal [`Refusal::Held`]
+/// status, [`Command::Raster`], [`Command::Decoupling`] and [`Command::MoveAxes`]; 12: the refusal [`Refusal::Held`]
 /// of the board's hub; 11: the board's axes and analog
 /// front end in the hello; 10: the runtime settings by key
 /// path, [`Command::SettingGet`] and [`Command::SettingSet`]; 9: the governed ticks and the

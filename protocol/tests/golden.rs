@@ -148,6 +148,8 @@ goldens! {
         lines: 20,
         staircase: false,
     } => "26 00 01 80 80 28 80 80 98 02 80 80 28 80 80 98 02 a0 8d 06 14 00";
+    command_move_axes: Command::MoveAxes { mask: 3, targets: [10 << 16, 20 << 16, 0], speed: 1000 << 16 }
+        => "28 03 80 80 50 80 80 a0 01 00 80 80 c0 3e";
     command_decoupling: Command::Decoupling {
         input: [[1 << 30, 0, 0], [0, 1 << 30, 0], [0, 0, 1 << 30]],
         output: [[1 << 30, -(1 << 24), 0], [0, 1 << 30, 0], [0, 0, 1 << 30]],
@@ -383,7 +385,7 @@ fn a_request_frame_golden() {
 #[test]
 fn unknown_kinds_and_axes() {
     assert_eq!(
-        frame::body::<Command<'_>>(&[40]),
+        frame::body::<Command<'_>>(&[41]),
         Err(frame::FrameError::UnknownKind)
     );
     assert_eq!(

@@ -9,12 +9,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 use anyhow::anyhow;
-use fpi_host::board::client::{axis_name, real, Client};
+use fpi_host::board::client::{axis_name, axis_number, real, Client};
 use fpi_host::board::commands::{self, BenchSettings, Streamed};
 use fpi_host::board::frf::FrfSettings;
 use fpi_host::board::live::{Live, SharedClient};
 use fpi_host::board::mass;
 use fpi_host::board::motion::{self, Until};
+use fpi_host::board::raster::{self, RasterSpec};
 use fpi_host::board::recording::{column_names, signals_named};
 use fpi_host::board::restore::or_restore;
 use fpi_host::board::step::StepSettings;
@@ -360,14 +361,46 @@ impl Board {
     /// position on the emulated board) once it has ended; a fault meanwhile
     /// raises `BoardError`. Ctrl-C stops the recording (not the move):
     /// `Interrupted`, whose `done` is the recording so far.
-    #[pyo3(signature = (target_um, speed = 1000.0, *, record = false))]
+    ///
+    /// On a board of several axes, `move(x=10.0, y=20.0)` (no `target_um`)
+    /// moves each axis named to its target from the same tick (not
+    /// recorded).
+    #[pyo3(signature = (target_um = None, speed = 1000.0, *, record = false, x = None, y = None, z = None))]
+    #[allow(clippy::too_many_arguments)]
     fn r#move<'py>(
         &self,
         py: Python<'py>,
-        target_um: f64,
+        target_um: Option<f64>,
         speed: f64,
         record: bool,
+        x: Option<f64>,
+        y: Option<f64>,
+        z: Option<f64>,
     ) -> PyResult<Bound<'py, PyAny>> {
+        let targets = [x, y, z];
+        let target_um = match (target_um, targets.iter().any(Option::is_some)) {
+            (Some(t), false) => t,
+            (None, true) if !record => {
+                let t = self.run(py, |c| commands::move_axes(c, targets, speed))?;
+                return Ok(t.into_pyobject(py)?.into_any());
+            }
+            (None, true) => {
+                return Err(pyo3::exceptions::PyValueError::new_err(
+                    "move(x=…, y=…, record=True): recording a move of several axes from \
+                     Python is not built yet (`fpi board move --x … --y … --record` records it)",
+                ))
+            }
+            (Some(_), true) => {
+                return Err(pyo3::exceptions::PyTypeError::new_err(
+                    "move: target_um or x/y/z, not both",
+                ))
+            }
+            (None, false) => {
+                return Err(pyo3::exceptions::PyTypeError::new_err(
+                    "move: a target: target_um, or x/y/z on a board of several axes",
+                ))
+            }
+        };
         if !record {
             let t = self.run(py, |c| commands::move_to(c, target_um, speed))?;
             return Ok(t.into_pyobject(py)?.into_any());
@@ -811,6 +844,66 @@ impl Board {
         d.set_item("true_position", fig.true_position)?;
         d.set_item("governed_ticks", fig.governed_ticks)?;
         d.set_item("recording", columns_dict(py, rec.columns())?)?;
+        Ok(d)
+    }
+
+    /// A raster on two axes of a board of several (`fpi board raster`):
+    /// both go to their start, then `lines` lines start on the same tick,
+    /// axis `fast` (`"x"`, `"y"` or `"z"`) a triangle at `freq_hz` over
+    /// `from_um`…`to_um`, axis `slow` a ramp (or a `staircase`) over
+    /// `slow_from_um`…`slow_to_um` (by default the same), every axis
+    /// recorded. A dict: `fast_rms_pct` and `slow_rms_pct` (the RMS error
+    /// over the central 80 % of each line, in % of the fast axis's span),
+    /// `on_truth` (scored on the true positions, else the sensors),
+    /// `missing` (ticks the board's ring dropped), and under each axis's
+    /// name its recording (a dict of arrays: `t_s`, `x_ref_um`, `x_fhps_um`,
+    /// `x_sensor_um`, `status`).
+    #[pyo3(signature = (fast, slow, *, freq_hz, lines, from_um, to_um, slow_from_um = None, slow_to_um = None, staircase = false))]
+    #[allow(clippy::too_many_arguments)]
+    fn raster<'py>(
+        &self,
+        py: Python<'py>,
+        fast: &str,
+        slow: &str,
+        freq_hz: f64,
+        lines: u16,
+        from_um: f64,
+        to_um: f64,
+        slow_from_um: Option<f64>,
+        slow_to_um: Option<f64>,
+        staircase: bool,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        self.recorder_free("raster")?;
+        let axis = |name: &str, arg: &str| {
+            axis_number(name).ok_or_else(|| {
+                pyo3::exceptions::PyValueError::new_err(format!(
+                    "{arg}={name:?}: \"x\", \"y\" or \"z\""
+                ))
+            })
+        };
+        let spec = RasterSpec {
+            fast: axis(fast, "fast")?,
+            slow: axis(slow, "slow")?,
+            fast_um: (from_um, to_um),
+            slow_um: (slow_from_um.unwrap_or(from_um), slow_to_um.unwrap_or(to_um)),
+            freq_hz,
+            lines,
+            staircase,
+        };
+        let (m, rec) = self.run(py, |c| or_restore(c, |c| raster::run(c, &spec)))?;
+        if let Some(f) = m.fault {
+            return Err(to_py(py, f, Otherwise::Link));
+        }
+        let d = PyDict::new(py);
+        if let Some(f) = raster::figures(&spec, &rec) {
+            d.set_item("fast_rms_pct", f.fast_rms_pct)?;
+            d.set_item("slow_rms_pct", f.slow_rms_pct)?;
+            d.set_item("on_truth", f.on_truth)?;
+            d.set_item("missing", f.missing)?;
+        }
+        for (i, a) in rec.axes.iter().enumerate() {
+            d.set_item(axis_name(i as u8), columns_dict(py, a.columns())?)?;
+        }
         Ok(d)
     }
 

@@ -338,7 +338,7 @@ def test_a_fault_is_a_board_error(board):
 
 
 def test_each_axis_of_a_board_of_several_is_its_own_board_object():
-    with pf.Board("virtual:xy-built") as b:
+    with pf.Board("virtual:usb:xy-built") as b:
         assert b.axis == "x"
         axes = b.axes
         assert sorted(axes) == ["x", "y"]
@@ -352,6 +352,22 @@ def test_each_axis_of_a_board_of_several_is_its_own_board_object():
         assert sy["reference_um"] == pytest.approx(10.0, abs=1e-4)
         assert sx["axis"] == "x" and sx["state"] == "parked"
         assert sx["fault_axis"] is None
+        r = b.raster("x", "y", freq_hz=50.0, lines=4, from_um=5.0, to_um=35.0)
+        assert set(r["x"]) >= {"t_s", "x_ref_um", "x_fhps_um"}
+        assert len(r["x"]["t_s"]) == len(r["y"]["t_s"]) > 800
+        assert r["y"]["x_ref_um"][-1] == pytest.approx(35.0, abs=1e-4)
+        assert r["on_truth"] and r["missing"] == 0
+        # Open loop on the factory model: the stage as built is a few % off.
+        assert 0.0 < r["fast_rms_pct"] < 10.0
+        with pytest.raises(ValueError, match="fast"):
+            b.raster("w", "y", freq_hz=50.0, lines=4, from_um=5.0, to_um=35.0)
+        t = b.move(x=12.0, y=22.0)
+        assert t > 0
+        axes["y"].wait_on_target(timeout=10.0, tolerance_um=0.6)
+        assert b.status()["reference_um"] == pytest.approx(12.0, abs=1e-4)
+        assert y.status()["reference_um"] == pytest.approx(22.0, abs=1e-4)
+        with pytest.raises(TypeError, match="not both"):
+            b.move(10.0, x=12.0)
     with pf.Board("virtual") as one:
         assert list(one.axes) == ["x"]
 

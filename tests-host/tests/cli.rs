@@ -532,3 +532,70 @@ fn errors_quote_at_most_eighty_characters() {
     );
     assert!(err.len() < 1000, "{} bytes", err.len());
 }
+
+/// A board of two axes (the in-process XY stage as designed): `--axis`
+/// addresses each, an axis the board lacks is refused by name, and
+/// `fpi board raster` records every axis into `<signal>@<axis>` columns.
+#[test]
+fn a_board_of_two_axes_addresses_each_and_rasters_over_both() {
+    let xy = "virtual:usb:xy";
+    let out = ok(&["board", "--port", xy, "--axis", "y", "status"]);
+    assert!(out.contains("axis: y of 2 (x, y)"), "{out}");
+    let err = fails(&["board", "--port", "virtual", "--axis", "y", "status"]);
+    assert!(err.contains("has 1 axis (x): there is no axis y"), "{err}");
+    let err = fails(&["board", "--port", xy, "--axis", "w", "status"]);
+    assert!(err.contains("x, y or z"), "{err}");
+    let csv = tmp().join("raster.csv");
+    let raster = |fast: &str, to: &str| -> Vec<String> {
+        [
+            "board",
+            "--port",
+            xy,
+            "raster",
+            "--fast",
+            fast,
+            "--slow",
+            "y",
+            "--freq-hz",
+            "50",
+            "--lines",
+            "4",
+            "--from-um",
+            "5",
+            "--to-um",
+            to,
+            "--out",
+            s(&csv),
+        ]
+        .map(str::to_string)
+        .to_vec()
+    };
+    let out = ok(&strs(&raster("x", "35")));
+    assert!(
+        out.contains("raster recorded") && out.contains("of 2 axes, 0 samples dropped"),
+        "{out}"
+    );
+    assert!(out.contains("on the true positions"), "{out}");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let head = text.lines().next().unwrap();
+    assert!(
+        head.starts_with("t_s,x_ref_um@x") && head.contains("x_fhps_um@y"),
+        "{head}"
+    );
+    let out = ok(&["board", "--port", xy, "move", "--x", "12", "--y", "22"]);
+    assert!(out.contains("moving x to 12 µm, y to 22 µm"), "{out}");
+    let err = fails(&["board", "--port", xy, "move", "12", "--y", "22"]);
+    assert!(err.contains("cannot be used with"), "{err}");
+    let err = fails(&strs(&raster("y", "35")));
+    assert!(err.contains("fast and slow axes are two"), "{err}");
+    let err = fails(&strs(&raster("x", "45")));
+    assert!(
+        err.contains("fast axis's end") && err.contains("45.000"),
+        "{err}"
+    );
+}
+
+/// `args` as the `&str`s `ok` and `fails` take.
+fn strs(args: &[String]) -> Vec<&str> {
+    args.iter().map(String::as_str).collect()
+}

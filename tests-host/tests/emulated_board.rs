@@ -375,10 +375,12 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
 /// software) came: 168 KiB then; 191 KiB before the reference governor, whose
 /// analysis of a model's loops (their simulation, the envelopes' fit, the
 /// limits of each set of loops) took it to 204 KiB; the runtime settings tree
-/// (miniconf's key paths, serde-json-core's JSON values) to 224 KiB: a budget
-/// of 240 KiB.
+/// (miniconf's key paths, serde-json-core's JSON values) to 224 KiB; the link
+/// of a board of several axes (an axis in the model commands and the
+/// recorder, the raster, the decoupling and the moves of several axes, a
+/// recording of every axis), from 236 KiB to 240.5 KiB: a budget of 248 KiB.
 fn budget(f: &board::Footprint) {
-    assert!(f.flash <= 240 * 1024, "flash budget 240 KiB");
+    assert!(f.flash <= 248 * 1024, "flash budget 248 KiB");
     assert!(
         f.ram <= 100 * 1024,
         "static RAM budget 100 KiB (28 KiB left for the stack)"

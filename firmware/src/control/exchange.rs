@@ -27,6 +27,14 @@ use crate::control::tracking::LoopMode;
 pub enum Order {
     /// Switch the reference source (re-arms a stage parked by [`Fault::Stopped`]).
     Source(SourceOrder),
+    /// Move each axis that has a target to it, `step` µm a tick, all from
+    /// this tick (or none, when one of them refuses).
+    Moves {
+        /// Each axis's target, µm (none: the axis keeps its source).
+        targets: [Option<Micrometres>; MAX_AXES],
+        /// The largest step of each move, µm a tick.
+        step: Micrometres,
+    },
     /// Inverse FPI (`true`) or the straight-line baseline (`false`).
     Drive {
         /// Compensated.
@@ -94,6 +102,8 @@ pub struct AxisSet(u8);
 impl AxisSet {
     /// Every axis the board has.
     pub const ALL: Self = Self(u8::MAX);
+    /// No axis.
+    pub const NONE: Self = Self(0);
 
     /// Axis `i` alone.
     pub const fn one(i: usize) -> Self {

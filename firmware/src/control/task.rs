@@ -551,6 +551,7 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
     ) -> Result<(), Refused> {
         match order {
             Order::Source(s) => self.sources(axes, s, x),
+            Order::Moves { targets, step } => self.moves(&targets, step, x),
             Order::TriggerIn(starts) => {
                 self.starts = starts;
                 self.input_was = x.trigger_in;
@@ -655,6 +656,36 @@ impl<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>
             }
         }
         Ok(())
+    }
+
+    /// Each axis with a target moves to it from this tick, or none does
+    /// (one cannot leave where it is).
+    fn moves(
+        &mut self,
+        targets: &[Option<Micrometres>; crate::board::capacity::MAX_AXES],
+        step: Micrometres,
+        x: &mut Exchange<'_, N>,
+    ) -> Result<(), Refused> {
+        let set = targets
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t.is_some())
+            .fold(AxisSet::NONE, |set, (i, _)| set.with(i));
+        if targets.iter().skip(N).any(Option::is_some) {
+            return Err(Refused::Axes);
+        }
+        let mut any = false;
+        for i in self.addressed(set, Axis::can_arm)? {
+            if let Some(&Some(target)) = targets.get(i) {
+                self.start_source(i, SourceOrder::Move { target, step }, x)?;
+                any = true;
+            }
+        }
+        if any {
+            Ok(())
+        } else {
+            Err(Refused::Axes)
+        }
     }
 
     /// Starts raster `r`: both its axes leave for their starts on this tick

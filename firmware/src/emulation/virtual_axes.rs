@@ -112,9 +112,10 @@ impl<const N: usize> VirtualAxes<N> {
         flash: ModelFlash<F>,
         mut stage: Axes<'static, N>,
     ) -> Option<(Self, Handler<F, N>)> {
-        let (handler, running) = Handler::boot(
+        let mut stores = stores.into_iter().map(Spare::new);
+        let (mut handler, first) = Handler::boot(
             BoardKind::Emulated,
-            stores.map(Spare::new),
+            stores.next()?,
             Spare::new(spare),
             image,
             flash,
@@ -122,6 +123,13 @@ impl<const N: usize> VirtualAxes<N> {
             ResetReason::PowerOn,
         )?;
         prime(&mut stage, &links);
+        let mut running: Vec<_, N> = Vec::new();
+        running.push(first).ok()?;
+        for (i, store) in stores.enumerate() {
+            running
+                .push(handler.boot_axis(i + 1, store, MODEL_IMAGE)?)
+                .ok()?;
+        }
         let mut running = running.into_iter();
         let axes: Vec<_, N> = links
             .iter()
@@ -443,5 +451,40 @@ mod tests {
             }),
             Refusal::Axis
         );
+    }
+
+    #[test]
+    fn a_move_of_several_axes_starts_on_one_tick_or_not_at_all() {
+        let mut h = xy();
+        h.run(10);
+        let moves = |x: f64, y: f64, mask: u8| Command::MoveAxes {
+            mask,
+            targets: [um(x), um(y), 0],
+            speed: um(1000.0),
+        };
+        match h.send(moves(10.0, 45.0, 0b011)) {
+            Reply::Refused { code, reason } => {
+                assert_eq!(code, Refusal::OutOfRange);
+                assert!(reason.contains("y's target"), "{reason}");
+            }
+            r => panic!("{r:?}"),
+        }
+        assert_eq!(h.refused(moves(10.0, 20.0, 0b111)), Refusal::Axis);
+        assert_eq!(
+            h.status_of(0).fault.map(|f| f.code),
+            Some(Fault::Stopped as u8)
+        );
+        h.ack(moves(10.0, 20.0, 0b011));
+        h.run(1);
+        let (x, y) = (h.status_of(0), h.status_of(1));
+        assert_eq!((x.fault, y.fault), (None, None), "both armed on one tick");
+        use crate::link::protocol::SourceKind;
+        assert!(
+            x.source == SourceKind::Move && y.source == SourceKind::Move,
+            "both moving from one tick: {x:?} {y:?}"
+        );
+        h.run(1_000);
+        assert_eq!(h.status_of(0).signals[0], um(10.0));
+        assert_eq!(h.status_of(1).signals[0], um(20.0));
     }
 }

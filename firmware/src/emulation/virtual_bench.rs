@@ -290,9 +290,9 @@ impl Virtual {
         flash: ModelFlash<F>,
     ) -> Option<(Self, Handler<F>)> {
         let [a, b] = stores;
-        let (handler, [running]) = Handler::boot(
+        let (handler, running) = Handler::boot(
             BoardKind::Emulated,
-            [Spare::new(a)],
+            Spare::new(a),
             Spare::new(b),
             image,
             flash,

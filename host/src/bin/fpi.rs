@@ -532,9 +532,20 @@ enum BoardCommand {
     Info,
     /// Ramp to a position and hold it.
     Move {
-        /// Target, µm.
-        #[arg(value_parser = parse_finite, allow_negative_numbers = true)]
-        um: f64,
+        /// Target of the addressed axis (--axis), µm.
+        #[arg(value_parser = parse_finite, allow_negative_numbers = true,
+              required_unless_present_any = ["x", "y", "z"], conflicts_with_all = ["x", "y", "z"])]
+        um: Option<f64>,
+        /// X's target, µm: with --y and --z, the axes named move from the
+        /// same tick (a board of several axes).
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
+        x: Option<f64>,
+        /// Y's target, µm.
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
+        y: Option<f64>,
+        /// Z's target, µm.
+        #[arg(long, value_parser = parse_finite, allow_negative_numbers = true)]
+        z: Option<f64>,
         /// Speed, µm/s (> 0).
         #[arg(long, default_value_t = 1000.0, value_parser = parse_positive,
               allow_negative_numbers = true)]
@@ -1381,7 +1392,20 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             );
             Ok(())
         }
-        BoardCommand::Move { um, speed, record } => b::move_to(c, um, speed, record.as_deref()),
+        BoardCommand::Move {
+            um: Some(um),
+            speed,
+            record,
+            ..
+        } => b::move_to(c, um, speed, record.as_deref()),
+        BoardCommand::Move {
+            x,
+            y,
+            z,
+            speed,
+            record,
+            ..
+        } => b::move_axes(c, [x, y, z], speed, record.as_deref()),
         BoardCommand::Wave {
             shape,
             amplitude_um,

@@ -129,9 +129,51 @@ pub fn move_to(c: &mut Client, um: f64, speed: f64) -> Result<u32> {
     c.order(&move_command(c.axis(), um, speed)?)
 }
 
+/// Ramps each axis that has a target (`targets`: x, y, z, µm) to it at
+/// `speed` µm/s, all from the same tick, and holds them; the tick they
+/// started.
+pub fn move_axes(c: &mut Client, targets: [Option<f64>; 3], speed: f64) -> Result<u32> {
+    c.order(&move_axes_command(targets, speed)?)
+}
+
+/// The command of [`move_axes`], its arguments checked.
+pub fn move_axes_command(targets: [Option<f64>; 3], speed: f64) -> Result<Command<'static>> {
+    const OPTIONS: [&str; 3] = ["--x", "--y", "--z"];
+    let speed = speed_bits(speed)?;
+    let mut mask = 0;
+    let mut bits = [0; 3];
+    for (i, ((t, b), cli)) in targets.iter().zip(&mut bits).zip(OPTIONS).enumerate() {
+        if let Some(um) = *t {
+            *b = link_value("target_um", cli, um, "µm")?;
+            mask |= 1 << i;
+        }
+    }
+    if mask == 0 {
+        return Err(bad(
+            "target_um",
+            "--x",
+            "name a target: --x, --y or --z".into(),
+        ));
+    }
+    Ok(Command::MoveAxes {
+        mask,
+        targets: bits,
+        speed,
+    })
+}
+
 /// The command of [`move_to`] for `axis`, its arguments checked.
 pub fn move_command(axis: u8, um: f64, speed: f64) -> Result<Command<'static>> {
     let target = link_value("target_um", "the target", um, "µm")?;
+    Ok(Command::Move {
+        axis,
+        target,
+        speed: speed_bits(speed)?,
+    })
+}
+
+/// A move's speed (µm/s) as the link carries it, checked above 0.
+fn speed_bits(speed: f64) -> Result<i32> {
     if speed.is_nan() || speed <= 0.0 {
         return Err(bad(
             "speed",
@@ -139,12 +181,7 @@ pub fn move_command(axis: u8, um: f64, speed: f64) -> Result<Command<'static>> {
             format!("--speed {} µm/s: must be above 0", Num(speed)),
         ));
     }
-    let speed = link_value("speed", "--speed", speed, "µm/s")?;
-    Ok(Command::Move {
-        axis,
-        target,
-        speed,
-    })
+    link_value("speed", "--speed", speed, "µm/s")
 }
 
 /// The waveform generator's frequency resolution, Hz (it takes mHz).

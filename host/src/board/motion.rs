@@ -94,6 +94,12 @@ pub fn record<T>(
     record_of(c, (axis, signal::ALL), what, expected_s, until, go, stop)
 }
 
+/// The signals a recording of every axis keeps of each: the reference, the
+/// true and the sensed position, and the status (what two axes' every tick
+/// fits the USB link with).
+pub const EVERY_AXIS_SIGNALS: u8 =
+    signal::X_REF | signal::X_TRUE | signal::X_SENSOR | signal::STATUS;
+
 /// [`record`] of `signals` of every axis of a board of several: its
 /// recording holds one sample per axis of each tick, in axis order ([`AxesRecording::split`](super::recording::AxesRecording::split)
 /// parts them). The motion's end is the addressed axis's.
@@ -210,11 +216,12 @@ fn faulted_status(c: &mut Client) -> Result<(fpi_protocol::Status, Option<u8>)> 
 /// Reads the recorder until nothing waits, into `into` (`stride` axes'
 /// samples interleaved: [`Sample::interleaved`]). One batch after the other,
 /// as `fpi board record` reads: at every tick the link has little to spare,
-/// so no other request comes between two while samples wait. At most a
-/// ring's worth of samples a call: a recording the link cannot keep up with
-/// (its ring drops, and says so) still lets the caller poll the board.
+/// so no other request comes between two while samples wait. At most
+/// [`READ_RINGS`] rings' worth of samples a call: a recording the link
+/// cannot keep up with (its ring drops, and says so) still lets the caller
+/// poll the board.
 fn read_all(c: &mut Client, into: &mut Vec<Sample>, stride: u8) -> Result<()> {
-    let most = into.len() + c.hello().buffers[0] as usize;
+    let most = into.len() + READ_RINGS * c.hello().buffers[0] as usize;
     loop {
         let b = c.read_batch()?;
         into.extend(Sample::interleaved(b.signals, stride, &b.values));
@@ -223,6 +230,11 @@ fn read_all(c: &mut Client, into: &mut Vec<Sample>, stride: u8) -> Result<()> {
         }
     }
 }
+
+/// The most rings' worth of samples one [`read_all`] reads (1.6 s of every
+/// tick with the 512-sample ring at 20 kHz): far more than a link that keeps
+/// up leaves waiting.
+const READ_RINGS: usize = 64;
 
 /// Between two polls of the board's status while the recorder is read, at
 /// most.

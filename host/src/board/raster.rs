@@ -18,11 +18,6 @@ use super::motion::{self, Motion, Until};
 use super::recording::{AxesRecording, Recording};
 use crate::data::Num;
 
-/// The signals a raster records of every axis: the reference, the true
-/// and the sensed position, and the status (what two axes' every tick
-/// fits the USB link with).
-pub const SIGNALS: u8 = signal::X_REF | signal::X_TRUE | signal::X_SENSOR | signal::STATUS;
-
 /// A raster as the user asks for it (configuration).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RasterSpec {
@@ -126,7 +121,7 @@ pub fn run(c: &mut Client, spec: &RasterSpec) -> Result<(Motion<()>, AxesRecordi
     let approach_s = 0.05;
     let m = motion::record_every_axis(
         c,
-        SIGNALS,
+        motion::EVERY_AXIS_SIGNALS,
         "the raster",
         approach_s + spec.seconds(),
         Until::Rest,

@@ -19,7 +19,7 @@ use piezo_sim::file::FirmwareModel;
 use crate::board::budget::Budget;
 use crate::board::client::{axis_name, real, Client};
 use crate::board::motion::{self, Until};
-use crate::board::recording::Recording;
+use crate::board::recording::{AxesRecording, Recording};
 use crate::board::restore::or_restore;
 use crate::board::{commands, inprocess, mass, noise};
 use crate::data::Quoted;
@@ -717,6 +717,67 @@ pub fn bench(c: &mut Client, b: &BenchSettings) -> Result<()> {
 /// `virtual`).
 pub fn open(port: &str) -> Result<Client> {
     Client::open(port).with_context(|| format!("--port {}", Quoted(port)))
+}
+
+/// `fpi board move --x … --y …`: each axis named ramps to its target at
+/// `speed` µm/s, all from the same tick, and holds it; with `record`,
+/// every axis of it is recorded into that CSV (`<signal>@<axis>` columns),
+/// until the axis with the longest way holds its target.
+pub fn move_axes(
+    c: &mut Client,
+    targets: [Option<f64>; 3],
+    speed: f64,
+    record: Option<&Path>,
+) -> Result<()> {
+    let cmd = commands::move_axes_command(targets, speed)?;
+    let named: Vec<String> = targets
+        .iter()
+        .enumerate()
+        .filter_map(|(i, t)| t.map(|um| format!("{} to {um} µm", axis_name(i as u8))))
+        .collect();
+    let Some(out) = record else {
+        let t = c.order(&cmd)?;
+        println!("moving {} at {speed} µm/s from tick {t}", named.join(", "));
+        return Ok(());
+    };
+    // The axis with the longest way: the move has ended when it holds.
+    let here = c.axis();
+    let mut longest = (0.0, here);
+    for (i, t) in targets.iter().enumerate() {
+        if let Some(to) = *t {
+            c.on_axis(i as u8)?;
+            let way = (to - real(c.status()?.signals[0])).abs();
+            if way >= longest.0 {
+                longest = (way, i as u8);
+            }
+        }
+    }
+    c.on_axis(longest.1)?;
+    catch_ctrl_c()?;
+    let m = motion::record_every_axis(
+        c,
+        motion::EVERY_AXIS_SIGNALS,
+        "the move",
+        motion::move_seconds(0.0, longest.0, speed),
+        Until::Rest,
+        |c, _| Ok((c.ack(&cmd)?, ())),
+        stop_asked,
+    );
+    c.on_axis(here)?;
+    let m = m?;
+    let rec = AxesRecording::split(&m.recording, usize::from(c.hello().axes));
+    rec.write_csv(out)?;
+    println!(
+        "moved {} at {speed} µm/s from tick {}, every axis recorded to {} ({} samples dropped)",
+        named.join(", "),
+        m.start,
+        out.display(),
+        m.recording.dropped
+    );
+    match m.fault {
+        Some(f) => Err(f),
+        None => Ok(()),
+    }
 }
 
 /// `fpi board move`: ramps to `um` at `speed` µm/s and holds it; with

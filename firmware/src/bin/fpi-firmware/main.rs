@@ -119,9 +119,9 @@ mod app {
         let (usb_rx_in, usb_in) = cx.local.usb_rx.split();
         let (usb_out, usb_tx_out) = cx.local.usb_tx.split();
         let (flash, serial, usb, board) = io::init(cx.device, usb_rx_in, usb_tx_out);
-        let Some((mut handler, [running])) = Handler::boot(
+        let Some((mut handler, running)) = Handler::boot(
             io::KIND,
-            [Spare::new(cx.local.store_a)],
+            Spare::new(cx.local.store_a),
             Spare::new(cx.local.store_b),
             cx.local.image,
             flash,

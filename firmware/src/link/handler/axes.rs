@@ -37,6 +37,8 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
         seq: u16,
         r: &RasterAsked,
     ) -> Result<Reply, Refuse> {
+        // (A board of one axis carries none of what follows.)
+        one_axis::<N>("a raster takes two axes")?;
         for a in [r.fast, r.slow] {
             if usize::from(a) >= N {
                 return Err(refuse(
@@ -96,6 +98,39 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
         self.order(board, seq, Order::Raster(raster))
     }
 
+    /// Moves on several axes from one tick: each axis of `mask` one the
+    /// board has, each target within its axis's stroke, the speed within the
+    /// board's.
+    pub(super) fn move_axes(
+        &mut self,
+        board: &mut impl Board<N>,
+        seq: u16,
+        mask: u8,
+        targets: &[i32; MAX_AXES],
+        speed: i32,
+    ) -> Result<Reply, Refuse> {
+        one_axis::<N>("`move` moves its one axis")?;
+        if mask == 0 || usize::from(mask) >> N != 0 {
+            return Err(refuse(
+                Refusal::Axis,
+                format_args!("axes {mask:#05b} to move: name some of this board's {N}"),
+            ));
+        }
+        let step = super::move_step(speed)?;
+        let mut to = [None; MAX_AXES];
+        for (i, (&t, slot)) in targets.iter().zip(&mut to).enumerate() {
+            if mask & (1 << i) == 0 {
+                continue;
+            }
+            self.axis = i;
+            let mut name = heapless::String::<16>::new();
+            let _ =
+                core::fmt::Write::write_fmt(&mut name, format_args!("{}'s target", axis_name(i)));
+            *slot = Some(self.in_stroke(&name, t)?);
+        }
+        self.order(board, seq, Order::Moves { targets: to, step })
+    }
+
     /// The axes' decoupling, checked: every axis parked (it changes every
     /// stack's command at once), entries within their ranges, and no
     /// coupling of an axis the board does not have.
@@ -107,12 +142,7 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
         output: &Rows,
         preload: &Rows,
     ) -> Result<Reply, Refuse> {
-        if N == 1 {
-            return Err(refuse(
-                Refusal::Axis,
-                format_args!("a board of one axis has no axes to decouple"),
-            ));
-        }
+        one_axis::<N>("it has no axes to decouple")?;
         let parked = board.exchange(|x| x.snapshot.axes.iter().all(|s| s.fault.is_some()));
         if !parked {
             return Err(refuse(
@@ -138,6 +168,17 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
         }
         self.order(board, seq, Order::Decoupling(d))
     }
+}
+
+/// The refusal of an order of several axes on a board of one (`why`).
+fn one_axis<const N: usize>(why: &str) -> Result<(), Refuse> {
+    if N > 1 {
+        return Ok(());
+    }
+    Err(refuse(
+        Refusal::Axis,
+        format_args!("this board has one axis: {why}"),
+    ))
 }
 
 /// Ticks of a raster's line at a triangle of `freq_mhz` (half its period,

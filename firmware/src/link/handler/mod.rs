@@ -140,24 +140,24 @@ pub struct Handler<F, const N: usize = 1> {
 }
 
 impl<F: NorFlash, const N: usize> Handler<F, N> {
-    /// Starts the board's models: on the first axis the newest stored model
+    /// Starts the board's model on the first axis: the newest stored model
     /// that is intact and that the validator takes, else the older one, else
-    /// the factory default `factory`; on every other axis the factory default.
-    /// What each flash slot held is kept for `ModelInfo`. Returns the handler
-    /// (holding `spare`) and each axis's running model (in `stores`) for the
-    /// control loop. `None` only if not even the factory image loads (a
-    /// firmware built with a model that does not fit).
+    /// the factory default `factory`, in `store`; what each flash slot held is
+    /// kept for `ModelInfo`. Returns the handler (holding `spare`) and the
+    /// first axis's running model for the control loop; every other axis's
+    /// comes from [`Handler::boot_axis`] (until then it reads as the first
+    /// axis's). `None` only if not even the factory image loads (a firmware
+    /// built with a model that does not fit).
     pub fn boot(
         kind: BoardKind,
-        stores: [Spare; N],
+        store: Spare,
         spare: Spare,
         image: &'static mut [u8; IMAGE_BYTES],
         mut flash: ModelFlash<F>,
         factory: &[u8],
         reset: ResetReason,
-    ) -> Option<(Self, [Running; N])> {
-        let mut stores = stores.into_iter();
-        let mut a = stores.next();
+    ) -> Option<(Self, Running)> {
+        let mut a = Some(store);
         let survey = flash.survey().unwrap_or([Slot::Damaged; 2]);
         let mut slots = survey.map(|s| match s {
             Slot::Empty => SlotReport::Empty,
@@ -192,16 +192,9 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
             Some((r, s)) => (r, Some(s)),
             None => (factory_running(a?, factory)?, None),
         };
-        let mut running: Vec<Running, N> = Vec::new();
-        running.push(first).ok()?;
-        for store in stores {
-            running.push(factory_running(store, factory)?).ok()?;
-        }
-        let running: [Running; N] = running.into_array().ok()?;
-        let summary = running.each_ref().map(|r| *r.summary());
         let handler = Self {
             kind,
-            summary,
+            summary: [*first.summary(); N],
             axis: 0,
             axes: AxisSet::ALL,
             spare: Some(spare),
@@ -228,13 +221,22 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
             },
             front_end: crate::board::definition::FRONT_END,
         };
-        Some((handler, running))
+        Some((handler, first))
+    }
+
+    /// Starts axis `axis`'s model (after [`Handler::boot`], on a board of
+    /// several axes): the factory default `factory`, in `store`; `None` if it
+    /// does not load or the board has no such axis.
+    pub fn boot_axis(&mut self, axis: usize, store: Spare, factory: &[u8]) -> Option<Running> {
+        let running = factory_running(store, factory)?;
+        *self.summary.get_mut(axis)? = *running.summary();
+        Some(running)
     }
 
     /// The stored model `s`, read into `image` and loaded into `a`; `a` back if it
     /// does not read back or does not load.
     fn stored(
-        mut a: Spare,
+        a: Spare,
         flash: &mut ModelFlash<F>,
         s: Stored,
         image: &mut [u8; IMAGE_BYTES],
@@ -243,11 +245,7 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
             return Err(a);
         };
         let img = image.get(..n).unwrap_or(&[]);
-        if a.load(img).is_err() {
-            return Err(a);
-        }
-        a.activate(img, Origin::Stored(s.generation))
-            .map_err(|(back, _)| back)
+        running_from(a, img, Origin::Stored(s.generation))
     }
 
     /// Whether a `Reset` command was answered: the board resets once the reply
@@ -480,19 +478,18 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
             Command::Ping => self.ack(board),
             Command::Move { target, speed, .. } => {
                 let target = self.in_stroke("target", target)?;
-                if speed <= 0 || speed as i64 > MAX_SPEED_UM_S << 16 {
-                    return Err(refuse(
-                        Refusal::BadArgument,
-                        format_args!("speed {} µm/s outside 0–{MAX_SPEED_UM_S}", Milli(speed)),
-                    ));
-                }
-                let step = Micrometres::from_bits((speed / RATE_HZ as i32).max(1));
+                let step = move_step(speed)?;
                 self.order(
                     board,
                     seq,
                     Order::Source(SourceOrder::Move { target, step }),
                 )
             }
+            Command::MoveAxes {
+                mask,
+                targets,
+                speed,
+            } => self.move_axes(board, seq, mask, &targets, speed),
             Command::Step {
                 target,
                 duration_us,
@@ -1059,10 +1056,33 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
     }
 }
 
+/// The step a tick of a move at `speed` (µm/s, `I16F16` bits), or the
+/// refusal of a speed outside 0 – [`MAX_SPEED_UM_S`].
+pub(super) fn move_step(speed: i32) -> Result<Micrometres, Refuse> {
+    if speed <= 0 || speed as i64 > MAX_SPEED_UM_S << 16 {
+        return Err(refuse(
+            Refusal::BadArgument,
+            format_args!("speed {} µm/s outside 0–{MAX_SPEED_UM_S}", Milli(speed)),
+        ));
+    }
+    Ok(Micrometres::from_bits((speed / RATE_HZ as i32).max(1)))
+}
+
 /// A running model from the factory image, in `store`.
-fn factory_running(mut store: Spare, factory: &[u8]) -> Option<Running> {
-    store.load(factory).ok()?;
-    store.activate(factory, Origin::Factory).ok()
+fn factory_running(store: Spare, factory: &[u8]) -> Option<Running> {
+    running_from(store, factory, Origin::Factory).ok()
+}
+
+/// `image` loaded into `store` and running, from `origin`; `store` back if
+/// it does not load. Out of line: a model's loading and validation is
+/// large, and the boot loads the stored model and the factory model of
+/// every axis through it.
+#[inline(never)]
+fn running_from(mut store: Spare, image: &[u8], origin: Origin) -> Result<Running, Spare> {
+    if store.load(image).is_err() {
+        return Err(store);
+    }
+    store.activate(image, origin).map_err(|(back, _)| back)
 }
 
 /// An axis's name (`x`, `y`, `z`; a number beyond).
