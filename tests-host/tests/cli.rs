@@ -584,6 +584,38 @@ fn a_board_of_two_axes_addresses_each_and_rasters_over_both() {
     );
     let out = ok(&["board", "--port", xy, "move", "--x", "12", "--y", "22"]);
     assert!(out.contains("moving x to 12 µm, y to 22 µm"), "{out}");
+    let moved = tmp().join("moved.csv");
+    let out = ok(&[
+        "board",
+        "--port",
+        xy,
+        "move",
+        "--x",
+        "10",
+        "--y",
+        "20",
+        "--record",
+        s(&moved),
+    ]);
+    assert!(
+        out.contains("every axis recorded") && out.contains("0 samples dropped"),
+        "{out}"
+    );
+    let text = std::fs::read_to_string(&moved).unwrap();
+    let last: Vec<f64> = text
+        .lines()
+        .last()
+        .unwrap()
+        .split(',')
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let head: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let at = |name: &str| last[head.iter().position(|h| *h == name).unwrap()];
+    assert_eq!(
+        (at("x_ref_um@x"), at("x_ref_um@y")),
+        (10.0, 20.0),
+        "{head:?}"
+    );
     let err = fails(&["board", "--port", xy, "move", "12", "--y", "22"]);
     assert!(err.contains("cannot be used with"), "{err}");
     let err = fails(&strs(&raster("y", "35")));
