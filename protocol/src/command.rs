@@ -18,6 +18,29 @@ use crate::settings::TriggerSettings;
 use crate::wire::{field, Tagged};
 use crate::MAX_POINTS;
 
+/// A raster on two axes, each to its start, then `lines` lines started on
+/// the same tick on both: axis `fast` a triangle between `fast_span` (µm,
+/// `I16F16` bits, from and to) at `freq_mhz` (a line is half its period),
+/// axis `slow` over `slow_span` by a step at each line's start
+/// (`staircase`) or a ramp. On the wire: its fields in this order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RasterOrder {
+    /// The fast axis.
+    pub fast: u8,
+    /// The slow axis.
+    pub slow: u8,
+    /// The fast axis's from and to, µm (`I16F16` bits).
+    pub fast_span: [i32; 2],
+    /// The slow axis's from and to, µm (`I16F16` bits).
+    pub slow_span: [i32; 2],
+    /// The fast axis's triangle frequency, mHz.
+    pub freq_mhz: u32,
+    /// Lines.
+    pub lines: u16,
+    /// The slow axis steps at each line's start (else it ramps).
+    pub staircase: bool,
+}
+
 /// The start of every request.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Header {
@@ -379,27 +402,8 @@ pub enum Command<'a> {
         /// The value, JSON (at most [`MAX_VALUE`](crate::settings::MAX_VALUE) bytes).
         value: &'a [u8],
     },
-    /// A raster on two axes, each to its start, then `lines` lines started
-    /// on the same tick on both: axis `fast` a triangle between
-    /// `fast_span` (µm, `I16F16` bits, from and to) at `freq_mhz` (a line is
-    /// half its period), axis `slow` over `slow_span` by a step at each
-    /// line's start (`staircase`) or a ramp.
-    Raster {
-        /// The fast axis.
-        fast: u8,
-        /// The slow axis.
-        slow: u8,
-        /// The fast axis's from and to, µm (`I16F16` bits).
-        fast_span: [i32; 2],
-        /// The slow axis's from and to, µm (`I16F16` bits).
-        slow_span: [i32; 2],
-        /// The fast axis's triangle frequency, mHz.
-        freq_mhz: u32,
-        /// Lines.
-        lines: u16,
-        /// The slow axis steps at each line's start (else it ramps).
-        staircase: bool,
-    },
+    /// A raster on two axes ([`RasterOrder`]).
+    Raster(RasterOrder),
     /// Ramp each axis of `mask` (bit `i`: axis `i`) to its target at `speed`
     /// (µm/s), all from the same tick, and hold (or none, when one refuses).
     MoveAxes {
@@ -469,7 +473,7 @@ impl Command<'_> {
             Self::SettingSet { .. } => K::SettingSet,
             Self::Trigger { .. } => K::Trigger,
             Self::TriggerIn { .. } => K::TriggerIn,
-            Self::Raster { .. } => K::Raster,
+            Self::Raster(_) => K::Raster,
             Self::Decoupling { .. } => K::Decoupling,
             Self::MoveAxes { .. } => K::MoveAxes,
         }
@@ -582,15 +586,7 @@ impl<'a> Tagged<'a> for Command<'a> {
             Self::SettingSet { path, value } => put!(t; path, value),
             Self::Trigger { axis, settings } => put!(t; axis, settings),
             Self::TriggerIn { axis, starts } => put!(t; axis, starts),
-            Self::Raster {
-                fast,
-                slow,
-                fast_span,
-                slow_span,
-                freq_mhz,
-                lines,
-                staircase,
-            } => put!(t; fast, slow, fast_span, slow_span, freq_mhz, lines, staircase),
+            Self::Raster(r) => put!(t; r),
             Self::Decoupling {
                 input,
                 output,
@@ -719,15 +715,7 @@ impl<'a> Tagged<'a> for Command<'a> {
                 axis: field(a)?,
                 starts: field(a)?,
             },
-            K::Raster => Self::Raster {
-                fast: field(a)?,
-                slow: field(a)?,
-                fast_span: field(a)?,
-                slow_span: field(a)?,
-                freq_mhz: field(a)?,
-                lines: field(a)?,
-                staircase: field(a)?,
-            },
+            K::Raster => Self::Raster(field(a)?),
             K::Decoupling => Self::Decoupling {
                 input: field(a)?,
                 output: field(a)?,

@@ -40,7 +40,7 @@ pub use miniconf;
 pub use serde;
 
 pub use bench::{BenchKind, BenchOrder, FrontEndKind, StageVariant};
-pub use command::{Command, CommandKind, Header};
+pub use command::{Command, CommandKind, Header, RasterOrder};
 pub use link::LinkKind;
 pub use modes::{LoopMode, Shape, SourceKind, TriggerMode, TriggerStart};
 pub use reply::{

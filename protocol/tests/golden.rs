@@ -139,7 +139,7 @@ goldens! {
         },
     } => "24 00 01 f4 03 64 03 00 03";
     command_trigger_in: Command::TriggerIn { axis: 0, starts: TriggerStart::Both } => "25 00 03";
-    command_raster: Command::Raster {
+    command_raster: Command::Raster(RasterOrder {
         fast: 0,
         slow: 1,
         fast_span: [5 << 16, 35 << 16],
@@ -147,7 +147,7 @@ goldens! {
         freq_mhz: 100_000,
         lines: 20,
         staircase: false,
-    } => "26 00 01 80 80 28 80 80 98 02 80 80 28 80 80 98 02 a0 8d 06 14 00";
+    }) => "26 00 01 80 80 28 80 80 98 02 80 80 28 80 80 98 02 a0 8d 06 14 00";
     command_move_axes: Command::MoveAxes { mask: 3, targets: [10 << 16, 20 << 16, 0], speed: 1000 << 16 }
         => "28 03 80 80 50 80 80 a0 01 00 80 80 c0 3e";
     command_decoupling: Command::Decoupling {

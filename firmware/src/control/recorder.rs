@@ -82,14 +82,9 @@ impl<const N: usize> Recorder<N> {
     /// if the ring is full.
     #[inline]
     pub fn offer(&mut self, s: &Sample) {
-        if !self.active {
+        if !self.kept_tick() {
             return;
         }
-        if self.countdown > 0 {
-            self.countdown -= 1;
-            return;
-        }
-        self.countdown = self.decimation - 1;
         if self.tail.wrapping_sub(self.head) >= N as u32 {
             self.dropped = self.dropped.wrapping_add(1);
             return;
@@ -107,14 +102,9 @@ impl<const N: usize> Recorder<N> {
     /// recording's ticks stay whole.
     #[inline]
     pub fn offer_all(&mut self, samples: &[Sample]) {
-        if !self.active {
+        if !self.kept_tick() {
             return;
         }
-        if self.countdown > 0 {
-            self.countdown -= 1;
-            return;
-        }
-        self.countdown = self.decimation - 1;
         let n = samples.len() as u32;
         if self.tail.wrapping_sub(self.head).saturating_add(n) > N as u32 {
             self.dropped = self.dropped.wrapping_add(n);
@@ -127,6 +117,21 @@ impl<const N: usize> Recorder<N> {
             self.tail = self.tail.wrapping_add(1);
         }
         self.kept = self.kept.wrapping_add(1);
+    }
+
+    /// Whether this tick is one a recording keeps (one in every
+    /// `decimation` while recording), counted.
+    #[inline]
+    fn kept_tick(&mut self) -> bool {
+        if !self.active {
+            return false;
+        }
+        if self.countdown > 0 {
+            self.countdown -= 1;
+            return false;
+        }
+        self.countdown = self.decimation - 1;
+        true
     }
 
     /// The oldest sample, left in the ring.

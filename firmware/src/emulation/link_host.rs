@@ -3,29 +3,12 @@
 //! their replies decoded.
 
 use crate::emulation::virtual_bench::EmulatedFlash;
+use crate::emulation::Emulated;
 use crate::link::frame;
-use crate::link::handler::{Board, Handler};
+use crate::link::handler::Handler;
 use crate::link::protocol::{
     Command, Header, Refusal, Reply, ReplyHeader, Status, MAX_CHUNK, MAX_FRAME, VERSION,
 };
-
-/// An emulated board that runs a tick at a time.
-pub(crate) trait Tick<const N: usize>: Board<N> {
-    /// One control period.
-    fn tick_once(&mut self);
-}
-
-impl Tick<1> for crate::emulation::virtual_bench::Virtual {
-    fn tick_once(&mut self) {
-        self.tick();
-    }
-}
-
-impl<const N: usize> Tick<N> for crate::emulation::virtual_axes::VirtualAxes<N> {
-    fn tick_once(&mut self) {
-        self.tick();
-    }
-}
 
 /// A board of `N` axes, its handler, and the host's request numbers.
 pub(crate) struct Host<B, const N: usize = 1> {
@@ -39,7 +22,7 @@ pub(crate) fn leak<T>(v: T) -> &'static mut T {
     Box::leak(Box::new(v))
 }
 
-impl<B: Tick<N>, const N: usize> Host<B, N> {
+impl<B: Emulated<N>, const N: usize> Host<B, N> {
     pub(crate) fn raw(&mut self, frame_bytes: &mut [u8]) -> (ReplyHeader, Reply) {
         let (h, reply, _) = self.raw_sized(frame_bytes);
         (h, reply)
@@ -114,7 +97,7 @@ impl<B: Tick<N>, const N: usize> Host<B, N> {
 
     pub(crate) fn run(&mut self, ticks: u32) {
         for _ in 0..ticks {
-            self.board.tick_once();
+            self.board.period();
         }
     }
 

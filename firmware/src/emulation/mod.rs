@@ -16,3 +16,16 @@ pub mod virtual_axes;
 #[cfg(feature = "sim")]
 pub mod virtual_bench;
 pub mod virtual_io;
+
+/// An emulated board in one thread: its control period run on demand (the
+/// link handler runs one whenever it waits, [`crate::link::handler::Board`]).
+/// The one-axis board ([`virtual_bench::Virtual`]) and the board of several
+/// axes ([`virtual_axes::VirtualAxes`]) are one.
+#[cfg(feature = "sim")]
+pub trait Emulated<const N: usize>: crate::link::handler::Board<N> {
+    /// One control period: the bench, the control tick, the stage, the
+    /// recorder.
+    fn period(&mut self);
+    /// The number of the next tick.
+    fn next_tick(&self) -> u32;
+}

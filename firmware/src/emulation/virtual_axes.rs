@@ -179,6 +179,15 @@ impl<const N: usize> VirtualAxes<N> {
     }
 }
 
+impl<const N: usize> crate::emulation::Emulated<N> for VirtualAxes<N> {
+    fn period(&mut self) {
+        self.tick();
+    }
+    fn next_tick(&self) -> u32 {
+        self.control.next_tick()
+    }
+}
+
 impl<const N: usize> Board<N> for VirtualAxes<N> {
     fn exchange<T>(&mut self, f: impl FnOnce(&mut Exchange<'_, N>) -> T) -> T {
         f(&mut self.exchange)
@@ -196,7 +205,7 @@ mod tests {
     use crate::control::reference::stream::Points;
     use crate::emulation::link_host::{leak, Host};
     use crate::emulation::virtual_bench::{EmulatedFlash, BROKEN_WIRE_N, FLASH_SLOTS};
-    use crate::link::protocol::{Command, Refusal, Reply};
+    use crate::link::protocol::{Command, RasterOrder, Refusal, Reply};
     use piezo_fpi::control::Fault;
     use piezo_sim::axes::AxesSpec;
 
@@ -356,7 +365,7 @@ mod tests {
     }
 
     fn raster(fast: u8, slow: u8, from: f64, to: f64) -> Command<'static> {
-        Command::Raster {
+        Command::Raster(RasterOrder {
             fast,
             slow,
             fast_span: [um(from), um(to)],
@@ -364,7 +373,7 @@ mod tests {
             freq_mhz: 100_000,
             lines: 4,
             staircase: false,
-        }
+        })
     }
 
     #[test]

@@ -324,6 +324,15 @@ impl Virtual {
     }
 }
 
+impl crate::emulation::Emulated<1> for Virtual {
+    fn period(&mut self) {
+        self.tick();
+    }
+    fn next_tick(&self) -> u32 {
+        self.control.next_tick()
+    }
+}
+
 impl Board for Virtual {
     fn exchange<T>(&mut self, f: impl FnOnce(&mut Exchange<'_>) -> T) -> T {
         f(&mut self.exchange)

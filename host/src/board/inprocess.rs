@@ -29,6 +29,7 @@ use fpi_firmware::control::reference::stream::Points;
 use fpi_firmware::emulation::virtual_axes::VirtualAxes;
 use fpi_firmware::emulation::virtual_bench::{EmulatedFlash, Virtual, FLASH_SLOTS};
 use fpi_firmware::emulation::virtual_io::SimLink;
+use fpi_firmware::emulation::Emulated;
 use fpi_firmware::link::handler::Handler;
 use fpi_protocol::frame::{FrameReader, Push};
 use fpi_protocol::{LinkKind, MAX_FRAME};
@@ -121,30 +122,12 @@ trait Served: Send {
     fn reset_requested(&self) -> bool;
 }
 
-impl Served for (Virtual, VirtualHandler) {
+impl<B: Emulated<N> + Send, const N: usize> Served for (B, Handler<&'static mut EmulatedFlash, N>) {
     fn tick(&mut self) {
-        self.0.tick();
+        self.0.period();
     }
     fn next_tick(&self) -> u32 {
-        self.0.control.next_tick()
-    }
-    fn handle(&mut self, frame: &mut [u8], scratch: &mut [u8], out: &mut [u8]) -> usize {
-        self.1.handle(&mut self.0, frame, scratch, out)
-    }
-    fn overlong(&mut self, scratch: &mut [u8], out: &mut [u8]) -> usize {
-        self.1.overlong(scratch, out)
-    }
-    fn reset_requested(&self) -> bool {
-        self.1.reset_requested()
-    }
-}
-
-impl<const N: usize> Served for (VirtualAxes<N>, AxesHandler<N>) {
-    fn tick(&mut self) {
-        self.0.tick();
-    }
-    fn next_tick(&self) -> u32 {
-        self.0.control.next_tick()
+        self.0.next_tick()
     }
     fn handle(&mut self, frame: &mut [u8], scratch: &mut [u8], out: &mut [u8]) -> usize {
         self.1.handle(&mut self.0, frame, scratch, out)

@@ -440,6 +440,7 @@ pub fn reference() -> Result<String, String> {
     s += "### `Command`\n\n";
     tagged(&mut s, &p, "Command", "CommandKind")?;
     structure(&mut s, &p, "TriggerSettings")?;
+    structure(&mut s, &p, "RasterOrder")?;
     s += "## Replies\n\n";
     structure(&mut s, &p, "ReplyHeader")?;
     s += "### `Reply`\n\n";

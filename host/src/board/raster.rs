@@ -11,7 +11,7 @@
 
 use anyhow::{bail, Result};
 use fpi_protocol::record::signal;
-use fpi_protocol::Command;
+use fpi_protocol::{Command, RasterOrder};
 
 use super::client::{axis_name, to_link, Client};
 use super::motion::{self, Motion, Until};
@@ -91,7 +91,7 @@ impl RasterSpec {
                 to_link(&format!("{what} end"), b, "µm")?,
             ])
         };
-        Ok(Command::Raster {
+        Ok(Command::Raster(RasterOrder {
             fast: self.fast,
             slow: self.slow,
             fast_span: span("--from-um", self.fast_um)?,
@@ -99,7 +99,7 @@ impl RasterSpec {
             freq_mhz: (self.freq_hz * 1000.0).round() as u32,
             lines: self.lines,
             staircase: self.staircase,
-        })
+        }))
     }
 }
 

@@ -10,19 +10,8 @@ use super::{axis_name, Board, Handler, Milli};
 use crate::board::capacity::{MAX_AXES, RATE_HZ};
 use crate::control::exchange::{AxisSet, Order};
 use crate::control::reference::raster::Raster;
-use crate::link::protocol::{Refusal, Reply};
+use crate::link::protocol::{RasterOrder, Refusal, Reply};
 use crate::link::refusal::{refuse, Refuse};
-
-/// A raster as the link asks for it.
-pub(super) struct RasterAsked {
-    pub(super) fast: u8,
-    pub(super) slow: u8,
-    pub(super) fast_span: [i32; 2],
-    pub(super) slow_span: [i32; 2],
-    pub(super) freq_mhz: u32,
-    pub(super) lines: u16,
-    pub(super) staircase: bool,
-}
 
 /// A matrix's rows as the link carries them (`I2F30` or `I16F16` bits).
 type Rows = [[i32; MAX_AXES]; MAX_AXES];
@@ -35,7 +24,7 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
         &mut self,
         board: &mut impl Board<N>,
         seq: u16,
-        r: &RasterAsked,
+        r: &RasterOrder,
     ) -> Result<Reply, Refuse> {
         // (A board of one axis carries none of what follows.)
         one_axis::<N>("a raster takes two axes")?;

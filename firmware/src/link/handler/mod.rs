@@ -611,26 +611,7 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
                 Ok(done)
             }
             Command::RecordStop => self.order(board, seq, Order::StopRecording),
-            Command::Raster {
-                fast,
-                slow,
-                fast_span,
-                slow_span,
-                freq_mhz,
-                lines,
-                staircase,
-            } => {
-                let asked = axes::RasterAsked {
-                    fast,
-                    slow,
-                    fast_span,
-                    slow_span,
-                    freq_mhz,
-                    lines,
-                    staircase,
-                };
-                self.raster(board, seq, &asked)
-            }
+            Command::Raster(r) => self.raster(board, seq, &r),
             Command::Decoupling {
                 input,
                 output,
