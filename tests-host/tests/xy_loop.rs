@@ -43,7 +43,7 @@ use fpi_host::board::{autotune, decoupling, raster, warm};
 use fpi_host::method::tune::TuneOptions;
 use piezo_fpi::decoupling::Decoupling;
 use piezo_fpi::q::Micrometres;
-use piezo_sim::axes::{Axes, XY_COUPLING};
+use piezo_sim::axes::{Axes, AxesSpec, XY_COUPLING};
 use piezo_sim::file::FirmwareModel;
 
 /// The control rate, Hz.
@@ -131,9 +131,8 @@ struct Xy {
 }
 
 impl Xy {
-    /// Both axes parked on their tuned models, the stage at rest.
-    fn new() -> Self {
-        let mut stage = piezo_sim::axes::xy_built(0x5EED).unwrap();
+    /// Both axes parked on their tuned models, `stage` at rest.
+    fn on(mut stage: Axes<'static, 2>) -> Self {
         let links = [(); 2].map(|_| &*leak(SimLink::new(FORCE, SETPOINT)));
         virtual_axes::prime(&mut stage, &links);
         let [mx, my] = models();
@@ -193,7 +192,12 @@ impl Xy {
     /// Both axes at `at` µm with their loops closed (damping, PI, preview),
     /// decoupled by `d`, settled.
     fn closed_at(d: Option<Decoupling<3>>, at: [f64; 2]) -> Self {
-        let mut r = Self::new();
+        Self::closed_on(as_built(), d, at)
+    }
+
+    /// [`Xy::closed_at`] on `stage`.
+    fn closed_on(stage: Axes<'static, 2>, d: Option<Decoupling<3>>, at: [f64; 2]) -> Self {
+        let mut r = Self::on(stage);
         if let Some(d) = d {
             assert_eq!(r.order(AxisSet::ALL, Order::Decoupling(d)), Ok(()));
         }
@@ -235,6 +239,11 @@ impl Xy {
 }
 
 /// The stage's true couplings as the board takes them.
+/// The XY stage as built, at rest.
+fn as_built() -> Axes<'static, 2> {
+    piezo_sim::axes::xy_built(0x5EED).unwrap()
+}
+
 fn true_decoupling() -> Decoupling<3> {
     virtual_axes::true_decoupling(&XY_COUPLING, 2).unwrap()
 }
@@ -251,7 +260,12 @@ struct RasterFigures {
 /// 20 lines of a 100 Hz triangle on X over 5–35 µm (100 ticks a line), Y a
 /// ramp over 5–35 µm, decoupled by `d`.
 fn raster(d: Option<Decoupling<3>>) -> RasterFigures {
-    let mut r = Xy::closed_at(d, [5.0, 5.0]);
+    raster_on(as_built(), d)
+}
+
+/// [`raster`] on `stage`.
+fn raster_on(stage: Axes<'static, 2>, d: Option<Decoupling<3>>) -> RasterFigures {
+    let mut r = Xy::closed_on(stage, d, [5.0, 5.0]);
     let span = (Micrometres::from_num(5), Micrometres::from_num(35));
     let (ticks, lines) = (100u16, 20u16);
     let raster = Raster::new((0, span), (1, span), ticks, lines, false).unwrap();
@@ -438,4 +452,56 @@ fn a_raster_over_the_link_of_the_tuned_xy_board() {
     assert!(f.on_truth && f.missing == 0, "{f:?}");
     assert!(f.fast_rms_pct < 0.5, "{f:?}");
     assert!(f.slow_rms_pct < 0.3, "{f:?}");
+}
+
+/// The XY stage as built with its couplings times `coupling` and each
+/// axis's mode times `mode`.
+fn variant(coupling: f32, mode: f32) -> AxesSpec {
+    let mut v = AxesSpec::base("xy-built").unwrap();
+    v.coupling_scale = coupling;
+    let params = v.params();
+    for (o, p) in v.overrides.iter_mut().zip(params.iter()) {
+        o.mode_hz = Some(p.mode_hz * mode);
+    }
+    v
+}
+
+/// The tuning made on the XY stage as built (each axis's model, the
+/// decoupling of its true couplings) on variants of the stage: its couplings
+/// halved and doubled, both modes 20 % lower and higher. The issue's target
+/// (no fault, X ≤ 0.3 %, Y ≤ 0.2 %) is printed against the figures; it is
+/// not met yet.
+#[test]
+fn the_tuning_on_the_stage_as_built_holds_on_its_variants() {
+    let variants = [
+        ("couplings ×0.5", variant(0.5, 1.0)),
+        ("couplings ×2", variant(2.0, 1.0)),
+        ("modes −20 %", variant(1.0, 0.8)),
+        ("modes +20 %", variant(1.0, 1.2)),
+    ];
+    let mut all = Vec::new();
+    for (name, v) in variants {
+        let f = raster_on(v.build(0x5EED).unwrap(), Some(true_decoupling()));
+        println!(
+            "raster on the variant {name}, tuned and decoupled as built: X {:.3} %, Y {:.3} % of \
+             X's span, faults {:?}",
+            f.x_rms_pct, f.y_rms_pct, f.faults
+        );
+        all.push((name, f));
+    }
+    println!("target: no fault, X ≤ 0.3 %, Y ≤ 0.2 %");
+    // Not met yet (the figures above): what is asserted is what holds, that
+    // the board stays safe. A variant either runs with its error bounded, or
+    // a loop watch parks the board (the couplings' residual, 0.75 % or 1.5 %
+    // of X's output in Y, is a forced swing Y's watch takes for an
+    // oscillation).
+    use piezo_fpi::control::Fault;
+    for (name, f) in all {
+        let parked = f.faults.contains(&Some(Fault::Oscillation))
+            && f.faults
+                .iter()
+                .all(|x| matches!(x, Some(Fault::Oscillation | Fault::Stopped)));
+        let ran = f.faults == [None, None] && f.x_rms_pct < 2.5 && f.y_rms_pct < 0.5;
+        assert!(parked || ran, "{name}: {f:?}");
+    }
 }
