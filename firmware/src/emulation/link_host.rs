@@ -17,12 +17,26 @@ pub(crate) struct Host<B, const N: usize = 1> {
     pub(crate) seq: u16,
 }
 
+/// `x` µm as the link carries it (`I16F16` bits; 0 for a value beyond them).
+pub(crate) fn um(x: f64) -> i32 {
+    piezo_fpi::q::signal(x).map_or(0, |x| x.to_bits())
+}
+
 /// `v`, for as long as the test runs.
 pub(crate) fn leak<T>(v: T) -> &'static mut T {
     Box::leak(Box::new(v))
 }
 
 impl<B: Emulated<N>, const N: usize> Host<B, N> {
+    /// `board` and its `handler`, before the host's first request.
+    pub(crate) fn new(board: B, handler: Handler<EmulatedFlash, N>) -> Self {
+        Self {
+            board,
+            handler,
+            seq: 0,
+        }
+    }
+
     pub(crate) fn raw(&mut self, frame_bytes: &mut [u8]) -> (ReplyHeader, Reply) {
         let (h, reply, _) = self.raw_sized(frame_bytes);
         (h, reply)

@@ -203,7 +203,7 @@ mod tests {
     use crate::board::definition::internal::{FORCE as FORCE_ADC, SETPOINT as SETPOINT_DAC};
     use crate::control::recorder::Recorder;
     use crate::control::reference::stream::Points;
-    use crate::emulation::link_host::{leak, Host};
+    use crate::emulation::link_host::{leak, um, Host};
     use crate::emulation::virtual_bench::{EmulatedFlash, BROKEN_WIRE_N, FLASH_SLOTS};
     use crate::link::protocol::{Command, RasterOrder, Refusal, Reply};
     use piezo_fpi::control::Fault;
@@ -222,15 +222,7 @@ mod tests {
             stage,
         )
         .unwrap();
-        Host {
-            board,
-            handler,
-            seq: 0,
-        }
-    }
-
-    fn um(x: f64) -> i32 {
-        piezo_fpi::q::signal(x).map_or(0, |x| x.to_bits())
+        Host::new(board, handler)
     }
 
     fn move_y(h: &mut Host<VirtualAxes<2>, 2>, to: f64) -> u32 {

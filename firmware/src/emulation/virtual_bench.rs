@@ -363,7 +363,7 @@ mod tests {
     use crate::control::recorder::{signal, Recorder, Sample};
     use crate::control::reference::stream::Points;
     use crate::control::reference::wave::Shape;
-    use crate::emulation::link_host::{self, leak};
+    use crate::emulation::link_host::{self, leak, um};
     use crate::link::frame;
     use crate::link::protocol::{
         Command, Header, LinkKind, Refusal, Reply, SlotReport, MAX_FRAME, NO_SEQ, VERSION,
@@ -390,15 +390,7 @@ mod tests {
             flash,
         )
         .unwrap();
-        Host {
-            board,
-            handler,
-            seq: 0,
-        }
-    }
-
-    fn um(x: f64) -> i32 {
-        piezo_fpi::q::signal(x).map_or(0, |x| x.to_bits())
+        Host::new(board, handler)
     }
 
     #[test]

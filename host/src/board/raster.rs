@@ -56,10 +56,17 @@ pub struct RasterFigures {
 }
 
 impl RasterSpec {
-    /// Ticks of a line at `rate_hz`: half the fast axis's period, rounded
-    /// (as the board rounds it).
-    pub fn line_ticks(&self, rate_hz: f64) -> u32 {
-        (rate_hz / (2.0 * self.freq_hz)).round() as u32
+    /// The fast axis's frequency as the link carries it, mHz.
+    pub fn freq_mhz(&self) -> u32 {
+        (self.freq_hz * 1000.0).round() as u32
+    }
+
+    /// Ticks of a line at `rate_hz`: half the fast axis's period, rounded as
+    /// the board rounds it (its own function); `None` where the board
+    /// refuses the frequency.
+    pub fn line_ticks(&self, rate_hz: f64) -> Option<u32> {
+        fpi_firmware::control::reference::raster::line_ticks(self.freq_mhz(), rate_hz as u32)
+            .map(u32::from)
     }
 
     /// The lines' duration, s.
@@ -96,7 +103,7 @@ impl RasterSpec {
             slow: self.slow,
             fast_span: span("--from-um", self.fast_um)?,
             slow_span: span("--slow-from-um", self.slow_um)?,
-            freq_mhz: (self.freq_hz * 1000.0).round() as u32,
+            freq_mhz: self.freq_mhz(),
             lines: self.lines,
             staircase: self.staircase,
         }))
@@ -139,7 +146,7 @@ pub fn run(c: &mut Client, spec: &RasterSpec) -> Result<(Motion<()>, AxesRecordi
 pub fn figures(spec: &RasterSpec, rec: &AxesRecording) -> Option<RasterFigures> {
     let fast = rec.axes.get(usize::from(spec.fast))?;
     let slow = rec.axes.get(usize::from(spec.slow))?;
-    let t = spec.line_ticks(fast.rate_hz);
+    let t = spec.line_ticks(fast.rate_hz)?;
     let first = lines_start(fast, spec.fast_um.0)?;
     let on_truth = fast.signals & signal::X_TRUE != 0;
     // The error at `tick`, µm, where the recording has it.

@@ -174,6 +174,18 @@ impl RasterAxis {
     }
 }
 
+/// Ticks of a raster's line at `rate_hz` for a fast axis's triangle of
+/// `freq_mhz` (a line is half its period, rounded to the nearest tick), if
+/// 2 – 65 535: what the board runs, and what the host scores its lines by.
+pub fn line_ticks(freq_mhz: u32, rate_hz: u32) -> Option<u16> {
+    if freq_mhz == 0 {
+        return None;
+    }
+    let f = u64::from(freq_mhz);
+    let ticks = (u64::from(rate_hz) * 1000 + f) / (2 * f);
+    u16::try_from(ticks).ok().filter(|&t| t >= 2)
+}
+
 /// A raster over two axes (configuration): which is fast, which slow, and
 /// each one's part.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -9,7 +9,7 @@ use piezo_fpi::q::{Micrometres, NewtonsPerUm};
 use super::{axis_name, Board, Handler, Milli};
 use crate::board::capacity::{MAX_AXES, RATE_HZ};
 use crate::control::exchange::{AxisSet, Order};
-use crate::control::reference::raster::Raster;
+use crate::control::reference::raster::{line_ticks, Raster};
 use crate::link::protocol::{RasterOrder, Refusal, Reply};
 use crate::link::refusal::{refuse, Refuse};
 
@@ -49,14 +49,13 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
             ));
         }
         for (a, span, what) in [(r.fast, r.fast_span, "fast"), (r.slow, r.slow_span, "slow")] {
-            self.axis = a.into();
             for (end, x) in ["start", "end"].into_iter().zip(span) {
                 let mut name = heapless::String::<32>::new();
                 let _ = core::fmt::Write::write_fmt(&mut name, format_args!("{what} axis's {end}"));
-                self.in_stroke(&name, x)?;
+                self.in_stroke_of(a.into(), &name, x)?;
             }
         }
-        let ticks = line_ticks(r.freq_mhz).ok_or_else(|| {
+        let ticks = line_ticks(r.freq_mhz, RATE_HZ).ok_or_else(|| {
             refuse(
                 Refusal::BadArgument,
                 format_args!(
@@ -111,11 +110,10 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
             if mask & (1 << i) == 0 {
                 continue;
             }
-            self.axis = i;
             let mut name = heapless::String::<16>::new();
             let _ =
                 core::fmt::Write::write_fmt(&mut name, format_args!("{}'s target", axis_name(i)));
-            *slot = Some(self.in_stroke(&name, t)?);
+            *slot = Some(self.in_stroke_of(i, &name, t)?);
         }
         self.order(board, seq, Order::Moves { targets: to, step })
     }
@@ -168,17 +166,6 @@ fn one_axis<const N: usize>(why: &str) -> Result<(), Refuse> {
         Refusal::Axis,
         format_args!("this board has one axis: {why}"),
     ))
-}
-
-/// Ticks of a raster's line at a triangle of `freq_mhz` (half its period,
-/// rounded), if 2 – 65 535.
-fn line_ticks(freq_mhz: u32) -> Option<u16> {
-    if freq_mhz == 0 {
-        return None;
-    }
-    let f = u64::from(freq_mhz);
-    let ticks = (u64::from(RATE_HZ) * 1000 + f) / (2 * f);
-    u16::try_from(ticks).ok().filter(|&t| t >= 2)
 }
 
 /// `rows` (`I2F30` bits) as the `which` matrix, or the refusal naming the

@@ -736,7 +736,18 @@ impl<F: NorFlash, const N: usize> Handler<F, N> {
     }
 
     fn in_stroke(&self, what: &str, x: i32) -> Result<Micrometres, Refuse> {
-        let r = self.model().reference;
+        self.in_stroke_of(self.axis, what, x)
+    }
+
+    /// [`Handler::in_stroke`] of axis `axis`'s model (an order of several
+    /// axes checks each).
+    pub(super) fn in_stroke_of(
+        &self,
+        axis: usize,
+        what: &str,
+        x: i32,
+    ) -> Result<Micrometres, Refuse> {
+        let r = self.summary.get(axis).unwrap_or(&self.summary[0]).reference;
         if x < r.lo.to_bits() || x > r.hi.to_bits() {
             return Err(refuse(
                 Refusal::OutOfRange,
