@@ -28,9 +28,12 @@ pub fn warm_up(c: &mut Client) -> Result<()> {
     Ok(())
 }
 
-/// Moves to mid-stroke (20 µm), closes the loop and warms up.
+/// Where the loops are closed: mid-stroke, µm.
+pub const MID_UM: f64 = 20.0;
+
+/// Moves to mid-stroke ([`MID_UM`]), closes the loop and warms up.
 pub fn close_and_warm_up(c: &mut Client) -> Result<()> {
-    c.move_to(20.0, 1000.0)?;
+    c.move_to(MID_UM, 1000.0)?;
     Follow::new(c, 0).until_hold()?;
     c.ack(&Command::Loop {
         axis: c.axis(),
