@@ -2,13 +2,12 @@
 //! as built (`piezo_sim::axes::xy_built`: X like stage A as built, Y its own
 //! flexure at 1 000 Hz, cross gains 1.5 % and 2 %, the stacks' preloads coupled
 //! by 0.5 N/µm, each sensor reading 0.2 % of the other axis), scored on the
-//! true outputs. Each axis's model is tuned by `fpi board autotune --axis x`
-//! and `--axis y` on the in-process board of that stage
-//! (`--port virtual:usb:xy-built`), the other axis parked; the decoupling is
-//! measured through the board (`fpi_host::board::decoupling::measure`: each
-//! axis moved while the other holds, every axis recorded), given the sensors'
-//! calibration (their cross-talk, 0.2 %: the position sensors cannot tell it
-//! from the parasitic motion).
+//! true outputs. Each axis's model is tuned and the decoupling measured by
+//! `fpi board autotune` of every axis on the in-process board of that stage
+//! (`--port virtual:usb:xy-built`; `fpi_host::board::axes::autotune`: each
+//! axis tuned in turn, then each moved while the other holds, every axis
+//! recorded), given the sensors' calibration (their cross-talk, 0.2 %: the
+//! position sensors cannot tell it from the parasitic motion).
 //!
 //! The raster runs twice: on the board over its link (`fpi board raster`,
 //! every axis recorded, the loops closed and warmed up as a board's scoring
@@ -40,7 +39,7 @@ use fpi_firmware::control::tracking::LoopMode;
 use fpi_firmware::emulation::virtual_axes;
 use fpi_firmware::emulation::virtual_io::{SimAmplifier, SimAnalog, SimEnable, SimLink, SimSensor};
 use fpi_host::board::client::Client;
-use fpi_host::board::{autotune, decoupling, raster, warm};
+use fpi_host::board::{autotune, axes, decoupling, raster, warm};
 use fpi_host::method::tune::TuneOptions;
 use piezo_fpi::decoupling::Decoupling;
 use piezo_fpi::q::Micrometres;
@@ -54,9 +53,9 @@ fn leak<T>(v: T) -> &'static mut T {
     Box::leak(Box::new(v))
 }
 
-/// The in-process board of the XY stage as built, each axis tuned by
-/// `fpi board autotune --axis x|y` (its defaults) and left running its tuned
-/// model; the tuned models.
+/// The in-process board of the XY stage as built, every axis tuned and the
+/// coupling measured by `fpi board autotune` (each axis left running its
+/// tuned model, the decoupling set); the tuned models and the coupling.
 struct Tuned {
     board: Client,
     models: [FirmwareModel; 2],
@@ -65,46 +64,40 @@ struct Tuned {
     coupling: decoupling::Measured,
 }
 
-/// `fpi board autotune` of `axis` on `c` from the factory model.
-fn autotuned(c: &mut Client, axis: u8) -> FirmwareModel {
-    let fw = fpi_tests::factory_model();
-    c.on_axis(axis).unwrap();
-    c.park().unwrap();
-    let a = autotune::run(
-        c,
-        &fw,
-        &TuneOptions::default(),
-        &autotune::Settings::default(),
-        false,
-        |_| {},
-    )
-    .unwrap_or_else(|e| panic!("autotune --axis {axis}: {e:#}"));
-    println!(
-        "autotune --axis {}: {}",
-        ["x", "y"][usize::from(axis)],
-        a.tuning.summary(&TuneOptions::default())
-    );
-    a.model
-}
-
-/// The board with both axes tuned (once for this test binary).
+/// The board with every axis tuned and the coupling measured by `fpi board
+/// autotune` (its defaults, the sensors' calibration given), once for this
+/// test binary.
 fn tuned() -> &'static Mutex<Tuned> {
     static TUNED: OnceLock<Mutex<Tuned>> = OnceLock::new();
     TUNED.get_or_init(|| {
         let mut board = Client::open("virtual:usb:xy-built").unwrap();
-        let models = [0, 1].map(|axis| autotuned(&mut board, axis));
-        let settings = decoupling::Settings {
+        let fw = fpi_tests::factory_model();
+        let coupling = decoupling::Settings {
             sensor_crosstalk: f64::from(XY_COUPLING.sensor_crosstalk),
             ..decoupling::Settings::default()
         };
-        let coupling = decoupling::measure(&mut board, &models, &settings)
-            .unwrap_or_else(|e| panic!("the coupling's measurement: {e:#}"));
-        print!("{}", decoupling::table(&coupling));
+        let a = axes::autotune(
+            &mut board,
+            &[fw.clone(), fw],
+            &TuneOptions::default(),
+            (&autotune::Settings::default(), &coupling),
+            false,
+            &mut |_| Ok(()),
+            |_| {},
+        )
+        .unwrap_or_else(|e| panic!("autotune of every axis: {e:#}"));
+        for (name, t) in ["x", "y"].iter().zip(&a.axes) {
+            println!(
+                "autotune, axis {name}: {}",
+                t.tuning.summary(&TuneOptions::default())
+            );
+        }
+        print!("{}", decoupling::table(&a.coupling));
         println!("the stage's true coupling: {XY_COUPLING:?}");
         Mutex::new(Tuned {
             board,
-            models,
-            coupling,
+            models: [a.file.x, a.file.y],
+            coupling: a.coupling,
         })
     })
 }
@@ -545,17 +538,23 @@ fn the_coupling_measured_through_the_board_is_the_stages() {
              (true {:.4} %), preload {:.4} N/µm (true {:.4})",
             m.seen[i][j] * 100.0,
             f64::from(seen) * 100.0,
-            m.parasitic[i][j] * 100.0,
+            m.coupling.parasitic[i][j] * 100.0,
             f64::from(truth.cross_um_per_um[i][j]) * 100.0,
-            m.preload_n_per_um[i][j],
+            m.coupling.preload_n_per_um[i][j],
             truth.preload_n_per_um[i][j]
         );
         // The parasitic motion within 0.2 % of the axis's motion; the preload
         // coupling per µm of the extension the board estimates (its model's
         // gain, 4 % low here, included) within 0.1 N/µm.
         let parasitic = f64::from(truth.cross_um_per_um[i][j]);
-        assert!((m.parasitic[i][j] - parasitic).abs() < 0.002, "{m:?}");
+        assert!(
+            (m.coupling.parasitic[i][j] - parasitic).abs() < 0.002,
+            "{m:?}"
+        );
         let preload = f64::from(truth.preload_n_per_um[i][j]);
-        assert!((m.preload_n_per_um[i][j] - preload).abs() < 0.1, "{m:?}");
+        assert!(
+            (m.coupling.preload_n_per_um[i][j] - preload).abs() < 0.1,
+            "{m:?}"
+        );
     }
 }

@@ -314,9 +314,11 @@ enum Command {
         #[arg(long, global = true, env = "FPI_BOARD")]
         port: Option<String>,
         /// The axis a per-axis command addresses on a board of several axes:
-        /// x, y or z (a board refuses an axis it does not have).
-        #[arg(long, global = true, default_value = "x", value_parser = parse_axis)]
-        axis: u8,
+        /// x, y or z (a board refuses an axis it does not have); x if not
+        /// given (`autotune` without it tunes every axis of a board of
+        /// several).
+        #[arg(long, global = true, value_parser = parse_axis)]
+        axis: Option<u8>,
         #[command(subcommand)]
         command: BoardCommand,
     },
@@ -825,8 +827,15 @@ enum BoardCommand {
     /// Measures the frequency response, fits the stage's dynamics, designs
     /// damping, PI and feedforward, loads the tuned model and verifies it with a
     /// step.
+    ///
+    /// On a board of several axes without --axis: every axis in turn, then
+    /// their coupling (each axis moved while the others hold, every axis
+    /// recorded), the decoupling set; --out is then one file of several
+    /// axes (each axis's tuned model and the coupling) that `fpi board load`
+    /// loads whole.
     Autotune {
-        /// The model the board runs (as `fpi board load` took it).
+        /// The model the board runs (as `fpi board load` took it): on a board
+        /// of several axes, every axis's, or a file of several axes.
         model: PathBuf,
         /// FEM export of the stage (for a calibrated model).
         #[arg(long)]
@@ -842,13 +851,21 @@ enum BoardCommand {
         /// as designed on the fitted plant.
         #[arg(long, default_value_t = fpi_host::board::autotune::TRIALS)]
         trials: u32,
-        /// Also keep the tuned model in the board's flash.
+        /// Also keep the tuned model in the board's flash (of several axes:
+        /// x's, the flash keeps the first axis's).
         #[arg(long)]
         store: bool,
-        /// Where to write the measured response (CSV).
+        /// The fraction of every other axis's output each position sensor
+        /// reads (their calibration, from a reference measurement; the
+        /// sensors cannot tell it from the parasitic motion): the coupling of
+        /// a board of several axes takes it out.
+        #[arg(long, default_value_t = 0.0, value_parser = parse_finite, allow_negative_numbers = true)]
+        sensor_crosstalk: f64,
+        /// Where to write the measured response (CSV; one axis).
         #[arg(long)]
         frf_out: Option<PathBuf>,
-        /// Where to write the tuned model (a firmware model file for `fpi board load`).
+        /// Where to write the tuned model (a firmware model file for `fpi board
+        /// load`; of every axis: a file of several axes).
         #[arg(long)]
         out: PathBuf,
     },
@@ -1302,7 +1319,7 @@ fn parse_front_end(s: &str) -> Result<fpi_protocol::FrontEndKind, String> {
     fpi_protocol::FrontEndKind::from_name(s).ok_or_else(|| format!("{s:?}: internal or precision"))
 }
 
-fn board(port: Option<String>, axis: u8, command: BoardCommand) -> Result<()> {
+fn board(port: Option<String>, axis: Option<u8>, command: BoardCommand) -> Result<()> {
     use fpi_host::board::emulator::Emulator;
     use fpi_host::cli::board as b;
     if let BoardCommand::Emulate {
@@ -1353,7 +1370,7 @@ fn board(port: Option<String>, axis: u8, command: BoardCommand) -> Result<()> {
         return fpi_host::board::hub::serve(c, listen, &b::stop_asked);
     }
     let mut c = b::open(&port)?;
-    c.on_axis(axis)?;
+    c.on_axis(axis.unwrap_or(0))?;
     // A motion ends whatever stream a previous client left (its points and
     // its supervision): say so.
     let motion = matches!(
@@ -1371,7 +1388,7 @@ fn board(port: Option<String>, axis: u8, command: BoardCommand) -> Result<()> {
     } else {
         None
     };
-    let done = board_command(&mut c, command);
+    let done = board_command(&mut c, command, axis.is_some());
     if let Some(before) = ended_before {
         b::say_ended_stream(&mut c, before);
     }
@@ -1379,7 +1396,13 @@ fn board(port: Option<String>, axis: u8, command: BoardCommand) -> Result<()> {
 }
 
 /// Runs a board command on the open board `c`.
-fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand) -> Result<()> {
+/// `axis_given`: `--axis` was given (else a per-axis command addresses x, and
+/// `autotune` tunes every axis of a board of several).
+fn board_command(
+    c: &mut fpi_host::board::client::Client,
+    command: BoardCommand,
+    axis_given: bool,
+) -> Result<()> {
     use fpi_host::cli::board as b;
     use fpi_protocol::Command as C;
     match command {
@@ -1450,8 +1473,8 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             match_mass,
             settings,
         } => {
-            let loaded = b::model_and_image(&model, fem.as_deref(), &settings.options())?;
-            b::load(c, &loaded, store, match_mass)
+            let loaded = b::loadable(&model, fem.as_deref(), &settings.options())?;
+            b::load_file(c, &loaded, store, match_mass)
         }
         BoardCommand::Factory => b::simple(c, &C::ModelFactory { axis: c.axis() }),
         BoardCommand::Safe => b::simple(c, &C::Safe),
@@ -1517,6 +1540,7 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
             sweep,
             trials,
             store,
+            sensor_crosstalk,
             frf_out,
             out,
         } => {
@@ -1530,6 +1554,11 @@ fn board_command(c: &mut fpi_host::board::client::Client, command: BoardCommand)
                 },
                 store,
                 out: (&out, frf_out.as_deref()),
+                every_axis: !axis_given,
+                coupling: fpi_host::board::decoupling::Settings {
+                    sensor_crosstalk,
+                    ..Default::default()
+                },
             };
             b::autotune(c, &a)
         }

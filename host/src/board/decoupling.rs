@@ -6,28 +6,32 @@
 //! # The measurement
 //!
 //! Every axis's loop is closed (each axis tuned first: `fpi board autotune`
-//! of each) and holds mid-stroke; the decoupling is off. Each axis `j` in
-//! turn moves between two positions and back while the others hold, and
-//! every axis is recorded (the model's estimate, the force and the position
-//! sensor). Before each move and once it has settled, each axis's signals
-//! are averaged:
+//! of each) and holds mid-stroke. Each axis `j` in turn moves between two
+//! positions and back while the others hold, and every axis is recorded (the
+//! model's estimate, the force and the position sensor). Before each move
+//! and once it has settled, each axis's signals are averaged. Two passes:
 //!
-//! * **What the sensors see.** An axis `i` whose loop holds its sensor still
-//!   while `j` moves has moved its own stack against what reached it: its
-//!   model's estimate of its own output (`x_est`, `f_K` of the estimated
-//!   extension, which follows the force the stack feels) moved by
-//!   `−seen[i][j]` per µm of `j`'s sensor.
-//! * **The preload coupling.** The force on stack `i`, less its own FEM
-//!   preload's change (`f_F` at its own estimated extension), per µm of
-//!   stack `j`'s estimated extension (`f_K⁻¹` of its estimate), N/µm.
-//! * **The sensors' cross-talk** cannot be told from the parasitic motion by
-//!   the position sensors: both are µm that sensor `i` reads per µm of axis
-//!   `j`'s output. It is the sensors' calibration, given
-//!   ([`Settings::sensor_crosstalk`], from a reference measurement such as an
-//!   interferometer's, as a controller's input matrix is calibrated in the
-//!   factory; 0 if there is none): the input matrix undoes it, and the output
-//!   matrix undoes the rest of what the sensors see. A cross-talk left out
-//!   stays in the axes' true positions (`s` µm per µm of the other axis).
+//! 1. **No decoupling.** *What the sensors see*: an axis `i` whose loop holds
+//!    its sensor still while `j` moves has moved its own stack against what
+//!    reached it; its model's estimate of its own output (`x_est`, `f_K` of
+//!    the estimated extension) moved by `−seen[i][j]` per µm of `j`'s sensor.
+//!    *The preload coupling*: the force on stack `i`, less its own FEM
+//!    preload's change (`f_F` at its own estimated extension), per µm of
+//!    stack `j`'s estimated extension (`f_K⁻¹` of its estimate), N/µm: per
+//!    µm of the extension the board estimates, which is what it multiplies.
+//! 2. **The sensors' cross-talk and the preload coupling taken out** (the
+//!    input matrix and the preload coupling set). What the sensors now see
+//!    is the *parasitic motion*, in the units the output matrix acts in (µm
+//!    of each axis's model): the force channel no longer chases the other
+//!    stacks' preload, so each estimate is its model's whole answer.
+//!
+//! **The sensors' cross-talk** cannot be told from the parasitic motion by
+//! the position sensors: both are µm that sensor `i` reads per µm of axis
+//! `j`'s output. It is the sensors' calibration, given
+//! ([`Settings::sensor_crosstalk`], from a reference measurement such as an
+//! interferometer's, as a controller's input matrix is calibrated in the
+//! factory; 0 if there is none). A cross-talk left out stays in the axes'
+//! true positions (`s` µm per µm of the other axis).
 //!
 //! The moves go both ways and the two are averaged, so the hysteresis and the
 //! creep of the holding axes' stacks cancel to first order.
@@ -35,8 +39,8 @@
 use anyhow::{bail, Context, Result};
 use fpi_firmware::control::recorder::{signal, Sample};
 use fpi_protocol::Command;
-use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
-use piezo_sim::file::FirmwareModel;
+use piezo_fpi::decoupling::Decoupling;
+use piezo_sim::file::{CouplingTable, FirmwareModel};
 
 use super::client::{axis_name, real, Client};
 use super::follow::Follow;
@@ -91,31 +95,23 @@ impl Default for Settings {
     }
 }
 
-/// A square array over the link's axes, `[i][j]`: of axis `i` per unit of
-/// axis `j` (the diagonal unused unless said).
-pub type Square = [[f64; MAX_AXES]; MAX_AXES];
-
-/// The coupling measured, and the decoupling made of it.
+/// The coupling measured, and the decoupling made of it. Arrays are over the
+/// board's axes, `[i][j]`: of axis `i` per unit of axis `j`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Measured {
     /// The board's axes.
     pub axes: usize,
     /// µm that sensor `i` sees per µm of axis `j` (parasitic motion and
     /// cross-talk together; the first pass).
-    pub seen: Square,
-    /// µm of axis `i` per µm of axis `j` with the sensors' cross-talk and the
-    /// preload coupling taken out (the second pass): what the output matrix
-    /// undoes.
-    pub parasitic: Square,
+    pub seen: Vec<Vec<f64>>,
     /// µm of each axis's estimate per µm of its sensor as it moved (its
     /// model's gain as the sensor sees it, ideally 1; the second pass).
-    pub own_gain: [f64; MAX_AXES],
-    /// N on stack `i` per µm of stack `j`'s extension (the first pass).
-    pub preload_n_per_um: Square,
-    /// The sensors' calibration the decoupling took ([`Settings::sensor_crosstalk`]).
-    pub sensor_crosstalk: f64,
-    /// The decoupling made of it: the input matrix undoing the cross-talk, the
-    /// output matrix undoing the rest of `seen`, the preload coupling.
+    pub own_gain: Vec<f64>,
+    /// The coupling as a model file of several axes keeps it: the sensors'
+    /// cross-talk given, the parasitic motion (the second pass), the preload
+    /// coupling (the first).
+    pub coupling: CouplingTable,
+    /// The decoupling made of it ([`CouplingTable::decoupling`]).
     pub decoupling: Decoupling<MAX_AXES>,
 }
 
@@ -172,40 +168,29 @@ fn both_passes(
     n: usize,
 ) -> Result<Measured> {
     let first = pass(c, models, s, n, &Decoupling::NONE)?;
-    let partial = Decoupling {
-        input: Matrix::undoing(crosstalk(s.sensor_crosstalk, n))
-            .map_err(|e| refused("the sensors' cross-talk", e))?,
-        output: Matrix::IDENTITY,
-        preload: Preload::from_f64(first.preload_n_per_um)
-            .map_err(|e| refused("the preload coupling", e))?,
+    let mut coupling = CouplingTable {
+        sensor_crosstalk: s.sensor_crosstalk,
+        preload_n_per_um: first.preload_n_per_um.clone(),
+        ..CouplingTable::none(n)
     };
+    let partial = made_of(&coupling, n)?;
     let second = pass(c, models, s, n, &partial)?;
-    let output = Matrix::undoing(second.seen).map_err(|e| refused("the parasitic motion", e))?;
+    coupling.parasitic = second.seen;
     Ok(Measured {
         axes: n,
         seen: first.seen,
-        parasitic: second.seen,
         own_gain: second.own_gain,
-        preload_n_per_um: first.preload_n_per_um,
-        sensor_crosstalk: s.sensor_crosstalk,
-        decoupling: Decoupling { output, ..partial },
+        decoupling: made_of(&coupling, n)?,
+        coupling,
     })
 }
 
-/// The sensors' cross-talk `s` among `n` axes.
-fn crosstalk(s: f64, n: usize) -> Square {
-    core::array::from_fn(|i| {
-        core::array::from_fn(|j| if i != j && i < n && j < n { s } else { 0.0 })
-    })
-}
-
-/// The error of a coupling the board would not take.
-fn refused(what: &str, e: piezo_fpi::ModelError) -> anyhow::Error {
-    anyhow::anyhow!(
-        "the coupling measured cannot be decoupled: {what}: {e} (the board takes a coupling \
-         within ±{} of an axis's own motion)",
-        piezo_fpi::decoupling::OFF_DIAGONAL_MAX
-    )
+/// The decoupling of `coupling` over `n` axes, or why the board would not
+/// take it.
+fn made_of(coupling: &CouplingTable, n: usize) -> Result<Decoupling<MAX_AXES>> {
+    coupling
+        .decoupling(n)
+        .map_err(|e| anyhow::anyhow!("the coupling measured cannot be decoupled: {e}"))
 }
 
 /// Parks every axis and clears a fault the measurement latched.
@@ -216,11 +201,12 @@ fn park_every_axis(c: &mut Client) -> Result<()> {
     Ok(())
 }
 
-/// What one pass measures (see [`Measured`]'s fields of the same names).
+/// What one pass measures (see [`Measured`]'s fields of the same names),
+/// over the board's axes.
 struct Pass {
-    seen: Square,
-    own_gain: [f64; MAX_AXES],
-    preload_n_per_um: Square,
+    seen: Vec<Vec<f64>>,
+    own_gain: Vec<f64>,
+    preload_n_per_um: Vec<Vec<f64>>,
 }
 
 /// One pass of the measurement with the decoupling `d` set: every axis's
@@ -240,9 +226,9 @@ fn pass(
             .with_context(|| format!("closing axis {}'s loop", axis_name(axis as u8)))?;
     }
     let mut p = Pass {
-        seen: [[0.0; MAX_AXES]; MAX_AXES],
-        own_gain: [0.0; MAX_AXES],
-        preload_n_per_um: [[0.0; MAX_AXES]; MAX_AXES],
+        seen: vec![vec![0.0; n]; n],
+        own_gain: vec![0.0; n],
+        preload_n_per_um: vec![vec![0.0; n]; n],
     };
     let (lo, hi) = s.between_um;
     for j in 0..n {
@@ -376,7 +362,7 @@ pub fn table(m: &Measured) -> String {
     let mut out = format!(
         "coupling of {} axes, the sensors' cross-talk taken as {:.3} %:\n",
         m.axes,
-        m.sensor_crosstalk * 100.0
+        m.coupling.sensor_crosstalk * 100.0
     );
     out.push_str("  of     per µm of   sensors see   parasitic motion   preload\n");
     for i in 0..m.axes {
@@ -386,8 +372,8 @@ pub fn table(m: &Measured) -> String {
                 axis_name(i as u8),
                 axis_name(j as u8),
                 m.seen[i][j] * 100.0,
-                m.parasitic[i][j] * 100.0,
-                m.preload_n_per_um[i][j]
+                m.coupling.parasitic[i][j] * 100.0,
+                m.coupling.preload_n_per_um[i][j]
             ));
         }
     }

@@ -6,6 +6,7 @@
 
 pub mod accuracy;
 pub mod autotune;
+pub mod axes;
 pub mod bandwidth;
 pub mod budget;
 pub mod client;

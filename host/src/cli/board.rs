@@ -14,7 +14,7 @@ use fpi_protocol::{BoardKind, Command, LoopMode, Origin, ResetReason, SlotReport
 use indicatif::{ProgressBar, ProgressStyle};
 use piezo_fpi::control::Fault;
 use piezo_fpi::q::LoopGain;
-use piezo_sim::file::FirmwareModel;
+use piezo_sim::file::{AxesModel, FirmwareModel};
 
 use crate::board::budget::Budget;
 use crate::board::client::{axis_name, real, Client};
@@ -49,6 +49,32 @@ pub fn model_and_image(
     Ok((fw, image))
 }
 
+/// A model file as a board takes it.
+pub enum Loadable {
+    /// One axis's model and its image.
+    One(Box<FirmwareModel>, Vec<u8>),
+    /// The file of several axes.
+    Axes(Box<AxesModel>),
+}
+
+/// The model file `model` as a board takes it: a file of several axes
+/// (checked whole: [`AxesModel::parse`]), or one model ([`model_and_image`]).
+pub fn loadable(model: &Path, fem: Option<&Path>, o: &ExportOptions) -> Result<Loadable> {
+    let shown = model.display().to_string();
+    let text = String::from_utf8(crate::data::read_bytes(model)?)
+        .map_err(|_| anyhow!("{shown}: not a text file, so not a model file"))?;
+    if model_file(&text, &shown)? != ModelFile::Axes {
+        let (fw, image) = model_and_image(model, fem, o)?;
+        return Ok(Loadable::One(Box::new(fw), image));
+    }
+    if fem.is_some() {
+        bail!("{shown} is a model file of several axes (it carries its tables): drop --fem");
+    }
+    Ok(Loadable::Axes(Box::new(
+        AxesModel::parse(&text, &shown).map_err(|e| anyhow!(e))?,
+    )))
+}
+
 /// What a file given as a model is, by its `format` key.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ModelFile {
@@ -56,6 +82,8 @@ pub enum ModelFile {
     Firmware,
     /// A calibrated model (`fpi calibrate`).
     Calibrated,
+    /// A model file of several axes (`fpi board autotune` of every axis).
+    Axes,
 }
 
 /// What the file `shown` with text `text` is ([`ModelFile`]), or why it is no
@@ -99,6 +127,7 @@ pub fn model_file(text: &str, shown: &str) -> Result<ModelFile> {
     match format {
         f if f == piezo_sim::file::FORMAT => Ok(ModelFile::Firmware),
         f if f == crate::method::model::FORMAT => Ok(ModelFile::Calibrated),
+        f if f == piezo_sim::file::AXES_FORMAT => Ok(ModelFile::Axes),
         f if [piezo_sim::file::FORMAT, crate::method::model::FORMAT]
             .iter()
             .any(|known| family(known) == family(f)) =>
@@ -123,6 +152,12 @@ pub fn firmware_model(
     let text = String::from_utf8(bytes)
         .map_err(|_| anyhow!("{shown}: not a text file, so not a model file"))?;
     match (model_file(&text, &shown)?, fem) {
+        (ModelFile::Axes, _) => bail!(
+            "{shown} is a model file of several axes (format = {:?}): `fpi board load` loads it \
+             whole, and `fpi board autotune` on its board tunes from it; elsewhere give one \
+             axis's model",
+            piezo_sim::file::AXES_FORMAT
+        ),
         (ModelFile::Firmware, Some(_)) => {
             bail!("{shown} is a firmware model (it carries its tables): drop --fem")
         }
@@ -173,6 +208,39 @@ pub fn load(
     if match_mass {
         println!("{}", mass::describe(&mass::match_mass(c, fw)?));
     }
+    Ok(())
+}
+
+/// `fpi board load` of a model file: one axis's model onto the addressed
+/// axis ([`load`]), or a file of several axes whole
+/// ([`crate::board::axes::load`]).
+pub fn load_file(c: &mut Client, file: &Loadable, store: bool, match_mass: bool) -> Result<()> {
+    let axes = match file {
+        Loadable::One(fw, image) => {
+            return load(c, &((**fw).clone(), image.clone()), store, match_mass)
+        }
+        Loadable::Axes(a) => a,
+    };
+    if match_mass {
+        bail!(
+            "--match-mass measures one axis: load the file of several axes without it, then \
+             `fpi board --axis A load` that axis's model with it"
+        );
+    }
+    crate::board::axes::load(c, axes, store, |axis, tick| {
+        println!(
+            "axis {}: its model running since tick {tick}",
+            axis_name(axis)
+        )
+    })?;
+    println!(
+        "every axis's model loaded{}, and the decoupling of its coupling set (every axis parked)",
+        if store {
+            "; x's stored in flash (the flash keeps the first axis's model)"
+        } else {
+            ""
+        }
+    );
     Ok(())
 }
 
@@ -1082,7 +1150,8 @@ pub fn frf(c: &mut Client, s: &crate::board::frf::FrfSettings, out: &Path) -> Re
 
 /// What `fpi board autotune` takes besides the board.
 pub struct AutotuneArgs<'a> {
-    /// The model the board runs, and the FEM tables of a calibrated one.
+    /// The model the board runs (or a file of several axes), and the FEM
+    /// tables of a calibrated one.
     pub model: (&'a Path, Option<&'a Path>),
     /// The loop settings of its export.
     pub export: ExportOptions,
@@ -1090,17 +1159,42 @@ pub struct AutotuneArgs<'a> {
     pub tune: crate::method::tune::TuneOptions,
     /// The sweep and the trials.
     pub settings: crate::board::autotune::Settings,
-    /// Also keep the tuned model in flash.
+    /// Also keep the tuned model in flash (of several axes: x's).
     pub store: bool,
     /// Where the tuned model goes, and the measured response (if wanted).
     pub out: (&'a Path, Option<&'a Path>),
+    /// Tune every axis of a board of several, and their coupling (no
+    /// `--axis` given).
+    pub every_axis: bool,
+    /// How the coupling is measured (a board of several axes).
+    pub coupling: crate::board::decoupling::Settings,
 }
 
 /// `fpi board autotune`: measures, fits, tunes, loads and verifies
-/// ([`crate::board::autotune::run`]); writes the tuned model.
+/// ([`crate::board::autotune::run`]); writes the tuned model. On a board of
+/// several axes without `--axis`: every axis, then their coupling
+/// ([`crate::board::axes::autotune`]), into one file of several axes.
 pub fn autotune(c: &mut Client, a: &AutotuneArgs<'_>) -> Result<()> {
     use crate::board::autotune;
-    let fw = firmware_model(a.model.0, a.model.1, &a.export)?;
+    let file = loadable(a.model.0, a.model.1, &a.export)?;
+    let n = usize::from(c.hello().axes);
+    if a.every_axis && n > 1 {
+        return autotune_every_axis(c, a, file, n);
+    }
+    let fw = match file {
+        Loadable::One(fw, _) => *fw,
+        Loadable::Axes(f) => f
+            .models()
+            .get(usize::from(c.axis()))
+            .map(|m| (*m).clone())
+            .ok_or_else(|| {
+                anyhow!(
+                    "{}: no model of axis {}",
+                    a.model.0.display(),
+                    axis_name(c.axis())
+                )
+            })?,
+    };
     // The model is written before it runs for good: if it cannot be, the board
     // is put back to the model it ran.
     let tuned = autotune::run_keeping(
@@ -1120,5 +1214,45 @@ pub fn autotune(c: &mut Client, a: &AutotuneArgs<'_>) -> Result<()> {
         a.out.0.display()
     );
     print!("{}", autotune::table(&tuned));
+    Ok(())
+}
+
+/// [`autotune`] of every axis of a board of `n` and their coupling, from
+/// `file` (one model for every axis, or a file of several axes).
+fn autotune_every_axis(
+    c: &mut Client,
+    a: &AutotuneArgs<'_>,
+    file: Loadable,
+    n: usize,
+) -> Result<()> {
+    if a.out.1.is_some() {
+        bail!(
+            "--frf-out writes one axis's response: give --axis with it (without --axis, autotune \
+             tunes every axis of the board)"
+        );
+    }
+    let models: Vec<FirmwareModel> = match file {
+        Loadable::One(fw, _) => vec![*fw; n],
+        Loadable::Axes(f) => f.models().into_iter().cloned().collect(),
+    };
+    let out = a.out.0;
+    let tuned = crate::board::axes::autotune(
+        c,
+        &models,
+        &a.tune,
+        (&a.settings, &a.coupling),
+        a.store,
+        &mut |f| {
+            let text = f.to_toml().map_err(anyhow::Error::msg)?;
+            crate::output::write_atomic(out, text.as_bytes())
+        },
+        |m| eprintln!("{m}"),
+    )?;
+    println!(
+        "every axis tuned and the coupling measured; written to {} (`fpi board load` loads it \
+         whole); each axis runs its tuned model, the decoupling is set and the board is parked",
+        out.display()
+    );
+    print!("{}", crate::board::axes::table(&tuned));
     Ok(())
 }

@@ -82,11 +82,13 @@ pub struct FirmwareModel {
     pub damping: Option<DampingSection>,
 }
 
+pub mod axes;
 mod loops;
 mod sections;
 
 use sections::{gain, quantize_map, quantize_table, signal};
 
+pub use axes::{AxesModel, CouplingTable, AXES_FORMAT};
 pub use loops::{DampingSection, DynamicsSection, FeedbackSection, ShapingSection};
 pub use sections::{
     ControllerSection, CouplingSection, CreepSection, MapSection, PiSection, Provenance, Quantized,
