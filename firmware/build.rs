@@ -34,6 +34,16 @@ fn main() {
     // The linker finds memory.x (cortex-m-rt's link.x includes it) in OUT_DIR.
     let memory = fs::read_to_string(root.join("memory.x")).expect("read memory.x");
     fs::write(out.join("memory.x"), memory).expect("write memory.x");
+    // Where the CCM lies (memory.x): the STM32F405's, or on the emulated
+    // board, QEMU's SRAM above the real board's 128 KiB.
+    let ccm = if env::var_os("CARGO_FEATURE_QEMU").is_some() {
+        "0x20020000"
+    } else {
+        "0x10000000"
+    };
+    if env::var("CARGO_CFG_TARGET_OS").is_ok_and(|os| os == "none") {
+        println!("cargo:rustc-link-arg-bins=--defsym=__fpi_ccm_origin={ccm}");
+    }
     println!("cargo:rustc-link-search={}", out.display());
 
     let model_path = match env::var("PIEZO_FPI_MODEL") {

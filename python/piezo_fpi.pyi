@@ -77,6 +77,7 @@ class Emulator:
         link: str = "usb",
         frontend: str = "internal",
         firmware: Optional[Union[str, PathLike[str]]] = None,
+        axes: int = 1,
     ) -> "Emulator":
         """``listen``: ``HOST:PORT`` (default: a free loopback port); ``link``: the
         link whose rate the board paces its own at, ``"usb"`` (800 kB/s) or
@@ -84,7 +85,8 @@ class Emulator:
         converts with, ``"internal"`` or ``"precision"``; ``firmware``: the
         emulated board's firmware ELF (``cargo build --profile firmware --target
         thumbv7em-none-eabihf -p fpi-firmware --bin fpi-firmware --features
-        qemu``), as ``fpi board emulate --firmware``."""
+        qemu``), as ``fpi board emulate --firmware``; ``axes``: 1, or 2 (the XY
+        stage as designed; internal front end only), as ``--axes``."""
     @property
     def port(self) -> str:
         """``tcp:HOST:PORT``: what ``Board`` opens."""
@@ -258,7 +260,9 @@ class Board:
         stroke_voltage: Optional[float] = None,
     ) -> Dict[str, Any]:
         """Uploads a calibrated model (with the stage's FEM table ``fem``) or a
-        firmware model file; the stage must be parked. ``crc``, ``bytes``, ``tick``;
+        firmware model file; the stage must be parked. ``crc``, ``bytes``, ``tick``
+        (a file of several axes, ``fpi board load`` of it: every axis's model and the
+        decoupling of its coupling; ``axes`` and each axis's ``tick``);
         ``match_mass`` then measures the stage's mode and starts the learned mass
         ratio there (``stage_mode_hz``, ``mass_ratio``)."""
     def factory(self) -> int:
@@ -373,8 +377,12 @@ class Board:
         force_noise_n: Optional[float] = None,
         max_sensitivity: float = 1.6,
         bandwidth_hz: Optional[float] = None,
+        every_axis: bool = False,
+        sensor_crosstalk: float = 0.0,
     ) -> str:
-        """``fpi board autotune`` (``trials``: ``--trials``, 2 by default, the feedforward's
+        """``fpi board autotune`` (``every_axis=True``: of every axis of a board of
+        several, then their coupling, into one file of several axes that ``load``
+        loads whole; ``sensor_crosstalk``: the sensors' calibration; ``trials``: ``--trials``, 2 by default, the feedforward's
         refinement through the board; ``damping=False``: ``--no-damping``;
         ``target_damping``, ``force_noise_n`` (the force sensor's σ, N, designed
         for instead of the one measured), ``max_sensitivity``, ``bandwidth_hz``:

@@ -19,7 +19,7 @@ use fpi_host::board::raster::{self, RasterSpec};
 use fpi_host::board::recording::{column_names, signals_named};
 use fpi_host::board::restore::or_restore;
 use fpi_host::board::step::StepSettings;
-use fpi_host::cli::board::{firmware_model, model_and_image};
+use fpi_host::cli::board::{loadable, Loadable};
 use fpi_host::method::export::ExportOptions;
 use pyo3::prelude::*;
 use pyo3::types::{PyComplex, PyDict};
@@ -74,6 +74,77 @@ impl Board {
             f(c)
         })
         .map_err(|e| to_py(py, e, Otherwise::Link))
+    }
+
+    /// `load` of a file of several axes (`fpi board load` of it): every
+    /// axis's model, then the decoupling. Returns `axes` and each axis's
+    /// `tick`.
+    fn load_axes<'py>(
+        &self,
+        py: Python<'py>,
+        file: &fpi_host::model_file::AxesModel,
+        store: bool,
+        match_mass: bool,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        if match_mass {
+            return Err(pyo3::exceptions::PyValueError::new_err(
+                "match_mass measures one axis: load the file of several axes without it",
+            ));
+        }
+        let axes = self.run(py, |c| Ok(usize::from(c.hello().axes)))?;
+        if file.models().len() != axes {
+            return Err(BoardError::new_err(format!(
+                "the model file has {} axes and the board {axes}: a file of several axes loads \
+                 onto a board of as many",
+                file.models().len()
+            )));
+        }
+        let ticks = self.run(py, |c| {
+            let mut ticks = Vec::new();
+            fpi_host::board::axes::load(c, file, store, |_, t| ticks.push(t))?;
+            Ok(ticks)
+        })?;
+        let d = PyDict::new(py);
+        d.set_item("axes", ticks.len())?;
+        d.set_item("tick", ticks)?;
+        Ok(d)
+    }
+
+    /// `autotune(every_axis=True)`: every axis from `loaded`, then the
+    /// coupling, into the file of several axes `out`; the table.
+    fn autotune_every_axis(
+        &self,
+        py: Python<'_>,
+        loaded: Loadable,
+        design: &fpi_host::method::tune::TuneOptions,
+        settings: (
+            &fpi_host::board::autotune::Settings,
+            &fpi_host::board::decoupling::Settings,
+        ),
+        store: bool,
+        out: &std::path::Path,
+    ) -> PyResult<String> {
+        use fpi_host::board::axes;
+        let tuned = self.run(py, |c| {
+            let n = usize::from(c.hello().axes);
+            let models = match loaded {
+                Loadable::One(fw, _) => vec![*fw; n],
+                Loadable::Axes(f) => f.models().into_iter().cloned().collect(),
+            };
+            axes::autotune(
+                c,
+                &models,
+                design,
+                settings,
+                store,
+                &mut |f| {
+                    let text = f.to_toml().map_err(anyhow::Error::msg)?;
+                    fpi_host::output::write_atomic(out, text.as_bytes())
+                },
+                |_| {},
+            )
+        })?;
+        Ok(axes::table(&tuned))
     }
 
     /// Refuses `what` (a command that uses the recorder itself) while a live
@@ -624,7 +695,9 @@ impl Board {
     /// Uploads a model (`fpi board load`): a calibrated model file with the
     /// stage's FEM table `fem` (exported as `fpi export` does, with the loop
     /// settings `rate` Hz, `u_max` V, `slew` V/ms, `stroke_voltage` V), or a
-    /// firmware model file. `store` also keeps it in flash. The stage must be
+    /// firmware model file, or a file of several axes (every axis's model and
+    /// the decoupling of its coupling; returns `axes` and each axis's `tick`).
+    /// `store` also keeps it in flash. The stage must be
     /// parked. `match_mass` then measures the stage's mode and starts the
     /// learned mass ratio at what it implies (`fpi board load --match-mass`).
     /// Returns `crc`, `bytes`, `tick` (and `stage_mode_hz`, `mass_ratio`).
@@ -646,9 +719,13 @@ impl Board {
             self.recorder_free("load(match_mass=True)")?;
         }
         let o = export_options(rate, u_max, slew, stroke_voltage);
-        let (fw, image) = py
-            .detach(|| model_and_image(&model, fem.as_deref(), &o))
+        let loaded = py
+            .detach(|| loadable(&model, fem.as_deref(), &o))
             .map_err(|e| to_py(py, e, Otherwise::Input))?;
+        let (fw, image) = match loaded {
+            Loadable::One(fw, image) => (fw, image),
+            Loadable::Axes(file) => return self.load_axes(py, &file, store, match_mass),
+        };
         let (tick, crc, matched) = self.run(py, |c| {
             let tick = c.upload(&image, store, |_| {})?;
             let crc = c.model()?.crc;
@@ -967,9 +1044,12 @@ impl Board {
     /// written to `out`. The design's options are `fpi board autotune`'s:
     /// `damping` (`--no-damping` where false), `target_damping`,
     /// `force_noise_n` (the σ designed for instead of the one measured),
-    /// `max_sensitivity`, `bandwidth_hz`. Returns the table `fpi board
-    /// autotune` prints.
-    #[pyo3(signature = (model, out, fem = None, *, trials = fpi_host::board::autotune::TRIALS, store = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None, damping = true, target_damping = 0.5, force_noise_n = None, max_sensitivity = 1.6, bandwidth_hz = None))]
+    /// `max_sensitivity`, `bandwidth_hz`. `every_axis` (a board of several
+    /// axes; `fpi board autotune` without `--axis`): every axis in turn, then
+    /// their coupling (`sensor_crosstalk`: the sensors' calibration, a
+    /// fraction), into one file of several axes at `out` that `load` loads
+    /// whole. Returns the table `fpi board autotune` prints.
+    #[pyo3(signature = (model, out, fem = None, *, trials = fpi_host::board::autotune::TRIALS, store = false, rate = 20_000, u_max = 150.0, slew = 100.0, stroke_voltage = None, damping = true, target_damping = 0.5, force_noise_n = None, max_sensitivity = 1.6, bandwidth_hz = None, every_axis = false, sensor_crosstalk = 0.0))]
     #[allow(clippy::too_many_arguments)]
     fn autotune(
         &self,
@@ -988,6 +1068,8 @@ impl Board {
         force_noise_n: Option<f64>,
         max_sensitivity: f64,
         bandwidth_hz: Option<f64>,
+        every_axis: bool,
+        sensor_crosstalk: f64,
     ) -> PyResult<String> {
         use fpi_host::board::autotune;
         use fpi_host::method::tune::TuneOptions;
@@ -1001,10 +1083,9 @@ impl Board {
             ..TuneOptions::default()
         };
         let o = export_options(rate, u_max, slew, stroke_voltage);
-        let fw = py
-            .detach(|| firmware_model(&model, fem.as_deref(), &o))
+        let loaded = py
+            .detach(|| loadable(&model, fem.as_deref(), &o))
             .map_err(|e| to_py(py, e, Otherwise::Input))?;
-        fpi_host::method::tune::check_options(&fw, &design).map_err(design_error)?;
         // `out` must take the file before the board is measured; the model is
         // written before it runs for good (if it cannot be, the board is put
         // back to the model it ran).
@@ -1012,15 +1093,41 @@ impl Board {
         inputs.extend(fem.as_deref().map(|f| ("fem", f)));
         py.detach(|| fpi_host::output::check_outputs(&[("out", out.as_path())], &inputs))
             .map_err(|e| to_py(py, e, Otherwise::Input))?;
+        let settings = autotune::Settings {
+            trials,
+            ..Default::default()
+        };
+        if every_axis {
+            let coupling = fpi_host::board::decoupling::Settings {
+                sensor_crosstalk,
+                ..Default::default()
+            };
+            return self.autotune_every_axis(
+                py,
+                loaded,
+                &design,
+                (&settings, &coupling),
+                store,
+                &out,
+            );
+        }
+        let fw = match loaded {
+            Loadable::One(fw, _) => *fw,
+            Loadable::Axes(f) => f
+                .models()
+                .get(usize::from(self.axis))
+                .map(|m| (*m).clone())
+                .ok_or_else(|| {
+                    BoardError::new_err("the file has no model of the addressed axis")
+                })?,
+        };
+        fpi_host::method::tune::check_options(&fw, &design).map_err(design_error)?;
         let tuned = self.run(py, |c| {
             autotune::run_keeping(
                 c,
                 &fw,
                 &design,
-                &autotune::Settings {
-                    trials,
-                    ..Default::default()
-                },
+                &settings,
                 store,
                 &mut |m| autotune::write_model(m, &out),
                 |_| {},

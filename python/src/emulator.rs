@@ -34,13 +34,14 @@ pub struct Emulator {
 #[pymethods]
 impl Emulator {
     #[new]
-    #[pyo3(signature = (listen = None, link = "usb", frontend = "internal", firmware = None))]
+    #[pyo3(signature = (listen = None, link = "usb", frontend = "internal", firmware = None, axes = 1))]
     fn new(
         py: Python<'_>,
         listen: Option<String>,
         link: &str,
         frontend: &str,
         firmware: Option<std::path::PathBuf>,
+        axes: u8,
     ) -> PyResult<Self> {
         let Some(link) = fpi_host::board::client::link_kind(link) else {
             return Err(pyo3::exceptions::PyValueError::new_err(format!(
@@ -53,15 +54,7 @@ impl Emulator {
             )));
         };
         let q = py
-            .detach(|| {
-                let q = match &firmware {
-                    Some(elf) => Qemu::start_elf(elf, listen.as_deref())?,
-                    None => Qemu::start(listen.as_deref())?,
-                };
-                q.pace_as(link)?;
-                q.front_end(front)?;
-                Ok::<_, anyhow::Error>(q)
-            })
+            .detach(|| Qemu::start_board(firmware.as_deref(), axes, listen.as_deref(), link, front))
             .map_err(|e| to_py(py, e, Otherwise::Link))?;
         let port = q.port().to_string();
         Ok(Self {

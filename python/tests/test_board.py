@@ -682,3 +682,23 @@ def test_two_scripts_share_one_board_through_the_hub():
     finally:
         hub.send_signal(signal.SIGINT)
         hub.wait(timeout=10)
+
+
+def test_autotune_of_every_axis_writes_one_file_that_loads_whole(tmp_path):
+    out = tmp_path / "xy-tuned.toml"
+    with pf.Board("virtual:usb:xy-built") as b:
+        table = b.autotune(
+            ROOT / "firmware" / "model" / "stage-a.toml",
+            out,
+            trials=0,
+            every_axis=True,
+            sensor_crosstalk=0.002,
+        )
+        assert "axis y:" in table and "parasitic motion" in table
+    assert 'format = "piezo-fpi-axes/1"' in out.read_text()
+    with pf.Board("virtual:xy-built") as b:
+        loaded = b.load(out)
+        assert loaded["axes"] == 2 and len(loaded["tick"]) == 2
+    with pf.Board("virtual") as one:
+        with pytest.raises(pf.BoardError, match="2 axes"):
+            one.load(out)

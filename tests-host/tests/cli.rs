@@ -631,3 +631,69 @@ fn a_board_of_two_axes_addresses_each_and_rasters_over_both() {
 fn strs(args: &[String]) -> Vec<&str> {
     args.iter().map(String::as_str).collect()
 }
+
+/// `fpi board autotune` without `--axis` on a board of two axes tunes every
+/// axis and measures their coupling into one file of several axes; `fpi
+/// board load` loads it whole on a board of two axes and refuses it on a
+/// board of one; a coupling the board cannot undo is named by its key, its
+/// value and the rule.
+#[test]
+fn autotune_of_every_axis_writes_one_file_that_loads_whole() {
+    let d = tmp();
+    let tuned = d.join("xy-tuned.toml");
+    let out = ok(&[
+        "board",
+        "--port",
+        "virtual:usb:xy-built",
+        "autotune",
+        "../firmware/model/stage-a.toml",
+        "--trials",
+        "0",
+        "--sensor-crosstalk",
+        "0.002",
+        "--out",
+        s(&tuned),
+    ]);
+    assert!(
+        out.contains("every axis tuned and the coupling measured"),
+        "{out}"
+    );
+    assert!(
+        out.contains("axis y:") && out.contains("parasitic motion"),
+        "{out}"
+    );
+    let text = std::fs::read_to_string(&tuned).unwrap();
+    assert!(
+        text.contains("format = \"piezo-fpi-axes/1\"")
+            && text.contains("[y.pi]")
+            && text.contains("[coupling]"),
+        "{text}"
+    );
+    let out = ok(&["board", "--port", "virtual:xy-built", "load", s(&tuned)]);
+    assert!(
+        out.contains("axis y: its model running") && out.contains("the decoupling"),
+        "{out}"
+    );
+    let err = fails(&["board", "--port", "virtual", "load", s(&tuned)]);
+    assert!(
+        err.contains("the model file has 2 axes (x, y) and the board 1"),
+        "{err}"
+    );
+    let bad = d.join("xy-bad.toml");
+    let broken: Vec<String> = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("parasitic = ") {
+                "parasitic = [[0.0, 0.3], [0.015, 0.0]]".to_string()
+            } else {
+                l.to_string()
+            }
+        })
+        .collect();
+    std::fs::write(&bad, broken.join("\n")).unwrap();
+    let err = fails(&["board", "--port", "virtual:xy-built", "load", s(&bad)]);
+    assert!(
+        err.contains("xy-bad.toml: coupling.parasitic[0][1] = 0.3: finite, within ±0.1"),
+        "{err}"
+    );
+}

@@ -379,12 +379,14 @@ fn a_silent_host_parks_a_streaming_stage_within_its_timeout() {
 /// of a board of several axes (an axis in the model commands and the
 /// recorder, the raster, the decoupling and the moves of several axes, a
 /// recording of every axis), from 236 KiB to 240.5 KiB: a budget of 248 KiB.
+/// The model stores and the image buffer lie in the CCM (64 KiB).
 fn budget(f: &board::Footprint) {
     assert!(f.flash <= 248 * 1024, "flash budget 248 KiB");
     assert!(
         f.ram <= 100 * 1024,
         "static RAM budget 100 KiB (28 KiB left for the stack)"
     );
+    assert!(f.ccm <= 64 * 1024, "the CCM's 64 KiB");
 }
 
 #[test]
@@ -394,13 +396,85 @@ fn board_firmware_fits_its_budget_and_the_control_path_cannot_panic() {
         let elf = board::build("fpi-firmware", features).unwrap_or_else(|e| panic!("{e:#}"));
         let f = board::footprint(&elf).unwrap_or_else(|e| panic!("{e:#}"));
         println!(
-            "board firmware ({features}): {} B flash, {} B static RAM",
-            f.flash, f.ram
+            "board firmware ({features}): {} B flash, {} B static RAM, {} B CCM",
+            f.flash, f.ram, f.ccm
         );
         budget(&f);
     }
+    // Three axes' models and their loops fit the F405 with 16 KiB of stack:
+    // the emulated board of three axes' build, less its stand-in for the
+    // model's flash (and with its virtual stage, which the board has not).
+    let elf = board::build("fpi-firmware-xyz", "qemu").unwrap_or_else(|e| panic!("{e:#}"));
+    let f = board::footprint(&elf).unwrap_or_else(|e| panic!("{e:#}"));
+    println!(
+        "three axes: {} B static RAM on the board, {} B CCM: {} B left for the stack",
+        f.board_ram(),
+        f.ccm,
+        128 * 1024 - f.board_ram()
+    );
+    assert!(f.board_ram() <= 112 * 1024 && f.ccm <= 64 * 1024, "{f:?}");
 
     // Links only if no panic branch is reachable from the control task or the
     // model loading.
     board::build("no-panic", "qemu").unwrap_or_else(|e| panic!("{e:#}"));
+}
+
+/// `fpi board emulate --axes 2`: the emulated board of two axes on QEMU (the
+/// XY stage as designed) answers as a board of two, moves both axes from one
+/// tick and rasters over them, every axis recorded; three axes are refused
+/// with the reason (they do not fit QEMU's memory). The late control ticks
+/// (the virtual stage of two axes computed in the same period) are printed.
+#[test]
+fn the_emulated_board_of_two_axes_moves_and_rasters_both() {
+    if !fpi_host::board::emulator::available_for("emulated board of two axes") {
+        return;
+    }
+    let err = Emulator::firmware_of(3).unwrap_err().to_string();
+    assert!(err.contains("does not fit QEMU's memory"), "{err}");
+    let elf = Emulator::firmware_of(2).unwrap_or_else(|e| panic!("{e:#}"));
+    let e = Emulator::start_elf(&elf, None).unwrap_or_else(|e| panic!("{e:#}"));
+    let mut c = Client::open(e.port()).unwrap_or_else(|err| panic!("{err:#}\n{}", e.output()));
+    c.pace_as(fpi_protocol::LinkKind::Usb).unwrap();
+    assert_eq!(c.hello().axes, 2);
+    let err = c
+        .front_end(fpi_protocol::FrontEndKind::Precision)
+        .unwrap_err();
+    assert!(format!("{err:#}").contains("several axes"), "{err:#}");
+    c.order(&Command::MoveAxes {
+        mask: 0b11,
+        targets: [client::bits(10.0), client::bits(20.0), 0],
+        speed: client::bits(1000.0),
+    })
+    .unwrap();
+    for (axis, um) in [(0, 10.0), (1, 20.0)] {
+        c.on_axis(axis).unwrap();
+        board::follow::Follow::new(&mut c, 0).until_hold().unwrap();
+        let at = client::real(c.status().unwrap().signals[0]);
+        assert!((at - um).abs() < 1e-3, "axis {axis}: {at}");
+    }
+    c.on_axis(0).unwrap();
+    let spec = board::raster::RasterSpec {
+        fast: 0,
+        slow: 1,
+        fast_um: (5.0, 35.0),
+        slow_um: (5.0, 35.0),
+        freq_hz: 50.0,
+        lines: 4,
+        staircase: false,
+    };
+    let (m, rec) = board::raster::run(&mut c, &spec).unwrap_or_else(|e| panic!("{e:#}"));
+    assert!(m.fault.is_none(), "{:?}", m.fault);
+    assert_eq!(rec.axes.len(), 2);
+    let f = board::raster::figures(&spec, &rec).expect("whole lines recorded");
+    println!(
+        "emulated board of two axes: {}",
+        board::raster::describe(&spec, &f)
+    );
+    // Open loop on the factory model, the stage as designed.
+    assert!(f.on_truth && f.fast_rms_pct < 10.0, "{f:?}");
+    let s = c.status().unwrap();
+    println!(
+        "emulated board of two axes: {} late control ticks of {}",
+        s.overruns, s.tick
+    );
 }

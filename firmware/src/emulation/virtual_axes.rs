@@ -67,6 +67,38 @@ pub fn true_decoupling(c: &Coupling, n: usize) -> Option<Decoupling<MAX_AXES>> {
     })
 }
 
+/// One period of an emulated board of `N` axes: a bench order refused
+/// ([`Refused::BenchOfAxes`]), the control tick, the stage's step on
+/// `links`, the recorder (the recorded axis or every axis, with the true
+/// positions). `x_true` holds each axis's true output at the instant this
+/// tick's sensors read it (the last step's), µm.
+pub fn tick<const N: usize>(
+    control: &mut AxesLoop<N>,
+    stage: &mut Axes<'_, N>,
+    links: &[&SimLink; N],
+    x_true: &mut [Micrometres; N],
+    x: &mut Exchange<'_, N>,
+) {
+    if let Some(Posted {
+        seq,
+        order: Order::Bench(_),
+        ..
+    }) = x.order
+    {
+        x.order = None;
+        x.applied = Some(Applied {
+            seq,
+            tick: control.next_tick(),
+            result: Err(Refused::BenchOfAxes),
+        });
+    }
+    let seen = x_true.map(Some);
+    control.tick(x);
+    let s = step(stage, links);
+    *x_true = s.map(|a| Micrometres::from_num(a.x_fhps_um));
+    control.record_axes(x, &seen);
+}
+
 /// The control loop of an emulated board of `N` axes (axis `i`'s I/O is
 /// its own [`SimLink`]).
 pub type AxesLoop<const N: usize> = ControlLoop<
@@ -148,29 +180,15 @@ impl<const N: usize> VirtualAxes<N> {
         ))
     }
 
-    /// One period: a bench order refused, the control tick, the stage's
-    /// step, the recorder (the recorded axis or every axis, with the true
-    /// positions).
+    /// One period ([`tick`]).
     pub fn tick(&mut self) {
-        let x = &mut self.exchange;
-        if let Some(Posted {
-            seq,
-            order: Order::Bench(_),
-            ..
-        }) = x.order
-        {
-            x.order = None;
-            x.applied = Some(Applied {
-                seq,
-                tick: self.control.next_tick(),
-                result: Err(Refused::BenchOfAxes),
-            });
-        }
-        let x_true = self.x_true.map(Some);
-        self.control.tick(x);
-        let s = step(&mut self.stage, &self.links);
-        self.x_true = s.map(|a| Micrometres::from_num(a.x_fhps_um));
-        self.control.record_axes(x, &x_true);
+        tick(
+            &mut self.control,
+            &mut self.stage,
+            &self.links,
+            &mut self.x_true,
+            &mut self.exchange,
+        );
     }
 
     /// Each axis's true output now, µm (where this tick's sensors read it).

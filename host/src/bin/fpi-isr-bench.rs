@@ -64,15 +64,17 @@ fn run() -> Result<()> {
         out.push_str(&q.stdout);
     }
     let over = over_budget(&out)?;
-    // Program flash: 768 KiB (sectors 10 and 11 hold the stored model); RAM: the
-    // chip's 128 KiB, and the 192 KiB of QEMU's netduinoplus2 for the emulated
-    // board, which keeps its model "flash" in RAM.
-    for (name, features, ram_kib) in [
-        ("board", "defmt", 128),
-        ("board_precision", "defmt,precision", 128),
-        ("emulated", "qemu", 192),
+    // Program flash: 768 KiB (sectors 10 and 11 hold the stored model); SRAM:
+    // the chip's 128 KiB (the emulated board keeps its model "flash" in it
+    // too); CCM: 64 KiB (the model stores and the image buffer).
+    for (name, bin, features) in [
+        ("board", "fpi-firmware", "defmt"),
+        ("board_precision", "fpi-firmware", "defmt,precision"),
+        ("emulated", "fpi-firmware", "qemu"),
+        ("emulated_two_axes", "fpi-firmware-xy", "qemu"),
+        ("three_axes", "fpi-firmware-xyz", "qemu"),
     ] {
-        let elf = board::build("fpi-firmware", features)?;
+        let elf = board::build(bin, features)?;
         let f = board::footprint(&elf)?;
         println!(
             "firmware_{name}_flash_bytes: {} ({:.1} KiB of 768 KiB)",
@@ -80,9 +82,15 @@ fn run() -> Result<()> {
             f.flash as f64 / 1024.0
         );
         println!(
-            "firmware_{name}_static_ram_bytes: {} ({:.1} KiB of {ram_kib} KiB, stack not included)",
+            "firmware_{name}_static_ram_bytes: {} ({:.1} KiB of 128 KiB, stack not included; \
+             {} B of it the emulated board's flash); ccm_bytes: {} ({:.1} KiB of 64 KiB); \
+             stack on the board: {:.1} KiB",
             f.ram,
-            f.ram as f64 / 1024.0
+            f.ram as f64 / 1024.0,
+            f.emulated_flash,
+            f.ccm,
+            f.ccm as f64 / 1024.0,
+            (128 * 1024 - f.board_ram() as i64) as f64 / 1024.0
         );
     }
     if !over.is_empty() {

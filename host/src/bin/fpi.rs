@@ -512,6 +512,12 @@ enum BoardCommand {
         /// firmware, `fpi-firmware` with --features qemu, built if needed).
         #[arg(long, value_name = "ELF")]
         firmware: Option<PathBuf>,
+        /// Its axes: 1 (stage A) or 2 (the XY stage as designed; a board of
+        /// several axes takes no bench order but the link's pace, and has the
+        /// internal front end). Three axes run in-process (--port virtual:xyz):
+        /// they do not fit QEMU's memory.
+        #[arg(long, default_value_t = 1)]
+        axes: u8,
     },
     /// Serve the board to several local clients at once on a TCP port.
     ///
@@ -1327,24 +1333,21 @@ fn board(port: Option<String>, axis: Option<u8>, command: BoardCommand) -> Resul
         link,
         frontend,
         firmware,
+        axes,
     } = &command
     {
         // Ctrl-C, SIGTERM or SIGHUP stop QEMU with `fpi`; so does any other end
         // of `fpi` on Linux (QEMU's parent-death signal, `Emulator`).
         b::catch_ctrl_c()?;
-        let elf = match firmware {
-            Some(f) if !f.is_file() => {
-                anyhow::bail!("--firmware {}: no such file", f.display())
-            }
-            Some(f) => f.clone(),
-            None => Emulator::firmware()?,
-        };
-        let e = Emulator::start_elf(&elf, Some(listen))?;
-        e.pace_as(*link)?;
-        e.front_end(*frontend)?;
+        let e = Emulator::start_board(firmware.as_deref(), *axes, Some(listen), *link, *frontend)?;
         println!(
-            "emulated board running, its link paced as {} ({} B/s), its front end {}; its link is --port {} \
+            "emulated board{} running, its link paced as {} ({} B/s), its front end {}; its link is --port {} \
              (Ctrl-C stops it)",
+            if *axes == 1 {
+                String::new()
+            } else {
+                format!(" of {axes} axes")
+            },
             link.name(),
             link.bytes_per_s(),
             frontend.name(),

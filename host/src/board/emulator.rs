@@ -47,6 +47,9 @@ pub fn flash_file(path: &Path, images: &[&[u8]], damage: &[usize]) -> Result<()>
     crate::output::write_atomic(path, f.flash().as_bytes())
 }
 
+/// The most axes the emulated board on QEMU drives ([`Emulator::firmware_of`]).
+pub const MOST_AXES: u8 = 2;
+
 /// QEMU's virtual clock for the instrument: see the module docs.
 pub const ICOUNT_INSTRUMENT: &str = "shift=0,align=off,sleep=on";
 
@@ -309,9 +312,58 @@ impl Emulator {
         Ok(())
     }
 
+    /// `fpi board emulate`: the emulated board of `axes` axes (its firmware
+    /// `elf`, else [`firmware_of`](Self::firmware_of) built), its link on
+    /// `listen`, paced as `link`, converting with `front` (a board of several
+    /// axes has the internal front end only: another is refused before QEMU
+    /// starts).
+    pub fn start_board(
+        elf: Option<&Path>,
+        axes: u8,
+        listen: Option<&str>,
+        link: fpi_protocol::LinkKind,
+        front: fpi_protocol::FrontEndKind,
+    ) -> Result<Self> {
+        if axes > 1 && front != fpi_protocol::FrontEndKind::Internal {
+            bail!(
+                "front end {}: the emulated board of several axes has the internal front end only",
+                front.name()
+            );
+        }
+        let elf = match elf {
+            Some(f) if !f.is_file() => bail!("firmware {}: no such file", f.display()),
+            Some(f) => f.to_path_buf(),
+            None => Self::firmware_of(axes)?,
+        };
+        let e = Self::start_elf(&elf, listen)?;
+        e.pace_as(link)?;
+        if axes == 1 {
+            e.front_end(front)?;
+        }
+        Ok(e)
+    }
+
     /// The firmware image it runs.
     pub fn firmware() -> Result<PathBuf> {
-        build("fpi-firmware", "qemu")
+        Self::firmware_of(1)
+    }
+
+    /// The firmware image of the emulated board of `axes` axes (1: stage A,
+    /// 2: the XY stage as designed), built if needed. Three axes are
+    /// refused: see [`MOST_AXES`].
+    pub fn firmware_of(axes: u8) -> Result<PathBuf> {
+        match axes {
+            1 => build("fpi-firmware", "qemu"),
+            2 => build("fpi-firmware-xy", "qemu"),
+            3 => bail!(
+                "--axes 3: the emulated board of three axes does not fit QEMU's memory: QEMU's \
+                 netduinoplus2 maps 192 KiB of SRAM and no CCM, and the RAM that stands in for \
+                 the model's flash takes 26 KiB of it, which leaves the program 10 KiB of stack \
+                 where it needs more than 14 KiB to start (on the board, without that RAM, it \
+                 has 36 KiB); three axes run on the in-process board (--port virtual:xyz)"
+            ),
+            n => bail!("--axes {n}: 1, 2 or 3"),
+        }
     }
 }
 

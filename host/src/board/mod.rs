@@ -266,15 +266,35 @@ pub fn run(elf: &Path, icount: &str, timeout: Duration, echo: bool) -> Result<Qe
 pub struct Footprint {
     /// Code, constants, vector table and the initial image of `.data`.
     pub flash: u64,
-    /// `.data`, `.bss` and `.uninit` (the stack is extra).
+    /// SRAM: `.data`, `.bss`, `.uninit` and the emulated board's
+    /// `.emulated_flash` (the stack is extra).
     pub ram: u64,
+    /// Of `ram`, the emulated board's stand-in for the model's flash (none on
+    /// the board).
+    pub emulated_flash: u64,
+    /// The CCM's `.ccm` (the model stores and the image buffer; of 64 KiB).
+    pub ccm: u64,
 }
 
-/// Reads the allocated sections of an ELF (flash at 0x0800_0000, RAM at 0x2000_0000).
+impl Footprint {
+    /// The SRAM the program would take on the board: without the emulated
+    /// board's stand-in for the flash.
+    pub const fn board_ram(&self) -> u64 {
+        self.ram - self.emulated_flash
+    }
+}
+
+/// Reads the allocated sections of an ELF (flash at 0x0800_0000, SRAM at
+/// 0x2000_0000, the CCM's `.ccm` wherever it lies).
 pub fn footprint(elf: &Path) -> Result<Footprint> {
     let data = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
     let file = object::File::parse(&*data).with_context(|| format!("parsing {}", elf.display()))?;
-    let (mut flash, mut ram) = (0, 0);
+    let mut f = Footprint {
+        flash: 0,
+        ram: 0,
+        emulated_flash: 0,
+        ccm: 0,
+    };
     for s in file.sections() {
         let alloc = matches!(
             s.flags(),
@@ -284,14 +304,20 @@ pub fn footprint(elf: &Path) -> Result<Footprint> {
             continue;
         }
         let a = s.address();
-        if (0x0800_0000..0x0810_0000).contains(&a) {
-            flash += s.size();
+        let name = s.name().unwrap_or("");
+        if name == ".ccm" {
+            f.ccm += s.size();
+        } else if (0x0800_0000..0x0810_0000).contains(&a) {
+            f.flash += s.size();
         } else if (0x2000_0000..0x2003_0000).contains(&a) {
-            ram += s.size();
-            if s.name().ok() == Some(".data") {
-                flash += s.size(); // its initial values are copied from flash
+            f.ram += s.size();
+            match name {
+                // its initial values are copied from flash
+                ".data" => f.flash += s.size(),
+                ".emulated_flash" => f.emulated_flash += s.size(),
+                _ => {}
             }
         }
     }
-    Ok(Footprint { flash, ram })
+    Ok(f)
 }

@@ -40,6 +40,54 @@ pub fn keys() -> Vec<Key> {
     out
 }
 
+/// The keys of the model file of several axes (`piezo_sim::file::AxesModel`)
+/// other than its axes' models: each axis's table (`x`, `y`, `z`) is one row,
+/// a whole firmware model under that prefix.
+pub fn axes_keys() -> Vec<Key> {
+    let schema = schemars::schema_for!(piezo_sim::file::AxesModel);
+    let root = schema.as_value();
+    let defs = root.get("$defs").cloned().unwrap_or(Value::Null);
+    let needed: Vec<&str> = root
+        .get("required")
+        .and_then(Value::as_array)
+        .map(|r| r.iter().filter_map(Value::as_str).collect())
+        .unwrap_or_default();
+    let mut out = Vec::new();
+    let Some(props) = root.get("properties").and_then(Value::as_object) else {
+        return out;
+    };
+    for (name, raw) in props {
+        let required = needed.contains(&name.as_str());
+        let t = resolve(raw, &defs);
+        let doc = raw
+            .get("description")
+            .or_else(|| t.get("description"))
+            .and_then(Value::as_str)
+            .map(one_paragraph)
+            .unwrap_or_default();
+        if ["x", "y", "z"].contains(&name.as_str()) {
+            out.push(Key {
+                path: format!("{name}.*"),
+                kind: "table: a firmware model".into(),
+                required,
+                doc,
+                decl: None,
+            });
+        } else if t.get("properties").is_some() {
+            walk(t, &defs, &format!("{name}."), required, &mut out);
+        } else {
+            out.push(Key {
+                path: name.clone(),
+                kind: kind(t, &defs),
+                required,
+                doc,
+                decl: None,
+            });
+        }
+    }
+    out
+}
+
 /// `v` with a `$ref` followed, and an `Option`'s `null` branch dropped.
 fn resolve<'a>(v: &'a Value, defs: &'a Value) -> &'a Value {
     if let Some(r) = v.get("$ref").and_then(Value::as_str) {
@@ -187,6 +235,23 @@ pub fn reference() -> String {
             cell(&range),
             cell(&default),
             cell(&k.doc)
+        );
+    }
+    s += "\n## The model file of several axes\n\n\
+          What `fpi board autotune` writes on a board of several axes (without `--axis`) and \
+          `fpi board load` loads whole: each axis's firmware model under its axis's table \
+          (`[x]`, `[y]`, `[z]`; every key above, under that prefix: `y.pi.w0_um_per_v`), and \
+          the coupling its board's decoupling is made of. Square arrays are `[i][j]`, of axis \
+          `i` per unit of axis `j`, one row per axis of the file, 0 on the diagonal; an entry \
+          out of its range is named by its key, row and column ([Several axes](../axes.md)).\n\n\
+          | Key | Type | Required | What it holds |\n|---|---|---|---|\n";
+    for k in axes_keys() {
+        s += &format!(
+            "| `{}` | {} | {} | {} |\n",
+            k.path,
+            k.kind,
+            if k.required { "yes" } else { "no" },
+            k.doc.replace('|', "\\|")
         );
     }
     s

@@ -40,6 +40,7 @@ pub type Flash = &'static mut EmulatedFlash;
 static LINK: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
 
 /// QEMU models no watchdog: this one counts the feeds the rule allows.
+#[derive(Default)]
 pub struct NoWatchdog {
     feeds: u32,
 }
@@ -114,6 +115,9 @@ impl TickIo {
     }
 }
 
+/// The board's axes.
+pub const AXES: usize = 1;
+
 /// What `init` hands on to the control task.
 pub struct Io {
     bench: Bench,
@@ -121,7 +125,7 @@ pub struct Io {
 
 impl Io {
     /// The control task's hardware, running `model`.
-    pub fn tick(self, model: Running) -> TickIo {
+    pub fn tick(self, [model]: [Running; AXES]) -> TickIo {
         TickIo {
             control: Loop::new([(model, LINK.hardware(), LINK.analog())]),
             bench: self.bench,
@@ -137,6 +141,22 @@ pub fn init(
     usb_rx: Producer<'static, u8>,
     usb_tx: Consumer<'static, u8>,
 ) -> (ModelFlash<Flash>, Serial<USART1>, Usb, Io) {
+    let (flash, serial, usb) = init_link(dp, usb_rx, usb_tx);
+    let Some(mut bench) = Bench::new() else {
+        halt("the virtual stage's parameters")
+    };
+    bench.prime(&LINK);
+    (flash, serial, usb, Io { bench })
+}
+
+/// What every emulated board sets up before its stage: the clock, USART1
+/// with its receive interrupt, the USB port QEMU does not have, the
+/// RAM-backed flash.
+pub fn init_link(
+    dp: pac::Peripherals,
+    usb_rx: Producer<'static, u8>,
+    usb_tx: Consumer<'static, u8>,
+) -> (ModelFlash<Flash>, Serial<USART1>, Usb) {
     let usb = Usb {
         _queues: (usb_rx, usb_tx),
     };
@@ -147,18 +167,14 @@ pub fn init(
         halt("USART1 configuration")
     };
     serial.listen(Event::RxNotEmpty);
-    let Some(mut bench) = Bench::new() else {
-        halt("the virtual stage's parameters")
-    };
-    bench.prime(&LINK);
     let ram = emulated_flash();
     seed(ram);
-    (ModelFlash::new(ram, FLASH_SLOTS), serial, usb, Io { bench })
+    (ModelFlash::new(ram, FLASH_SLOTS), serial, usb)
 }
 
-/// The RAM standing in for the stored-model flash: outside the real board's
-/// 128 KiB (the `EMULATED` region of `memory.x`), so the program keeps the RAM
-/// and stack the real board gives it.
+/// The RAM standing in for the stored-model flash (`memory.x`'s
+/// `.emulated_flash`): it takes its room from the real board's 128 KiB, so
+/// the program has less RAM and stack than on the real board, never more.
 #[link_section = ".emulated_flash"]
 static mut EMULATED_FLASH: core::mem::MaybeUninit<EmulatedFlash> = core::mem::MaybeUninit::uninit();
 

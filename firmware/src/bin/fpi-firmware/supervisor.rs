@@ -43,9 +43,9 @@ impl<W: Watchdog> Supervisor<W> {
     /// After the control tick: whether the next tick is already due (the tick
     /// overran its period), the watchdog's period and its feeding.
     #[inline]
-    pub fn after_tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn>(
+    pub fn after_tick<S: ForceSensor, A: Setpoint, E: OutputPin, R: AnalogIn, const N: usize>(
         &mut self,
-        lp: &mut ControlLoop<S, A, E, R>,
+        lp: &mut ControlLoop<S, A, E, R, N>,
     ) {
         lp.late(cortex_m::peripheral::SCB::is_pendst_pending());
         let long = LONG.load(Ordering::Acquire);

@@ -51,10 +51,9 @@ mod bench {
     static LINK_Y: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
     static LINK_Z: SimLink = SimLink::new(FORCE_ADC, SETPOINT_DAC);
 
-    /// Two model stores in the RAM QEMU maps above the real board's
-    /// 128 KiB (`memory.x`'s `EMULATED`), which the benchmark's own
-    /// 128 KiB cannot hold beside the one-axis phases' two.
-    #[link_section = ".emulated_flash"]
+    /// Two model stores in the CCM (`memory.x`), which the benchmark's
+    /// 128 KiB of SRAM cannot hold beside the one-axis phases' two.
+    #[link_section = ".ccm.stores"]
     static mut MORE: [MaybeUninit<Store>; 2] = [MaybeUninit::uninit(), MaybeUninit::uninit()];
 
     /// The two stores, empty; called once (out of line: its frame may

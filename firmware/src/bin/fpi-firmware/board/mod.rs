@@ -254,6 +254,9 @@ impl TickIo {
     }
 }
 
+/// The board's axes.
+pub const AXES: usize = 1;
+
 /// What `init` hands on to the control task.
 pub struct Io {
     hw: Hardware<front::Sensor, front::Amplifier, Enable>,
@@ -265,7 +268,7 @@ pub struct Io {
 
 impl Io {
     /// The control task's hardware, running `model`; starts the watchdog.
-    pub fn tick(self, model: Running) -> TickIo {
+    pub fn tick(self, [model]: [Running; AXES]) -> TickIo {
         let mut iwdg = Iwdg(self.iwdg);
         iwdg.set_period(PERIOD_MS);
         TickIo {
