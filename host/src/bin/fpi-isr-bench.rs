@@ -84,13 +84,21 @@ fn run() -> Result<()> {
         println!(
             "firmware_{name}_static_ram_bytes: {} ({:.1} KiB of 128 KiB, stack not included; \
              {} B of it the emulated board's flash); ccm_bytes: {} ({:.1} KiB of 64 KiB); \
-             stack on the board: {:.1} KiB",
+             stack: {:.1} KiB on the board{}",
             f.ram,
             f.ram as f64 / 1024.0,
             f.emulated_flash,
             f.ccm,
             f.ccm as f64 / 1024.0,
-            (128 * 1024 - f.board_ram() as i64) as f64 / 1024.0
+            (128 * 1024 - f.board_ram() as i64) as f64 / 1024.0,
+            if f.emulated_flash > 0 {
+                format!(
+                    ", {:.1} KiB on QEMU",
+                    (128 * 1024 - f.ram as i64) as f64 / 1024.0
+                )
+            } else {
+                String::new()
+            }
         );
     }
     if !over.is_empty() {

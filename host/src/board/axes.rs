@@ -1,6 +1,6 @@
 //! A board of several axes as one: its model file of several axes
 //! ([`AxesModel`]: each axis's model and the coupling) loaded whole
-//! ([`load`]), and autotune of every axis and the coupling ([`autotune`]),
+//! ([`load`]), and autotune of every axis and the coupling ([`autotune()`]),
 //! which writes that file.
 
 use anyhow::{bail, Context, Result};

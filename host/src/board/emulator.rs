@@ -331,7 +331,6 @@ impl Emulator {
             );
         }
         let elf = match elf {
-            Some(f) if !f.is_file() => bail!("firmware {}: no such file", f.display()),
             Some(f) => f.to_path_buf(),
             None => Self::firmware_of(axes)?,
         };

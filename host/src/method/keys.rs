@@ -36,7 +36,7 @@ pub fn keys() -> Vec<Key> {
     let root = schema.as_value();
     let defs = root.get("$defs").cloned().unwrap_or(Value::Null);
     let mut out = Vec::new();
-    walk(root, &defs, "", true, &mut out);
+    walk(root, &defs, ("", &[]), true, &mut out);
     out
 }
 
@@ -47,44 +47,8 @@ pub fn axes_keys() -> Vec<Key> {
     let schema = schemars::schema_for!(piezo_sim::file::AxesModel);
     let root = schema.as_value();
     let defs = root.get("$defs").cloned().unwrap_or(Value::Null);
-    let needed: Vec<&str> = root
-        .get("required")
-        .and_then(Value::as_array)
-        .map(|r| r.iter().filter_map(Value::as_str).collect())
-        .unwrap_or_default();
     let mut out = Vec::new();
-    let Some(props) = root.get("properties").and_then(Value::as_object) else {
-        return out;
-    };
-    for (name, raw) in props {
-        let required = needed.contains(&name.as_str());
-        let t = resolve(raw, &defs);
-        let doc = raw
-            .get("description")
-            .or_else(|| t.get("description"))
-            .and_then(Value::as_str)
-            .map(one_paragraph)
-            .unwrap_or_default();
-        if ["x", "y", "z"].contains(&name.as_str()) {
-            out.push(Key {
-                path: format!("{name}.*"),
-                kind: "table: a firmware model".into(),
-                required,
-                doc,
-                decl: None,
-            });
-        } else if t.get("properties").is_some() {
-            walk(t, &defs, &format!("{name}."), required, &mut out);
-        } else {
-            out.push(Key {
-                path: name.clone(),
-                kind: kind(t, &defs),
-                required,
-                doc,
-                decl: None,
-            });
-        }
-    }
+    walk(root, &defs, ("", &["x", "y", "z"]), true, &mut out);
     out
 }
 
@@ -104,8 +68,15 @@ fn resolve<'a>(v: &'a Value, defs: &'a Value) -> &'a Value {
     v
 }
 
-/// The keys under the object schema `v`, their paths after `prefix`.
-fn walk(v: &Value, defs: &Value, prefix: &str, required: bool, out: &mut Vec<Key>) {
+/// The keys under the object schema `v`, their paths after `prefix`; a
+/// key named in `whole` (a firmware model of its own) is one row.
+fn walk(
+    v: &Value,
+    defs: &Value,
+    (prefix, whole): (&str, &[&str]),
+    required: bool,
+    out: &mut Vec<Key>,
+) {
     let Some(props) = v.get("properties").and_then(Value::as_object) else {
         return;
     };
@@ -124,13 +95,23 @@ fn walk(v: &Value, defs: &Value, prefix: &str, required: bool, out: &mut Vec<Key
             .and_then(Value::as_str)
             .map(one_paragraph)
             .unwrap_or_default();
+        if whole.contains(&name.as_str()) {
+            out.push(Key {
+                path: format!("{path}.*"),
+                kind: "table: a firmware model".into(),
+                required: req,
+                doc,
+                decl: None,
+            });
+            continue;
+        }
         if t.get("properties").is_some() {
-            walk(t, defs, &format!("{path}."), req, out);
+            walk(t, defs, (&format!("{path}."), &[]), req, out);
             continue;
         }
         if let Some(item) = t.get("items").map(|i| resolve(i, defs)) {
             if item.get("properties").is_some() {
-                walk(item, defs, &format!("{path}[]."), req, out);
+                walk(item, defs, (&format!("{path}[]."), &[]), req, out);
                 continue;
             }
         }
