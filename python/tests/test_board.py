@@ -684,21 +684,37 @@ def test_two_scripts_share_one_board_through_the_hub():
         hub.wait(timeout=10)
 
 
-def test_autotune_of_every_axis_writes_one_file_that_loads_whole(tmp_path):
-    out = tmp_path / "xy-tuned.toml"
-    with pf.Board("virtual:usb:xy-built") as b:
-        table = b.autotune(
-            ROOT / "firmware" / "model" / "stage-a.toml",
-            out,
-            trials=0,
-            every_axis=True,
-            sensor_crosstalk=0.002,
-        )
-        assert "axis y:" in table and "parasitic motion" in table
-    assert 'format = "piezo-fpi-axes/1"' in out.read_text()
+def _file_of_two_axes(path):
+    """The factory model on both axes and a coupling, as `fpi board autotune`
+    of every axis writes a file of several axes."""
+    model = (ROOT / "firmware" / "model" / "stage-a.toml").read_text()
+    text = [
+        'format = "piezo-fpi-axes/1"',
+        "[coupling]",
+        "sensor_crosstalk = 0.002",
+        "parasitic = [[0.0, 0.02], [0.015, 0.0]]",
+        "preload_n_per_um = [[0.0, 0.5], [0.5, 0.0]]",
+    ]
+    for axis in ("x", "y"):
+        text.append(f"[{axis}]")
+        for line in model.splitlines():
+            if line.startswith("[["):
+                line = f"[[{axis}." + line[2:]
+            elif line.startswith("["):
+                line = f"[{axis}." + line[1:]
+            text.append(line)
+    path.write_text("\n".join(text) + "\n")
+
+
+def test_a_file_of_several_axes_loads_whole(tmp_path):
+    out = tmp_path / "xy.toml"
+    _file_of_two_axes(out)
     with pf.Board("virtual:xy-built") as b:
         loaded = b.load(out)
         assert loaded["axes"] == 2 and len(loaded["tick"]) == 2
     with pf.Board("virtual") as one:
         with pytest.raises(pf.BoardError, match="2 axes"):
             one.load(out)
+        # Autotune of every axis wants a board of several.
+        with pytest.raises(Exception, match="2 axes"):
+            one.autotune(out, tmp_path / "never.toml", every_axis=True)

@@ -649,6 +649,8 @@ fn autotune_of_every_axis_writes_one_file_that_loads_whole() {
         "../firmware/model/stage-a.toml",
         "--trials",
         "0",
+        "--points",
+        "16",
         "--sensor-crosstalk",
         "0.002",
         "--out",
