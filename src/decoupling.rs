@@ -319,6 +319,17 @@ fn product<const N: usize>(rows: &[[i32; N]; N], x: [i32; N], frac: u32) -> [i32
     })
 }
 
+/// A part of a [`Decoupling`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Part {
+    /// The input matrix (the sensors' cross-talk).
+    Input,
+    /// The output matrix (the parasitic motion).
+    Output,
+    /// The preload coupling.
+    Preload,
+}
+
 /// The board's decoupling (configuration): sensors → axes, axes → stacks,
 /// and the stacks' preload coupling.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -338,6 +349,35 @@ impl<const N: usize> Decoupling<N> {
         output: Matrix::IDENTITY,
         preload: Preload::NONE,
     };
+
+    /// The decoupling of a stage whose first `n` axes couple so: each
+    /// position sensor reads `crosstalk` of every other axis's output (the
+    /// input matrix undoes it), axis `i` moves `parasitic[i][j]` µm per µm of
+    /// axis `j`'s own output (the output matrix undoes it: [`Matrix::undoing`]),
+    /// and stack `i` feels `preload[i][j]` N per µm of stack `j`'s extension.
+    /// Not on the tick (`f64`). Refused with the part the board would not
+    /// take and why.
+    pub fn of_coupling(
+        crosstalk: f64,
+        parasitic: [[f64; N]; N],
+        preload: [[f64; N]; N],
+        n: usize,
+    ) -> Result<Self, (Part, ModelError)> {
+        let talk = core::array::from_fn(|i| {
+            core::array::from_fn(|j| {
+                if i != j && i < n && j < n {
+                    crosstalk
+                } else {
+                    0.0
+                }
+            })
+        });
+        Ok(Self {
+            input: Matrix::undoing(talk).map_err(|e| (Part::Input, e))?,
+            output: Matrix::undoing(parasitic).map_err(|e| (Part::Output, e))?,
+            preload: Preload::from_f64(preload).map_err(|e| (Part::Preload, e))?,
+        })
+    }
 
     /// Every part's leading `K × K` block ([`Matrix::leading`],
     /// [`Preload::leading`]).

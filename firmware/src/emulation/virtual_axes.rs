@@ -11,7 +11,7 @@
 
 use embedded_storage::nor_flash::NorFlash;
 use heapless::Vec;
-use piezo_fpi::decoupling::{Decoupling, Matrix, Preload};
+use piezo_fpi::decoupling::Decoupling;
 use piezo_fpi::q::Micrometres;
 use piezo_sim::axes::{Axes, AxisSample, Coupling, MAX_AXES};
 
@@ -56,15 +56,13 @@ pub fn step<const N: usize>(stage: &mut Axes<'_, N>, links: &[&SimLink; N]) -> [
 /// board would refuse an entry.
 pub fn true_decoupling(c: &Coupling, n: usize) -> Option<Decoupling<MAX_AXES>> {
     let as64 = |m: [[f32; MAX_AXES]; MAX_AXES]| m.map(|r| r.map(f64::from));
-    let t = f64::from(c.sensor_crosstalk);
-    let talk = core::array::from_fn(|i| {
-        core::array::from_fn(|j| if i != j && i < n && j < n { t } else { 0.0 })
-    });
-    Some(Decoupling {
-        input: Matrix::undoing(talk).ok()?,
-        output: Matrix::undoing(as64(c.cross_um_per_um)).ok()?,
-        preload: Preload::from_f64(as64(c.preload_n_per_um)).ok()?,
-    })
+    Decoupling::of_coupling(
+        f64::from(c.sensor_crosstalk),
+        as64(c.cross_um_per_um),
+        as64(c.preload_n_per_um),
+        n,
+    )
+    .ok()
 }
 
 /// One period of an emulated board of `N` axes: a bench order refused

@@ -261,14 +261,16 @@ fn levels_around(
     let rate = c.rate_hz();
     let ticks = |t: f64| (t * rate).round() as u32;
     let window = ticks(s.window_s);
-    let moving = motion::move_seconds(from, to, s.speed_um_s);
+    // The window before, the move, its settling and the window after.
+    let span_s =
+        s.window_s + motion::move_seconds(from, to, s.speed_um_s) + s.settle_s + s.window_s;
     let cmd = super::commands::move_command(c.axis(), to, s.speed_um_s)?;
     let m = motion::record_every_axis(
         c,
         SIGNALS,
         "the coupling's measurement",
-        s.window_s + moving + s.settle_s + s.window_s,
-        Until::Seconds(s.window_s + moving + s.settle_s + s.window_s),
+        span_s,
+        Until::Seconds(span_s),
         |c, read| {
             let start = c.status()?.tick;
             while c.last_tick().unwrap_or(start) < start + window {
@@ -283,7 +285,7 @@ fn levels_around(
     }
     let moved_at = m.result;
     let rec = AxesRecording::split(&m.recording, n);
-    let end = m.start + ticks(s.window_s + moving + s.settle_s + s.window_s);
+    let end = m.start + ticks(span_s);
     let mean = |from: u32, to: u32| -> Result<Vec<Level>> {
         rec.axes
             .iter()

@@ -14,7 +14,7 @@ use std::format;
 use std::string::String;
 use std::vec::Vec;
 
-use piezo_fpi::decoupling::{Decoupling, Matrix, Preload, OFF_DIAGONAL_MAX, PRELOAD_MAX};
+use piezo_fpi::decoupling::{Decoupling, Part, OFF_DIAGONAL_MAX, PRELOAD_MAX};
 use serde::{Deserialize, Serialize};
 
 use super::FirmwareModel;
@@ -138,16 +138,13 @@ impl CouplingTable {
             n,
             PRELOAD_MAX,
         )?;
-        let talk: [[f64; MAX_AXES]; MAX_AXES] = core::array::from_fn(|i| {
-            core::array::from_fn(|j| if i != j && i < n && j < n { s } else { 0.0 })
-        });
-        let undone =
-            |key: &str, e: piezo_fpi::ModelError| format!("{key}: the board cannot undo it: {e}");
-        Ok(Decoupling {
-            input: Matrix::undoing(talk).map_err(|e| undone("coupling.sensor_crosstalk", e))?,
-            output: Matrix::undoing(parasitic).map_err(|e| undone("coupling.parasitic", e))?,
-            preload: Preload::from_f64(preload)
-                .map_err(|e| undone("coupling.preload_n_per_um", e))?,
+        Decoupling::of_coupling(s, parasitic, preload, n).map_err(|(part, e)| {
+            let key = match part {
+                Part::Input => "coupling.sensor_crosstalk",
+                Part::Output => "coupling.parasitic",
+                Part::Preload => "coupling.preload_n_per_um",
+            };
+            format!("{key}: the board cannot undo it: {e}")
         })
     }
 }
