@@ -127,20 +127,13 @@ impl Board {
         use fpi_host::board::axes;
         let tuned = self.run(py, |c| {
             let n = usize::from(c.hello().axes);
-            let models = match loaded {
-                Loadable::One(fw, _) => vec![*fw; n],
-                Loadable::Axes(f) => f.models().into_iter().cloned().collect(),
-            };
             axes::autotune(
                 c,
-                &models,
+                &loaded.every_axis(n),
                 design,
                 settings,
                 store,
-                &mut |f| {
-                    let text = f.to_toml().map_err(anyhow::Error::msg)?;
-                    fpi_host::output::write_atomic(out, text.as_bytes())
-                },
+                &mut |f| axes::write(f, out),
                 |_| {},
             )
         })?;
@@ -1111,16 +1104,9 @@ impl Board {
                 &out,
             );
         }
-        let fw = match loaded {
-            Loadable::One(fw, _) => *fw,
-            Loadable::Axes(f) => f
-                .models()
-                .get(usize::from(self.axis))
-                .map(|m| (*m).clone())
-                .ok_or_else(|| {
-                    BoardError::new_err("the file has no model of the addressed axis")
-                })?,
-        };
+        let fw = loaded
+            .of_axis(self.axis)
+            .ok_or_else(|| BoardError::new_err("the file has no model of the addressed axis"))?;
         fpi_host::method::tune::check_options(&fw, &design).map_err(design_error)?;
         let tuned = self.run(py, |c| {
             autotune::run_keeping(

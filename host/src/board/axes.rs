@@ -188,6 +188,12 @@ fn store_first(c: &mut Client, x: &FirmwareModel) -> Result<()> {
     Ok(())
 }
 
+/// Writes the file of several axes `file` to `out` (atomically).
+pub fn write(file: &AxesModel, out: &std::path::Path) -> Result<()> {
+    let text = file.to_toml().map_err(anyhow::Error::msg)?;
+    crate::output::write_atomic(out, text.as_bytes())
+}
+
 /// What autotune of every axis prints: each axis's table, then the
 /// coupling's.
 pub fn table(a: &AxesAutotune) -> String {

@@ -57,6 +57,26 @@ pub enum Loadable {
     Axes(Box<AxesModel>),
 }
 
+impl Loadable {
+    /// The model of each of `n` axes: the one model on every axis, or the
+    /// file's models in axis order.
+    pub fn every_axis(self, n: usize) -> Vec<FirmwareModel> {
+        match self {
+            Self::One(fw, _) => vec![*fw; n],
+            Self::Axes(f) => f.models().into_iter().cloned().collect(),
+        }
+    }
+
+    /// The model of `axis`: the one model, or the file's of that axis
+    /// (`None` where the file has none).
+    pub fn of_axis(self, axis: u8) -> Option<FirmwareModel> {
+        match self {
+            Self::One(fw, _) => Some(*fw),
+            Self::Axes(f) => f.models().get(usize::from(axis)).map(|m| (*m).clone()),
+        }
+    }
+}
+
 /// The model file `model` as a board takes it: a file of several axes
 /// (checked whole: [`AxesModel::parse`]), or one model ([`model_and_image`]).
 pub fn loadable(model: &Path, fem: Option<&Path>, o: &ExportOptions) -> Result<Loadable> {
@@ -1181,20 +1201,14 @@ pub fn autotune(c: &mut Client, a: &AutotuneArgs<'_>) -> Result<()> {
     if a.every_axis && n > 1 {
         return autotune_every_axis(c, a, file, n);
     }
-    let fw = match file {
-        Loadable::One(fw, _) => *fw,
-        Loadable::Axes(f) => f
-            .models()
-            .get(usize::from(c.axis()))
-            .map(|m| (*m).clone())
-            .ok_or_else(|| {
-                anyhow!(
-                    "{}: no model of axis {}",
-                    a.model.0.display(),
-                    axis_name(c.axis())
-                )
-            })?,
-    };
+    let axis = c.axis();
+    let fw = file.of_axis(axis).ok_or_else(|| {
+        anyhow!(
+            "{}: no model of axis {}",
+            a.model.0.display(),
+            axis_name(axis)
+        )
+    })?;
     // The model is written before it runs for good: if it cannot be, the board
     // is put back to the model it ran.
     let tuned = autotune::run_keeping(
@@ -1231,10 +1245,7 @@ fn autotune_every_axis(
              tunes every axis of the board)"
         );
     }
-    let models: Vec<FirmwareModel> = match file {
-        Loadable::One(fw, _) => vec![*fw; n],
-        Loadable::Axes(f) => f.models().into_iter().cloned().collect(),
-    };
+    let models = file.every_axis(n);
     let out = a.out.0;
     let tuned = crate::board::axes::autotune(
         c,
@@ -1242,10 +1253,7 @@ fn autotune_every_axis(
         &a.tune,
         (&a.settings, &a.coupling),
         a.store,
-        &mut |f| {
-            let text = f.to_toml().map_err(anyhow::Error::msg)?;
-            crate::output::write_atomic(out, text.as_bytes())
-        },
+        &mut |f| crate::board::axes::write(f, out),
         |m| eprintln!("{m}"),
     )?;
     println!(
